@@ -1,0 +1,1 @@
+//! Sim builder, Plugin trait, scenario config, headless and real-time runners.

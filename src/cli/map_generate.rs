@@ -1,0 +1,10 @@
+//! `smlworld` subcommand (not implemented yet).
+
+/// Arguments (not implemented yet).
+#[derive(Debug, clap::Args)]
+pub struct GenerateArgs {}
+
+/// Run the subcommand.
+pub fn main(_args: GenerateArgs) -> anyhow::Result<()> {
+    anyhow::bail!("this subcommand is not implemented yet")
+}

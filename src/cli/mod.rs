@@ -1,0 +1,61 @@
+//! Command-line interface: one file per subcommand, each a thin layer over the library.
+
+mod bench;
+mod map;
+mod map_generate;
+mod map_render;
+mod mock_mocap;
+mod run;
+mod view;
+
+use clap::{Parser, Subcommand};
+
+/// SML World: simulate autonomous and cooperative vehicles on lanelet maps drawn in JOSM.
+#[derive(Debug, Parser)]
+#[command(name = "smlworld", version, about, long_about = None)]
+pub struct Cli {
+    /// More log output (-v: debug, -vv: trace). RUST_LOG overrides it.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Inspect, route on, generate and render lanelet maps.
+    #[command(subcommand)]
+    Map(map::MapCommand),
+    /// Run a scenario (TOML) headless or in real time.
+    Run(run::RunArgs),
+    /// Benchmark the whole simulation with N vehicles; prints JSON.
+    Bench(bench::BenchArgs),
+    /// Live bird's-eye viewer for the UDP visualisation stream.
+    View(view::ViewArgs),
+    /// A mock Qualisys motion-capture server streaming scripted trajectories (for demos).
+    MockMocap(mock_mocap::MockMocapArgs),
+}
+
+/// Log to stderr; `RUST_LOG` wins over `-v`.
+pub fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+}
+
+/// Run one subcommand.
+pub fn dispatch(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Map(c) => map::main(c),
+        Command::Run(a) => run::main(a),
+        Command::Bench(a) => bench::main(a),
+        Command::View(a) => view::main(a),
+        Command::MockMocap(a) => mock_mocap::main(a),
+    }
+}

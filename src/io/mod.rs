@@ -1,0 +1,1 @@
+//! Bridges to the lab: UDP visualisation stream, motion capture input, real-truck output.

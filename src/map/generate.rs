@@ -1,0 +1,1 @@
+//! Parametric maps (ring highway, intersections, grid city) written as JOSM-compatible OSM XML.

@@ -1,0 +1,158 @@
+//! Lanelet map: lanelets with bounds in metres, centre lines, lengths, successors and all tags.
+
+use std::collections::BTreeMap;
+use std::path::Path as FsPath;
+
+use glam::DVec2;
+
+use super::error::{MapError, MapWarning};
+use super::osm::OsmDocument;
+use super::projection::Projector;
+
+mod build;
+
+/// Id of a lanelet: the id of its `type=lanelet` relation in the OSM file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
+pub struct LaneletId(pub i64);
+
+impl std::fmt::Display for LaneletId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// Tags of an OSM object, key -> value, in key order.
+pub type Tags = BTreeMap<String, String>;
+
+/// A node projected to local metres.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapNode {
+    /// OSM node id (negative for objects JOSM has not uploaded).
+    pub id: i64,
+    /// Latitude [deg].
+    pub lat: f64,
+    /// Longitude [deg].
+    pub lon: f64,
+    /// Local position [m], x east, y north, relative to the map origin.
+    pub position: DVec2,
+    /// All tags of the node.
+    pub tags: Tags,
+}
+
+/// A way (polyline) projected to local metres: lane markings, road borders, areas.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapWay {
+    /// OSM way id.
+    pub id: i64,
+    /// Node ids in drawn order.
+    pub nodes: Vec<i64>,
+    /// Node positions [m] in drawn order.
+    pub points: Vec<DVec2>,
+    /// All tags of the way (`line_type`, `region`, `type`, `subtype`, ...).
+    pub tags: Tags,
+}
+
+impl MapWay {
+    /// A closed way (first node = last node, at least 4 refs) describes an area.
+    pub fn is_closed(&self) -> bool {
+        self.nodes.len() >= 4 && self.nodes.first() == self.nodes.last()
+    }
+
+    /// The way's `line_type` tag, else its `region` tag (the SML maps use both for areas).
+    pub fn line_type(&self) -> Option<&str> {
+        self.tags
+            .get("line_type")
+            .or_else(|| self.tags.get("region"))
+            .map(String::as_str)
+    }
+}
+
+/// One lanelet: a drivable lane segment between a left and a right bound.
+///
+/// All geometry is in the driving direction: `left[k]` and `right[k]` are paired points (after
+/// resampling bounds with different node counts), `centre[k]` is their midpoint.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lanelet {
+    /// Relation id.
+    pub id: LaneletId,
+    /// Way id of the left bound.
+    pub left_way: i64,
+    /// Way id of the right bound.
+    pub right_way: i64,
+    /// Node ids of the left bound, in driving direction (as drawn, or reversed).
+    pub left_nodes: Vec<i64>,
+    /// Node ids of the right bound, in driving direction.
+    pub right_nodes: Vec<i64>,
+    /// Left bound [m], in driving direction, same length as `right` and `centre`.
+    pub left: Vec<DVec2>,
+    /// Right bound [m], in driving direction.
+    pub right: Vec<DVec2>,
+    /// Centre line [m]: midpoints of the paired bounds.
+    pub centre: Vec<DVec2>,
+    /// Length of the centre line [m].
+    pub length: f64,
+    /// Lanelets that follow this one in its driving direction.
+    pub successors: Vec<LaneletId>,
+    /// Whether a vehicle may drive here (Lanelet2 traffic rules: not a crosswalk, walkway, ...).
+    pub routable: bool,
+    /// `one_way=no`: vehicles may also drive it against its direction.
+    pub bidirectional: bool,
+    /// All tags of the relation (`type`, `subtype`, `truck_lane`, ...).
+    pub tags: Tags,
+}
+
+impl Lanelet {
+    /// Polygon of the lanelet: left bound followed by the reversed right bound.
+    pub fn polygon(&self) -> Vec<DVec2> {
+        self.left.iter().chain(self.right.iter().rev()).copied().collect()
+    }
+}
+
+/// A loaded lanelet map: everything the simulator, router and renderer need, in metres.
+#[derive(Debug, Clone)]
+pub struct LaneletMap {
+    /// Projection between lat/lon and local metres.
+    pub projector: Projector,
+    /// Id of the node tagged `origin=true`, if any (else the origin is the mean of all nodes).
+    pub origin_node: Option<i64>,
+    /// All nodes by id.
+    pub nodes: BTreeMap<i64, MapNode>,
+    /// All ways by id.
+    pub ways: BTreeMap<i64, MapWay>,
+    /// Lanelets, sorted by id.
+    pub lanelets: Vec<Lanelet>,
+    /// Node tag value -> ids of the nodes carrying it (`destination=left_lane_node` -> `left_lane_node`).
+    pub tag_index: BTreeMap<String, Vec<i64>>,
+    /// Recoverable problems found while loading.
+    pub warnings: Vec<MapWarning>,
+    index: BTreeMap<LaneletId, usize>,
+}
+
+impl LaneletMap {
+    /// Load a JOSM/OSM map (`.osm` or `.xml`).
+    pub fn load(path: &FsPath) -> Result<LaneletMap, MapError> {
+        let doc = super::osm::OsmDocument::load(path)?;
+        LaneletMap::from_osm(&doc)
+    }
+
+    /// Parse OSM XML text; `name` stands for the file in messages.
+    pub fn parse_str(text: &str, name: &FsPath) -> Result<LaneletMap, MapError> {
+        let doc = super::osm::parse_osm(text, name)?;
+        LaneletMap::from_osm(&doc)
+    }
+
+    /// Build the lanelet map from a raw OSM document.
+    pub fn from_osm(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
+        build::build(doc)
+    }
+
+    /// The lanelet with this id.
+    pub fn lanelet(&self, id: LaneletId) -> Option<&Lanelet> {
+        self.index.get(&id).map(|&i| &self.lanelets[i])
+    }
+
+    /// Index of the lanelet with this id in [`LaneletMap::lanelets`].
+    pub fn lanelet_index(&self, id: LaneletId) -> Option<usize> {
+        self.index.get(&id).copied()
+    }
+}

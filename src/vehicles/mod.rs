@@ -1,0 +1,1 @@
+//! Controllers (path following, cruise control, ACC, platooning) as plugins.

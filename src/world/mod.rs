@@ -1,0 +1,1 @@
+//! ECS data: vehicle components, resources, the vehicle registry and spawning.
