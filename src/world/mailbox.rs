@@ -84,6 +84,13 @@ impl Inbox {
         InboxIter { inbox: self, delivery: 0, k: 0 }
     }
 
+    /// The messages of rounds numbered above `round` only (what a controller that remembers the
+    /// last round it read has not seen yet).
+    pub fn iter_after(&self, round: u64) -> InboxIter<'_> {
+        let delivery = self.deliveries.partition_point(|d| d.round <= round);
+        InboxIter { inbox: self, delivery, k: 0 }
+    }
+
     /// Number of received messages.
     pub fn len(&self) -> usize {
         self.deliveries
