@@ -126,6 +126,7 @@ pub struct LaneletMap {
     /// Recoverable problems found while loading.
     pub warnings: Vec<MapWarning>,
     index: BTreeMap<LaneletId, usize>,
+    pub(crate) graph: super::routing::RoutingGraph,
 }
 
 impl LaneletMap {
