@@ -48,7 +48,7 @@ pub enum MapError {
     BadAttribute {
         /// Where.
         at: Location,
-        /// `node`, `way`, `relation`, `member`, `nd` or `tag`.
+        /// `node`, `way`, `relation` or `tag` (for `<nd>` and `<member>`: their way or relation).
         element: &'static str,
         /// Id of the element (or `?` when the id itself is bad).
         id: String,

@@ -41,6 +41,13 @@ pub(super) fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
     for w in doc.ways.values() {
         // osm::parse_osm has already checked that every node exists.
         let points = w.nodes.iter().map(|id| nodes[id].position).collect();
+        if let Some(t) = w.tags.get("line_type").filter(|t| !super::KNOWN_LINE_TYPES.contains(&t.as_str())) {
+            warn(
+                &mut warnings,
+                w.line,
+                format!("way {}: unknown line_type `{t}` (known: {}); drawn as an untagged way", w.id, super::KNOWN_LINE_TYPES.join(", ")),
+            );
+        }
         ways.insert(w.id, MapWay { id: w.id, nodes: w.nodes.clone(), points, tags: w.tags.clone() });
     }
 
