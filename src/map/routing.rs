@@ -20,6 +20,26 @@ impl Default for RouteOptions {
     }
 }
 
+/// Where a route starts or ends: a node id, or the value of a node tag
+/// (`destination=left_lane_node` is addressed as `left_lane_node`).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Place {
+    /// A node id.
+    Node(i64),
+    /// A node tag value.
+    Tag(String),
+}
+
+impl std::fmt::Display for Place {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Place::Node(id) => write!(f, "node {id}"),
+            Place::Tag(t) => write!(f, "tag `{t}`"),
+        }
+    }
+}
+
 /// A drivable path: the stitched centre lines of a lanelet sequence, resampled at equal spacing.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Path {
@@ -368,14 +388,31 @@ impl LaneletMap {
 
     /// Shortest route from `from_node` to `to_node` along the driving direction.
     pub fn route(&self, from_node: i64, to_node: i64, opts: &RouteOptions) -> Result<Path, MapError> {
-        self.route_between(&[from_node], &[to_node], format!("node {from_node}"), format!("node {to_node}"), opts)
+        self.route_places(&Place::Node(from_node), &Place::Node(to_node), opts)
     }
 
     /// Shortest route from any node tagged `from_tag` to any node tagged `to_tag` (tag values).
     pub fn route_tags(&self, from_tag: &str, to_tag: &str, opts: &RouteOptions) -> Result<Path, MapError> {
-        let from = self.nodes_with_tag(from_tag)?;
-        let to = self.nodes_with_tag(to_tag)?;
-        self.route_between(from, to, format!("tag `{from_tag}`"), format!("tag `{to_tag}`"), opts)
+        self.route_places(&Place::Tag(from_tag.into()), &Place::Tag(to_tag.into()), opts)
+    }
+
+    /// Shortest route between two places, each a node id or a node tag value.
+    pub fn route_places(&self, from: &Place, to: &Place, opts: &RouteOptions) -> Result<Path, MapError> {
+        self.route_between(&self.place_nodes(from)?, &self.place_nodes(to)?, from.to_string(), to.to_string(), opts)
+    }
+
+    /// Shortest closed loop through a place (a node id or a node tag value).
+    pub fn closed_loop_at(&self, place: &Place, opts: &RouteOptions) -> Result<Path, MapError> {
+        self.loop_through(&self.place_nodes(place)?, place.to_string(), opts)
+    }
+
+    /// The node ids a place stands for.
+    pub fn place_nodes(&self, place: &Place) -> Result<Vec<i64>, MapError> {
+        match place {
+            Place::Node(id) if self.nodes.contains_key(id) => Ok(vec![*id]),
+            Place::Node(id) => Err(MapError::UnknownNode(*id)),
+            Place::Tag(t) => Ok(self.nodes_with_tag(t)?.to_vec()),
+        }
     }
 
     fn route_between(
@@ -477,13 +514,12 @@ impl LaneletMap {
 
     /// Shortest closed loop through `node`: around and back to the lanelet it started on.
     pub fn closed_loop(&self, node: i64, opts: &RouteOptions) -> Result<Path, MapError> {
-        self.loop_through(&[node], format!("node {node}"), opts)
+        self.closed_loop_at(&Place::Node(node), opts)
     }
 
     /// Shortest closed loop through any node carrying the tag value `tag`.
     pub fn closed_loop_tag(&self, tag: &str, opts: &RouteOptions) -> Result<Path, MapError> {
-        let nodes = self.nodes_with_tag(tag)?;
-        self.loop_through(nodes, format!("tag `{tag}`"), opts)
+        self.closed_loop_at(&Place::Tag(tag.into()), opts)
     }
 
     fn loop_through(&self, nodes: &[i64], name: String, opts: &RouteOptions) -> Result<Path, MapError> {
