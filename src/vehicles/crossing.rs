@@ -1,0 +1,178 @@
+//! Intersection crossing negotiated over V2V: vehicles whose routes pass through a conflict zone
+//! (a disc around the junction) agree by wifi on who goes first, and the others stop before it.
+//!
+//! Every vehicle approaching or inside the zone broadcasts a [`CrossingClaim`] each control tick:
+//! its estimated time to reach the zone, whether it has taken the right to go, and whether it is
+//! inside. The rule, applied by every vehicle to the claims it hears, orders vehicles by
+//! (inside first, then holding the right to go, then earliest arrival, then lowest id); a
+//! vehicle takes the right to go when nobody ahead of it in that order claims the zone, and
+//! otherwise brakes to stop `stop_margin` before the zone. The rear of a vehicle leaving the
+//! zone ends its claim. Two vehicles that take the right in the same round settle it by
+//! (arrival, id) at the next round, long before either reaches the zone.
+
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Component, Query, Res};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+use glam::DVec2;
+
+use crate::app::{Plugin, SimBuilder};
+use crate::map::Path;
+use crate::sim::{Control, SimClock};
+use crate::world::{Channel, Mailbox, Route, VehicleId, VehicleSize, VehicleState};
+
+use super::PathFollower;
+use super::acc::control_acc;
+use super::cruise::control_cruise;
+use super::longitudinal::{Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
+use super::platoon::control_platoon;
+
+/// Parameters of intersection negotiation.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Crossing {
+    /// Centre of the conflict zone [m] (x, y); vehicles negotiate with claims of the same centre
+    /// (within 1 m).
+    pub center: [f64; 2],
+    /// Radius of the conflict zone [m]; it must cover every place where the routes cross.
+    pub radius: f64,
+    /// Distance kept before the zone when yielding [m].
+    pub stop_margin: f64,
+    /// Braking used to stop before the zone [m/s²] (positive).
+    pub deceleration: f64,
+    /// Acceleration assumed when estimating the arrival time [m/s²].
+    pub acceleration: f64,
+}
+
+impl Default for Crossing {
+    fn default() -> Self {
+        Crossing { center: [0.0, 0.0], radius: 10.0, stop_margin: 1.0, deceleration: 3.0, acceleration: 2.0 }
+    }
+}
+
+/// What a vehicle near the zone broadcasts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CrossingClaim {
+    /// Centre of the zone [m].
+    pub center: DVec2,
+    /// Whether its front is in the zone.
+    pub inside: bool,
+    /// Whether it holds the right to go.
+    pub going: bool,
+    /// Estimated time until its front reaches the zone [s] (0 inside).
+    pub eta: f64,
+}
+
+/// Priority order of claims: smaller goes first.
+fn rank(c: &CrossingClaim, id: VehicleId) -> (u8, u8, f64, VehicleId) {
+    (u8::from(!c.inside), u8::from(!c.going), c.eta, id)
+}
+
+/// Where `path` enters and leaves the disc (`center`, `radius`) first, as arc lengths [m].
+pub fn zone_span(path: &Path, center: DVec2, radius: f64) -> Option<(f64, f64)> {
+    let spacing = path.spacing();
+    let inside = |p: &DVec2| p.distance(center) <= radius;
+    let entry = path.points.iter().position(inside)?;
+    let exit = path.points[entry..].iter().position(|p| !inside(p)).map_or(path.points.len(), |k| entry + k);
+    Some((entry as f64 * spacing, exit as f64 * spacing))
+}
+
+/// Per-vehicle state of intersection negotiation.
+#[derive(Component, Debug, Clone, Copy, PartialEq)]
+#[require(Longitudinal)]
+pub struct CrossingNegotiator {
+    /// Parameters.
+    pub params: Crossing,
+    /// Whether it holds the right to go.
+    pub going: bool,
+    /// Whether it has left the zone (or its route never enters it).
+    pub passed: bool,
+    span: Option<(f64, f64)>,
+    measured: bool,
+}
+
+impl CrossingNegotiator {
+    /// Not yet at the zone.
+    pub fn new(params: Crossing) -> CrossingNegotiator {
+        CrossingNegotiator { params, going: false, passed: false, span: None, measured: false }
+    }
+}
+
+/// Negotiate and, when another vehicle goes first, limit the acceleration to stop before the zone.
+#[allow(clippy::type_complexity)]
+pub fn yield_at_crossings(
+    clock: Res<SimClock>,
+    mut vehicles: Query<(
+        &VehicleId,
+        &VehicleState,
+        &VehicleSize,
+        &Route,
+        &PathFollower,
+        &mut Mailbox,
+        &mut CrossingNegotiator,
+        &mut Longitudinal,
+    )>,
+) {
+    for (&id, state, size, route, follower, mut mailbox, mut neg, mut lon) in &mut vehicles {
+        let p = neg.params;
+        let center = DVec2::from_array(p.center);
+        if !neg.measured {
+            neg.measured = true;
+            neg.span = zone_span(&route.0, center, p.radius);
+            neg.passed = neg.span.is_none();
+        }
+        let Some((entry, exit)) = neg.span else { continue };
+        if neg.passed {
+            continue;
+        }
+        let front = follower.s + 0.5 * size.length;
+        if follower.s - 0.5 * size.length > exit {
+            neg.passed = true;
+            neg.going = false;
+            continue;
+        }
+        let v = state.speed().max(0.0);
+        let inside = front >= entry;
+        let to_zone = (entry - front).max(0.0);
+        let a = p.acceleration.max(1e-3);
+        let eta = if inside { 0.0 } else { ((v * v + 2.0 * a * to_zone).sqrt() - v) / a };
+        let stop_room = to_zone - p.stop_margin;
+        let can_stop = v * v <= 2.0 * p.deceleration * stop_room.max(0.0) + 0.5;
+        let mine = CrossingClaim { center, inside, going: neg.going, eta };
+        let blocked = !inside
+            && (can_stop || !neg.going)
+            && mailbox.wifi_in.iter().any(|m| {
+                m.sender != id
+                    && m.payload::<CrossingClaim>().is_some_and(|c| {
+                        c.center.distance(center) <= 1.0 && rank(c, m.sender) < rank(&mine, id)
+                    })
+            });
+        neg.going = !blocked;
+        if blocked {
+            let allowed = (2.0 * p.deceleration * stop_room.max(0.0)).sqrt();
+            lon.limit((allowed - v).max(-p.deceleration * 3.0));
+        }
+        let claim = CrossingClaim { center, inside, going: neg.going, eta };
+        mailbox.wifi_out.retain(|m| m.payload::<CrossingClaim>().is_none());
+        mailbox.send(Channel::Wifi, clock.now, Arc::new(claim));
+    }
+}
+
+/// Intersection negotiation in the [`Control`] schedule, after the speed controllers.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CrossingPlugin;
+
+impl Plugin for CrossingPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        install_longitudinal(sim);
+        sim.add_systems(
+            Control,
+            yield_at_crossings
+                .after(find_leaders)
+                .after(control_cruise)
+                .after(control_acc)
+                .after(control_platoon)
+                .before(actuate_longitudinal),
+        );
+    }
+}
