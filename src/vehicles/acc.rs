@@ -4,7 +4,8 @@
 //! Constant-time-gap law: with gap d, own speed v, leader speed v_l and desired gap
 //! d* = d₀ + h·v, the acceleration is a = k_p (d − d*) + k_d (v_l − v) + a_ff, capped by the
 //! free-road cruise law k_v (v_route − v) and by a braking bound −(v − v_l)² / (2 (d − d₀/2))
-//! that stops the closing before the gap shrinks below half the standstill distance. In steady
+//! that stops the closing before the gap shrinks below half the standstill distance (once that
+//! needs more than [`BRAKING_BOUND_FROM`]). In steady
 //! state behind a constant-speed leader, d = d₀ + h·v exactly. Radar-only ACC is string stable
 //! when 2·k_d·h + k_p·h² ≥ 2 (the default gains at 1.5 s: 2.55); at h = 0.5 s it is not
 //! (0.76), which is why platoons use V2V feed-forward ([`crate::vehicles::platoon`]).
@@ -17,6 +18,10 @@ use crate::sim::Control;
 use crate::world::VehicleState;
 
 use super::longitudinal::{LeaderGap, Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
+
+/// The braking bound acts once stopping the closing in time needs at least this [m/s²]; below,
+/// the gap law alone handles it (a weaker bound would cap gentle catching up).
+pub const BRAKING_BOUND_FROM: f64 = 1.0;
 
 /// Parameters of adaptive cruise control.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -70,7 +75,10 @@ impl AdaptiveCruise {
             let closing = v - l.speed;
             if closing > 0.0 {
                 let room = (l.gap - 0.5 * self.standstill).max(0.05);
-                a = a.min(-closing * closing / (2.0 * room));
+                let needed = closing * closing / (2.0 * room);
+                if needed >= BRAKING_BOUND_FROM {
+                    a = a.min(-needed);
+                }
             }
         }
         a.clamp(-self.max_deceleration, self.max_acceleration)

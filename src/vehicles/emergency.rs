@@ -2,7 +2,8 @@
 //! route drops below a threshold, whatever the speed controllers asked for.
 //!
 //! Time to collision = gap / closing speed (only while closing). Once triggered, braking holds
-//! until the vehicle no longer closes in (or has stopped), so it does not chatter on and off.
+//! (also at standstill) until the vehicle ahead pulls away or is gone, so it neither chatters
+//! on and off nor creeps up to a stopped vehicle.
 
 use bevy_ecs::prelude::{Component, Query};
 use bevy_ecs::schedule::IntoScheduleConfigs;
@@ -75,7 +76,7 @@ pub fn brake_for_emergencies(mut vehicles: Query<(&VehicleState, &mut EmergencyB
         if !brake.active && ttc < brake.params.ttc {
             brake.active = true;
             brake.triggered += 1;
-        } else if brake.active && (closing <= 0.0 || v <= 0.0) {
+        } else if brake.active && (lon.leader.is_none() || closing < 0.0) {
             brake.active = false;
         }
         lon.emergency = brake.active;
