@@ -33,6 +33,7 @@
 //! controller at time t sees sensor readings and messages of time t, and its command drives the
 //! dynamics step that starts at t.
 
+pub mod bench;
 mod output;
 mod runner;
 pub mod scenario;
