@@ -33,7 +33,9 @@
 //! controller at time t sees sensor readings and messages of time t, and its command drives the
 //! dynamics step that starts at t.
 
+pub mod bench;
 pub mod metrics;
+mod output;
 mod runner;
 pub mod scenario;
 
@@ -47,7 +49,9 @@ use crate::sim::{
 };
 use crate::world::{SimTime, VehicleId, VehicleSpec, VehicleState, Vehicles, WorldError, spawn_vehicle};
 
+pub use output::{Log, MessagesDelivered, RunSummary, TrajectoryLog, TrajectoryLogPlugin, log_trajectories};
 pub use runner::{RealtimeRunner, RunReport, run_headless};
+pub use scenario::{Scenario, ScenarioError};
 
 /// A feature of the simulation: adds resources, modules and systems to a [`SimBuilder`].
 /// A plain `fn(&mut SimBuilder)` is a plugin too.
