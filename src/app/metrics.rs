@@ -45,10 +45,10 @@ pub struct FollowerStats {
     pub leader: VehicleId,
     /// Smallest bumper-to-bumper gap [m].
     pub min_gap: f64,
-    /// Smallest time gap [s] (samples above 1 m/s).
-    pub min_time_gap: f64,
+    /// Smallest time gap [s] (samples above 1 m/s; none if it never moved that fast).
+    pub min_time_gap: Option<f64>,
     /// Mean time gap [s] (samples above 1 m/s).
-    pub mean_time_gap: f64,
+    pub mean_time_gap: Option<f64>,
     /// Root mean square of leader speed − own speed [m/s].
     pub speed_error_rms: f64,
     /// Number of samples.
@@ -283,8 +283,8 @@ pub fn record_metrics(
             id,
             leader: l.id,
             min_gap: f64::INFINITY,
-            min_time_gap: f64::INFINITY,
-            mean_time_gap: f64::NAN,
+            min_time_gap: None,
+            mean_time_gap: None,
             speed_error_rms: 0.0,
             samples: 0,
             time_gap_sum: 0.0,
@@ -296,10 +296,10 @@ pub fn record_metrics(
         stats.min_gap = stats.min_gap.min(gap);
         if v > 1.0 {
             let time_gap = gap / v;
-            stats.min_time_gap = stats.min_time_gap.min(time_gap);
+            stats.min_time_gap = Some(stats.min_time_gap.map_or(time_gap, |t| t.min(time_gap)));
             stats.time_gap_sum += time_gap;
             stats.time_gap_samples += 1;
-            stats.mean_time_gap = stats.time_gap_sum / stats.time_gap_samples as f64;
+            stats.mean_time_gap = Some(stats.time_gap_sum / stats.time_gap_samples as f64);
         }
         stats.speed_error_sq += error * error;
         stats.speed_error_rms = (stats.speed_error_sq / stats.samples as f64).sqrt();

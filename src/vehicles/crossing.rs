@@ -4,10 +4,12 @@
 //! Every vehicle approaching or inside the zone broadcasts a [`CrossingClaim`] each control tick:
 //! its estimated time to reach the zone, whether it has taken the right to go, and whether it is
 //! inside. The rule, applied by every vehicle to the claims it hears, orders vehicles by
-//! (inside first, then holding the right to go, then earliest arrival, then lowest id); a
+//! (inside first, then holding the right and unable to stop, then holding the right to go,
+//! then earliest arrival, then lowest id); a
 //! vehicle takes the right to go when nobody ahead of it in that order claims the zone, and
 //! otherwise brakes to stop `stop_margin` before the zone. The rear of a vehicle leaving the
-//! zone ends its claim. Two vehicles that take the right in the same round settle it by
+//! zone ends its claim. A platoon follower takes the right as soon as the member ahead of it
+//! holds it, so a platoon crosses (or merges) as one. Two vehicles that take the right in the same round settle it by
 //! (arrival, id) at the next round, long before either reaches the zone.
 
 use std::sync::Arc;
@@ -25,7 +27,7 @@ use super::PathFollower;
 use super::acc::control_acc;
 use super::cruise::control_cruise;
 use super::longitudinal::{Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
-use super::platoon::control_platoon;
+use super::platoon::{PlatoonMember, control_platoon};
 
 /// Parameters of intersection negotiation.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -59,13 +61,30 @@ pub struct CrossingClaim {
     pub inside: bool,
     /// Whether it holds the right to go.
     pub going: bool,
+    /// Whether it holds the right and can no longer stop before the zone.
+    pub committed: bool,
     /// Estimated time until its front reaches the zone [s] (0 inside).
     pub eta: f64,
 }
 
 /// Priority order of claims: smaller goes first.
-fn rank(c: &CrossingClaim, id: VehicleId) -> (u8, u8, f64, VehicleId) {
-    (u8::from(!c.inside), u8::from(!c.going), c.eta, id)
+fn rank(c: &CrossingClaim, id: VehicleId) -> (u8, u8, u8, f64, VehicleId) {
+    (u8::from(!c.inside), u8::from(!c.committed), u8::from(!c.going), c.eta, id)
+}
+
+/// Acceleration [m/s²] that stops a vehicle at speed `v` [m/s] within `room` [m]: the
+/// deceleration needed once it exceeds half of `deceleration` [m/s²], else a gentle approach
+/// along the profile √(2·deceleration·room); full braking (3 × `deceleration`) with no room left.
+pub fn stop_before(v: f64, room: f64, deceleration: f64) -> f64 {
+    if room <= 0.1 {
+        return if v > 0.0 { -3.0 * deceleration } else { 0.0 };
+    }
+    let needed = v * v / (2.0 * room);
+    if needed >= 0.5 * deceleration {
+        -needed
+    } else {
+        ((2.0 * deceleration * room).sqrt() - v).min(1.0)
+    }
 }
 
 /// Where `path` enters and leaves the disc (`center`, `radius`) first, as arc lengths [m].
@@ -111,9 +130,10 @@ pub fn yield_at_crossings(
         &mut Mailbox,
         &mut CrossingNegotiator,
         &mut Longitudinal,
+        Option<&PlatoonMember>,
     )>,
 ) {
-    for (&id, state, size, route, follower, mut mailbox, mut neg, mut lon) in &mut vehicles {
+    for (&id, state, size, route, follower, mut mailbox, mut neg, mut lon, member) in &mut vehicles {
         let p = neg.params;
         let center = DVec2::from_array(p.center);
         if !neg.measured {
@@ -138,8 +158,17 @@ pub fn yield_at_crossings(
         let eta = if inside { 0.0 } else { ((v * v + 2.0 * a * to_zone).sqrt() - v) / a };
         let stop_room = to_zone - p.stop_margin;
         let can_stop = v * v <= 2.0 * p.deceleration * stop_room.max(0.0) + 0.5;
-        let mine = CrossingClaim { center, inside, going: neg.going, eta };
+        let mine = CrossingClaim { center, inside, going: neg.going, committed: neg.going && !can_stop, eta };
+        // A platoon follower crosses right behind the member ahead of it when that one goes.
+        let ahead = member.filter(|m| m.is_follower()).and(lon.leader).map(|l| l.id);
+        let platoon_goes = ahead.is_some_and(|ahead| {
+            mailbox.wifi_in.iter().any(|m| {
+                m.sender == ahead
+                    && m.payload::<CrossingClaim>().is_some_and(|c| c.center.distance(center) <= 1.0 && (c.going || c.inside))
+            })
+        });
         let blocked = !inside
+            && !platoon_goes
             && (can_stop || !neg.going)
             && mailbox.wifi_in.iter().any(|m| {
                 m.sender != id
@@ -149,10 +178,9 @@ pub fn yield_at_crossings(
             });
         neg.going = !blocked;
         if blocked {
-            let allowed = (2.0 * p.deceleration * stop_room.max(0.0)).sqrt();
-            lon.limit((allowed - v).max(-p.deceleration * 3.0));
+            lon.limit(stop_before(v, stop_room, p.deceleration));
         }
-        let claim = CrossingClaim { center, inside, going: neg.going, eta };
+        let claim = CrossingClaim { center, inside, going: neg.going, committed: neg.going && !can_stop, eta };
         mailbox.wifi_out.retain(|m| m.payload::<CrossingClaim>().is_none());
         mailbox.send(Channel::Wifi, clock.now, Arc::new(claim));
     }

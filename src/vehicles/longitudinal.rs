@@ -9,7 +9,8 @@
 //! 3. limiters ([`crate::vehicles::yield_at_crossings`], then
 //!    [`crate::vehicles::brake_for_emergencies`]) may only lower it;
 //! 4. [`actuate_longitudinal`] turns it into a throttle (acceleration model) or a speed command
-//!    (kinematic model). A vehicle nobody asked anything of keeps the path follower's command.
+//!    (kinematic model), never exceeding the route's target speed. A vehicle nobody asked
+//!    anything of keeps the path follower's command.
 
 use bevy_ecs::prelude::{Component, Query, Res, Resource};
 use bevy_ecs::schedule::IntoScheduleConfigs;
@@ -142,8 +143,14 @@ pub fn find_leaders(
     }
 }
 
+/// Gain [1/s] that brings a vehicle faster than its route's target speed back down to it.
+pub const ROUTE_SPEED_GAIN: f64 = 2.0;
+
 /// Turn the agreed acceleration into the model's command: throttle = m·a + c·v for the
 /// acceleration model (so v̇ = a at the current speed), speed = v + a·dt for the kinematic one.
+/// Above the route's target speed ([`Longitudinal::route_speed`]: the path follower's cruise
+/// speed, lowered to stop at the end of an open route) the acceleration is capped at
+/// [`ROUTE_SPEED_GAIN`] · (route speed − v), so vehicles stop where their route ends.
 pub fn actuate_longitudinal(
     clock: Res<SimClock>,
     mut vehicles: Query<(
@@ -159,11 +166,13 @@ pub fn actuate_longitudinal(
             continue;
         }
         let v = state.speed().max(0.0);
+        // Never faster than the route's target speed (it stops at the end of an open route).
+        let accel = if v > lon.route_speed { lon.accel.min(ROUTE_SPEED_GAIN * (lon.route_speed - v)) } else { lon.accel };
         if let Some(m) = acceleration {
-            command.throttle = m.mass * lon.accel + m.drag * v;
+            command.throttle = m.mass * accel + m.drag * v;
         }
         if kinematic.is_some() || acceleration.is_none() {
-            command.speed = (v + lon.accel * clock.dt).max(0.0);
+            command.speed = (v + accel * clock.dt).max(0.0);
         } else {
             command.speed = v;
         }
