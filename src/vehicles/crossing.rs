@@ -3,9 +3,9 @@
 //!
 //! Every vehicle approaching or inside the zone broadcasts a [`CrossingClaim`] each control tick:
 //! its estimated time to reach the zone, whether it has taken the right to go, and whether it is
-//! inside. The rule, applied by every vehicle to the claims it hears, orders vehicles by
-//! (inside first, then holding the right and unable to stop, then holding the right to go,
-//! then earliest arrival, then lowest id); a
+//! inside. The rule ([`goes_first`]), applied by every vehicle to the claims it hears (their
+//! arrival times aged to now), orders vehicles by (inside first, then holding the right and
+//! unable to stop, then holding the right to go, then earliest arrival, then lowest id); a
 //! vehicle takes the right to go when nobody ahead of it in that order claims the zone, and
 //! otherwise brakes to stop `stop_margin` before the zone. The rear of a vehicle leaving the
 //! zone ends its claim. A platoon follower takes the right as soon as the member ahead of it
@@ -67,9 +67,21 @@ pub struct CrossingClaim {
     pub eta: f64,
 }
 
-/// Priority order of claims: smaller goes first.
-fn rank(c: &CrossingClaim, id: VehicleId) -> (u8, u8, u8, f64, VehicleId) {
-    (u8::from(!c.inside), u8::from(!c.committed), u8::from(!c.going), c.eta, id)
+/// Arrival times closer than this [s] count as a tie, settled by id, so that two vehicles
+/// with slightly different estimates of each other never both think they are first.
+pub const ETA_TIE: f64 = 0.3;
+
+/// Whether claim `a` (of vehicle `a_id`) goes before claim `b` (of `b_id`): inside first, then
+/// holding the right and unable to stop, then holding the right, then earlier arrival (beyond
+/// [`ETA_TIE`]), then lower id.
+pub fn goes_first(a: &CrossingClaim, a_id: VehicleId, b: &CrossingClaim, b_id: VehicleId) -> bool {
+    let class = |c: &CrossingClaim| (u8::from(!c.inside), u8::from(!c.committed), u8::from(!c.going));
+    match class(a).cmp(&class(b)) {
+        std::cmp::Ordering::Less => true,
+        std::cmp::Ordering::Greater => false,
+        std::cmp::Ordering::Equal if (a.eta - b.eta).abs() > ETA_TIE => a.eta < b.eta,
+        std::cmp::Ordering::Equal => a_id < b_id,
+    }
 }
 
 /// Acceleration [m/s²] that stops a vehicle at speed `v` [m/s] within `room` [m]: the
@@ -173,7 +185,10 @@ pub fn yield_at_crossings(
             && mailbox.wifi_in.iter().any(|m| {
                 m.sender != id
                     && m.payload::<CrossingClaim>().is_some_and(|c| {
-                        c.center.distance(center) <= 1.0 && rank(c, m.sender) < rank(&mine, id)
+                        // Their estimate is as old as the message: bring it to now.
+                        let age = clock.now.as_secs() - m.sent_at.as_secs();
+                        let theirs = CrossingClaim { eta: (c.eta - age).max(0.0), ..*c };
+                        c.center.distance(center) <= 1.0 && goes_first(&theirs, m.sender, &mine, id)
                     })
             });
         neg.going = !blocked;

@@ -27,7 +27,9 @@ pub mod platoon;
 pub mod setup;
 
 pub use acc::{AccController, AccPlugin, AdaptiveCruise, control_acc};
-pub use crossing::{Crossing, CrossingClaim, CrossingNegotiator, CrossingPlugin, yield_at_crossings, zone_span};
+pub use crossing::{
+    Crossing, CrossingClaim, CrossingNegotiator, CrossingPlugin, goes_first, stop_before, yield_at_crossings, zone_span,
+};
 pub use cruise::{CruiseControl, CruiseController, CruisePlugin, SpeedDip, control_cruise};
 pub use emergency::{EmergencyBrake, EmergencyBraking, EmergencyBrakingPlugin, brake_for_emergencies, time_to_collision};
 pub use longitudinal::{LeaderGap, Longitudinal, actuate_longitudinal, find_leaders, leader_on_path};
