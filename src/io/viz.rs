@@ -33,9 +33,11 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+
+use super::lock;
 
 /// Default destination of the stream: loopback, port 38008 (the 2015 port).
 pub const DEFAULT_VIZ_ADDR: SocketAddr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 38008));
@@ -668,11 +670,6 @@ impl Drop for VizReceiver {
             let _ = t.join();
         }
     }
-}
-
-/// Lock a mutex, recovering the data if a thread panicked while holding it.
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 fn receive_loop(socket: &UdpSocket, shared: &(Mutex<Shared>, Condvar), stop: &AtomicBool) {
