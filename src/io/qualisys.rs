@@ -634,10 +634,11 @@ impl Session<'_> {
                     next_poll = now + period;
                 }
             }
-            self.read_some(&mut stream)?;
+            // Packets already buffered first: an EOF must not hide them.
             while let Some(p) = self.decoder.next_packet() {
                 self.handle(p)?;
             }
+            self.read_some(&mut stream)?;
         }
         Ok(())
     }
@@ -664,7 +665,6 @@ impl Session<'_> {
             .map_err(|source| QtmError::Io { what: format!("send `{text}`"), source })?;
         let deadline = Instant::now() + self.config.handshake_timeout;
         while Instant::now() < deadline && !self.stop.load(Ordering::Relaxed) {
-            self.read_some(stream)?;
             while let Some(p) = self.decoder.next_packet() {
                 let p = match p {
                     Ok(p) => p,
@@ -692,6 +692,7 @@ impl Session<'_> {
                     _ => {}
                 }
             }
+            self.read_some(stream)?;
         }
         Err(QtmError::Handshake(format!("no reply to `{text}` within {:?}", self.config.handshake_timeout)))
     }
