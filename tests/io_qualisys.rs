@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use glam::DVec2;
-use smlworld::io::mock_mocap::{MockMocapConfig, MockMocapServer, MocapScript};
+use smlworld::io::mock_mocap::{MocapScript, MockMocapConfig, MockMocapServer};
 use smlworld::io::qualisys::{
     BodyMapping, DataFrame, PacketDecoder, PacketType, QtmClient, QtmClientConfig, QtmError, Tracker, TrackerConfig,
     encode_command, parse_data,
@@ -95,7 +95,10 @@ fn decoder_splits_a_stream_fed_byte_by_byte() {
             got.push(p.expect("valid packet"));
         }
     }
-    assert_eq!(got.iter().map(|p| p.kind).collect::<Vec<_>>(), [PacketType::Command, PacketType::Data, PacketType::NoMoreData]);
+    assert_eq!(
+        got.iter().map(|p| p.kind).collect::<Vec<_>>(),
+        [PacketType::Command, PacketType::Data, PacketType::NoMoreData]
+    );
     assert_eq!(got[0].text(), "QTM RT Interface connected");
     assert_eq!(got[1].payload.len(), 16 + 16 + 24);
     assert_eq!(d.buffered(), 0);
@@ -289,12 +292,8 @@ fn client_handshake_and_polling_against_a_hand_written_server() {
         }
         seen
     });
-    let config = QtmClientConfig {
-        addr,
-        poll_rate_hz: 20.0,
-        password: Some("secret".into()),
-        ..QtmClientConfig::default()
-    };
+    let config =
+        QtmClientConfig { addr, poll_rate_hz: 20.0, password: Some("secret".into()), ..QtmClientConfig::default() };
     let client = QtmClient::spawn(config).expect("client");
     let f = client.next_timeout(Duration::from_secs(5)).expect("a frame");
     assert_eq!(f.frame.bodies.len(), 1);
@@ -337,12 +336,9 @@ fn handshake_refused_version_makes_the_client_retry() {
 
 #[test]
 fn client_tracks_mock_bodies_driving_circles() {
-    let server = MockMocapServer::start(MockMocapConfig {
-        bind: loopback0(),
-        rate_hz: 100.0,
-        script: MocapScript::circles(2),
-    })
-    .expect("mock server");
+    let server =
+        MockMocapServer::start(MockMocapConfig { bind: loopback0(), rate_hz: 100.0, script: MocapScript::circles(2) })
+            .expect("mock server");
     let client = QtmClient::spawn(QtmClientConfig {
         addr: server.local_addr(),
         poll_rate_hz: 50.0,
@@ -381,8 +377,9 @@ fn a_body_hidden_by_the_script_becomes_stale_but_stays() {
     let script = MocapScript::from_csv(csv, "<test>").expect("script");
     assert_eq!(script.body_count(), 2);
     let server = MockMocapServer::start(MockMocapConfig { bind: loopback0(), rate_hz: 100.0, script }).expect("mock");
-    let client = QtmClient::spawn(QtmClientConfig { addr: server.local_addr(), poll_rate_hz: 50.0, ..Default::default() })
-        .expect("client");
+    let client =
+        QtmClient::spawn(QtmClientConfig { addr: server.local_addr(), poll_rate_hz: 50.0, ..Default::default() })
+            .expect("client");
     let mut tracker = Tracker::new(TrackerConfig { stale_after: Duration::from_millis(300), ..Default::default() });
     let deadline = Instant::now() + Duration::from_secs(10);
     let mut seen_fresh = false;

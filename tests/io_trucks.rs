@@ -161,8 +161,14 @@ fn bad_ids_and_settings_are_errors() {
     assert!(matches!(TruckServer::start(&config(), &[2, 2]), Err(TruckError::DuplicateId(2))));
     let high = TruckServerConfig { base_port: 65535, ..config() };
     assert!(matches!(TruckServer::start(&high, &[1]), Err(TruckError::BadId { id: 1, base: 65535 })));
-    assert!(matches!(TruckServer::start(&TruckServerConfig { rate_hz: 0.0, ..config() }, &[1]), Err(TruckError::Config(_))));
-    assert!(matches!(TruckServer::start(&TruckServerConfig { scale: -1.0, ..config() }, &[1]), Err(TruckError::Config(_))));
+    assert!(matches!(
+        TruckServer::start(&TruckServerConfig { rate_hz: 0.0, ..config() }, &[1]),
+        Err(TruckError::Config(_))
+    ));
+    assert!(matches!(
+        TruckServer::start(&TruckServerConfig { scale: -1.0, ..config() }, &[1]),
+        Err(TruckError::Config(_))
+    ));
     let server = TruckServer::start(&config(), &[4]).expect("start");
     assert!(matches!(server.publish(9, TruckState::default()), Err(TruckError::UnknownId(9))));
     assert_eq!(server.ids().collect::<Vec<_>>(), [4]);

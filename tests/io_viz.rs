@@ -69,7 +69,7 @@ fn vehicle(i: usize) -> VizVehicle {
         x: i as f64 * 1.5,
         y: -(i as f64) * 0.25,
         yaw_deg: (i % 360) as f64 - 180.0,
-        class_name: if i % 2 == 0 { "Truck".into() } else { "Car".into() },
+        class_name: if i.is_multiple_of(2) { "Truck".into() } else { "Car".into() },
     }
 }
 
@@ -78,7 +78,7 @@ fn check_old_record(rec: &OldRecord, i: usize) {
     assert!((num(rec, "x") - i as f64 * 1.5).abs() < 1e-3, "x of vehicle {i}: {rec:?}");
     assert!((num(rec, "y") + i as f64 * 0.25).abs() < 1e-3, "y of vehicle {i}: {rec:?}");
     assert!((num(rec, "yaw") - ((i % 360) as f64 - 180.0)).abs() < 1e-2, "yaw of vehicle {i}: {rec:?}");
-    assert_eq!(rec["class_name"], if i % 2 == 0 { "Truck" } else { "Car" });
+    assert_eq!(rec["class_name"], if i.is_multiple_of(2) { "Truck" } else { "Car" });
 }
 
 #[test]

@@ -5,7 +5,7 @@ use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::path::PathBuf;
 
 use anyhow::Context as _;
-use smlworld::io::mock_mocap::{DEFAULT_MOCK_RATE_HZ, MockMocapConfig, MockMocapServer, MocapScript};
+use smlworld::io::mock_mocap::{DEFAULT_MOCK_RATE_HZ, MocapScript, MockMocapConfig, MockMocapServer};
 use smlworld::io::qualisys::DEFAULT_QTM_PORT;
 
 /// Arguments of `smlworld mock-mocap`.
@@ -39,9 +39,14 @@ pub fn main(args: MockMocapArgs) -> anyhow::Result<()> {
     };
     let server = MockMocapServer::start(config)?;
     let mut out = std::io::stdout().lock();
-    writeln!(out, "mock Qualisys server listening on {} ({bodies} bodies, {} Hz); Ctrl-C stops it", server.local_addr(), args.rate)
-        .and_then(|()| out.flush())
-        .context("writing to stdout")?;
+    writeln!(
+        out,
+        "mock Qualisys server listening on {} ({bodies} bodies, {} Hz); Ctrl-C stops it",
+        server.local_addr(),
+        args.rate
+    )
+    .and_then(|()| out.flush())
+    .context("writing to stdout")?;
     drop(out);
     loop {
         std::thread::park();

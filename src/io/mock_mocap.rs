@@ -20,8 +20,8 @@ use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, TcpListener, TcpStream};
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -292,13 +292,11 @@ fn accept_loop(listener: &TcpListener, world: &Arc<MockWorld>, stop: &Arc<Atomic
                 connections.fetch_add(1, Ordering::Relaxed);
                 tracing::info!("mock motion capture: client {peer} connected");
                 let (world, stop) = (world.clone(), stop.clone());
-                let spawned = std::thread::Builder::new()
-                    .name("mock-mocap-client".into())
-                    .spawn(move || {
-                        if let Err(e) = serve_client(stream, &world, &stop) {
-                            tracing::info!("mock motion capture: client {peer}: {e}");
-                        }
-                    });
+                let spawned = std::thread::Builder::new().name("mock-mocap-client".into()).spawn(move || {
+                    if let Err(e) = serve_client(stream, &world, &stop) {
+                        tracing::info!("mock motion capture: client {peer}: {e}");
+                    }
+                });
                 match spawned {
                     Ok(h) => clients.push(h),
                     Err(e) => tracing::warn!("mock motion capture: cannot spawn a client thread: {e}"),

@@ -8,10 +8,10 @@
 //! - [`mock_mocap`]: a mock Qualisys server streaming scripted trajectories;
 //! - [`trucks`]: one TCP server per real truck sending the 2015 status line at 20 Hz.
 
-pub mod viz;
 pub mod mock_mocap;
 pub mod qualisys;
 pub mod trucks;
+pub mod viz;
 
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};

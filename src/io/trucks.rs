@@ -92,7 +92,9 @@ pub fn format_truck_line(out: &mut String, id: i32, s: &TruckState, scale: f64) 
 #[derive(Debug, thiserror::Error)]
 pub enum TruckError {
     /// An id that cannot have a port (negative: virtual, or base + id > 65535).
-    #[error("vehicle {id}: no truck port (base {base} + id must be in 1..=65535 and id >= 0; real vehicles have ids >= 0)")]
+    #[error(
+        "vehicle {id}: no truck port (base {base} + id must be in 1..=65535 and id >= 0; real vehicles have ids >= 0)"
+    )]
     BadId {
         /// The id.
         id: i32,

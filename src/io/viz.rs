@@ -463,11 +463,8 @@ impl VizReassembler {
                 if other.is_some() {
                     self.stats.incomplete += 1;
                 }
-                self.pending = Some(Pending {
-                    counter: d.counter,
-                    parts: vec![None; part.count as usize],
-                    missing: part.count,
-                });
+                self.pending =
+                    Some(Pending { counter: d.counter, parts: vec![None; part.count as usize], missing: part.count });
             }
         }
         let pending = self.pending.as_mut()?;
