@@ -244,6 +244,12 @@ fn tracker_scales_estimates_velocity_and_marks_lost_bodies_stale() {
     let b1 = t.get(1).expect("body 1");
     assert!(!b1.stale);
     assert_eq!(b1.velocity, DVec2::ZERO);
+    // QTM restarted its measurement: timestamps start again from zero; the body still moves.
+    t.update(&frame(40_000, 1, &[NAN6, [0.0, 1000.0, 0.0, 0.0, 0.0, 0.0]]), t0 + Duration::from_millis(1100));
+    let b1 = t.get(1).expect("body 1");
+    assert!((b1.position - DVec2::new(0.0, 32.0)).length() < 1e-9);
+    assert_eq!(b1.velocity, DVec2::ZERO);
+    assert_eq!(b1.frame, 1);
 }
 
 #[test]

@@ -203,6 +203,13 @@ fn split_parts_share_a_counter_and_are_not_stale_to_a_new_receiver() {
     assert_eq!(f.counter, 12);
     assert_eq!(r.stats().incomplete, 1);
     assert_eq!(r.stats().stale, 3);
+    // A plain datagram older than a frame being assembled is stale too.
+    assert!(r.push_bytes(part(20, 0, 0, 2).as_bytes()).is_none());
+    assert!(r.push_bytes(format!("19#{}", rec(5)).as_bytes()).is_none());
+    assert_eq!(r.stats().stale, 4);
+    let f = r.push_bytes(format!("21#{}", rec(5)).as_bytes()).expect("a newer plain frame");
+    assert_eq!(f.counter, 21);
+    assert_eq!(r.stats().incomplete, 2, "frame 20 abandoned");
 }
 
 #[test]

@@ -818,8 +818,9 @@ impl Tracker {
         Self { config, bodies: BTreeMap::new() }
     }
 
-    /// Take one frame received at `received_at`. Samples not newer than a body's last one
-    /// (duplicate polls of the same frame) are ignored.
+    /// Take one frame received at `received_at`. A sample with the same timestamp as a body's
+    /// last one (the same frame polled twice) is ignored; an older timestamp means QTM restarted
+    /// its measurement: the sample is taken with zero velocity.
     pub fn update(&mut self, frame: &DataFrame, received_at: Instant) {
         let s = self.config.scale / 1000.0;
         for b in &frame.bodies {
@@ -827,10 +828,11 @@ impl Tracker {
             let position = DVec2::new(f64::from(b.x_mm) * s, f64::from(b.y_mm) * s);
             let yaw = f64::from(b.yaw_deg).to_radians();
             match self.bodies.get_mut(&id) {
-                Some(t) if frame.timestamp_us <= t.timestamp_us => {}
+                Some(t) if frame.timestamp_us == t.timestamp_us => {}
                 Some(t) => {
                     let dt = (frame.timestamp_us - t.timestamp_us) as f64 * 1e-6;
-                    t.velocity = if t.stale { DVec2::ZERO } else { (position - t.position) / dt };
+                    // dt < 0: QTM started a new measurement (timestamps restart): no velocity yet.
+                    t.velocity = if t.stale || dt < 0.0 { DVec2::ZERO } else { (position - t.position) / dt };
                     if t.stale {
                         tracing::info!("motion capture: vehicle {id} (body {}) tracked again", b.index);
                     }

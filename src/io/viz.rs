@@ -409,7 +409,7 @@ struct Pending {
 /// Rules: a datagram whose counter is not newer than the last delivered frame is stale. A plain
 /// datagram is a whole frame. A part starts assembling its frame (abandoning an older unfinished
 /// one); parts of the frame being assembled are not stale; the frame is delivered when all
-/// its parts are in. A part older than the frame being assembled is stale.
+/// its parts are in. Any datagram older than the frame being assembled is stale.
 #[derive(Debug, Default)]
 pub struct VizReassembler {
     last: Option<u64>,
@@ -443,7 +443,8 @@ impl VizReassembler {
     }
 
     fn push_decoded(&mut self, d: VizDatagram) -> Option<VizFrame> {
-        if self.last.is_some_and(|l| d.counter <= l) {
+        let older_than_pending = self.pending.as_ref().is_some_and(|p| d.counter < p.counter);
+        if older_than_pending || self.last.is_some_and(|l| d.counter <= l) {
             self.stats.stale += 1;
             return None;
         }
@@ -454,10 +455,6 @@ impl VizReassembler {
             return Some(self.deliver(d.counter, d.vehicles));
         };
         match &self.pending {
-            Some(p) if p.counter > d.counter => {
-                self.stats.stale += 1;
-                return None;
-            }
             Some(p) if p.counter == d.counter && p.parts.len() == part.count as usize => {}
             other => {
                 if other.is_some() {
