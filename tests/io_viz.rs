@@ -290,7 +290,7 @@ fn udp_loopback_sender_to_receiver_with_a_split_frame() {
             break;
         }
     }
-    let frame = frame.expect("a complete frame within 20 tries");
+    let frame = frame.unwrap_or_else(|| panic!("no complete frame within 20 tries: {:?}", receiver.stats()));
     assert_eq!(frame.vehicles.len(), 2000);
     assert_eq!(frame.vehicles[1999].id, 499);
     assert!(receiver.is_running());

@@ -603,7 +603,7 @@ impl VizReceiver {
     /// Bind `addr` (e.g. 127.0.0.1:38008, or port 0 for any) and start receiving.
     pub fn bind(addr: SocketAddr) -> Result<Self, VizError> {
         let io = |what: String| move |source| VizError::Io { what, source };
-        let socket = UdpSocket::bind(addr).map_err(io(format!("bind {addr}")))?;
+        let socket = bind_with_big_buffer(addr).map_err(io(format!("bind {addr}")))?;
         socket.set_read_timeout(Some(RECV_POLL)).map_err(io("set read timeout".into()))?;
         let local_addr = socket.local_addr().map_err(io("local address".into()))?;
         let shared = Arc::new((Mutex::new(Shared::default()), Condvar::new()));
@@ -664,6 +664,21 @@ impl Drop for VizReceiver {
             let _ = t.join();
         }
     }
+}
+
+/// Receive buffer asked for [bytes]: a split frame arrives as a burst of up to hundreds of
+/// datagrams, more than the usual 208 KiB default holds. The kernel may grant less.
+pub const RECV_BUFFER_LEN: usize = 4 << 20;
+
+/// Bind a UDP socket with a receive buffer of [`RECV_BUFFER_LEN`] (or what the system allows).
+fn bind_with_big_buffer(addr: SocketAddr) -> std::io::Result<UdpSocket> {
+    use socket2::{Domain, Protocol, Socket, Type};
+    let socket = Socket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP))?;
+    if let Err(e) = socket.set_recv_buffer_size(RECV_BUFFER_LEN) {
+        tracing::warn!("visualisation receiver: cannot enlarge the receive buffer ({e}); big frames may be lost");
+    }
+    socket.bind(&addr.into())?;
+    Ok(socket.into())
 }
 
 fn receive_loop(socket: &UdpSocket, shared: &(Mutex<Shared>, Condvar), stop: &AtomicBool) {
