@@ -411,6 +411,8 @@ fn bad_scripts_name_the_line() {
     assert!(MocapScript::from_csv("1,2,3\n", "s.csv").is_err());
     assert!(MocapScript::from_csv("-1,0,0,0,0,0,0,0\n", "s.csv").is_err());
     assert!(MocapScript::from_csv("# nothing\n", "s.csv").is_err());
+    let with_header = "# a comment first\nt_s,body,x,y,z,r,p,yaw\n0,0,0,0,0,0,0,0\n";
+    assert_eq!(MocapScript::from_csv(with_header, "s.csv").expect("header after a comment").body_count(), 1);
     // Interpolation: halfway between two keyframes; yaw the short way round.
     let s = MocapScript::from_csv("0,0,0,0,0,0,0,170\n2,0,1000,0,0,0,0,-170\n", "s.csv").expect("valid");
     let p = s.pose(0, 1.0).expect("visible");
@@ -565,4 +567,50 @@ fn thousands_of_bad_tcp_packets_neither_panic_nor_stop_the_client() {
     assert!(stats.sessions >= 12, "{stats:?}");
     // About 2/3 of the in-sync packets are malformed (the rest are NaN frames and error replies).
     assert!(stats.bad_packets > 1800, "{stats:?}");
+}
+
+#[test]
+fn random_bytes_never_panic_the_decoder_or_the_parser() {
+    let mut rng = Rng(0xdead_beef_cafe_f00d);
+    let valid = packet(3, &data_payload(1, 1, &[euler_component(&[[1.0; 6]; 3])]));
+    let (mut packets, mut errors) = (0u32, 0u32);
+    for _ in 0..20_000 {
+        let bytes: Vec<u8> = match rng.below(3) {
+            0 => (0..rng.below(300)).map(|_| rng.next() as u8).collect(),
+            1 => {
+                let mut v = valid.clone();
+                for _ in 0..1 + rng.below(4) {
+                    let at = rng.below(v.len() as u64) as usize;
+                    v[at] = rng.next() as u8;
+                }
+                v
+            }
+            _ => valid[..rng.below(valid.len() as u64) as usize].to_vec(),
+        };
+        // Straight into the payload parser, and framed through the decoder.
+        if parse_data(&bytes).is_err() {
+            errors += 1;
+        }
+        let mut d = PacketDecoder::new(1 << 20);
+        d.push(&bytes);
+        for _ in 0..64 {
+            match d.next_packet() {
+                Some(Ok(p)) => {
+                    packets += 1;
+                    let _ = parse_data(&p.payload);
+                }
+                Some(Err(QtmError::BadSize { .. })) | None => break,
+                Some(Err(_)) => errors += 1,
+            }
+        }
+    }
+    assert!(packets > 1000 && errors > 10_000, "{packets} packets, {errors} errors");
+}
+
+#[test]
+fn absurd_poll_rates_are_refused() {
+    for rate in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e-310, 1e9] {
+        let config = QtmClientConfig { poll_rate_hz: rate, addr: loopback0(), ..Default::default() };
+        assert!(matches!(QtmClient::spawn(config), Err(QtmError::Config(_))), "rate {rate}");
+    }
 }

@@ -169,6 +169,10 @@ fn bad_ids_and_settings_are_errors() {
         TruckServer::start(&TruckServerConfig { scale: -1.0, ..config() }, &[1]),
         Err(TruckError::Config(_))
     ));
+    for rate in [0.0, -1.0, f64::NAN, 1e-310, 1e9] {
+        let bad = TruckServerConfig { rate_hz: rate, ..config() };
+        assert!(matches!(TruckServer::start(&bad, &[1]), Err(TruckError::Config(_))), "rate {rate}");
+    }
     let server = TruckServer::start(&config(), &[4]).expect("start");
     assert!(matches!(server.publish(9, TruckState::default()), Err(TruckError::UnknownId(9))));
     assert_eq!(server.ids().collect::<Vec<_>>(), [4]);

@@ -307,7 +307,12 @@ fn send_if_due_keeps_the_rate() {
     let sent = (0..1000i64).filter(|ms| sender.send_if_due(ms * 1000, &v).expect("send")).count();
     assert_eq!(sent, 50);
     assert_eq!(sender.next_counter(), 50);
-    assert!(VizSender::new(&VizSenderConfig { rate_hz: 0.0, ..Default::default() }).is_err());
+    for rate in [0.0, -5.0, f64::NAN, f64::INFINITY, 1e9] {
+        assert!(VizSender::new(&VizSenderConfig { rate_hz: rate, ..Default::default() }).is_err(), "rate {rate}");
+    }
+    // Extreme clocks do not overflow.
+    assert!(sender.send_if_due(i64::MAX, &v).expect("send"));
+    assert!(!sender.send_if_due(i64::MAX, &v).expect("no second send at the same time"));
 }
 
 /// xorshift64*: a small deterministic generator for the garbage.

@@ -10,11 +10,11 @@
 //! 2.0, 0, 1000, 0, 0, 0, 0, 0
 //! 1.0, 1, nan, nan, nan, nan, nan, nan
 //! ```
-//! Lines starting with `#` and blank lines are ignored; a first line naming the columns is
-//! allowed. Between two keyframes of a body the pose is interpolated linearly (yaw along the
+//! Lines starting with `#` and blank lines are ignored; the first other line may name the
+//! columns. Between two keyframes of a body the pose is interpolated linearly (yaw along the
 //! shorter way); a keyframe with NaN values hides the body until its next keyframe; before its
 //! first keyframe a body is hidden, after its last it stays put. The script loops with a period
-//! equal to its last keyframe time.
+//! equal to its last keyframe time (over all bodies).
 
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
@@ -113,6 +113,7 @@ impl MocapScript {
     /// Parse a keyframe script (format in the module docs); `name` names the source in errors.
     pub fn from_csv(text: &str, name: &str) -> Result<Self, MockMocapError> {
         let mut bodies: BTreeMap<u32, Vec<Keyframe>> = BTreeMap::new();
+        let mut first = true;
         for (i, raw) in text.lines().enumerate() {
             let line = raw.trim();
             if line.is_empty() || line.starts_with('#') {
@@ -120,7 +121,7 @@ impl MocapScript {
             }
             let err = |problem: String| MockMocapError::Script { path: name.to_string(), line: i + 1, problem };
             let cols: Vec<&str> = line.split(',').map(str::trim).collect();
-            if i == 0 && cols.first().is_some_and(|c| c.parse::<f64>().is_err()) {
+            if std::mem::take(&mut first) && cols.first().is_some_and(|c| c.parse::<f64>().is_err()) {
                 continue;
             }
             if cols.len() != 8 {

@@ -499,8 +499,11 @@ pub struct QtmClient {
 impl QtmClient {
     /// Start the client thread (it connects in the background and keeps retrying).
     pub fn spawn(config: QtmClientConfig) -> Result<Self, QtmError> {
-        if !(config.poll_rate_hz.is_finite() && config.poll_rate_hz > 0.0) {
-            return Err(QtmError::Config(format!("poll rate {} Hz must be positive", config.poll_rate_hz)));
+        if poll_period(config.poll_rate_hz).is_none() {
+            return Err(QtmError::Config(format!(
+                "poll rate {} Hz must be a positive number of at most 1e6",
+                config.poll_rate_hz
+            )));
         }
         let (tx, frames) = std::sync::mpsc::sync_channel(FRAME_QUEUE);
         let stats = Arc::new(Mutex::new(QtmStats::default()));
@@ -555,6 +558,11 @@ impl Drop for QtmClient {
             let _ = t.join();
         }
     }
+}
+
+/// The period of a rate [Hz], `None` unless the rate is in `(0, 1e6]` with a representable period.
+fn poll_period(rate_hz: f64) -> Option<Duration> {
+    if rate_hz > 0.0 && rate_hz <= 1e6 { Duration::try_from_secs_f64(1.0 / rate_hz).ok() } else { None }
 }
 
 /// Everything a client session needs besides its socket.
@@ -622,7 +630,7 @@ impl Session<'_> {
             s.sessions += 1;
         }
         tracing::info!("QTM client: connected to {}", self.config.addr);
-        let period = Duration::from_secs_f64(1.0 / self.config.poll_rate_hz);
+        let period = poll_period(self.config.poll_rate_hz).unwrap_or(Duration::from_secs(1));
         let poll = encode_command(POLL_COMMAND);
         let mut next_poll = Instant::now();
         while !self.stop.load(Ordering::Relaxed) {

@@ -169,15 +169,15 @@ const TRUCK_TICK: Duration = Duration::from_millis(5);
 impl TruckServer {
     /// Start one listener per id.
     pub fn start(config: &TruckServerConfig, ids: &[i32]) -> Result<Self, TruckError> {
-        if !(config.rate_hz.is_finite() && config.rate_hz > 0.0) {
-            return Err(TruckError::Config(format!("rate {} Hz must be positive", config.rate_hz)));
-        }
+        let period = match Duration::try_from_secs_f64(1.0 / config.rate_hz) {
+            Ok(p) if config.rate_hz > 0.0 && config.rate_hz <= 1e6 => p,
+            _ => return Err(TruckError::Config(format!("rate {} Hz must be in (0, 1e6]", config.rate_hz))),
+        };
         if !(config.scale.is_finite() && config.scale > 0.0) {
             return Err(TruckError::Config(format!("scale {} must be positive", config.scale)));
         }
         let stop = Arc::new(AtomicBool::new(false));
         let mut server = Self { trucks: BTreeMap::new(), stop: stop.clone() };
-        let period = Duration::from_secs_f64(1.0 / config.rate_hz);
         for &id in ids {
             if server.trucks.contains_key(&id) {
                 return Err(TruckError::DuplicateId(id));

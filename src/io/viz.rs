@@ -31,7 +31,7 @@
 
 use std::fmt::Write as _;
 use std::io::Write as _;
-use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
@@ -163,8 +163,8 @@ pub enum VizError {
         /// `parts` value.
         count: u32,
     },
-    /// A send rate that is not a positive finite number.
-    #[error("visualisation send rate {0} Hz is not a positive finite number")]
+    /// A send rate outside `(0, 1e6]` Hz.
+    #[error("visualisation send rate {0} Hz must be in (0, 1e6]")]
     BadRate(f64),
     /// Socket error.
     #[error("visualisation stream socket ({what}): {source}")]
@@ -497,19 +497,16 @@ impl VizReassembler {
 pub struct VizSenderConfig {
     /// Where datagrams go (default 127.0.0.1:38008).
     pub target: SocketAddr,
-    /// Local address to send from (default 127.0.0.1, any port).
-    pub bind: SocketAddr,
+    /// Local address to send from; `None` (default): loopback, any port, for a loopback target,
+    /// else the unspecified address of the target's family.
+    pub bind: Option<SocketAddr>,
     /// Frames per second [Hz] for [`VizSender::send_if_due`] (default 50; raising it sends more often).
     pub rate_hz: f64,
 }
 
 impl Default for VizSenderConfig {
     fn default() -> Self {
-        Self {
-            target: DEFAULT_VIZ_ADDR,
-            bind: SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 0)),
-            rate_hz: DEFAULT_VIZ_RATE_HZ,
-        }
+        Self { target: DEFAULT_VIZ_ADDR, bind: None, rate_hz: DEFAULT_VIZ_RATE_HZ }
     }
 }
 
@@ -527,11 +524,15 @@ pub struct VizSender {
 impl VizSender {
     /// Bind the sending socket.
     pub fn new(config: &VizSenderConfig) -> Result<Self, VizError> {
-        if !(config.rate_hz.is_finite() && config.rate_hz > 0.0) {
+        if !(config.rate_hz > 0.0 && config.rate_hz <= 1e6) {
             return Err(VizError::BadRate(config.rate_hz));
         }
-        let socket = UdpSocket::bind(config.bind)
-            .map_err(|source| VizError::Io { what: format!("bind {}", config.bind), source })?;
+        let bind = config.bind.unwrap_or_else(|| match config.target.ip() {
+            ip if ip.is_loopback() => SocketAddr::new(ip, 0),
+            IpAddr::V4(_) => SocketAddr::new(IpAddr::V4(Ipv4Addr::UNSPECIFIED), 0),
+            IpAddr::V6(_) => SocketAddr::new(IpAddr::V6(Ipv6Addr::UNSPECIFIED), 0),
+        });
+        let socket = UdpSocket::bind(bind).map_err(|source| VizError::Io { what: format!("bind {bind}"), source })?;
         Ok(Self {
             socket,
             target: config.target,
@@ -564,7 +565,8 @@ impl VizSender {
         }
         let base = self.next_due_us.unwrap_or(now_us);
         // Keep a fixed cadence; after a long pause, restart from now instead of bursting.
-        self.next_due_us = Some(if now_us - base >= self.period_us { now_us } else { base } + self.period_us);
+        let start = if now_us.saturating_sub(base) >= self.period_us { now_us } else { base };
+        self.next_due_us = Some(start.saturating_add(self.period_us));
         self.send(vehicles)?;
         Ok(true)
     }
