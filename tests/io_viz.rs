@@ -7,8 +7,8 @@ use std::net::UdpSocket;
 use std::time::Duration;
 
 use smlworld::io::viz::{
-    MAX_DATAGRAM_LEN, VizPart, VizReassembler, VizReceiver, VizSender, VizSenderConfig, VizVehicle, decode_datagram,
-    encode_frame,
+    MAX_DATAGRAM_LEN, VizEncoder, VizPart, VizReassembler, VizReceiver, VizSender, VizSenderConfig, VizVehicle,
+    decode_datagram, encode_frame,
 };
 
 /// One vehicle record as the 2015 receiver saw it: key -> text value.
@@ -381,4 +381,18 @@ fn thousands_of_bad_datagrams_neither_panic_nor_stop_the_receiver() {
     assert!(receiver.is_running());
     let s = receiver.stats();
     assert!(s.decode_errors > 100, "{s:?}");
+}
+
+#[test]
+fn a_reused_encoder_forgets_the_previous_frame() {
+    let mut enc = VizEncoder::new();
+    let big: Vec<VizVehicle> = (0..1000).map(vehicle).collect();
+    assert!(enc.encode(0, &big).len() > 1);
+    let small = enc.encode(1, &big[..2]).to_vec();
+    assert_eq!(small.len(), 1);
+    let (counter, recs) = old_parse(&small[0]).expect("valid");
+    assert_eq!(counter, 1);
+    assert_eq!(recs.len(), 2);
+    check_old_record(&recs[1], 1);
+    assert_eq!(enc.encode(2, &big).len(), encode_frame(2, &big).len());
 }

@@ -190,6 +190,8 @@ pub struct VizEncoder {
     records: String,
     /// End offset of each record in `records`.
     ends: Vec<usize>,
+    /// Record ranges of the parts of a split frame.
+    groups: Vec<(usize, usize)>,
     /// Encoded datagrams; only the first `used` are valid.
     parts: Vec<Vec<u8>>,
     used: usize,
@@ -225,7 +227,8 @@ impl VizEncoder {
         let d = digits(vehicles.len() as u64);
         let reserve = 1 + PART_KEY.len() + 1 + d + 1 + PARTS_KEY.len() + 1 + d;
         let budget = MAX_DATAGRAM_LEN - header_len - reserve;
-        let mut groups: Vec<(usize, usize)> = Vec::new();
+        let mut groups = std::mem::take(&mut self.groups);
+        groups.clear();
         let mut start = 0;
         let mut len = 0;
         for i in 0..vehicles.len() {
@@ -246,6 +249,7 @@ impl VizEncoder {
             let _ = write!(buf, "{counter}#");
             self.push_records(a, b, Some((index as u64, count)));
         }
+        self.groups = groups;
         &self.parts[..self.used]
     }
 
