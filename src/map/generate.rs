@@ -242,16 +242,16 @@ impl Arm {
     }
 }
 
-/// `destination` tag of the far start of the incoming lane `k` (0 = rightmost) of an arm of
-/// [`intersection`]: `<arm>_start` for the rightmost lane, `<arm>_start_<k+1>` for the others.
-pub fn intersection_start_tag(arm: Arm, k: usize) -> String {
-    if k == 0 { format!("{}_start", arm.name()) } else { format!("{}_start_{}", arm.name(), k + 1) }
+/// `destination` tag of the far start of the rightmost incoming lane of an arm of
+/// [`intersection`]: `<arm>_start`, e.g. `north_start`.
+pub fn intersection_start_tag(arm: Arm) -> String {
+    format!("{}_start", arm.name())
 }
 
-/// `destination` tag of the far end of the outgoing lane `k` (0 = rightmost) of an arm of
-/// [`intersection`]: `<arm>_end`, `<arm>_end_<k+1>`.
-pub fn intersection_end_tag(arm: Arm, k: usize) -> String {
-    if k == 0 { format!("{}_end", arm.name()) } else { format!("{}_end_{}", arm.name(), k + 1) }
+/// `destination` tag of the far end of the rightmost outgoing lane of an arm of
+/// [`intersection`]: `<arm>_end`, e.g. `south_end`.
+pub fn intersection_end_tag(arm: Arm) -> String {
+    format!("{}_end", arm.name())
 }
 
 /// Intersection as OSM XML; see [`write_intersection`].
@@ -264,9 +264,9 @@ pub fn intersection(params: &IntersectionParams) -> Result<String, GenerateError
 /// Each arm has `lanes` incoming and `lanes` outgoing straight lanelets of length `arm_length`;
 /// inside the junction every legal turn (straight, left, right; no U-turns) is a lanelet from
 /// each incoming lane to the same lane of every other arm, its bounds cubic Bézier curves
-/// (quarter circles for the 90° turns) tagged `line_type=virtual`. The far ends are tagged
-/// [`intersection_start_tag`] (where the incoming lane starts, on its right bound) and
-/// [`intersection_end_tag`] (where the outgoing lane ends, on its right bound).
+/// (quarter circles for the 90° turns) tagged `line_type=virtual`. The far ends of the rightmost
+/// lanes are tagged [`intersection_start_tag`] (where the incoming lane starts, on its right
+/// bound) and [`intersection_end_tag`] (where the outgoing lane ends, on its right bound).
 ///
 /// Counts: `2 arms lanes` arm lanelets plus `arms (arms - 1) lanes` turn lanelets; ways
 /// `arms (2 lanes + 1) + arms (arms - 1) (lanes + 1)`; successor pairs `2 arms (arms - 1) lanes`.
@@ -287,11 +287,10 @@ pub fn write_intersection<W: Write>(params: &IntersectionParams, out: W) -> Resu
         let far: Vec<usize> =
             (-lanes..=lanes).map(|bi| b.node(road.arm_point(centre, *arm, far_d, bi as f64))).collect();
         road.street(&mut b, near, &far);
-        for k in 0..p.lanes {
-            // Lane counted from the right: incoming boundary b = lanes - k, outgoing -(lanes - k).
-            b.tag(far[(2 * lanes) as usize - k], "destination", intersection_start_tag(*arm, k));
-            b.tag(far[k], "destination", intersection_end_tag(*arm, k));
-        }
+        // Only the rightmost lanes are tagged: their right bound is the road edge, which no other
+        // lanelet touches, so a route between tags cannot slip into a neighbouring lane.
+        b.tag(far[2 * p.lanes], "destination", intersection_start_tag(*arm));
+        b.tag(far[0], "destination", intersection_end_tag(*arm));
     }
     road.turns(&mut b, centre, &ends);
     Ok(b.write(out)?)
