@@ -69,12 +69,7 @@ impl BirdseyeView {
                 "cannot fit a view to a map without nodes; give --pixels-per-meter and --center".into(),
             ));
         }
-        let (min, max) = map
-            .nodes
-            .values()
-            .fold((DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY)), |(lo, hi), n| {
-                (lo.min(n.position), hi.max(n.position))
-            });
+        let (min, max) = map.bounding_box();
         let margin = 0.05 * (max - min).max_element();
         BirdseyeView::fit(width, height, min, max, margin)
     }
