@@ -33,6 +33,12 @@ pub fn write_meta(image_path: &Path, view: &BirdseyeView) -> Result<std::path::P
     Ok(meta)
 }
 
+/// Path of numbered frame `index` in `dir`: `DIR/frame_000042.png` (six digits, so file names sort
+/// in frame order).
+pub fn frame_path(dir: &Path, index: u64) -> std::path::PathBuf {
+    dir.join(format!("frame_{index:06}.png"))
+}
+
 /// Write frames as an animated GIF that loops forever, shown at `frame_rate` [Hz].
 pub fn write_gif(path: &Path, frames: &[RgbaImage], frame_rate: f64) -> Result<(), RenderError> {
     if !(frame_rate.is_finite() && frame_rate > 0.0) {
