@@ -23,16 +23,19 @@ fn hash(x: i64, y: i64, period: i64, seed: u64) -> f64 {
 
 /// Smooth value noise with `cells` lattice cells across the tile (tileable), 0..1.
 fn value_noise(px: f64, py: f64, cells: i64, seed: u64) -> f64 {
-    let fx = px / f64::from(SIZE) * cells as f64;
-    let fy = py / f64::from(SIZE) * cells as f64;
+    value_noise_xy(px, py, cells, cells, seed)
+}
+
+/// Value noise with `cx` cells across and `cy` cells down (tileable; unequal counts streak it).
+fn value_noise_xy(px: f64, py: f64, cx: i64, cy: i64, seed: u64) -> f64 {
+    let fx = px / f64::from(SIZE) * cx as f64;
+    let fy = py / f64::from(SIZE) * cy as f64;
     let (x0, y0) = (fx.floor() as i64, fy.floor() as i64);
     let (tx, ty) = (fx - fx.floor(), fy - fy.floor());
     let s = |t: f64| t * t * (3.0 - 2.0 * t);
     let (sx, sy) = (s(tx), s(ty));
-    let a = hash(x0, y0, cells, seed);
-    let b = hash(x0 + 1, y0, cells, seed);
-    let c = hash(x0, y0 + 1, cells, seed);
-    let d = hash(x0 + 1, y0 + 1, cells, seed);
+    let h = |x: i64, y: i64| hash(x.rem_euclid(cx), y.rem_euclid(cy), cx.max(cy), seed);
+    let (a, b, c, d) = (h(x0, y0), h(x0 + 1, y0), h(x0, y0 + 1), h(x0 + 1, y0 + 1));
     let top = a + (b - a) * sx;
     let bottom = c + (d - c) * sx;
     top + (bottom - top) * sy
@@ -129,7 +132,7 @@ fn mud() -> RgbImage {
 /// Diamond plate steel: a grey base with raised diagonal lugs catching the light.
 fn iron() -> RgbImage {
     tile(|px, py| {
-        let brushed = value_noise(px, py * 0.05, 128, 41);
+        let brushed = value_noise_xy(px, py, 128, 8, 41);
         let mut c = scale([128.0, 132.0, 138.0], 0.9 + 0.15 * brushed);
         let cell = 32.0;
         let (u, v) = (px.rem_euclid(cell) - cell / 2.0, py.rem_euclid(cell) - cell / 2.0);
@@ -149,7 +152,8 @@ fn parking_lot() -> RgbImage {
         let n = fbm(px, py, 16, 3, 51);
         let mut c = mix([150.0, 150.0, 146.0], [172.0, 171.0, 165.0], n);
         let slab = 64.0;
-        if px.rem_euclid(slab) < 1.5 || py.rem_euclid(slab) < 1.5 {
+        // Joints in the middle of each slab period, so none sits on the tile border.
+        if (px.rem_euclid(slab) - 32.0).abs() < 0.75 || (py.rem_euclid(slab) - 32.0).abs() < 0.75 {
             c = scale(c, 0.7);
         }
         c
@@ -160,7 +164,7 @@ fn parking_lot() -> RgbImage {
 fn free_space() -> RgbImage {
     tile(|px, py| {
         let n = fbm(px, py, 8, 4, 61);
-        let blades = value_noise(px, py * 0.3, 128, 62);
+        let blades = value_noise_xy(px, py, 128, 32, 62);
         let c = mix([118.0, 128.0, 70.0], [160.0, 158.0, 96.0], n);
         scale(c, 0.9 + 0.2 * blades)
     })

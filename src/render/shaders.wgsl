@@ -65,10 +65,11 @@ fn vs_ground(@location(0) pos: vec2<f32>, @location(1) tex: vec3<f32>, @location
 fn fs_ground(in: GroundOut) -> @location(0) vec4<f32> {
     let layer = max(i32(round(in.tex.z)), 0);
     var t = textureSample(patterns, pattern_sampler, in.tex.xy, layer);
-    // Hide the tile repetition: modulate brightness by the same pattern sampled 7.3x larger and
-    // rotated, relative to the pattern's mean colour (its 1x1 mip level).
+    // Hide the tile repetition: modulate brightness by the same pattern sampled 7.3x larger,
+    // rotated and blurred (mip level 4, 16x16 texels, so joints and lugs do not show), relative
+    // to the pattern's mean colour (its 1x1 mip level).
     let big_uv = mat2x2<f32>(0.8, 0.6, -0.6, 0.8) * in.tex.xy * 0.137;
-    let big = textureSample(patterns, pattern_sampler, big_uv, layer);
+    let big = textureSampleLevel(patterns, pattern_sampler, big_uv, layer, 4.0);
     let mean = textureSampleLevel(patterns, pattern_sampler, vec2<f32>(0.5), layer, 16.0);
     let luma = vec3<f32>(0.2126, 0.7152, 0.0722);
     let ratio = clamp(dot(big.rgb, luma) / max(dot(mean.rgb, luma), 1e-4), 0.5, 1.6);
