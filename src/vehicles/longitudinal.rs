@@ -151,6 +151,7 @@ pub const ROUTE_SPEED_GAIN: f64 = 2.0;
 /// Above the route's target speed ([`Longitudinal::route_speed`]: the path follower's cruise
 /// speed, lowered to stop at the end of an open route) the acceleration is capped at
 /// [`ROUTE_SPEED_GAIN`] · (route speed − v), so vehicles stop where their route ends.
+#[allow(clippy::type_complexity)]
 pub fn actuate_longitudinal(
     clock: Res<SimClock>,
     mut vehicles: Query<(

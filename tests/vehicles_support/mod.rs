@@ -28,6 +28,7 @@ pub fn builder(warmup: f64) -> SimBuilder {
 /// Spawn vehicle `id` of `length` [m] at arc length `s` [m] on `path`, driving at `speed` [m/s]
 /// (acceleration model, default radar), following the path at cruise speed `cruise` [m/s], with
 /// the controller components `controller`.
+#[allow(clippy::too_many_arguments)]
 pub fn spawn(
     b: &mut SimBuilder,
     id: i32,
