@@ -67,7 +67,8 @@ fn xml_is_josm_style_with_unique_negative_ids_and_an_origin() {
     ids.dedup();
     assert_eq!(ids.len(), total, "ids are unique over nodes, ways and relations");
     assert!(ids.iter().all(|&id| id < 0), "new JOSM objects have negative ids");
-    let origins: Vec<_> = doc.nodes.values().filter(|n| n.tags.get("origin").map(String::as_str) == Some("true")).collect();
+    let origins: Vec<_> =
+        doc.nodes.values().filter(|n| n.tags.get("origin").map(String::as_str) == Some("true")).collect();
     assert_eq!(origins.len(), 1);
     assert_eq!((origins[0].lat, origins[0].lon), (generate::ORIGIN_LAT, generate::ORIGIN_LON));
 }
@@ -87,7 +88,10 @@ fn bad_parameters_are_errors_naming_the_parameter() {
         name(intersection(&IntersectionParams { corner_radius: 0.0, ..IntersectionParams::default() })),
         "corner_radius"
     );
-    assert_eq!(name(intersection(&IntersectionParams { arm_length: f64::INFINITY, ..IntersectionParams::default() })), "arm_length");
+    assert_eq!(
+        name(intersection(&IntersectionParams { arm_length: f64::INFINITY, ..IntersectionParams::default() })),
+        "arm_length"
+    );
     assert_eq!(name(grid_city(&GridParams { rows: 0, ..GridParams::default() })), "rows");
     // Junctions reach 3.5 + 6 = 9.5 m from their centre: blocks of 19 m leave no street.
     assert_eq!(name(grid_city(&GridParams { block: 19.0, ..GridParams::default() })), "block");
@@ -119,4 +123,21 @@ fn cli_writes_the_same_map_and_rejects_flags_of_other_kinds() {
     let stderr = String::from_utf8_lossy(&bad.stderr);
     assert!(stderr.contains("--radius") && !stderr.contains("panicked"), "stderr: {stderr}");
     assert!(!out.exists(), "no file is left behind on error");
+}
+
+#[test]
+fn lat_lon_project_back_onto_the_ring_circles_to_a_tenth_of_a_millimetre() {
+    let p = RingParams { lanes: 2, radius: 400.0, lane_width: 3.0, node_spacing: 5.0, ..RingParams::default() };
+    let doc = parse_osm(&ring_highway(&p).expect("valid"), Path::new("ring.osm")).expect("parses");
+    let projector = smlworld::map::Projector::new(generate::ORIGIN_LAT, generate::ORIGIN_LON);
+    let radii = [400.0, 403.0, 406.0];
+    let mut on_circle = [0usize; 3];
+    for node in doc.nodes.values().filter(|n| !n.tags.contains_key("origin")) {
+        let r = projector.forward(node.lat, node.lon).length();
+        let b = radii.iter().position(|&rb| (r - rb).abs() < 1e-4);
+        let b = b.unwrap_or_else(|| panic!("node {} at radius {r} m is on no boundary circle", node.id));
+        on_circle[b] += 1;
+    }
+    // Same node count on every boundary: 4 quarters of ceil(pi/2 * 406 / 5) = 128 segments.
+    assert_eq!(on_circle, [512, 512, 512]);
 }
