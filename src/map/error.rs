@@ -48,7 +48,7 @@ pub enum MapError {
     BadAttribute {
         /// Where.
         at: Location,
-        /// `node`, `way`, `relation`, `member`, `nd` or `tag`.
+        /// `node`, `way`, `relation` or `tag` (for `<nd>` and `<member>`: their way or relation).
         element: &'static str,
         /// Id of the element (or `?` when the id itself is bad).
         id: String,
@@ -103,6 +103,9 @@ pub enum MapError {
     /// The node is not on any routable lanelet bound.
     #[error("node {0} does not lie on any routable lanelet")]
     NodeNotOnLanelet(i64),
+    /// An option given by the user is out of range.
+    #[error("{0}")]
+    InvalidOption(String),
     /// No route exists between the two ends.
     #[error("no route from {from} to {to}: the lanelets are not connected in the driving direction")]
     NoRoute {

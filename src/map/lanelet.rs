@@ -21,6 +21,10 @@ impl std::fmt::Display for LaneletId {
     }
 }
 
+/// `line_type` values the SML maps use: lines (`exterior` yellow, `interior` white) and areas.
+/// Any other value loads with a warning and is drawn as an untagged way.
+pub const KNOWN_LINE_TYPES: [&str; 7] = ["exterior", "interior", "free_space", "parking_lot", "pile_stuff", "mud", "iron"];
+
 /// Tags of an OSM object, key -> value, in key order.
 pub type Tags = BTreeMap<String, String>;
 
@@ -126,6 +130,7 @@ pub struct LaneletMap {
     /// Recoverable problems found while loading.
     pub warnings: Vec<MapWarning>,
     index: BTreeMap<LaneletId, usize>,
+    pub(crate) graph: super::routing::RoutingGraph,
 }
 
 impl LaneletMap {

@@ -15,4 +15,4 @@ pub mod routing;
 pub use error::{MapError, MapWarning};
 pub use lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay};
 pub use projection::Projector;
-pub use routing::{Path, RouteOptions};
+pub use routing::{Path, PathProjection, Place, RouteOptions};

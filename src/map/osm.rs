@@ -180,7 +180,7 @@ pub fn parse_osm(text: &str, source: &FsPath) -> Result<OsmDocument, MapError> {
                     "nd" => {
                         if let Some(Open::Way(w)) = open.as_mut() {
                             let r = attr(e, "ref", &at)?;
-                            w.nodes.push(parse_id(r.as_deref(), "nd", &w.id.to_string(), "ref", &at)?);
+                            w.nodes.push(parse_id(r.as_deref(), "way", &w.id.to_string(), "ref", &at)?);
                         }
                     }
                     "member" => {
@@ -330,14 +330,14 @@ fn read_member(e: &BytesStart, relation: i64, at: &Location) -> Result<OsmMember
         other => {
             return Err(MapError::BadAttribute {
                 at: at.clone(),
-                element: "member",
+                element: "relation",
                 id,
                 attribute: "type",
                 problem: format!("= {other:?}; allowed: node, way, relation"),
             });
         }
     };
-    let reference = parse_id(attr(e, "ref", at)?.as_deref(), "member", &id, "ref", at)?;
+    let reference = parse_id(attr(e, "ref", at)?.as_deref(), "relation", &id, "ref", at)?;
     let role = attr(e, "role", at)?.unwrap_or_default();
     Ok(OsmMember { kind, reference, role })
 }

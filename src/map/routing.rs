@@ -1,9 +1,11 @@
 //! Routing over lanelets: Dijkstra between nodes or tags, closed loops, stitched and resampled paths.
 
+use std::collections::BTreeMap;
+
 use glam::DVec2;
 
-use super::lanelet::{LaneletId, LaneletMap};
 use super::error::MapError;
+use super::lanelet::{LaneletId, LaneletMap};
 
 /// Options of a route search.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -15,6 +17,26 @@ pub struct RouteOptions {
 impl Default for RouteOptions {
     fn default() -> Self {
         Self { points_per_meter: 5.0 }
+    }
+}
+
+/// Where a route starts or ends: a node id, or the value of a node tag
+/// (`destination=left_lane_node` is addressed as `left_lane_node`).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Place {
+    /// A node id.
+    Node(i64),
+    /// A node tag value.
+    Tag(String),
+}
+
+impl std::fmt::Display for Place {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Place::Node(id) => write!(f, "node {id}"),
+            Place::Tag(t) => write!(f, "tag `{t}`"),
+        }
     }
 }
 
@@ -197,4 +219,384 @@ pub fn resample_count(points: &[DVec2], count: usize) -> Vec<DVec2> {
 /// Length of a polyline [m].
 pub fn polyline_length(points: &[DVec2]) -> f64 {
     points.windows(2).map(|w| w[0].distance(w[1])).sum()
+}
+
+/// Project `p` onto a polyline: (arc length of the nearest point [m], distance [m]).
+fn project_polyline(points: &[DVec2], p: DVec2) -> (f64, f64) {
+    let mut best = (0.0, f64::INFINITY);
+    let mut s0 = 0.0;
+    for w in points.windows(2) {
+        let d = w[1] - w[0];
+        let len2 = d.length_squared();
+        let t = if len2 > 0.0 { ((p - w[0]).dot(d) / len2).clamp(0.0, 1.0) } else { 0.0 };
+        let dist = p.distance(w[0] + d * t);
+        let len = len2.sqrt();
+        if dist < best.1 {
+            best = (s0 + t * len, dist);
+        }
+        s0 += len;
+    }
+    best
+}
+
+/// The part of a polyline between arc lengths `a0` <= `a1` [m].
+fn sub_polyline(points: &[DVec2], a0: f64, a1: f64) -> Vec<DVec2> {
+    let mut out = Vec::new();
+    let mut s0 = 0.0;
+    for w in points.windows(2) {
+        let len = w[0].distance(w[1]);
+        let s1 = s0 + len;
+        let at = |a: f64| if len > 0.0 { w[0].lerp(w[1], ((a - s0) / len).clamp(0.0, 1.0)) } else { w[0] };
+        if s1 >= a0 && s0 <= a1 {
+            if out.is_empty() {
+                out.push(at(a0.max(s0)));
+            }
+            if s1 <= a1 {
+                out.push(w[1]);
+            } else {
+                out.push(at(a1));
+                break;
+            }
+        }
+        s0 = s1;
+    }
+    if out.len() == 1 {
+        out.push(out[0]);
+    }
+    out
+}
+
+/// Millimetres, the integer cost unit of the Dijkstra searches (exact, orderable).
+fn mm(metres: f64) -> u64 {
+    (metres.max(0.0) * 1000.0).round() as u64
+}
+
+/// Directed lanelets as a graph: state `2 * index + reversed`; reversed states exist only for
+/// `one_way=no` lanelets, and no state exists for lanelets a vehicle may not drive.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct RoutingGraph {
+    successors: Vec<Vec<u32>>,
+    /// Node id -> states whose bounds contain the node.
+    node_states: BTreeMap<i64, Vec<u32>>,
+}
+
+impl RoutingGraph {
+    pub(crate) fn new(map: &LaneletMap) -> RoutingGraph {
+        let n = map.lanelets.len();
+        let mut valid = vec![false; 2 * n];
+        let mut by_start: BTreeMap<(i64, i64), Vec<u32>> = BTreeMap::new();
+        let mut node_states: BTreeMap<i64, Vec<u32>> = BTreeMap::new();
+        let ends = |l: &super::Lanelet, reversed: bool| {
+            let (r, lft) = (&l.right_nodes, &l.left_nodes);
+            if reversed {
+                ((lft[lft.len() - 1], r[r.len() - 1]), (lft[0], r[0]))
+            } else {
+                ((r[0], lft[0]), (r[r.len() - 1], lft[lft.len() - 1]))
+            }
+        };
+        for (i, l) in map.lanelets.iter().enumerate() {
+            if !l.routable {
+                continue;
+            }
+            for reversed in [false, true] {
+                if reversed && !l.bidirectional {
+                    continue;
+                }
+                let state = (2 * i + reversed as usize) as u32;
+                valid[state as usize] = true;
+                by_start.entry(ends(l, reversed).0).or_default().push(state);
+                for node in l.left_nodes.iter().chain(&l.right_nodes) {
+                    let v = node_states.entry(*node).or_default();
+                    if v.last() != Some(&state) {
+                        v.push(state);
+                    }
+                }
+            }
+        }
+        let mut successors = vec![Vec::new(); 2 * n];
+        for (state, ok) in valid.iter().enumerate() {
+            if *ok {
+                let l = &map.lanelets[state / 2];
+                if let Some(next) = by_start.get(&ends(l, state % 2 == 1).1) {
+                    successors[state] = next.iter().copied().filter(|&s| s as usize != state).collect();
+                }
+            }
+        }
+        RoutingGraph { successors, node_states }
+    }
+}
+
+/// A search end: a directed lanelet and how far along its centre line the node lies [m].
+#[derive(Debug, Clone, Copy)]
+struct End {
+    state: u32,
+    along: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+enum Step {
+    Start,
+    /// Leaving the end of a directed lanelet.
+    Exit(u32),
+    /// Arrived at end candidate k.
+    Final(u32),
+}
+
+impl LaneletMap {
+    /// Centre line of a directed lanelet state, in its driving direction.
+    fn state_centre(&self, state: u32) -> Vec<DVec2> {
+        let l = &self.lanelets[state as usize / 2];
+        if state % 2 == 1 { l.centre.iter().rev().copied().collect() } else { l.centre.clone() }
+    }
+
+    fn state_length(&self, state: u32) -> f64 {
+        self.lanelets[state as usize / 2].length
+    }
+
+    /// Ids of the nodes carrying a tag with this value.
+    pub fn nodes_with_tag(&self, value: &str) -> Result<&[i64], MapError> {
+        self.tag_index.get(value).map(Vec::as_slice).ok_or_else(|| MapError::UnknownTag(value.to_string()))
+    }
+
+    /// Every directed routable lanelet the nodes lie on, with the position along it.
+    fn ends_of(&self, nodes: &[i64]) -> Result<Vec<End>, MapError> {
+        let mut out = Vec::new();
+        for &id in nodes {
+            let node = self.nodes.get(&id).ok_or(MapError::UnknownNode(id))?;
+            for &state in self.graph.node_states.get(&id).map(Vec::as_slice).unwrap_or(&[]) {
+                let (along, _) = project_polyline(&self.state_centre(state), node.position);
+                out.push(End { state, along });
+            }
+        }
+        if out.is_empty() {
+            return Err(MapError::NodeNotOnLanelet(nodes[0]));
+        }
+        Ok(out)
+    }
+
+    /// [`Self::ends_of`] without the candidates that add nothing: a start at the very end of a
+    /// lanelet (its successors start there too) or an end at the very start of one.
+    fn useful_ends(&self, nodes: &[i64], is_start: bool) -> Result<Vec<End>, MapError> {
+        let all = self.ends_of(nodes)?;
+        let useful: Vec<End> = all
+            .iter()
+            .copied()
+            .filter(|e| if is_start { e.along < self.state_length(e.state) - 1e-3 } else { e.along > 1e-3 })
+            .collect();
+        Ok(if useful.is_empty() { all } else { useful })
+    }
+
+    /// Shortest route from `from_node` to `to_node` along the driving direction.
+    pub fn route(&self, from_node: i64, to_node: i64, opts: &RouteOptions) -> Result<Path, MapError> {
+        self.route_places(&Place::Node(from_node), &Place::Node(to_node), opts)
+    }
+
+    /// Shortest route from any node tagged `from_tag` to any node tagged `to_tag` (tag values).
+    pub fn route_tags(&self, from_tag: &str, to_tag: &str, opts: &RouteOptions) -> Result<Path, MapError> {
+        self.route_places(&Place::Tag(from_tag.into()), &Place::Tag(to_tag.into()), opts)
+    }
+
+    /// Shortest route between two places, each a node id or a node tag value.
+    pub fn route_places(&self, from: &Place, to: &Place, opts: &RouteOptions) -> Result<Path, MapError> {
+        self.route_between(&self.place_nodes(from)?, &self.place_nodes(to)?, from.to_string(), to.to_string(), opts)
+    }
+
+    /// Shortest closed loop through a place (a node id or a node tag value).
+    pub fn closed_loop_at(&self, place: &Place, opts: &RouteOptions) -> Result<Path, MapError> {
+        self.loop_through(&self.place_nodes(place)?, place.to_string(), opts)
+    }
+
+    /// The node ids a place stands for.
+    pub fn place_nodes(&self, place: &Place) -> Result<Vec<i64>, MapError> {
+        match place {
+            Place::Node(id) if self.nodes.contains_key(id) => Ok(vec![*id]),
+            Place::Node(id) => Err(MapError::UnknownNode(*id)),
+            Place::Tag(t) => Ok(self.nodes_with_tag(t)?.to_vec()),
+        }
+    }
+
+    fn route_between(
+        &self,
+        from: &[i64],
+        to: &[i64],
+        from_name: String,
+        to_name: String,
+        opts: &RouteOptions,
+    ) -> Result<Path, MapError> {
+        check_options(opts)?;
+        let starts = self.useful_ends(from, true)?;
+        let finals = self.useful_ends(to, false)?;
+        // Best start per state: the one furthest along (least left to drive on it).
+        let mut best_start: BTreeMap<u32, End> = BTreeMap::new();
+        for s in &starts {
+            let e = best_start.entry(s.state).or_insert(*s);
+            if s.along > e.along {
+                *e = *s;
+            }
+        }
+        let finals_by_state = {
+            let mut m: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
+            for (k, f) in finals.iter().enumerate() {
+                m.entry(f.state).or_default().push(k as u32);
+            }
+            m
+        };
+        let successors = |step: &Step| -> Vec<(Step, u64)> {
+            let mut out = Vec::new();
+            match *step {
+                Step::Start => {
+                    for s in best_start.values() {
+                        out.push((Step::Exit(s.state), mm(self.state_length(s.state) - s.along)));
+                    }
+                    // Start and end on the same lanelet with the end ahead: stay on it.
+                    for s in &starts {
+                        for &k in finals_by_state.get(&s.state).map(Vec::as_slice).unwrap_or(&[]) {
+                            let f = finals[k as usize];
+                            if f.along >= s.along {
+                                out.push((Step::Final(k), mm(f.along - s.along)));
+                            }
+                        }
+                    }
+                }
+                Step::Exit(state) => {
+                    for &next in &self.graph.successors[state as usize] {
+                        out.push((Step::Exit(next), mm(self.state_length(next))));
+                        for &k in finals_by_state.get(&next).map(Vec::as_slice).unwrap_or(&[]) {
+                            out.push((Step::Final(k), mm(finals[k as usize].along)));
+                        }
+                    }
+                }
+                Step::Final(_) => {}
+            }
+            out
+        };
+        let (steps, _) = pathfinding::directed::dijkstra::dijkstra(&Step::Start, successors, |s| {
+            matches!(s, Step::Final(_))
+        })
+        .ok_or(MapError::NoRoute { from: from_name, to: to_name })?;
+
+        let Some(&Step::Final(k)) = steps.last() else { unreachable!("dijkstra ends on a Final step") };
+        let fin = finals[k as usize];
+        let mut states: Vec<u32> = steps.iter().filter_map(|s| if let Step::Exit(st) = s { Some(*st) } else { None }).collect();
+        let (first_along, last_along);
+        if states.is_empty() {
+            // Same lanelet: the start is the furthest-along start candidate behind the end.
+            let start = starts
+                .iter()
+                .filter(|s| s.state == fin.state && s.along <= fin.along)
+                .map(|s| s.along)
+                .fold(f64::NEG_INFINITY, f64::max);
+            states.push(fin.state);
+            first_along = start;
+        } else {
+            first_along = best_start[&states[0]].along;
+            states.push(fin.state);
+        }
+        last_along = fin.along;
+        let points = self.stitch(&states);
+        let total = polyline_length(&points);
+        let end_arc = total - self.state_length(fin.state) + last_along;
+        let cropped = sub_polyline(&points, first_along, end_arc.max(first_along));
+        let lanelets = states.iter().map(|&s| self.lanelets[s as usize / 2].id).collect();
+        Ok(Path::from_points(lanelets, resample(&cropped, opts.points_per_meter), false))
+    }
+
+    /// Centre lines of consecutive directed lanelets joined into one polyline.
+    fn stitch(&self, states: &[u32]) -> Vec<DVec2> {
+        let mut points: Vec<DVec2> = Vec::new();
+        for &s in states {
+            let c = self.state_centre(s);
+            let skip = usize::from(points.last().is_some_and(|p| p.distance(c[0]) < 1e-6));
+            points.extend_from_slice(&c[skip..]);
+        }
+        points
+    }
+
+    /// Shortest closed loop through `node`: around and back to the lanelet it started on.
+    pub fn closed_loop(&self, node: i64, opts: &RouteOptions) -> Result<Path, MapError> {
+        self.closed_loop_at(&Place::Node(node), opts)
+    }
+
+    /// Shortest closed loop through any node carrying the tag value `tag`.
+    pub fn closed_loop_tag(&self, tag: &str, opts: &RouteOptions) -> Result<Path, MapError> {
+        self.closed_loop_at(&Place::Tag(tag.into()), opts)
+    }
+
+    fn loop_through(&self, nodes: &[i64], name: String, opts: &RouteOptions) -> Result<Path, MapError> {
+        check_options(opts)?;
+        let mut best: Option<(u64, Vec<u32>, End)> = None;
+        for start in self.ends_of(nodes)? {
+            let s = start.state;
+            let found = pathfinding::directed::dijkstra::dijkstra(
+                &Step::Exit(s),
+                |step: &Step| -> Vec<(Step, u64)> {
+                    let Step::Exit(state) = *step else { return Vec::new() };
+                    self.graph.successors[state as usize]
+                        .iter()
+                        .map(|&next| if next == s { (Step::Final(s), 0) } else { (Step::Exit(next), mm(self.state_length(next))) })
+                        .collect()
+                },
+                |step| matches!(step, Step::Final(_)),
+            );
+            if let Some((steps, cost)) = found {
+                let cost = cost + mm(self.state_length(s));
+                if best.as_ref().is_none_or(|b| cost < b.0) {
+                    let states = steps.iter().filter_map(|st| if let Step::Exit(x) = st { Some(*x) } else { None }).collect();
+                    best = Some((cost, states, start));
+                }
+            }
+        }
+        let (_, states, start) = best.ok_or(MapError::NoRoute { from: name.clone(), to: name })?;
+        let mut ring = self.stitch(&states);
+        if ring.len() > 1 && ring[ring.len() - 1].distance(ring[0]) < 1e-6 {
+            ring.pop();
+        }
+        ring.push(ring[0]);
+        // Rotate the loop so that it starts at the node.
+        let total = polyline_length(&ring);
+        let mut rotated = sub_polyline(&ring, start.along, total);
+        rotated.extend_from_slice(&sub_polyline(&ring, 0.0, start.along)[1..]);
+        let mut points = resample(&rotated, opts.points_per_meter);
+        points.pop();
+        let lanelets = states.iter().map(|&s| self.lanelets[s as usize / 2].id).collect();
+        Ok(Path::from_points(lanelets, points, true))
+    }
+
+    /// Number of (i, j) lanelet pairs where j follows i.
+    pub fn successor_pairs(&self) -> usize {
+        self.lanelets.iter().map(|l| l.successors.len()).sum()
+    }
+
+    /// The seed's adjacency matrix: n x n in [`LaneletMap::lanelets`] order, entry (i, j) = length
+    /// of lanelet i [m] when j follows i, else 1e10.
+    pub fn adjacency_matrix(&self) -> Vec<Vec<f64>> {
+        let n = self.lanelets.len();
+        let mut m = vec![vec![1e10; n]; n];
+        for (i, l) in self.lanelets.iter().enumerate() {
+            for s in &l.successors {
+                if let Some(j) = self.lanelet_index(*s) {
+                    m[i][j] = l.length;
+                }
+            }
+        }
+        m
+    }
+
+    /// Bounding box of all nodes [m]: (min, max). Zero when the map has no nodes.
+    pub fn bounding_box(&self) -> (DVec2, DVec2) {
+        let mut it = self.nodes.values().map(|n| n.position);
+        let Some(first) = it.next() else { return (DVec2::ZERO, DVec2::ZERO) };
+        it.fold((first, first), |(lo, hi), p| (lo.min(p), hi.max(p)))
+    }
+}
+
+fn check_options(opts: &RouteOptions) -> Result<(), MapError> {
+    if opts.points_per_meter.is_finite() && opts.points_per_meter > 0.0 && opts.points_per_meter <= 1000.0 {
+        Ok(())
+    } else {
+        Err(MapError::InvalidOption(format!(
+            "points_per_meter = {} is not allowed; use a number in (0, 1000], e.g. 5",
+            opts.points_per_meter
+        )))
+    }
 }
