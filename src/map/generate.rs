@@ -14,8 +14,9 @@
 //! - both bounds of a lanelet have the same number of nodes (the 2015 loader required it);
 //! - consecutive lanelets share the bound nodes at their joint, so the loader's successor rule
 //!   (first right/left node of the next = last right/left node of the previous) links them;
-//! - boundary ways are tagged `line_type=exterior` (road edge), `interior` (between lanes) or
-//!   `virtual` (the unpainted bounds of turn lanelets inside a junction, as in Lanelet2);
+//! - boundary ways are tagged `line_type=exterior` (road edge) or `line_type=interior` (between
+//!   lanes), as in the SML maps; the unpainted bounds of turn lanelets inside a junction are
+//!   tagged Lanelet2's `type=virtual` instead, so renderers draw no line there;
 //! - named nodes carry `destination=<name>` for routing by tag.
 //!
 //! The maps are built in memory (about 100 bytes per node) and streamed to any [`Write`];
@@ -150,7 +151,7 @@ pub fn write_ring_highway<W: Write>(params: &RingParams, out: W) -> Result<MapSt
         .iter()
         .enumerate()
         .map(|(bi, circle)| {
-            let line = if bi == 0 || bi == p.lanes { "exterior" } else { "interior" };
+            let line = if bi == 0 || bi == p.lanes { EXTERIOR } else { INTERIOR };
             (0..4).map(|q| b.way((q * n..=(q + 1) * n).map(|j| circle[j % total]).collect(), line)).collect()
         })
         .collect();
@@ -268,7 +269,7 @@ pub fn intersection(params: &IntersectionParams) -> Result<String, GenerateError
 /// Each arm has `lanes` incoming and `lanes` outgoing straight lanelets of length `arm_length`;
 /// inside the junction every legal turn (straight, left, right; no U-turns) is a lanelet from
 /// each incoming lane to the same lane of every other arm, its bounds cubic Bézier curves
-/// (quarter circles for the 90° turns) tagged `line_type=virtual`. The far ends of the rightmost
+/// (quarter circles for the 90° turns) tagged `type=virtual`. The far ends of the rightmost
 /// lanes are tagged [`intersection_start_tag`] (where the incoming lane starts, on its right
 /// bound) and [`intersection_end_tag`] (where the outgoing lane ends, on its right bound).
 ///
@@ -460,7 +461,7 @@ impl RoadParams {
                     // Lanes towards the near junction: drawn in their driving direction.
                     nodes.reverse();
                 }
-                b.way(nodes, if bi.abs() == lanes { "exterior" } else { "interior" })
+                b.way(nodes, if bi.abs() == lanes { EXTERIOR } else { INTERIOR })
             })
             .collect();
         let way = |bi: isize| ways[(bi + lanes) as usize];
@@ -498,7 +499,7 @@ impl RoadParams {
                             nodes.push(b.node(bezier(curve, s as f64 / segments as f64)));
                         }
                         nodes.push(to_ends[(lanes - c as isize) as usize]);
-                        b.way(nodes, "virtual")
+                        b.way(nodes, VIRTUAL)
                     })
                     .collect();
                 for i in 0..self.lanes {
@@ -537,12 +538,22 @@ fn bezier_length(c: &[DVec2; 4]) -> f64 {
     (1..=STEPS).map(|s| bezier(c, s as f64 / STEPS as f64).distance(bezier(c, (s - 1) as f64 / STEPS as f64))).sum()
 }
 
+/// The one tag of a generated way, key and value.
+type WayTag = (&'static str, &'static str);
+/// Road edge.
+const EXTERIOR: WayTag = ("line_type", "exterior");
+/// Line between two lanes.
+const INTERIOR: WayTag = ("line_type", "interior");
+/// Unpainted bound of a turn inside a junction (Lanelet2's line-string type).
+const VIRTUAL: WayTag = ("type", "virtual");
+
 /// A map under construction, in metres; node 0 is the origin.
 struct Builder {
     nodes: Vec<DVec2>,
     /// One `(key, value)` tag per node at most; generated maps never need two.
     node_tags: Vec<Option<(&'static str, String)>>,
-    ways: Vec<(Vec<usize>, &'static str)>,
+    /// Node indices and the one tag of each way.
+    ways: Vec<(Vec<usize>, WayTag)>,
     /// (left way, right way).
     lanelets: Vec<(usize, usize)>,
 }
@@ -565,8 +576,8 @@ impl Builder {
         self.node_tags[node] = Some((key, value));
     }
 
-    fn way(&mut self, nodes: Vec<usize>, line_type: &'static str) -> usize {
-        self.ways.push((nodes, line_type));
+    fn way(&mut self, nodes: Vec<usize>, tag: WayTag) -> usize {
+        self.ways.push((nodes, tag));
         self.ways.len() - 1
     }
 
@@ -591,12 +602,12 @@ impl Builder {
                 None => w.write_all(b" />\n")?,
             }
         }
-        for (i, (nodes, line_type)) in self.ways.iter().enumerate() {
+        for (i, (nodes, (key, value))) in self.ways.iter().enumerate() {
             writeln!(w, "  <way id='{}'>", way_id(i))?;
             for &n in nodes {
                 writeln!(w, "    <nd ref='{}' />", node_id(n))?;
             }
-            write!(w, "    <tag k='line_type' v='{line_type}' />\n  </way>\n")?;
+            write!(w, "    <tag k='{key}' v='{value}' />\n  </way>\n")?;
         }
         for (i, &(left, right)) in self.lanelets.iter().enumerate() {
             write!(
