@@ -15,3 +15,20 @@ pub mod render;
 pub mod sim;
 pub mod vehicles;
 pub mod world;
+
+/// The names most users need: `use smlworld::prelude::*;`.
+pub mod prelude {
+    pub use crate::app::{Plugin, RealtimeRunner, Sim, SimBuilder, SimSeed, default_plugins, run_headless};
+    pub use crate::map::{LaneletMap, Path};
+    pub use crate::sim::{
+        Control, Dynamics, DynamicsPlugin, Network, Phase, Rates, Sensors, SensorsPlugin, SimClock, V2vConfig,
+        V2vPlugin, V2vStats, Wifi,
+    };
+    pub use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
+    pub use crate::world::{
+        AccelerationUnicycle, Channel, ControlCommand, Detection, KinematicUnicycle, Mailbox, Message, Omniscient,
+        Payload, Radar, Route, SensorReadings, SensorSet, SimTime, VehicleClass, VehicleId, VehicleModel,
+        VehicleSize, VehicleSpec, VehicleState, Vehicles, Velodyne,
+    };
+    pub use glam::DVec2;
+}

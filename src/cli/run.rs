@@ -1,10 +1,93 @@
-//! `smlworld` subcommand (not implemented yet).
+//! `smlworld run`: run a scenario headless or in real time; write trajectories.csv and summary.json.
 
-/// Arguments (not implemented yet).
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use smlworld::app::{RealtimeRunner, RunSummary, Scenario, TrajectoryLog, TrajectoryLogPlugin, run_headless};
+
+/// Arguments of `smlworld run`.
 #[derive(Debug, clap::Args)]
-pub struct RunArgs {}
+pub struct RunArgs {
+    /// Scenario file (TOML).
+    pub scenario: PathBuf,
+    /// Sim time to run [s] (default: the scenario's `duration`).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Pace the run to the wall clock instead of running as fast as possible.
+    #[arg(long)]
+    pub realtime: bool,
+    /// Sim seconds per wall second in a real-time run.
+    #[arg(long, default_value_t = 1.0, requires = "realtime")]
+    pub speed: f64,
+    /// Output folder for trajectories.csv and summary.json (created if missing).
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Trajectory log rate [Hz] (default: the scenario's `rates.log`).
+    #[arg(long)]
+    pub log_rate: Option<f64>,
+}
 
 /// Run the subcommand.
-pub fn main(_args: RunArgs) -> anyhow::Result<()> {
-    anyhow::bail!("this subcommand is not implemented yet")
+pub fn main(args: RunArgs) -> anyhow::Result<()> {
+    let scenario = Scenario::load(&args.scenario)?;
+    let duration = args.duration.unwrap_or(scenario.file.duration);
+    anyhow::ensure!(duration.is_finite() && duration > 0.0, "--duration must be a positive number of seconds, got {duration}");
+    anyhow::ensure!(args.speed.is_finite() && args.speed > 0.0, "--speed must be a positive factor, got {}", args.speed);
+    let log_rate = args.log_rate.unwrap_or(scenario.file.rates.log);
+    anyhow::ensure!(log_rate.is_finite() && log_rate > 0.0 && log_rate <= 1e6, "--log-rate must be in (0, 1e6] Hz, got {log_rate}");
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create the output folder {}", args.out.display()))?;
+    let csv_path = args.out.join("trajectories.csv");
+    let csv = std::fs::File::create(&csv_path).with_context(|| format!("cannot create {}", csv_path.display()))?;
+
+    let mut builder = scenario.builder()?;
+    builder.insert_resource(TrajectoryLog::new(Box::new(std::io::BufWriter::new(csv))));
+    builder.add_plugin(TrajectoryLogPlugin { rate: log_rate });
+    let mut sim = builder.build();
+
+    let bar = (std::io::stderr().is_terminal() && duration >= 30.0).then(|| {
+        let bar = indicatif::ProgressBar::new((duration * 1000.0).round() as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {msg} sim s, {elapsed} elapsed, eta {eta}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    });
+    let progress = |sim: &smlworld::app::Sim| {
+        if let Some(bar) = &bar {
+            let t = sim.now().as_secs();
+            bar.set_position((t * 1000.0).round() as u64);
+            bar.set_message(format!("{t:.0}/{duration:.0}"));
+        }
+    };
+    let report = if args.realtime {
+        RealtimeRunner::new(args.speed).run(&mut sim, duration, 1.0, progress)
+    } else {
+        run_headless(&mut sim, duration, 1.0, progress)
+    };
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    sim.world_mut()
+        .resource_mut::<TrajectoryLog>()
+        .finish()
+        .with_context(|| format!("cannot write {}", csv_path.display()))?;
+
+    let summary = RunSummary::new(&sim, &report);
+    let summary_path = args.out.join("summary.json");
+    let json = serde_json::to_string_pretty(&summary)?;
+    std::fs::write(&summary_path, format!("{json}\n")).with_context(|| format!("cannot write {}", summary_path.display()))?;
+    let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
+    tracing::info!(
+        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), seed {}, max distance to centre line {:.3} m; wrote {} and {}",
+        summary.vehicles,
+        summary.sim_seconds,
+        summary.wall_seconds,
+        summary.real_time_factor,
+        summary.seed,
+        worst,
+        csv_path.display(),
+        summary_path.display()
+    );
+    Ok(())
 }

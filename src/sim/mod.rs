@@ -1,1 +1,19 @@
 //! Scheduled systems: clock, multi-rate scheduler, dynamics models, sensors and V2V.
+//!
+//! Each module is one bevy_ecs [`bevy_ecs::schedule::Schedule`] with its own rate, named by a
+//! schedule label ([`Sensors`], [`Wifi`], [`Network`], [`Control`], [`Dynamics`]); the
+//! [`Scheduler`] always runs the one due earliest, ties in [`Phase`] order
+//! (sense -> communicate -> control -> dynamics). The systems of each module are plain functions
+//! over the components of [`crate::world`]; the model and geometry maths are pure functions.
+
+pub mod dynamics;
+pub mod grid;
+mod schedule;
+pub mod sensors;
+pub mod v2v;
+
+pub use dynamics::{DynamicsPlugin, step_acceleration_unicycle, step_kinematic_unicycle};
+pub use grid::{GridEntry, SpatialGrid};
+pub use schedule::{Control, ControlEpoch, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, Wifi};
+pub use sensors::{SensorsPlugin, in_radar_cone};
+pub use v2v::{V2vConfig, V2vPlugin, V2vStats};

@@ -1,0 +1,144 @@
+//! Run outputs: the trajectory log (CSV, its own module at the log rate) and the run summary.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+
+use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
+use bevy_ecs::schedule::ScheduleLabel;
+
+use crate::sim::{Phase, SimClock, V2vStats};
+use crate::vehicles::PathFollower;
+use crate::world::{VehicleState, Vehicles};
+
+use super::{Plugin, RunReport, Sim, SimBuilder, SimSeed};
+
+/// Schedule of the trajectory logger ([`Phase::Sense`]: it sees the state at its tick time).
+#[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Log;
+
+/// Where trajectory rows go: `t,id,x,y,yaw,vx,vy` [s, -, m, m, rad, m/s, m/s], vehicles in id
+/// order, full precision.
+#[derive(Resource)]
+pub struct TrajectoryLog {
+    writer: Box<dyn Write + Send + Sync>,
+    rows: u64,
+    error: Option<std::io::Error>,
+}
+
+impl TrajectoryLog {
+    /// Log into `writer` (the header is written at once).
+    pub fn new(mut writer: Box<dyn Write + Send + Sync>) -> TrajectoryLog {
+        let error = writeln!(writer, "t,id,x,y,yaw,vx,vy").err();
+        TrajectoryLog { writer, rows: 0, error }
+    }
+
+    /// Rows written so far.
+    pub fn rows(&self) -> u64 {
+        self.rows
+    }
+
+    /// Flush the writer; returns the first write error of the run, if any.
+    pub fn finish(&mut self) -> std::io::Result<()> {
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        self.writer.flush()
+    }
+}
+
+/// Append every vehicle's state at this tick to the [`TrajectoryLog`].
+pub fn log_trajectories(
+    clock: Res<SimClock>,
+    vehicles: Res<Vehicles>,
+    states: Query<&VehicleState>,
+    log: Option<ResMut<TrajectoryLog>>,
+) {
+    let Some(mut log) = log else { return };
+    if log.error.is_some() {
+        return;
+    }
+    let t = clock.now.as_secs();
+    for (id, e) in vehicles.iter() {
+        if let Ok(s) = states.get(e) {
+            let r = writeln!(
+                log.writer,
+                "{t:.6},{id},{},{},{},{},{}",
+                s.position.x, s.position.y, s.yaw, s.velocity.x, s.velocity.y
+            );
+            if let Err(e) = r {
+                log.error = Some(e);
+                return;
+            }
+            log.rows += 1;
+        }
+    }
+}
+
+/// The trajectory logger as a module of its own at `rate` [Hz]; insert a [`TrajectoryLog`]
+/// resource to say where the rows go.
+#[derive(Debug, Clone, Copy)]
+pub struct TrajectoryLogPlugin {
+    /// Log rate [Hz].
+    pub rate: f64,
+}
+
+impl Plugin for TrajectoryLogPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        sim.add_module("log", Log, Phase::Sense, self.rate);
+        sim.add_systems(Log, log_trajectories);
+    }
+}
+
+/// Deliveries per V2V channel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct MessagesDelivered {
+    /// Network deliveries (one message to one receiver counts one).
+    pub network: u64,
+    /// Wifi deliveries.
+    pub wifi: u64,
+}
+
+/// `summary.json` of a run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RunSummary {
+    /// Sim time covered [s].
+    pub sim_seconds: f64,
+    /// Wall-clock time taken [s].
+    pub wall_seconds: f64,
+    /// Sim seconds per wall second.
+    pub real_time_factor: f64,
+    /// Number of vehicles.
+    pub vehicles: usize,
+    /// V2V deliveries per channel.
+    pub messages_delivered: MessagesDelivered,
+    /// Rate warnings of the real-time runner.
+    pub rate_warnings: u64,
+    /// The scenario's seed.
+    pub seed: u64,
+    /// Per vehicle id (JSON keys are strings): largest distance to its route's centre line seen
+    /// by its path follower [m], checked at every control tick.
+    pub max_distance_to_centre_line: BTreeMap<i32, f64>,
+}
+
+impl RunSummary {
+    /// Summarise `sim` after a run described by `report`.
+    pub fn new(sim: &Sim, report: &RunReport) -> RunSummary {
+        let world = sim.world();
+        let stats = world.get_resource::<V2vStats>().copied().unwrap_or_default();
+        let vehicles = world.resource::<Vehicles>();
+        let max_distance_to_centre_line = vehicles
+            .iter()
+            .filter_map(|(id, e)| Some((id.0, world.get::<PathFollower>(e)?.max_offset)))
+            .collect();
+        RunSummary {
+            sim_seconds: report.sim_seconds,
+            wall_seconds: report.wall_seconds,
+            real_time_factor: if report.wall_seconds > 0.0 { report.sim_seconds / report.wall_seconds } else { f64::INFINITY },
+            vehicles: vehicles.len(),
+            messages_delivered: MessagesDelivered { network: stats.network_delivered, wifi: stats.wifi_delivered },
+            rate_warnings: sim.rate_warnings(),
+            seed: world.get_resource::<SimSeed>().map_or(0, |s| s.0),
+            max_distance_to_centre_line,
+        }
+    }
+}

@@ -1,0 +1,113 @@
+//! Dynamics: pure step functions of the two unicycle models and the thin systems that call them.
+//!
+//! Both models move the vehicle along an arc of constant curvature κ = tan φ / L during a step
+//! (φ held by the controller for the whole step), integrated exactly: a constant command gives
+//! an exact circle of radius L / tan φ whatever the step. The acceleration model's speed follows
+//! the exact solution of v̇ = (u − c v) / m over the step and stops at zero when braking.
+
+use bevy_ecs::prelude::{Query, Res};
+
+use crate::app::{Plugin, SimBuilder};
+use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, VehicleState};
+
+use super::{Dynamics, SimClock};
+
+/// Wrap an angle to (−π, π] [rad].
+fn wrap_angle(a: f64) -> f64 {
+    let w = (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+    if w == -std::f64::consts::PI { std::f64::consts::PI } else { w }
+}
+
+/// Move `state` a distance `distance` [m] along an arc of curvature `curvature` [1/m] starting
+/// at its heading, and set its velocity to `end_speed` [m/s] along the new heading.
+fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_speed: f64) {
+    let turn = curvature * distance;
+    let yaw0 = state.yaw;
+    if turn.abs() > 1e-12 {
+        let yaw1 = yaw0 + turn;
+        state.position.x += (yaw1.sin() - yaw0.sin()) / curvature;
+        state.position.y += (yaw0.cos() - yaw1.cos()) / curvature;
+        state.yaw = wrap_angle(yaw1);
+    } else {
+        state.position += glam::DVec2::from_angle(yaw0) * distance;
+    }
+    state.velocity = glam::DVec2::from_angle(state.yaw) * end_speed;
+}
+
+/// One step of the kinematic unicycle over `dt` [s]: drive at the commanded speed with the
+/// commanded steering (clamped to ±`max_steering`).
+pub fn step_kinematic_unicycle(state: &mut VehicleState, command: &ControlCommand, params: &KinematicUnicycle, dt: f64) {
+    let steering = command.steering.clamp(-params.max_steering, params.max_steering);
+    let curvature = steering.tan() / params.wheelbase;
+    advance_arc(state, command.speed * dt, curvature, command.speed);
+}
+
+/// One step of the acceleration unicycle over `dt` [s]: v̇ = (throttle − c v) / m, solved
+/// exactly over the step; a negative throttle brakes to zero speed and stays there (the model
+/// never reverses, and a negative starting speed counts as zero).
+pub fn step_acceleration_unicycle(
+    state: &mut VehicleState,
+    command: &ControlCommand,
+    params: &AccelerationUnicycle,
+    dt: f64,
+) {
+    let steering = command.steering.clamp(-params.max_steering, params.max_steering);
+    let curvature = steering.tan() / params.wheelbase;
+    let (u, m, c) = (command.throttle, params.mass, params.drag);
+    let v0 = state.speed().max(0.0);
+    // Time until the speed reaches zero if it does within the step, else the whole step.
+    let (v1, moving_time) = if c > 0.0 {
+        let tau = m / c;
+        let v_inf = u / c;
+        let v1 = v_inf + (v0 - v_inf) * (-dt / tau).exp();
+        if v1 < 0.0 {
+            // v(t) = 0 at t0 = τ ln((v0 − v∞) / (−v∞)), v∞ < 0 here.
+            (0.0, tau * ((v0 - v_inf) / -v_inf).ln())
+        } else {
+            (v1, dt)
+        }
+    } else {
+        let a = u / m;
+        let v1 = v0 + a * dt;
+        if v1 < 0.0 { (0.0, v0 / -a) } else { (v1, dt) }
+    };
+    let distance = if c > 0.0 {
+        let tau = m / c;
+        let v_inf = u / c;
+        v_inf * moving_time + (v0 - v_inf) * tau * (1.0 - (-moving_time / tau).exp())
+    } else {
+        v0 * moving_time + 0.5 * (u / m) * moving_time * moving_time
+    };
+    advance_arc(state, distance.max(0.0), curvature, v1);
+}
+
+/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step.
+pub fn integrate_kinematic_unicycles(
+    clock: Res<SimClock>,
+    mut vehicles: Query<(&mut VehicleState, &ControlCommand, &KinematicUnicycle)>,
+) {
+    for (mut state, command, params) in &mut vehicles {
+        step_kinematic_unicycle(&mut state, command, params, clock.dt);
+    }
+}
+
+/// Integrate every vehicle with an [`AccelerationUnicycle`] over the dynamics step.
+pub fn integrate_acceleration_unicycles(
+    clock: Res<SimClock>,
+    mut vehicles: Query<(&mut VehicleState, &ControlCommand, &AccelerationUnicycle)>,
+) {
+    for (mut state, command, params) in &mut vehicles {
+        step_acceleration_unicycle(&mut state, command, params, clock.dt);
+    }
+}
+
+/// Both unicycle models in the [`Dynamics`] schedule. Vehicles without a model component (real
+/// vehicles, whose state a bridge writes) are left alone.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct DynamicsPlugin;
+
+impl Plugin for DynamicsPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        sim.add_systems(Dynamics, (integrate_kinematic_unicycles, integrate_acceleration_unicycles));
+    }
+}

@@ -1,0 +1,127 @@
+//! Path following: pure pursuit steering plus a speed controller along a vehicle's [`Route`].
+//!
+//! Pure pursuit steers onto the arc through the point one look-ahead distance ahead on the path;
+//! on a circle it is exact for the unicycle models, so the only tracking error comes from changes
+//! of curvature. Progress along the path is tracked with [`crate::map::Path::project_near`]
+//! around the last projection, O(1) per tick.
+
+use bevy_ecs::prelude::{Component, Query, Res};
+
+use crate::app::{Plugin, SimBuilder};
+use crate::sim::{Control, SimClock};
+use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Route, VehicleState};
+
+/// Parameters of the path follower.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PathFollowing {
+    /// Cruise speed [m/s].
+    pub speed: f64,
+    /// Shortest look-ahead distance [m]; raising it smooths steering but cuts corners more.
+    pub lookahead_min: f64,
+    /// Look-ahead time [s]: the look-ahead distance is max(`lookahead_min`, speed · this).
+    pub lookahead_time: f64,
+    /// Speed error gain of the throttle controller [1/s] (acceleration model only); raising it
+    /// reaches the cruise speed faster.
+    pub speed_gain: f64,
+    /// Deceleration used to stop at the end of an open route [m/s²].
+    pub stop_deceleration: f64,
+}
+
+impl Default for PathFollowing {
+    fn default() -> Self {
+        PathFollowing { speed: 10.0, lookahead_min: 4.0, lookahead_time: 0.5, speed_gain: 1.0, stop_deceleration: 2.0 }
+    }
+}
+
+/// Per-vehicle state of the path follower.
+#[derive(Component, Debug, Clone, Copy, PartialEq)]
+pub struct PathFollower {
+    /// Parameters.
+    pub params: PathFollowing,
+    /// Arc length of the vehicle's projection on its route at the last tick [m].
+    pub s: f64,
+    /// Largest distance to the route's centre line seen so far [m].
+    pub max_offset: f64,
+    tracking: bool,
+}
+
+impl PathFollower {
+    /// A follower that has not run yet (its first tick projects onto the whole route).
+    pub fn new(params: PathFollowing) -> PathFollower {
+        PathFollower { params, s: 0.0, max_offset: 0.0, tracking: false }
+    }
+}
+
+/// Wrap an angle to [−π, π) [rad].
+fn wrap(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
+/// Pure pursuit + speed control for every vehicle with a [`Route`] and a [`PathFollower`].
+#[allow(clippy::type_complexity)]
+pub fn follow_paths(
+    clock: Res<SimClock>,
+    mut vehicles: Query<(
+        &VehicleState,
+        &Route,
+        &mut PathFollower,
+        &mut ControlCommand,
+        Option<&KinematicUnicycle>,
+        Option<&AccelerationUnicycle>,
+    )>,
+) {
+    for (state, route, mut follower, mut command, kinematic, acceleration) in &mut vehicles {
+        let path = &route.0;
+        if path.points.len() < 2 {
+            continue;
+        }
+        let speed = state.speed();
+        let projection = if follower.tracking {
+            let window = 5.0 + 2.0 * speed.abs() * clock.dt;
+            path.project_near(state.position, follower.s, window)
+        } else {
+            path.project(state.position)
+        };
+        let p = follower.params;
+        follower.tracking = true;
+        follower.s = projection.s;
+        follower.max_offset = follower.max_offset.max(projection.lateral.abs());
+
+        let wheelbase = kinematic.map(|m| m.wheelbase).or(acceleration.map(|m| m.wheelbase)).unwrap_or(2.8);
+        let lookahead = p.lookahead_min.max(p.lookahead_time * speed.abs());
+        let (target, _) = path.sample(projection.s + lookahead);
+        let relative = target - state.position;
+        let distance = relative.length();
+        command.steering = if distance > 1e-9 {
+            let alpha = wrap(relative.y.atan2(relative.x) - state.yaw);
+            (wheelbase * 2.0 * alpha.sin() / distance).atan()
+        } else {
+            0.0
+        };
+
+        let mut target_speed = p.speed;
+        if !path.closed {
+            let remaining = (path.length - projection.s).max(0.0);
+            target_speed = target_speed.min((2.0 * p.stop_deceleration * remaining).sqrt());
+            if remaining < 0.5 {
+                target_speed = 0.0;
+            }
+        }
+        command.speed = target_speed;
+        command.throttle = match acceleration {
+            Some(m) => m.drag * target_speed + m.mass * p.speed_gain * (target_speed - speed),
+            None => 0.0,
+        };
+    }
+}
+
+/// The path follower in the [`Control`] schedule.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PathFollowingPlugin;
+
+impl Plugin for PathFollowingPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        sim.add_systems(Control, follow_paths);
+    }
+}

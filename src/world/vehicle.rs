@@ -1,0 +1,142 @@
+//! Core vehicle components: id, state, command, size, class and route.
+
+use std::sync::Arc;
+
+use bevy_ecs::prelude::Component;
+use glam::DVec2;
+
+use crate::map::Path;
+
+/// Unique id of a vehicle. Non-negative ids are real vehicles (scaled trucks, motion-capture
+/// bodies) whose state comes from a bridge; negative ids are virtual vehicles.
+#[derive(Component, Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+pub struct VehicleId(pub i32);
+
+impl VehicleId {
+    /// Whether this id names a real vehicle (id >= 0).
+    pub fn is_real(self) -> bool {
+        self.0 >= 0
+    }
+
+    /// Whether this id names a virtual vehicle (id < 0).
+    pub fn is_virtual(self) -> bool {
+        self.0 < 0
+    }
+}
+
+impl std::fmt::Display for VehicleId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// Planar state of a vehicle (the seed's x, y, θ, ẋ, ẏ).
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
+pub struct VehicleState {
+    /// Position of the vehicle's reference point [m], x east, y north.
+    pub position: DVec2,
+    /// Heading [rad], counter-clockwise from east.
+    pub yaw: f64,
+    /// Velocity [m/s] in world axes (ẋ, ẏ).
+    pub velocity: DVec2,
+}
+
+impl VehicleState {
+    /// A state at `position` [m] heading `yaw` [rad] with forward speed `speed` [m/s].
+    pub fn new(position: DVec2, yaw: f64, speed: f64) -> VehicleState {
+        VehicleState { position, yaw, velocity: DVec2::from_angle(yaw) * speed }
+    }
+
+    /// Unit vector of the heading.
+    pub fn heading(&self) -> DVec2 {
+        DVec2::from_angle(self.yaw)
+    }
+
+    /// Signed forward speed [m/s]: the velocity projected on the heading (negative when reversing).
+    pub fn speed(&self) -> f64 {
+        self.velocity.dot(self.heading())
+    }
+}
+
+/// What a controller asks of the dynamics model this tick. Which fields a model reads depends
+/// on the model: [`crate::world::KinematicUnicycle`] reads `speed` and `steering`,
+/// [`crate::world::AccelerationUnicycle`] reads `throttle` and `steering`.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
+pub struct ControlCommand {
+    /// Longitudinal force [N]; negative brakes (braking stops at zero speed, never reverses).
+    pub throttle: f64,
+    /// Steering angle of the front wheels [rad], positive turns left; clamped by the model.
+    pub steering: f64,
+    /// Commanded forward speed [m/s] (speed-controlled models).
+    pub speed: f64,
+}
+
+/// Footprint of a vehicle [m].
+#[derive(Component, Debug, Clone, Copy, PartialEq)]
+pub struct VehicleSize {
+    /// Length along the heading [m].
+    pub length: f64,
+    /// Width across the heading [m].
+    pub width: f64,
+}
+
+impl Default for VehicleSize {
+    /// A car of the 2015 simulator: 4.12 m x 1.7 m.
+    fn default() -> Self {
+        VehicleSize { length: 4.12, width: 1.7 }
+    }
+}
+
+/// Kind of vehicle, for drawing and for class-specific behaviour.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum VehicleClass {
+    /// Passenger car.
+    #[default]
+    Car,
+    /// Truck (the lab's scaled trucks are trucks).
+    Truck,
+    /// Bus.
+    Bus,
+    /// Motorcycle.
+    Motorcycle,
+    /// Bicycle.
+    Bicycle,
+    /// Emergency vehicle.
+    Emergency,
+}
+
+impl VehicleClass {
+    /// All classes, in declaration order.
+    pub const ALL: [VehicleClass; 6] = [
+        VehicleClass::Car,
+        VehicleClass::Truck,
+        VehicleClass::Bus,
+        VehicleClass::Motorcycle,
+        VehicleClass::Bicycle,
+        VehicleClass::Emergency,
+    ];
+
+    /// The class name as the 2015 visualisation stream wrote it (`Car`, `Truck`, ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            VehicleClass::Car => "Car",
+            VehicleClass::Truck => "Truck",
+            VehicleClass::Bus => "Bus",
+            VehicleClass::Motorcycle => "Motorcycle",
+            VehicleClass::Bicycle => "Bicycle",
+            VehicleClass::Emergency => "Emergency",
+        }
+    }
+}
+
+impl std::fmt::Display for VehicleClass {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The path a vehicle is asked to drive (a route or a closed loop from the road module),
+/// shared between vehicles on the same lane.
+#[derive(Component, Debug, Clone)]
+pub struct Route(pub Arc<Path>);

@@ -1,0 +1,166 @@
+//! Sensor geometry at the edges (cone angle, range), no self-detection, ordering, and the
+//! spatial grid against a brute-force scan.
+
+use smlworld::prelude::*;
+use smlworld::sim::in_radar_cone;
+
+/// A sim with sensors only; vehicles have no dynamics so they stay where they are put.
+fn world_of(vehicles: &[(i32, DVec2, f64, SensorSet)]) -> Sim {
+    let mut b = SimBuilder::new();
+    b.add_plugin(SensorsPlugin);
+    for &(id, p, yaw, sensors) in vehicles {
+        let mut spec = VehicleSpec::new(VehicleId(id), VehicleState::new(p, yaw, 0.0));
+        spec.model = VehicleModel::None;
+        spec.sensors = sensors;
+        b.spawn_vehicle(spec).expect("unique ids");
+    }
+    let mut sim = b.build();
+    sim.run_for(0.01); // one sensor tick, at t = 0
+    sim
+}
+
+fn seen(sim: &Sim, id: i32) -> Vec<i32> {
+    let e = sim.entity(VehicleId(id)).expect("vehicle exists");
+    sim.world().get::<SensorReadings>(e).expect("has sensors").0.iter().map(|d| d.id.0).collect()
+}
+
+fn radar() -> SensorSet {
+    SensorSet { radar: Some(Radar::default()), ..Default::default() }
+}
+
+const NONE: SensorSet = SensorSet { radar: None, velodyne: None, omniscient: false };
+
+#[test]
+fn radar_cone_edges_in_radians() {
+    // Default cone: 60° full opening, so ±30° about the heading; observer heading 20°.
+    let yaw = 20f64.to_radians();
+    let at = |bearing_deg: f64, eps: f64, distance: f64| {
+        let a = yaw + bearing_deg.to_radians() + eps;
+        DVec2::new(a.cos(), a.sin()) * distance
+    };
+    let sim = world_of(&[
+        (-1, DVec2::ZERO, yaw, radar()),
+        (-2, at(30.0, -1e-6, 40.0), 0.0, NONE),
+        (-3, at(30.0, 1e-6, 40.0), 0.0, NONE),
+        (-4, at(-30.0, 1e-6, 45.0), 0.0, NONE),
+        (-5, at(-30.0, -1e-6, 45.0), 0.0, NONE),
+        // 40° off the heading: outside a 60° cone. (A degrees-vs-radians mix-up, as in 2015,
+        // would not get this right.)
+        (-6, at(40.0, 0.0, 40.0), 0.0, NONE),
+    ]);
+    assert_eq!(seen(&sim, -1), vec![-2, -4]);
+}
+
+#[test]
+fn radar_range_is_inclusive_at_the_edge() {
+    let sim = world_of(&[
+        (-1, DVec2::ZERO, 0.0, radar()),
+        (-2, DVec2::new(100.0, 0.0), 0.0, NONE),
+        (-3, DVec2::new(100.0 + 1e-6, 1.0), 0.0, NONE),
+        (-4, DVec2::new(100.0 - 1e-6, -1.0).normalize() * (100.0 - 1e-6), 0.0, NONE),
+    ]);
+    assert_eq!(seen(&sim, -1), vec![-4, -2]);
+}
+
+#[test]
+fn radar_does_not_see_behind_but_velodyne_does() {
+    let velodyne = SensorSet { velodyne: Some(Velodyne::default()), ..Default::default() };
+    let sim = world_of(&[
+        (-1, DVec2::ZERO, 0.0, radar()),
+        (-2, DVec2::new(0.0, 100.0), 0.0, velodyne),
+        (-3, DVec2::new(-10.0, 0.0), 0.0, NONE),
+        (-4, DVec2::new(0.0, 150.0 - 1e-6), 0.0, NONE),
+        (-5, DVec2::new(0.0, 51.0), 0.0, NONE),
+        (-6, DVec2::new(50.0 + 1e-6, 100.0), 0.0, NONE),
+        (-7, DVec2::new(0.0, 50.0 - 1e-6), 0.0, NONE),
+    ]);
+    assert_eq!(seen(&sim, -1), Vec::<i32>::new());
+    assert_eq!(seen(&sim, -2), vec![-5, -4]);
+}
+
+#[test]
+fn no_self_detection_and_omniscient_sees_everyone_else_nearest_first() {
+    let all = SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: true };
+    let sim = world_of(&[
+        (3, DVec2::new(5.0, 0.0), 0.0, all),
+        (-7, DVec2::new(10_000.0, 0.0), 0.0, NONE),
+        (-8, DVec2::new(5.0, 2.0), 0.0, NONE),
+        (-9, DVec2::new(-20.0, 0.0), 0.0, NONE),
+        // Co-located with the observer: seen by the velodyne, not confused with itself.
+        (-10, DVec2::new(5.0, 0.0), 0.0, NONE),
+    ]);
+    assert_eq!(seen(&sim, 3), vec![-10, -8, -9, -7]);
+}
+
+#[test]
+fn readings_carry_position_and_velocity_of_the_target() {
+    let mut b = SimBuilder::new();
+    b.add_plugin(SensorsPlugin);
+    let mut observer = VehicleSpec::new(VehicleId(-1), VehicleState::new(DVec2::ZERO, 0.0, 0.0));
+    observer.sensors = radar();
+    observer.model = VehicleModel::None;
+    b.spawn_vehicle(observer).unwrap();
+    let mut target = VehicleSpec::new(VehicleId(-2), VehicleState::new(DVec2::new(30.0, 1.0), 0.5, 7.0));
+    target.model = VehicleModel::None;
+    b.spawn_vehicle(target).unwrap();
+    let mut sim = b.build();
+    sim.run_for(0.01);
+    let e = sim.entity(VehicleId(-1)).unwrap();
+    let readings = &sim.world().get::<SensorReadings>(e).unwrap().0;
+    assert_eq!(readings.len(), 1);
+    assert_eq!(readings[0].position, DVec2::new(30.0, 1.0));
+    assert!((readings[0].velocity - DVec2::new(0.5f64.cos(), 0.5f64.sin()) * 7.0).length() < 1e-12);
+}
+
+#[test]
+fn cone_test_in_radians() {
+    let h = DVec2::X;
+    let third = std::f64::consts::FRAC_PI_3;
+    assert!(in_radar_cone(DVec2::from_angle(0.5 * third - 1e-9), h, third));
+    assert!(!in_radar_cone(DVec2::from_angle(0.5 * third + 1e-9), h, third));
+    assert!(in_radar_cone(-DVec2::X, h, std::f64::consts::TAU));
+    assert!(!in_radar_cone(DVec2::ZERO, h, third));
+}
+
+/// A deterministic pseudo-random sequence in [0, 1).
+fn lcg(state: &mut u64) -> f64 {
+    *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    (*state >> 11) as f64 / (1u64 << 53) as f64
+}
+
+#[test]
+fn grid_sensing_matches_brute_force() {
+    let mut rng = 7u64;
+    let mut vehicles = Vec::new();
+    for i in 0..400 {
+        let p = DVec2::new(lcg(&mut rng) * 800.0 - 400.0, lcg(&mut rng) * 800.0 - 400.0);
+        let yaw = lcg(&mut rng) * std::f64::consts::TAU;
+        let sensors = match i % 3 {
+            0 => SensorSet { radar: Some(Radar { angle: 1.0, range: 80.0 }), ..Default::default() },
+            1 => SensorSet { velodyne: Some(Velodyne { range: 35.0 }), ..Default::default() },
+            _ => SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false },
+        };
+        vehicles.push((-1 - i, p, yaw, sensors));
+    }
+    let sim = world_of(&vehicles);
+    for &(id, p, yaw, sensors) in &vehicles {
+        let mut expected: Vec<(f64, i32)> = vehicles
+            .iter()
+            .filter(|o| o.0 != id)
+            .filter(|o| {
+                let rel = o.1 - p;
+                let d = rel.length();
+                sensors.velodyne.is_some_and(|v| d <= v.range)
+                    || sensors.radar.is_some_and(|r| {
+                        let bearing = (rel.y.atan2(rel.x) - yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                            - std::f64::consts::PI;
+                        d <= r.range && bearing.abs() <= 0.5 * r.angle
+                    })
+            })
+            .map(|o| (o.1.distance(p), o.0))
+            .collect();
+        expected.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let expected: Vec<i32> = expected.into_iter().map(|x| x.1).collect();
+        assert_eq!(seen(&sim, id), expected, "vehicle {id}");
+    }
+}

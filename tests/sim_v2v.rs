@@ -1,0 +1,162 @@
+//! V2V: the network reaches everyone but the sender, wifi range is inclusive, rounds follow the
+//! rates, payloads are shared not copied, and no message is lost between rounds.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
+use bevy_ecs::schedule::ScheduleLabel;
+use smlworld::prelude::*;
+
+fn parked(b: &mut SimBuilder, id: i32, p: DVec2) {
+    let mut spec = VehicleSpec::new(VehicleId(id), VehicleState::new(p, 0.0, 0.0));
+    spec.model = VehicleModel::None;
+    b.spawn_vehicle(spec).expect("unique ids");
+}
+
+fn send(sim: &mut Sim, id: i32, channel: Channel, payload: Payload) {
+    let e = sim.entity(VehicleId(id)).unwrap();
+    let now = sim.now();
+    sim.world_mut().get_mut::<Mailbox>(e).unwrap().send(channel, now, payload);
+}
+
+fn inbox_senders(sim: &Sim, id: i32, channel: Channel) -> Vec<i32> {
+    let e = sim.entity(VehicleId(id)).unwrap();
+    sim.world().get::<Mailbox>(e).unwrap().inbox(channel).iter().map(|m| m.sender.0).collect()
+}
+
+#[test]
+fn network_reaches_everyone_but_the_sender_without_copying_the_payload() {
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin::default());
+    for i in 0..5 {
+        parked(&mut b, -1 - i, DVec2::new(i as f64 * 10_000.0, 0.0));
+    }
+    let mut sim = b.build();
+    let payload: Payload = Arc::new(String::from("hello"));
+    send(&mut sim, -3, Channel::Network, payload.clone());
+    sim.run_for(0.5); // the network round at t = 0
+    for id in [-1, -2, -4, -5] {
+        assert_eq!(inbox_senders(&sim, id, Channel::Network), vec![-3], "receiver {id}");
+        let e = sim.entity(VehicleId(id)).unwrap();
+        let inbox = &sim.world().get::<Mailbox>(e).unwrap().network_in;
+        let m = inbox.iter().next().unwrap();
+        assert_eq!(m.payload::<String>().map(String::as_str), Some("hello"));
+        assert!(Arc::ptr_eq(&m.payload, &payload), "payload was copied for receiver {id}");
+    }
+    assert!(inbox_senders(&sim, -3, Channel::Network).is_empty());
+    assert!(inbox_senders(&sim, -1, Channel::Wifi).is_empty(), "network messages leaked onto wifi");
+    let stats = *sim.world().resource::<V2vStats>();
+    assert_eq!((stats.network_sent, stats.network_delivered), (1, 4));
+}
+
+#[test]
+fn wifi_range_is_inclusive() {
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0 } });
+    parked(&mut b, -1, DVec2::new(0.0, 0.0));
+    parked(&mut b, -2, DVec2::new(50.0, 0.0)); // exactly at range
+    parked(&mut b, -3, DVec2::new(0.0, -50.0 - 1e-6)); // just outside
+    parked(&mut b, -4, DVec2::new(30.0, 40.0 - 1e-9)); // just inside
+    parked(&mut b, -5, DVec2::new(-1000.0, 0.0));
+    parked(&mut b, -6, DVec2::new(-1000.0, 49.0));
+    let mut sim = b.build();
+    send(&mut sim, -1, Channel::Wifi, Arc::new(1u32));
+    send(&mut sim, -5, Channel::Wifi, Arc::new(5u32));
+    sim.run_for(0.05); // the wifi round at t = 0
+    assert_eq!(inbox_senders(&sim, -2, Channel::Wifi), vec![-1]);
+    assert_eq!(inbox_senders(&sim, -3, Channel::Wifi), Vec::<i32>::new());
+    assert_eq!(inbox_senders(&sim, -4, Channel::Wifi), vec![-1]);
+    assert_eq!(inbox_senders(&sim, -6, Channel::Wifi), vec![-5]);
+    assert_eq!(inbox_senders(&sim, -1, Channel::Wifi), Vec::<i32>::new());
+    assert_eq!(inbox_senders(&sim, -5, Channel::Wifi), Vec::<i32>::new());
+    assert_eq!(sim.world().resource::<V2vStats>().wifi_delivered, 3);
+}
+
+#[test]
+fn rounds_follow_the_rates_over_ten_seconds() {
+    for (wifi, network) in [(10.0, 1.0), (25.0, 2.0), (7.0, 0.5)] {
+        let mut b = SimBuilder::with_rates(Rates { wifi, network, ..Default::default() });
+        b.add_plugin(V2vPlugin::default());
+        parked(&mut b, -1, DVec2::ZERO);
+        let mut sim = b.build();
+        sim.run_for(10.0);
+        let stats = *sim.world().resource::<V2vStats>();
+        assert_eq!(stats.wifi_rounds, (wifi * 10.0) as u64, "wifi at {wifi} Hz");
+        assert_eq!(stats.network_rounds, (network * 10.0) as u64, "network at {network} Hz");
+    }
+}
+
+/// Every message a receiver has seen: (sender, sequence number).
+#[derive(Resource, Default)]
+struct Received {
+    last_round: BTreeMap<(i32, Channel), u64>,
+    seen: Vec<(i32, Channel, u64)>,
+}
+
+/// A sender: numbered message on both channels every tick of its schedule.
+fn chatter(clock: Res<SimClock>, mut boxes: Query<(&VehicleId, &mut Mailbox)>, mut counter: bevy_ecs::prelude::Local<u64>) {
+    for (id, mut mailbox) in &mut boxes {
+        if id.0 == -1 {
+            mailbox.send(Channel::Network, clock.now, Arc::new(*counter));
+            mailbox.send(Channel::Wifi, clock.now, Arc::new(*counter));
+            *counter += 1;
+        }
+    }
+}
+
+/// A receiver in the control phase: reads only rounds it has not seen yet.
+fn listen(boxes: Query<(&VehicleId, &Mailbox)>, mut received: ResMut<Received>) {
+    for (id, mailbox) in &boxes {
+        if id.0 == -1 {
+            continue;
+        }
+        for channel in [Channel::Network, Channel::Wifi] {
+            let inbox = mailbox.inbox(channel);
+            let last = received.last_round.get(&(id.0, channel)).copied().unwrap_or(0);
+            let new: Vec<u64> = inbox.iter_after(last).map(|m| *m.payload::<u64>().unwrap()).collect();
+            received.seen.extend(new.into_iter().map(|n| (id.0, channel, n)));
+            if let Some(r) = inbox.latest_round() {
+                received.last_round.insert((id.0, channel), r);
+            }
+        }
+    }
+}
+
+#[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct Chatter;
+
+/// Run 10 s with the sender at `send_rate`, control at `control_rate`; return what the
+/// receiver -2 saw per channel and how many messages were sent.
+fn exchange(send_rate: f64, control_rate: f64) -> (Vec<u64>, Vec<u64>, u64) {
+    let mut b = SimBuilder::with_rates(Rates { control: control_rate, ..Default::default() });
+    b.add_plugin(V2vPlugin::default());
+    b.add_module("chatter", Chatter, Phase::Control, send_rate);
+    b.add_systems(Chatter, chatter);
+    b.add_systems(Control, listen);
+    b.insert_resource(Received::default());
+    parked(&mut b, -1, DVec2::ZERO);
+    parked(&mut b, -2, DVec2::new(10.0, 0.0));
+    let mut sim = b.build();
+    sim.run_for(10.0);
+    let sent = sim.scheduler().ticks(Chatter).unwrap();
+    let r = sim.world().resource::<Received>();
+    let pick = |c: Channel| r.seen.iter().filter(|s| s.0 == -2 && s.1 == c).map(|s| s.2).collect::<Vec<_>>();
+    (pick(Channel::Network), pick(Channel::Wifi), sent)
+}
+
+#[test]
+fn no_message_lost_between_rounds_when_control_is_faster_or_slower() {
+    // Sender at 20 Hz, network 1 Hz, wifi 10 Hz, control 20 Hz (faster than V2V): the last round
+    // is at t = 9 s (network) / 9.9 s (wifi); a message sent at t is in the first round after t
+    // (a round at t itself runs before the control phase at t).
+    let (network, wifi, sent) = exchange(20.0, 20.0);
+    assert_eq!(sent, 200);
+    assert_eq!(network, (0..180).collect::<Vec<u64>>(), "network");
+    assert_eq!(wifi, (0..198).collect::<Vec<u64>>(), "wifi");
+    // Control at 2 Hz (slower than wifi): every round since the last control tick is kept.
+    // The last control tick is at 9.5 s, so it has seen the rounds up to 9.5 s.
+    let (network, wifi, _) = exchange(20.0, 2.0);
+    assert_eq!(network, (0..180).collect::<Vec<u64>>(), "network, slow control");
+    assert_eq!(wifi, (0..190).collect::<Vec<u64>>(), "wifi, slow control");
+}
