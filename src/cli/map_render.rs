@@ -1,10 +1,76 @@
-//! `smlworld` subcommand (not implemented yet).
+//! `smlworld map render MAP --out FILE.png|FILE.bmp`: the environment image plus the original's `.meta` file.
 
-/// Arguments (not implemented yet).
+use std::path::PathBuf;
+
+use anyhow::Context;
+use glam::DVec2;
+use smlworld::map::LaneletMap;
+use smlworld::render::{BirdseyeView, Environment, PatternSet, Renderer, write_image, write_meta};
+
+/// `smlworld map render MAP --out FILE [--width W --height H --pixels-per-meter P] [--center X,Y] [--patterns DIR]`.
 #[derive(Debug, clap::Args)]
-pub struct RenderArgs {}
+pub struct RenderArgs {
+    /// Map file (.osm or .xml, as saved by JOSM).
+    pub map: PathBuf,
+    /// Output image: `.png`, or `.bmp` for the original's bitmap format. `FILE.meta` is written beside it.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Image width [px].
+    #[arg(long, default_value_t = 1920)]
+    pub width: u32,
+    /// Image height [px].
+    #[arg(long, default_value_t = 1080)]
+    pub height: u32,
+    /// Scale [px/m]. Without it the whole map is fitted into the image; with it and no `--center`
+    /// the image is centred on the map's origin, as the 2015 tool did.
+    #[arg(long)]
+    pub pixels_per_meter: Option<f64>,
+    /// World point at the image centre, `X,Y` [m] (needs `--pixels-per-meter`).
+    #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "pixels_per_meter")]
+    pub center: Option<DVec2>,
+    /// Directory with your own pattern images (`forest.png`, `road.png`, `mud.png`, `iron.png`,
+    /// `parking_lot.png`, `free_space.png`); missing ones use the built-in patterns.
+    #[arg(long)]
+    pub patterns: Option<PathBuf>,
+}
+
+fn parse_point(s: &str) -> Result<DVec2, String> {
+    let bad = || format!("`{s}` is not a point: write X,Y in metres, e.g. 12.5,-3");
+    let (x, y) = s.split_once(',').ok_or_else(bad)?;
+    let x: f64 = x.trim().parse().map_err(|_| bad())?;
+    let y: f64 = y.trim().parse().map_err(|_| bad())?;
+    if x.is_finite() && y.is_finite() { Ok(DVec2::new(x, y)) } else { Err(bad()) }
+}
 
 /// Run the subcommand.
-pub fn main(_args: RenderArgs) -> anyhow::Result<()> {
-    anyhow::bail!("this subcommand is not implemented yet")
+pub fn main(args: RenderArgs) -> anyhow::Result<()> {
+    let map = LaneletMap::load(&args.map).with_context(|| format!("loading {}", args.map.display()))?;
+    for w in &map.warnings {
+        tracing::warn!("{w}");
+    }
+    let view = match args.pixels_per_meter {
+        Some(ppm) => BirdseyeView::new(args.width, args.height, ppm, args.center.unwrap_or(DVec2::ZERO))?,
+        None => BirdseyeView::fit_map(args.width, args.height, &map)?,
+    };
+    let patterns = match &args.patterns {
+        Some(dir) => PatternSet::from_dir(dir)?,
+        None => PatternSet::builtin(),
+    };
+    let mut renderer = Renderer::new()?;
+    tracing::debug!(adapter = %renderer.adapter_name(), "rendering");
+    let layer = renderer.environment_layer(&Environment::from_map(&map), &view, &patterns)?;
+    let image = renderer.read_environment(&layer)?;
+    write_image(&args.out, &image)?;
+    let meta = write_meta(&args.out, &view)?;
+    println!(
+        "wrote {} ({}x{} px, {} px/m, centre {},{} m) and {}",
+        args.out.display(),
+        view.width,
+        view.height,
+        view.pixels_per_meter,
+        view.center.x,
+        view.center.y,
+        meta.display()
+    );
+    Ok(())
 }

@@ -1,10 +1,54 @@
-//! `smlworld` subcommand (not implemented yet).
+//! `smlworld mock-mocap`: a mock Qualisys motion-capture server streaming scripted trajectories.
 
-/// Arguments (not implemented yet).
+use std::io::Write as _;
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
+use std::path::PathBuf;
+
+use anyhow::Context as _;
+use smlworld::io::mock_mocap::{DEFAULT_MOCK_RATE_HZ, MocapScript, MockMocapConfig, MockMocapServer};
+use smlworld::io::qualisys::DEFAULT_QTM_PORT;
+
+/// Arguments of `smlworld mock-mocap`.
 #[derive(Debug, clap::Args)]
-pub struct MockMocapArgs {}
+pub struct MockMocapArgs {
+    /// TCP port to listen on (loopback); 0 picks a free one.
+    #[arg(long, default_value_t = DEFAULT_QTM_PORT)]
+    pub port: u16,
+    /// Number of bodies driving around circles on the lab floor (ignored with --script).
+    #[arg(long, default_value_t = 2)]
+    pub bodies: u32,
+    /// Capture rate [Hz]: how fast frame numbers advance.
+    #[arg(long, default_value_t = DEFAULT_MOCK_RATE_HZ)]
+    pub rate: f64,
+    /// Keyframe script (CSV: t_s,body,x_mm,y_mm,z_mm,roll_deg,pitch_deg,yaw_deg) instead of circles.
+    #[arg(long)]
+    pub script: Option<PathBuf>,
+}
 
-/// Run the subcommand.
-pub fn main(_args: MockMocapArgs) -> anyhow::Result<()> {
-    anyhow::bail!("this subcommand is not implemented yet")
+/// Serve until the process is stopped (Ctrl-C).
+pub fn main(args: MockMocapArgs) -> anyhow::Result<()> {
+    let script = match &args.script {
+        Some(path) => MocapScript::load(path)?,
+        None => MocapScript::circles(args.bodies),
+    };
+    let bodies = script.body_count();
+    let config = MockMocapConfig {
+        bind: SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, args.port)),
+        rate_hz: args.rate,
+        script,
+    };
+    let server = MockMocapServer::start(config)?;
+    let mut out = std::io::stdout().lock();
+    writeln!(
+        out,
+        "mock Qualisys server listening on {} ({bodies} bodies, {} Hz); Ctrl-C stops it",
+        server.local_addr(),
+        args.rate
+    )
+    .and_then(|()| out.flush())
+    .context("writing to stdout")?;
+    drop(out);
+    loop {
+        std::thread::park();
+    }
 }

@@ -1,0 +1,365 @@
+//! A mock Qualisys Track Manager server for tests and demos: answers the handshake commands of
+//! the real-time protocol 1.11 and serves `GetCurrentFrame 6DEuler` from scripted trajectories.
+//!
+//! Scripts are either built in ([`MocapScript::Circles`]: bodies driving around circles on the
+//! lab floor) or keyframes read from CSV ([`MocapScript::from_csv`]):
+//!
+//! ```text
+//! # t_s, body, x_mm, y_mm, z_mm, roll_deg, pitch_deg, yaw_deg
+//! 0.0, 0, 0, 0, 0, 0, 0, 0
+//! 2.0, 0, 1000, 0, 0, 0, 0, 0
+//! 1.0, 1, nan, nan, nan, nan, nan, nan
+//! ```
+//! Lines starting with `#` and blank lines are ignored; the first other line may name the
+//! columns. Between two keyframes of a body the pose is interpolated linearly (yaw along the
+//! shorter way); a keyframe with NaN values hides the body until its next keyframe; before its
+//! first keyframe a body is hidden, after its last it stays put. The script loops with a period
+//! equal to its last keyframe time (over all bodies).
+
+use std::collections::BTreeMap;
+use std::io::{Read, Write};
+use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, TcpListener, TcpStream};
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use super::qualisys::{
+    DEFAULT_QTM_PORT, MAX_PACKET_LEN, PacketDecoder, PacketType, encode_6d_euler_packet, encode_text,
+};
+
+/// Default capture rate of the mock [Hz]: frame numbers advance at this rate.
+pub const DEFAULT_MOCK_RATE_HZ: f64 = 100.0;
+/// Greeting the server sends on connect (as QTM does).
+pub const GREETING: &str = "QTM RT Interface connected";
+
+/// Errors of the mock server and its scripts.
+#[derive(Debug, thiserror::Error)]
+pub enum MockMocapError {
+    /// The script file cannot be read.
+    #[error("{path}: cannot read the motion-capture script: {source}")]
+    Read {
+        /// The file.
+        path: String,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// A script line is malformed.
+    #[error("{path}:{line}: {problem}; expected `t_s,body,x_mm,y_mm,z_mm,roll_deg,pitch_deg,yaw_deg`")]
+    Script {
+        /// The file (or `<memory>`).
+        path: String,
+        /// 1-based line.
+        line: usize,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A setting is out of range.
+    #[error("mock motion capture: {0}")]
+    Config(String),
+    /// Socket error.
+    #[error("mock motion capture server ({what}): {source}")]
+    Io {
+        /// What was being done.
+        what: String,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+}
+
+/// One keyframe of a body: time [s] and pose `[x, y, z mm, roll, pitch, yaw degrees]`
+/// (NaN values: hidden).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Keyframe {
+    /// Time from the start of the script [s].
+    pub t_s: f64,
+    /// Pose `[x_mm, y_mm, z_mm, roll_deg, pitch_deg, yaw_deg]`.
+    pub pose: [f64; 6],
+}
+
+/// Scripted trajectories of the mock bodies.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MocapScript {
+    /// Body k drives counter-clockwise around the lab origin on a circle of radius
+    /// `radius_mm + k * spacing_mm`, at `speed_mm_s`, starting at angle `k * 2π / bodies`.
+    Circles {
+        /// Number of bodies.
+        bodies: u32,
+        /// Radius of body 0's circle [mm].
+        radius_mm: f64,
+        /// Extra radius per body index [mm].
+        spacing_mm: f64,
+        /// Speed along the circle [mm/s].
+        speed_mm_s: f64,
+    },
+    /// Keyframes per body index, sorted by time.
+    Keyframes(BTreeMap<u32, Vec<Keyframe>>),
+}
+
+impl MocapScript {
+    /// `bodies` bodies on circles of 1 m, 1.3 m, ... at 0.3 m/s (about 35 km/h at scale 1:32).
+    pub fn circles(bodies: u32) -> Self {
+        Self::Circles { bodies, radius_mm: 1000.0, spacing_mm: 300.0, speed_mm_s: 300.0 }
+    }
+
+    /// Read a keyframe script from a CSV file.
+    pub fn load(path: &Path) -> Result<Self, MockMocapError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| MockMocapError::Read { path: path.display().to_string(), source })?;
+        Self::from_csv(&text, &path.display().to_string())
+    }
+
+    /// Parse a keyframe script (format in the module docs); `name` names the source in errors.
+    pub fn from_csv(text: &str, name: &str) -> Result<Self, MockMocapError> {
+        let mut bodies: BTreeMap<u32, Vec<Keyframe>> = BTreeMap::new();
+        let mut first = true;
+        for (i, raw) in text.lines().enumerate() {
+            let line = raw.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let err = |problem: String| MockMocapError::Script { path: name.to_string(), line: i + 1, problem };
+            let cols: Vec<&str> = line.split(',').map(str::trim).collect();
+            if std::mem::take(&mut first) && cols.first().is_some_and(|c| c.parse::<f64>().is_err()) {
+                continue;
+            }
+            if cols.len() != 8 {
+                return Err(err(format!("{} columns", cols.len())));
+            }
+            let t_s: f64 = cols[0].parse().map_err(|_| err(format!("time {:?} is not a number", cols[0])))?;
+            if !(t_s.is_finite() && t_s >= 0.0) {
+                return Err(err(format!("time {t_s} must be finite and >= 0")));
+            }
+            let body: u32 = cols[1].parse().map_err(|_| err(format!("body {:?} is not an index >= 0", cols[1])))?;
+            let mut pose = [0.0; 6];
+            for (k, v) in pose.iter_mut().enumerate() {
+                *v = cols[2 + k].parse().map_err(|_| err(format!("value {:?} is not a number", cols[2 + k])))?;
+            }
+            bodies.entry(body).or_default().push(Keyframe { t_s, pose });
+        }
+        if bodies.is_empty() {
+            return Err(MockMocapError::Script { path: name.to_string(), line: 0, problem: "no keyframes".into() });
+        }
+        for frames in bodies.values_mut() {
+            frames.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+        }
+        Ok(Self::Keyframes(bodies))
+    }
+
+    /// Number of bodies the server reports (highest index + 1 for keyframes).
+    pub fn body_count(&self) -> u32 {
+        match self {
+            Self::Circles { bodies, .. } => *bodies,
+            Self::Keyframes(b) => b.keys().next_back().map_or(0, |k| k + 1),
+        }
+    }
+
+    /// Pose of body `body` at `t_s` [s], `None` when hidden.
+    pub fn pose(&self, body: u32, t_s: f64) -> Option<[f64; 6]> {
+        match self {
+            Self::Circles { bodies, radius_mm, spacing_mm, speed_mm_s } => {
+                if body >= *bodies {
+                    return None;
+                }
+                let r = radius_mm + f64::from(body) * spacing_mm;
+                let phase = f64::from(body) * std::f64::consts::TAU / f64::from(*bodies);
+                let a = phase + speed_mm_s / r * t_s;
+                let yaw = (a + std::f64::consts::FRAC_PI_2).sin().atan2((a + std::f64::consts::FRAC_PI_2).cos());
+                Some([r * a.cos(), r * a.sin(), 0.0, 0.0, 0.0, yaw.to_degrees()])
+            }
+            Self::Keyframes(all) => {
+                let frames = all.get(&body)?;
+                let period = all.values().filter_map(|f| f.last()).map(|k| k.t_s).fold(0.0, f64::max);
+                let t = if period > 0.0 { t_s.rem_euclid(period) } else { t_s };
+                let next = frames.partition_point(|k| k.t_s <= t);
+                let k0 = frames.get(next.checked_sub(1)?)?;
+                if k0.pose.iter().any(|v| !v.is_finite()) {
+                    return None;
+                }
+                let Some(k1) = frames.get(next).filter(|k| k.pose.iter().all(|v| v.is_finite())) else {
+                    return Some(k0.pose);
+                };
+                let u = (t - k0.t_s) / (k1.t_s - k0.t_s);
+                let mut p: [f64; 6] = std::array::from_fn(|i| k0.pose[i] + u * (k1.pose[i] - k0.pose[i]));
+                let dyaw = (k1.pose[5] - k0.pose[5] + 180.0).rem_euclid(360.0) - 180.0;
+                p[5] = k0.pose[5] + u * dyaw;
+                Some(p)
+            }
+        }
+    }
+}
+
+/// Settings of a [`MockMocapServer`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct MockMocapConfig {
+    /// Address to listen on (default 127.0.0.1:22224; port 0 picks a free one).
+    pub bind: SocketAddr,
+    /// Capture rate [Hz]: frame numbers advance at this rate (default 100).
+    pub rate_hz: f64,
+    /// What the bodies do.
+    pub script: MocapScript,
+}
+
+impl Default for MockMocapConfig {
+    fn default() -> Self {
+        Self {
+            bind: SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, DEFAULT_QTM_PORT)),
+            rate_hz: DEFAULT_MOCK_RATE_HZ,
+            script: MocapScript::circles(2),
+        }
+    }
+}
+
+/// A running mock server; each client gets its own thread. Dropping it stops everything.
+#[derive(Debug)]
+pub struct MockMocapServer {
+    local_addr: SocketAddr,
+    stop: Arc<AtomicBool>,
+    connections: Arc<AtomicU64>,
+    thread: Option<JoinHandle<()>>,
+}
+
+/// How often server threads check whether they should stop.
+const SERVER_TICK: Duration = Duration::from_millis(10);
+
+impl MockMocapServer {
+    /// Bind and start serving.
+    pub fn start(config: MockMocapConfig) -> Result<Self, MockMocapError> {
+        if !(config.rate_hz.is_finite() && config.rate_hz > 0.0) {
+            return Err(MockMocapError::Config(format!("rate {} Hz must be positive", config.rate_hz)));
+        }
+        let io = |what: String| move |source| MockMocapError::Io { what, source };
+        let listener = TcpListener::bind(config.bind).map_err(io(format!("bind {}", config.bind)))?;
+        listener.set_nonblocking(true).map_err(io("set non-blocking".into()))?;
+        let local_addr = listener.local_addr().map_err(io("local address".into()))?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let connections = Arc::new(AtomicU64::new(0));
+        let thread = {
+            let (stop, connections) = (stop.clone(), connections.clone());
+            let world = Arc::new(MockWorld { script: config.script, rate_hz: config.rate_hz, start: Instant::now() });
+            std::thread::Builder::new()
+                .name("mock-mocap".into())
+                .spawn(move || accept_loop(&listener, &world, &stop, &connections))
+                .map_err(io("spawn server thread".into()))?
+        };
+        Ok(Self { local_addr, stop, connections, thread: Some(thread) })
+    }
+
+    /// The address actually bound.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// Clients accepted so far.
+    pub fn connections(&self) -> u64 {
+        self.connections.load(Ordering::Relaxed)
+    }
+}
+
+impl Drop for MockMocapServer {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+#[derive(Debug)]
+struct MockWorld {
+    script: MocapScript,
+    rate_hz: f64,
+    start: Instant,
+}
+
+impl MockWorld {
+    /// The current frame as a data packet; positions at the frame's own time.
+    fn frame_packet(&self) -> Vec<u8> {
+        let frame = (self.start.elapsed().as_secs_f64() * self.rate_hz).floor();
+        let t = frame / self.rate_hz;
+        let bodies: Vec<[f32; 6]> = (0..self.script.body_count())
+            .map(|b| self.script.pose(b, t).map_or([f32::NAN; 6], |p| p.map(|v| v as f32)))
+            .collect();
+        encode_6d_euler_packet((t * 1e6) as i64, frame as i32, &bodies)
+    }
+}
+
+fn accept_loop(listener: &TcpListener, world: &Arc<MockWorld>, stop: &Arc<AtomicBool>, connections: &AtomicU64) {
+    let mut clients: Vec<JoinHandle<()>> = Vec::new();
+    while !stop.load(Ordering::Relaxed) {
+        match listener.accept() {
+            Ok((stream, peer)) => {
+                connections.fetch_add(1, Ordering::Relaxed);
+                tracing::info!("mock motion capture: client {peer} connected");
+                let (world, stop) = (world.clone(), stop.clone());
+                let spawned = std::thread::Builder::new().name("mock-mocap-client".into()).spawn(move || {
+                    if let Err(e) = serve_client(stream, &world, &stop) {
+                        tracing::info!("mock motion capture: client {peer}: {e}");
+                    }
+                });
+                match spawned {
+                    Ok(h) => clients.push(h),
+                    Err(e) => tracing::warn!("mock motion capture: cannot spawn a client thread: {e}"),
+                }
+                clients.retain(|h| !h.is_finished());
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::thread::sleep(SERVER_TICK),
+            Err(e) => {
+                tracing::warn!("mock motion capture: accept: {e}");
+                std::thread::sleep(SERVER_TICK);
+            }
+        }
+    }
+    for h in clients {
+        let _ = h.join();
+    }
+}
+
+fn serve_client(mut stream: TcpStream, world: &MockWorld, stop: &AtomicBool) -> std::io::Result<()> {
+    stream.set_nonblocking(false)?;
+    stream.set_nodelay(true)?;
+    stream.set_read_timeout(Some(SERVER_TICK))?;
+    stream.write_all(&encode_text(PacketType::Command, GREETING))?;
+    let mut decoder = PacketDecoder::new(MAX_PACKET_LEN);
+    let mut buf = vec![0u8; 4096];
+    while !stop.load(Ordering::Relaxed) {
+        match stream.read(&mut buf) {
+            Ok(0) => return Ok(()),
+            Ok(n) => decoder.push(&buf[..n]),
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
+            Err(e) => return Err(e),
+        }
+        while let Some(p) = decoder.next_packet() {
+            let reply = match p {
+                Ok(p) if p.kind == PacketType::Command => answer(&p.text(), world),
+                Ok(p) => encode_text(PacketType::Error, &format!("Unexpected packet type {:?}", p.kind)),
+                Err(e) => {
+                    stream.write_all(&encode_text(PacketType::Error, &e.to_string()))?;
+                    return Ok(());
+                }
+            };
+            stream.write_all(&reply)?;
+        }
+    }
+    Ok(())
+}
+
+/// The reply to one command, as QTM words it.
+fn answer(command: &str, world: &MockWorld) -> Vec<u8> {
+    let mut words = command.split_whitespace();
+    let verb = words.next().unwrap_or("").to_ascii_lowercase();
+    let text = |t: &str| encode_text(PacketType::Command, t);
+    match verb.as_str() {
+        "version" => match words.next() {
+            Some(v) => text(&format!("Version set to {v}")),
+            None => text("Version is 1.11"),
+        },
+        "takecontrol" => text("You are now master"),
+        "releasecontrol" => text("You are now a regular client"),
+        "new" => text("Creating new connection"),
+        "getcurrentframe" if command.to_ascii_lowercase().contains("6deuler") => world.frame_packet(),
+        "getcurrentframe" => encode_text(PacketType::Error, "The mock serves only 6DEuler frames"),
+        _ => encode_text(PacketType::Error, "Parse error"),
+    }
+}

@@ -1,0 +1,257 @@
+// Bird's-eye renderer shaders: ground (patterns, lines), sensor sectors, vehicles, id labels.
+// Positions arrive in metres relative to the view centre; `g.scale` maps them to clip space.
+
+struct Globals {
+    // metres -> clip space: (2P/W, 2P·aspect/H)
+    scale: vec2<f32>,
+    // image size [px]
+    viewport: vec2<f32>,
+    // horizontal pixels per metre
+    ppm: f32,
+    _pad0: f32,
+    _pad1: f32,
+    _pad2: f32,
+};
+
+@group(0) @binding(0) var<uniform> g: Globals;
+@group(0) @binding(1) var patterns: texture_2d_array<f32>;
+@group(0) @binding(2) var pattern_sampler: sampler;
+@group(0) @binding(3) var font: texture_2d<f32>;
+
+fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
+    let lo = c / 12.92;
+    let hi = pow((c + vec3<f32>(0.055)) / 1.055, vec3<f32>(2.4));
+    return select(hi, lo, c <= vec3<f32>(0.04045));
+}
+
+// Two triangles of a quad, corners in [0,1]^2.
+fn quad_corner(vi: u32) -> vec2<f32> {
+    var corners = array<vec2<f32>, 6>(
+        vec2<f32>(0.0, 0.0), vec2<f32>(1.0, 0.0), vec2<f32>(1.0, 1.0),
+        vec2<f32>(0.0, 0.0), vec2<f32>(1.0, 1.0), vec2<f32>(0.0, 1.0),
+    );
+    return corners[vi];
+}
+
+fn rotate(v: vec2<f32>, dir: vec2<f32>) -> vec2<f32> {
+    return vec2<f32>(v.x * dir.x - v.y * dir.y, v.x * dir.y + v.y * dir.x);
+}
+
+fn to_clip(rel: vec2<f32>) -> vec4<f32> {
+    return vec4<f32>(rel * g.scale, 0.0, 1.0);
+}
+
+// ---- ground: patterns inside polygons, anti-aliased and dashed lines ----
+
+struct GroundOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) tex: vec3<f32>,
+    @location(1) color: vec4<f32>,
+    @location(2) line: vec4<f32>,
+};
+
+@vertex
+fn vs_ground(@location(0) pos: vec2<f32>, @location(1) tex: vec3<f32>, @location(2) color: vec4<f32>,
+             @location(3) line: vec4<f32>) -> GroundOut {
+    var out: GroundOut;
+    out.clip = to_clip(pos);
+    out.tex = tex;
+    out.color = color;
+    out.line = line;
+    return out;
+}
+
+@fragment
+fn fs_ground(in: GroundOut) -> @location(0) vec4<f32> {
+    let layer = max(i32(round(in.tex.z)), 0);
+    var t = textureSample(patterns, pattern_sampler, in.tex.xy, layer);
+    // Hide the tile repetition: modulate brightness by the same pattern sampled 7.3x larger,
+    // rotated and blurred (mip level 4, 16x16 texels, so joints and lugs do not show), relative
+    // to the pattern's mean colour (its 1x1 mip level).
+    let big_uv = mat2x2<f32>(0.8, 0.6, -0.6, 0.8) * in.tex.xy * 0.137;
+    let big = textureSampleLevel(patterns, pattern_sampler, big_uv, layer, 4.0);
+    let mean = textureSampleLevel(patterns, pattern_sampler, vec2<f32>(0.5), layer, 16.0);
+    let luma = vec3<f32>(0.2126, 0.7152, 0.0722);
+    let ratio = clamp(dot(big.rgb, luma) / max(dot(mean.rgb, luma), 1e-4), 0.5, 1.6);
+    t = vec4<f32>(t.rgb * mix(1.0, ratio, 0.45), t.a);
+    var c = select(in.color, in.color * t, in.tex.z >= 0.0);
+    if (in.line.y > 0.0) {
+        // coverage of a line of half width line.y [px] at distance |line.x| [px] from its axis
+        c.a = c.a * clamp(in.line.y + 0.5 - abs(in.line.x), 0.0, 1.0);
+        if (in.line.w > 0.0 && fract(in.line.z / in.line.w) >= 0.5) {
+            discard;
+        }
+    }
+    return c;
+}
+
+// ---- sensor sectors: radar cones, velodyne and wifi circles ----
+
+struct SectorOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) local: vec2<f32>,
+    @location(1) @interpolate(flat) shape: vec2<f32>,
+    @location(2) color: vec4<f32>,
+};
+
+@vertex
+fn vs_sector(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
+             @location(2) range: f32, @location(3) half_angle: f32, @location(4) color: vec4<f32>) -> SectorOut {
+    var out: SectorOut;
+    let r = range + 2.0 / g.ppm;
+    let local = (quad_corner(vi) * 2.0 - vec2<f32>(1.0)) * r;
+    out.clip = to_clip(pos + rotate(local, dir));
+    out.local = local;
+    out.shape = vec2<f32>(range, half_angle);
+    out.color = vec4<f32>(srgb_to_linear(color.rgb), color.a);
+    return out;
+}
+
+@fragment
+fn fs_sector(in: SectorOut) -> @location(0) vec4<f32> {
+    let d = length(in.local);
+    let range = in.shape.x;
+    let half_angle = in.shape.y;
+    let ang = abs(atan2(in.local.y, in.local.x));
+    let px = 1.0 / g.ppm;
+    if (d > range || ang > half_angle) {
+        discard;
+    }
+    // distance to the rim and, for a cone, to its straight edges [m]
+    var edge = range - d;
+    if (half_angle < 3.14) {
+        let off = half_angle - ang;
+        edge = min(edge, select(d, d * sin(off), off < 1.5707963));
+    }
+    var a = in.color.a * (1.0 - 0.45 * d / range);
+    if (edge < 1.5 * px) {
+        a = min(1.0, in.color.a * 3.5);
+    }
+    return vec4<f32>(in.color.rgb, a);
+}
+
+// ---- vehicles: oriented bodies with cab, windscreen and lights ----
+
+struct VehicleOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) local: vec2<f32>,
+    @location(1) @interpolate(flat) size: vec2<f32>,
+    @location(2) @interpolate(flat) color: vec4<f32>,
+    @location(3) @interpolate(flat) real: u32,
+};
+
+@vertex
+fn vs_vehicle(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
+              @location(2) size: vec2<f32>, @location(3) color: vec4<f32>, @location(4) real: u32) -> VehicleOut {
+    var out: VehicleOut;
+    // never smaller than 4 px, so a vehicle stays visible when zoomed far out
+    let sz = max(size, vec2<f32>(4.0 / g.ppm));
+    // one pixel more on every side for the anti-aliased edge
+    let local = (quad_corner(vi) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 / g.ppm));
+    out.clip = to_clip(pos + rotate(local, dir));
+    out.local = local;
+    out.size = sz;
+    out.color = vec4<f32>(srgb_to_linear(color.rgb), color.a);
+    out.real = real;
+    return out;
+}
+
+// Soft shadow under each vehicle, as if lit from the upper left; drawn before the bodies.
+@vertex
+fn vs_shadow(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
+             @location(2) size: vec2<f32>, @location(3) color: vec4<f32>, @location(4) real: u32) -> VehicleOut {
+    var out: VehicleOut;
+    let sz = max(size, vec2<f32>(4.0 / g.ppm));
+    let blur = max(0.25, 2.0 / g.ppm);
+    let local = (quad_corner(vi) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 * blur));
+    let offset = vec2<f32>(0.25, -0.35) * min(1.0, sz.y / 1.8);
+    out.clip = to_clip(pos + offset + rotate(local, dir));
+    out.local = local;
+    out.size = sz;
+    out.color = vec4<f32>(0.0, 0.0, 0.0, blur);
+    out.real = real;
+    return out;
+}
+
+@fragment
+fn fs_shadow(in: VehicleOut) -> @location(0) vec4<f32> {
+    let blur = in.color.a;
+    let d = abs(in.local) - 0.5 * in.size;
+    let outside = length(max(d, vec2<f32>(0.0))) + min(max(d.x, d.y), 0.0);
+    let a = 0.4 * clamp(0.5 - outside / blur, 0.0, 1.0);
+    return vec4<f32>(0.0, 0.0, 0.0, a);
+}
+
+@fragment
+fn fs_vehicle(in: VehicleOut) -> @location(0) vec4<f32> {
+    let len = in.size.x;
+    let wid = in.size.y;
+    let px = 1.0 / g.ppm;
+    let side = 0.5 * wid - abs(in.local.y);
+    let edge = min(0.5 * len - abs(in.local.x), side);
+    let border = max(0.07 * wid, 1.2 * px);
+    let d_front = 0.5 * len - in.local.x;
+    var c = in.color.rgb;
+    if (d_front < 0.2 * len) {
+        // cab / bonnet, a shade lighter
+        c = min(c * 1.25 + vec3<f32>(0.04), vec3<f32>(1.0));
+    }
+    if (d_front > 0.2 * len && d_front < 0.3 * len && side > 1.5 * border) {
+        // windscreen
+        c = vec3<f32>(0.03, 0.05, 0.08);
+    }
+    if (d_front < 0.06 * len && side < 0.3 * wid && side > border) {
+        // headlights
+        c = vec3<f32>(1.0, 0.92, 0.6);
+    }
+    if (in.real == 0u) {
+        // virtual vehicles: diagonal hatching and a light outline
+        if (fract((in.local.x + in.local.y) / max(0.6, 5.0 * px)) < 0.5) {
+            c = mix(c, vec3<f32>(1.0), 0.35);
+        }
+        if (edge < border) {
+            c = vec3<f32>(0.95);
+        }
+    } else if (edge < border) {
+        c = vec3<f32>(0.01);
+    }
+    // coverage of the body's edge (edge < 0 outside the body)
+    return vec4<f32>(c, clamp(edge * g.ppm + 0.5, 0.0, 1.0));
+}
+
+// ---- id labels: a dark backing box and 5x7 glyphs from the font atlas ----
+
+struct GlyphOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) cell: vec2<f32>,
+    @location(1) @interpolate(flat) glyph: u32,
+    @location(2) color: vec4<f32>,
+};
+
+@vertex
+fn vs_glyph(@builtin(vertex_index) vi: u32, @location(0) anchor: vec2<f32>, @location(1) offset: vec2<f32>,
+            @location(2) size: vec2<f32>, @location(3) glyph: u32, @location(4) color: vec4<f32>) -> GlyphOut {
+    var out: GlyphOut;
+    let ndc = anchor * g.scale;
+    // snap the anchor to whole pixels so the glyphs stay crisp
+    let anchor_px = floor(vec2<f32>(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * g.viewport);
+    let corner = quad_corner(vi);
+    let p = anchor_px + offset + corner * size;
+    out.clip = vec4<f32>(p.x / g.viewport.x * 2.0 - 1.0, 1.0 - p.y / g.viewport.y * 2.0, 0.0, 1.0);
+    out.cell = corner * vec2<f32>(5.0, 7.0);
+    out.glyph = glyph;
+    out.color = vec4<f32>(srgb_to_linear(color.rgb), color.a);
+    return out;
+}
+
+@fragment
+fn fs_glyph(in: GlyphOut) -> @location(0) vec4<f32> {
+    if (in.glyph == 0xffffffffu) {
+        return in.color;
+    }
+    let texel = vec2<i32>(i32(in.glyph) * 5 + min(i32(in.cell.x), 4), min(i32(in.cell.y), 6));
+    if (textureLoad(font, texel, 0).r < 0.5) {
+        discard;
+    }
+    return in.color;
+}

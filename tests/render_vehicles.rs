@@ -1,0 +1,149 @@
+//! Vehicles on a straight synthetic road: screenshot with ids and overlays, plus pose geometry.
+
+mod render_support;
+
+use std::f64::consts::PI;
+use std::sync::Arc;
+
+use glam::DVec2;
+use render_support::{TOLERANCE, check_snapshot, near, renderer};
+use smlworld::render::{
+    BirdseyeView, Environment, Line, LineStyle, PatternKind, PatternSet, RadarCone, RoadStrip, VehicleSprite,
+    class_color,
+};
+
+/// A 80 m long, two-lane road along the x axis (y = -3.5..3.5 m) with yellow edges and a dashed
+/// white centre line.
+fn road_env() -> Environment {
+    let xs: Vec<f64> = (0..=8).map(|i| -40.0 + 10.0 * f64::from(i)).collect();
+    let line = |y: f64| xs.iter().map(|&x| DVec2::new(x, y)).collect::<Vec<_>>();
+    Environment {
+        background: PatternKind::Forest,
+        areas: vec![],
+        roads: vec![RoadStrip { left: line(3.5), right: line(-3.5) }],
+        lines: vec![
+            Line { style: LineStyle::EXTERIOR, points: line(3.5) },
+            Line { style: LineStyle::EXTERIOR, points: line(-3.5) },
+            Line { style: LineStyle::INTERIOR, points: line(0.0) },
+        ],
+    }
+}
+
+fn three_vehicles() -> Vec<VehicleSprite> {
+    let mut truck = VehicleSprite::new(1, DVec2::new(-12.0, -1.75), 0.0, 8.0, 2.5, "Truck");
+    truck.overlays.radar = Some(RadarCone { range: 20.0, angle: PI / 3.0 });
+    truck.overlays.route = Some(Arc::from(vec![
+        DVec2::new(-12.0, -1.75),
+        DVec2::new(5.0, -1.75),
+        DVec2::new(15.0, 1.75),
+        DVec2::new(30.0, 1.75),
+    ]));
+    let mut car = VehicleSprite::new(-2, DVec2::new(12.0, 1.75), PI, 4.5, 1.8, "Car");
+    car.overlays.velodyne = Some(6.0);
+    let mut bus = VehicleSprite::new(23, DVec2::new(0.0, -10.0), PI / 2.0, 12.0, 2.55, "Bus");
+    bus.overlays.wifi = Some(9.0);
+    vec![truck, car, bus]
+}
+
+#[test]
+fn three_vehicles_with_ids_and_radar_match_the_reference() {
+    let mut r = renderer();
+    let view = BirdseyeView::centered_on_origin(640, 360, 10.0).unwrap();
+    let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
+    let frame = r.render_frame(&layer, &three_vehicles()).unwrap();
+    check_snapshot("three_vehicles", &frame, TOLERANCE);
+}
+
+/// sRGB byte of a linear shader colour value (the vehicle shader works in linear light).
+fn srgb(linear: [f64; 3]) -> [u8; 3] {
+    linear.map(|c| {
+        let s = if c <= 0.003_130_8 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 };
+        (255.0 * s).round() as u8
+    })
+}
+
+/// Pixel of a point given in a vehicle's own frame (x forward, y left) [m].
+fn pixel_of(view: &BirdseyeView, v: &VehicleSprite, local: DVec2) -> (u32, u32) {
+    let p = v.position + DVec2::from_angle(v.yaw).rotate(local);
+    let px = view.world_to_pixel(p);
+    (px.x.floor() as u32, px.y.floor() as u32)
+}
+
+#[test]
+fn a_vehicle_covers_exactly_its_posed_rectangle_with_the_windscreen_in_front() {
+    let mut r = renderer();
+    let view = BirdseyeView::centered_on_origin(400, 300, 10.0).unwrap();
+    let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
+    let empty = r.render_frame(&layer, &[]).unwrap();
+    let yaw = 30f64.to_radians();
+    let v = VehicleSprite::new(7, DVec2::new(3.0, -2.0), yaw, 10.0, 3.0, "Truck");
+    let frame = r.render_frame(&layer, std::slice::from_ref(&v)).unwrap();
+    let centre_px = view.world_to_pixel(v.position);
+    let reach_px = 0.5 * v.length.hypot(v.width) * view.pixels_per_meter;
+    let (mut inside, mut inside_changed) = (0, 0);
+    for (x, y, p) in frame.enumerate_pixels() {
+        let changed = p != empty.get_pixel(x, y);
+        // The pixel centre in the vehicle's frame [m].
+        let w = view.pixel_to_world(DVec2::new(f64::from(x) + 0.5, f64::from(y) + 0.5));
+        let local = DVec2::from_angle(-yaw).rotate(w - v.position);
+        let margin = 1.5 / view.pixels_per_meter;
+        let in_body = local.x.abs() < 0.5 * v.length - margin && local.y.abs() < 0.5 * v.width - margin;
+        // The soft shadow reaches 0.25 m + 0.35 m offset + 0.25 m blur beyond the body.
+        let shadow = 0.85;
+        let near_body = local.x.abs() < 0.5 * v.length + shadow && local.y.abs() < 0.5 * v.width + shadow;
+        if in_body {
+            inside += 1;
+            inside_changed += usize::from(changed);
+        } else if changed && !near_body {
+            // The only other change is the id label, entirely above the body's screen footprint.
+            assert!(
+                f64::from(y) < centre_px.y - reach_px,
+                "pixel ({x}, {y}) changed outside the vehicle's rectangle and below its label"
+            );
+        }
+    }
+    // Every pixel of the body differs from the road unless the body colour happens to match it.
+    assert!(inside > 2000, "body too small: {inside} px");
+    assert!(inside_changed as f64 > 0.98 * inside as f64, "{inside_changed} of {inside} body pixels drawn");
+    // The windscreen (dark) is 25 % of the length behind the front, not behind the centre.
+    let (fx, fy) = pixel_of(&view, &v, DVec2::new(0.25 * v.length, 0.0));
+    let (bx, by) = pixel_of(&view, &v, DVec2::new(-0.25 * v.length, 0.0));
+    let front = frame.get_pixel(fx, fy);
+    let back = frame.get_pixel(bx, by);
+    // Windscreen colour in fs_vehicle: linear (0.03, 0.05, 0.08).
+    assert!(near(front, srgb([0.03, 0.05, 0.08]), 2), "windscreen pixel {front:?} is not dark");
+    let body = class_color("Truck");
+    assert!(near(back, [body[0], body[1], body[2]], 3), "rear pixel {back:?} is not the truck colour {body:?}");
+}
+
+#[test]
+fn real_and_virtual_vehicles_look_different() {
+    let mut r = renderer();
+    let view = BirdseyeView::centered_on_origin(200, 200, 10.0).unwrap();
+    let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
+    let real = VehicleSprite::new(5, DVec2::ZERO, 0.0, 8.0, 3.0, "Car");
+    let virt = VehicleSprite { id: -5, ..real.clone() };
+    let a = r.render_frame(&layer, &[real.clone()]).unwrap();
+    let b = r.render_frame(&layer, &[virt]).unwrap();
+    // The outline on the left side: dark for real, light for virtual.
+    let (x, y) = pixel_of(&view, &real, DVec2::new(-1.0, 1.4));
+    // Outline colours in fs_vehicle: linear 0.01 (real) and 0.95 (virtual).
+    assert!(near(a.get_pixel(x, y), srgb([0.01; 3]), 2), "real outline {:?}", a.get_pixel(x, y));
+    assert!(near(b.get_pixel(x, y), srgb([0.95; 3]), 2), "virtual outline {:?}", b.get_pixel(x, y));
+}
+
+#[test]
+fn bad_sprites_are_skipped_not_drawn_or_panicking() {
+    let mut r = renderer();
+    let view = BirdseyeView::centered_on_origin(100, 100, 10.0).unwrap();
+    let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
+    let empty = r.render_frame(&layer, &[]).unwrap();
+    let bad = [
+        VehicleSprite::new(1, DVec2::new(f64::NAN, 0.0), 0.0, 4.0, 2.0, "Car"),
+        VehicleSprite::new(2, DVec2::ZERO, 0.0, -4.0, 2.0, "Car"),
+    ];
+    let mut img = image::RgbaImage::new(1, 1);
+    let skipped = r.render_frame_into(&layer, &bad, &mut img).unwrap();
+    assert_eq!(skipped, 2);
+    assert_eq!(img, empty);
+}
