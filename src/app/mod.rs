@@ -10,7 +10,8 @@
 //!     .spawn_vehicle(VehicleSpec::new(VehicleId(-1), VehicleState::new(DVec2::ZERO, 0.0, 0.0)))
 //!     .expect("fresh id");
 //! let mut sim = builder.build();
-//! sim.world_mut().get_mut::<ControlCommand>(sim.entity(VehicleId(-1)).unwrap()).unwrap().speed = 10.0;
+//! let entity = sim.entity(VehicleId(-1)).unwrap();
+//! sim.world_mut().get_mut::<ControlCommand>(entity).unwrap().speed = 10.0;
 //! sim.run_for(2.0);
 //! let state = sim.state(VehicleId(-1)).unwrap();
 //! assert!((state.position.x - 20.0).abs() < 1e-9);

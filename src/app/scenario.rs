@@ -527,7 +527,7 @@ impl Scenario {
                 }
                 None => None,
             };
-            let state = self.start_state(v, route.as_deref(), &key)?;
+            let (state, along) = self.start_state(v, route.as_deref(), &key)?;
             let mut spec = VehicleSpec::new(VehicleId(v.id), state);
             spec.class = v.class;
             let d = VehicleSize::default();
@@ -551,7 +551,7 @@ impl Scenario {
             let entity = b.spawn_vehicle(spec).map_err(|e| self.invalid(key("id"), e.to_string()))?;
             if let Some(ControllerConfig::PathFollowing { speed, lookahead_min, lookahead_time, speed_gain }) = v.controller {
                 let params = PathFollowing { speed, lookahead_min, lookahead_time, speed_gain, ..Default::default() };
-                b.world_mut().entity_mut(entity).insert(PathFollower::new(params));
+                b.world_mut().entity_mut(entity).insert(PathFollower::starting_at(params, along));
             }
             if let Some(smart) = v.controller.and_then(|c| c.smart()) {
                 smart.attach(b.world_mut(), entity);
@@ -565,7 +565,7 @@ impl Scenario {
         v: &VehicleConfig,
         route: Option<&Path>,
         key: &dyn Fn(&str) -> String,
-    ) -> Result<VehicleState, ScenarioError> {
+    ) -> Result<(VehicleState, f64), ScenarioError> {
         let start = v.start.clone().unwrap_or(StartConfig { at: None, offset: None, x: None, y: None, yaw: None });
         let node_position = |n: &NodeRef| -> Result<DVec2, ScenarioError> {
             let map = self.map.as_ref().ok_or_else(|| self.invalid(key("start.at"), "needs a `map` in the scenario"))?;
@@ -577,25 +577,30 @@ impl Scenario {
                 .map(|n| n.position)
                 .ok_or_else(|| self.invalid(key("start.at"), "names no node of the map"))
         };
-        let (position, yaw) = match (route, &start.at, start.x.zip(start.y)) {
+        let (position, yaw, along) = match (route, &start.at, start.x.zip(start.y)) {
             (_, None, Some(p)) => {
                 let p = DVec2::new(p.0, p.1);
-                let heading = route.map_or(0.0, |r| r.project(p).heading);
-                (p, start.yaw.unwrap_or(heading))
+                let (heading, along) = route.map_or((0.0, 0.0), |r| {
+                    let projection = r.project(p);
+                    (projection.heading, projection.s)
+                });
+                (p, start.yaw.unwrap_or(heading), along)
             }
             (Some(r), at, None) => {
                 let base = match at {
                     Some(n) => r.project(node_position(n)?).s,
                     None => 0.0,
                 };
-                let (p, heading) = r.sample(base + start.offset.unwrap_or(0.0));
-                (p, start.yaw.unwrap_or(heading))
+                let along = base + start.offset.unwrap_or(0.0);
+                let (p, heading) = r.sample(along);
+                let along = if r.closed { along.rem_euclid(r.length) } else { along.clamp(0.0, r.length) };
+                (p, start.yaw.unwrap_or(heading), along)
             }
-            (None, Some(n), None) => (node_position(n)?, start.yaw.unwrap_or(0.0)),
-            (None, None, None) => (DVec2::ZERO, start.yaw.unwrap_or(0.0)),
+            (None, Some(n), None) => (node_position(n)?, start.yaw.unwrap_or(0.0), 0.0),
+            (None, None, None) => (DVec2::ZERO, start.yaw.unwrap_or(0.0), 0.0),
             (_, Some(_), Some(_)) => return Err(self.invalid(key("start"), "takes either `at` or `x`/`y`, not both")),
         };
-        Ok(VehicleState::new(position, yaw, v.speed))
+        Ok((VehicleState::new(position, yaw, v.speed), along))
     }
 }
 

@@ -99,9 +99,14 @@ impl SpatialGrid {
         self.slots.iter().map(|s| &s.entry)
     }
 
-    /// Call `f` with every entry within `radius` [m] of `p` (inclusive), each exactly once,
-    /// with its squared distance [m²].
-    pub fn for_each_within(&self, p: DVec2, radius: f64, mut f: impl FnMut(&GridEntry, f64)) {
+    /// The entry in slot `slot` (as passed to [`SpatialGrid::for_each_within`]).
+    pub fn get(&self, slot: u32) -> &GridEntry {
+        &self.slots[slot as usize].entry
+    }
+
+    /// Call `f(slot, entry, squared distance [m²])` with every entry within `radius` [m] of `p`
+    /// (inclusive), each exactly once.
+    pub fn for_each_within(&self, p: DVec2, radius: f64, mut f: impl FnMut(u32, &GridEntry, f64)) {
         if self.slots.is_empty() {
             return;
         }
@@ -111,10 +116,10 @@ impl SpatialGrid {
         let cells = (hi.0 as i64 - lo.0 as i64 + 1) * (hi.1 as i64 - lo.1 as i64 + 1);
         if cells > self.slots.len() as i64 {
             // A disc far larger than the cells: scanning everything is cheaper.
-            for s in &self.slots {
+            for (i, s) in self.slots.iter().enumerate() {
                 let d2 = s.entry.position.distance_squared(p);
                 if d2 <= r2 {
-                    f(&s.entry, d2);
+                    f(i as u32, &s.entry, d2);
                 }
             }
             return;
@@ -123,13 +128,13 @@ impl SpatialGrid {
             for cy in lo.1..=hi.1 {
                 let b = bucket_of((cx, cy), self.mask);
                 let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
-                for s in &self.slots[start..end] {
+                for (i, s) in self.slots[start..end].iter().enumerate() {
                     if s.cell != (cx, cy) {
                         continue;
                     }
                     let d2 = s.entry.position.distance_squared(p);
                     if d2 <= r2 {
-                        f(&s.entry, d2);
+                        f((start + i) as u32, &s.entry, d2);
                     }
                 }
             }

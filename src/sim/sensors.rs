@@ -18,15 +18,42 @@ use super::{GridEntry, Sensors, SpatialGrid};
 /// Every angle here is in radians. The 2015 Python code compared an angle in degrees with one in
 /// radians in this test, so its radar cone was not the configured one; this one is.
 pub fn in_radar_cone(relative: DVec2, heading: DVec2, angle: f64) -> bool {
-    let half = 0.5 * angle;
-    if half >= std::f64::consts::PI {
-        return true;
+    Cone::new(heading, angle).contains(relative, relative.length_squared())
+}
+
+/// A radar cone prepared for many tests: no trigonometry or square root per target.
+#[derive(Debug, Clone, Copy)]
+struct Cone {
+    heading: DVec2,
+    /// cos of the half opening angle, and its square.
+    cos_half: f64,
+    cos_half2: f64,
+    everything: bool,
+}
+
+impl Cone {
+    fn new(heading: DVec2, angle: f64) -> Cone {
+        let half = 0.5 * angle;
+        let cos_half = half.cos();
+        Cone { heading, cos_half, cos_half2: cos_half * cos_half, everything: half >= std::f64::consts::PI }
     }
-    let d = relative.length();
-    if d == 0.0 {
-        return false;
+
+    /// `relative` at squared distance `d2`: is its angle to the heading at most the half angle?
+    /// That is dot >= |rel| cos(half), compared squared with the signs handled.
+    fn contains(&self, relative: DVec2, d2: f64) -> bool {
+        if self.everything {
+            return true;
+        }
+        if d2 == 0.0 {
+            return false;
+        }
+        let dot = relative.dot(self.heading);
+        if self.cos_half >= 0.0 {
+            dot >= 0.0 && dot * dot >= d2 * self.cos_half2
+        } else {
+            dot >= 0.0 || dot * dot <= d2 * self.cos_half2
+        }
     }
-    relative.dot(heading) >= d * half.cos()
 }
 
 /// The grid all sensors query, rebuilt every sensor tick.
@@ -39,7 +66,7 @@ pub fn sense_vehicles(
     mut grid: ResMut<SensorGrid>,
     everyone: Query<(&VehicleId, &VehicleState)>,
     mut sensing: Query<(&VehicleId, &VehicleState, Option<&Radar>, Option<&Velodyne>, Has<Omniscient>, &mut SensorReadings)>,
-    mut found: Local<Vec<(f64, Detection)>>,
+    mut found: Local<Vec<(f64, u32)>>,
 ) {
     let mut cell: f64 = 0.0;
     for (_, _, radar, velodyne, _, _) in &sensing {
@@ -52,34 +79,38 @@ pub fn sense_vehicles(
         if cell > 0.0 { cell } else { 100.0 },
         everyone.iter().map(|(&id, s)| GridEntry { position: s.position, velocity: s.velocity, id, index: 0 }),
     );
+    let grid = &grid.0;
     for (&id, state, radar, velodyne, omniscient, mut readings) in &mut sensing {
         found.clear();
-        let heading = state.heading();
-        let radar_range = radar.map_or(-1.0, |r| r.range);
-        let velodyne_range = velodyne.map_or(-1.0, |v| v.range);
-        let mut consider = |e: &GridEntry, d2: f64| {
+        let cone = radar.map(|r| Cone::new(state.heading(), r.angle));
+        let radar_range2 = radar.map_or(-1.0, |r| r.range * r.range);
+        let velodyne_range2 = velodyne.map_or(-1.0, |v| v.range * v.range);
+        let mut consider = |slot: u32, e: &GridEntry, d2: f64| {
             if e.id == id {
                 return;
             }
             let seen = omniscient
-                || d2 <= velodyne_range * velodyne_range
-                || radar.is_some_and(|r| {
-                    d2 <= radar_range * radar_range && in_radar_cone(e.position - state.position, heading, r.angle)
-                });
+                || d2 <= velodyne_range2
+                || (d2 <= radar_range2 && cone.is_some_and(|c| c.contains(e.position - state.position, d2)));
             if seen {
-                found.push((d2, Detection { id: e.id, position: e.position, velocity: e.velocity }));
+                found.push((d2, slot));
             }
         };
         if omniscient {
-            for e in grid.0.entries() {
-                consider(e, e.position.distance_squared(state.position));
+            for slot in 0..grid.len() as u32 {
+                let e = grid.get(slot);
+                consider(slot, e, e.position.distance_squared(state.position));
             }
         } else {
-            grid.0.for_each_within(state.position, radar_range.max(velodyne_range), &mut consider);
+            let range = radar.map_or(0.0, |r| r.range).max(velodyne.map_or(0.0, |v| v.range));
+            grid.for_each_within(state.position, range, &mut consider);
         }
-        found.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.id.cmp(&b.1.id)));
+        found.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then_with(|| grid.get(a.1).id.cmp(&grid.get(b.1).id)));
         readings.0.clear();
-        readings.0.extend(found.iter().map(|&(_, d)| d));
+        readings.0.extend(found.iter().map(|&(_, slot)| {
+            let e = grid.get(slot);
+            Detection { id: e.id, position: e.position, velocity: e.velocity }
+        }));
     }
 }
 
