@@ -246,7 +246,7 @@ pub fn record_metrics(
     m.touching.clear();
     for a in boxes {
         let touching = &mut m.touching;
-        m.grid.for_each_within(a.centre, a.radius() + widest, |e, _| {
+        m.grid.for_each_within(a.centre, a.radius() + widest, |_, e, _| {
             let b = &boxes[e.index as usize];
             if a.id < b.id && overlap(a, b) {
                 touching.push((a.id, b.id));
