@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use serde_json::Value;
+use smlworld::app::Scenario;
 
 /// Run `smlworld run scenarios/<name>.toml` into a fresh folder; return summary.json.
 fn run(name: &str) -> Value {
@@ -88,4 +89,19 @@ fn intersection_runs_without_collision() {
     let m = metrics_without_collision(&summary);
     assert!(!followers(m).is_empty(), "vehicles queue behind each other at the junction");
     assert_eq!(summary["vehicles"], 8);
+}
+
+#[test]
+fn platoon_scenarios_are_deterministic() {
+    // Beacons, claims and membership make no run-to-run difference: same scenario, same states.
+    for name in ["platoon_merge", "platoon_brake"] {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(format!("{name}.toml"));
+        let scenario = Scenario::load(&path).expect("the demo scenario loads");
+        let hash = || {
+            let mut sim = scenario.builder().expect("builds").build();
+            sim.run_for(35.0);
+            sim.state_hash()
+        };
+        assert_eq!(hash(), hash(), "{name}");
+    }
 }
