@@ -40,9 +40,14 @@ pub struct SpatialGrid {
 }
 
 fn bucket_of(cell: (i32, i32), mask: u64) -> usize {
-    let h = (cell.0 as u32 as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (cell.1 as u32 as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-    ((h ^ (h >> 29)) & mask) as usize
+    // The 64-bit finaliser of MurmurHash3: neighbouring cells land in unrelated buckets.
+    let mut h = ((cell.0 as u32 as u64) << 32) | cell.1 as u32 as u64;
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xc4ce_b9fe_1a85_ec53);
+    h ^= h >> 33;
+    (h & mask) as usize
 }
 
 impl SpatialGrid {

@@ -66,7 +66,7 @@ pub fn sense_vehicles(
     mut grid: ResMut<SensorGrid>,
     everyone: Query<(&VehicleId, &VehicleState)>,
     mut sensing: Query<(&VehicleId, &VehicleState, Option<&Radar>, Option<&Velodyne>, Has<Omniscient>, &mut SensorReadings)>,
-    mut found: Local<Vec<(f64, u32)>>,
+    mut found: Local<Vec<(u64, VehicleId, u32)>>,
 ) {
     let mut cell: f64 = 0.0;
     for (_, _, radar, velodyne, _, _) in &sensing {
@@ -93,7 +93,8 @@ pub fn sense_vehicles(
                 || d2 <= velodyne_range2
                 || (d2 <= radar_range2 && cone.is_some_and(|c| c.contains(e.position - state.position, d2)));
             if seen {
-                found.push((d2, slot));
+                // A non-negative f64's bits order like the number: integer sort keys.
+                found.push((d2.to_bits(), e.id, slot));
             }
         };
         if omniscient {
@@ -105,9 +106,9 @@ pub fn sense_vehicles(
             let range = radar.map_or(0.0, |r| r.range).max(velodyne.map_or(0.0, |v| v.range));
             grid.for_each_within(state.position, range, &mut consider);
         }
-        found.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then_with(|| grid.get(a.1).id.cmp(&grid.get(b.1).id)));
+        found.sort_unstable_by_key(|&(d2, id, _)| (d2, id));
         readings.0.clear();
-        readings.0.extend(found.iter().map(|&(_, slot)| {
+        readings.0.extend(found.iter().map(|&(_, _, slot)| {
             let e = grid.get(slot);
             Detection { id: e.id, position: e.position, velocity: e.velocity }
         }));
