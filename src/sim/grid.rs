@@ -87,6 +87,48 @@ impl SpatialGrid {
             self.starts[b] = self.starts[b - 1];
         }
         self.starts[0] = 0;
+        // Make each cell's slots contiguous inside a bucket shared by several cells (stable, and
+        // linear for the usual bucket holding a single cell).
+        for b in 0..buckets {
+            let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
+            if end - start > 1 {
+                self.slots[start..end].sort_by_key(|s| s.cell);
+            }
+        }
+    }
+
+    /// Call `f(cell, slots)` for every non-empty cell with the range of its slots.
+    pub fn for_each_cell(&self, mut f: impl FnMut((i32, i32), std::ops::Range<u32>)) {
+        let mut start = 0;
+        while start < self.slots.len() {
+            let cell = self.slots[start].cell;
+            let bucket_end = self.starts[bucket_of(cell, self.mask) + 1] as usize;
+            let mut end = start + 1;
+            while end < bucket_end && self.slots[end].cell == cell {
+                end += 1;
+            }
+            f(cell, start as u32..end as u32);
+            start = end;
+        }
+    }
+
+    /// Call `f(slot, entry)` for every entry of `cell`.
+    pub fn for_each_in_cell(&self, cell: (i32, i32), mut f: impl FnMut(u32, &GridEntry)) {
+        if self.slots.is_empty() {
+            return;
+        }
+        let b = bucket_of(cell, self.mask);
+        let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
+        for (i, s) in self.slots[start..end].iter().enumerate() {
+            if s.cell == cell {
+                f((start + i) as u32, &s.entry);
+            }
+        }
+    }
+
+    /// Side of the cells [m].
+    pub fn cell_size(&self) -> f64 {
+        self.cell
     }
 
     /// Number of entries.
