@@ -40,9 +40,14 @@ pub struct SpatialGrid {
 }
 
 fn bucket_of(cell: (i32, i32), mask: u64) -> usize {
-    let h = (cell.0 as u32 as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (cell.1 as u32 as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-    ((h ^ (h >> 29)) & mask) as usize
+    // The 64-bit finaliser of MurmurHash3: neighbouring cells land in unrelated buckets.
+    let mut h = ((cell.0 as u32 as u64) << 32) | cell.1 as u32 as u64;
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xc4ce_b9fe_1a85_ec53);
+    h ^= h >> 33;
+    (h & mask) as usize
 }
 
 impl SpatialGrid {
@@ -82,6 +87,48 @@ impl SpatialGrid {
             self.starts[b] = self.starts[b - 1];
         }
         self.starts[0] = 0;
+        // Make each cell's slots contiguous inside a bucket shared by several cells (stable, and
+        // linear for the usual bucket holding a single cell).
+        for b in 0..buckets {
+            let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
+            if end - start > 1 {
+                self.slots[start..end].sort_by_key(|s| s.cell);
+            }
+        }
+    }
+
+    /// Call `f(cell, slots)` for every non-empty cell with the range of its slots.
+    pub fn for_each_cell(&self, mut f: impl FnMut((i32, i32), std::ops::Range<u32>)) {
+        let mut start = 0;
+        while start < self.slots.len() {
+            let cell = self.slots[start].cell;
+            let bucket_end = self.starts[bucket_of(cell, self.mask) + 1] as usize;
+            let mut end = start + 1;
+            while end < bucket_end && self.slots[end].cell == cell {
+                end += 1;
+            }
+            f(cell, start as u32..end as u32);
+            start = end;
+        }
+    }
+
+    /// Call `f(slot, entry)` for every entry of `cell`.
+    pub fn for_each_in_cell(&self, cell: (i32, i32), mut f: impl FnMut(u32, &GridEntry)) {
+        if self.slots.is_empty() {
+            return;
+        }
+        let b = bucket_of(cell, self.mask);
+        let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
+        for (i, s) in self.slots[start..end].iter().enumerate() {
+            if s.cell == cell {
+                f((start + i) as u32, &s.entry);
+            }
+        }
+    }
+
+    /// Side of the cells [m].
+    pub fn cell_size(&self) -> f64 {
+        self.cell
     }
 
     /// Number of entries.

@@ -4,7 +4,7 @@
 //! bounded sensor range, then each sensing vehicle scans only its neighbouring cells: O(N) for
 //! bounded ranges. An [`Omniscient`] vehicle scans everyone (O(N) per such vehicle).
 
-use bevy_ecs::prelude::{Has, Local, Query, ResMut, Resource};
+use bevy_ecs::prelude::{Entity, Has, Local, Query, ResMut, Resource};
 use glam::DVec2;
 
 use crate::app::{Plugin, SimBuilder};
@@ -60,13 +60,77 @@ impl Cone {
 #[derive(Resource, Debug, Default)]
 pub struct SensorGrid(pub SpatialGrid);
 
+/// Scratch buffers of [`sense_vehicles`], kept between ticks.
+#[derive(Default)]
+pub struct SenseScratch {
+    /// Entity of each grid entry (by `GridEntry::index`).
+    entities: Vec<Entity>,
+    /// Candidates around the current cell: (slot, position).
+    around: Vec<(u32, DVec2)>,
+    /// Detections of the current vehicle: (squared distance bits, id, slot).
+    found: Vec<(u64, VehicleId, u32)>,
+}
+
+/// What one vehicle's sensors see of the candidates (slot, position) around it, into `found`.
+struct Sight {
+    id: VehicleId,
+    position: DVec2,
+    cone: Option<Cone>,
+    radar_range2: f64,
+    velodyne_range2: f64,
+    omniscient: bool,
+}
+
+impl Sight {
+    fn new(id: VehicleId, state: &VehicleState, radar: Option<&Radar>, velodyne: Option<&Velodyne>, omniscient: bool) -> Sight {
+        Sight {
+            id,
+            position: state.position,
+            cone: radar.map(|r| Cone::new(state.heading(), r.angle)),
+            radar_range2: radar.map_or(-1.0, |r| r.range * r.range),
+            velodyne_range2: velodyne.map_or(-1.0, |v| v.range * v.range),
+            omniscient,
+        }
+    }
+
+    fn consider(&self, slot: u32, position: DVec2, grid: &SpatialGrid, found: &mut Vec<(u64, VehicleId, u32)>) {
+        let relative = position - self.position;
+        let d2 = relative.length_squared();
+        let seen = self.omniscient
+            || d2 <= self.velodyne_range2
+            || (d2 <= self.radar_range2 && self.cone.is_some_and(|c| c.contains(relative, d2)));
+        if seen {
+            let id = grid.get(slot).id;
+            if id != self.id {
+                // A non-negative f64's bits order like the number: integer sort keys.
+                found.push((d2.to_bits(), id, slot));
+            }
+        }
+    }
+}
+
+/// Sort `found` nearest first (ties by id) and write it into `readings`.
+fn write_readings(found: &mut [(u64, VehicleId, u32)], grid: &SpatialGrid, readings: &mut SensorReadings) {
+    found.sort_unstable_by_key(|&(d2, id, _)| (d2, id));
+    readings.0.clear();
+    readings.0.extend(found.iter().map(|&(_, _, slot)| {
+        let e = grid.get(slot);
+        Detection { id: e.id, position: e.position, velocity: e.velocity }
+    }));
+}
+
 /// Rebuild the sensor grid and fill every sensing vehicle's [`SensorReadings`], nearest first.
+///
+/// The grid's cells are as large as the largest bounded range, so a vehicle sees only vehicles
+/// of its own cell and the eight around it. Work goes cell by cell: the candidates around a cell
+/// are gathered once into a small buffer that stays in cache while every vehicle of the cell
+/// tests them.
 #[allow(clippy::type_complexity)]
 pub fn sense_vehicles(
     mut grid: ResMut<SensorGrid>,
-    everyone: Query<(&VehicleId, &VehicleState)>,
+    everyone: Query<(Entity, &VehicleId, &VehicleState)>,
     mut sensing: Query<(&VehicleId, &VehicleState, Option<&Radar>, Option<&Velodyne>, Has<Omniscient>, &mut SensorReadings)>,
-    mut found: Local<Vec<(f64, u32)>>,
+    mut scratch: Local<SenseScratch>,
 ) {
     let mut cell: f64 = 0.0;
     for (_, _, radar, velodyne, _, _) in &sensing {
@@ -75,42 +139,50 @@ pub fn sense_vehicles(
     if sensing.is_empty() {
         return;
     }
+    let s = &mut *scratch;
+    s.entities.clear();
+    let entities = &mut s.entities;
     grid.0.rebuild(
         if cell > 0.0 { cell } else { 100.0 },
-        everyone.iter().map(|(&id, s)| GridEntry { position: s.position, velocity: s.velocity, id, index: 0 }),
+        everyone.iter().map(|(entity, &id, state)| {
+            entities.push(entity);
+            GridEntry { position: state.position, velocity: state.velocity, id, index: entities.len() as u32 - 1 }
+        }),
     );
     let grid = &grid.0;
-    for (&id, state, radar, velodyne, omniscient, mut readings) in &mut sensing {
-        found.clear();
-        let cone = radar.map(|r| Cone::new(state.heading(), r.angle));
-        let radar_range2 = radar.map_or(-1.0, |r| r.range * r.range);
-        let velodyne_range2 = velodyne.map_or(-1.0, |v| v.range * v.range);
-        let mut consider = |slot: u32, e: &GridEntry, d2: f64| {
-            if e.id == id {
-                return;
+    grid.for_each_cell(|(cx, cy), slots| {
+        s.around.clear();
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                grid.for_each_in_cell((cx + dx, cy + dy), |slot, e| s.around.push((slot, e.position)));
             }
-            let seen = omniscient
-                || d2 <= velodyne_range2
-                || (d2 <= radar_range2 && cone.is_some_and(|c| c.contains(e.position - state.position, d2)));
-            if seen {
-                found.push((d2, slot));
-            }
-        };
-        if omniscient {
-            for slot in 0..grid.len() as u32 {
-                let e = grid.get(slot);
-                consider(slot, e, e.position.distance_squared(state.position));
-            }
-        } else {
-            let range = radar.map_or(0.0, |r| r.range).max(velodyne.map_or(0.0, |v| v.range));
-            grid.for_each_within(state.position, range, &mut consider);
         }
-        found.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then_with(|| grid.get(a.1).id.cmp(&grid.get(b.1).id)));
-        readings.0.clear();
-        readings.0.extend(found.iter().map(|&(_, slot)| {
-            let e = grid.get(slot);
-            Detection { id: e.id, position: e.position, velocity: e.velocity }
-        }));
+        for slot in slots {
+            let Ok((&id, state, radar, velodyne, omniscient, mut readings)) =
+                sensing.get_mut(s.entities[grid.get(slot).index as usize])
+            else {
+                continue;
+            };
+            if omniscient {
+                continue;
+            }
+            let sight = Sight::new(id, state, radar, velodyne, false);
+            s.found.clear();
+            for &(other, position) in &s.around {
+                sight.consider(other, position, grid, &mut s.found);
+            }
+            write_readings(&mut s.found, grid, &mut readings);
+        }
+    });
+    for (&id, state, radar, velodyne, omniscient, mut readings) in &mut sensing {
+        if omniscient {
+            let sight = Sight::new(id, state, radar, velodyne, true);
+            s.found.clear();
+            for slot in 0..grid.len() as u32 {
+                sight.consider(slot, grid.get(slot).position, grid, &mut s.found);
+            }
+            write_readings(&mut s.found, grid, &mut readings);
+        }
     }
 }
 
