@@ -79,6 +79,28 @@ fn xml_is_josm_style_with_unique_negative_ids_and_an_origin() {
 }
 
 #[test]
+fn both_bounds_of_every_lanelet_have_the_same_node_count_as_the_2015_loader_required() {
+    let maps = [
+        ("ring", ring_highway(&RingParams { lanes: 4, clockwise: true, ..RingParams::default() })),
+        ("intersection3", intersection(&IntersectionParams { arms: 3, lanes: 2, ..IntersectionParams::default() })),
+        ("grid", grid_city(&GridParams { rows: 2, cols: 3, lanes: 2, ..GridParams::default() })),
+    ];
+    for (name, text) in maps {
+        let doc = parse_osm(&text.expect("valid"), Path::new(name)).expect("parses");
+        assert!(!doc.relations.is_empty());
+        for r in doc.relations.values() {
+            let counts: Vec<(&str, usize)> =
+                r.members.iter().map(|m| (m.role.as_str(), doc.ways[&m.reference].nodes.len())).collect();
+            assert!(
+                counts.len() == 2 && counts[0].0 == "left" && counts[1].0 == "right" && counts[0].1 == counts[1].1,
+                "{name}: relation {}: {counts:?}",
+                r.id
+            );
+        }
+    }
+}
+
+#[test]
 fn bad_parameters_are_errors_naming_the_parameter() {
     let name = |r: Result<String, GenerateError>| match r {
         Err(GenerateError::InvalidParameter { name, .. }) => name,
