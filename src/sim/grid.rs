@@ -51,7 +51,8 @@ fn bucket_of(cell: (i32, i32), mask: u64) -> usize {
 }
 
 impl SpatialGrid {
-    fn cell_of(&self, p: DVec2) -> (i32, i32) {
+    /// The cell holding `p`.
+    pub fn cell_of(&self, p: DVec2) -> (i32, i32) {
         ((p.x / self.cell).floor() as i32, (p.y / self.cell).floor() as i32)
     }
 
@@ -87,29 +88,6 @@ impl SpatialGrid {
             self.starts[b] = self.starts[b - 1];
         }
         self.starts[0] = 0;
-        // Make each cell's slots contiguous inside a bucket shared by several cells (stable, and
-        // linear for the usual bucket holding a single cell).
-        for b in 0..buckets {
-            let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
-            if end - start > 1 {
-                self.slots[start..end].sort_by_key(|s| s.cell);
-            }
-        }
-    }
-
-    /// Call `f(cell, slots)` for every non-empty cell with the range of its slots.
-    pub fn for_each_cell(&self, mut f: impl FnMut((i32, i32), std::ops::Range<u32>)) {
-        let mut start = 0;
-        while start < self.slots.len() {
-            let cell = self.slots[start].cell;
-            let bucket_end = self.starts[bucket_of(cell, self.mask) + 1] as usize;
-            let mut end = start + 1;
-            while end < bucket_end && self.slots[end].cell == cell {
-                end += 1;
-            }
-            f(cell, start as u32..end as u32);
-            start = end;
-        }
     }
 
     /// Call `f(slot, entry)` for every entry of `cell`.

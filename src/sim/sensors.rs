@@ -4,7 +4,7 @@
 //! bounded sensor range, then each sensing vehicle scans only its neighbouring cells: O(N) for
 //! bounded ranges. An [`Omniscient`] vehicle scans everyone (O(N) per such vehicle).
 
-use bevy_ecs::prelude::{Entity, Has, Local, Query, ResMut, Resource};
+use bevy_ecs::prelude::{Has, Local, Query, ResMut, Resource};
 use glam::DVec2;
 
 use crate::app::{Plugin, SimBuilder};
@@ -63,8 +63,6 @@ pub struct SensorGrid(pub SpatialGrid);
 /// Scratch buffers of [`sense_vehicles`], kept between ticks.
 #[derive(Default)]
 pub struct SenseScratch {
-    /// Entity of each grid entry (by `GridEntry::index`).
-    entities: Vec<Entity>,
     /// Candidates around the current cell: (slot, position).
     around: Vec<(u32, DVec2)>,
     /// Detections of the current vehicle: (squared distance bits, id, slot).
@@ -122,13 +120,14 @@ fn write_readings(found: &mut [(u64, VehicleId, u32)], grid: &SpatialGrid, readi
 /// Rebuild the sensor grid and fill every sensing vehicle's [`SensorReadings`], nearest first.
 ///
 /// The grid's cells are as large as the largest bounded range, so a vehicle sees only vehicles
-/// of its own cell and the eight around it. Work goes cell by cell: the candidates around a cell
-/// are gathered once into a small buffer that stays in cache while every vehicle of the cell
-/// tests them.
+/// of its own cell and the eight around it. Vehicles are visited in query order (spawn order,
+/// which keeps each one's components in cache lines next to the previous one's); the candidates
+/// around a cell are gathered into a small buffer and reused while consecutive vehicles share
+/// that cell.
 #[allow(clippy::type_complexity)]
 pub fn sense_vehicles(
     mut grid: ResMut<SensorGrid>,
-    everyone: Query<(Entity, &VehicleId, &VehicleState)>,
+    everyone: Query<(&VehicleId, &VehicleState)>,
     mut sensing: Query<(&VehicleId, &VehicleState, Option<&Radar>, Option<&Velodyne>, Has<Omniscient>, &mut SensorReadings)>,
     mut scratch: Local<SenseScratch>,
 ) {
@@ -140,49 +139,35 @@ pub fn sense_vehicles(
         return;
     }
     let s = &mut *scratch;
-    s.entities.clear();
-    let entities = &mut s.entities;
     grid.0.rebuild(
         if cell > 0.0 { cell } else { 100.0 },
-        everyone.iter().map(|(entity, &id, state)| {
-            entities.push(entity);
-            GridEntry { position: state.position, velocity: state.velocity, id, index: entities.len() as u32 - 1 }
-        }),
+        everyone.iter().map(|(&id, state)| GridEntry { position: state.position, velocity: state.velocity, id, index: 0 }),
     );
     let grid = &grid.0;
-    grid.for_each_cell(|(cx, cy), slots| {
-        s.around.clear();
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                grid.for_each_in_cell((cx + dx, cy + dy), |slot, e| s.around.push((slot, e.position)));
-            }
-        }
-        for slot in slots {
-            let Ok((&id, state, radar, velodyne, omniscient, mut readings)) =
-                sensing.get_mut(s.entities[grid.get(slot).index as usize])
-            else {
-                continue;
-            };
-            if omniscient {
-                continue;
-            }
-            let sight = Sight::new(id, state, radar, velodyne, false);
-            s.found.clear();
-            for &(other, position) in &s.around {
-                sight.consider(other, position, grid, &mut s.found);
-            }
-            write_readings(&mut s.found, grid, &mut readings);
-        }
-    });
+    let mut gathered: Option<(i32, i32)> = None;
     for (&id, state, radar, velodyne, omniscient, mut readings) in &mut sensing {
+        let sight = Sight::new(id, state, radar, velodyne, omniscient);
+        s.found.clear();
         if omniscient {
-            let sight = Sight::new(id, state, radar, velodyne, true);
-            s.found.clear();
             for slot in 0..grid.len() as u32 {
                 sight.consider(slot, grid.get(slot).position, grid, &mut s.found);
             }
-            write_readings(&mut s.found, grid, &mut readings);
+        } else {
+            let (cx, cy) = grid.cell_of(state.position);
+            if gathered != Some((cx, cy)) {
+                s.around.clear();
+                for dx in -1..=1 {
+                    for dy in -1..=1 {
+                        grid.for_each_in_cell((cx + dx, cy + dy), |slot, e| s.around.push((slot, e.position)));
+                    }
+                }
+                gathered = Some((cx, cy));
+            }
+            for &(other, position) in &s.around {
+                sight.consider(other, position, grid, &mut s.found);
+            }
         }
+        write_readings(&mut s.found, grid, &mut readings);
     }
 }
 
