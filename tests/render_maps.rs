@@ -68,11 +68,12 @@ fn highway_environment_at_the_original_view_matches_the_reference() {
 }
 
 #[test]
-fn intersection_environment_fitted_to_the_map_matches_the_reference() {
-    let map = load("sml2015/Intersection3Way.xml");
+fn shipped_intersection_fitted_to_the_map_matches_the_reference() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("maps/intersection4.osm");
+    let map = LaneletMap::load(&path).unwrap_or_else(|e| panic!("loading {}: {e}", path.display()));
     let view = BirdseyeView::fit_map(960, 540, &map).unwrap();
     let img = environment(&map, &view);
-    check_snapshot("intersection3way_fit_960x540", &img, TOLERANCE);
+    check_snapshot("intersection4_fit_960x540", &img, TOLERANCE);
 }
 
 #[test]
@@ -102,8 +103,11 @@ fn projector_view_of_the_highway_matches_the_reference() {
 
 #[test]
 fn lanelet_centres_are_road_and_far_off_road_is_forest() {
-    for rel in ["sml2015/HighwaySML.xml", "sml2015/Intersection3Way.xml"] {
-        let map = load(rel);
+    let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("maps/intersection4.osm");
+    let paths = [data_dir().join("sml2015/HighwaySML.xml"), data_dir().join("sml2015/Intersection3Way.xml"), shipped];
+    for path in &paths {
+        let rel = path.display();
+        let map = LaneletMap::load(path).unwrap_or_else(|e| panic!("loading {rel}: {e}"));
         let view = BirdseyeView::fit_map(960, 540, &map).unwrap();
         let img = environment(&map, &view);
         let mut checked = 0;

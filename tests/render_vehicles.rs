@@ -88,7 +88,9 @@ fn a_vehicle_covers_exactly_its_posed_rectangle_with_the_windscreen_in_front() {
         let local = DVec2::from_angle(-yaw).rotate(w - v.position);
         let margin = 1.5 / view.pixels_per_meter;
         let in_body = local.x.abs() < 0.5 * v.length - margin && local.y.abs() < 0.5 * v.width - margin;
-        let near_body = local.x.abs() < 0.5 * v.length + margin && local.y.abs() < 0.5 * v.width + margin;
+        // The soft shadow reaches 0.25 m + 0.35 m offset + 0.25 m blur beyond the body.
+        let shadow = 0.85;
+        let near_body = local.x.abs() < 0.5 * v.length + shadow && local.y.abs() < 0.5 * v.width + shadow;
         if in_body {
             inside += 1;
             inside_changed += usize::from(changed);
@@ -124,7 +126,7 @@ fn real_and_virtual_vehicles_look_different() {
     let a = r.render_frame(&layer, &[real.clone()]).unwrap();
     let b = r.render_frame(&layer, &[virt]).unwrap();
     // The outline on the left side: dark for real, light for virtual.
-    let (x, y) = pixel_of(&view, &real, DVec2::new(-1.0, 1.45));
+    let (x, y) = pixel_of(&view, &real, DVec2::new(-1.0, 1.4));
     // Outline colours in fs_vehicle: linear 0.01 (real) and 0.95 (virtual).
     assert!(near(a.get_pixel(x, y), srgb([0.01; 3]), 2), "real outline {:?}", a.get_pixel(x, y));
     assert!(near(b.get_pixel(x, y), srgb([0.95; 3]), 2), "virtual outline {:?}", b.get_pixel(x, y));

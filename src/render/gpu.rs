@@ -110,6 +110,7 @@ pub struct Renderer {
     ground: wgpu::RenderPipeline,
     sectors: wgpu::RenderPipeline,
     vehicles: wgpu::RenderPipeline,
+    shadows: wgpu::RenderPipeline,
     glyphs: wgpu::RenderPipeline,
     sampler: wgpu::Sampler,
     font_view: wgpu::TextureView,
@@ -261,6 +262,16 @@ impl Renderer {
                 attributes: &vehicle_attrs,
             },
         );
+        let shadows = pipeline(
+            "shadows",
+            "vs_shadow",
+            "fs_shadow",
+            wgpu::VertexBufferLayout {
+                array_stride: std::mem::size_of::<VehicleInstance>() as u64,
+                step_mode: wgpu::VertexStepMode::Instance,
+                attributes: &vehicle_attrs,
+            },
+        );
         let glyph_attrs =
             wgpu::vertex_attr_array![0 => Float32x2, 1 => Float32x2, 2 => Float32x2, 3 => Uint32, 4 => Unorm8x4];
         let glyphs = pipeline(
@@ -309,6 +320,7 @@ impl Renderer {
             ground,
             sectors,
             vehicles,
+            shadows,
             glyphs,
             sampler,
             font_view,
@@ -493,6 +505,7 @@ impl Renderer {
             }
             let instanced = [
                 (&self.sectors, &self.sector_buf, b.sectors.len(), std::mem::size_of::<SectorInstance>()),
+                (&self.shadows, &self.vehicle_buf, b.vehicles.len(), std::mem::size_of::<VehicleInstance>()),
                 (&self.vehicles, &self.vehicle_buf, b.vehicles.len(), std::mem::size_of::<VehicleInstance>()),
                 (&self.glyphs, &self.glyph_buf, b.glyphs.len(), std::mem::size_of::<GlyphInstance>()),
             ];

@@ -146,13 +146,40 @@ fn vs_vehicle(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @loca
     var out: VehicleOut;
     // never smaller than 4 px, so a vehicle stays visible when zoomed far out
     let sz = max(size, vec2<f32>(4.0 / g.ppm));
-    let local = (quad_corner(vi) - vec2<f32>(0.5)) * sz;
+    // one pixel more on every side for the anti-aliased edge
+    let local = (quad_corner(vi) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 / g.ppm));
     out.clip = to_clip(pos + rotate(local, dir));
     out.local = local;
     out.size = sz;
     out.color = vec4<f32>(srgb_to_linear(color.rgb), color.a);
     out.real = real;
     return out;
+}
+
+// Soft shadow under each vehicle, as if lit from the upper left; drawn before the bodies.
+@vertex
+fn vs_shadow(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
+             @location(2) size: vec2<f32>, @location(3) color: vec4<f32>, @location(4) real: u32) -> VehicleOut {
+    var out: VehicleOut;
+    let sz = max(size, vec2<f32>(4.0 / g.ppm));
+    let blur = max(0.25, 2.0 / g.ppm);
+    let local = (quad_corner(vi) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 * blur));
+    let offset = vec2<f32>(0.25, -0.35) * min(1.0, sz.y / 1.8);
+    out.clip = to_clip(pos + offset + rotate(local, dir));
+    out.local = local;
+    out.size = sz;
+    out.color = vec4<f32>(0.0, 0.0, 0.0, blur);
+    out.real = real;
+    return out;
+}
+
+@fragment
+fn fs_shadow(in: VehicleOut) -> @location(0) vec4<f32> {
+    let blur = in.color.a;
+    let d = abs(in.local) - 0.5 * in.size;
+    let outside = length(max(d, vec2<f32>(0.0))) + min(max(d.x, d.y), 0.0);
+    let a = 0.4 * clamp(0.5 - outside / blur, 0.0, 1.0);
+    return vec4<f32>(0.0, 0.0, 0.0, a);
 }
 
 @fragment
@@ -188,7 +215,8 @@ fn fs_vehicle(in: VehicleOut) -> @location(0) vec4<f32> {
     } else if (edge < border) {
         c = vec3<f32>(0.01);
     }
-    return vec4<f32>(c, 1.0);
+    // coverage of the body's edge (edge < 0 outside the body)
+    return vec4<f32>(c, clamp(edge * g.ppm + 0.5, 0.0, 1.0));
 }
 
 // ---- id labels: a dark backing box and 5x7 glyphs from the font atlas ----

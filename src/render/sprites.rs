@@ -69,16 +69,20 @@ pub fn class_color(class: &str) -> [u8; 4] {
         [140, 200, 60, 255],
         [200, 200, 210, 255],
     ];
-    match class.to_ascii_lowercase().as_str() {
-        "truck" => [242, 128, 24, 255],
-        "car" => [40, 116, 230, 255],
-        "bus" => [214, 40, 40, 255],
-        "bicycle" | "bike" => [60, 180, 75, 255],
-        _ => {
-            // FNV-1a: stable across runs and platforms.
-            let h = class.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3));
-            PALETTE[(h % PALETTE.len() as u64) as usize]
-        }
+    // Case-insensitive without allocating: this runs for every vehicle in every frame.
+    let is = |name: &str| class.eq_ignore_ascii_case(name);
+    if is("truck") {
+        [242, 128, 24, 255]
+    } else if is("car") {
+        [40, 116, 230, 255]
+    } else if is("bus") {
+        [214, 40, 40, 255]
+    } else if is("bicycle") || is("bike") {
+        [60, 180, 75, 255]
+    } else {
+        // FNV-1a: stable across runs and platforms.
+        let h = class.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3));
+        PALETTE[(h % PALETTE.len() as u64) as usize]
     }
 }
 
@@ -268,5 +272,6 @@ mod tests {
     fn class_colours_are_stable_and_distinct() {
         assert_ne!(class_color("Truck"), class_color("Car"));
         assert_eq!(class_color("Tractor"), class_color("Tractor"));
+        assert_eq!(class_color("TRUCK"), class_color("truck"));
     }
 }
