@@ -217,3 +217,26 @@ fn bad_lab_settings_are_errors_naming_the_key() {
         assert!(err.contains(key), "{lab}: {err}");
     }
 }
+
+#[test]
+fn the_mock_script_drives_the_trucks_along_the_right_lane_in_lab_millimetres() {
+    let scenario = Scenario::load(&scenario_path()).expect("scenario");
+    let script = smlworld::io::lab::scenario_script(&scenario).expect("script");
+    assert_eq!(script.body_count(), 2);
+    // Truck 0 starts 60 m along the right lane (radius 60 m, from the positive x axis,
+    // counter-clockwise) at 8 m/s; lab mm = world m / 32 * 1000.
+    for t in [0.0, 5.0, 20.0] {
+        let pose = script.pose(0, t).expect("body 0 visible");
+        let angle = (60.0 + 8.0 * t) / 60.0;
+        let (x, y) = (60.0 * f64::cos(angle) / 32.0 * 1000.0, 60.0 * f64::sin(angle) / 32.0 * 1000.0);
+        // Keyframes every metre on a 60 m circle: chords sag at most 1/(8*60) m = 65 µm x 31.25.
+        assert!((pose[0] - x).abs() < 5.0 && (pose[1] - y).abs() < 5.0, "t={t}: {pose:?} vs ({x}, {y})");
+        let heading = (angle.to_degrees() + 90.0).rem_euclid(360.0);
+        let yaw = pose[5].rem_euclid(360.0);
+        assert!((yaw - heading).abs() < 1.5 || (yaw - heading).abs() > 358.5, "t={t}: yaw {yaw} vs {heading}");
+    }
+    // One lap of 2 pi 60 m at 8 m/s, then it starts over.
+    let lap = std::f64::consts::TAU * 60.0 / 8.0;
+    let (a, b) = (script.pose(1, 1.0).expect("visible"), script.pose(1, 1.0 + lap).expect("visible"));
+    assert!((a[0] - b[0]).abs() < 5.0 && (a[1] - b[1]).abs() < 5.0, "{a:?} vs {b:?}");
+}

@@ -230,11 +230,8 @@ pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&La
     if let Some(m) = &config.mocap {
         let mut mock = None;
         let addr = if m.mock {
-            let script = ring_script(
-                real.iter().filter_map(|(id, s, r)| Some((*id, *s, r.as_ref()?.0.as_ref()))),
-                config.scale,
-                1.0,
-            );
+            let script =
+                ring_script(real.iter().filter_map(|(id, s, r)| Some((*id, *s, r.as_ref()?.0.as_ref()))), config.scale, 1.0);
             let server = MockMocapServer::start(MockMocapConfig {
                 bind: SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 0),
                 rate_hz: DEFAULT_MOCK_RATE_HZ,
@@ -288,6 +285,21 @@ pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&La
         sim.add_plugin(TruckPlugin::new(bridge, t.rate, map.map(LaneIndex::new)));
     }
     Ok(())
+}
+
+/// The mock motion-capture script of `scenario`'s real vehicles (what `mocap = { mock = true }`
+/// serves), without starting any bridge: for `smlworld mock-mocap --scenario`.
+pub fn scenario_script(scenario: &crate::app::Scenario) -> Result<MocapScript, crate::app::ScenarioError> {
+    let mut plain = scenario.clone();
+    let scale = plain.file.lab.take().map_or(DEFAULT_LAB_SCALE, |l| l.scale);
+    let mut builder = plain.builder()?;
+    let world = builder.world_mut();
+    let real: Vec<_> = world.resource::<Vehicles>().iter().filter(|(id, _)| id.is_real()).collect();
+    let vehicles: Vec<(VehicleId, VehicleState, Route)> = real
+        .into_iter()
+        .filter_map(|(id, e)| Some((id, *world.get::<VehicleState>(e)?, world.get::<Route>(e)?.clone())))
+        .collect();
+    Ok(ring_script(vehicles.iter().map(|(id, s, r)| (*id, *s, r.0.as_ref())), scale, 1.0))
 }
 
 /// A mock motion-capture script in which body k drives vehicle k's `path` from its state's
