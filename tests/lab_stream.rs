@@ -60,3 +60,16 @@ fn run_streams_every_vehicle_at_50_hz() {
     ids.sort_unstable();
     assert_eq!(ids, (-12..=-1).collect::<Vec<i32>>());
 }
+
+#[test]
+fn motion_capture_scenarios_refuse_another_speed_than_real_time() {
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/lab_mixed.toml");
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["run", scenario, "--realtime", "--speed", "2", "--duration", "1", "--out"])
+        .arg(std::env::temp_dir().join(format!("smlworld_lab_speed_{}", std::process::id())))
+        .output()
+        .expect("run smlworld run");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--speed must be 1 with motion capture"), "{err}");
+}

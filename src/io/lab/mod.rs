@@ -56,8 +56,8 @@ pub use stats::{
     LabSummary, RealVehicleBeacon, RealVehicleStats, RealVehicleStatsPlugin, RealVehicleSummary, beacon_real_vehicles,
     count_real_detections, count_real_messages,
 };
-pub use stream::{VizStream, VizStreamPlugin, stream_vehicles};
-pub use trucks::{LaneIndex, TruckBridge, TruckLine, TruckPlugin, leader_gap, publish_trucks};
+pub use stream::{Stream, VizStream, VizStreamPlugin, stream_vehicles};
+pub use trucks::{LaneIndex, TruckBridge, TruckLine, TruckPlugin, Trucks, leader_gap, publish_trucks};
 
 /// A lab setting that cannot work, naming its key under `[lab]`.
 #[derive(Debug, thiserror::Error)]

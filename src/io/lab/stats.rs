@@ -90,7 +90,8 @@ pub fn count_real_detections(
 }
 
 /// Each [`Control`] tick: count beacons of real vehicles in the wifi in-boxes of virtual
-/// vehicles, each wifi round once (`last_round`: the newest round counted).
+/// vehicles, each wifi round once (`last_round`: the newest round counted). O(wifi deliveries
+/// since the last control tick): only lab scenarios add it.
 pub fn count_real_messages(
     vehicles: Res<Vehicles>,
     mailboxes: Query<(&VehicleId, &Mailbox), Without<RealVehicleStats>>,
