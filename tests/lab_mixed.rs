@@ -240,3 +240,41 @@ fn the_mock_script_drives_the_trucks_along_the_right_lane_in_lab_millimetres() {
     let (a, b) = (script.pose(1, 1.0).expect("visible"), script.pose(1, 1.0 + lap).expect("visible"));
     assert!((a[0] - b[0]).abs() < 5.0 && (a[1] - b[1]).abs() < 5.0, "{a:?} vs {b:?}");
 }
+
+#[test]
+fn lanes_of_the_ring_and_gaps_along_a_lane() {
+    use smlworld::io::lab::{LaneIndex, leader_gap};
+    use smlworld::io::trucks::Lane;
+    use smlworld::map::{LaneletMap, RouteOptions};
+    use smlworld::world::Detection;
+
+    let map = LaneletMap::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/maps/highway_ring.osm"))).expect("map");
+    let lanes = LaneIndex::new(&map);
+    // Counter-clockwise lanes with centre radii 52 (left), 56 (centre), 60 (right): the
+    // driving direction's left is the inside of the ring.
+    let at = |r: f64, a: f64| glam::DVec2::new(r * a.cos(), r * a.sin());
+    for (r, lane) in [(52.0, Lane::Left), (56.0, Lane::Center), (60.0, Lane::Right)] {
+        for a in [0.3, 2.0, 4.0] {
+            let (found, offset) = lanes.locate(at(r + 0.5, a)).expect("a lane");
+            assert_eq!(found, lane, "radius {r}");
+            assert!((offset + 0.5).abs() < 0.05, "0.5 m outside the centre line is 0.5 m right: {offset}");
+        }
+    }
+
+    let route = map.closed_loop_tag("right_lane_node", &RouteOptions::default()).expect("right lane loop");
+    let det = |id: i32, p: glam::DVec2| Detection { id: VehicleId(id), position: p, velocity: glam::DVec2::ZERO };
+    // Truck at arc 0 (angle 0); others: 30 m ahead on the lane, 20 m ahead one lane in,
+    // 10 m behind, and 90 m ahead.
+    let others = [
+        det(5, at(60.0, 30.0 / 60.0)),
+        det(6, at(56.0, 20.0 / 60.0)),
+        det(7, at(60.0, -10.0 / 60.0)),
+        det(8, at(60.0, 90.0 / 60.0)),
+    ];
+    let s = route.project(at(60.0, 0.0)).s;
+    let (leader, gap) = leader_gap(&route, s, &others, 2.0, 100.0).expect("a leader");
+    assert_eq!(leader, VehicleId(5));
+    assert!((gap - 30.0).abs() < 0.05, "gap {gap}, expected 30 m along the lane");
+    assert!(leader_gap(&route, s, &others[1..], 2.0, 100.0).is_some_and(|(id, _)| id == VehicleId(8)));
+    assert!(leader_gap(&route, s, &others[1..], 2.0, 80.0).is_none(), "nothing within 80 m ahead on the lane");
+}
