@@ -119,6 +119,8 @@ pub struct RunSummary {
     /// Per vehicle id (JSON keys are strings): largest distance to its route's centre line seen
     /// by its path follower [m], checked at every control tick.
     pub max_distance_to_centre_line: BTreeMap<i32, f64>,
+    /// Collisions, follower gaps and platoon string stability (when [`super::metrics::MetricsPlugin`] ran).
+    pub metrics: Option<super::metrics::MetricsSummary>,
     /// Real vehicles and lab bridges (motion capture, trucks, stream); absent without them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lab: Option<LabSummary>,
@@ -143,6 +145,7 @@ impl RunSummary {
             rate_warnings: sim.rate_warnings(),
             seed: world.get_resource::<SimSeed>().map_or(0, |s| s.0),
             max_distance_to_centre_line,
+            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| m.summary()),
             lab: LabSummary::of(world),
         }
     }
