@@ -6,7 +6,7 @@
 //! and out of it, each bridge as a [`crate::app::Plugin`]:
 //! - [`VizStreamPlugin`]: sends every vehicle over UDP in its own module (default 50 Hz);
 //! - [`MocapPlugin`]: each dynamics tick, polls the Qualisys client and writes tracked bodies
-//!   into the [`VehicleState`](crate::world::VehicleState) of the real vehicles (id >= 0, no
+//!   into the [`VehicleState`] of the real vehicles (id >= 0, no
 //!   dynamics model); a body lost for longer than the timeout marks its vehicle stale
 //!   ([`MocapTrack::stale`]), it is never deleted;
 //! - [`TruckPlugin`]: one TCP server per real vehicle (port base + id) fed at 20 Hz with the
