@@ -25,6 +25,9 @@
 //! sensors = { radar = { angle_deg = 60.0, range = 100.0 }, velodyne = { range = 50.0 } }
 //! controller = { type = "path_following", speed = 12.0 }
 //! # or a smart controller: type = "cruise_control", "acc" or "platoon" (see crate::vehicles::setup)
+//! [lab]                                  # optional: motion capture, real trucks (crate::io::lab)
+//! mocap = { mock = true }
+//! trucks = { base_port = 16000 }
 //! ```
 //! Unknown keys are errors that name the key and list the allowed ones.
 
@@ -35,6 +38,7 @@ use std::sync::Arc;
 use glam::DVec2;
 use serde::Deserialize;
 
+use crate::io::lab::{LabConfig, add_lab_plugins};
 use crate::map::routing::Place;
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
 use crate::sim::{Rates, V2vConfig, V2vPlugin};
@@ -165,6 +169,9 @@ pub struct ScenarioFile {
     /// The vehicles.
     #[serde(default)]
     pub vehicles: Vec<VehicleConfig>,
+    /// Bridges to the lab (motion capture, real trucks), see [`crate::io::lab`].
+    #[serde(default)]
+    pub lab: Option<LabConfig>,
 }
 
 fn default_duration() -> f64 {
@@ -557,6 +564,9 @@ impl Scenario {
                 smart.attach(b.world_mut(), entity);
             }
         }
+        if let Some(lab) = &self.file.lab {
+            add_lab_plugins(&mut b, lab, self.map.as_deref()).map_err(|e| self.invalid(format!("lab.{}", e.key), e.problem))?;
+        }
         Ok(b)
     }
 
@@ -630,6 +640,9 @@ fn check(file: &ScenarioFile, path: &FsPath) -> Result<(), ScenarioError> {
         }
     }
     non_negative("v2v.wifi_range".into(), file.v2v.wifi_range)?;
+    if let Some(lab) = &file.lab {
+        lab.check().map_err(|e| invalid(format!("lab.{}", e.key), &e.problem))?;
+    }
     let mut seen = BTreeMap::new();
     for (i, v) in file.vehicles.iter().enumerate() {
         let key = |k: &str| format!("vehicles[{i}] (id {}).{k}", v.id);

@@ -5,6 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use smlworld::app::{RealtimeRunner, RunSummary, Scenario, TrajectoryLog, TrajectoryLogPlugin, run_headless};
+use smlworld::io::lab::VizStreamPlugin;
+use smlworld::io::viz::DEFAULT_VIZ_RATE_HZ;
 use smlworld::render::{FrameRecorder, RecorderOptions};
 
 /// Arguments of `smlworld run`.
@@ -45,6 +47,10 @@ pub struct RunArgs {
     /// Draw radar cones and velodyne circles in the frames.
     #[arg(long)]
     pub sensor_ranges: bool,
+    /// Stream the vehicles over UDP (2015 visualisation format, 50 Hz) to ADDR (default
+    /// 127.0.0.1:38008) for `smlworld view`.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
+    pub stream: Option<std::net::SocketAddr>,
 }
 
 /// Run the subcommand.
@@ -59,7 +65,22 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
     let csv_path = args.out.join("trajectories.csv");
     let csv = std::fs::File::create(&csv_path).with_context(|| format!("cannot create {}", csv_path.display()))?;
 
+    // Motion capture measures the lab in wall-clock time: such a scenario runs in real time.
+    let wall_clock = scenario.file.lab.as_ref().is_some_and(|l| l.needs_wall_clock());
+    anyhow::ensure!(!wall_clock || args.speed == 1.0, "--speed must be 1 with motion capture (`[lab] mocap`): the lab runs in real time");
+    let realtime = args.realtime || wall_clock;
+    if wall_clock && !args.realtime {
+        tracing::info!("the scenario uses motion capture: running in real time");
+    }
+
     let mut builder = scenario.builder()?;
+    if let Some(addr) = args.stream {
+        builder.add_plugin(VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ)?);
+        tracing::info!("streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)");
+        if !realtime {
+            tracing::warn!("--stream without --realtime: the stream runs at sim time, as fast as the run goes");
+        }
+    }
     builder.insert_resource(TrajectoryLog::new(Box::new(std::io::BufWriter::new(csv))));
     builder.add_plugin(TrajectoryLogPlugin { rate: log_rate });
     let mut sim = builder.build();
@@ -89,7 +110,7 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
             bar.set_message(format!("{t:.0}/{duration:.0}"));
         }
     };
-    let report = if args.realtime {
+    let report = if realtime {
         RealtimeRunner::new(args.speed).run(&mut sim, duration, chunk, progress)
     } else {
         run_headless(&mut sim, duration, chunk, progress)
