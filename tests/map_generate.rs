@@ -79,6 +79,28 @@ fn xml_is_josm_style_with_unique_negative_ids_and_an_origin() {
 }
 
 #[test]
+fn both_bounds_of_every_lanelet_have_the_same_node_count_as_the_2015_loader_required() {
+    let maps = [
+        ("ring", ring_highway(&RingParams { lanes: 4, clockwise: true, ..RingParams::default() })),
+        ("intersection3", intersection(&IntersectionParams { arms: 3, lanes: 2, ..IntersectionParams::default() })),
+        ("grid", grid_city(&GridParams { rows: 2, cols: 3, lanes: 2, ..GridParams::default() })),
+    ];
+    for (name, text) in maps {
+        let doc = parse_osm(&text.expect("valid"), Path::new(name)).expect("parses");
+        assert!(!doc.relations.is_empty());
+        for r in doc.relations.values() {
+            let counts: Vec<(&str, usize)> =
+                r.members.iter().map(|m| (m.role.as_str(), doc.ways[&m.reference].nodes.len())).collect();
+            assert!(
+                counts.len() == 2 && counts[0].0 == "left" && counts[1].0 == "right" && counts[0].1 == counts[1].1,
+                "{name}: relation {}: {counts:?}",
+                r.id
+            );
+        }
+    }
+}
+
+#[test]
 fn bad_parameters_are_errors_naming_the_parameter() {
     let name = |r: Result<String, GenerateError>| match r {
         Err(GenerateError::InvalidParameter { name, .. }) => name,
@@ -260,9 +282,32 @@ fn intersections_round_trip_and_route_every_legal_turn_but_no_u_turn() {
             assert_eq!(map.ways.len(), arms * (2 * lanes + 1) + arms * (arms - 1) * (lanes + 1), "{what}: ways");
             assert_eq!(map.successor_pairs(), 2 * turns, "{what}: successor pairs");
             let d0 = lanes as f64 * p.lane_width + p.corner_radius;
+            // Nodes: origin, both ends and the inner nodes of every arm boundary, plus the inner
+            // nodes of the lanes + 1 bounds of each turn, spaced by the longest bound: 2 d0
+            // straight, a quarter circle of radius d0 right, of d0 + lanes w left.
+            let arm_list = Arm::of_intersection(arms);
+            let segments = |len: f64| (len / p.node_spacing).ceil() as usize;
+            let bounds = 2 * lanes + 1;
+            let mut nodes = 1 + arms * bounds * (2 + segments(p.arm_length) - 1);
+            for &from in arm_list {
+                for &to in arm_list.iter().filter(|&&to| to != from) {
+                    let (a, b) = (-from.direction(), to.direction());
+                    let longest = if a.dot(b) > 0.5 {
+                        2.0 * d0
+                    } else if a.perp_dot(b) > 0.0 {
+                        FRAC_PI_2 * (d0 + lanes as f64 * p.lane_width)
+                    } else {
+                        FRAC_PI_2 * d0
+                    };
+                    nodes += (lanes + 1) * (segments(longest) - 1);
+                }
+            }
+            assert_eq!(map.nodes.len(), nodes, "{what}: nodes");
+            for l in map.lanelets.iter().filter(|l| map.ways[&l.right_way].line_type().is_some()) {
+                assert!((l.length - p.arm_length).abs() < 1e-4, "{what}: arm lanelet {} is {} m", l.id, l.length);
+            }
             // Rightmost lane: centre (lanes - 0.5) lane widths from the road centre line.
             let t = (lanes as f64 - 0.5) * p.lane_width;
-            let arm_list = Arm::of_intersection(arms);
             for &from in arm_list {
                 for &to in arm_list {
                     let (start, end) = (intersection_start_tag(from), intersection_end_tag(to));

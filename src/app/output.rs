@@ -118,6 +118,8 @@ pub struct RunSummary {
     /// Per vehicle id (JSON keys are strings): largest distance to its route's centre line seen
     /// by its path follower [m], checked at every control tick.
     pub max_distance_to_centre_line: BTreeMap<i32, f64>,
+    /// Collisions, follower gaps and platoon string stability (when [`super::metrics::MetricsPlugin`] ran).
+    pub metrics: Option<super::metrics::MetricsSummary>,
 }
 
 impl RunSummary {
@@ -139,6 +141,7 @@ impl RunSummary {
             rate_warnings: sim.rate_warnings(),
             seed: world.get_resource::<SimSeed>().map_or(0, |s| s.0),
             max_distance_to_centre_line,
+            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| m.summary()),
         }
     }
 }

@@ -24,6 +24,7 @@
 //! speed = 10.0                           # initial speed [m/s]
 //! sensors = { radar = { angle_deg = 60.0, range = 100.0 }, velodyne = { range = 50.0 } }
 //! controller = { type = "path_following", speed = 12.0 }
+//! # or a smart controller: type = "cruise_control", "acc" or "platoon" (see crate::vehicles::setup)
 //! ```
 //! Unknown keys are errors that name the key and list the allowed ones.
 
@@ -37,12 +38,15 @@ use serde::Deserialize;
 use crate::map::routing::Place;
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
 use crate::sim::{Rates, V2vConfig, V2vPlugin};
-use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
+use crate::vehicles::{
+    AccSetup, CruiseSetup, PathFollower, PathFollowing, PathFollowingPlugin, PlatoonSetup, SmartController, smart_vehicles,
+};
 use crate::world::{
     AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleClass, VehicleId, VehicleModel, VehicleSize,
     VehicleSpec, VehicleState, Velodyne,
 };
 
+use super::metrics::MetricsPlugin;
 use super::{SimBuilder, SimSeed, default_plugins};
 
 /// What can go wrong with a scenario file.
@@ -410,6 +414,24 @@ pub enum ControllerConfig {
         #[serde(default = "default_speed_gain")]
         speed_gain: f64,
     },
+    /// Cruise control (PID on speed) along the route.
+    CruiseControl(CruiseSetup),
+    /// Adaptive cruise control on radar along the route.
+    Acc(AccSetup),
+    /// Platooning (cooperative ACC over wifi) along the route.
+    Platoon(PlatoonSetup),
+}
+
+impl ControllerConfig {
+    /// The smart-vehicle controller this names, if it is one.
+    pub fn smart(&self) -> Option<SmartController> {
+        match *self {
+            ControllerConfig::PathFollowing { .. } => None,
+            ControllerConfig::CruiseControl(c) => Some(SmartController::Cruise(c)),
+            ControllerConfig::Acc(c) => Some(SmartController::Acc(c)),
+            ControllerConfig::Platoon(c) => Some(SmartController::Platoon(c)),
+        }
+    }
 }
 
 fn default_cruise() -> f64 {
@@ -471,13 +493,15 @@ impl Scenario {
     }
 
     /// A builder with the scenario's rates, seed, built-in plugins (dynamics, sensors, V2V, path
-    /// following) and vehicles; add your own plugins, then `build()`.
+    /// following, the smart-vehicle controllers, metrics) and vehicles; add your own plugins,
+    /// then `build()`.
     pub fn builder(&self) -> Result<SimBuilder, ScenarioError> {
         let mut b = SimBuilder::with_rates(self.rates());
         b.insert_resource(SimSeed(self.file.seed));
         b.add_plugin(default_plugins);
         b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: self.file.v2v.wifi_range } });
         b.add_plugin(PathFollowingPlugin);
+        b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default());
         let opts = RouteOptions { points_per_meter: self.file.points_per_meter };
         let mut routes: BTreeMap<String, Arc<Path>> = BTreeMap::new();
         for (i, v) in self.file.vehicles.iter().enumerate() {
@@ -528,6 +552,9 @@ impl Scenario {
             if let Some(ControllerConfig::PathFollowing { speed, lookahead_min, lookahead_time, speed_gain }) = v.controller {
                 let params = PathFollowing { speed, lookahead_min, lookahead_time, speed_gain, ..Default::default() };
                 b.world_mut().entity_mut(entity).insert(PathFollower::starting_at(params, along));
+            }
+            if let Some(smart) = v.controller.and_then(|c| c.smart()) {
+                smart.attach(b.world_mut(), entity);
             }
         }
         Ok(b)
@@ -666,6 +693,12 @@ fn check(file: &ScenarioFile, path: &FsPath) -> Result<(), ScenarioError> {
             positive(key("controller.lookahead_min"), lookahead_min)?;
             non_negative(key("controller.lookahead_time"), lookahead_time)?;
             non_negative(key("controller.speed_gain"), speed_gain)?;
+        }
+        if let Some(smart) = v.controller.and_then(|c| c.smart()) {
+            if v.route.is_none() {
+                return Err(invalid(key("controller"), "needs a `route` to follow"));
+            }
+            smart.check().map_err(|(k, problem)| invalid(key(&format!("controller.{k}")), &problem))?;
         }
     }
     Ok(())
