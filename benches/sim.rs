@@ -31,11 +31,14 @@ fn sim_with(n: usize, plugin: impl Plugin) -> Sim {
     sim
 }
 
+/// Builds the sim of one bench case.
+type MakeSim = Box<dyn Fn() -> Sim>;
+
 fn modules(c: &mut Criterion) {
     let mut group = c.benchmark_group("one sim second");
     group.sample_size(10);
     for n in [1_000usize, 10_000] {
-        let cases: Vec<(&str, Box<dyn Fn() -> Sim>)> = vec![
+        let cases: Vec<(&str, MakeSim)> = vec![
             ("dynamics 50 Hz", Box::new(move || sim_with(n, DynamicsPlugin))),
             ("sensors 20 Hz", Box::new(move || sim_with(n, SensorsPlugin))),
             (

@@ -90,7 +90,7 @@ pub enum ScenarioError {
         /// The map file, as resolved.
         map: PathBuf,
         /// Why.
-        source: MapError,
+        source: Box<MapError>,
     },
     /// A vehicle's route or start could not be found on the map.
     #[error("{path}: `{key}`: {source}")]
@@ -100,7 +100,7 @@ pub enum ScenarioError {
         /// Which key.
         key: String,
         /// Why.
-        source: MapError,
+        source: Box<MapError>,
     },
 }
 
@@ -481,7 +481,7 @@ impl Scenario {
             Some(m) => {
                 let resolved = path.parent().unwrap_or(FsPath::new("")).join(m);
                 let map = LaneletMap::load(&resolved)
-                    .map_err(|source| ScenarioError::Map { path: path.into(), map: resolved.clone(), source })?;
+                    .map_err(|e| ScenarioError::Map { path: path.into(), map: resolved.clone(), source: Box::new(e) })?;
                 Some(Arc::new(map))
             }
             None => None,
@@ -520,7 +520,7 @@ impl Scenario {
                     let path = match routes.get(&name) {
                         Some(p) => Arc::clone(p),
                         None => {
-                            let route_err = |source| ScenarioError::Route { path: self.path.clone(), key: key("route"), source };
+                            let route_err = |e| ScenarioError::Route { path: self.path.clone(), key: key("route"), source: Box::new(e) };
                             let p = Arc::new(match (&r.closed_loop, &r.from, &r.to) {
                                 (Some(n), _, _) => map.closed_loop_at(&n.place(), &opts).map_err(route_err)?,
                                 (None, Some(a), Some(b)) => map.route_places(&a.place(), &b.place(), &opts).map_err(route_err)?,
@@ -581,7 +581,7 @@ impl Scenario {
             let map = self.map.as_ref().ok_or_else(|| self.invalid(key("start.at"), "needs a `map` in the scenario"))?;
             let ids = map
                 .place_nodes(&n.place())
-                .map_err(|source| ScenarioError::Route { path: self.path.clone(), key: key("start.at"), source })?;
+                .map_err(|e| ScenarioError::Route { path: self.path.clone(), key: key("start.at"), source: Box::new(e) })?;
             ids.first()
                 .and_then(|id| map.nodes.get(id))
                 .map(|n| n.position)

@@ -101,7 +101,9 @@ impl Path {
     /// End points of segment `i` (wrapping for a loop).
     fn segment(&self, i: usize) -> (DVec2, DVec2) {
         let n = self.points.len();
-        (self.points[i % n], self.points[(i + 1) % n])
+        let i = if i < n { i } else { i % n };
+        let j = if i + 1 < n { i + 1 } else { 0 };
+        (self.points[i], self.points[j])
     }
 
     /// Mean segment length [m] (all segments are equal up to rounding after resampling).
@@ -134,11 +136,14 @@ impl Path {
         // (segment, t, nearest point, squared distance) of the best segment; the square root and
         // the heading's atan2 are computed once, for it only (path followers call this every tick).
         let mut best: Option<(isize, f64, DVec2, f64)> = None;
-        for k in 0..count as isize {
-            let mut i = from + k;
-            if self.closed {
-                i = i.rem_euclid(n);
-            } else if i < 0 || i >= n {
+        // One division up front, then wrap by comparison (path followers call this every tick).
+        let mut i = if self.closed { from.rem_euclid(n) } else { from } - 1;
+        for _ in 0..count {
+            i += 1;
+            if self.closed && i == n {
+                i = 0;
+            }
+            if i < 0 || i >= n {
                 continue;
             }
             let (a, b) = self.segment(i as usize);
