@@ -91,9 +91,45 @@ struct SectorOut {
     @location(2) color: vec4<f32>,
 };
 
+struct Sector {
+    pos: vec2<f32>,
+    dir: vec2<f32>,
+    range: f32,
+    half_angle: f32,
+    color: u32,
+    _pad: u32,
+};
+
+struct Vehicle {
+    pos: vec2<f32>,
+    dir: vec2<f32>,
+    size: vec2<f32>,
+    color: u32,
+    real: u32,
+};
+
+struct Label {
+    anchor: vec2<f32>,
+    offset: vec2<f32>,
+    glyphs: vec2<u32>,
+    count: u32,
+    color: u32,
+};
+
+// Per-frame items, read by vertex pulling: item vi / 6, quad corner vi % 6. One plain draw of
+// 6·N vertices replaces N hardware instances, which cost several µs each on lavapipe.
+@group(1) @binding(0) var<storage, read> sectors: array<Sector>;
+@group(1) @binding(1) var<storage, read> vehicles: array<Vehicle>;
+@group(1) @binding(2) var<storage, read> labels: array<Label>;
+
 @vertex
-fn vs_sector(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
-             @location(2) range: f32, @location(3) half_angle: f32, @location(4) color: vec4<f32>) -> SectorOut {
+fn vs_sector(@builtin(vertex_index) vi: u32) -> SectorOut {
+    let item = sectors[vi / 6u];
+    let pos = item.pos;
+    let dir = item.dir;
+    let range = item.range;
+    let half_angle = item.half_angle;
+    let color = unpack4x8unorm(item.color);
     var out: SectorOut;
     let m = 2.0 / g.ppm;
     // the smallest box around the sector: a cone narrower than a half disc lies ahead only
@@ -104,7 +140,7 @@ fn vs_sector(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @locat
         lo = vec2<f32>(-m, -side);
         hi = vec2<f32>(range + m, side);
     }
-    let local = mix(lo, hi, quad_corner(vi));
+    let local = mix(lo, hi, quad_corner(vi % 6u));
     out.clip = to_clip(pos + rotate(local, dir));
     out.local = local;
     out.shape = vec2<f32>(range, half_angle);
@@ -149,22 +185,30 @@ struct VehicleOut {
 // Soft shadow as if lit from the upper left: offset [m] in the world and blur [m].
 const SHADOW_OFFSET: vec2<f32> = vec2<f32>(0.15, -0.22);
 const SHADOW_BLUR: f32 = 0.15;
+// Scale [px/m] below which vehicles have no shadow.
+const SHADOW_MIN_PPM: f32 = 8.0;
 
 @vertex
-fn vs_vehicle(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
-              @location(2) size: vec2<f32>, @location(3) color: vec4<f32>, @location(4) real: u32) -> VehicleOut {
+fn vs_vehicle(@builtin(vertex_index) vi: u32) -> VehicleOut {
+    let item = vehicles[vi / 6u];
+    let pos = item.pos;
+    let dir = item.dir;
+    let size = item.size;
+    let color = unpack4x8unorm(item.color);
     var out: VehicleOut;
     // never smaller than 4 px, so a vehicle stays visible when zoomed far out
     let sz = max(size, vec2<f32>(4.0 / g.ppm));
     let px = 1.0 / g.ppm;
-    // the body, its shadow and one pixel more on every side for the anti-aliased edge
-    let grow = length(SHADOW_OFFSET) + max(SHADOW_BLUR, px) + px;
-    let local = (quad_corner(vi) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 * grow));
+    // the body, its shadow and one pixel more on every side for the anti-aliased edge; below
+    // SHADOW_MIN_PPM the shadow would be a pixel wide and is left out (it would double the pixels)
+    let shadow_reach = select(0.0, length(SHADOW_OFFSET) + max(SHADOW_BLUR, px), g.ppm >= SHADOW_MIN_PPM);
+    let grow = shadow_reach + px;
+    let local = (quad_corner(vi % 6u) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 * grow));
     out.clip = to_clip(pos + rotate(local, dir));
     out.local = local;
     out.size = sz;
     out.color = color;
-    out.real = real;
+    out.real = item.real;
     // the world-fixed shadow offset in the vehicle's frame
     out.shadow = rotate(SHADOW_OFFSET, vec2<f32>(dir.x, -dir.y));
     return out;
@@ -181,7 +225,7 @@ fn fs_vehicle(in: VehicleOut) -> @location(0) vec4<f32> {
     let cover = clamp(edge * g.ppm + 0.5, 0.0, 1.0);
     let d = abs(in.local - in.shadow) - 0.5 * in.size;
     let outside = length(max(d, vec2<f32>(0.0))) + min(max(d.x, d.y), 0.0);
-    let shade = 0.4 * clamp(0.5 - outside / max(SHADOW_BLUR, px), 0.0, 1.0);
+    let shade = select(0.0, 0.4 * clamp(0.5 - outside / max(SHADOW_BLUR, px), 0.0, 1.0), g.ppm >= SHADOW_MIN_PPM);
     let a = cover + (1.0 - cover) * shade;
     if (a < 0.004) {
         discard;
@@ -233,20 +277,23 @@ const TEXT_SCALE: f32 = 2.0;
 const LABEL_PAD: f32 = 1.0;
 
 @vertex
-fn vs_label(@builtin(vertex_index) vi: u32, @location(0) anchor: vec2<f32>, @location(1) offset: vec2<f32>,
-            @location(2) glyphs: vec2<u32>, @location(3) count: u32, @location(4) color: vec4<f32>) -> LabelOut {
+fn vs_label(@builtin(vertex_index) vi: u32) -> LabelOut {
+    let item = labels[vi / 6u];
+    let anchor = item.anchor;
+    let offset = item.offset;
+    let count = item.count;
     var out: LabelOut;
     let ndc = anchor * g.scale;
     // snap the anchor to whole pixels so the glyphs stay crisp
     let anchor_px = floor(vec2<f32>(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * g.viewport);
     let cells = vec2<f32>(f32(count) * 6.0 - 1.0, 7.0) + vec2<f32>(2.0 * LABEL_PAD);
-    let corner = quad_corner(vi);
+    let corner = quad_corner(vi % 6u);
     let p = anchor_px + offset + corner * cells * TEXT_SCALE;
     out.clip = vec4<f32>(p.x / g.viewport.x * 2.0 - 1.0, 1.0 - p.y / g.viewport.y * 2.0, 0.0, 1.0);
     out.cell = corner * cells;
-    out.glyphs = glyphs;
+    out.glyphs = item.glyphs;
     out.count = count;
-    out.color = color;
+    out.color = unpack4x8unorm(item.color);
     return out;
 }
 

@@ -91,7 +91,7 @@ const RADAR_COLOR: [u8; 4] = [255, 70, 60, 96];
 const VELODYNE_COLOR: [u8; 4] = [80, 200, 255, 80];
 const WIFI_COLOR: [u8; 4] = [170, 120, 255, 64];
 
-/// Instance of the vehicle pipeline.
+/// One vehicle as the vehicle shader reads it (`Vehicle` in shaders.wgsl).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct VehicleInstance {
@@ -107,7 +107,7 @@ pub(crate) struct VehicleInstance {
     pub real: u32,
 }
 
-/// Instance of the overlay pipeline: a disc sector around a vehicle.
+/// A disc sector around a vehicle as the sector shader reads it (`Sector` in shaders.wgsl).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct SectorInstance {
@@ -121,9 +121,11 @@ pub(crate) struct SectorInstance {
     pub half_angle: f32,
     /// sRGB colour with alpha.
     pub color: [u8; 4],
+    /// Padding to the 8-byte alignment of the shader's struct.
+    pub pad: u32,
 }
 
-/// Instance of the label pipeline: one vehicle id in a backing box, in pixels next to an anchor.
+/// One vehicle id in a backing box, in pixels next to an anchor (`Label` in shaders.wgsl).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct LabelInstance {
@@ -226,7 +228,7 @@ impl FrameBatches {
             }
             let mut sector = |range: Option<f64>, half: f64, color: [u8; 4]| {
                 if let Some(r) = range.filter(|r| r.is_finite() && *r > 0.0) {
-                    self.sectors.push(SectorInstance { pos, dir, range: r as f32, half_angle: half as f32, color });
+                    self.sectors.push(SectorInstance { pos, dir, range: r as f32, half_angle: half as f32, color, pad: 0 });
                 }
             };
             sector(s.overlays.wifi, std::f64::consts::PI, WIFI_COLOR);
