@@ -120,7 +120,7 @@ fn real_and_virtual_vehicles_look_different() {
     let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
     let real = VehicleSprite::new(5, DVec2::ZERO, 0.0, 8.0, 3.0, "Car");
     let virt = VehicleSprite { id: -5, ..real.clone() };
-    let a = r.render_frame(&layer, &[real.clone()]).unwrap();
+    let a = r.render_frame(&layer, std::slice::from_ref(&real)).unwrap();
     let b = r.render_frame(&layer, &[virt]).unwrap();
     // The outline on the left side: dark for real, light for virtual.
     let (x, y) = pixel_of(&view, &real, DVec2::new(-1.0, 1.4));

@@ -191,7 +191,8 @@ impl Tessellator<'_> {
             let (a, b) = (w[0], w[1]);
             let seg = b - a;
             let len = seg.length();
-            if !(len > 1e-9) {
+            // Also skips NaN lengths.
+            if len.is_nan() || len <= 1e-9 {
                 continue;
             }
             let n = DVec2::new(-seg.y, seg.x) / len * ext_m;
