@@ -20,7 +20,14 @@ fn data_dir() -> PathBuf {
     panic!("test data missing: expected sml2015/HighwaySML.xml under ../shared/data (beside the crate) or /work/shared/data");
 }
 
-/// The shipped highway scenario, with its map swapped for the 2015 SML ring (same node tags).
+/// The shipped highway scenario on the shipped ring.
+fn highway() -> Scenario {
+    let path = FsPath::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/highway.toml");
+    Scenario::load(&path).unwrap_or_else(|e| panic!("the shipped highway scenario must load: {e}"))
+}
+
+/// The shipped highway scenario, with its map swapped for the 2015 SML ring (same node tags,
+/// tighter and less regular curves).
 fn highway_on_sml2015() -> Scenario {
     let path = FsPath::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/highway.toml");
     let text = std::fs::read_to_string(&path).expect("scenarios/highway.toml is shipped");
@@ -120,7 +127,7 @@ fn trajectory_hash(scenario: &Scenario, seconds: f64) -> u64 {
 
 #[test]
 fn same_scenario_and_seed_give_identical_trajectories() {
-    let scenario = highway_on_sml2015();
+    let scenario = highway();
     let a = trajectory_hash(&scenario, 20.0);
     let b = trajectory_hash(&scenario, 20.0);
     assert_eq!(a, b);
@@ -133,7 +140,7 @@ fn same_scenario_and_seed_give_identical_trajectories() {
 
 #[test]
 fn headless_and_real_time_runs_agree_exactly() {
-    let scenario = highway_on_sml2015();
+    let scenario = highway();
     let build = || {
         let mut b = scenario.builder().expect("builds");
         b.add_plugin(chatty);
@@ -152,12 +159,12 @@ fn headless_and_real_time_runs_agree_exactly() {
     assert!(v2v(&headless).wifi_delivered > 0 && v2v(&headless).network_delivered > 0);
 }
 
-#[test]
-fn highway_scenario_keeps_every_vehicle_on_its_lane_for_600_s() {
-    let scenario = highway_on_sml2015();
+/// Run `scenario` for `seconds` and check every vehicle stayed within 0.5 m of its lane's
+/// centre line, drives at its cruise speed and went round.
+fn stays_on_lanes(scenario: &Scenario, seconds: f64) {
     let mut sim = scenario.builder().expect("builds").build();
     let starts = sim.states();
-    sim.run_for(600.0);
+    sim.run_for(seconds);
     assert_eq!(sim.states().len(), 12);
     for v in &scenario.file.vehicles {
         let id = VehicleId(v.id);
@@ -167,10 +174,21 @@ fn highway_scenario_keeps_every_vehicle_on_its_lane_for_600_s() {
         let route = &sim.world().get::<Route>(e).expect("has a route").0;
         let state = sim.state(id).unwrap();
         assert!(route.project(state.position).lateral.abs() < 0.5, "vehicle {id} ended off its lane");
-        // Driving at its lane's cruise speed all along.
         let cruise = follower.params.speed;
         assert!((state.speed() - cruise).abs() < 0.05, "vehicle {id}: {} m/s instead of {cruise}", state.speed());
         let start = starts.iter().find(|s| s.0 == id).expect("was spawned").1;
         assert!(start.position.distance(state.position) > 1.0, "vehicle {id} did not move");
     }
+}
+
+#[test]
+fn highway_scenario_keeps_every_vehicle_on_its_lane_for_600_s() {
+    let scenario = highway();
+    assert_eq!(scenario.file.duration, 600.0);
+    stays_on_lanes(&scenario, 600.0);
+}
+
+#[test]
+fn highway_scenario_on_the_2015_ring_keeps_every_vehicle_on_its_lane() {
+    stays_on_lanes(&highway_on_sml2015(), 120.0);
 }

@@ -115,12 +115,13 @@ impl BenchWorld {
                     if next == self.vehicles {
                         break 'rings;
                     }
-                    let (p, heading) = path.sample(path.length * k as f64 / count as f64);
+                    let s = path.length * k as f64 / count as f64;
+                    let (p, heading) = path.sample(s);
                     let mut spec = VehicleSpec::new(VehicleId(-1 - next as i32), VehicleState::new(p, heading, self.speed));
                     spec.sensors = sensors;
                     spec.route = Some(Arc::clone(&path));
                     if let Ok(e) = b.spawn_vehicle(spec) {
-                        b.world_mut().entity_mut(e).insert(PathFollower::new(params));
+                        b.world_mut().entity_mut(e).insert(PathFollower::starting_at(params, s));
                     }
                     next += 1;
                 }

@@ -10,7 +10,8 @@
 //!     .spawn_vehicle(VehicleSpec::new(VehicleId(-1), VehicleState::new(DVec2::ZERO, 0.0, 0.0)))
 //!     .expect("fresh id");
 //! let mut sim = builder.build();
-//! sim.world_mut().get_mut::<ControlCommand>(sim.entity(VehicleId(-1)).unwrap()).unwrap().speed = 10.0;
+//! let entity = sim.entity(VehicleId(-1)).unwrap();
+//! sim.world_mut().get_mut::<ControlCommand>(entity).unwrap().speed = 10.0;
 //! sim.run_for(2.0);
 //! let state = sim.state(VehicleId(-1)).unwrap();
 //! assert!((state.position.x - 20.0).abs() < 1e-9);
@@ -27,13 +28,17 @@
 //! queues messages with [`crate::world::Mailbox::send`] (they leave at the channel's next round).
 //! Per-vehicle controller state lives in a component of the controller's own (see
 //! [`crate::vehicles::PathFollower`]). Controllers must not write `VehicleState`: the dynamics
-//! (or, for real vehicles, a bridge) own it.
+//! (or, for real vehicles, a bridge) own it. `examples/student_controller.rs` is a complete
+//! controller plugin to copy; speed controllers that should combine with ACC, platooning,
+//! intersection yielding and emergency braking write [`crate::vehicles::Longitudinal`] instead
+//! (see [`crate::vehicles::longitudinal`]).
 //!
 //! At one instant modules run in the order sense -> communicate -> control -> dynamics, so a
 //! controller at time t sees sensor readings and messages of time t, and its command drives the
 //! dynamics step that starts at t.
 
 pub mod bench;
+pub mod metrics;
 mod output;
 mod runner;
 pub mod scenario;

@@ -6,6 +6,7 @@ use std::io::Write;
 use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::ScheduleLabel;
 
+use crate::io::lab::LabSummary;
 use crate::sim::{Phase, SimClock, V2vStats};
 use crate::vehicles::PathFollower;
 use crate::world::{VehicleState, Vehicles};
@@ -118,6 +119,11 @@ pub struct RunSummary {
     /// Per vehicle id (JSON keys are strings): largest distance to its route's centre line seen
     /// by its path follower [m], checked at every control tick.
     pub max_distance_to_centre_line: BTreeMap<i32, f64>,
+    /// Collisions, follower gaps and platoon string stability (when [`super::metrics::MetricsPlugin`] ran).
+    pub metrics: Option<super::metrics::MetricsSummary>,
+    /// Real vehicles and lab bridges (motion capture, trucks, stream); absent without them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lab: Option<LabSummary>,
 }
 
 impl RunSummary {
@@ -139,6 +145,8 @@ impl RunSummary {
             rate_warnings: sim.rate_warnings(),
             seed: world.get_resource::<SimSeed>().map_or(0, |s| s.0),
             max_distance_to_centre_line,
+            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| m.summary()),
+            lab: LabSummary::of(world),
         }
     }
 }

@@ -24,6 +24,10 @@
 //! speed = 10.0                           # initial speed [m/s]
 //! sensors = { radar = { angle_deg = 60.0, range = 100.0 }, velodyne = { range = 50.0 } }
 //! controller = { type = "path_following", speed = 12.0 }
+//! # or a smart controller: type = "cruise_control", "acc" or "platoon" (see crate::vehicles::setup)
+//! [lab]                                  # optional: motion capture, real trucks (crate::io::lab)
+//! mocap = { mock = true }
+//! trucks = { base_port = 16000 }
 //! ```
 //! Unknown keys are errors that name the key and list the allowed ones.
 
@@ -34,15 +38,19 @@ use std::sync::Arc;
 use glam::DVec2;
 use serde::Deserialize;
 
+use crate::io::lab::{LabConfig, add_lab_plugins};
 use crate::map::routing::Place;
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
 use crate::sim::{Rates, V2vConfig, V2vPlugin};
-use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
+use crate::vehicles::{
+    AccSetup, CruiseSetup, PathFollower, PathFollowing, PathFollowingPlugin, PlatoonSetup, SmartController, smart_vehicles,
+};
 use crate::world::{
     AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleClass, VehicleId, VehicleModel, VehicleSize,
     VehicleSpec, VehicleState, Velodyne,
 };
 
+use super::metrics::MetricsPlugin;
 use super::{SimBuilder, SimSeed, default_plugins};
 
 /// What can go wrong with a scenario file.
@@ -161,6 +169,9 @@ pub struct ScenarioFile {
     /// The vehicles.
     #[serde(default)]
     pub vehicles: Vec<VehicleConfig>,
+    /// Bridges to the lab (motion capture, real trucks), see [`crate::io::lab`].
+    #[serde(default)]
+    pub lab: Option<LabConfig>,
 }
 
 fn default_duration() -> f64 {
@@ -410,6 +421,24 @@ pub enum ControllerConfig {
         #[serde(default = "default_speed_gain")]
         speed_gain: f64,
     },
+    /// Cruise control (PID on speed) along the route.
+    CruiseControl(CruiseSetup),
+    /// Adaptive cruise control on radar along the route.
+    Acc(AccSetup),
+    /// Platooning (cooperative ACC over wifi) along the route.
+    Platoon(PlatoonSetup),
+}
+
+impl ControllerConfig {
+    /// The smart-vehicle controller this names, if it is one.
+    pub fn smart(&self) -> Option<SmartController> {
+        match *self {
+            ControllerConfig::PathFollowing { .. } => None,
+            ControllerConfig::CruiseControl(c) => Some(SmartController::Cruise(c)),
+            ControllerConfig::Acc(c) => Some(SmartController::Acc(c)),
+            ControllerConfig::Platoon(c) => Some(SmartController::Platoon(c)),
+        }
+    }
 }
 
 fn default_cruise() -> f64 {
@@ -471,13 +500,15 @@ impl Scenario {
     }
 
     /// A builder with the scenario's rates, seed, built-in plugins (dynamics, sensors, V2V, path
-    /// following) and vehicles; add your own plugins, then `build()`.
+    /// following, the smart-vehicle controllers, metrics) and vehicles; add your own plugins,
+    /// then `build()`.
     pub fn builder(&self) -> Result<SimBuilder, ScenarioError> {
         let mut b = SimBuilder::with_rates(self.rates());
         b.insert_resource(SimSeed(self.file.seed));
         b.add_plugin(default_plugins);
         b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: self.file.v2v.wifi_range } });
         b.add_plugin(PathFollowingPlugin);
+        b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default());
         let opts = RouteOptions { points_per_meter: self.file.points_per_meter };
         let mut routes: BTreeMap<String, Arc<Path>> = BTreeMap::new();
         for (i, v) in self.file.vehicles.iter().enumerate() {
@@ -503,7 +534,7 @@ impl Scenario {
                 }
                 None => None,
             };
-            let state = self.start_state(v, route.as_deref(), &key)?;
+            let (state, along) = self.start_state(v, route.as_deref(), &key)?;
             let mut spec = VehicleSpec::new(VehicleId(v.id), state);
             spec.class = v.class;
             let d = VehicleSize::default();
@@ -527,8 +558,14 @@ impl Scenario {
             let entity = b.spawn_vehicle(spec).map_err(|e| self.invalid(key("id"), e.to_string()))?;
             if let Some(ControllerConfig::PathFollowing { speed, lookahead_min, lookahead_time, speed_gain }) = v.controller {
                 let params = PathFollowing { speed, lookahead_min, lookahead_time, speed_gain, ..Default::default() };
-                b.world_mut().entity_mut(entity).insert(PathFollower::new(params));
+                b.world_mut().entity_mut(entity).insert(PathFollower::starting_at(params, along));
             }
+            if let Some(smart) = v.controller.and_then(|c| c.smart()) {
+                smart.attach(b.world_mut(), entity);
+            }
+        }
+        if let Some(lab) = &self.file.lab {
+            add_lab_plugins(&mut b, lab, self.map.as_deref()).map_err(|e| self.invalid(format!("lab.{}", e.key), e.problem))?;
         }
         Ok(b)
     }
@@ -538,7 +575,7 @@ impl Scenario {
         v: &VehicleConfig,
         route: Option<&Path>,
         key: &dyn Fn(&str) -> String,
-    ) -> Result<VehicleState, ScenarioError> {
+    ) -> Result<(VehicleState, f64), ScenarioError> {
         let start = v.start.clone().unwrap_or(StartConfig { at: None, offset: None, x: None, y: None, yaw: None });
         let node_position = |n: &NodeRef| -> Result<DVec2, ScenarioError> {
             let map = self.map.as_ref().ok_or_else(|| self.invalid(key("start.at"), "needs a `map` in the scenario"))?;
@@ -550,25 +587,30 @@ impl Scenario {
                 .map(|n| n.position)
                 .ok_or_else(|| self.invalid(key("start.at"), "names no node of the map"))
         };
-        let (position, yaw) = match (route, &start.at, start.x.zip(start.y)) {
+        let (position, yaw, along) = match (route, &start.at, start.x.zip(start.y)) {
             (_, None, Some(p)) => {
                 let p = DVec2::new(p.0, p.1);
-                let heading = route.map_or(0.0, |r| r.project(p).heading);
-                (p, start.yaw.unwrap_or(heading))
+                let (heading, along) = route.map_or((0.0, 0.0), |r| {
+                    let projection = r.project(p);
+                    (projection.heading, projection.s)
+                });
+                (p, start.yaw.unwrap_or(heading), along)
             }
             (Some(r), at, None) => {
                 let base = match at {
                     Some(n) => r.project(node_position(n)?).s,
                     None => 0.0,
                 };
-                let (p, heading) = r.sample(base + start.offset.unwrap_or(0.0));
-                (p, start.yaw.unwrap_or(heading))
+                let along = base + start.offset.unwrap_or(0.0);
+                let (p, heading) = r.sample(along);
+                let along = if r.closed { along.rem_euclid(r.length) } else { along.clamp(0.0, r.length) };
+                (p, start.yaw.unwrap_or(heading), along)
             }
-            (None, Some(n), None) => (node_position(n)?, start.yaw.unwrap_or(0.0)),
-            (None, None, None) => (DVec2::ZERO, start.yaw.unwrap_or(0.0)),
+            (None, Some(n), None) => (node_position(n)?, start.yaw.unwrap_or(0.0), 0.0),
+            (None, None, None) => (DVec2::ZERO, start.yaw.unwrap_or(0.0), 0.0),
             (_, Some(_), Some(_)) => return Err(self.invalid(key("start"), "takes either `at` or `x`/`y`, not both")),
         };
-        Ok(VehicleState::new(position, yaw, v.speed))
+        Ok((VehicleState::new(position, yaw, v.speed), along))
     }
 }
 
@@ -598,6 +640,9 @@ fn check(file: &ScenarioFile, path: &FsPath) -> Result<(), ScenarioError> {
         }
     }
     non_negative("v2v.wifi_range".into(), file.v2v.wifi_range)?;
+    if let Some(lab) = &file.lab {
+        lab.check().map_err(|e| invalid(format!("lab.{}", e.key), &e.problem))?;
+    }
     let mut seen = BTreeMap::new();
     for (i, v) in file.vehicles.iter().enumerate() {
         let key = |k: &str| format!("vehicles[{i}] (id {}).{k}", v.id);
@@ -661,6 +706,12 @@ fn check(file: &ScenarioFile, path: &FsPath) -> Result<(), ScenarioError> {
             positive(key("controller.lookahead_min"), lookahead_min)?;
             non_negative(key("controller.lookahead_time"), lookahead_time)?;
             non_negative(key("controller.speed_gain"), speed_gain)?;
+        }
+        if let Some(smart) = v.controller.and_then(|c| c.smart()) {
+            if v.route.is_none() {
+                return Err(invalid(key("controller"), "needs a `route` to follow"));
+            }
+            smart.check().map_err(|(k, problem)| invalid(key(&format!("controller.{k}")), &problem))?;
         }
     }
     Ok(())

@@ -21,15 +21,20 @@ pub struct MockMocapArgs {
     #[arg(long, default_value_t = DEFAULT_MOCK_RATE_HZ)]
     pub rate: f64,
     /// Keyframe script (CSV: t_s,body,x_mm,y_mm,z_mm,roll_deg,pitch_deg,yaw_deg) instead of circles.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "scenario")]
     pub script: Option<PathBuf>,
+    /// Drive the real vehicles (id >= 0) of this scenario along their routes at their speeds,
+    /// body k = vehicle k, as its `[lab] mocap = { mock = true }` would.
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
 }
 
 /// Serve until the process is stopped (Ctrl-C).
 pub fn main(args: MockMocapArgs) -> anyhow::Result<()> {
-    let script = match &args.script {
-        Some(path) => MocapScript::load(path)?,
-        None => MocapScript::circles(args.bodies),
+    let script = match (&args.script, &args.scenario) {
+        (Some(path), _) => MocapScript::load(path)?,
+        (None, Some(path)) => smlworld::io::lab::scenario_script(&smlworld::app::Scenario::load(path)?)?,
+        (None, None) => MocapScript::circles(args.bodies),
     };
     let bodies = script.body_count();
     let config = MockMocapConfig {

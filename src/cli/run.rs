@@ -5,6 +5,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use smlworld::app::{RealtimeRunner, RunSummary, Scenario, TrajectoryLog, TrajectoryLogPlugin, run_headless};
+use smlworld::io::lab::VizStreamPlugin;
+use smlworld::io::viz::DEFAULT_VIZ_RATE_HZ;
+use smlworld::render::{FrameRecorder, RecorderOptions};
 
 /// Arguments of `smlworld run`.
 #[derive(Debug, clap::Args)]
@@ -26,6 +29,28 @@ pub struct RunArgs {
     /// Trajectory log rate [Hz] (default: the scenario's `rates.log`).
     #[arg(long)]
     pub log_rate: Option<f64>,
+    /// Write numbered PNG frames of the bird's-eye view into this folder.
+    #[arg(long, value_name = "DIR")]
+    pub frames: Option<PathBuf>,
+    /// Write an animated GIF of the run.
+    #[arg(long, value_name = "FILE.gif")]
+    pub gif: Option<PathBuf>,
+    /// Frames per second of sim time for --frames and --gif [Hz]; does not change the results.
+    #[arg(long, default_value_t = 10.0)]
+    pub frame_rate: f64,
+    /// Frame width [px] for --frames and --gif.
+    #[arg(long, default_value_t = 1280)]
+    pub width: u32,
+    /// Frame height [px] for --frames and --gif.
+    #[arg(long, default_value_t = 720)]
+    pub height: u32,
+    /// Draw radar cones and velodyne circles in the frames.
+    #[arg(long)]
+    pub sensor_ranges: bool,
+    /// Stream the vehicles over UDP (2015 visualisation format, 50 Hz) to ADDR (default
+    /// 127.0.0.1:38008) for `smlworld view`.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
+    pub stream: Option<std::net::SocketAddr>,
 }
 
 /// Run the subcommand.
@@ -40,10 +65,30 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
     let csv_path = args.out.join("trajectories.csv");
     let csv = std::fs::File::create(&csv_path).with_context(|| format!("cannot create {}", csv_path.display()))?;
 
+    // Motion capture measures the lab in wall-clock time: such a scenario runs in real time.
+    let wall_clock = scenario.file.lab.as_ref().is_some_and(|l| l.needs_wall_clock());
+    anyhow::ensure!(!wall_clock || args.speed == 1.0, "--speed must be 1 with motion capture (`[lab] mocap`): the lab runs in real time");
+    let realtime = args.realtime || wall_clock;
+    if wall_clock && !args.realtime {
+        tracing::info!("the scenario uses motion capture: running in real time");
+    }
+
     let mut builder = scenario.builder()?;
+    if let Some(addr) = args.stream {
+        builder.add_plugin(VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ)?);
+        tracing::info!("streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)");
+        if !realtime {
+            tracing::warn!("--stream without --realtime: the stream runs at sim time, as fast as the run goes");
+        }
+    }
     builder.insert_resource(TrajectoryLog::new(Box::new(std::io::BufWriter::new(csv))));
     builder.add_plugin(TrajectoryLogPlugin { rate: log_rate });
     let mut sim = builder.build();
+    let mut recorder = recorder(&scenario, &args)?;
+    let mut record_error = None;
+    // Record at the frame rate; without a recorder report progress every sim second. The chunk
+    // only decides when the callback runs, never what the simulation computes.
+    let chunk = if recorder.is_some() { 1.0 / args.frame_rate } else { 1.0 };
 
     let bar = (std::io::stderr().is_terminal() && duration >= 30.0).then(|| {
         let bar = indicatif::ProgressBar::new((duration * 1000.0).round() as u64);
@@ -54,17 +99,30 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         bar
     });
     let progress = |sim: &smlworld::app::Sim| {
+        if let Some(rec) = recorder.as_mut().filter(|_| record_error.is_none()) {
+            if let Err(e) = rec.record(sim.world()) {
+                record_error = Some(e);
+            }
+        }
         if let Some(bar) = &bar {
             let t = sim.now().as_secs();
             bar.set_position((t * 1000.0).round() as u64);
             bar.set_message(format!("{t:.0}/{duration:.0}"));
         }
     };
-    let report = if args.realtime {
-        RealtimeRunner::new(args.speed).run(&mut sim, duration, 1.0, progress)
+    let report = if realtime {
+        RealtimeRunner::new(args.speed).run(&mut sim, duration, chunk, progress)
     } else {
-        run_headless(&mut sim, duration, 1.0, progress)
+        run_headless(&mut sim, duration, chunk, progress)
     };
+    if let Some(e) = record_error {
+        return Err(e).context("recording frames");
+    }
+    if let Some(rec) = &recorder {
+        let to: Vec<String> = args.frames.iter().chain(&args.gif).map(|p| p.display().to_string()).collect();
+        tracing::info!("recorded {} frames at {} Hz into {}", rec.frames(), args.frame_rate, to.join(" and "));
+    }
+    drop(recorder);
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
@@ -90,4 +148,28 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         summary_path.display()
     );
     Ok(())
+}
+
+/// The frame recorder when `--frames` or `--gif` is given.
+fn recorder(scenario: &Scenario, args: &RunArgs) -> anyhow::Result<Option<FrameRecorder>> {
+    if args.frames.is_none() && args.gif.is_none() {
+        return Ok(None);
+    }
+    anyhow::ensure!(
+        args.frame_rate.is_finite() && args.frame_rate > 0.0 && args.frame_rate <= 1000.0,
+        "--frame-rate must be in (0, 1000] Hz, got {}",
+        args.frame_rate
+    );
+    let map = scenario.map.as_ref().with_context(|| {
+        format!("--frames/--gif draw the scenario's map, but {} names no `map`", scenario.path.display())
+    })?;
+    let opts = RecorderOptions {
+        frames_dir: args.frames.clone(),
+        gif: args.gif.clone(),
+        frame_rate: args.frame_rate,
+        width: args.width,
+        height: args.height,
+        sensor_ranges: args.sensor_ranges,
+    };
+    Ok(Some(FrameRecorder::new(map, &opts)?))
 }

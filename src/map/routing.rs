@@ -131,8 +131,9 @@ impl Path {
     fn project_segments(&self, p: DVec2, from: isize, count: usize) -> PathProjection {
         let n = self.segment_count() as isize;
         let spacing = self.spacing();
-        let mut best = PathProjection { s: 0.0, point: self.points[0], lateral: f64::INFINITY, heading: 0.0 };
-        let mut best_d2 = f64::INFINITY;
+        // (segment, t, nearest point, squared distance) of the best segment; the square root and
+        // the heading's atan2 are computed once, for it only (path followers call this every tick).
+        let mut best: Option<(isize, f64, DVec2, f64)> = None;
         for k in 0..count as isize {
             let mut i = from + k;
             if self.closed {
@@ -146,14 +147,18 @@ impl Path {
             let t = if len2 > 0.0 { ((p - a).dot(d) / len2).clamp(0.0, 1.0) } else { 0.0 };
             let q = a + d * t;
             let d2 = p.distance_squared(q);
-            if d2 < best_d2 {
-                best_d2 = d2;
-                let cross = d.x * (p - a).y - d.y * (p - a).x;
-                let lateral = d2.sqrt() * if cross >= 0.0 { 1.0 } else { -1.0 };
-                best = PathProjection { s: (i as f64 + t) * spacing, point: q, lateral, heading: d.y.atan2(d.x) };
+            if d2 < best.map_or(f64::INFINITY, |b| b.3) {
+                best = Some((i, t, q, d2));
             }
         }
-        best
+        let Some((i, t, q, d2)) = best else {
+            return PathProjection { s: 0.0, point: self.points[0], lateral: f64::INFINITY, heading: 0.0 };
+        };
+        let (a, b) = self.segment(i as usize);
+        let d = b - a;
+        let cross = d.x * (p - a).y - d.y * (p - a).x;
+        let lateral = d2.sqrt() * if cross >= 0.0 { 1.0 } else { -1.0 };
+        PathProjection { s: (i as f64 + t) * spacing, point: q, lateral, heading: d.y.atan2(d.x) }
     }
 
     /// Nearest point of the whole path to `p` (O(points)).

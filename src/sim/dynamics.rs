@@ -18,20 +18,37 @@ fn wrap_angle(a: f64) -> f64 {
     if w == -std::f64::consts::PI { std::f64::consts::PI } else { w }
 }
 
+/// sin and cos of `a` [rad]; by Taylor series to below rounding for the small turns of one
+/// step (|a| < 1e-2: the first omitted terms are under 1e-22), else by the library.
+fn small_sin_cos(a: f64) -> (f64, f64) {
+    if a.abs() < 1e-2 {
+        let a2 = a * a;
+        let sin = a * (1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0)));
+        let cos = 1.0 - a2 / 2.0 * (1.0 - a2 / 12.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0)));
+        (sin, cos)
+    } else {
+        a.sin_cos()
+    }
+}
+
 /// Move `state` a distance `distance` [m] along an arc of curvature `curvature` [1/m] starting
 /// at its heading, and set its velocity to `end_speed` [m/s] along the new heading.
+/// (sin(yaw + 2π k) and sin(yaw) agree to rounding, so wrapping the yaw first is harmless.)
 fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_speed: f64) {
     let turn = curvature * distance;
-    let yaw0 = state.yaw;
+    let (s0, c0) = state.yaw.sin_cos();
     if turn.abs() > 1e-12 {
-        let yaw1 = yaw0 + turn;
-        state.position.x += (yaw1.sin() - yaw0.sin()) / curvature;
-        state.position.y += (yaw0.cos() - yaw1.cos()) / curvature;
-        state.yaw = wrap_angle(yaw1);
+        let yaw1 = wrap_angle(state.yaw + turn);
+        let (st, ct) = small_sin_cos(turn);
+        let (s1, c1) = (s0 * ct + c0 * st, c0 * ct - s0 * st);
+        state.position.x += (s1 - s0) / curvature;
+        state.position.y += (c0 - c1) / curvature;
+        state.yaw = yaw1;
+        state.velocity = glam::DVec2::new(c1, s1) * end_speed;
     } else {
-        state.position += glam::DVec2::from_angle(yaw0) * distance;
+        state.position += glam::DVec2::new(c0, s0) * distance;
+        state.velocity = glam::DVec2::new(c0, s0) * end_speed;
     }
-    state.velocity = glam::DVec2::from_angle(state.yaw) * end_speed;
 }
 
 /// One step of the kinematic unicycle over `dt` [s]: drive at the commanded speed with the

@@ -40,13 +40,19 @@ pub struct SpatialGrid {
 }
 
 fn bucket_of(cell: (i32, i32), mask: u64) -> usize {
-    let h = (cell.0 as u32 as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (cell.1 as u32 as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-    ((h ^ (h >> 29)) & mask) as usize
+    // The 64-bit finaliser of MurmurHash3: neighbouring cells land in unrelated buckets.
+    let mut h = ((cell.0 as u32 as u64) << 32) | cell.1 as u32 as u64;
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xc4ce_b9fe_1a85_ec53);
+    h ^= h >> 33;
+    (h & mask) as usize
 }
 
 impl SpatialGrid {
-    fn cell_of(&self, p: DVec2) -> (i32, i32) {
+    /// The cell holding `p`.
+    pub fn cell_of(&self, p: DVec2) -> (i32, i32) {
         ((p.x / self.cell).floor() as i32, (p.y / self.cell).floor() as i32)
     }
 
@@ -84,6 +90,25 @@ impl SpatialGrid {
         self.starts[0] = 0;
     }
 
+    /// Call `f(slot, entry)` for every entry of `cell`.
+    pub fn for_each_in_cell(&self, cell: (i32, i32), mut f: impl FnMut(u32, &GridEntry)) {
+        if self.slots.is_empty() {
+            return;
+        }
+        let b = bucket_of(cell, self.mask);
+        let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
+        for (i, s) in self.slots[start..end].iter().enumerate() {
+            if s.cell == cell {
+                f((start + i) as u32, &s.entry);
+            }
+        }
+    }
+
+    /// Side of the cells [m].
+    pub fn cell_size(&self) -> f64 {
+        self.cell
+    }
+
     /// Number of entries.
     pub fn len(&self) -> usize {
         self.slots.len()
@@ -99,9 +124,14 @@ impl SpatialGrid {
         self.slots.iter().map(|s| &s.entry)
     }
 
-    /// Call `f` with every entry within `radius` [m] of `p` (inclusive), each exactly once,
-    /// with its squared distance [m²].
-    pub fn for_each_within(&self, p: DVec2, radius: f64, mut f: impl FnMut(&GridEntry, f64)) {
+    /// The entry in slot `slot` (as passed to [`SpatialGrid::for_each_within`]).
+    pub fn get(&self, slot: u32) -> &GridEntry {
+        &self.slots[slot as usize].entry
+    }
+
+    /// Call `f(slot, entry, squared distance [m²])` with every entry within `radius` [m] of `p`
+    /// (inclusive), each exactly once.
+    pub fn for_each_within(&self, p: DVec2, radius: f64, mut f: impl FnMut(u32, &GridEntry, f64)) {
         if self.slots.is_empty() {
             return;
         }
@@ -111,10 +141,10 @@ impl SpatialGrid {
         let cells = (hi.0 as i64 - lo.0 as i64 + 1) * (hi.1 as i64 - lo.1 as i64 + 1);
         if cells > self.slots.len() as i64 {
             // A disc far larger than the cells: scanning everything is cheaper.
-            for s in &self.slots {
+            for (i, s) in self.slots.iter().enumerate() {
                 let d2 = s.entry.position.distance_squared(p);
                 if d2 <= r2 {
-                    f(&s.entry, d2);
+                    f(i as u32, &s.entry, d2);
                 }
             }
             return;
@@ -123,13 +153,13 @@ impl SpatialGrid {
             for cy in lo.1..=hi.1 {
                 let b = bucket_of((cx, cy), self.mask);
                 let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
-                for s in &self.slots[start..end] {
+                for (i, s) in self.slots[start..end].iter().enumerate() {
                     if s.cell != (cx, cy) {
                         continue;
                     }
                     let d2 = s.entry.position.distance_squared(p);
                     if d2 <= r2 {
-                        f(&s.entry, d2);
+                        f((start + i) as u32, &s.entry, d2);
                     }
                 }
             }

@@ -129,7 +129,7 @@ pub fn deliver_wifi(
         let owner = mailbox.owner();
         s.heard.clear();
         let heard = &mut s.heard;
-        s.grid.for_each_within(state.position, config.wifi_range, |e, _| {
+        s.grid.for_each_within(state.position, config.wifi_range, |_, e, _| {
             if e.id != owner {
                 heard.push(e.index);
             }

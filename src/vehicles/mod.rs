@@ -2,8 +2,50 @@
 //!
 //! Each controller follows the contract documented in [`crate::app`]: systems in the
 //! [`crate::sim::Control`] schedule that read state, readings, mail and route, and write
-//! [`crate::world::ControlCommand`] and out-going messages.
+//! [`crate::world::ControlCommand`] and out-going messages. The speed controllers share one
+//! pipeline ([`longitudinal`]): they agree on an acceleration, limiters (intersection yielding,
+//! emergency braking) may lower it, and it is turned into the model's command once.
+//!
+//! | plugin | component (per vehicle) | parameters |
+//! |---|---|---|
+//! | [`PathFollowingPlugin`] | [`PathFollower`] | [`PathFollowing`] |
+//! | [`CruisePlugin`] | [`CruiseController`] | [`CruiseControl`] |
+//! | [`AccPlugin`] | [`AccController`] | [`AdaptiveCruise`] |
+//! | [`PlatoonPlugin`] | [`PlatoonMember`] | [`Platooning`] |
+//! | [`EmergencyBrakingPlugin`] | [`EmergencyBrake`] | [`EmergencyBraking`] |
+//! | [`CrossingPlugin`] | [`CrossingNegotiator`] | [`Crossing`] |
+//!
+//! [`smart_vehicles`] adds them all.
 
+pub mod acc;
+pub mod crossing;
+pub mod cruise;
+pub mod emergency;
+pub mod longitudinal;
 pub mod path_following;
+pub mod platoon;
+pub mod setup;
 
+pub use acc::{AccController, AccPlugin, AdaptiveCruise, control_acc};
+pub use crossing::{
+    Crossing, CrossingClaim, CrossingNegotiator, CrossingPlugin, goes_first, stop_before, yield_at_crossings, zone_span,
+};
+pub use cruise::{CruiseControl, CruiseController, CruisePlugin, SpeedDip, control_cruise};
+pub use emergency::{EmergencyBrake, EmergencyBraking, EmergencyBrakingPlugin, brake_for_emergencies, time_to_collision};
+pub use longitudinal::{LeaderGap, Longitudinal, actuate_longitudinal, find_leaders, leader_on_path};
 pub use path_following::{PathFollower, PathFollowing, PathFollowingPlugin, follow_paths};
+pub use platoon::{PlatoonBeacon, PlatoonMember, PlatoonPlugin, Platooning, control_platoon, send_platoon_beacons};
+pub use setup::{AccSetup, CruiseSetup, PlatoonRole, PlatoonSetup, SmartController};
+
+use crate::app::SimBuilder;
+
+/// Every smart-vehicle controller of this module (not the path follower): cruise control, ACC,
+/// platooning, intersection negotiation and emergency braking. Each acts only on vehicles with
+/// its component.
+pub fn smart_vehicles(sim: &mut SimBuilder) {
+    sim.add_plugin(CruisePlugin)
+        .add_plugin(AccPlugin)
+        .add_plugin(PlatoonPlugin)
+        .add_plugin(CrossingPlugin)
+        .add_plugin(EmergencyBrakingPlugin);
+}

@@ -47,15 +47,16 @@ pub struct PathFollower {
 }
 
 impl PathFollower {
-    /// A follower that has not run yet (its first tick projects onto the whole route).
+    /// A follower that has not run yet (its first tick projects onto the whole route, O(route)).
     pub fn new(params: PathFollowing) -> PathFollower {
         PathFollower { params, s: 0.0, max_offset: 0.0, tracking: false }
     }
-}
 
-/// Wrap an angle to [−π, π) [rad].
-fn wrap(a: f64) -> f64 {
-    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+    /// A follower whose vehicle is known to start near arc length `s` [m] of its route, so even
+    /// its first tick searches only around there.
+    pub fn starting_at(params: PathFollowing, s: f64) -> PathFollower {
+        PathFollower { params, s, max_offset: 0.0, tracking: true }
+    }
 }
 
 /// Pure pursuit + speed control for every vehicle with a [`Route`] and a [`PathFollower`].
@@ -78,8 +79,10 @@ pub fn follow_paths(
         }
         let speed = state.speed();
         let projection = if follower.tracking {
-            let window = 5.0 + 2.0 * speed.abs() * clock.dt;
-            path.project_near(state.position, follower.s, window)
+            // Since the last tick the vehicle moved about |v| dt [m]: search that far around the
+            // predicted arc length, plus a segment either side.
+            let window = speed.abs() * clock.dt + path.spacing();
+            path.project_near(state.position, follower.s + speed * clock.dt, window)
         } else {
             path.project(state.position)
         };
@@ -92,10 +95,11 @@ pub fn follow_paths(
         let lookahead = p.lookahead_min.max(p.lookahead_time * speed.abs());
         let (target, _) = path.sample(projection.s + lookahead);
         let relative = target - state.position;
-        let distance = relative.length();
-        command.steering = if distance > 1e-9 {
-            let alpha = wrap(relative.y.atan2(relative.x) - state.yaw);
-            (wheelbase * 2.0 * alpha.sin() / distance).atan()
+        // Pure pursuit curvature 2 sin(α) / d, with d sin(α) the cross product of heading and
+        // the offset to the target.
+        let distance2 = relative.length_squared();
+        command.steering = if distance2 > 1e-18 {
+            (wheelbase * 2.0 * state.heading().perp_dot(relative) / distance2).atan()
         } else {
             0.0
         };

@@ -1,0 +1,72 @@
+//! Criterion benches of each simulation module alone on the benchmark world (1,000 and 10,000
+//! vehicles on ring roads): dynamics, sensors, network, wifi, path following.
+//! Run with `cargo bench --bench sim`; `smlworld bench` measures everything together.
+
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Query, Res};
+use bevy_ecs::schedule::ScheduleLabel;
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use smlworld::app::bench::{BenchWorld, Beacons, send_beacons};
+use smlworld::prelude::*;
+
+#[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct WifiBeacons;
+
+/// One wifi message per vehicle per wifi round.
+fn send_wifi_beacons(clock: Res<SimClock>, mut vehicles: Query<(&VehicleState, &mut Mailbox)>) {
+    for (state, mut mailbox) in &mut vehicles {
+        mailbox.send(Channel::Wifi, clock.now, Arc::new(state.speed()));
+    }
+}
+
+/// A sim of `n` bench vehicles with only the modules `plugin` adds.
+fn sim_with(n: usize, plugin: impl Plugin) -> Sim {
+    let world = BenchWorld { vehicles: n, ..Default::default() };
+    let mut b = SimBuilder::new();
+    b.add_plugin(plugin);
+    world.spawn(&mut b);
+    let mut sim = b.build();
+    sim.run_for(1.0); // warm the buffers
+    sim
+}
+
+fn modules(c: &mut Criterion) {
+    let mut group = c.benchmark_group("one sim second");
+    group.sample_size(10);
+    for n in [1_000usize, 10_000] {
+        let cases: Vec<(&str, Box<dyn Fn() -> Sim>)> = vec![
+            ("dynamics 50 Hz", Box::new(move || sim_with(n, DynamicsPlugin))),
+            ("sensors 20 Hz", Box::new(move || sim_with(n, SensorsPlugin))),
+            (
+                "network 1 Hz",
+                Box::new(move || {
+                    sim_with(n, |b: &mut SimBuilder| {
+                        b.add_plugin(V2vPlugin::default());
+                        b.add_module("beacons", Beacons, Phase::Control, 1.0);
+                        b.add_systems(Beacons, send_beacons);
+                    })
+                }),
+            ),
+            (
+                "wifi 10 Hz",
+                Box::new(move || {
+                    sim_with(n, |b: &mut SimBuilder| {
+                        b.add_plugin(V2vPlugin::default());
+                        b.add_module("wifi beacons", WifiBeacons, Phase::Control, 10.0);
+                        b.add_systems(WifiBeacons, send_wifi_beacons);
+                    })
+                }),
+            ),
+            ("path following 20 Hz", Box::new(move || sim_with(n, PathFollowingPlugin))),
+        ];
+        for (name, make) in cases {
+            let mut sim = make();
+            group.bench_with_input(BenchmarkId::new(name, n), &n, |b, _| b.iter(|| sim.run_for(1.0)));
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, modules);
+criterion_main!(benches);

@@ -1,0 +1,344 @@
+//! Per-run metrics for `summary.json`: collisions, gaps of every follower, speed errors and the
+//! string stability of every platoon, recorded after each dynamics step.
+//!
+//! - Collisions: footprints are oriented rectangles (length along the heading, centred on the
+//!   vehicle's position) tested by separating axes; pairs come from a spatial grid, so a tick is
+//!   O(N). Each contact is recorded once, when it starts, with both ids and the time.
+//! - Followers: every vehicle whose speed controller sees a leader on its route
+//!   ([`Longitudinal::leader`]); its bumper-to-bumper gap is measured from ground truth (both
+//!   real lengths), time gap = gap / speed (above 1 m/s), speed error = leader speed − own speed.
+//! - Platoons: per platoon (leader id) and member, the range of its speed (max − min) after the
+//!   warm-up; the platoon is string stable when no member's range exceeds the range of the
+//!   member ahead of it (by more than 1% + 0.01 m/s), i.e. a disturbance does not grow.
+//!
+//! Statistics other than collisions skip the first `warmup` seconds (start-up transients).
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+use glam::DVec2;
+
+use crate::app::{Plugin, SimBuilder};
+use crate::sim::dynamics::{integrate_acceleration_unicycles, integrate_kinematic_unicycles};
+use crate::sim::{Dynamics, GridEntry, SimClock, SpatialGrid};
+use crate::vehicles::{Longitudinal, PathFollower, PlatoonMember};
+use crate::world::{Route, VehicleId, VehicleSize, VehicleState, Vehicles};
+
+/// One collision: two footprints started to overlap.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Collision {
+    /// Lower id of the pair.
+    pub a: VehicleId,
+    /// Higher id of the pair.
+    pub b: VehicleId,
+    /// Sim time the overlap started [s].
+    pub t: f64,
+}
+
+/// Statistics of one follower.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct FollowerStats {
+    /// The follower.
+    pub id: VehicleId,
+    /// Its leader at the last sample.
+    pub leader: VehicleId,
+    /// Smallest bumper-to-bumper gap [m].
+    pub min_gap: f64,
+    /// Smallest time gap [s] (samples above 1 m/s; none if it never moved that fast).
+    pub min_time_gap: Option<f64>,
+    /// Mean time gap [s] (samples above 1 m/s).
+    pub mean_time_gap: Option<f64>,
+    /// Root mean square of leader speed − own speed [m/s].
+    pub speed_error_rms: f64,
+    /// Number of samples.
+    pub samples: u64,
+    #[serde(skip)]
+    time_gap_sum: f64,
+    #[serde(skip)]
+    time_gap_samples: u64,
+    #[serde(skip)]
+    speed_error_sq: f64,
+}
+
+/// Speed range of one platoon member.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct MemberStats {
+    index: u32,
+    min_speed: f64,
+    max_speed: f64,
+}
+
+/// String stability of one platoon.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PlatoonStats {
+    /// The leader (the platoon's id).
+    pub leader: VehicleId,
+    /// Members in platoon order, leader first.
+    pub members: Vec<VehicleId>,
+    /// Range of each member's speed (max − min) after the warm-up [m/s], same order.
+    pub speed_amplitudes: Vec<f64>,
+    /// Last member's range over the leader's [-]: below 1 means the disturbance shrank.
+    pub amplification: f64,
+    /// Whether no member's range exceeds the one ahead of it (1% + 0.01 m/s tolerance).
+    pub string_stable: bool,
+}
+
+/// What goes into `summary.json` under `metrics`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct MetricsSummary {
+    /// Statistics skip this start-up time [s] (collisions do not).
+    pub warmup: f64,
+    /// Number of collisions.
+    pub collision_count: usize,
+    /// Every collision, in time order.
+    pub collisions: Vec<Collision>,
+    /// Every follower, in id order.
+    pub followers: Vec<FollowerStats>,
+    /// Every platoon, in leader id order.
+    pub platoons: Vec<PlatoonStats>,
+}
+
+/// The metrics being recorded.
+#[derive(Resource, Debug, Default)]
+pub struct Metrics {
+    /// Start-up time skipped by the statistics [s].
+    pub warmup: f64,
+    /// Collisions so far.
+    pub collisions: Vec<Collision>,
+    /// Followers so far, by id.
+    pub followers: BTreeMap<VehicleId, FollowerStats>,
+    platoons: BTreeMap<VehicleId, BTreeMap<VehicleId, MemberStats>>,
+    contacts: BTreeSet<(VehicleId, VehicleId)>,
+    touching: Vec<(VehicleId, VehicleId)>,
+    boxes: Vec<Footprint>,
+    grid: SpatialGrid,
+}
+
+/// An oriented rectangle.
+#[derive(Debug, Clone, Copy)]
+struct Footprint {
+    id: VehicleId,
+    centre: DVec2,
+    axis: DVec2,
+    half: DVec2,
+}
+
+impl Footprint {
+    fn radius(&self) -> f64 {
+        self.half.length()
+    }
+}
+
+/// Whether two oriented rectangles overlap (separating axis test over their four axes).
+pub fn rectangles_overlap(
+    centre_a: DVec2,
+    yaw_a: f64,
+    size_a: &VehicleSize,
+    centre_b: DVec2,
+    yaw_b: f64,
+    size_b: &VehicleSize,
+) -> bool {
+    let a = Footprint {
+        id: VehicleId(0),
+        centre: centre_a,
+        axis: DVec2::from_angle(yaw_a),
+        half: 0.5 * DVec2::new(size_a.length, size_a.width),
+    };
+    let b = Footprint {
+        id: VehicleId(0),
+        centre: centre_b,
+        axis: DVec2::from_angle(yaw_b),
+        half: 0.5 * DVec2::new(size_b.length, size_b.width),
+    };
+    overlap(&a, &b)
+}
+
+fn overlap(a: &Footprint, b: &Footprint) -> bool {
+    let d = b.centre - a.centre;
+    let (ua, va) = (a.axis, a.axis.perp());
+    let (ub, vb) = (b.axis, b.axis.perp());
+    for n in [ua, va, ub, vb] {
+        let ra = a.half.x * ua.dot(n).abs() + a.half.y * va.dot(n).abs();
+        let rb = b.half.x * ub.dot(n).abs() + b.half.y * vb.dot(n).abs();
+        if d.dot(n).abs() > ra + rb {
+            return false;
+        }
+    }
+    true
+}
+
+impl Metrics {
+    /// Empty metrics skipping `warmup` [s] in the statistics.
+    pub fn new(warmup: f64) -> Metrics {
+        Metrics { warmup, ..Default::default() }
+    }
+
+    /// The summary for `summary.json`.
+    pub fn summary(&self) -> MetricsSummary {
+        let platoons = self
+            .platoons
+            .iter()
+            .map(|(&leader, members)| {
+                let mut order: Vec<(u32, VehicleId, f64)> =
+                    members.iter().map(|(&id, m)| (m.index, id, (m.max_speed - m.min_speed).max(0.0))).collect();
+                order.sort_by_key(|&(index, id, _)| (index, id));
+                let amplitudes: Vec<f64> = order.iter().map(|o| o.2).collect();
+                let string_stable = amplitudes.windows(2).all(|w| w[1] <= w[0] * 1.01 + 0.01);
+                let amplification = match (amplitudes.first(), amplitudes.last()) {
+                    (Some(&first), Some(&last)) if first > 0.0 => last / first,
+                    _ => 1.0,
+                };
+                PlatoonStats {
+                    leader,
+                    members: order.iter().map(|o| o.1).collect(),
+                    speed_amplitudes: amplitudes,
+                    amplification,
+                    string_stable,
+                }
+            })
+            .collect();
+        MetricsSummary {
+            warmup: self.warmup,
+            collision_count: self.collisions.len(),
+            collisions: self.collisions.clone(),
+            followers: self.followers.values().copied().collect(),
+            platoons,
+        }
+    }
+}
+
+/// Record collisions, follower gaps and platoon speeds after a dynamics step.
+#[allow(clippy::type_complexity)]
+pub fn record_metrics(
+    clock: Res<SimClock>,
+    registry: Res<Vehicles>,
+    mut metrics: ResMut<Metrics>,
+    everyone: Query<(&VehicleId, &VehicleState, &VehicleSize)>,
+    followers: Query<(&VehicleId, &VehicleState, &VehicleSize, &Route, &PathFollower, &Longitudinal)>,
+    members: Query<(&VehicleId, &VehicleState, &PlatoonMember)>,
+) {
+    // The step just integrated ends at now + dt.
+    let t = clock.now.as_secs() + clock.dt;
+    let m = &mut *metrics;
+    m.boxes.clear();
+    let mut widest: f64 = 0.0;
+    for (&id, state, size) in &everyone {
+        let b = Footprint {
+            id,
+            centre: state.position,
+            axis: DVec2::from_angle(state.yaw),
+            half: 0.5 * DVec2::new(size.length, size.width),
+        };
+        widest = widest.max(b.radius());
+        m.boxes.push(b);
+    }
+    let boxes = &m.boxes;
+    m.grid.rebuild(
+        (2.0 * widest).max(1.0),
+        boxes.iter().enumerate().map(|(i, b)| GridEntry {
+            position: b.centre,
+            velocity: DVec2::ZERO,
+            id: b.id,
+            index: i as u32,
+        }),
+    );
+    m.touching.clear();
+    for a in boxes {
+        let touching = &mut m.touching;
+        m.grid.for_each_within(a.centre, a.radius() + widest, |_, e, _| {
+            let b = &boxes[e.index as usize];
+            if a.id < b.id && overlap(a, b) {
+                touching.push((a.id, b.id));
+            }
+        });
+    }
+    m.touching.sort_unstable();
+    for &pair in &m.touching {
+        if !m.contacts.contains(&pair) {
+            m.collisions.push(Collision { a: pair.0, b: pair.1, t });
+        }
+    }
+    m.contacts.clear();
+    m.contacts.extend(m.touching.iter().copied());
+    if t < m.warmup {
+        return;
+    }
+
+    for (&id, state, size, route, follower, lon) in &followers {
+        let Some(l) = lon.leader else { continue };
+        let Some((_, leader_state, leader_size)) = registry.get(l.id).and_then(|e| everyone.get(e).ok()) else {
+            continue;
+        };
+        let path = &route.0;
+        let p = path.project_near(leader_state.position, follower.s + l.distance, 10.0);
+        let mut ahead = p.s - follower.s;
+        if path.closed {
+            ahead = ahead.rem_euclid(path.length);
+        }
+        let gap = ahead - 0.5 * (size.length + leader_size.length);
+        let v = state.speed();
+        let error = leader_state.velocity.dot(DVec2::from_angle(p.heading)) - v;
+        let stats = m.followers.entry(id).or_insert(FollowerStats {
+            id,
+            leader: l.id,
+            min_gap: f64::INFINITY,
+            min_time_gap: None,
+            mean_time_gap: None,
+            speed_error_rms: 0.0,
+            samples: 0,
+            time_gap_sum: 0.0,
+            time_gap_samples: 0,
+            speed_error_sq: 0.0,
+        });
+        stats.leader = l.id;
+        stats.samples += 1;
+        stats.min_gap = stats.min_gap.min(gap);
+        if v > 1.0 {
+            let time_gap = gap / v;
+            stats.min_time_gap = Some(stats.min_time_gap.map_or(time_gap, |t| t.min(time_gap)));
+            stats.time_gap_sum += time_gap;
+            stats.time_gap_samples += 1;
+            stats.mean_time_gap = Some(stats.time_gap_sum / stats.time_gap_samples as f64);
+        }
+        stats.speed_error_sq += error * error;
+        stats.speed_error_rms = (stats.speed_error_sq / stats.samples as f64).sqrt();
+    }
+
+    for (&id, state, member) in &members {
+        let Some(platoon) = member.platoon else { continue };
+        let v = state.speed();
+        let entry = m
+            .platoons
+            .entry(platoon)
+            .or_default()
+            .entry(id)
+            .or_insert(MemberStats { index: member.index, min_speed: v, max_speed: v });
+        entry.index = member.index;
+        entry.min_speed = entry.min_speed.min(v);
+        entry.max_speed = entry.max_speed.max(v);
+    }
+}
+
+/// Records [`Metrics`] after every dynamics step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MetricsPlugin {
+    /// Start-up time skipped by the statistics (not by collisions) [s].
+    pub warmup: f64,
+}
+
+impl Default for MetricsPlugin {
+    fn default() -> Self {
+        MetricsPlugin { warmup: 5.0 }
+    }
+}
+
+impl Plugin for MetricsPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        sim.insert_resource(Metrics::new(self.warmup));
+        sim.add_systems(
+            Dynamics,
+            record_metrics.after(integrate_kinematic_unicycles).after(integrate_acceleration_unicycles),
+        );
+    }
+}

@@ -1,0 +1,221 @@
+//! Intersection crossing negotiated over V2V: vehicles whose routes pass through a conflict zone
+//! (a disc around the junction) agree by wifi on who goes first, and the others stop before it.
+//!
+//! Every vehicle approaching or inside the zone broadcasts a [`CrossingClaim`] each control tick:
+//! its estimated time to reach the zone, whether it has taken the right to go, and whether it is
+//! inside. The rule ([`goes_first`]), applied by every vehicle to the claims it hears (their
+//! arrival times aged to now), orders vehicles by (inside first, then holding the right and
+//! unable to stop, then holding the right to go, then earliest arrival, then lowest id); a
+//! vehicle takes the right to go when nobody ahead of it in that order claims the zone, and
+//! otherwise brakes to stop `stop_margin` before the zone. The rear of a vehicle leaving the
+//! zone ends its claim. A platoon follower takes the right as soon as the member ahead of it
+//! holds it, so a platoon crosses (or merges) as one. Two vehicles that take the right in the same round settle it by
+//! (arrival, id) at the next round, long before either reaches the zone.
+
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Component, Query, Res};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+use glam::DVec2;
+
+use crate::app::{Plugin, SimBuilder};
+use crate::map::Path;
+use crate::sim::{Control, SimClock};
+use crate::world::{Channel, Mailbox, Route, VehicleId, VehicleSize, VehicleState};
+
+use super::PathFollower;
+use super::acc::control_acc;
+use super::cruise::control_cruise;
+use super::longitudinal::{Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
+use super::platoon::{PlatoonMember, control_platoon};
+
+/// Parameters of intersection negotiation.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Crossing {
+    /// Centre of the conflict zone [m] (x, y); vehicles negotiate with claims of the same centre
+    /// (within 1 m).
+    pub center: [f64; 2],
+    /// Radius of the conflict zone [m]; it must cover every place where the routes cross.
+    pub radius: f64,
+    /// Distance kept before the zone when yielding [m].
+    pub stop_margin: f64,
+    /// Braking used to stop before the zone [m/s²] (positive).
+    pub deceleration: f64,
+    /// Acceleration assumed when estimating the arrival time [m/s²].
+    pub acceleration: f64,
+}
+
+impl Default for Crossing {
+    fn default() -> Self {
+        Crossing { center: [0.0, 0.0], radius: 10.0, stop_margin: 1.0, deceleration: 3.0, acceleration: 2.0 }
+    }
+}
+
+/// What a vehicle near the zone broadcasts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CrossingClaim {
+    /// Centre of the zone [m].
+    pub center: DVec2,
+    /// Whether its front is in the zone.
+    pub inside: bool,
+    /// Whether it holds the right to go.
+    pub going: bool,
+    /// Whether it holds the right and can no longer stop before the zone.
+    pub committed: bool,
+    /// Estimated time until its front reaches the zone [s] (0 inside).
+    pub eta: f64,
+}
+
+/// Arrival times closer than this [s] count as a tie, settled by id, so that two vehicles
+/// with slightly different estimates of each other never both think they are first.
+pub const ETA_TIE: f64 = 0.3;
+
+/// Whether claim `a` (of vehicle `a_id`) goes before claim `b` (of `b_id`): inside first, then
+/// holding the right and unable to stop, then holding the right, then earlier arrival (beyond
+/// [`ETA_TIE`]), then lower id.
+pub fn goes_first(a: &CrossingClaim, a_id: VehicleId, b: &CrossingClaim, b_id: VehicleId) -> bool {
+    let class = |c: &CrossingClaim| (u8::from(!c.inside), u8::from(!c.committed), u8::from(!c.going));
+    match class(a).cmp(&class(b)) {
+        std::cmp::Ordering::Less => true,
+        std::cmp::Ordering::Greater => false,
+        std::cmp::Ordering::Equal if (a.eta - b.eta).abs() > ETA_TIE => a.eta < b.eta,
+        std::cmp::Ordering::Equal => a_id < b_id,
+    }
+}
+
+/// Acceleration [m/s²] that stops a vehicle at speed `v` [m/s] within `room` [m]: the
+/// deceleration needed once it exceeds half of `deceleration` [m/s²], else a gentle approach
+/// along the profile √(2·deceleration·room); full braking (3 × `deceleration`) with no room left.
+pub fn stop_before(v: f64, room: f64, deceleration: f64) -> f64 {
+    if room <= 0.1 {
+        return if v > 0.0 { -3.0 * deceleration } else { 0.0 };
+    }
+    let needed = v * v / (2.0 * room);
+    if needed >= 0.5 * deceleration {
+        -needed
+    } else {
+        ((2.0 * deceleration * room).sqrt() - v).min(1.0)
+    }
+}
+
+/// Where `path` enters and leaves the disc (`center`, `radius`) first, as arc lengths [m].
+pub fn zone_span(path: &Path, center: DVec2, radius: f64) -> Option<(f64, f64)> {
+    let spacing = path.spacing();
+    let inside = |p: &DVec2| p.distance(center) <= radius;
+    let entry = path.points.iter().position(inside)?;
+    let exit = path.points[entry..].iter().position(|p| !inside(p)).map_or(path.points.len(), |k| entry + k);
+    Some((entry as f64 * spacing, exit as f64 * spacing))
+}
+
+/// Per-vehicle state of intersection negotiation.
+#[derive(Component, Debug, Clone, Copy, PartialEq)]
+#[require(Longitudinal)]
+pub struct CrossingNegotiator {
+    /// Parameters.
+    pub params: Crossing,
+    /// Whether it holds the right to go.
+    pub going: bool,
+    /// Whether it has left the zone (or its route never enters it).
+    pub passed: bool,
+    span: Option<(f64, f64)>,
+    measured: bool,
+}
+
+impl CrossingNegotiator {
+    /// Not yet at the zone.
+    pub fn new(params: Crossing) -> CrossingNegotiator {
+        CrossingNegotiator { params, going: false, passed: false, span: None, measured: false }
+    }
+}
+
+/// Negotiate and, when another vehicle goes first, limit the acceleration to stop before the zone.
+#[allow(clippy::type_complexity)]
+pub fn yield_at_crossings(
+    clock: Res<SimClock>,
+    mut vehicles: Query<(
+        &VehicleId,
+        &VehicleState,
+        &VehicleSize,
+        &Route,
+        &PathFollower,
+        &mut Mailbox,
+        &mut CrossingNegotiator,
+        &mut Longitudinal,
+        Option<&PlatoonMember>,
+    )>,
+) {
+    for (&id, state, size, route, follower, mut mailbox, mut neg, mut lon, member) in &mut vehicles {
+        let p = neg.params;
+        let center = DVec2::from_array(p.center);
+        if !neg.measured {
+            neg.measured = true;
+            neg.span = zone_span(&route.0, center, p.radius);
+            neg.passed = neg.span.is_none();
+        }
+        let Some((entry, exit)) = neg.span else { continue };
+        if neg.passed {
+            continue;
+        }
+        let front = follower.s + 0.5 * size.length;
+        if follower.s - 0.5 * size.length > exit {
+            neg.passed = true;
+            neg.going = false;
+            continue;
+        }
+        let v = state.speed().max(0.0);
+        let inside = front >= entry;
+        let to_zone = (entry - front).max(0.0);
+        let a = p.acceleration.max(1e-3);
+        let eta = if inside { 0.0 } else { ((v * v + 2.0 * a * to_zone).sqrt() - v) / a };
+        let stop_room = to_zone - p.stop_margin;
+        let can_stop = v * v <= 2.0 * p.deceleration * stop_room.max(0.0) + 0.5;
+        let mine = CrossingClaim { center, inside, going: neg.going, committed: neg.going && !can_stop, eta };
+        // A platoon follower crosses right behind the member ahead of it when that one goes.
+        let ahead = member.filter(|m| m.is_follower()).and(lon.leader).map(|l| l.id);
+        let platoon_goes = ahead.is_some_and(|ahead| {
+            mailbox.wifi_in.iter().any(|m| {
+                m.sender == ahead
+                    && m.payload::<CrossingClaim>().is_some_and(|c| c.center.distance(center) <= 1.0 && (c.going || c.inside))
+            })
+        });
+        let blocked = !inside
+            && !platoon_goes
+            && (can_stop || !neg.going)
+            && mailbox.wifi_in.iter().any(|m| {
+                m.sender != id
+                    && m.payload::<CrossingClaim>().is_some_and(|c| {
+                        // Their estimate is as old as the message: bring it to now.
+                        let age = clock.now.as_secs() - m.sent_at.as_secs();
+                        let theirs = CrossingClaim { eta: (c.eta - age).max(0.0), ..*c };
+                        c.center.distance(center) <= 1.0 && goes_first(&theirs, m.sender, &mine, id)
+                    })
+            });
+        neg.going = !blocked;
+        if blocked {
+            lon.limit(stop_before(v, stop_room, p.deceleration));
+        }
+        let claim = CrossingClaim { center, inside, going: neg.going, committed: neg.going && !can_stop, eta };
+        mailbox.wifi_out.retain(|m| m.payload::<CrossingClaim>().is_none());
+        mailbox.send(Channel::Wifi, clock.now, Arc::new(claim));
+    }
+}
+
+/// Intersection negotiation in the [`Control`] schedule, after the speed controllers.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CrossingPlugin;
+
+impl Plugin for CrossingPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        install_longitudinal(sim);
+        sim.add_systems(
+            Control,
+            yield_at_crossings
+                .after(find_leaders)
+                .after(control_cruise)
+                .after(control_acc)
+                .after(control_platoon)
+                .before(actuate_longitudinal),
+        );
+    }
+}

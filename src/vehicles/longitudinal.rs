@@ -1,0 +1,196 @@
+//! The longitudinal pipeline shared by the speed controllers: find the vehicle ahead on the
+//! route, let the controllers agree on one acceleration, turn it into a model command.
+//!
+//! Each control tick, after the path follower has steered ([`crate::vehicles::follow_paths`]):
+//! 1. [`find_leaders`] resets [`Longitudinal::accel`] to "no demand" and finds the nearest
+//!    vehicle ahead on the vehicle's own route from its sensor readings;
+//! 2. a speed controller ([`crate::vehicles::control_cruise`], [`crate::vehicles::control_acc`],
+//!    [`crate::vehicles::control_platoon`]) writes the acceleration it wants;
+//! 3. limiters ([`crate::vehicles::yield_at_crossings`], then
+//!    [`crate::vehicles::brake_for_emergencies`]) may only lower it;
+//! 4. [`actuate_longitudinal`] turns it into a throttle (acceleration model) or a speed command
+//!    (kinematic model), never exceeding the route's target speed. A vehicle nobody asked
+//!    anything of keeps the path follower's command.
+
+use bevy_ecs::prelude::{Component, Query, Res, Resource};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+use glam::DVec2;
+
+use crate::app::SimBuilder;
+use crate::map::Path;
+use crate::sim::{Control, SimClock};
+use crate::world::{
+    AccelerationUnicycle, ControlCommand, Detection, KinematicUnicycle, Route, SensorReadings, VehicleId, VehicleSize,
+    VehicleState,
+};
+
+use super::{PathFollower, follow_paths};
+
+/// The vehicle ahead on the same route, as the sensors see it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LeaderGap {
+    /// Its id.
+    pub id: VehicleId,
+    /// Arc length from our centre to its centre along our route [m].
+    pub distance: f64,
+    /// Bumper-to-bumper gap [m]: `distance` minus our own length. Sensors report centres, not
+    /// lengths, so this assumes the leader is as long as we are; raise the standstill distance
+    /// when following longer vehicles.
+    pub gap: f64,
+    /// Its speed along our route [m/s].
+    pub speed: f64,
+    /// Its acceleration along our route [m/s²], from the change of `speed` since the last tick
+    /// (0 when the leader just changed).
+    pub acceleration: f64,
+}
+
+/// Per-vehicle longitudinal state: what the controllers of this tick asked for.
+#[derive(Component, Debug, Clone, Copy, PartialEq)]
+pub struct Longitudinal {
+    /// Acceleration asked for this tick [m/s²]; NaN until a controller writes it.
+    pub accel: f64,
+    /// Target speed of the route at this point [m/s]: the path follower's cruise speed, lowered
+    /// near the end of an open route.
+    pub route_speed: f64,
+    /// The vehicle ahead on the route, if the sensors see one.
+    pub leader: Option<LeaderGap>,
+    /// Largest lateral offset [m] of a detection from our route for it to count as "on our
+    /// route"; about half a lane width.
+    pub lane_half_width: f64,
+    /// Whether emergency braking overrides the controllers this tick.
+    pub emergency: bool,
+}
+
+impl Default for Longitudinal {
+    fn default() -> Self {
+        Longitudinal { accel: f64::NAN, route_speed: 0.0, leader: None, lane_half_width: 1.75, emergency: false }
+    }
+}
+
+impl Longitudinal {
+    /// Lower the demand to at most `accel` [m/s²] (a limiter); sets it if nobody had.
+    pub fn limit(&mut self, accel: f64) {
+        self.accel = self.accel.min(accel);
+    }
+}
+
+/// The nearest detection that lies on `path` ahead of arc length `s` [m] (within
+/// `lane_half_width` [m] of the centre line), as a [`LeaderGap`] with zero acceleration.
+/// `detections` must be sorted nearest first (as [`SensorReadings`] are). O(window) per
+/// detection looked at; stops at the first one on the path.
+pub fn leader_on_path(
+    path: &Path,
+    s: f64,
+    position: DVec2,
+    own_length: f64,
+    detections: &[Detection],
+    lane_half_width: f64,
+) -> Option<LeaderGap> {
+    if path.points.len() < 2 {
+        return None;
+    }
+    for d in detections {
+        let r = d.position.distance(position);
+        let p = path.project_near(d.position, s + r, 0.3 * r + 5.0);
+        if p.lateral.abs() > lane_half_width {
+            continue;
+        }
+        let mut ahead = p.s - s;
+        if path.closed {
+            ahead = ahead.rem_euclid(path.length);
+            if ahead > 0.5 * path.length {
+                continue;
+            }
+        }
+        if ahead <= 0.0 {
+            continue;
+        }
+        let speed = d.velocity.dot(DVec2::from_angle(p.heading));
+        return Some(LeaderGap { id: d.id, distance: ahead, gap: ahead - own_length, speed, acceleration: 0.0 });
+    }
+    None
+}
+
+/// Reset the demand and find each vehicle's leader on its route.
+#[allow(clippy::type_complexity)]
+pub fn find_leaders(
+    clock: Res<SimClock>,
+    mut vehicles: Query<(
+        &VehicleState,
+        &VehicleSize,
+        &Route,
+        &PathFollower,
+        &ControlCommand,
+        Option<&SensorReadings>,
+        &mut Longitudinal,
+    )>,
+) {
+    for (state, size, route, follower, command, readings, mut lon) in &mut vehicles {
+        let previous = lon.leader;
+        lon.accel = f64::NAN;
+        lon.emergency = false;
+        lon.route_speed = command.speed;
+        let detections = readings.map_or(&[][..], |r| &r.0[..]);
+        let mut leader =
+            leader_on_path(&route.0, follower.s, state.position, size.length, detections, lon.lane_half_width);
+        if let (Some(l), Some(p)) = (leader.as_mut(), previous)
+            && l.id == p.id
+            && clock.dt > 0.0
+        {
+            l.acceleration = (l.speed - p.speed) / clock.dt;
+        }
+        lon.leader = leader;
+    }
+}
+
+/// Gain [1/s] that brings a vehicle faster than its route's target speed back down to it.
+pub const ROUTE_SPEED_GAIN: f64 = 2.0;
+
+/// Turn the agreed acceleration into the model's command: throttle = m·a + c·v for the
+/// acceleration model (so v̇ = a at the current speed), speed = v + a·dt for the kinematic one.
+/// Above the route's target speed ([`Longitudinal::route_speed`]: the path follower's cruise
+/// speed, lowered to stop at the end of an open route) the acceleration is capped at
+/// [`ROUTE_SPEED_GAIN`] · (route speed − v), so vehicles stop where their route ends.
+#[allow(clippy::type_complexity)]
+pub fn actuate_longitudinal(
+    clock: Res<SimClock>,
+    mut vehicles: Query<(
+        &VehicleState,
+        &Longitudinal,
+        &mut ControlCommand,
+        Option<&AccelerationUnicycle>,
+        Option<&KinematicUnicycle>,
+    )>,
+) {
+    for (state, lon, mut command, acceleration, kinematic) in &mut vehicles {
+        if lon.accel.is_nan() {
+            continue;
+        }
+        let v = state.speed().max(0.0);
+        // Never faster than the route's target speed (it stops at the end of an open route).
+        let accel = if v > lon.route_speed { lon.accel.min(ROUTE_SPEED_GAIN * (lon.route_speed - v)) } else { lon.accel };
+        if let Some(m) = acceleration {
+            command.throttle = m.mass * accel + m.drag * v;
+        }
+        if kinematic.is_some() || acceleration.is_none() {
+            command.speed = (v + accel * clock.dt).max(0.0);
+        } else {
+            command.speed = v;
+        }
+    }
+}
+
+/// Marks that the pipeline's systems are in the [`Control`] schedule (each controller plugin
+/// installs them once).
+#[derive(Resource, Debug, Clone, Copy, Default)]
+pub struct LongitudinalInstalled;
+
+/// Add [`find_leaders`] (after the path follower) and [`actuate_longitudinal`] (after every
+/// limiter) to the [`Control`] schedule, once.
+pub fn install_longitudinal(sim: &mut SimBuilder) {
+    if sim.world_mut().contains_resource::<LongitudinalInstalled>() {
+        return;
+    }
+    sim.insert_resource(LongitudinalInstalled);
+    sim.add_systems(Control, (find_leaders.after(follow_paths), actuate_longitudinal.after(find_leaders)));
+}

@@ -1,0 +1,190 @@
+//! Scenario-facing settings of the smart-vehicle controllers and how they are attached to a
+//! spawned vehicle (the `controller = { type = ... }` tables of a scenario file).
+//!
+//! ```toml
+//! controller = { type = "cruise_control", speed = 20.0, cruise = { kp = 500.0 } }
+//! controller = { type = "acc", speed = 25.0, acc = { time_gap = 1.5 }, emergency = { ttc = 1.5 } }
+//! controller = { type = "acc", speed = 8.0, crossing = { center = [0.0, 0.0], radius = 10.0 } }
+//! controller = { type = "platoon", role = "leader", speed = 20.0, cruise = { dip = { at = 30.0, speed = 10.0, deceleration = 6.0 } } }
+//! controller = { type = "platoon", role = "follower", speed = 22.0, platoon = { time_gap = 0.5 } }
+//! ```
+//! Every vehicle with one of these also gets the path follower (steering, and its `speed` as
+//! the cruise speed) and emergency braking (`emergency.ttc = 0` turns it off).
+
+use bevy_ecs::prelude::{Entity, World};
+
+use super::{
+    AccController, AdaptiveCruise, CruiseControl, CruiseController, Crossing, CrossingNegotiator, EmergencyBrake,
+    EmergencyBraking, PathFollower, PathFollowing, PlatoonMember, Platooning,
+};
+use crate::world::SimTime;
+
+fn default_speed() -> f64 {
+    PathFollowing::default().speed
+}
+
+/// `type = "cruise_control"`: PID on speed.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CruiseSetup {
+    /// Cruise speed [m/s].
+    #[serde(default = "default_speed")]
+    pub speed: f64,
+    /// PID gains and optional scripted dip.
+    #[serde(default)]
+    pub cruise: CruiseControl,
+    /// Emergency braking.
+    #[serde(default)]
+    pub emergency: EmergencyBraking,
+}
+
+/// `type = "acc"`: adaptive cruise control on radar, optionally negotiating an intersection.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AccSetup {
+    /// Cruise speed when nobody is ahead [m/s].
+    #[serde(default = "default_speed")]
+    pub speed: f64,
+    /// Gap law.
+    #[serde(default)]
+    pub acc: AdaptiveCruise,
+    /// Emergency braking.
+    #[serde(default)]
+    pub emergency: EmergencyBraking,
+    /// Intersection negotiation, if the route crosses a junction.
+    #[serde(default)]
+    pub crossing: Option<Crossing>,
+}
+
+/// Role of a platoon vehicle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PlatoonRole {
+    /// Leads (its id names the platoon); its speed comes from cruise control.
+    Leader,
+    /// Joins the platoon ahead of it.
+    Follower,
+}
+
+/// `type = "platoon"`: a platoon leader or follower (cooperative ACC over wifi).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlatoonSetup {
+    /// Leader or follower.
+    pub role: PlatoonRole,
+    /// Cruise speed [m/s] (followers: when nobody is ahead; set it above the leader's).
+    #[serde(default = "default_speed")]
+    pub speed: f64,
+    /// Gap law and feed-forward.
+    #[serde(default)]
+    pub platoon: Platooning,
+    /// The leader's cruise control (with an optional scripted dip).
+    #[serde(default)]
+    pub cruise: CruiseControl,
+    /// Sim time at which it leaves the platoon [s], if any.
+    #[serde(default)]
+    pub leave_at: Option<f64>,
+    /// Emergency braking.
+    #[serde(default)]
+    pub emergency: EmergencyBraking,
+    /// Intersection negotiation, if the route crosses a junction.
+    #[serde(default)]
+    pub crossing: Option<Crossing>,
+}
+
+/// One of the smart controllers of a scenario vehicle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SmartController {
+    /// Cruise control.
+    Cruise(CruiseSetup),
+    /// Adaptive cruise control.
+    Acc(AccSetup),
+    /// Platooning.
+    Platoon(PlatoonSetup),
+}
+
+impl SmartController {
+    /// Check the values: `Err((key, problem))` names the key (relative to `controller`) and what
+    /// is allowed.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        let mut checks: Vec<(&str, f64, bool)> = Vec::new();
+        let (speed, emergency, crossing) = match self {
+            SmartController::Cruise(c) => (c.speed, c.emergency, None),
+            SmartController::Acc(c) => {
+                checks.extend([
+                    ("acc.time_gap", c.acc.time_gap, false),
+                    ("acc.standstill", c.acc.standstill, false),
+                    ("acc.max_deceleration", c.acc.max_deceleration, true),
+                ]);
+                (c.speed, c.emergency, c.crossing)
+            }
+            SmartController::Platoon(c) => {
+                checks.extend([
+                    ("platoon.time_gap", c.platoon.time_gap, false),
+                    ("platoon.acc_time_gap", c.platoon.acc_time_gap, false),
+                    ("platoon.standstill", c.platoon.standstill, false),
+                    ("platoon.max_deceleration", c.platoon.max_deceleration, true),
+                    ("platoon.beacon_timeout", c.platoon.beacon_timeout, true),
+                ]);
+                if let Some(t) = c.leave_at {
+                    checks.push(("leave_at", t, false));
+                }
+                (c.speed, c.emergency, c.crossing)
+            }
+        };
+        checks.push(("speed", speed, false));
+        checks.push(("emergency.ttc", emergency.ttc, false));
+        checks.push(("emergency.deceleration", emergency.deceleration, true));
+        if let Some(c) = crossing {
+            checks.push(("crossing.radius", c.radius, true));
+            checks.push(("crossing.deceleration", c.deceleration, true));
+            checks.push(("crossing.acceleration", c.acceleration, true));
+        }
+        if let SmartController::Cruise(CruiseSetup { cruise: CruiseControl { dip: Some(d), .. }, .. })
+        | SmartController::Platoon(PlatoonSetup { cruise: CruiseControl { dip: Some(d), .. }, .. }) = self
+        {
+            checks.push(("cruise.dip.deceleration", d.deceleration, true));
+            checks.push(("cruise.dip.speed", d.speed, false));
+        }
+        for (key, value, strictly_positive) in checks {
+            let ok = value.is_finite() && if strictly_positive { value > 0.0 } else { value >= 0.0 };
+            if !ok {
+                let want = if strictly_positive { "a positive number" } else { "zero or more" };
+                return Err((key.to_string(), format!("must be {want}, got {value}")));
+            }
+        }
+        Ok(())
+    }
+
+    /// Add the controller's components (and the path follower's) to vehicle `entity`.
+    pub fn attach(&self, world: &mut World, entity: Entity) {
+        let mut e = world.entity_mut(entity);
+        let (speed, emergency, crossing) = match *self {
+            SmartController::Cruise(c) => {
+                e.insert(CruiseController::new(c.cruise));
+                (c.speed, c.emergency, None)
+            }
+            SmartController::Acc(c) => {
+                e.insert(AccController { params: c.acc });
+                (c.speed, c.emergency, c.crossing)
+            }
+            SmartController::Platoon(c) => {
+                let mut member = match c.role {
+                    PlatoonRole::Leader => {
+                        e.insert(CruiseController::new(c.cruise));
+                        PlatoonMember::leader(c.platoon)
+                    }
+                    PlatoonRole::Follower => PlatoonMember::follower(c.platoon),
+                };
+                member.leave_at = c.leave_at.map(SimTime::from_secs);
+                e.insert(member);
+                (c.speed, c.emergency, c.crossing)
+            }
+        };
+        e.insert(PathFollower::new(PathFollowing { speed, ..Default::default() }));
+        e.insert(EmergencyBrake::new(emergency));
+        if let Some(c) = crossing {
+            e.insert(CrossingNegotiator::new(c));
+        }
+    }
+}

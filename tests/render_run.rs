@@ -1,0 +1,81 @@
+//! `smlworld run --frames DIR --gif FILE`: frames at their own rate, vehicles where the
+//! trajectories say, and the simulation's results unchanged by recording.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use glam::DVec2;
+use smlworld::map::LaneletMap;
+use smlworld::render::BirdseyeView;
+
+fn smlworld(args: &[&str]) {
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld")).args(args).output().expect("runs smlworld");
+    assert!(out.status.success(), "smlworld {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("smlworld-render-run-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Position of every vehicle at time `t` [s], extrapolated with its velocity from its last row
+/// of a trajectories.csv (t, id, x, y, yaw, vx, vy).
+fn positions_at(csv: &Path, t: f64) -> Vec<(i32, DVec2)> {
+    let text = std::fs::read_to_string(csv).unwrap();
+    let mut last = std::collections::BTreeMap::new();
+    for line in text.lines().skip(1) {
+        let f: Vec<f64> = line.split(',').map(|v| v.parse().unwrap()).collect();
+        let (p, v) = (DVec2::new(f[2], f[3]), DVec2::new(f[5], f[6]));
+        last.insert(f[1] as i32, p + v * (t - f[0]));
+    }
+    last.into_iter().collect()
+}
+
+#[test]
+fn recording_writes_frames_and_gif_without_changing_results() {
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/highway.toml");
+    let plain = tmp("plain");
+    let rec = tmp("rec");
+    let frames = rec.join("frames");
+    let gif = rec.join("run.gif");
+    smlworld(&["run", scenario, "--duration", "2", "--out", plain.to_str().unwrap()]);
+    smlworld(&[
+        "run", scenario, "--duration", "2", "--out", rec.to_str().unwrap(),
+        "--frames", frames.to_str().unwrap(), "--gif", gif.to_str().unwrap(),
+        "--frame-rate", "5", "--width", "640", "--height", "360",
+    ]);
+    let a = std::fs::read(plain.join("trajectories.csv")).unwrap();
+    let b = std::fs::read(rec.join("trajectories.csv")).unwrap();
+    assert_eq!(a, b, "recording must not change the trajectories");
+
+    // 2 s at 5 Hz: frames at 0.2, 0.4, ..., 2.0 s.
+    let mut names: Vec<_> = std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().file_name()).collect();
+    names.sort();
+    assert_eq!(names.len(), 10, "{names:?}");
+    assert_eq!(names[0], "frame_000000.png");
+    let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    let gif_frames = image::AnimationDecoder::into_frames(decoder).collect_frames().unwrap();
+    assert_eq!(gif_frames.len(), 10);
+    assert_eq!(gif_frames[0].buffer().dimensions(), (640, 360));
+
+    // In the last frame (t = 2 s), each vehicle's centre pixel differs from the bare map, and a
+    // corner far from the road equals it (same view: the whole map fitted into 640x360).
+    let map_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("maps/highway_ring.osm");
+    let env_png = rec.join("env.png");
+    smlworld(&["map", "render", map_path.to_str().unwrap(), "--out", env_png.to_str().unwrap(), "--width", "640", "--height", "360"]);
+    let env = image::open(&env_png).unwrap().to_rgba8();
+    let last = image::open(frames.join("frame_000009.png")).unwrap().to_rgba8();
+    let view = BirdseyeView::fit_map(640, 360, &LaneletMap::load(&map_path).unwrap()).unwrap();
+    let positions = positions_at(&rec.join("trajectories.csv"), 2.0);
+    assert_eq!(positions.len(), 12);
+    for (id, p) in positions {
+        let px = view.world_to_pixel(p);
+        let (x, y) = (px.x.round() as u32, px.y.round() as u32);
+        let (e, f) = (env.get_pixel(x, y).0, last.get_pixel(x, y).0);
+        let diff: u32 = e.iter().zip(f.iter()).map(|(a, b)| a.abs_diff(*b) as u32).sum();
+        assert!(diff > 30, "vehicle {id} at {p} (pixel {x},{y}) is not drawn: env {e:?} frame {f:?}");
+    }
+    assert_eq!(env.get_pixel(2, 2), last.get_pixel(2, 2), "the corner is bare ground in both");
+}
