@@ -164,9 +164,10 @@ fn fs_sector(in: SectorOut) -> @location(0) vec4<f32> {
         let off = half_angle - ang;
         edge = min(edge, select(d, d * sin(off), off < 1.5707963));
     }
-    var a = in.color.a * (1.0 - 0.45 * d / range);
+    // a faint fill fading outwards, so many overlapping ranges stay readable, and a firm rim
+    var a = in.color.a * (1.0 - 0.6 * d / range);
     if (edge < 1.5 * px) {
-        a = min(1.0, in.color.a * 3.5);
+        a = 0.7;
     }
     return vec4<f32>(in.color.rgb, a);
 }

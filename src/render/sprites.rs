@@ -86,10 +86,10 @@ pub fn class_color(class: &str) -> [u8; 4] {
     }
 }
 
-/// Overlay colours (sRGB with alpha).
-const RADAR_COLOR: [u8; 4] = [255, 70, 60, 96];
-const VELODYNE_COLOR: [u8; 4] = [80, 200, 255, 80];
-const WIFI_COLOR: [u8; 4] = [170, 120, 255, 64];
+/// Overlay fill colours (sRGB with the fill's alpha at the centre; the rim is drawn at 0.7).
+const RADAR_COLOR: [u8; 4] = [255, 70, 60, 72];
+const VELODYNE_COLOR: [u8; 4] = [80, 200, 255, 40];
+const WIFI_COLOR: [u8; 4] = [170, 120, 255, 32];
 
 /// One vehicle as the vehicle shader reads it (`Vehicle` in shaders.wgsl).
 #[repr(C)]
