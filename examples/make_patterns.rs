@@ -173,7 +173,8 @@ fn free_space() -> RgbImage {
 fn main() -> anyhow::Result<()> {
     let out = std::env::args().nth(1).unwrap_or_else(|| "assets/patterns".into());
     std::fs::create_dir_all(&out)?;
-    let patterns: [(&str, fn() -> RgbImage); 6] = [
+    type Maker = fn() -> RgbImage;
+    let patterns: [(&str, Maker); 6] = [
         ("forest", forest),
         ("road", road),
         ("mud", mud),

@@ -54,12 +54,9 @@ fn three_vehicles_with_ids_and_radar_match_the_reference() {
     check_snapshot("three_vehicles", &frame, TOLERANCE);
 }
 
-/// sRGB byte of a linear shader colour value (the vehicle shader works in linear light).
-fn srgb(linear: [f64; 3]) -> [u8; 3] {
-    linear.map(|c| {
-        let s = if c <= 0.003_130_8 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 };
-        (255.0 * s).round() as u8
-    })
+/// Bytes of a shader colour (the shaders work with sRGB values in 0..1).
+fn bytes(c: [f64; 3]) -> [u8; 3] {
+    c.map(|v| (255.0 * v).round() as u8)
 }
 
 /// Pixel of a point given in a vehicle's own frame (x forward, y left) [m].
@@ -88,8 +85,8 @@ fn a_vehicle_covers_exactly_its_posed_rectangle_with_the_windscreen_in_front() {
         let local = DVec2::from_angle(-yaw).rotate(w - v.position);
         let margin = 1.5 / view.pixels_per_meter;
         let in_body = local.x.abs() < 0.5 * v.length - margin && local.y.abs() < 0.5 * v.width - margin;
-        // The soft shadow reaches 0.25 m + 0.35 m offset + 0.25 m blur beyond the body.
-        let shadow = 0.85;
+        // The soft shadow reaches |(0.15, -0.22)| m offset + 0.2 m blur (2 px) beyond the body.
+        let shadow = 0.5;
         let near_body = local.x.abs() < 0.5 * v.length + shadow && local.y.abs() < 0.5 * v.width + shadow;
         if in_body {
             inside += 1;
@@ -110,8 +107,8 @@ fn a_vehicle_covers_exactly_its_posed_rectangle_with_the_windscreen_in_front() {
     let (bx, by) = pixel_of(&view, &v, DVec2::new(-0.25 * v.length, 0.0));
     let front = frame.get_pixel(fx, fy);
     let back = frame.get_pixel(bx, by);
-    // Windscreen colour in fs_vehicle: linear (0.03, 0.05, 0.08).
-    assert!(near(front, srgb([0.03, 0.05, 0.08]), 2), "windscreen pixel {front:?} is not dark");
+    // Windscreen colour in fs_vehicle: (0.19, 0.25, 0.31).
+    assert!(near(front, bytes([0.19, 0.25, 0.31]), 2), "windscreen pixel {front:?} is not dark");
     let body = class_color("Truck");
     assert!(near(back, [body[0], body[1], body[2]], 3), "rear pixel {back:?} is not the truck colour {body:?}");
 }
@@ -123,13 +120,13 @@ fn real_and_virtual_vehicles_look_different() {
     let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
     let real = VehicleSprite::new(5, DVec2::ZERO, 0.0, 8.0, 3.0, "Car");
     let virt = VehicleSprite { id: -5, ..real.clone() };
-    let a = r.render_frame(&layer, &[real.clone()]).unwrap();
+    let a = r.render_frame(&layer, std::slice::from_ref(&real)).unwrap();
     let b = r.render_frame(&layer, &[virt]).unwrap();
     // The outline on the left side: dark for real, light for virtual.
     let (x, y) = pixel_of(&view, &real, DVec2::new(-1.0, 1.4));
-    // Outline colours in fs_vehicle: linear 0.01 (real) and 0.95 (virtual).
-    assert!(near(a.get_pixel(x, y), srgb([0.01; 3]), 2), "real outline {:?}", a.get_pixel(x, y));
-    assert!(near(b.get_pixel(x, y), srgb([0.95; 3]), 2), "virtual outline {:?}", b.get_pixel(x, y));
+    // Outline colours in fs_vehicle: 0.1 (real) and 0.96 (virtual).
+    assert!(near(a.get_pixel(x, y), bytes([0.1; 3]), 2), "real outline {:?}", a.get_pixel(x, y));
+    assert!(near(b.get_pixel(x, y), bytes([0.96; 3]), 2), "virtual outline {:?}", b.get_pixel(x, y));
 }
 
 #[test]

@@ -111,7 +111,7 @@ pub(crate) struct GroundVertex {
     pub pos: [f32; 2],
     /// Pattern coordinates (tiles) and texture layer; layer < 0 means plain colour.
     pub tex: [f32; 3],
-    /// Linear-space colour multiplied with the pattern (or the plain colour), with alpha.
+    /// sRGB colour (0..1) multiplied with the pattern (or the plain colour), with alpha.
     pub color: [f32; 4],
     /// Lines: signed distance across [px], half width [px] (0: not a line), distance along [m],
     /// dash period [m] (0: solid).
@@ -124,14 +124,9 @@ pub(crate) struct Tessellator<'a> {
     pub out: &'a mut Vec<GroundVertex>,
 }
 
-fn srgb_to_linear(c: u8) -> f32 {
-    let c = f32::from(c) / 255.0;
-    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
-}
-
-/// sRGB colour with alpha to the linear values a `*Srgb` render target expects.
-pub(crate) fn linear_rgba(c: [u8; 4]) -> [f32; 4] {
-    [srgb_to_linear(c[0]), srgb_to_linear(c[1]), srgb_to_linear(c[2]), f32::from(c[3]) / 255.0]
+/// sRGB colour with alpha as the 0..1 values the shaders work with (they blend in sRGB space).
+pub(crate) fn rgba(c: [u8; 4]) -> [f32; 4] {
+    c.map(|v| f32::from(v) / 255.0)
 }
 
 impl Tessellator<'_> {
@@ -189,14 +184,15 @@ impl Tessellator<'_> {
         // One extra pixel on each side for the anti-aliased fringe.
         let ext_m = (f64::from(half_px) + 1.0) / ppm;
         let ext_px = half_px + 1.0;
-        let color = linear_rgba(style.color);
+        let color = rgba(style.color);
         let dash = style.dash.filter(|d| d.is_finite() && *d > 0.0).unwrap_or(0.0) as f32;
         let mut along = 0.0f64;
         for (k, w) in points.windows(2).enumerate() {
             let (a, b) = (w[0], w[1]);
             let seg = b - a;
             let len = seg.length();
-            if !(len > 1e-9) {
+            // Also skips NaN lengths.
+            if len.is_nan() || len <= 1e-9 {
                 continue;
             }
             let n = DVec2::new(-seg.y, seg.x) / len * ext_m;

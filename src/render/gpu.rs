@@ -8,11 +8,13 @@ use super::RenderError;
 use super::environment::{Environment, GroundVertex, Tessellator};
 use super::font;
 use super::patterns::{PATTERN_SIZE, PatternKind, PatternSet, mip_chain};
-use super::sprites::{FrameBatches, GlyphInstance, SectorInstance, VehicleInstance, VehicleSprite};
+use super::sprites::{FrameBatches, VehicleSprite};
 use super::view::BirdseyeView;
 
-/// Colour format of every render target: 8-bit sRGB, no MSAA (deterministic on lavapipe).
-const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+/// Colour format of every render target and pattern: 8-bit sRGB bytes, no MSAA (deterministic on
+/// lavapipe). Deliberately not `Rgba8UnormSrgb`: the shaders work and blend in sRGB space, which
+/// saves a conversion per blended pixel (about a third of the frame time on lavapipe).
+const FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
 /// Uniforms shared by all shaders (see `shaders.wgsl`).
 #[repr(C)]
@@ -66,12 +68,11 @@ impl GrowBuffer {
         GrowBuffer { buffer: None, usage: usage | wgpu::BufferUsages::COPY_DST, label }
     }
 
-    fn upload(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, data: &[u8]) {
-        if data.is_empty() {
-            return;
-        }
-        let need = data.len() as u64;
-        if self.buffer.as_ref().is_none_or(|b| b.size() < need) {
+    /// Copy `data` in, growing the buffer if needed; `true` when the buffer was replaced.
+    fn upload(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, data: &[u8]) -> bool {
+        let need = (data.len() as u64).max(1);
+        let grow = self.buffer.as_ref().is_none_or(|b| b.size() < need);
+        if grow {
             self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(self.label),
                 size: need.next_power_of_two().max(256),
@@ -79,13 +80,18 @@ impl GrowBuffer {
                 mapped_at_creation: false,
             }));
         }
-        if let Some(b) = &self.buffer {
+        if let (Some(b), false) = (&self.buffer, data.is_empty()) {
             queue.write_buffer(b, 0, data);
         }
+        grow
     }
 
     fn slice(&self, len: u64) -> Option<wgpu::BufferSlice<'_>> {
         if len == 0 { None } else { self.buffer.as_ref().map(|b| b.slice(..len)) }
+    }
+
+    fn binding(&self, binding: u32) -> Option<wgpu::BindGroupEntry<'_>> {
+        self.buffer.as_ref().map(|b| wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() })
     }
 }
 
@@ -107,11 +113,12 @@ pub struct Renderer {
     queue: wgpu::Queue,
     adapter: wgpu::AdapterInfo,
     bind_layout: wgpu::BindGroupLayout,
+    items_layout: wgpu::BindGroupLayout,
+    items: Option<wgpu::BindGroup>,
     ground: wgpu::RenderPipeline,
     sectors: wgpu::RenderPipeline,
     vehicles: wgpu::RenderPipeline,
-    shadows: wgpu::RenderPipeline,
-    glyphs: wgpu::RenderPipeline,
+    labels: wgpu::RenderPipeline,
     sampler: wgpu::Sampler,
     font_view: wgpu::TextureView,
     frame: Option<FrameTarget>,
@@ -119,7 +126,7 @@ pub struct Renderer {
     route_buf: GrowBuffer,
     sector_buf: GrowBuffer,
     vehicle_buf: GrowBuffer,
-    glyph_buf: GrowBuffer,
+    label_buf: GrowBuffer,
 }
 
 fn alpha_target() -> [Option<wgpu::ColorTargetState>; 1] {
@@ -198,21 +205,42 @@ impl Renderer {
                 },
             ],
         });
+        let storage = |binding: u32| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::VERTEX,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let items_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("frame items"),
+            entries: &[storage(0), storage(1), storage(2)],
+        });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("render layout"),
-            bind_group_layouts: &[Some(&bind_layout)],
+            bind_group_layouts: &[Some(&bind_layout), Some(&items_layout)],
             immediate_size: 0,
         });
         let targets = alpha_target();
-        let pipeline = |label: &str, vs: &str, fs: &str, buffer: wgpu::VertexBufferLayout<'_>| {
+        // The ground pipeline also draws the environment layer, where no frame items exist.
+        let ground_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("ground layout"),
+            bind_group_layouts: &[Some(&bind_layout)],
+            immediate_size: 0,
+        });
+        let pipeline = |label: &str, vs: &str, fs: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>]| {
+            let layout = if buffers.is_empty() { &layout } else { &ground_layout };
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(label),
-                layout: Some(&layout),
+                layout: Some(layout),
                 vertex: wgpu::VertexState {
                     module: &module,
                     entry_point: Some(vs),
                     compilation_options: Default::default(),
-                    buffers: &[Some(buffer)],
+                    buffers,
                 },
                 primitive: wgpu::PrimitiveState::default(),
                 depth_stencil: None,
@@ -232,58 +260,15 @@ impl Renderer {
             "ground",
             "vs_ground",
             "fs_ground",
-            wgpu::VertexBufferLayout {
+            &[Some(wgpu::VertexBufferLayout {
                 array_stride: std::mem::size_of::<GroundVertex>() as u64,
                 step_mode: wgpu::VertexStepMode::Vertex,
                 attributes: &ground_attrs,
-            },
+            })],
         );
-        let sector_attrs =
-            wgpu::vertex_attr_array![0 => Float32x2, 1 => Float32x2, 2 => Float32, 3 => Float32, 4 => Unorm8x4];
-        let sectors = pipeline(
-            "sectors",
-            "vs_sector",
-            "fs_sector",
-            wgpu::VertexBufferLayout {
-                array_stride: std::mem::size_of::<SectorInstance>() as u64,
-                step_mode: wgpu::VertexStepMode::Instance,
-                attributes: &sector_attrs,
-            },
-        );
-        let vehicle_attrs =
-            wgpu::vertex_attr_array![0 => Float32x2, 1 => Float32x2, 2 => Float32x2, 3 => Unorm8x4, 4 => Uint32];
-        let vehicles = pipeline(
-            "vehicles",
-            "vs_vehicle",
-            "fs_vehicle",
-            wgpu::VertexBufferLayout {
-                array_stride: std::mem::size_of::<VehicleInstance>() as u64,
-                step_mode: wgpu::VertexStepMode::Instance,
-                attributes: &vehicle_attrs,
-            },
-        );
-        let shadows = pipeline(
-            "shadows",
-            "vs_shadow",
-            "fs_shadow",
-            wgpu::VertexBufferLayout {
-                array_stride: std::mem::size_of::<VehicleInstance>() as u64,
-                step_mode: wgpu::VertexStepMode::Instance,
-                attributes: &vehicle_attrs,
-            },
-        );
-        let glyph_attrs =
-            wgpu::vertex_attr_array![0 => Float32x2, 1 => Float32x2, 2 => Float32x2, 3 => Uint32, 4 => Unorm8x4];
-        let glyphs = pipeline(
-            "glyphs",
-            "vs_glyph",
-            "fs_glyph",
-            wgpu::VertexBufferLayout {
-                array_stride: std::mem::size_of::<GlyphInstance>() as u64,
-                step_mode: wgpu::VertexStepMode::Instance,
-                attributes: &glyph_attrs,
-            },
-        );
+        let sectors = pipeline("sectors", "vs_sector", "fs_sector", &[]);
+        let vehicles = pipeline("vehicles", "vs_vehicle", "fs_vehicle", &[]);
+        let labels = pipeline("labels", "vs_label", "fs_label", &[]);
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("patterns"),
             address_mode_u: wgpu::AddressMode::Repeat,
@@ -312,24 +297,26 @@ impl Renderer {
         );
         let font_view = font_tex.create_view(&Default::default());
         let vertex = wgpu::BufferUsages::VERTEX;
+        let items = wgpu::BufferUsages::STORAGE;
         Ok(Renderer {
             device,
             queue,
             adapter: info,
             bind_layout,
+            items_layout,
+            items: None,
             ground,
             sectors,
             vehicles,
-            shadows,
-            glyphs,
+            labels,
             sampler,
             font_view,
             frame: None,
             batches: FrameBatches::default(),
             route_buf: GrowBuffer::new("routes", vertex),
-            sector_buf: GrowBuffer::new("sectors", vertex),
-            vehicle_buf: GrowBuffer::new("vehicles", vertex),
-            glyph_buf: GrowBuffer::new("glyphs", vertex),
+            sector_buf: GrowBuffer::new("sectors", items),
+            vehicle_buf: GrowBuffer::new("vehicles", items),
+            label_buf: GrowBuffer::new("labels", items),
         })
     }
 
@@ -472,9 +459,21 @@ impl Renderer {
         self.ensure_frame(&view);
         let Renderer { device, queue, batches, .. } = self;
         self.route_buf.upload(device, queue, bytemuck::cast_slice(&batches.routes));
-        self.sector_buf.upload(device, queue, bytemuck::cast_slice(&batches.sectors));
-        self.vehicle_buf.upload(device, queue, bytemuck::cast_slice(&batches.vehicles));
-        self.glyph_buf.upload(device, queue, bytemuck::cast_slice(&batches.glyphs));
+        let mut grown = self.sector_buf.upload(device, queue, bytemuck::cast_slice(&batches.sectors));
+        grown |= self.vehicle_buf.upload(device, queue, bytemuck::cast_slice(&batches.vehicles));
+        grown |= self.label_buf.upload(device, queue, bytemuck::cast_slice(&batches.labels));
+        if grown || self.items.is_none() {
+            let entries: Vec<wgpu::BindGroupEntry<'_>> =
+                [self.sector_buf.binding(0), self.vehicle_buf.binding(1), self.label_buf.binding(2)]
+                    .into_iter()
+                    .flatten()
+                    .collect();
+            self.items = Some(self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("frame items"),
+                layout: &self.items_layout,
+                entries: &entries,
+            }));
+        }
         let Some(frame) = &self.frame else {
             return Err(RenderError::Readback("frame target missing".into()));
         };
@@ -503,17 +502,14 @@ impl Renderer {
                 pass.set_vertex_buffer(0, s);
                 pass.draw(0..b.routes.len() as u32, 0..1);
             }
-            let instanced = [
-                (&self.sectors, &self.sector_buf, b.sectors.len(), std::mem::size_of::<SectorInstance>()),
-                (&self.shadows, &self.vehicle_buf, b.vehicles.len(), std::mem::size_of::<VehicleInstance>()),
-                (&self.vehicles, &self.vehicle_buf, b.vehicles.len(), std::mem::size_of::<VehicleInstance>()),
-                (&self.glyphs, &self.glyph_buf, b.glyphs.len(), std::mem::size_of::<GlyphInstance>()),
-            ];
-            for (pipeline, buf, n, stride) in instanced {
-                if let Some(s) = buf.slice(size(n, stride)) {
-                    pass.set_pipeline(pipeline);
-                    pass.set_vertex_buffer(0, s);
-                    pass.draw(0..6, 0..n as u32);
+            if let Some(items) = &self.items {
+                pass.set_bind_group(1, items, &[]);
+                let counts = [(&self.sectors, b.sectors.len()), (&self.vehicles, b.vehicles.len()), (&self.labels, b.labels.len())];
+                for (pipeline, n) in counts {
+                    if n > 0 {
+                        pass.set_pipeline(pipeline);
+                        pass.draw(0..6 * n as u32, 0..1);
+                    }
                 }
             }
         }

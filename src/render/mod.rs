@@ -4,7 +4,9 @@
 //! A [`BirdseyeView`] maps metres to pixels. The [`Environment`] of a map (background pattern,
 //! road pattern inside lanelets, area patterns, painted lines) is drawn once per view into an
 //! [`EnvironmentLayer`]; each frame copies that layer and draws [`VehicleSprite`]s on top (bodies,
-//! ids, sensor ranges, routes: one instanced draw call per kind) and reads the image back.
+//! ids, sensor ranges, routes: one draw call per kind, whatever the number of vehicles: the
+//! per-vehicle data sits in a storage buffer that the vertex shader reads, six vertices per
+//! vehicle) and reads the image back.
 //!
 //! ```no_run
 //! use smlworld::render::{BirdseyeView, Environment, PatternSet, Renderer, VehicleSprite};

@@ -1,5 +1,8 @@
 // Bird's-eye renderer shaders: ground (patterns, lines), sensor sectors, vehicles, id labels.
 // Positions arrive in metres relative to the view centre; `g.scale` maps them to clip space.
+// Colours are sRGB values in 0..1 throughout and blending happens in sRGB space, as in most 2D
+// renderers: it avoids a linear<->sRGB conversion per blended pixel, which dominates the frame
+// time on a software rasteriser.
 
 struct Globals {
     // metres -> clip space: (2P/W, 2P·aspect/H)
@@ -17,12 +20,6 @@ struct Globals {
 @group(0) @binding(1) var patterns: texture_2d_array<f32>;
 @group(0) @binding(2) var pattern_sampler: sampler;
 @group(0) @binding(3) var font: texture_2d<f32>;
-
-fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
-    let lo = c / 12.92;
-    let hi = pow((c + vec3<f32>(0.055)) / 1.055, vec3<f32>(2.4));
-    return select(hi, lo, c <= vec3<f32>(0.04045));
-}
 
 // Two triangles of a quad, corners in [0,1]^2.
 fn quad_corner(vi: u32) -> vec2<f32> {
@@ -94,16 +91,60 @@ struct SectorOut {
     @location(2) color: vec4<f32>,
 };
 
+struct Sector {
+    pos: vec2<f32>,
+    dir: vec2<f32>,
+    range: f32,
+    half_angle: f32,
+    color: u32,
+    _pad: u32,
+};
+
+struct Vehicle {
+    pos: vec2<f32>,
+    dir: vec2<f32>,
+    size: vec2<f32>,
+    color: u32,
+    real: u32,
+};
+
+struct Label {
+    anchor: vec2<f32>,
+    offset: vec2<f32>,
+    glyphs: vec2<u32>,
+    count: u32,
+    color: u32,
+};
+
+// Per-frame items, read by vertex pulling: item vi / 6, quad corner vi % 6. One plain draw of
+// 6·N vertices replaces N hardware instances, which cost several µs each on lavapipe.
+@group(1) @binding(0) var<storage, read> sectors: array<Sector>;
+@group(1) @binding(1) var<storage, read> vehicles: array<Vehicle>;
+@group(1) @binding(2) var<storage, read> labels: array<Label>;
+
 @vertex
-fn vs_sector(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
-             @location(2) range: f32, @location(3) half_angle: f32, @location(4) color: vec4<f32>) -> SectorOut {
+fn vs_sector(@builtin(vertex_index) vi: u32) -> SectorOut {
+    let item = sectors[vi / 6u];
+    let pos = item.pos;
+    let dir = item.dir;
+    let range = item.range;
+    let half_angle = item.half_angle;
+    let color = unpack4x8unorm(item.color);
     var out: SectorOut;
-    let r = range + 2.0 / g.ppm;
-    let local = (quad_corner(vi) * 2.0 - vec2<f32>(1.0)) * r;
+    let m = 2.0 / g.ppm;
+    // the smallest box around the sector: a cone narrower than a half disc lies ahead only
+    var lo = vec2<f32>(-range - m);
+    var hi = vec2<f32>(range + m);
+    if (half_angle < 1.5707963) {
+        let side = range * sin(half_angle) + m;
+        lo = vec2<f32>(-m, -side);
+        hi = vec2<f32>(range + m, side);
+    }
+    let local = mix(lo, hi, quad_corner(vi % 6u));
     out.clip = to_clip(pos + rotate(local, dir));
     out.local = local;
     out.shape = vec2<f32>(range, half_angle);
-    out.color = vec4<f32>(srgb_to_linear(color.rgb), color.a);
+    out.color = color;
     return out;
 }
 
@@ -123,9 +164,10 @@ fn fs_sector(in: SectorOut) -> @location(0) vec4<f32> {
         let off = half_angle - ang;
         edge = min(edge, select(d, d * sin(off), off < 1.5707963));
     }
-    var a = in.color.a * (1.0 - 0.45 * d / range);
+    // a faint fill fading outwards, so many overlapping ranges stay readable, and a firm rim
+    var a = in.color.a * (1.0 - 0.6 * d / range);
     if (edge < 1.5 * px) {
-        a = min(1.0, in.color.a * 3.5);
+        a = 0.7;
     }
     return vec4<f32>(in.color.rgb, a);
 }
@@ -138,48 +180,39 @@ struct VehicleOut {
     @location(1) @interpolate(flat) size: vec2<f32>,
     @location(2) @interpolate(flat) color: vec4<f32>,
     @location(3) @interpolate(flat) real: u32,
+    @location(4) @interpolate(flat) shadow: vec2<f32>,
 };
 
+// Soft shadow as if lit from the upper left: offset [m] in the world and blur [m].
+const SHADOW_OFFSET: vec2<f32> = vec2<f32>(0.15, -0.22);
+const SHADOW_BLUR: f32 = 0.15;
+// Scale [px/m] below which vehicles have no shadow.
+const SHADOW_MIN_PPM: f32 = 8.0;
+
 @vertex
-fn vs_vehicle(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
-              @location(2) size: vec2<f32>, @location(3) color: vec4<f32>, @location(4) real: u32) -> VehicleOut {
+fn vs_vehicle(@builtin(vertex_index) vi: u32) -> VehicleOut {
+    let item = vehicles[vi / 6u];
+    let pos = item.pos;
+    let dir = item.dir;
+    let size = item.size;
+    let color = unpack4x8unorm(item.color);
     var out: VehicleOut;
     // never smaller than 4 px, so a vehicle stays visible when zoomed far out
     let sz = max(size, vec2<f32>(4.0 / g.ppm));
-    // one pixel more on every side for the anti-aliased edge
-    let local = (quad_corner(vi) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 / g.ppm));
+    let px = 1.0 / g.ppm;
+    // the body, its shadow and one pixel more on every side for the anti-aliased edge; below
+    // SHADOW_MIN_PPM the shadow would be a pixel wide and is left out (it would double the pixels)
+    let shadow_reach = select(0.0, length(SHADOW_OFFSET) + max(SHADOW_BLUR, px), g.ppm >= SHADOW_MIN_PPM);
+    let grow = shadow_reach + px;
+    let local = (quad_corner(vi % 6u) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 * grow));
     out.clip = to_clip(pos + rotate(local, dir));
     out.local = local;
     out.size = sz;
-    out.color = vec4<f32>(srgb_to_linear(color.rgb), color.a);
-    out.real = real;
+    out.color = color;
+    out.real = item.real;
+    // the world-fixed shadow offset in the vehicle's frame
+    out.shadow = rotate(SHADOW_OFFSET, vec2<f32>(dir.x, -dir.y));
     return out;
-}
-
-// Soft shadow under each vehicle, as if lit from the upper left; drawn before the bodies.
-@vertex
-fn vs_shadow(@builtin(vertex_index) vi: u32, @location(0) pos: vec2<f32>, @location(1) dir: vec2<f32>,
-             @location(2) size: vec2<f32>, @location(3) color: vec4<f32>, @location(4) real: u32) -> VehicleOut {
-    var out: VehicleOut;
-    let sz = max(size, vec2<f32>(4.0 / g.ppm));
-    let blur = max(0.25, 2.0 / g.ppm);
-    let local = (quad_corner(vi) - vec2<f32>(0.5)) * (sz + vec2<f32>(2.0 * blur));
-    let offset = vec2<f32>(0.25, -0.35) * min(1.0, sz.y / 1.8);
-    out.clip = to_clip(pos + offset + rotate(local, dir));
-    out.local = local;
-    out.size = sz;
-    out.color = vec4<f32>(0.0, 0.0, 0.0, blur);
-    out.real = real;
-    return out;
-}
-
-@fragment
-fn fs_shadow(in: VehicleOut) -> @location(0) vec4<f32> {
-    let blur = in.color.a;
-    let d = abs(in.local) - 0.5 * in.size;
-    let outside = length(max(d, vec2<f32>(0.0))) + min(max(d.x, d.y), 0.0);
-    let a = 0.4 * clamp(0.5 - outside / blur, 0.0, 1.0);
-    return vec4<f32>(0.0, 0.0, 0.0, a);
 }
 
 @fragment
@@ -189,20 +222,29 @@ fn fs_vehicle(in: VehicleOut) -> @location(0) vec4<f32> {
     let px = 1.0 / g.ppm;
     let side = 0.5 * wid - abs(in.local.y);
     let edge = min(0.5 * len - abs(in.local.x), side);
+    // coverage of the body (edge < 0 outside it) and of its shadow
+    let cover = clamp(edge * g.ppm + 0.5, 0.0, 1.0);
+    let d = abs(in.local - in.shadow) - 0.5 * in.size;
+    let outside = length(max(d, vec2<f32>(0.0))) + min(max(d.x, d.y), 0.0);
+    let shade = select(0.0, 0.4 * clamp(0.5 - outside / max(SHADOW_BLUR, px), 0.0, 1.0), g.ppm >= SHADOW_MIN_PPM);
+    let a = cover + (1.0 - cover) * shade;
+    if (a < 0.004) {
+        discard;
+    }
     let border = max(0.07 * wid, 1.2 * px);
     let d_front = 0.5 * len - in.local.x;
     var c = in.color.rgb;
     if (d_front < 0.2 * len) {
         // cab / bonnet, a shade lighter
-        c = min(c * 1.25 + vec3<f32>(0.04), vec3<f32>(1.0));
+        c = min(c * 1.12 + vec3<f32>(0.05), vec3<f32>(1.0));
     }
     if (d_front > 0.2 * len && d_front < 0.3 * len && side > 1.5 * border) {
         // windscreen
-        c = vec3<f32>(0.03, 0.05, 0.08);
+        c = vec3<f32>(0.19, 0.25, 0.31);
     }
     if (d_front < 0.06 * len && side < 0.3 * wid && side > border) {
         // headlights
-        c = vec3<f32>(1.0, 0.92, 0.6);
+        c = vec3<f32>(1.0, 0.96, 0.8);
     }
     if (in.real == 0u) {
         // virtual vehicles: diagonal hatching and a light outline
@@ -210,48 +252,65 @@ fn fs_vehicle(in: VehicleOut) -> @location(0) vec4<f32> {
             c = mix(c, vec3<f32>(1.0), 0.35);
         }
         if (edge < border) {
-            c = vec3<f32>(0.95);
+            c = vec3<f32>(0.96);
         }
     } else if (edge < border) {
-        c = vec3<f32>(0.01);
+        c = vec3<f32>(0.1);
     }
-    // coverage of the body's edge (edge < 0 outside the body)
-    return vec4<f32>(c, clamp(edge * g.ppm + 0.5, 0.0, 1.0));
+    // body over shadow (black): premultiplied sum divided by the combined alpha
+    return vec4<f32>(c * cover / a, a);
 }
 
-// ---- id labels: a dark backing box and 5x7 glyphs from the font atlas ----
+// ---- id labels: one quad per label, a dark box with up to 11 glyphs from the 5x7 font atlas ----
 
-struct GlyphOut {
+struct LabelOut {
     @builtin(position) clip: vec4<f32>,
+    // position inside the label [font px]
     @location(0) cell: vec2<f32>,
-    @location(1) @interpolate(flat) glyph: u32,
-    @location(2) color: vec4<f32>,
+    @location(1) @interpolate(flat) glyphs: vec2<u32>,
+    @location(2) @interpolate(flat) count: u32,
+    @location(3) color: vec4<f32>,
 };
 
+// Screen pixels per font pixel; keep in step with TEXT_SCALE in sprites.rs.
+const TEXT_SCALE: f32 = 2.0;
+// Padding around the text [font px]; keep in step with LABEL_PAD in sprites.rs.
+const LABEL_PAD: f32 = 1.0;
+
 @vertex
-fn vs_glyph(@builtin(vertex_index) vi: u32, @location(0) anchor: vec2<f32>, @location(1) offset: vec2<f32>,
-            @location(2) size: vec2<f32>, @location(3) glyph: u32, @location(4) color: vec4<f32>) -> GlyphOut {
-    var out: GlyphOut;
+fn vs_label(@builtin(vertex_index) vi: u32) -> LabelOut {
+    let item = labels[vi / 6u];
+    let anchor = item.anchor;
+    let offset = item.offset;
+    let count = item.count;
+    var out: LabelOut;
     let ndc = anchor * g.scale;
     // snap the anchor to whole pixels so the glyphs stay crisp
     let anchor_px = floor(vec2<f32>(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * g.viewport);
-    let corner = quad_corner(vi);
-    let p = anchor_px + offset + corner * size;
+    let cells = vec2<f32>(f32(count) * 6.0 - 1.0, 7.0) + vec2<f32>(2.0 * LABEL_PAD);
+    let corner = quad_corner(vi % 6u);
+    let p = anchor_px + offset + corner * cells * TEXT_SCALE;
     out.clip = vec4<f32>(p.x / g.viewport.x * 2.0 - 1.0, 1.0 - p.y / g.viewport.y * 2.0, 0.0, 1.0);
-    out.cell = corner * vec2<f32>(5.0, 7.0);
-    out.glyph = glyph;
-    out.color = vec4<f32>(srgb_to_linear(color.rgb), color.a);
+    out.cell = corner * cells;
+    out.glyphs = item.glyphs;
+    out.count = count;
+    out.color = unpack4x8unorm(item.color);
     return out;
 }
 
 @fragment
-fn fs_glyph(in: GlyphOut) -> @location(0) vec4<f32> {
-    if (in.glyph == 0xffffffffu) {
-        return in.color;
-    }
-    let texel = vec2<i32>(i32(in.glyph) * 5 + min(i32(in.cell.x), 4), min(i32(in.cell.y), 6));
-    if (textureLoad(font, texel, 0).r < 0.5) {
-        discard;
+fn fs_label(in: LabelOut) -> @location(0) vec4<f32> {
+    let t = in.cell - vec2<f32>(LABEL_PAD);
+    let i = i32(floor(t.x / 6.0));
+    let col = i32(floor(t.x)) - 6 * i;
+    let row = i32(floor(t.y));
+    if (t.x >= 0.0 && t.y >= 0.0 && i < i32(in.count) && col < 5 && row < 7) {
+        // glyph indices are packed 4 bits each, 8 per word
+        let word = select(in.glyphs.x, in.glyphs.y, i >= 8);
+        let glyph = (word >> (4u * u32(i % 8))) & 15u;
+        if (textureLoad(font, vec2<i32>(i32(glyph) * 5 + col, row), 0).r > 0.5) {
+            return vec4<f32>(1.0, 1.0, 1.0, 1.0);
+        }
     }
     return in.color;
 }

@@ -86,12 +86,12 @@ pub fn class_color(class: &str) -> [u8; 4] {
     }
 }
 
-/// Overlay colours (sRGB with alpha).
-const RADAR_COLOR: [u8; 4] = [255, 70, 60, 70];
-const VELODYNE_COLOR: [u8; 4] = [80, 200, 255, 55];
-const WIFI_COLOR: [u8; 4] = [170, 120, 255, 40];
+/// Overlay fill colours (sRGB with the fill's alpha at the centre; the rim is drawn at 0.7).
+const RADAR_COLOR: [u8; 4] = [255, 70, 60, 72];
+const VELODYNE_COLOR: [u8; 4] = [80, 200, 255, 40];
+const WIFI_COLOR: [u8; 4] = [170, 120, 255, 32];
 
-/// Instance of the vehicle pipeline.
+/// One vehicle as the vehicle shader reads it (`Vehicle` in shaders.wgsl).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct VehicleInstance {
@@ -107,7 +107,7 @@ pub(crate) struct VehicleInstance {
     pub real: u32,
 }
 
-/// Instance of the overlay pipeline: a disc sector around a vehicle.
+/// A disc sector around a vehicle as the sector shader reads it (`Sector` in shaders.wgsl).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct SectorInstance {
@@ -121,46 +121,93 @@ pub(crate) struct SectorInstance {
     pub half_angle: f32,
     /// sRGB colour with alpha.
     pub color: [u8; 4],
+    /// Padding to the 8-byte alignment of the shader's struct.
+    pub pad: u32,
 }
 
-/// Instance of the text pipeline: a glyph (or a label's backing box) in pixels next to an anchor.
+/// One vehicle id in a backing box, in pixels next to an anchor (`Label` in shaders.wgsl).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-pub(crate) struct GlyphInstance {
+pub(crate) struct LabelInstance {
     /// Anchor relative to the view centre [m].
     pub anchor: [f32; 2],
-    /// Top-left corner relative to the anchor's pixel [px], y down.
+    /// Top-left corner of the box relative to the anchor's pixel [px], y down.
     pub offset: [f32; 2],
-    /// Size [px].
-    pub size: [f32; 2],
-    /// Glyph index in the atlas; [`BOX_GLYPH`] for the backing box.
-    pub glyph: u32,
-    /// sRGB colour with alpha.
+    /// Glyph indices, 4 bits each, 8 per word, first character in the lowest bits.
+    pub glyphs: [u32; 2],
+    /// Number of characters (at most 11: `-2147483648`).
+    pub count: u32,
+    /// Box colour, sRGB with alpha.
     pub color: [u8; 4],
 }
 
-/// Glyph value of a label's backing box.
-pub(crate) const BOX_GLYPH: u32 = u32::MAX;
-/// Screen pixels per font pixel: 5x7 glyphs become 10x14 px.
+/// Screen pixels per font pixel: 5x7 glyphs become 10x14 px (`TEXT_SCALE` in shaders.wgsl).
 pub(crate) const TEXT_SCALE: f32 = 2.0;
+/// Padding around a label's text [font px] (`LABEL_PAD` in shaders.wgsl).
+pub(crate) const LABEL_PAD: f32 = 1.0;
+
+/// Side of a cell of the label occupancy grid [px].
+const LABEL_CELL: u32 = 8;
+
+/// Which cells of the image are covered by a label already (one bit per 8x8 px cell).
+#[derive(Debug, Default)]
+struct LabelGrid {
+    cols: u32,
+    rows: u32,
+    bits: Vec<u64>,
+}
+
+impl LabelGrid {
+    fn reset(&mut self, width: u32, height: u32) {
+        self.cols = width.div_ceil(LABEL_CELL);
+        self.rows = height.div_ceil(LABEL_CELL);
+        self.bits.clear();
+        self.bits.resize((self.cols * self.rows).div_ceil(64) as usize, 0);
+    }
+
+    /// Claim the cells under the box `x0..x1`, `y0..y1` [px] unless one is taken; `false` if
+    /// the box overlaps an earlier label. Parts outside the image are free.
+    fn claim(&mut self, x0: f32, y0: f32, x1: f32, y1: f32) -> bool {
+        let (w, h) = ((self.cols * LABEL_CELL) as f32, (self.rows * LABEL_CELL) as f32);
+        if x1 <= 0.0 || y1 <= 0.0 || x0 >= w || y0 >= h {
+            return true;
+        }
+        let cell = |v: f32, n: u32| ((v / LABEL_CELL as f32).floor().max(0.0) as u32).min(n);
+        let (c0, c1) = (cell(x0, self.cols), cell(x1, self.cols.saturating_sub(1)) + 1);
+        let (r0, r1) = (cell(y0, self.rows), cell(y1, self.rows.saturating_sub(1)) + 1);
+        let (cols, rows) = (self.cols, self.rows);
+        let cells = move || (r0..r1.min(rows)).flat_map(move |r| (c0..c1.min(cols)).map(move |c| (r * cols + c) as usize));
+        if cells().any(|i| self.bits[i / 64] & (1 << (i % 64)) != 0) {
+            return false;
+        }
+        for i in cells() {
+            self.bits[i / 64] |= 1 << (i % 64);
+        }
+        true
+    }
+}
 
 /// Per-frame instance lists, reused between frames so steady-state frames allocate nothing.
 #[derive(Debug, Default)]
 pub(crate) struct FrameBatches {
     pub vehicles: Vec<VehicleInstance>,
     pub sectors: Vec<SectorInstance>,
-    pub glyphs: Vec<GlyphInstance>,
+    pub labels: Vec<LabelInstance>,
     pub routes: Vec<GroundVertex>,
+    grid: LabelGrid,
 }
 
 impl FrameBatches {
     /// Fill the lists for `sprites` seen through `view`. Sprites with non-finite poses or sizes are
-    /// skipped (and counted in the return value) rather than drawn somewhere random.
+    /// skipped (and counted in the return value) rather than drawn somewhere random. An id label
+    /// that would overlap an earlier sprite's label is left out (an unreadable pile of labels
+    /// costs most of a crowded frame), so list the vehicles whose ids matter most first.
     pub fn build(&mut self, view: &BirdseyeView, sprites: &[VehicleSprite]) -> usize {
         self.vehicles.clear();
         self.sectors.clear();
-        self.glyphs.clear();
+        self.labels.clear();
         self.routes.clear();
+        self.grid.reset(view.width, view.height);
         let mut skipped = 0;
         let mut digits = [0u32; 12];
         for s in sprites {
@@ -181,7 +228,7 @@ impl FrameBatches {
             }
             let mut sector = |range: Option<f64>, half: f64, color: [u8; 4]| {
                 if let Some(r) = range.filter(|r| r.is_finite() && *r > 0.0) {
-                    self.sectors.push(SectorInstance { pos, dir, range: r as f32, half_angle: half as f32, color });
+                    self.sectors.push(SectorInstance { pos, dir, range: r as f32, half_angle: half as f32, color, pad: 0 });
                 }
             };
             sector(s.overlays.wifi, std::f64::consts::PI, WIFI_COLOR);
@@ -199,28 +246,23 @@ impl FrameBatches {
             });
             // The id, centred above the vehicle's screen footprint.
             let n = format_id(s.id, &mut digits);
-            let advance = (font::GLYPH_W + 1) as f32 * TEXT_SCALE;
-            let text_w = n as f32 * advance - TEXT_SCALE;
-            let pad = TEXT_SCALE * 2.0;
-            let reach_px = (0.5 * s.length.hypot(s.width) * view.pixels_per_meter.max(view.pixels_per_meter_y())) as f32;
-            let box_h = font::GLYPH_H as f32 * TEXT_SCALE + 2.0 * pad;
-            let top = -(reach_px + 4.0 + box_h);
-            let left = -(0.5 * text_w + pad).round();
-            let label_color = if s.id >= 0 { [20, 20, 24, 200] } else { [40, 40, 90, 200] };
-            self.glyphs.push(GlyphInstance {
-                anchor: pos,
-                offset: [left, top.round()],
-                size: [text_w + 2.0 * pad, box_h],
-                glyph: BOX_GLYPH,
-                color: label_color,
-            });
+            let mut glyphs = [0u32; 2];
             for (i, &g) in digits[..n].iter().enumerate() {
-                self.glyphs.push(GlyphInstance {
+                glyphs[i / 8] |= g << (4 * (i % 8));
+            }
+            let box_w = ((n * (font::GLYPH_W as usize + 1)) as f32 - 1.0 + 2.0 * LABEL_PAD) * TEXT_SCALE;
+            let box_h = (font::GLYPH_H as f32 + 2.0 * LABEL_PAD) * TEXT_SCALE;
+            let reach_px = (0.5 * s.length.hypot(s.width) * view.pixels_per_meter.max(view.pixels_per_meter_y())) as f32;
+            let offset = [-(0.5 * box_w).round(), -(reach_px + 3.0 + box_h).round()];
+            let at = view.world_to_pixel(s.position);
+            let (x0, y0) = (at.x.floor() as f32 + offset[0], at.y.floor() as f32 + offset[1]);
+            if self.grid.claim(x0, y0, x0 + box_w, y0 + box_h) {
+                self.labels.push(LabelInstance {
                     anchor: pos,
-                    offset: [left + pad + i as f32 * advance, top.round() + pad],
-                    size: [font::GLYPH_W as f32 * TEXT_SCALE, font::GLYPH_H as f32 * TEXT_SCALE],
-                    glyph: g,
-                    color: [255, 255, 255, 255],
+                    offset,
+                    glyphs,
+                    count: n as u32,
+                    color: if s.id >= 0 { [20, 20, 24, 210] } else { [36, 36, 100, 210] },
                 });
             }
         }
@@ -266,6 +308,21 @@ mod tests {
         assert_eq!(n, 11);
         let n = format_id(0, &mut d);
         assert_eq!(&d[..n], &[0]);
+    }
+
+    #[test]
+    fn overlapping_labels_are_left_out_and_separate_ones_kept() {
+        let mut g = LabelGrid::default();
+        g.reset(100, 50);
+        assert!(g.claim(0.0, 0.0, 30.0, 10.0));
+        assert!(!g.claim(20.0, 5.0, 50.0, 15.0), "overlaps the first");
+        assert!(g.claim(40.0, 0.0, 60.0, 10.0), "separate");
+        // Partly or wholly outside the image is allowed.
+        assert!(g.claim(-30.0, 30.0, 5.0, 40.0));
+        assert!(g.claim(500.0, 500.0, 600.0, 520.0));
+        assert!(g.claim(90.0, 45.0, 120.0, 60.0));
+        assert!(g.claim(-30.0, -30.0, -1.0, -1.0));
+        assert!(g.claim(0.0, 0.0, 4.0, 4.0) == false, "the first label still holds cell (0, 0)");
     }
 
     #[test]

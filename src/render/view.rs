@@ -79,7 +79,7 @@ impl BirdseyeView {
     /// rectangle's aspect ratio differs from the image's, the pixels are not square on the floor
     /// (`aspect != 1`).
     pub fn projector(width: u32, height: u32, left: f64, right: f64, down: f64, up: f64) -> Result<Self, RenderError> {
-        if !(right > left && up > down) || ![left, right, down, up].iter().all(|v| v.is_finite()) {
+        if !(right > left && up > down && [left, right, down, up].iter().all(|v| v.is_finite())) {
             return Err(RenderError::InvalidView(format!(
                 "projector rectangle left={left} right={right} down={down} up={up} [m] must have right > left and up > down"
             )));
