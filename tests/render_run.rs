@@ -78,4 +78,13 @@ fn recording_writes_frames_and_gif_without_changing_results() {
         assert!(diff > 30, "vehicle {id} at {p} (pixel {x},{y}) is not drawn: env {e:?} frame {f:?}");
     }
     assert_eq!(env.get_pixel(2, 2), last.get_pixel(2, 2), "the corner is bare ground in both");
+
+    // The GIF stores only what changed between frames; composed, its last frame is the last PNG
+    // frame up to palette quantisation (256 colours per frame): mean channel error below 6.
+    let composed = gif_frames[9].buffer();
+    let total: u64 = composed.pixels().zip(last.pixels()).map(|(a, b)| {
+        a.0.iter().zip(b.0.iter()).take(3).map(|(x, y)| x.abs_diff(*y) as u64).sum::<u64>()
+    }).sum();
+    let mean = total as f64 / (640.0 * 360.0 * 3.0);
+    assert!(mean < 6.0, "GIF frame 10 differs from the PNG frame by {mean} per channel on average");
 }

@@ -9,7 +9,6 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 use bevy_ecs::prelude::{Entity, World};
-use image::codecs::gif::{GifEncoder, Repeat};
 
 use super::{BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, VehicleSprite};
 use super::output::frame_path;
@@ -44,8 +43,11 @@ pub struct FrameRecorder {
     renderer: Renderer,
     layer: EnvironmentLayer,
     frames_dir: Option<PathBuf>,
-    gif: Option<(PathBuf, GifEncoder<BufWriter<File>>)>,
-    delay: image::Delay,
+    gif: Option<(PathBuf, gif::Encoder<BufWriter<File>>)>,
+    /// The last frame written to the GIF: later frames store only what changed since.
+    previous: Option<image::RgbaImage>,
+    /// Frame delay [1/100 s].
+    delay: u16,
     sensor_ranges: bool,
     sprites: Vec<VehicleSprite>,
     frames: u64,
@@ -71,20 +73,21 @@ impl FrameRecorder {
         let gif = match &opts.gif {
             Some(path) => {
                 let file = File::create(path).map_err(|e| write_error(path, e))?;
-                // Speed 10 of 1..30: good colours at a tolerable encoding time.
-                let mut encoder = GifEncoder::new_with_speed(BufWriter::new(file), 10);
-                encoder.set_repeat(Repeat::Infinite).map_err(|e| write_error(path, e))?;
+                let (w, h) = (gif_side(opts.width, path)?, gif_side(opts.height, path)?);
+                let mut encoder = gif::Encoder::new(BufWriter::new(file), w, h, &[]).map_err(|e| write_error(path, e))?;
+                encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(path, e))?;
                 Some((path.clone(), encoder))
             }
             None => None,
         };
-        // GIF delays are in hundredths of a second; 10 ms is the shortest most viewers honour.
-        let delay = image::Delay::from_numer_denom_ms((1000.0 / opts.frame_rate).round().max(10.0) as u32, 1);
+        // GIF delays are in hundredths of a second; 2 is the shortest most viewers honour.
+        let delay = (100.0 / opts.frame_rate).round().clamp(2.0, f64::from(u16::MAX)) as u16;
         Ok(FrameRecorder {
             renderer,
             layer,
             frames_dir: opts.frames_dir.clone(),
             gif,
+            previous: None,
             delay,
             sensor_ranges: opts.sensor_ranges,
             sprites: Vec::new(),
@@ -101,9 +104,9 @@ impl FrameRecorder {
             super::write_image(&path, &image)?;
         }
         if let Some((path, encoder)) = &mut self.gif {
-            encoder
-                .encode_frame(image::Frame::from_parts(image, 0, 0, self.delay))
-                .map_err(|e| write_error(path, e))?;
+            let frame = gif_frame(self.previous.as_ref(), &image, self.delay);
+            encoder.write_frame(&frame).map_err(|e| write_error(path, e))?;
+            self.previous = Some(image);
         }
         self.frames += 1;
         Ok(())
@@ -113,6 +116,46 @@ impl FrameRecorder {
     pub fn frames(&self) -> u64 {
         self.frames
     }
+}
+
+fn gif_side(px: u32, path: &Path) -> Result<u16, RenderError> {
+    u16::try_from(px).map_err(|_| write_error(path, format!("{px} px is too large for a GIF (at most 65535)")))
+}
+
+/// A GIF frame holding only what changed since `prev` (the whole image for the first frame):
+/// the bounding box of the changed pixels, with unchanged pixels inside it transparent, kept on
+/// screen by the `Keep` disposal. The static ground then costs nothing after the first frame,
+/// which makes GIFs tens of times smaller and faster to write.
+fn gif_frame(prev: Option<&image::RgbaImage>, next: &image::RgbaImage, delay: u16) -> gif::Frame<'static> {
+    let (w, h) = next.dimensions();
+    let (mut x0, mut y0, mut x1, mut y1) = (0, 0, w - 1, h - 1);
+    if let Some(prev) = prev {
+        (x0, y0, x1, y1) = (w, h, 0, 0);
+        for (x, y, p) in next.enumerate_pixels() {
+            if prev.get_pixel(x, y) != p {
+                (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+            }
+        }
+        if x0 > x1 {
+            // Nothing changed: one transparent pixel keeps the frame's place in time.
+            (x0, y0, x1, y1) = (0, 0, 0, 0);
+        }
+    }
+    let mut sub: Vec<u8> = Vec::with_capacity(((x1 - x0 + 1) * (y1 - y0 + 1) * 4) as usize);
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let p = next.get_pixel(x, y);
+            let same = prev.is_some_and(|prev| prev.get_pixel(x, y) == p);
+            sub.extend_from_slice(if same { &[0, 0, 0, 0] } else { &p.0 });
+        }
+    }
+    // Speed 10 of 1..30: good colours at a tolerable encoding time.
+    let mut frame = gif::Frame::from_rgba_speed((x1 - x0 + 1) as u16, (y1 - y0 + 1) as u16, &mut sub, 10);
+    frame.left = x0 as u16;
+    frame.top = y0 as u16;
+    frame.delay = delay;
+    frame.dispose = gif::DisposalMethod::Keep;
+    frame
 }
 
 /// The world's vehicles as sprites, sorted by id (so frames do not depend on entity order).
