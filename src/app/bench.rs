@@ -129,3 +129,46 @@ impl BenchWorld {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use bevy_ecs::prelude::With;
+
+    use super::*;
+    use crate::sim::Parallelism;
+    use crate::vehicles::PathFollower;
+    use crate::world::{ControlCommand, SensorReadings};
+
+    /// Everything the heavy systems write, per vehicle, in id order, as exact bits.
+    fn fingerprint(parallelism: Parallelism) -> Vec<(i32, Vec<u64>)> {
+        let mut b = BenchWorld { vehicles: 600, ..Default::default() }.builder();
+        b.insert_resource(parallelism);
+        let mut sim = b.build();
+        sim.run_for(2.0);
+        let world = sim.world_mut();
+        let mut query = world.query_filtered::<(&VehicleId, &VehicleState, &ControlCommand, &SensorReadings, &PathFollower), With<Mailbox>>();
+        let mut rows: Vec<(i32, Vec<u64>)> = query
+            .iter(world)
+            .map(|(id, s, c, r, f)| {
+                let mut bits = vec![s.position.x, s.position.y, s.yaw, s.velocity.x, s.velocity.y, c.steering, c.speed, f.s];
+                for d in &r.0 {
+                    bits.extend([d.id.0 as f64, d.position.x, d.position.y, d.velocity.x, d.velocity.y]);
+                }
+                (id.0, bits.into_iter().map(f64::to_bits).collect())
+            })
+            .collect();
+        rows.sort_by_key(|r| r.0);
+        rows
+    }
+
+    #[test]
+    fn results_do_not_depend_on_the_thread_count() {
+        let single = fingerprint(Parallelism::single());
+        assert_eq!(single.len(), 600);
+        assert!(single.iter().any(|(_, bits)| bits.len() > 8), "some vehicle must detect others");
+        for threads in [2, 3, 7] {
+            let split = fingerprint(Parallelism { threads, min_vehicles: 0 });
+            assert!(single == split, "{threads} threads changed the results");
+        }
+    }
+}
