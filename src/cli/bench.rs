@@ -48,7 +48,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.duration.is_finite() && args.duration > 0.0, "--duration must be a positive number of seconds, got {}", args.duration);
     let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
     let setup = std::time::Instant::now();
-    let mut builder = world.builder();
+    let mut builder = world.builder()?;
     if let Some(threads) = args.threads {
         anyhow::ensure!(threads > 0, "--threads must be at least 1, got 0");
         builder.insert_resource(Parallelism { threads, ..Default::default() });
