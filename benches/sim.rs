@@ -1,5 +1,5 @@
 //! Criterion benches of each simulation module alone on the benchmark world (1,000 and 10,000
-//! vehicles on ring roads): dynamics, sensors, network, wifi, path following.
+//! vehicles on a generated ring highway): dynamics, sensors, network, wifi, path following.
 //! Run with `cargo bench --bench sim`; `smlworld bench` measures everything together.
 
 use std::sync::Arc;
@@ -25,7 +25,7 @@ fn sim_with(n: usize, plugin: impl Plugin) -> Sim {
     let world = BenchWorld { vehicles: n, ..Default::default() };
     let mut b = SimBuilder::new();
     b.add_plugin(plugin);
-    world.spawn(&mut b);
+    world.spawn(&mut b).expect("the bench world builds");
     let mut sim = b.build();
     sim.run_for(1.0); // warm the buffers
     sim

@@ -1,7 +1,7 @@
 //! `smlworld bench`: the whole simulation with N vehicles, every module on; prints JSON.
 
 use smlworld::app::bench::BenchWorld;
-use smlworld::sim::Dynamics;
+use smlworld::sim::{Dynamics, Parallelism};
 
 /// Arguments of `smlworld bench`.
 #[derive(Debug, clap::Args)]
@@ -12,6 +12,9 @@ pub struct BenchArgs {
     /// Sim time to run [s].
     #[arg(long, default_value_t = 10.0)]
     pub duration: f64,
+    /// Threads of the per-vehicle systems (default: the machine's cores, at most 4).
+    #[arg(long)]
+    pub threads: Option<usize>,
 }
 
 /// What `smlworld bench` prints.
@@ -45,7 +48,12 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.duration.is_finite() && args.duration > 0.0, "--duration must be a positive number of seconds, got {}", args.duration);
     let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
     let setup = std::time::Instant::now();
-    let mut sim = world.builder().build();
+    let mut builder = world.builder()?;
+    if let Some(threads) = args.threads {
+        anyhow::ensure!(threads > 0, "--threads must be at least 1, got 0");
+        builder.insert_resource(Parallelism { threads, ..Default::default() });
+    }
+    let mut sim = builder.build();
     tracing::debug!("set up {} vehicles in {:.2} s", args.vehicles, setup.elapsed().as_secs_f64());
     let wall = std::time::Instant::now();
     sim.run_for(args.duration);

@@ -5,12 +5,12 @@
 //! an exact circle of radius L / tan φ whatever the step. The acceleration model's speed follows
 //! the exact solution of v̇ = (u − c v) / m over the step and stops at zero when braking.
 
-use bevy_ecs::prelude::{Query, Res};
+use bevy_ecs::prelude::{Local, Query, Res};
 
 use crate::app::{Plugin, SimBuilder};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, VehicleState};
 
-use super::{Dynamics, SimClock};
+use super::{Dynamics, Parallelism, SimClock};
 
 /// Wrap an angle to (−π, π] [rad].
 fn wrap_angle(a: f64) -> f64 {
@@ -98,24 +98,39 @@ pub fn step_acceleration_unicycle(
     advance_arc(state, distance.max(0.0), curvature, v1);
 }
 
-/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step.
+/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step, in contiguous
+/// chunks over [`Parallelism::threads`] threads (each vehicle's step reads only itself).
 pub fn integrate_kinematic_unicycles(
     clock: Res<SimClock>,
+    parallelism: Res<Parallelism>,
     mut vehicles: Query<(&mut VehicleState, &ControlCommand, &KinematicUnicycle)>,
+    mut scratch: Local<Vec<()>>,
 ) {
-    for (mut state, command, params) in &mut vehicles {
-        step_kinematic_unicycle(&mut state, command, params, clock.dt);
-    }
+    let dt = clock.dt;
+    let mut items: Vec<_> = vehicles.iter_mut().collect();
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
+        for (state, command, params) in chunk.iter_mut() {
+            step_kinematic_unicycle(state, command, params, dt);
+        }
+    });
 }
 
-/// Integrate every vehicle with an [`AccelerationUnicycle`] over the dynamics step.
+/// Integrate every vehicle with an [`AccelerationUnicycle`] over the dynamics step, in
+/// contiguous chunks over [`Parallelism::threads`] threads (each vehicle's step reads only
+/// itself).
 pub fn integrate_acceleration_unicycles(
     clock: Res<SimClock>,
+    parallelism: Res<Parallelism>,
     mut vehicles: Query<(&mut VehicleState, &ControlCommand, &AccelerationUnicycle)>,
+    mut scratch: Local<Vec<()>>,
 ) {
-    for (mut state, command, params) in &mut vehicles {
-        step_acceleration_unicycle(&mut state, command, params, clock.dt);
-    }
+    let dt = clock.dt;
+    let mut items: Vec<_> = vehicles.iter_mut().collect();
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
+        for (state, command, params) in chunk.iter_mut() {
+            step_acceleration_unicycle(state, command, params, dt);
+        }
+    });
 }
 
 /// Both unicycle models in the [`Dynamics`] schedule. Vehicles without a model component (real
@@ -125,6 +140,7 @@ pub struct DynamicsPlugin;
 
 impl Plugin for DynamicsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
+        sim.world_mut().init_resource::<Parallelism>();
         sim.add_systems(Dynamics, (integrate_kinematic_unicycles, integrate_acceleration_unicycles));
     }
 }

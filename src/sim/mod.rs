@@ -8,12 +8,14 @@
 
 pub mod dynamics;
 pub mod grid;
+pub mod parallel;
 mod schedule;
 pub mod sensors;
 pub mod v2v;
 
 pub use dynamics::{DynamicsPlugin, step_acceleration_unicycle, step_kinematic_unicycle};
 pub use grid::{GridEntry, SpatialGrid};
+pub use parallel::Parallelism;
 pub use schedule::{Control, ControlEpoch, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, Wifi};
 pub use sensors::{SensorsPlugin, in_radar_cone};
 pub use v2v::{V2vConfig, V2vPlugin, V2vStats};

@@ -5,10 +5,10 @@
 //! of curvature. Progress along the path is tracked with [`crate::map::Path::project_near`]
 //! around the last projection, O(1) per tick.
 
-use bevy_ecs::prelude::{Component, Query, Res};
+use bevy_ecs::prelude::{Component, Local, Mut, Query, Res};
 
 use crate::app::{Plugin, SimBuilder};
-use crate::sim::{Control, SimClock};
+use crate::sim::{Control, Parallelism, SimClock};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Route, VehicleState};
 
 /// Parameters of the path follower.
@@ -59,20 +59,20 @@ impl PathFollower {
     }
 }
 
-/// Pure pursuit + speed control for every vehicle with a [`Route`] and a [`PathFollower`].
-#[allow(clippy::type_complexity)]
-pub fn follow_paths(
-    clock: Res<SimClock>,
-    mut vehicles: Query<(
-        &VehicleState,
-        &Route,
-        &mut PathFollower,
-        &mut ControlCommand,
-        Option<&KinematicUnicycle>,
-        Option<&AccelerationUnicycle>,
-    )>,
-) {
-    for (state, route, mut follower, mut command, kinematic, acceleration) in &mut vehicles {
+/// One path-following vehicle as the query hands it out.
+type FollowingItem<'a> = (
+    &'a VehicleState,
+    &'a Route,
+    Mut<'a, PathFollower>,
+    Mut<'a, ControlCommand>,
+    Option<&'a KinematicUnicycle>,
+    Option<&'a AccelerationUnicycle>,
+);
+
+/// Steer a contiguous chunk of vehicles; `dt` is the control step [s].
+fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
+    for (state, route, follower, command, kinematic, acceleration) in chunk.iter_mut() {
+        let (state, kinematic, acceleration) = (*state, *kinematic, *acceleration);
         let path = &route.0;
         if path.points.len() < 2 {
             continue;
@@ -81,8 +81,8 @@ pub fn follow_paths(
         let projection = if follower.tracking {
             // Since the last tick the vehicle moved about |v| dt [m]: search that far around the
             // predicted arc length, plus a segment either side.
-            let window = speed.abs() * clock.dt + path.spacing();
-            path.project_near(state.position, follower.s + speed * clock.dt, window)
+            let window = speed.abs() * dt + path.spacing();
+            path.project_near(state.position, follower.s + speed * dt, window)
         } else {
             path.project(state.position)
         };
@@ -120,12 +120,36 @@ pub fn follow_paths(
     }
 }
 
+/// Pure pursuit + speed control for every vehicle with a [`Route`] and a [`PathFollower`].
+///
+/// The vehicles are cut into contiguous chunks over [`Parallelism::threads`] threads; each
+/// vehicle's command depends only on its own components, so the split never changes it.
+#[allow(clippy::type_complexity)]
+pub fn follow_paths(
+    clock: Res<SimClock>,
+    parallelism: Res<Parallelism>,
+    mut vehicles: Query<(
+        &VehicleState,
+        &Route,
+        &mut PathFollower,
+        &mut ControlCommand,
+        Option<&KinematicUnicycle>,
+        Option<&AccelerationUnicycle>,
+    )>,
+    mut scratch: Local<Vec<()>>,
+) {
+    let dt = clock.dt;
+    let mut items: Vec<FollowingItem<'_>> = vehicles.iter_mut().collect();
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| follow_chunk(chunk, dt));
+}
+
 /// The path follower in the [`Control`] schedule.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct PathFollowingPlugin;
 
 impl Plugin for PathFollowingPlugin {
     fn build(&self, sim: &mut SimBuilder) {
+        sim.world_mut().init_resource::<Parallelism>();
         sim.add_systems(Control, follow_paths);
     }
 }
