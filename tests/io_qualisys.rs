@@ -3,6 +3,9 @@
 //! hand-written server, loopback with the mock server, the `mock-mocap` CLI, and a flood of bad
 //! packets over TCP.
 
+mod common;
+
+use common::Rng;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -461,20 +464,6 @@ fn mock_mocap_cli_reports_a_missing_script() {
 
 // ---------- flood of bad packets over TCP ----------
 
-/// xorshift64*: a small deterministic generator for the garbage.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-}
 
 /// A packet that is framed correctly but wrong inside (the stream stays in sync).
 fn bad_in_sync_packet(rng: &mut Rng) -> Vec<u8> {

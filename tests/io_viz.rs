@@ -2,6 +2,9 @@
 //! 2015 Python receiver read it, hand-built datagrams, the split extension with thousands of
 //! vehicles, stale counters, UDP loopback and a flood of garbage.
 
+mod common;
+
+use common::Rng;
 use std::collections::BTreeMap;
 use std::net::UdpSocket;
 use std::time::Duration;
@@ -315,20 +318,6 @@ fn send_if_due_keeps_the_rate() {
     assert!(!sender.send_if_due(i64::MAX - 5, &v).expect("not due yet"));
 }
 
-/// xorshift64*: a small deterministic generator for the garbage.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-}
 
 fn garbage(rng: &mut Rng) -> Vec<u8> {
     const ALPHABET: &[u8] = b"0123456789#!;=.-+eEaxyidwlsn_NnIf ";

@@ -28,3 +28,21 @@ pub fn shared(rel: &str) -> PathBuf {
     assert!(p.is_file(), "missing test map {}", p.display());
     p
 }
+
+/// xorshift64*: a small deterministic generator for garbage input in the fuzz-style tests.
+pub struct Rng(pub u64);
+
+impl Rng {
+    /// The next 64 random bits.
+    pub fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+
+    /// A number in `0..n`.
+    pub fn below(&mut self, n: u64) -> u64 {
+        self.next() % n
+    }
+}
