@@ -6,8 +6,8 @@
 use std::hint::black_box;
 use std::path::PathBuf;
 
-use criterion::{criterion_group, criterion_main, Criterion, SamplingMode, Throughput};
-use smlworld::map::generate::{grid_junction_tag, write_grid_city, Arm, GridParams};
+use criterion::{Criterion, SamplingMode, Throughput, criterion_group, criterion_main};
+use smlworld::map::generate::{Arm, GridParams, grid_junction_tag, write_grid_city};
 use smlworld::map::{LaneletMap, RouteOptions};
 
 /// Blocks per side of the benchmark grid: about 35 MB and 16 000 lanelets.

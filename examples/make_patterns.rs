@@ -63,7 +63,11 @@ fn scale(c: [f64; 3], k: f64) -> [f64; 3] {
 }
 
 fn to_rgb(c: [f64; 3]) -> Rgb<u8> {
-    Rgb([c[0].round().clamp(0.0, 255.0) as u8, c[1].round().clamp(0.0, 255.0) as u8, c[2].round().clamp(0.0, 255.0) as u8])
+    Rgb([
+        c[0].round().clamp(0.0, 255.0) as u8,
+        c[1].round().clamp(0.0, 255.0) as u8,
+        c[2].round().clamp(0.0, 255.0) as u8,
+    ])
 }
 
 fn tile(f: impl Fn(f64, f64) -> [f64; 3]) -> RgbImage {

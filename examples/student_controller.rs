@@ -88,7 +88,11 @@ pub fn main() {
     let mut sim = demo();
     for _ in 0..8 {
         sim.run_for(10.0);
-        let line: Vec<String> = sim.states().iter().map(|(id, s)| format!("{id}: x {:6.1} m, v {:4.1} m/s", s.position.x, s.speed())).collect();
+        let line: Vec<String> = sim
+            .states()
+            .iter()
+            .map(|(id, s)| format!("{id}: x {:6.1} m, v {:4.1} m/s", s.position.x, s.speed()))
+            .collect();
         println!("t {:5.1} s | {}", sim.now().as_secs(), line.join(" | "));
     }
 }

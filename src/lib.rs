@@ -27,8 +27,8 @@ pub mod prelude {
     pub use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
     pub use crate::world::{
         AccelerationUnicycle, Channel, ControlCommand, Detection, KinematicUnicycle, Mailbox, Message, Omniscient,
-        Payload, Radar, Route, SensorReadings, SensorSet, SimTime, VehicleClass, VehicleId, VehicleModel,
-        VehicleSize, VehicleSpec, VehicleState, Vehicles, Velodyne,
+        Payload, Radar, Route, SensorReadings, SensorSet, SimTime, VehicleClass, VehicleId, VehicleModel, VehicleSize,
+        VehicleSpec, VehicleState, Vehicles, Velodyne,
     };
     pub use glam::DVec2;
 }

@@ -47,7 +47,11 @@ fn loop_and_route_json() {
     assert!((len - 349.2).abs() < 0.5, "{len}");
     assert_eq!(v["lanelets"].as_array().unwrap().len(), 4);
     let points = v["points"].as_array().unwrap();
-    assert!((points.len() as f64 - len * 5.0).abs() <= 2.0, "5 points per metre by default: {} points for {len} m", points.len());
+    assert!(
+        (points.len() as f64 - len * 5.0).abs() <= 2.0,
+        "5 points per metre by default: {} points for {len} m",
+        points.len()
+    );
     assert_eq!(points[0].as_array().unwrap().len(), 2);
 
     // --points-per-meter 2 and a negative node id as a plain argument.
@@ -68,7 +72,10 @@ fn errors_are_messages_not_panics() {
     for (args, needle) in [
         (vec!["map", "route", m, "--from", "-142", "--to", "-999"], "unknown node id -999"),
         (vec!["map", "loop", m, "--tag", "nowhere"], "unknown tag `nowhere`"),
-        (vec!["map", "route", m, "--from-tag", "right_lane_node", "--to-tag", "left_lane_node"], "no route from tag `right_lane_node` to tag `left_lane_node`"),
+        (
+            vec!["map", "route", m, "--from-tag", "right_lane_node", "--to-tag", "left_lane_node"],
+            "no route from tag `right_lane_node` to tag `left_lane_node`",
+        ),
         (vec!["map", "info", "/nonexistent/map.osm"], "/nonexistent/map.osm"),
         (vec!["map", "loop", m, "--tag", "right_lane_node", "--points-per-meter", "-1"], "points_per_meter"),
     ] {

@@ -464,7 +464,6 @@ fn mock_mocap_cli_reports_a_missing_script() {
 
 // ---------- flood of bad packets over TCP ----------
 
-
 /// A packet that is framed correctly but wrong inside (the stream stays in sync).
 fn bad_in_sync_packet(rng: &mut Rng) -> Vec<u8> {
     let good = data_payload(1, 1, &[euler_component(&[[1.0; 6], [2.0; 6]])]);

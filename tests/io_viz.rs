@@ -318,7 +318,6 @@ fn send_if_due_keeps_the_rate() {
     assert!(!sender.send_if_due(i64::MAX - 5, &v).expect("not due yet"));
 }
 
-
 fn garbage(rng: &mut Rng) -> Vec<u8> {
     const ALPHABET: &[u8] = b"0123456789#!;=.-+eEaxyidwlsn_NnIf ";
     let valid = "id=1;x=2;y=3;yaw=4;class_name=Car";

@@ -158,14 +158,17 @@ fn a_lost_body_marks_its_vehicle_stale_and_keeps_it() {
     let nan = [f64::NAN; 6];
     let mut bodies = BTreeMap::new();
     // Body 0 stands at (1000, 0) mm for 10 s; body 1 stands at (0, 500) mm and vanishes at 1 s.
-    bodies.insert(0, vec![
-        Keyframe { t_s: 0.0, pose: [1000.0, 0.0, 0.0, 0.0, 0.0, 90.0] },
-        Keyframe { t_s: 10.0, pose: [1000.0, 0.0, 0.0, 0.0, 0.0, 90.0] },
-    ]);
-    bodies.insert(1, vec![
-        Keyframe { t_s: 0.0, pose: [0.0, 500.0, 0.0, 0.0, 0.0, 0.0] },
-        Keyframe { t_s: 1.0, pose: nan },
-    ]);
+    bodies.insert(
+        0,
+        vec![
+            Keyframe { t_s: 0.0, pose: [1000.0, 0.0, 0.0, 0.0, 0.0, 90.0] },
+            Keyframe { t_s: 10.0, pose: [1000.0, 0.0, 0.0, 0.0, 0.0, 90.0] },
+        ],
+    );
+    bodies.insert(
+        1,
+        vec![Keyframe { t_s: 0.0, pose: [0.0, 500.0, 0.0, 0.0, 0.0, 0.0] }, Keyframe { t_s: 1.0, pose: nan }],
+    );
     let server = start_mock(bodies);
     let scenario = Scenario::parse_str(&scenario_text(server.local_addr()), Path::new("stale.toml")).expect("scenario");
     let mut sim = scenario.builder().expect("builder").build();
@@ -198,7 +201,8 @@ fn motion_capture_refuses_real_vehicles_with_a_dynamics_model() {
     let server = start_mock(BTreeMap::from([(0, vec![Keyframe { t_s: 0.0, pose: [0.0; 6] }])]));
     let text = scenario_text(server.local_addr()).replacen("model = { type = \"none\" }\n", "", 1);
     let scenario = Scenario::parse_str(&text, Path::new("bad.toml")).expect("parses");
-    let err = scenario.builder().err().expect("a real vehicle with a model under motion capture is an error").to_string();
+    let err =
+        scenario.builder().err().expect("a real vehicle with a model under motion capture is an error").to_string();
     assert!(err.contains("lab.mocap") && err.contains("real vehicle 0") && err.contains("type = \"none\""), "{err}");
 }
 
@@ -213,7 +217,10 @@ fn bad_lab_settings_are_errors_naming_the_key() {
         ("mocap = { mock = true, colour = 1 }", "colour"),
     ] {
         let text = format!("[lab]\n{lab}\n");
-        let err = Scenario::parse_str(&text, Path::new("lab.toml")).err().unwrap_or_else(|| panic!("{lab} accepted")).to_string();
+        let err = Scenario::parse_str(&text, Path::new("lab.toml"))
+            .err()
+            .unwrap_or_else(|| panic!("{lab} accepted"))
+            .to_string();
         assert!(err.contains(key), "{lab}: {err}");
     }
 }

@@ -67,7 +67,10 @@ fn empty_and_foreign_files() {
 fn bad_ids_and_references() {
     expect_error("bad_id.osm", &["bad_id.osm:3", "`id`", "\"n1\"", "integer"]);
     expect_error("bad_nd_ref.osm", &["bad_nd_ref.osm:6", "way -10", "`ref`", "\"1.5\""]);
-    expect_error("bad_member_type.osm", &["bad_member_type.osm:5", "relation -20", "`type`", "\"area\"", "node, way, relation"]);
+    expect_error(
+        "bad_member_type.osm",
+        &["bad_member_type.osm:5", "relation -20", "`type`", "\"area\"", "node, way, relation"],
+    );
     expect_error("tag_without_key.osm", &["tag_without_key.osm:4", "`k`", "missing"]);
 }
 

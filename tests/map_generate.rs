@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use glam::DVec2;
 
 use smlworld::map::generate::{
-    self, grid_city, intersection, ring_highway, GenerateError, GridParams, IntersectionParams, RingParams,
+    self, GenerateError, GridParams, IntersectionParams, RingParams, grid_city, intersection, ring_highway,
 };
-use smlworld::map::generate::{grid_junction_tag, intersection_end_tag, intersection_start_tag, ring_lane_tag, Arm};
+use smlworld::map::generate::{Arm, grid_junction_tag, intersection_end_tag, intersection_start_tag, ring_lane_tag};
 use smlworld::map::osm::parse_osm;
 use smlworld::map::{LaneletMap, RouteOptions};
 

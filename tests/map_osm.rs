@@ -2,8 +2,8 @@
 
 use std::path::Path;
 
-use smlworld::map::osm::{parse_osm, MemberType};
 use smlworld::map::LaneletMap;
+use smlworld::map::osm::{MemberType, parse_osm};
 
 const JOSM: &str = r#"<?xml version='1.0' encoding='UTF-8'?>
 <osm version='0.6' upload='true' generator='JOSM'>

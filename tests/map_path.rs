@@ -3,8 +3,8 @@
 use std::f64::consts::{PI, TAU};
 
 use glam::DVec2;
-use smlworld::map::routing::{resample, resample_count};
 use smlworld::map::Path;
+use smlworld::map::routing::{resample, resample_count};
 
 fn circle(radius: f64, n: usize) -> Path {
     let points = (0..n).map(|k| DVec2::from_angle(TAU * k as f64 / n as f64) * radius).collect();

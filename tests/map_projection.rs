@@ -47,7 +47,10 @@ fn reverse_inverts_forward_to_a_tenth_of_a_millimetre() {
         for (dx, dy) in [(0.0, 0.0), (123.4, -56.7), (-2500.0, 1800.0), (15000.0, 9000.0)] {
             let (lat, lon) = p.reverse(DVec2::new(dx, dy));
             let back = p.forward(lat, lon);
-            assert!((back - DVec2::new(dx, dy)).length() < 1e-4, "({dx}, {dy}) around ({lat0}, {lon0}) came back as {back}");
+            assert!(
+                (back - DVec2::new(dx, dy)).length() < 1e-4,
+                "({dx}, {dy}) around ({lat0}, {lon0}) came back as {back}"
+            );
         }
     }
 }

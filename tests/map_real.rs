@@ -48,7 +48,11 @@ fn highway_closed_loops_have_the_original_lengths() {
         assert!((spacing - 0.2).abs() < 0.01, "{tag}: spacing {spacing}");
         // The loop starts at the tagged node.
         let node = map.nodes[&map.nodes_with_tag(tag).unwrap()[0]].position;
-        assert!(path.points[0].distance(node) < 2.5, "{tag}: loop starts {} m from its node", path.points[0].distance(node));
+        assert!(
+            path.points[0].distance(node) < 2.5,
+            "{tag}: loop starts {} m from its node",
+            path.points[0].distance(node)
+        );
     }
 }
 
@@ -151,7 +155,12 @@ fn lanelet2_example_loads_all_lanelets_resampled() {
     assert!(d0 <= w0 && d1 <= w1, "route ends {d0} m and {d1} m from its nodes (lane widths {w0}, {w1})");
     for w in route.lanelets.windows(2) {
         let l = map.lanelet(w[0]).unwrap();
-        assert!(l.successors.contains(&w[1]) || l.bidirectional || map.lanelet(w[1]).unwrap().bidirectional, "{} -> {}", w[0], w[1]);
+        assert!(
+            l.successors.contains(&w[1]) || l.bidirectional || map.lanelet(w[1]).unwrap().bidirectional,
+            "{} -> {}",
+            w[0],
+            w[1]
+        );
     }
     for p in route.points.windows(2) {
         assert!(p[0].distance(p[1]) < 0.5, "gap in the route");

@@ -31,7 +31,8 @@ fn a_moving_vehicle_becomes_an_animated_gif_with_one_frame_per_image() {
     let dir = temp_dir("gif");
     let gif = dir.join("run.gif");
     write_gif(&gif, &frames, 10.0).unwrap();
-    let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    let decoder =
+        image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
     let decoded = image::AnimationDecoder::into_frames(decoder).collect_frames().unwrap();
     assert_eq!(decoded.len(), 4);
     // 10 Hz = 100 ms per frame.

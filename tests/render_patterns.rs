@@ -30,10 +30,9 @@ fn built_in_patterns_tile_without_visible_seams() {
         // between neighbouring columns inside the tile, plus a small allowance.
         for vertical in [true, false] {
             let seam = mean_diff(&p.image, (last, last), (0, 0), vertical);
-            let inside: f64 = (1..PATTERN_SIZE)
-                .map(|k| mean_diff(&p.image, (k - 1, k - 1), (k, k), vertical))
-                .sum::<f64>()
-                / f64::from(last);
+            let inside: f64 =
+                (1..PATTERN_SIZE).map(|k| mean_diff(&p.image, (k - 1, k - 1), (k, k), vertical)).sum::<f64>()
+                    / f64::from(last);
             assert!(
                 seam <= 1.5 * inside + 2.0,
                 "{kind:?}: seam difference {seam:.1} vs {inside:.1} inside ({})",

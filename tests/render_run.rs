@@ -42,9 +42,22 @@ fn recording_writes_frames_and_gif_without_changing_results() {
     let gif = rec.join("run.gif");
     smlworld(&["run", scenario, "--duration", "2", "--out", plain.to_str().unwrap()]);
     smlworld(&[
-        "run", scenario, "--duration", "2", "--out", rec.to_str().unwrap(),
-        "--frames", frames.to_str().unwrap(), "--gif", gif.to_str().unwrap(),
-        "--frame-rate", "5", "--width", "640", "--height", "360",
+        "run",
+        scenario,
+        "--duration",
+        "2",
+        "--out",
+        rec.to_str().unwrap(),
+        "--frames",
+        frames.to_str().unwrap(),
+        "--gif",
+        gif.to_str().unwrap(),
+        "--frame-rate",
+        "5",
+        "--width",
+        "640",
+        "--height",
+        "360",
     ]);
     let a = std::fs::read(plain.join("trajectories.csv")).unwrap();
     let b = std::fs::read(rec.join("trajectories.csv")).unwrap();
@@ -55,7 +68,8 @@ fn recording_writes_frames_and_gif_without_changing_results() {
     names.sort();
     assert_eq!(names.len(), 10, "{names:?}");
     assert_eq!(names[0], "frame_000000.png");
-    let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    let decoder =
+        image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
     let gif_frames = image::AnimationDecoder::into_frames(decoder).collect_frames().unwrap();
     assert_eq!(gif_frames.len(), 10);
     assert_eq!(gif_frames[0].buffer().dimensions(), (640, 360));
@@ -64,7 +78,17 @@ fn recording_writes_frames_and_gif_without_changing_results() {
     // corner far from the road equals it (same view: the whole map fitted into 640x360).
     let map_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("maps/highway_ring.osm");
     let env_png = rec.join("env.png");
-    smlworld(&["map", "render", map_path.to_str().unwrap(), "--out", env_png.to_str().unwrap(), "--width", "640", "--height", "360"]);
+    smlworld(&[
+        "map",
+        "render",
+        map_path.to_str().unwrap(),
+        "--out",
+        env_png.to_str().unwrap(),
+        "--width",
+        "640",
+        "--height",
+        "360",
+    ]);
     let env = image::open(&env_png).unwrap().to_rgba8();
     let last = image::open(frames.join("frame_000009.png")).unwrap().to_rgba8();
     let view = BirdseyeView::fit_map(640, 360, &LaneletMap::load(&map_path).unwrap()).unwrap();
@@ -82,9 +106,11 @@ fn recording_writes_frames_and_gif_without_changing_results() {
     // The GIF stores only what changed between frames; composed, its last frame is the last PNG
     // frame up to palette quantisation (256 colours per frame): mean channel error below 6.
     let composed = gif_frames[9].buffer();
-    let total: u64 = composed.pixels().zip(last.pixels()).map(|(a, b)| {
-        a.0.iter().zip(b.0.iter()).take(3).map(|(x, y)| x.abs_diff(*y) as u64).sum::<u64>()
-    }).sum();
+    let total: u64 = composed
+        .pixels()
+        .zip(last.pixels())
+        .map(|(a, b)| a.0.iter().zip(b.0.iter()).take(3).map(|(x, y)| x.abs_diff(*y) as u64).sum::<u64>())
+        .sum();
     let mean = total as f64 / (640.0 * 360.0 * 3.0);
     assert!(mean < 6.0, "GIF frame 10 differs from the PNG frame by {mean} per channel on average");
 }

@@ -19,7 +19,11 @@ fn straight_line_at_constant_speed() {
     // 20 m/s for 2 s heading 30°: 40 m along the heading.
     let yaw = 30f64.to_radians();
     let command = ControlCommand { speed: 20.0, ..Default::default() };
-    let mut sim = one_vehicle(VehicleModel::Kinematic(KinematicUnicycle::default()), VehicleState::new(DVec2::new(1.0, 2.0), yaw, 20.0), command);
+    let mut sim = one_vehicle(
+        VehicleModel::Kinematic(KinematicUnicycle::default()),
+        VehicleState::new(DVec2::new(1.0, 2.0), yaw, 20.0),
+        command,
+    );
     sim.run_for(2.0);
     let s = sim.state(VehicleId(-1)).unwrap();
     let expected = DVec2::new(1.0, 2.0) + 40.0 * DVec2::new(yaw.cos(), yaw.sin());
@@ -56,8 +60,18 @@ fn steering_is_clamped_to_the_model_limit() {
     let params = KinematicUnicycle { wheelbase: 2.8, max_steering: 0.5 };
     let mut over = VehicleState::new(DVec2::ZERO, 0.0, 5.0);
     let mut at_limit = over;
-    step_kinematic_unicycle(&mut over, &ControlCommand { speed: 5.0, steering: 1.2, ..Default::default() }, &params, 0.1);
-    step_kinematic_unicycle(&mut at_limit, &ControlCommand { speed: 5.0, steering: 0.5, ..Default::default() }, &params, 0.1);
+    step_kinematic_unicycle(
+        &mut over,
+        &ControlCommand { speed: 5.0, steering: 1.2, ..Default::default() },
+        &params,
+        0.1,
+    );
+    step_kinematic_unicycle(
+        &mut at_limit,
+        &ControlCommand { speed: 5.0, steering: 0.5, ..Default::default() },
+        &params,
+        0.1,
+    );
     assert_eq!(over, at_limit);
     // Yaw rate v / L · tan(0.5).
     assert!((over.yaw - 5.0 / 2.8 * 0.5f64.tan() * 0.1).abs() < 1e-12);
@@ -125,7 +139,8 @@ fn kinematic_vehicle_in_a_sim_drives_a_circle_too() {
 
 #[test]
 fn modules_run_at_their_rates() {
-    let mut b = SimBuilder::with_rates(Rates { dynamics: 50.0, sensors: 20.0, control: 25.0, wifi: 10.0, network: 1.0 });
+    let mut b =
+        SimBuilder::with_rates(Rates { dynamics: 50.0, sensors: 20.0, control: 25.0, wifi: 10.0, network: 1.0 });
     b.set_rate(Network, 2.0);
     let mut sim = b.build();
     sim.run_for(10.0);

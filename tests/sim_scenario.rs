@@ -17,7 +17,9 @@ fn data_dir() -> PathBuf {
             return dir;
         }
     }
-    panic!("test data missing: expected sml2015/HighwaySML.xml under ../shared/data (beside the crate) or /work/shared/data");
+    panic!(
+        "test data missing: expected sml2015/HighwaySML.xml under ../shared/data (beside the crate) or /work/shared/data"
+    );
 }
 
 /// The shipped highway scenario on the shipped ring.
@@ -89,7 +91,8 @@ fn bad_scenarios_get_errors_naming_the_key_and_what_is_allowed() {
 #[test]
 fn routes_that_do_not_exist_name_the_vehicle_and_the_tag() {
     let map = data_dir().join("sml2015/HighwaySML.xml");
-    let text = format!("map = {:?}\n[[vehicles]]\nid = -4\nroute = {{ loop = \"nowhere_node\" }}\n", map.to_string_lossy());
+    let text =
+        format!("map = {:?}\n[[vehicles]]\nid = -4\nroute = {{ loop = \"nowhere_node\" }}\n", map.to_string_lossy());
     let scenario = Scenario::parse_str(&text, FsPath::new("/nowhere/bad.toml")).expect("parses");
     let message = scenario.builder().err().expect("an unknown tag is an error").to_string();
     assert!(message.contains("vehicles[0] (id -4).route") && message.contains("nowhere_node"), "{message}");

@@ -152,7 +152,8 @@ fn grid_sensing_matches_brute_force() {
                 let d = rel.length();
                 sensors.velodyne.is_some_and(|v| d <= v.range)
                     || sensors.radar.is_some_and(|r| {
-                        let bearing = (rel.y.atan2(rel.x) - yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                        let bearing = (rel.y.atan2(rel.x) - yaw + std::f64::consts::PI)
+                            .rem_euclid(std::f64::consts::TAU)
                             - std::f64::consts::PI;
                         d <= r.range && bearing.abs() <= 0.5 * r.angle
                     })

@@ -95,7 +95,11 @@ struct Received {
 }
 
 /// A sender: numbered message on both channels every tick of its schedule.
-fn chatter(clock: Res<SimClock>, mut boxes: Query<(&VehicleId, &mut Mailbox)>, mut counter: bevy_ecs::prelude::Local<u64>) {
+fn chatter(
+    clock: Res<SimClock>,
+    mut boxes: Query<(&VehicleId, &mut Mailbox)>,
+    mut counter: bevy_ecs::prelude::Local<u64>,
+) {
     for (id, mut mailbox) in &mut boxes {
         if id.0 == -1 {
             mailbox.send(Channel::Network, clock.now, Arc::new(*counter));

@@ -15,7 +15,8 @@ fn student_example_main_runs() {
 #[test]
 fn careful_cars_queue_behind_the_parked_car_and_hear_each_other() {
     let mut sim = student::demo();
-    let careful = |sim: &Sim, id: i32| *sim.world().get::<student::Careful>(sim.entity(VehicleId(id)).unwrap()).unwrap();
+    let careful =
+        |sim: &Sim, id: i32| *sim.world().get::<student::Careful>(sim.entity(VehicleId(id)).unwrap()).unwrap();
     sim.run_for(5.0);
     // 100 m apart at the start, beyond the wifi range of 50 m.
     assert_eq!(careful(&sim, -2).heard, 0);

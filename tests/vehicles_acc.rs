@@ -13,11 +13,26 @@ const LENGTH: f64 = 4.12;
 
 /// Leader -1 at `speed` under cruise control (with `dip`), follower -2 `start_gap` [m] behind
 /// at the same speed with cruise speed `cruise` [m/s] and `follower` components.
-fn two_cars(speed: f64, dip: Option<SpeedDip>, start_gap: f64, cruise: f64, follower: impl bevy_ecs::prelude::Bundle) -> Sim {
+fn two_cars(
+    speed: f64,
+    dip: Option<SpeedDip>,
+    start_gap: f64,
+    cruise: f64,
+    follower: impl bevy_ecs::prelude::Bundle,
+) -> Sim {
     let road = straight(DVec2::ZERO, DVec2::new(4000.0, 0.0));
     let mut b = builder(5.0);
     let lead_s = 200.0;
-    spawn(&mut b, -1, &road, lead_s, speed, LENGTH, speed, CruiseController::new(CruiseControl { dip, ..Default::default() }));
+    spawn(
+        &mut b,
+        -1,
+        &road,
+        lead_s,
+        speed,
+        LENGTH,
+        speed,
+        CruiseController::new(CruiseControl { dip, ..Default::default() }),
+    );
     spawn(&mut b, -2, &road, lead_s - LENGTH - start_gap, speed, LENGTH, cruise, follower);
     b.build()
 }
@@ -89,7 +104,16 @@ fn emergency_braking_stops_a_cruising_car_before_a_stopped_one() {
     spec.model = VehicleModel::None;
     b.spawn_vehicle(spec).unwrap();
     let emergency = EmergencyBraking::default();
-    spawn(&mut b, -2, &road, 100.0, 15.0, LENGTH, 15.0, (CruiseController::new(CruiseControl::default()), EmergencyBrake::new(emergency)));
+    spawn(
+        &mut b,
+        -2,
+        &road,
+        100.0,
+        15.0,
+        LENGTH,
+        15.0,
+        (CruiseController::new(CruiseControl::default()), EmergencyBrake::new(emergency)),
+    );
     let mut sim = b.build();
     sim.run_for(30.0);
     let m = summary(&sim);

@@ -14,7 +14,16 @@ use vehicles_support::{builder, spawn, straight};
 fn cruising(from: f64, cruise: f64, dip: Option<SpeedDip>) -> Sim {
     let road = straight(DVec2::ZERO, DVec2::new(5000.0, 0.0));
     let mut b = builder(0.0);
-    spawn(&mut b, -1, &road, 10.0, from, 4.12, cruise, CruiseController::new(CruiseControl { dip, ..Default::default() }));
+    spawn(
+        &mut b,
+        -1,
+        &road,
+        10.0,
+        from,
+        4.12,
+        cruise,
+        CruiseController::new(CruiseControl { dip, ..Default::default() }),
+    );
     b.build()
 }
 
@@ -59,8 +68,22 @@ fn rectangles_overlap_by_separating_axes() {
     assert!(!rectangles_overlap(DVec2::ZERO, 0.0, &car, DVec2::new(3.01, 0.0), turned, &car));
     // Corner to corner at 45°: a diamond's tip reaches √(2² + 1²)·cos(45° − atan(1/2)) ≈ 2.12 m.
     let tip = (5.0f64).sqrt() * (std::f64::consts::FRAC_PI_4 - 0.5f64.atan()).cos();
-    assert!(rectangles_overlap(DVec2::ZERO, 0.0, &car, DVec2::new(2.0 + tip - 0.01, 0.0), std::f64::consts::FRAC_PI_4, &car));
-    assert!(!rectangles_overlap(DVec2::ZERO, 0.0, &car, DVec2::new(2.0 + tip + 0.01, 0.0), std::f64::consts::FRAC_PI_4, &car));
+    assert!(rectangles_overlap(
+        DVec2::ZERO,
+        0.0,
+        &car,
+        DVec2::new(2.0 + tip - 0.01, 0.0),
+        std::f64::consts::FRAC_PI_4,
+        &car
+    ));
+    assert!(!rectangles_overlap(
+        DVec2::ZERO,
+        0.0,
+        &car,
+        DVec2::new(2.0 + tip + 0.01, 0.0),
+        std::f64::consts::FRAC_PI_4,
+        &car
+    ));
 }
 
 #[test]
@@ -72,9 +95,7 @@ fn time_to_collision_is_gap_over_closing_speed() {
 }
 
 fn scenario_error(controller: &str) -> String {
-    let text = format!(
-        "[[vehicles]]\nid = -1\nroute = {{ loop = \"ring\" }}\ncontroller = {controller}\n"
-    );
+    let text = format!("[[vehicles]]\nid = -1\nroute = {{ loop = \"ring\" }}\ncontroller = {controller}\n");
     match Scenario::parse_str(&text, FsPath::new("/nowhere/bad.toml")) {
         Ok(_) => panic!("accepted a bad controller: {controller}"),
         Err(e) => e.to_string(),

@@ -17,7 +17,12 @@ fn crossing(east: f64, north: f64, negotiate: bool) -> Sim {
     let mut b = builder(0.0);
     let acc = AccController { params: AdaptiveCruise::default() };
     let zone = Crossing { center: [0.0, 0.0], radius: 6.0, ..Default::default() };
-    for (id, road, s) in [(-1, &eastbound, east), (-2, &eastbound, east - 25.0), (-3, &northbound, north), (-4, &northbound, north - 25.0)] {
+    for (id, road, s) in [
+        (-1, &eastbound, east),
+        (-2, &eastbound, east - 25.0),
+        (-3, &northbound, north),
+        (-4, &northbound, north - 25.0),
+    ] {
         if negotiate {
             spawn(&mut b, id, road, s, 10.0, LENGTH, 10.0, (acc, CrossingNegotiator::new(zone)));
         } else {
@@ -56,7 +61,8 @@ fn negotiated_crossing_has_no_collision_and_everyone_passes() {
         for id in [-3, -4] {
             assert!(sim.state(VehicleId(id)).unwrap().position.y > 10.0, "start {east}/{north}: {id} crossed");
         }
-        let passed = |id: i32| sim.world().get::<CrossingNegotiator>(sim.entity(VehicleId(id)).unwrap()).unwrap().passed;
+        let passed =
+            |id: i32| sim.world().get::<CrossingNegotiator>(sim.entity(VehicleId(id)).unwrap()).unwrap().passed;
         assert!((-4..=-1).all(passed), "start {east}/{north}: every claim ended");
     }
 }

@@ -88,7 +88,10 @@ fn radar_only_acc_at_half_a_second_amplifies_the_same_dip() {
     let leader = amplitudes(&m)[0];
     assert!((leader - 5.0).abs() < 0.1, "leader dip {leader} m/s");
     let tail = speed_range_after(&mut platoon(false, dip(), 3000.0), VehicleId(-N), 10.0, 70.0);
-    assert!(tail > leader * 1.1, "radar-only ACC at 0.5 s should amplify the dip: tail {tail} m/s vs leader {leader} m/s");
+    assert!(
+        tail > leader * 1.1,
+        "radar-only ACC at 0.5 s should amplify the dip: tail {tail} m/s vs leader {leader} m/s"
+    );
 }
 
 /// Range of vehicle `id`'s speed between `from` and `to` [s], sampled every 0.1 s.
@@ -116,7 +119,12 @@ fn platoon_stops_without_collision_when_the_leader_brakes_at_six_mps2() {
     }
     for k in 1..=N {
         let v = sim.state(VehicleId(-k)).unwrap().speed();
-        assert!(v < 0.1, "vehicle {} stopped, not at {v} m/s; gaps {:?}", -k, (2..=N).map(|j| gap_x(&sim, -(j - 1), -j, LENGTH)).collect::<Vec<_>>());
+        assert!(
+            v < 0.1,
+            "vehicle {} stopped, not at {v} m/s; gaps {:?}",
+            -k,
+            (2..=N).map(|j| gap_x(&sim, -(j - 1), -j, LENGTH)).collect::<Vec<_>>()
+        );
     }
 }
 

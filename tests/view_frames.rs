@@ -54,11 +54,10 @@ fn without_a_display_the_viewer_writes_frames() {
         }
         std::thread::sleep(Duration::from_millis(50));
     };
-    let img = found.unwrap_or_else(|| panic!("no frame written in 90 s: {}", std::fs::read_to_string(&log).unwrap_or_default()));
+    let img = found
+        .unwrap_or_else(|| panic!("no frame written in 90 s: {}", std::fs::read_to_string(&log).unwrap_or_default()));
     assert_eq!(img.dimensions(), (320, 240));
-    let pixel = |x: i64, y: i64| {
-        (x >= 0 && y >= 0 && x < 320 && y < 240).then(|| img.get_pixel(x as u32, y as u32).0)
-    };
+    let pixel = |x: i64, y: i64| (x >= 0 && y >= 0 && x < 320 && y < 240).then(|| img.get_pixel(x as u32, y as u32).0);
     assert!(count_colour(pixel, 240.0, 120.0, 3, TRUCK) >= 10, "no truck at (240, 120)");
     assert!(count_colour(pixel, 80.0, 80.0, 3, CAR) >= 10, "no car at (80, 80)");
     // Nothing of either colour where no vehicle is.

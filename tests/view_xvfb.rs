@@ -113,7 +113,8 @@ fn shows(shot: &Shot, scene: &[Car; 2]) -> bool {
     let (tx, ty) = to_pixel(scene[0].1, scene[0].2);
     let (cx, cy) = to_pixel(scene[1].1, scene[1].2);
     // At 3 px/m a car is 12 x 5 px, partly windows: a few body pixels near its centre suffice.
-    count_colour(|x, y| shot.pixel(x, y), tx, ty, 2, TRUCK) >= 6 && count_colour(|x, y| shot.pixel(x, y), cx, cy, 3, CAR) >= 3
+    count_colour(|x, y| shot.pixel(x, y), tx, ty, 2, TRUCK) >= 6
+        && count_colour(|x, y| shot.pixel(x, y), cx, cy, 3, CAR) >= 3
 }
 
 #[test]

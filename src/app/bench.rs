@@ -114,7 +114,8 @@ impl BenchWorld {
     pub fn spawn(&self, b: &mut SimBuilder) -> Result<(), BenchError> {
         let lanes = self.lanes()?;
         let params = PathFollowing { speed: self.speed, ..Default::default() };
-        let sensors = SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
+        let sensors =
+            SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
         let mut next = 0usize;
         for (k, path) in lanes.iter().enumerate() {
             // Lane k gets an equal share, the first lanes one more when N does not divide.
@@ -155,7 +156,8 @@ mod tests {
         let mut rows: Vec<(i32, Vec<u64>)> = query
             .iter(world)
             .map(|(id, s, c, r, f)| {
-                let mut bits = vec![s.position.x, s.position.y, s.yaw, s.velocity.x, s.velocity.y, c.steering, c.speed, f.s];
+                let mut bits =
+                    vec![s.position.x, s.position.y, s.yaw, s.velocity.x, s.velocity.y, c.steering, c.speed, f.s];
                 for d in &r.0 {
                     bits.extend([d.id.0 as f64, d.position.x, d.position.y, d.velocity.x, d.velocity.y]);
                 }

@@ -308,12 +308,11 @@ pub fn record_metrics(
     for (&id, state, member) in &members {
         let Some(platoon) = member.platoon else { continue };
         let v = state.speed();
-        let entry = m
-            .platoons
-            .entry(platoon)
-            .or_default()
-            .entry(id)
-            .or_insert(MemberStats { index: member.index, min_speed: v, max_speed: v });
+        let entry = m.platoons.entry(platoon).or_default().entry(id).or_insert(MemberStats {
+            index: member.index,
+            min_speed: v,
+            max_speed: v,
+        });
         entry.index = member.index;
         entry.min_speed = entry.min_speed.min(v);
         entry.max_speed = entry.max_speed.max(v);

@@ -132,14 +132,16 @@ impl RunSummary {
         let world = sim.world();
         let stats = world.get_resource::<V2vStats>().copied().unwrap_or_default();
         let vehicles = world.resource::<Vehicles>();
-        let max_distance_to_centre_line = vehicles
-            .iter()
-            .filter_map(|(id, e)| Some((id.0, world.get::<PathFollower>(e)?.max_offset)))
-            .collect();
+        let max_distance_to_centre_line =
+            vehicles.iter().filter_map(|(id, e)| Some((id.0, world.get::<PathFollower>(e)?.max_offset))).collect();
         RunSummary {
             sim_seconds: report.sim_seconds,
             wall_seconds: report.wall_seconds,
-            real_time_factor: if report.wall_seconds > 0.0 { report.sim_seconds / report.wall_seconds } else { f64::INFINITY },
+            real_time_factor: if report.wall_seconds > 0.0 {
+                report.sim_seconds / report.wall_seconds
+            } else {
+                f64::INFINITY
+            },
             vehicles: vehicles.len(),
             messages_delivered: MessagesDelivered { network: stats.network_delivered, wifi: stats.wifi_delivered },
             rate_warnings: sim.rate_warnings(),

@@ -35,7 +35,12 @@ pub fn run_headless(sim: &mut Sim, seconds: f64, chunk: f64, mut progress: impl 
         sim.run_until(t);
         progress(sim);
     }
-    RunReport { sim_seconds: seconds, wall_seconds: wall.elapsed().as_secs_f64(), rate_warnings: 0, max_lag_seconds: 0.0 }
+    RunReport {
+        sim_seconds: seconds,
+        wall_seconds: wall.elapsed().as_secs_f64(),
+        rate_warnings: 0,
+        max_lag_seconds: 0.0,
+    }
 }
 
 /// Paces a [`Sim`] to the wall clock times `speed`.

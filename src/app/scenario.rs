@@ -43,7 +43,8 @@ use crate::map::routing::Place;
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
 use crate::sim::{Rates, V2vConfig, V2vPlugin};
 use crate::vehicles::{
-    AccSetup, CruiseSetup, PathFollower, PathFollowing, PathFollowingPlugin, PlatoonSetup, SmartController, smart_vehicles,
+    AccSetup, CruiseSetup, PathFollower, PathFollowing, PathFollowingPlugin, PlatoonSetup, SmartController,
+    smart_vehicles,
 };
 use crate::world::{
     AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleClass, VehicleId, VehicleModel, VehicleSize,
@@ -480,8 +481,11 @@ impl Scenario {
         let map = match &file.map {
             Some(m) => {
                 let resolved = path.parent().unwrap_or(FsPath::new("")).join(m);
-                let map = LaneletMap::load(&resolved)
-                    .map_err(|e| ScenarioError::Map { path: path.into(), map: resolved.clone(), source: Box::new(e) })?;
+                let map = LaneletMap::load(&resolved).map_err(|e| ScenarioError::Map {
+                    path: path.into(),
+                    map: resolved.clone(),
+                    source: Box::new(e),
+                })?;
                 Some(Arc::new(map))
             }
             None => None,
@@ -515,15 +519,22 @@ impl Scenario {
             let key = |k: &str| format!("vehicles[{i}] (id {}).{k}", v.id);
             let route = match &v.route {
                 Some(r) => {
-                    let map = self.map.as_ref().ok_or_else(|| self.invalid(key("route"), "needs a `map` in the scenario"))?;
+                    let map =
+                        self.map.as_ref().ok_or_else(|| self.invalid(key("route"), "needs a `map` in the scenario"))?;
                     let name = format!("{r:?}");
                     let path = match routes.get(&name) {
                         Some(p) => Arc::clone(p),
                         None => {
-                            let route_err = |e| ScenarioError::Route { path: self.path.clone(), key: key("route"), source: Box::new(e) };
+                            let route_err = |e| ScenarioError::Route {
+                                path: self.path.clone(),
+                                key: key("route"),
+                                source: Box::new(e),
+                            };
                             let p = Arc::new(match (&r.closed_loop, &r.from, &r.to) {
                                 (Some(n), _, _) => map.closed_loop_at(&n.place(), &opts).map_err(route_err)?,
-                                (None, Some(a), Some(b)) => map.route_places(&a.place(), &b.place(), &opts).map_err(route_err)?,
+                                (None, Some(a), Some(b)) => {
+                                    map.route_places(&a.place(), &b.place(), &opts).map_err(route_err)?
+                                }
                                 _ => return Err(self.invalid(key("route"), "needs `loop` or both `from` and `to`")),
                             });
                             routes.insert(name, Arc::clone(&p));
@@ -556,7 +567,9 @@ impl Scenario {
             spec.mailbox = v.mailbox;
             spec.route = route;
             let entity = b.spawn_vehicle(spec).map_err(|e| self.invalid(key("id"), e.to_string()))?;
-            if let Some(ControllerConfig::PathFollowing { speed, lookahead_min, lookahead_time, speed_gain }) = v.controller {
+            if let Some(ControllerConfig::PathFollowing { speed, lookahead_min, lookahead_time, speed_gain }) =
+                v.controller
+            {
                 let params = PathFollowing { speed, lookahead_min, lookahead_time, speed_gain, ..Default::default() };
                 b.world_mut().entity_mut(entity).insert(PathFollower::starting_at(params, along));
             }
@@ -565,7 +578,8 @@ impl Scenario {
             }
         }
         if let Some(lab) = &self.file.lab {
-            add_lab_plugins(&mut b, lab, self.map.as_deref()).map_err(|e| self.invalid(format!("lab.{}", e.key), e.problem))?;
+            add_lab_plugins(&mut b, lab, self.map.as_deref())
+                .map_err(|e| self.invalid(format!("lab.{}", e.key), e.problem))?;
         }
         Ok(b)
     }
@@ -578,10 +592,13 @@ impl Scenario {
     ) -> Result<(VehicleState, f64), ScenarioError> {
         let start = v.start.clone().unwrap_or(StartConfig { at: None, offset: None, x: None, y: None, yaw: None });
         let node_position = |n: &NodeRef| -> Result<DVec2, ScenarioError> {
-            let map = self.map.as_ref().ok_or_else(|| self.invalid(key("start.at"), "needs a `map` in the scenario"))?;
-            let ids = map
-                .place_nodes(&n.place())
-                .map_err(|e| ScenarioError::Route { path: self.path.clone(), key: key("start.at"), source: Box::new(e) })?;
+            let map =
+                self.map.as_ref().ok_or_else(|| self.invalid(key("start.at"), "needs a `map` in the scenario"))?;
+            let ids = map.place_nodes(&n.place()).map_err(|e| ScenarioError::Route {
+                path: self.path.clone(),
+                key: key("start.at"),
+                source: Box::new(e),
+            })?;
             ids.first()
                 .and_then(|id| map.nodes.get(id))
                 .map(|n| n.position)
@@ -616,9 +633,14 @@ impl Scenario {
 
 /// Check values the types cannot: ranges, unique ids, keys that exclude each other.
 fn check(file: &ScenarioFile, path: &FsPath) -> Result<(), ScenarioError> {
-    let invalid = |key: String, problem: &str| ScenarioError::Invalid { path: path.into(), key, problem: problem.into() };
+    let invalid =
+        |key: String, problem: &str| ScenarioError::Invalid { path: path.into(), key, problem: problem.into() };
     let positive = |key: String, v: f64| {
-        if v.is_finite() && v > 0.0 { Ok(()) } else { Err(invalid(key, &format!("must be a positive number, got {v}"))) }
+        if v.is_finite() && v > 0.0 {
+            Ok(())
+        } else {
+            Err(invalid(key, &format!("must be a positive number, got {v}")))
+        }
     };
     let non_negative = |key: String, v: f64| {
         if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(invalid(key, &format!("must be zero or more, got {v}"))) }
@@ -636,7 +658,10 @@ fn check(file: &ScenarioFile, path: &FsPath) -> Result<(), ScenarioError> {
     ] {
         positive(format!("rates.{k}"), v)?;
         if v > 1e6 {
-            return Err(invalid(format!("rates.{k}"), &format!("must be at most 1e6 Hz (one tick per microsecond), got {v}")));
+            return Err(invalid(
+                format!("rates.{k}"),
+                &format!("must be at most 1e6 Hz (one tick per microsecond), got {v}"),
+            ));
         }
     }
     non_negative("v2v.wifi_range".into(), file.v2v.wifi_range)?;
@@ -672,7 +697,12 @@ fn check(file: &ScenarioFile, path: &FsPath) -> Result<(), ScenarioError> {
         if let Some(route) = &v.route {
             match (&route.closed_loop, &route.from, &route.to) {
                 (Some(_), None, None) | (None, Some(_), Some(_)) => {}
-                _ => return Err(invalid(key("route"), "needs either `loop = NODE` or both `from = NODE` and `to = NODE` (NODE: a node id or a tag value)")),
+                _ => {
+                    return Err(invalid(
+                        key("route"),
+                        "needs either `loop = NODE` or both `from = NODE` and `to = NODE` (NODE: a node id or a tag value)",
+                    ));
+                }
             }
         }
         if let Some(s) = &v.start {
@@ -691,14 +721,18 @@ fn check(file: &ScenarioFile, path: &FsPath) -> Result<(), ScenarioError> {
         }
         if let Some(r) = v.sensors.radar {
             if !(r.angle_deg > 0.0 && r.angle_deg <= 360.0) {
-                return Err(invalid(key("sensors.radar.angle_deg"), &format!("must be in (0, 360] degrees, got {}", r.angle_deg)));
+                return Err(invalid(
+                    key("sensors.radar.angle_deg"),
+                    &format!("must be in (0, 360] degrees, got {}", r.angle_deg),
+                ));
             }
             non_negative(key("sensors.radar.range"), r.range)?;
         }
         if let Some(r) = v.sensors.velodyne {
             non_negative(key("sensors.velodyne.range"), r.range)?;
         }
-        if let Some(ControllerConfig::PathFollowing { speed, lookahead_min, lookahead_time, speed_gain }) = v.controller {
+        if let Some(ControllerConfig::PathFollowing { speed, lookahead_min, lookahead_time, speed_gain }) = v.controller
+        {
             if v.route.is_none() {
                 return Err(invalid(key("controller"), "path_following needs a `route` to follow"));
             }

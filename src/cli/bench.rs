@@ -44,8 +44,16 @@ fn peak_rss_mb() -> Option<f64> {
 
 /// Run the subcommand.
 pub fn main(args: BenchArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(args.vehicles > 0 && args.vehicles < i32::MAX as usize, "--vehicles must be at least 1, got {}", args.vehicles);
-    anyhow::ensure!(args.duration.is_finite() && args.duration > 0.0, "--duration must be a positive number of seconds, got {}", args.duration);
+    anyhow::ensure!(
+        args.vehicles > 0 && args.vehicles < i32::MAX as usize,
+        "--vehicles must be at least 1, got {}",
+        args.vehicles
+    );
+    anyhow::ensure!(
+        args.duration.is_finite() && args.duration > 0.0,
+        "--duration must be a positive number of seconds, got {}",
+        args.duration
+    );
     let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
     let setup = std::time::Instant::now();
     let mut builder = world.builder()?;

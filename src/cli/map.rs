@@ -223,7 +223,13 @@ fn print_path(path: &Path, json: bool) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string(&out).context("writing JSON")?);
         return Ok(());
     }
-    println!("{} {:.2} m through {} lanelets: {:?}", if path.closed { "loop" } else { "route" }, out.length_m, out.lanelets.len(), out.lanelets);
+    println!(
+        "{} {:.2} m through {} lanelets: {:?}",
+        if path.closed { "loop" } else { "route" },
+        out.length_m,
+        out.lanelets.len(),
+        out.lanelets
+    );
     println!("{} points, {:.3} m apart", out.points.len(), path.spacing());
     if let (Some(a), Some(b)) = (path.points.first(), path.points.last()) {
         println!("from ({:.2}, {:.2}) to ({:.2}, {:.2}) [m]", a.x, a.y, b.x, b.y);

@@ -57,17 +57,31 @@ pub struct RunArgs {
 pub fn main(args: RunArgs) -> anyhow::Result<()> {
     let scenario = Scenario::load(&args.scenario)?;
     let duration = args.duration.unwrap_or(scenario.file.duration);
-    anyhow::ensure!(duration.is_finite() && duration > 0.0, "--duration must be a positive number of seconds, got {duration}");
-    anyhow::ensure!(args.speed.is_finite() && args.speed > 0.0, "--speed must be a positive factor, got {}", args.speed);
+    anyhow::ensure!(
+        duration.is_finite() && duration > 0.0,
+        "--duration must be a positive number of seconds, got {duration}"
+    );
+    anyhow::ensure!(
+        args.speed.is_finite() && args.speed > 0.0,
+        "--speed must be a positive factor, got {}",
+        args.speed
+    );
     let log_rate = args.log_rate.unwrap_or(scenario.file.rates.log);
-    anyhow::ensure!(log_rate.is_finite() && log_rate > 0.0 && log_rate <= 1e6, "--log-rate must be in (0, 1e6] Hz, got {log_rate}");
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create the output folder {}", args.out.display()))?;
+    anyhow::ensure!(
+        log_rate.is_finite() && log_rate > 0.0 && log_rate <= 1e6,
+        "--log-rate must be in (0, 1e6] Hz, got {log_rate}"
+    );
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create the output folder {}", args.out.display()))?;
     let csv_path = args.out.join("trajectories.csv");
     let csv = std::fs::File::create(&csv_path).with_context(|| format!("cannot create {}", csv_path.display()))?;
 
     // Motion capture measures the lab in wall-clock time: such a scenario runs in real time.
     let wall_clock = scenario.file.lab.as_ref().is_some_and(|l| l.needs_wall_clock());
-    anyhow::ensure!(!wall_clock || args.speed == 1.0, "--speed must be 1 with motion capture (`[lab] mocap`): the lab runs in real time");
+    anyhow::ensure!(
+        !wall_clock || args.speed == 1.0,
+        "--speed must be 1 with motion capture (`[lab] mocap`): the lab runs in real time"
+    );
     let realtime = args.realtime || wall_clock;
     if wall_clock && !args.realtime {
         tracing::info!("the scenario uses motion capture: running in real time");
@@ -76,7 +90,9 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
     let mut builder = scenario.builder()?;
     if let Some(addr) = args.stream {
         builder.add_plugin(VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ)?);
-        tracing::info!("streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)");
+        tracing::info!(
+            "streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)"
+        );
         if !realtime {
             tracing::warn!("--stream without --realtime: the stream runs at sim time, as fast as the run goes");
         }
@@ -134,7 +150,8 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
     let summary = RunSummary::new(&sim, &report);
     let summary_path = args.out.join("summary.json");
     let json = serde_json::to_string_pretty(&summary)?;
-    std::fs::write(&summary_path, format!("{json}\n")).with_context(|| format!("cannot write {}", summary_path.display()))?;
+    std::fs::write(&summary_path, format!("{json}\n"))
+        .with_context(|| format!("cannot write {}", summary_path.display()))?;
     let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
     tracing::info!(
         "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), seed {}, max distance to centre line {:.3} m; wrote {} and {}",

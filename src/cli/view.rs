@@ -18,7 +18,9 @@ use glam::DVec2;
 use image::RgbaImage;
 use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizReceiver};
 use smlworld::map::LaneletMap;
-use smlworld::render::{BirdseyeView, Environment, EnvironmentLayer, PatternSet, Renderer, VehicleSprite, frame_path, write_image};
+use smlworld::render::{
+    BirdseyeView, Environment, EnvironmentLayer, PatternSet, Renderer, VehicleSprite, frame_path, write_image,
+};
 use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
 use winit::event::WindowEvent;
@@ -59,7 +61,9 @@ pub struct ViewArgs {
 
 fn parse_point(s: &str) -> Result<DVec2, String> {
     let (x, y) = s.split_once(',').ok_or_else(|| format!("{s:?}: expected X,Y in metres, e.g. 10,-5"))?;
-    let num = |v: &str| v.trim().parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| format!("{v:?} is not a number"));
+    let num = |v: &str| {
+        v.trim().parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| format!("{v:?} is not a number"))
+    };
     Ok(DVec2::new(num(x)?, num(y)?))
 }
 
@@ -100,23 +104,44 @@ impl Scene {
             anyhow::ensure!(d.is_finite() && d > 0.0, "--duration must be a positive number of seconds, got {d}");
         }
         let map = match &args.map {
-            Some(path) => Some(LaneletMap::load(path).with_context(|| format!("cannot load the map {}", path.display()))?),
+            Some(path) => {
+                Some(LaneletMap::load(path).with_context(|| format!("cannot load the map {}", path.display()))?)
+            }
             None => None,
         };
         let env = match &map {
             Some(m) => Environment::from_map(m),
-            None => Environment { background: smlworld::render::PatternKind::Forest, areas: Vec::new(), roads: Vec::new(), lines: Vec::new() },
+            None => Environment {
+                background: smlworld::render::PatternKind::Forest,
+                areas: Vec::new(),
+                roads: Vec::new(),
+                lines: Vec::new(),
+            },
         };
         if let Some(dir) = &args.frames {
-            std::fs::create_dir_all(dir).with_context(|| format!("cannot create the frame folder {}", dir.display()))?;
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create the frame folder {}", dir.display()))?;
         }
-        let receiver = VizReceiver::bind(args.listen).with_context(|| format!("cannot listen on udp://{}", args.listen))?;
+        let receiver =
+            VizReceiver::bind(args.listen).with_context(|| format!("cannot listen on udp://{}", args.listen))?;
         let renderer = Renderer::new()?;
         let patterns = PatternSet::builtin();
         let view = view_for(&args, map.as_ref(), args.width, args.height)?;
         let layer = renderer.environment_layer(&env, &view, &patterns)?;
         tracing::info!("listening for the visualisation stream on udp://{}", receiver.local_addr());
-        Ok(Scene { receiver, renderer, env, patterns, map, args, layer, image: RgbaImage::new(1, 1), sprites: Vec::new(), drawn: None, written: 0 })
+        Ok(Scene {
+            receiver,
+            renderer,
+            env,
+            patterns,
+            map,
+            args,
+            layer,
+            image: RgbaImage::new(1, 1),
+            sprites: Vec::new(),
+            drawn: None,
+            written: 0,
+        })
     }
 
     /// Redraw the environment layer for a new size [px].
@@ -180,7 +205,10 @@ pub fn main(args: ViewArgs) -> anyhow::Result<()> {
     if !has_frames {
         anyhow::bail!("{why}; give --frames DIR to write PNG frames instead");
     }
-    eprintln!("{why}; writing frames to {} instead", scene.args.frames.as_deref().unwrap_or(std::path::Path::new("")).display());
+    eprintln!(
+        "{why}; writing frames to {} instead",
+        scene.args.frames.as_deref().unwrap_or(std::path::Path::new("")).display()
+    );
     run_frames(&mut scene, deadline)
 }
 
@@ -228,8 +256,10 @@ impl WindowApp<'_> {
             .with_inner_size(PhysicalSize::new(self.scene.args.width, self.scene.args.height))
             .with_position(PhysicalPosition::new(0, 0));
         let window = Rc::new(event_loop.create_window(attrs).context("cannot create a window")?);
-        let context = softbuffer::Context::new(window.clone()).map_err(|e| anyhow::anyhow!("softbuffer context: {e}"))?;
-        let surface = softbuffer::Surface::new(&context, window.clone()).map_err(|e| anyhow::anyhow!("softbuffer surface: {e}"))?;
+        let context =
+            softbuffer::Context::new(window.clone()).map_err(|e| anyhow::anyhow!("softbuffer context: {e}"))?;
+        let surface = softbuffer::Surface::new(&context, window.clone())
+            .map_err(|e| anyhow::anyhow!("softbuffer surface: {e}"))?;
         self.window = Some(window);
         self.surface = Some(surface);
         self.opened = true;

@@ -240,11 +240,7 @@ impl Arm {
 
     /// The arms of an intersection with `arms` arms (3 or 4), in writing order.
     pub fn of_intersection(arms: usize) -> &'static [Arm] {
-        if arms == 3 {
-            &[Arm::East, Arm::West, Arm::South]
-        } else {
-            &Arm::ALL
-        }
+        if arms == 3 { &[Arm::East, Arm::West, Arm::South] } else { &Arm::ALL }
     }
 }
 
@@ -707,11 +703,7 @@ fn invalid(name: &'static str, value: impl std::fmt::Display, allowed: &str) -> 
 }
 
 fn check_positive(name: &'static str, value: f64) -> Result<(), GenerateError> {
-    if value.is_finite() && value > 0.0 {
-        Ok(())
-    } else {
-        Err(invalid(name, value, "a finite number above 0 [m]"))
-    }
+    if value.is_finite() && value > 0.0 { Ok(()) } else { Err(invalid(name, value, "a finite number above 0 [m]")) }
 }
 
 fn check_count(name: &'static str, value: usize, min: usize, max: usize) -> Result<(), GenerateError> {

@@ -23,7 +23,8 @@ impl std::fmt::Display for LaneletId {
 
 /// `line_type` values the SML maps use: lines (`exterior` yellow, `interior` white) and areas.
 /// Any other value loads with a warning and is drawn as an untagged way.
-pub const KNOWN_LINE_TYPES: [&str; 7] = ["exterior", "interior", "free_space", "parking_lot", "pile_stuff", "mud", "iron"];
+pub const KNOWN_LINE_TYPES: [&str; 7] =
+    ["exterior", "interior", "free_space", "parking_lot", "pile_stuff", "mud", "iron"];
 
 /// Tags of an OSM object, key -> value, in key order.
 pub type Tags = BTreeMap<String, String>;
@@ -64,10 +65,7 @@ impl MapWay {
 
     /// The way's `line_type` tag, else its `region` tag (the SML maps use both for areas).
     pub fn line_type(&self) -> Option<&str> {
-        self.tags
-            .get("line_type")
-            .or_else(|| self.tags.get("region"))
-            .map(String::as_str)
+        self.tags.get("line_type").or_else(|| self.tags.get("region")).map(String::as_str)
     }
 }
 

@@ -8,8 +8,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path as FsPath, PathBuf};
 
-use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
+use quick_xml::events::{BytesStart, Event};
 
 use super::error::{Location, MapError};
 
@@ -95,8 +95,7 @@ pub struct OsmDocument {
 impl OsmDocument {
     /// Read and parse an `.osm` or `.xml` file.
     pub fn load(path: &FsPath) -> Result<OsmDocument, MapError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| MapError::Io { path: path.to_path_buf(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| MapError::Io { path: path.to_path_buf(), source })?;
         parse_osm(&text, path)
     }
 
@@ -246,18 +245,10 @@ fn parse_id(
     attribute: &'static str,
     at: &Location,
 ) -> Result<i64, MapError> {
-    let bad = |problem: String| MapError::BadAttribute {
-        at: at.clone(),
-        element,
-        id: id.to_string(),
-        attribute,
-        problem,
-    };
+    let bad =
+        |problem: String| MapError::BadAttribute { at: at.clone(), element, id: id.to_string(), attribute, problem };
     let value = value.ok_or_else(|| bad("is missing".into()))?;
-    value
-        .trim()
-        .parse::<i64>()
-        .map_err(|_| bad(format!("= {value:?} is not an integer id (64-bit, may be negative)")))
+    value.trim().parse::<i64>().map_err(|_| bad(format!("= {value:?} is not an integer id (64-bit, may be negative)")))
 }
 
 fn parse_coordinate(
@@ -275,10 +266,7 @@ fn parse_coordinate(
         problem,
     };
     let value = value.ok_or_else(|| bad("is missing".into()))?;
-    let v: f64 = value
-        .trim()
-        .parse()
-        .map_err(|_| bad(format!("= {value:?} is not a number in degrees")))?;
+    let v: f64 = value.trim().parse().map_err(|_| bad(format!("= {value:?} is not a number in degrees")))?;
     if !v.is_finite() || v.abs() > limit {
         return Err(bad(format!("= {value} is out of range; allowed -{limit}..={limit} degrees")));
     }

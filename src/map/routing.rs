@@ -480,14 +480,14 @@ impl LaneletMap {
             }
             out
         };
-        let (steps, _) = pathfinding::directed::dijkstra::dijkstra(&Step::Start, successors, |s| {
-            matches!(s, Step::Final(_))
-        })
-        .ok_or(MapError::NoRoute { from: from_name, to: to_name })?;
+        let (steps, _) =
+            pathfinding::directed::dijkstra::dijkstra(&Step::Start, successors, |s| matches!(s, Step::Final(_)))
+                .ok_or(MapError::NoRoute { from: from_name, to: to_name })?;
 
         let Some(&Step::Final(k)) = steps.last() else { unreachable!("dijkstra ends on a Final step") };
         let fin = finals[k as usize];
-        let mut states: Vec<u32> = steps.iter().filter_map(|s| if let Step::Exit(st) = s { Some(*st) } else { None }).collect();
+        let mut states: Vec<u32> =
+            steps.iter().filter_map(|s| if let Step::Exit(st) = s { Some(*st) } else { None }).collect();
         let (first_along, last_along);
         if states.is_empty() {
             // Same lanelet: the start is the furthest-along start candidate behind the end.
@@ -543,7 +543,13 @@ impl LaneletMap {
                     let Step::Exit(state) = *step else { return Vec::new() };
                     self.graph.successors[state as usize]
                         .iter()
-                        .map(|&next| if next == s { (Step::Final(s), 0) } else { (Step::Exit(next), mm(self.state_length(next))) })
+                        .map(|&next| {
+                            if next == s {
+                                (Step::Final(s), 0)
+                            } else {
+                                (Step::Exit(next), mm(self.state_length(next)))
+                            }
+                        })
                         .collect()
                 },
                 |step| matches!(step, Step::Final(_)),
@@ -551,7 +557,8 @@ impl LaneletMap {
             if let Some((steps, cost)) = found {
                 let cost = cost + mm(self.state_length(s));
                 if best.as_ref().is_none_or(|b| cost < b.0) {
-                    let states = steps.iter().filter_map(|st| if let Step::Exit(x) = st { Some(*x) } else { None }).collect();
+                    let states =
+                        steps.iter().filter_map(|st| if let Step::Exit(x) = st { Some(*x) } else { None }).collect();
                     best = Some((cost, states, start));
                 }
             }

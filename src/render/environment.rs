@@ -81,11 +81,7 @@ impl Environment {
     /// `iron`, `parking_lot`, `free_space`; yellow lines on `line_type=exterior` ways and white ones
     /// on `interior` ways; ways without such tags draw nothing.
     pub fn from_map(map: &LaneletMap) -> Environment {
-        let roads = map
-            .lanelets
-            .iter()
-            .map(|l| RoadStrip { left: l.left.clone(), right: l.right.clone() })
-            .collect();
+        let roads = map.lanelets.iter().map(|l| RoadStrip { left: l.left.clone(), right: l.right.clone() }).collect();
         let mut areas = Vec::new();
         let mut lines = Vec::new();
         for way in map.ways.values() {
@@ -148,8 +144,8 @@ impl Tessellator<'_> {
     pub fn background(&mut self, kind: PatternKind, patterns: &PatternSet) {
         let (min, max) = self.view.world_rect();
         let tile = patterns.get(kind).tile_meters;
-        let [a, b, c, d] = [min, DVec2::new(max.x, min.y), max, DVec2::new(min.x, max.y)]
-            .map(|p| self.pattern_vertex(p, kind, tile));
+        let [a, b, c, d] =
+            [min, DVec2::new(max.x, min.y), max, DVec2::new(min.x, max.y)].map(|p| self.pattern_vertex(p, kind, tile));
         self.out.extend_from_slice(&[a, b, c, a, c, d]);
     }
 

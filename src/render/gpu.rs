@@ -348,7 +348,11 @@ impl Renderer {
                         aspect: wgpu::TextureAspect::All,
                     },
                     img.as_raw(),
-                    wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * img.width()), rows_per_image: None },
+                    wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(4 * img.width()),
+                        rows_per_image: None,
+                    },
                     wgpu::Extent3d { width: img.width(), height: img.height(), depth_or_array_layers: 1 },
                 );
             }
@@ -412,7 +416,10 @@ impl Renderer {
                     view: &target,
                     depth_slice: None,
                     resolve_target: None,
-                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
                 })],
                 depth_stencil_attachment: None,
                 timestamp_writes: None,
@@ -437,7 +444,11 @@ impl Renderer {
     }
 
     /// One frame: the environment layer with `sprites` on top, read back as an image.
-    pub fn render_frame(&mut self, layer: &EnvironmentLayer, sprites: &[VehicleSprite]) -> Result<RgbaImage, RenderError> {
+    pub fn render_frame(
+        &mut self,
+        layer: &EnvironmentLayer,
+        sprites: &[VehicleSprite],
+    ) -> Result<RgbaImage, RenderError> {
         let mut image = RgbaImage::new(layer.view.width, layer.view.height);
         self.render_frame_into(layer, sprites, &mut image)?;
         Ok(image)
@@ -504,7 +515,11 @@ impl Renderer {
             }
             if let Some(items) = &self.items {
                 pass.set_bind_group(1, items, &[]);
-                let counts = [(&self.sectors, b.sectors.len()), (&self.vehicles, b.vehicles.len()), (&self.labels, b.labels.len())];
+                let counts = [
+                    (&self.sectors, b.sectors.len()),
+                    (&self.vehicles, b.vehicles.len()),
+                    (&self.labels, b.labels.len()),
+                ];
                 for (pipeline, n) in counts {
                     if n > 0 {
                         pass.set_pipeline(pipeline);
@@ -560,12 +575,8 @@ fn read_back(
         // The receiver waits right below; a failed send only means it has gone away.
         let _ = tx.send(r);
     });
-    device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| RenderError::Readback(e.to_string()))?;
-    rx.recv()
-        .map_err(|e| RenderError::Readback(e.to_string()))?
-        .map_err(|e| RenderError::Readback(e.to_string()))?;
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| RenderError::Readback(e.to_string()))?;
+    rx.recv().map_err(|e| RenderError::Readback(e.to_string()))?.map_err(|e| RenderError::Readback(e.to_string()))?;
     if image.width() != frame.width || image.height() != frame.height {
         *image = RgbaImage::new(frame.width, frame.height);
     }

@@ -51,9 +51,7 @@ pub fn write_gif(path: &Path, frames: &[RgbaImage], frame_rate: f64) -> Result<(
     // GIF delays are in hundredths of a second.
     let delay = image::Delay::from_numer_denom_ms((1000.0 / frame_rate).round().max(10.0) as u32, 1);
     for f in frames {
-        encoder
-            .encode_frame(image::Frame::from_parts(f.clone(), 0, 0, delay))
-            .map_err(|e| write_error(path, e))?;
+        encoder.encode_frame(image::Frame::from_parts(f.clone(), 0, 0, delay)).map_err(|e| write_error(path, e))?;
     }
     Ok(())
 }

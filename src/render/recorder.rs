@@ -10,8 +10,10 @@ use std::path::{Path, PathBuf};
 
 use bevy_ecs::prelude::{Entity, World};
 
-use super::{BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, VehicleSprite};
 use super::output::frame_path;
+use super::{
+    BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, VehicleSprite,
+};
 use crate::map::LaneletMap;
 use crate::world::{Radar, VehicleClass, VehicleId, VehicleSize, VehicleState, Velodyne};
 
@@ -34,7 +36,14 @@ pub struct RecorderOptions {
 
 impl Default for RecorderOptions {
     fn default() -> Self {
-        RecorderOptions { frames_dir: None, gif: None, frame_rate: 10.0, width: 1280, height: 720, sensor_ranges: false }
+        RecorderOptions {
+            frames_dir: None,
+            gif: None,
+            frame_rate: 10.0,
+            width: 1280,
+            height: 720,
+            sensor_ranges: false,
+        }
     }
 }
 
@@ -74,7 +83,8 @@ impl FrameRecorder {
             Some(path) => {
                 let file = File::create(path).map_err(|e| write_error(path, e))?;
                 let (w, h) = (gif_side(opts.width, path)?, gif_side(opts.height, path)?);
-                let mut encoder = gif::Encoder::new(BufWriter::new(file), w, h, &[]).map_err(|e| write_error(path, e))?;
+                let mut encoder =
+                    gif::Encoder::new(BufWriter::new(file), w, h, &[]).map_err(|e| write_error(path, e))?;
                 encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(path, e))?;
                 Some((path.clone(), encoder))
             }

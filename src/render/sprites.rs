@@ -176,7 +176,8 @@ impl LabelGrid {
         let (c0, c1) = (cell(x0, self.cols), cell(x1, self.cols.saturating_sub(1)) + 1);
         let (r0, r1) = (cell(y0, self.rows), cell(y1, self.rows.saturating_sub(1)) + 1);
         let (cols, rows) = (self.cols, self.rows);
-        let cells = move || (r0..r1.min(rows)).flat_map(move |r| (c0..c1.min(cols)).map(move |c| (r * cols + c) as usize));
+        let cells =
+            move || (r0..r1.min(rows)).flat_map(move |r| (c0..c1.min(cols)).map(move |c| (r * cols + c) as usize));
         if cells().any(|i| self.bits[i / 64] & (1 << (i % 64)) != 0) {
             return false;
         }
@@ -228,7 +229,14 @@ impl FrameBatches {
             }
             let mut sector = |range: Option<f64>, half: f64, color: [u8; 4]| {
                 if let Some(r) = range.filter(|r| r.is_finite() && *r > 0.0) {
-                    self.sectors.push(SectorInstance { pos, dir, range: r as f32, half_angle: half as f32, color, pad: 0 });
+                    self.sectors.push(SectorInstance {
+                        pos,
+                        dir,
+                        range: r as f32,
+                        half_angle: half as f32,
+                        color,
+                        pad: 0,
+                    });
                 }
             };
             sector(s.overlays.wifi, std::f64::consts::PI, WIFI_COLOR);
@@ -252,7 +260,8 @@ impl FrameBatches {
             }
             let box_w = ((n * (font::GLYPH_W as usize + 1)) as f32 - 1.0 + 2.0 * LABEL_PAD) * TEXT_SCALE;
             let box_h = (font::GLYPH_H as f32 + 2.0 * LABEL_PAD) * TEXT_SCALE;
-            let reach_px = (0.5 * s.length.hypot(s.width) * view.pixels_per_meter.max(view.pixels_per_meter_y())) as f32;
+            let reach_px =
+                (0.5 * s.length.hypot(s.width) * view.pixels_per_meter.max(view.pixels_per_meter_y())) as f32;
             let offset = [-(0.5 * box_w).round(), -(reach_px + 3.0 + box_h).round()];
             let at = view.world_to_pixel(s.position);
             let (x0, y0) = (at.x.floor() as f32 + offset[0], at.y.floor() as f32 + offset[1]);

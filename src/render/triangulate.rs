@@ -55,7 +55,12 @@ pub fn triangulate(points: &[DVec2]) -> Vec<[usize; 3]> {
                 continue;
             }
             let blocked = idx.iter().any(|&j| {
-                j != ia && j != ib && j != ic && points[j] != a && points[j] != b && points[j] != c
+                j != ia
+                    && j != ib
+                    && j != ic
+                    && points[j] != a
+                    && points[j] != b
+                    && points[j] != c
                     && inside_or_on(points[j], a, b, c)
             });
             if !blocked {

@@ -53,7 +53,12 @@ fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_spee
 
 /// One step of the kinematic unicycle over `dt` [s]: drive at the commanded speed with the
 /// commanded steering (clamped to ±`max_steering`).
-pub fn step_kinematic_unicycle(state: &mut VehicleState, command: &ControlCommand, params: &KinematicUnicycle, dt: f64) {
+pub fn step_kinematic_unicycle(
+    state: &mut VehicleState,
+    command: &ControlCommand,
+    params: &KinematicUnicycle,
+    dt: f64,
+) {
     let steering = command.steering.clamp(-params.max_steering, params.max_steering);
     let curvature = steering.tan() / params.wheelbase;
     advance_arc(state, command.speed * dt, curvature, command.speed);

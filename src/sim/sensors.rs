@@ -83,7 +83,13 @@ struct Sight {
 }
 
 impl Sight {
-    fn new(id: VehicleId, state: &VehicleState, radar: Option<&Radar>, velodyne: Option<&Velodyne>, omniscient: bool) -> Sight {
+    fn new(
+        id: VehicleId,
+        state: &VehicleState,
+        radar: Option<&Radar>,
+        velodyne: Option<&Velodyne>,
+        omniscient: bool,
+    ) -> Sight {
         Sight {
             id,
             position: state.position,
@@ -173,7 +179,14 @@ pub fn sense_vehicles(
     mut grid: ResMut<SensorGrid>,
     parallelism: Res<Parallelism>,
     everyone: Query<(&VehicleId, &VehicleState)>,
-    mut sensing: Query<(&VehicleId, &VehicleState, Option<&Radar>, Option<&Velodyne>, Has<Omniscient>, &mut SensorReadings)>,
+    mut sensing: Query<(
+        &VehicleId,
+        &VehicleState,
+        Option<&Radar>,
+        Option<&Velodyne>,
+        Has<Omniscient>,
+        &mut SensorReadings,
+    )>,
     mut scratch: Local<Vec<SenseScratch>>,
 ) {
     let mut cell: f64 = 0.0;
@@ -185,7 +198,12 @@ pub fn sense_vehicles(
     }
     grid.0.rebuild(
         if cell > 0.0 { cell } else { 100.0 },
-        everyone.iter().map(|(&id, state)| GridEntry { position: state.position, velocity: state.velocity, id, index: 0 }),
+        everyone.iter().map(|(&id, state)| GridEntry {
+            position: state.position,
+            velocity: state.velocity,
+            id,
+            index: 0,
+        }),
     );
     let grid = &grid.0;
     let mut items: Vec<SensingItem<'_>> = sensing.iter_mut().collect();

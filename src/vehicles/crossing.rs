@@ -92,11 +92,7 @@ pub fn stop_before(v: f64, room: f64, deceleration: f64) -> f64 {
         return if v > 0.0 { -3.0 * deceleration } else { 0.0 };
     }
     let needed = v * v / (2.0 * room);
-    if needed >= 0.5 * deceleration {
-        -needed
-    } else {
-        ((2.0 * deceleration * room).sqrt() - v).min(1.0)
-    }
+    if needed >= 0.5 * deceleration { -needed } else { ((2.0 * deceleration * room).sqrt() - v).min(1.0) }
 }
 
 /// Where `path` enters and leaves the disc (`center`, `radius`) first, as arc lengths [m].
@@ -176,7 +172,8 @@ pub fn yield_at_crossings(
         let platoon_goes = ahead.is_some_and(|ahead| {
             mailbox.wifi_in.iter().any(|m| {
                 m.sender == ahead
-                    && m.payload::<CrossingClaim>().is_some_and(|c| c.center.distance(center) <= 1.0 && (c.going || c.inside))
+                    && m.payload::<CrossingClaim>()
+                        .is_some_and(|c| c.center.distance(center) <= 1.0 && (c.going || c.inside))
             })
         });
         let blocked = !inside

@@ -168,7 +168,8 @@ pub fn actuate_longitudinal(
         }
         let v = state.speed().max(0.0);
         // Never faster than the route's target speed (it stops at the end of an open route).
-        let accel = if v > lon.route_speed { lon.accel.min(ROUTE_SPEED_GAIN * (lon.route_speed - v)) } else { lon.accel };
+        let accel =
+            if v > lon.route_speed { lon.accel.min(ROUTE_SPEED_GAIN * (lon.route_speed - v)) } else { lon.accel };
         if let Some(m) = acceleration {
             command.throttle = m.mass * accel + m.drag * v;
         }

@@ -31,7 +31,9 @@ pub use crossing::{
     Crossing, CrossingClaim, CrossingNegotiator, CrossingPlugin, goes_first, stop_before, yield_at_crossings, zone_span,
 };
 pub use cruise::{CruiseControl, CruiseController, CruisePlugin, SpeedDip, control_cruise};
-pub use emergency::{EmergencyBrake, EmergencyBraking, EmergencyBrakingPlugin, brake_for_emergencies, time_to_collision};
+pub use emergency::{
+    EmergencyBrake, EmergencyBraking, EmergencyBrakingPlugin, brake_for_emergencies, time_to_collision,
+};
 pub use longitudinal::{LeaderGap, Longitudinal, actuate_longitudinal, find_leaders, leader_on_path};
 pub use path_following::{PathFollower, PathFollowing, PathFollowingPlugin, follow_paths};
 pub use platoon::{PlatoonBeacon, PlatoonMember, PlatoonPlugin, Platooning, control_platoon, send_platoon_beacons};

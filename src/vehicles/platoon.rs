@@ -171,9 +171,7 @@ pub fn control_platoon(
         }
         let p = member.params;
         let fresh = member.ahead.filter(|&(sender, sent_at, b)| {
-            Some(sender) == ahead_id
-                && b.platoon.is_some()
-                && now.as_secs() - sent_at.as_secs() <= p.beacon_timeout
+            Some(sender) == ahead_id && b.platoon.is_some() && now.as_secs() - sent_at.as_secs() <= p.beacon_timeout
         });
         if member.left {
             member.platoon = None;
@@ -189,9 +187,12 @@ pub fn control_platoon(
         }
         let v = state.speed();
         lon.accel = match fresh.filter(|_| member.platoon.is_some()) {
-            Some((_, _, b)) => {
-                p.law(p.time_gap).acceleration(v, lon.route_speed, lon.leader.as_ref(), p.feedforward_gain * b.acceleration)
-            }
+            Some((_, _, b)) => p.law(p.time_gap).acceleration(
+                v,
+                lon.route_speed,
+                lon.leader.as_ref(),
+                p.feedforward_gain * b.acceleration,
+            ),
             None => p.law(p.acc_time_gap).acceleration(v, lon.route_speed, lon.leader.as_ref(), 0.0),
         };
     }
@@ -235,7 +236,11 @@ impl Plugin for PlatoonPlugin {
         sim.add_systems(
             Control,
             (
-                control_platoon.after(find_leaders).after(control_cruise).after(control_acc).before(actuate_longitudinal),
+                control_platoon
+                    .after(find_leaders)
+                    .after(control_cruise)
+                    .after(control_acc)
+                    .before(actuate_longitudinal),
                 send_platoon_beacons.after(actuate_longitudinal),
             ),
         );

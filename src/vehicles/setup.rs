@@ -14,7 +14,7 @@
 use bevy_ecs::prelude::{Entity, World};
 
 use super::{
-    AccController, AdaptiveCruise, CruiseControl, CruiseController, Crossing, CrossingNegotiator, EmergencyBrake,
+    AccController, AdaptiveCruise, Crossing, CrossingNegotiator, CruiseControl, CruiseController, EmergencyBrake,
     EmergencyBraking, PathFollower, PathFollowing, PlatoonMember, Platooning,
 };
 use crate::world::SimTime;

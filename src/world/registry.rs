@@ -149,10 +149,8 @@ pub fn spawn_vehicle(world: &mut World, spec: VehicleSpec) -> Result<Entity, Wor
 
 /// Despawn vehicle `id` and unregister it.
 pub fn despawn_vehicle(world: &mut World, id: VehicleId) -> Result<(), WorldError> {
-    let entity = world
-        .get_resource_mut::<Vehicles>()
-        .and_then(|mut v| v.by_id.remove(&id))
-        .ok_or(WorldError::UnknownId(id))?;
+    let entity =
+        world.get_resource_mut::<Vehicles>().and_then(|mut v| v.by_id.remove(&id)).ok_or(WorldError::UnknownId(id))?;
     world.despawn(entity);
     Ok(())
 }

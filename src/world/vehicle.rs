@@ -88,7 +88,9 @@ impl Default for VehicleSize {
 }
 
 /// Kind of vehicle, for drawing and for class-specific behaviour.
-#[derive(Component, Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Component, Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum VehicleClass {
     /// Passenger car.

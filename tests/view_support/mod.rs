@@ -35,8 +35,10 @@ pub type Car = (i32, f64, f64, f64, &'static str);
 
 /// Send one 2015 datagram `<counter>#id=..;x=..;y=..;yaw=..;class_name=..!...` to `to`.
 pub fn send_scene(socket: &UdpSocket, to: SocketAddr, counter: u64, scene: &[Car]) {
-    let body: Vec<String> =
-        scene.iter().map(|(id, x, y, yaw, class)| format!("id={id};x={x};y={y};yaw={yaw};class_name={class}")).collect();
+    let body: Vec<String> = scene
+        .iter()
+        .map(|(id, x, y, yaw, class)| format!("id={id};x={x};y={y};yaw={yaw};class_name={class}"))
+        .collect();
     let datagram = format!("{counter}#{}", body.join("!"));
     socket.send_to(datagram.as_bytes(), to).expect("send datagram");
 }
@@ -48,7 +50,13 @@ pub const CAR: [u8; 3] = [40, 116, 230];
 
 /// How many pixels within `radius` px of (`cx`, `cy`) have `colour` (each channel within 40:
 /// anti-aliasing and sRGB rounding move edges, not body centres, by more than a few levels).
-pub fn count_colour(pixel: impl Fn(i64, i64) -> Option<[u8; 3]>, cx: f64, cy: f64, radius: i64, colour: [u8; 3]) -> usize {
+pub fn count_colour(
+    pixel: impl Fn(i64, i64) -> Option<[u8; 3]>,
+    cx: f64,
+    cy: f64,
+    radius: i64,
+    colour: [u8; 3],
+) -> usize {
     let (cx, cy) = (cx.round() as i64, cy.round() as i64);
     let mut n = 0;
     for y in cy - radius..=cy + radius {

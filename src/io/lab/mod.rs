@@ -45,9 +45,11 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use crate::app::SimBuilder;
-use crate::io::mock_mocap::{Keyframe, MocapScript, MockMocapConfig, MockMocapServer, DEFAULT_MOCK_RATE_HZ};
+use crate::io::mock_mocap::{DEFAULT_MOCK_RATE_HZ, Keyframe, MocapScript, MockMocapConfig, MockMocapServer};
 use crate::io::qualisys::{DEFAULT_POLL_RATE_HZ, DEFAULT_QTM_ADDR, QtmClient, QtmClientConfig, Tracker, TrackerConfig};
-use crate::io::trucks::{DEFAULT_LAB_SCALE, DEFAULT_TRUCK_BASE_PORT, DEFAULT_TRUCK_RATE_HZ, TruckServer, TruckServerConfig};
+use crate::io::trucks::{
+    DEFAULT_LAB_SCALE, DEFAULT_TRUCK_BASE_PORT, DEFAULT_TRUCK_RATE_HZ, TruckServer, TruckServerConfig,
+};
 use crate::map::{LaneletMap, Path};
 use crate::world::{AccelerationUnicycle, KinematicUnicycle, Route, VehicleId, VehicleState, Vehicles};
 
@@ -170,7 +172,11 @@ impl LabConfig {
     /// Check values the types cannot.
     pub fn check(&self) -> Result<(), LabError> {
         let positive = |key: &str, v: f64| {
-            if v.is_finite() && v > 0.0 { Ok(()) } else { Err(lab_error(key, format!("must be a positive number, got {v}"))) }
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(lab_error(key, format!("must be a positive number, got {v}")))
+            }
         };
         positive("scale", self.scale)?;
         if let Some(m) = &self.mocap {
@@ -183,8 +189,9 @@ impl LabConfig {
                 return Err(lab_error("mocap", "takes either `mock = true` or `addr`, not both"));
             }
             if let Some(a) = &m.addr {
-                a.parse::<SocketAddr>()
-                    .map_err(|e| lab_error("mocap.addr", format!("{a:?} is not an address like \"127.0.0.1:22224\": {e}")))?;
+                a.parse::<SocketAddr>().map_err(|e| {
+                    lab_error("mocap.addr", format!("{a:?} is not an address like \"127.0.0.1:22224\": {e}"))
+                })?;
             }
         }
         if let Some(t) = &self.trucks {
@@ -195,10 +202,14 @@ impl LabConfig {
             positive("trucks.lane_half_width", t.lane_half_width)?;
             positive("trucks.max_gap", t.max_gap)?;
             if !(t.desired_distance.is_finite() && t.desired_distance >= 0.0) {
-                return Err(lab_error("trucks.desired_distance", format!("must be zero or more, got {}", t.desired_distance)));
+                return Err(lab_error(
+                    "trucks.desired_distance",
+                    format!("must be zero or more, got {}", t.desired_distance),
+                ));
             }
             if let Some(ip) = &t.ip {
-                ip.parse::<IpAddr>().map_err(|e| lab_error("trucks.ip", format!("{ip:?} is not an IP address: {e}")))?;
+                ip.parse::<IpAddr>()
+                    .map_err(|e| lab_error("trucks.ip", format!("{ip:?} is not an IP address: {e}")))?;
             }
         }
         Ok(())
@@ -218,7 +229,9 @@ pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&La
             if config.mocap.is_some() && driven {
                 return Err(lab_error(
                     "mocap",
-                    format!("drives real vehicle {id}, which also has a dynamics model: give it `model = {{ type = \"none\" }}`"),
+                    format!(
+                        "drives real vehicle {id}, which also has a dynamics model: give it `model = {{ type = \"none\" }}`"
+                    ),
                 ));
             }
             let state = world.get::<VehicleState>(e).copied().unwrap_or_default();
@@ -230,8 +243,11 @@ pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&La
     if let Some(m) = &config.mocap {
         let mut mock = None;
         let addr = if m.mock {
-            let script =
-                ring_script(real.iter().filter_map(|(id, s, r)| Some((*id, *s, r.as_ref()?.0.as_ref()))), config.scale, 1.0);
+            let script = ring_script(
+                real.iter().filter_map(|(id, s, r)| Some((*id, *s, r.as_ref()?.0.as_ref()))),
+                config.scale,
+                1.0,
+            );
             let server = MockMocapServer::start(MockMocapConfig {
                 bind: SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 0),
                 rate_hz: DEFAULT_MOCK_RATE_HZ,
@@ -269,8 +285,11 @@ pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&La
             None => IpAddr::V4(Ipv4Addr::LOCALHOST),
         };
         let ids: Vec<i32> = real.iter().map(|(id, _, _)| id.0).collect();
-        let server = TruckServer::start(&TruckServerConfig { ip, base_port: t.base_port, rate_hz: t.rate, scale: config.scale }, &ids)
-            .map_err(|e| lab_error("trucks", format!("cannot start the truck servers: {e}")))?;
+        let server = TruckServer::start(
+            &TruckServerConfig { ip, base_port: t.base_port, rate_hz: t.rate, scale: config.scale },
+            &ids,
+        )
+        .map_err(|e| lab_error("trucks", format!("cannot start the truck servers: {e}")))?;
         for id in &ids {
             if let Some(a) = server.local_addr(*id) {
                 tracing::info!("truck {id}: status lines on tcp://{a}");
@@ -306,7 +325,11 @@ pub fn scenario_script(scenario: &crate::app::Scenario) -> Result<MocapScript, c
 /// position at its state's speed, one lap (or to the path's end), keyframes every `step` [m];
 /// positions in lab millimetres (world metres / `scale` * 1000), yaw in degrees. A vehicle that
 /// stands still gets one keyframe. The script loops with the longest lap's period.
-pub fn ring_script<'a>(vehicles: impl IntoIterator<Item = (VehicleId, VehicleState, &'a Path)>, scale: f64, step: f64) -> MocapScript {
+pub fn ring_script<'a>(
+    vehicles: impl IntoIterator<Item = (VehicleId, VehicleState, &'a Path)>,
+    scale: f64,
+    step: f64,
+) -> MocapScript {
     let mut bodies: BTreeMap<u32, Vec<Keyframe>> = BTreeMap::new();
     let mm = 1000.0 / scale;
     for (id, state, path) in vehicles {

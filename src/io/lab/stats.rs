@@ -105,7 +105,9 @@ pub fn count_real_messages(
         }
         let inbox = mailbox.inbox(Channel::Wifi);
         newest = newest.max(inbox.latest_round().unwrap_or(0));
-        for m in inbox.iter_after(*last_round).filter(|m| m.sender.is_real() && m.payload::<RealVehicleBeacon>().is_some()) {
+        for m in
+            inbox.iter_after(*last_round).filter(|m| m.sender.is_real() && m.payload::<RealVehicleBeacon>().is_some())
+        {
             if let Some(mut stats) = vehicles.get(m.sender).and_then(|e| real.get_mut(e).ok()) {
                 stats.v2v_received_by_virtual += 1;
             }

@@ -34,7 +34,13 @@ impl VizStream {
     /// A stream to `target` (bound on loopback for a loopback target).
     pub fn new(target: SocketAddr) -> Result<VizStream, VizError> {
         let sender = VizSender::new(&VizSenderConfig { target, ..Default::default() })?;
-        Ok(VizStream { sender, frame: Vec::new(), warn: WarnLimiter::new(Duration::from_secs(5)), frames_sent: 0, send_errors: 0 })
+        Ok(VizStream {
+            sender,
+            frame: Vec::new(),
+            warn: WarnLimiter::new(Duration::from_secs(5)),
+            frames_sent: 0,
+            send_errors: 0,
+        })
     }
 }
 

@@ -105,7 +105,13 @@ impl LaneIndex {
 /// route: centre to centre along the route, counting only vehicles within `half_width` [m] of
 /// the route and at most `max_gap` [m] ahead (wrapping around a closed route). Returns the
 /// leader and the gap.
-pub fn leader_gap(route: &Path, s: f64, others: &[Detection], half_width: f64, max_gap: f64) -> Option<(VehicleId, f64)> {
+pub fn leader_gap(
+    route: &Path,
+    s: f64,
+    others: &[Detection],
+    half_width: f64,
+    max_gap: f64,
+) -> Option<(VehicleId, f64)> {
     let mut best: Option<(VehicleId, f64)> = None;
     for d in others {
         let p = route.project_near(d.position, s + 0.5 * max_gap, 0.5 * max_gap + half_width + route.spacing());
@@ -140,12 +146,11 @@ pub fn publish_trucks(
             Some(r) => &r.0,
             None => {
                 all.clear();
-                all.extend(
-                    everyone
-                        .iter()
-                        .filter(|(other, _)| **other != id)
-                        .map(|(&other, s)| Detection { id: other, position: s.position, velocity: s.velocity }),
-                );
+                all.extend(everyone.iter().filter(|(other, _)| **other != id).map(|(&other, s)| Detection {
+                    id: other,
+                    position: s.position,
+                    velocity: s.velocity,
+                }));
                 &all
             }
         };
@@ -166,7 +171,9 @@ pub fn publish_trucks(
                     .filter_map(|d| {
                         let rel = d.position - state.position;
                         let ahead = rel.dot(heading);
-                        (ahead > 0.0 && ahead <= bridge.max_gap && heading.perp_dot(rel).abs() <= bridge.lane_half_width)
+                        (ahead > 0.0
+                            && ahead <= bridge.max_gap
+                            && heading.perp_dot(rel).abs() <= bridge.lane_half_width)
                             .then_some((d.id, ahead))
                     })
                     .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
@@ -176,7 +183,9 @@ pub fn publish_trucks(
         line.current_distance = leader.map_or(bridge.max_gap, |(_, g)| g);
         let (lane, offset) = match (&lanes, route) {
             (Some(index), _) => index.locate(state.position).unwrap_or((Lane::Center, 0.0)),
-            (None, Some(r)) => (Lane::Center, r.0.project_near(state.position, line.route_s.unwrap_or(0.0), 10.0).lateral),
+            (None, Some(r)) => {
+                (Lane::Center, r.0.project_near(state.position, line.route_s.unwrap_or(0.0), 10.0).lateral)
+            }
             (None, None) => (Lane::Center, 0.0),
         };
         line.lane = lane;

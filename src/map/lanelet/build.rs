@@ -45,7 +45,11 @@ pub(super) fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
             warn(
                 &mut warnings,
                 w.line,
-                format!("way {}: unknown line_type `{t}` (known: {}); drawn as an untagged way", w.id, super::KNOWN_LINE_TYPES.join(", ")),
+                format!(
+                    "way {}: unknown line_type `{t}` (known: {}); drawn as an untagged way",
+                    w.id,
+                    super::KNOWN_LINE_TYPES.join(", ")
+                ),
             );
         }
         ways.insert(w.id, MapWay { id: w.id, nodes: w.nodes.clone(), points, tags: w.tags.clone() });
@@ -60,15 +64,16 @@ pub(super) fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
                 }
             }
             Some(_) => {}
-            None if r.members.is_empty() => warn(
-                &mut warnings,
-                r.line,
-                format!("relation {} has no members and no type tag; skipped", r.id),
-            ),
+            None if r.members.is_empty() => {
+                warn(&mut warnings, r.line, format!("relation {} has no members and no type tag; skipped", r.id))
+            }
             None => warn(
                 &mut warnings,
                 r.line,
-                format!("relation {} has no `type` tag; kept in the file but not used (tag it type=lanelet to drive on it)", r.id),
+                format!(
+                    "relation {} has no `type` tag; kept in the file but not used (tag it type=lanelet to drive on it)",
+                    r.id
+                ),
             ),
         }
     }
@@ -91,7 +96,8 @@ pub(super) fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
 
 /// The origin: the node tagged `origin=true`, else the mean of all nodes.
 fn origin(doc: &OsmDocument, warnings: &mut Vec<MapWarning>) -> Result<(Projector, Option<i64>), MapError> {
-    let mut tagged: Vec<_> = doc.nodes.values().filter(|n| n.tags.get("origin").map(String::as_str) == Some("true")).collect();
+    let mut tagged: Vec<_> =
+        doc.nodes.values().filter(|n| n.tags.get("origin").map(String::as_str) == Some("true")).collect();
     tagged.sort_by_key(|n| n.line);
     if let Some(first) = tagged.first() {
         if tagged.len() > 1 {
