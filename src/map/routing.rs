@@ -80,7 +80,7 @@ pub struct PathProjection {
 impl Path {
     /// A path through `points` (at least two), closed back to the first point if `closed`.
     pub fn from_points(lanelets: Vec<LaneletId>, points: Vec<DVec2>, closed: bool) -> Path {
-        let mut length: f64 = points.windows(2).map(|w| w[0].distance(w[1])).sum();
+        let mut length = polyline_length(&points);
         if closed && points.len() > 1 {
             length += points[points.len() - 1].distance(points[0]);
         }
@@ -195,7 +195,7 @@ impl Path {
 /// Resample a polyline at equal arc-length spacing of about `1 / points_per_meter` metres,
 /// keeping both end points. Returns at least the two end points.
 pub fn resample(points: &[DVec2], points_per_meter: f64) -> Vec<DVec2> {
-    let total: f64 = points.windows(2).map(|w| w[0].distance(w[1])).sum();
+    let total = polyline_length(points);
     let segments = ((total * points_per_meter).round() as usize).max(1);
     resample_count(points, segments + 1)
 }
@@ -206,7 +206,7 @@ pub fn resample_count(points: &[DVec2], count: usize) -> Vec<DVec2> {
     if points.len() < 2 {
         return vec![points.first().copied().unwrap_or(DVec2::ZERO); count];
     }
-    let total: f64 = points.windows(2).map(|w| w[0].distance(w[1])).sum();
+    let total = polyline_length(points);
     let mut out = Vec::with_capacity(count);
     let mut seg = 0;
     let mut seg_start = 0.0;
