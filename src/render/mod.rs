@@ -35,7 +35,7 @@ use std::path::PathBuf;
 
 pub use environment::{Area, Environment, Line, LineStyle, RoadStrip};
 pub use gpu::{EnvironmentLayer, Renderer};
-pub use output::{frame_path, write_gif, write_image, write_meta};
+pub use output::{GifWriter, frame_path, write_gif, write_image, write_meta};
 pub use patterns::{PATTERN_SIZE, Pattern, PatternKind, PatternSet};
 pub use recorder::{FrameRecorder, RecorderOptions, sprites_from_world};
 pub use sprites::{Overlays, RadarCone, VehicleSprite, class_color};

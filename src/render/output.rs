@@ -7,7 +7,7 @@ use image::RgbaImage;
 use super::RenderError;
 use super::view::BirdseyeView;
 
-fn write_error(path: &Path, e: impl std::fmt::Display) -> RenderError {
+pub(super) fn write_error(path: &Path, e: impl std::fmt::Display) -> RenderError {
     RenderError::Write { path: path.to_path_buf(), message: e.to_string() }
 }
 
@@ -41,17 +41,82 @@ pub fn frame_path(dir: &Path, index: u64) -> std::path::PathBuf {
 
 /// Write frames as an animated GIF that loops forever, shown at `frame_rate` [Hz].
 pub fn write_gif(path: &Path, frames: &[RgbaImage], frame_rate: f64) -> Result<(), RenderError> {
-    if !(frame_rate.is_finite() && frame_rate > 0.0) {
-        return Err(write_error(path, format!("frame rate {frame_rate} Hz must be finite and > 0")));
-    }
-    let file = std::fs::File::create(path).map_err(|e| write_error(path, e))?;
-    // Speed 10 of 1..30: good colours at a tolerable encoding time for 1080p frames.
-    let mut encoder = image::codecs::gif::GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
-    encoder.set_repeat(image::codecs::gif::Repeat::Infinite).map_err(|e| write_error(path, e))?;
-    // GIF delays are in hundredths of a second.
-    let delay = image::Delay::from_numer_denom_ms((1000.0 / frame_rate).round().max(10.0) as u32, 1);
+    let (w, h) = frames.first().map_or((1, 1), RgbaImage::dimensions);
+    let mut gif = GifWriter::create(path, w, h, frame_rate)?;
     for f in frames {
-        encoder.encode_frame(image::Frame::from_parts(f.clone(), 0, 0, delay)).map_err(|e| write_error(path, e))?;
+        gif.push(f.clone())?;
     }
     Ok(())
+}
+
+/// An animated GIF written frame by frame. Each frame after the first stores only what changed
+/// since the previous one (the bounding box of the changed pixels, unchanged pixels transparent,
+/// `Keep` disposal), so a static ground costs nothing after the first frame: GIFs of a run are
+/// tens of times smaller and faster to write than with full frames.
+pub struct GifWriter {
+    path: std::path::PathBuf,
+    encoder: gif::Encoder<std::io::BufWriter<std::fs::File>>,
+    previous: Option<RgbaImage>,
+    /// Frame delay [1/100 s].
+    delay: u16,
+}
+
+impl GifWriter {
+    /// Create `path` for frames of `width` x `height` px shown at `frame_rate` [Hz], looping forever.
+    pub fn create(path: &Path, width: u32, height: u32, frame_rate: f64) -> Result<GifWriter, RenderError> {
+        if !(frame_rate.is_finite() && frame_rate > 0.0) {
+            return Err(write_error(path, format!("frame rate {frame_rate} Hz must be finite and > 0")));
+        }
+        let side = |px: u32| {
+            u16::try_from(px).map_err(|_| write_error(path, format!("{px} px is too large for a GIF (at most 65535)")))
+        };
+        let file = std::fs::File::create(path).map_err(|e| write_error(path, e))?;
+        let mut encoder = gif::Encoder::new(std::io::BufWriter::new(file), side(width)?, side(height)?, &[])
+            .map_err(|e| write_error(path, e))?;
+        encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(path, e))?;
+        // GIF delays are in hundredths of a second; 2 is the shortest most viewers honour.
+        let delay = (100.0 / frame_rate).round().clamp(2.0, f64::from(u16::MAX)) as u16;
+        Ok(GifWriter { path: path.to_path_buf(), encoder, previous: None, delay })
+    }
+
+    /// Append a frame (of the size given to [`GifWriter::create`]).
+    pub fn push(&mut self, image: RgbaImage) -> Result<(), RenderError> {
+        let frame = delta_frame(self.previous.as_ref(), &image, self.delay);
+        self.encoder.write_frame(&frame).map_err(|e| write_error(&self.path, e))?;
+        self.previous = Some(image);
+        Ok(())
+    }
+}
+
+/// A GIF frame holding only what changed since `prev` (the whole image when there is none).
+fn delta_frame(prev: Option<&RgbaImage>, next: &RgbaImage, delay: u16) -> gif::Frame<'static> {
+    let (w, h) = next.dimensions();
+    let (mut x0, mut y0, mut x1, mut y1) = (0, 0, w - 1, h - 1);
+    if let Some(prev) = prev {
+        (x0, y0, x1, y1) = (w, h, 0, 0);
+        for (x, y, p) in next.enumerate_pixels() {
+            if prev.get_pixel(x, y) != p {
+                (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+            }
+        }
+        if x0 > x1 {
+            // Nothing changed: one transparent pixel keeps the frame's place in time.
+            (x0, y0, x1, y1) = (0, 0, 0, 0);
+        }
+    }
+    let mut sub: Vec<u8> = Vec::with_capacity(((x1 - x0 + 1) * (y1 - y0 + 1) * 4) as usize);
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let p = next.get_pixel(x, y);
+            let same = prev.is_some_and(|prev| prev.get_pixel(x, y) == p);
+            sub.extend_from_slice(if same { &[0, 0, 0, 0] } else { &p.0 });
+        }
+    }
+    // Speed 10 of 1..30: good colours at a tolerable encoding time.
+    let mut frame = gif::Frame::from_rgba_speed((x1 - x0 + 1) as u16, (y1 - y0 + 1) as u16, &mut sub, 10);
+    frame.left = x0 as u16;
+    frame.top = y0 as u16;
+    frame.delay = delay;
+    frame.dispose = gif::DisposalMethod::Keep;
+    frame
 }

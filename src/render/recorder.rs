@@ -4,13 +4,11 @@
 //! [`FrameRecorder::record`] between chunks of sim time, so the simulation's results do not
 //! depend on whether (or at what rate) it is recorded.
 
-use std::fs::File;
-use std::io::BufWriter;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use bevy_ecs::prelude::{Entity, World};
 
-use super::output::frame_path;
+use super::output::{GifWriter, frame_path, write_error};
 use super::{
     BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, VehicleSprite,
 };
@@ -52,18 +50,10 @@ pub struct FrameRecorder {
     renderer: Renderer,
     layer: EnvironmentLayer,
     frames_dir: Option<PathBuf>,
-    gif: Option<(PathBuf, gif::Encoder<BufWriter<File>>)>,
-    /// The last frame written to the GIF: later frames store only what changed since.
-    previous: Option<image::RgbaImage>,
-    /// Frame delay [1/100 s].
-    delay: u16,
+    gif: Option<GifWriter>,
     sensor_ranges: bool,
     sprites: Vec<VehicleSprite>,
     frames: u64,
-}
-
-fn write_error(path: &Path, e: impl std::fmt::Display) -> RenderError {
-    RenderError::Write { path: path.to_path_buf(), message: e.to_string() }
 }
 
 impl FrameRecorder {
@@ -80,25 +70,14 @@ impl FrameRecorder {
             std::fs::create_dir_all(dir).map_err(|e| write_error(dir, e))?;
         }
         let gif = match &opts.gif {
-            Some(path) => {
-                let file = File::create(path).map_err(|e| write_error(path, e))?;
-                let (w, h) = (gif_side(opts.width, path)?, gif_side(opts.height, path)?);
-                let mut encoder =
-                    gif::Encoder::new(BufWriter::new(file), w, h, &[]).map_err(|e| write_error(path, e))?;
-                encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(path, e))?;
-                Some((path.clone(), encoder))
-            }
+            Some(path) => Some(GifWriter::create(path, opts.width, opts.height, opts.frame_rate)?),
             None => None,
         };
-        // GIF delays are in hundredths of a second; 2 is the shortest most viewers honour.
-        let delay = (100.0 / opts.frame_rate).round().clamp(2.0, f64::from(u16::MAX)) as u16;
         Ok(FrameRecorder {
             renderer,
             layer,
             frames_dir: opts.frames_dir.clone(),
             gif,
-            previous: None,
-            delay,
             sensor_ranges: opts.sensor_ranges,
             sprites: Vec::new(),
             frames: 0,
@@ -113,10 +92,8 @@ impl FrameRecorder {
             let path = frame_path(dir, self.frames);
             super::write_image(&path, &image)?;
         }
-        if let Some((path, encoder)) = &mut self.gif {
-            let frame = gif_frame(self.previous.as_ref(), &image, self.delay);
-            encoder.write_frame(&frame).map_err(|e| write_error(path, e))?;
-            self.previous = Some(image);
+        if let Some(gif) = &mut self.gif {
+            gif.push(image)?;
         }
         self.frames += 1;
         Ok(())
@@ -126,46 +103,6 @@ impl FrameRecorder {
     pub fn frames(&self) -> u64 {
         self.frames
     }
-}
-
-fn gif_side(px: u32, path: &Path) -> Result<u16, RenderError> {
-    u16::try_from(px).map_err(|_| write_error(path, format!("{px} px is too large for a GIF (at most 65535)")))
-}
-
-/// A GIF frame holding only what changed since `prev` (the whole image for the first frame):
-/// the bounding box of the changed pixels, with unchanged pixels inside it transparent, kept on
-/// screen by the `Keep` disposal. The static ground then costs nothing after the first frame,
-/// which makes GIFs tens of times smaller and faster to write.
-fn gif_frame(prev: Option<&image::RgbaImage>, next: &image::RgbaImage, delay: u16) -> gif::Frame<'static> {
-    let (w, h) = next.dimensions();
-    let (mut x0, mut y0, mut x1, mut y1) = (0, 0, w - 1, h - 1);
-    if let Some(prev) = prev {
-        (x0, y0, x1, y1) = (w, h, 0, 0);
-        for (x, y, p) in next.enumerate_pixels() {
-            if prev.get_pixel(x, y) != p {
-                (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
-            }
-        }
-        if x0 > x1 {
-            // Nothing changed: one transparent pixel keeps the frame's place in time.
-            (x0, y0, x1, y1) = (0, 0, 0, 0);
-        }
-    }
-    let mut sub: Vec<u8> = Vec::with_capacity(((x1 - x0 + 1) * (y1 - y0 + 1) * 4) as usize);
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            let p = next.get_pixel(x, y);
-            let same = prev.is_some_and(|prev| prev.get_pixel(x, y) == p);
-            sub.extend_from_slice(if same { &[0, 0, 0, 0] } else { &p.0 });
-        }
-    }
-    // Speed 10 of 1..30: good colours at a tolerable encoding time.
-    let mut frame = gif::Frame::from_rgba_speed((x1 - x0 + 1) as u16, (y1 - y0 + 1) as u16, &mut sub, 10);
-    frame.left = x0 as u16;
-    frame.top = y0 as u16;
-    frame.delay = delay;
-    frame.dispose = gif::DisposalMethod::Keep;
-    frame
 }
 
 /// The world's vehicles as sprites, sorted by id (so frames do not depend on entity order).
