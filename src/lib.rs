@@ -3,11 +3,17 @@
 //! Modules, with dependencies pointing one way (no cycles):
 //! - [`map`]: lanelet road maps from JOSM/OSM XML, projection, routing, map generation;
 //! - [`world`]: ECS data (vehicles as entities, their state, sensors, mailboxes);
-//! - [`sim`]: clock, multi-rate scheduler, dynamics, sensors and V2V systems;
+//! - [`sim`]: plugins, the sim builder, clock, multi-rate scheduler, phases as system sets,
+//!   dynamics, sensors and V2V systems, the controller registry;
 //! - [`vehicles`]: controllers as plugins;
 //! - [`render`]: off-screen wgpu bird's-eye renderer;
 //! - [`io`]: bridges to the lab (UDP stream, motion capture, trucks);
-//! - [`app`]: sim builder, plugins, scenarios and runners.
+//! - [`app`]: scenarios, runners and run outputs ([`app::run_scenario`] does what `smlworld run`
+//!   does).
+//!
+//! Layers, lowest first: map < world < sim < vehicles, io, render < app < cli (the binary). A
+//! module imports only from layers below it (`tests/architecture.rs` checks it); [`sim::Plugin`],
+//! [`sim::SimBuilder`] and [`sim::Sim`] sit in `sim` so every plugin imports them downward.
 pub mod app;
 pub mod io;
 pub mod map;
@@ -16,19 +22,25 @@ pub mod sim;
 pub mod vehicles;
 pub mod world;
 
-/// The names most users need: `use smlworld::prelude::*;`.
+/// The names most users need: `use smlworld::prelude::*;` (including the few bevy_ecs names a
+/// controller plugin needs, so a student's file needs no other import).
 pub mod prelude {
-    pub use crate::app::{Plugin, RealtimeRunner, Sim, SimBuilder, SimSeed, default_plugins, run_headless};
+    pub use crate::app::{RealtimeRunner, RunOptions, RunSummary, Scenario, ScenarioError, run_headless, run_scenario};
     pub use crate::map::{LaneletMap, Path};
     pub use crate::sim::{
-        Control, Dynamics, DynamicsPlugin, Network, Phase, Rates, Sensors, SensorsPlugin, SimClock, V2vConfig,
-        V2vPlugin, V2vStats, Wifi,
+        Control, ControllerRegistry, Dynamics, DynamicsPlugin, Network, Phase, Plugin, Rates, ScenarioController,
+        Sensors, SensorsPlugin, Sim, SimBuilder, SimClock, SimSeed, SimSystems, V2vConfig, V2vPlugin, V2vStats, Wifi,
+        default_plugins,
     };
-    pub use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
+    pub use crate::vehicles::{
+        LeaderGap, Longitudinal, LongitudinalSystems, PathFollower, PathFollowing, PathFollowingPlugin, SteeringSystems,
+    };
     pub use crate::world::{
         AccelerationUnicycle, Channel, ControlCommand, Detection, KinematicUnicycle, Mailbox, Message, Omniscient,
         Payload, Radar, Route, SensorReadings, SensorSet, SimTime, VehicleClass, VehicleId, VehicleModel, VehicleSize,
         VehicleSpec, VehicleState, Vehicles, Velodyne,
     };
+    pub use bevy_ecs::prelude::{Component, EntityWorldMut, Query, Res, ResMut};
+    pub use bevy_ecs::schedule::IntoScheduleConfigs;
     pub use glam::DVec2;
 }

@@ -19,9 +19,7 @@ use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
-use crate::app::{Plugin, SimBuilder};
-use crate::sim::dynamics::{integrate_acceleration_unicycles, integrate_kinematic_unicycles};
-use crate::sim::{Dynamics, GridEntry, SimClock, SpatialGrid};
+use crate::sim::{Dynamics, GridEntry, Plugin, SimBuilder, SimClock, SimSystems, SpatialGrid};
 use crate::vehicles::{Longitudinal, PathFollower, PlatoonMember};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState, Vehicles};
 
@@ -335,9 +333,6 @@ impl Default for MetricsPlugin {
 impl Plugin for MetricsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(Metrics::new(self.warmup));
-        sim.add_systems(
-            Dynamics,
-            record_metrics.after(integrate_kinematic_unicycles).after(integrate_acceleration_unicycles),
-        );
+        sim.add_systems(Dynamics, record_metrics.after(SimSystems::Integrate));
     }
 }

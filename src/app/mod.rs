@@ -1,25 +1,15 @@
-//! Sim builder, Plugin trait, scenario config, headless and real-time runners.
+//! Scenarios, runners and run outputs: everything that wires the layers below into a run.
+//! [`Plugin`], [`SimBuilder`] and [`Sim`] live in [`crate::sim`] and are re-exported here.
 //!
-//! # Building and running a simulation
-//! ```
-//! use smlworld::prelude::*;
-//!
-//! let mut builder = SimBuilder::new();
-//! builder.add_plugin(default_plugins);
-//! builder
-//!     .spawn_vehicle(VehicleSpec::new(VehicleId(-1), VehicleState::new(DVec2::ZERO, 0.0, 0.0)))
-//!     .expect("fresh id");
-//! let mut sim = builder.build();
-//! let entity = sim.entity(VehicleId(-1)).unwrap();
-//! sim.world_mut().get_mut::<ControlCommand>(entity).unwrap().speed = 10.0;
-//! sim.run_for(2.0);
-//! let state = sim.state(VehicleId(-1)).unwrap();
-//! assert!((state.position.x - 20.0).abs() < 1e-9);
-//! ```
+//! # Running a scenario from your own program
+//! [`run_scenario`] does what `smlworld run` does (trajectories, summary with metrics, optional
+//! frames, GIF and stream); your plugins go into [`RunOptions::plugins`], and controllers they
+//! register ([`SimBuilder::register_controller`]) can be named in the scenario like built-in
+//! ones. `examples/student_controller.rs` is a complete program to copy.
 //!
 //! # The controller contract
-//! A controller is a plugin that adds systems to the [`crate::sim::Control`] schedule
-//! (`sim.add_systems(Control, my_system)`). Each control tick (20 Hz by default) such a system
+//! A controller is a plugin that adds systems to the [`crate::sim::Control`] schedule in the
+//! [`crate::sim::SimSystems::Control`] set. Each control tick (20 Hz by default) such a system
 //! reads, per vehicle, [`crate::world::VehicleState`], [`crate::world::SensorReadings`] (filled
 //! by the last sensor tick), the in-boxes of its [`crate::world::Mailbox`] (every V2V round
 //! since the previous control tick) and its [`crate::world::Route`], plus
@@ -28,10 +18,15 @@
 //! queues messages with [`crate::world::Mailbox::send`] (they leave at the channel's next round).
 //! Per-vehicle controller state lives in a component of the controller's own (see
 //! [`crate::vehicles::PathFollower`]). Controllers must not write `VehicleState`: the dynamics
-//! (or, for real vehicles, a bridge) own it. `examples/student_controller.rs` is a complete
-//! controller plugin to copy; speed controllers that should combine with ACC, platooning,
-//! intersection yielding and emergency braking write [`crate::vehicles::Longitudinal`] instead
-//! (see [`crate::vehicles::longitudinal`]).
+//! (or, for real vehicles, a bridge) own it.
+//!
+//! A speed controller does not write the command itself: it writes the acceleration it wants
+//! into [`crate::vehicles::Longitudinal::accel`] from a system in
+//! [`crate::vehicles::LongitudinalSystems::Demand`]; the pipeline then applies limiters
+//! (intersections, emergency braking) and turns the demand into a throttle (acceleration model)
+//! or a speed (kinematic model), so the same controller brakes on both models (see
+//! [`crate::vehicles::longitudinal`]). Writing `ControlCommand::speed` directly does nothing on
+//! the acceleration model, whose dynamics read the throttle.
 //!
 //! At one instant modules run in the order sense -> communicate -> control -> dynamics, so a
 //! controller at time t sees sensor readings and messages of time t, and its command drives the
@@ -40,235 +35,12 @@
 pub mod bench;
 pub mod metrics;
 mod output;
+mod run;
 mod runner;
 pub mod scenario;
 
-use bevy_ecs::prelude::{Entity, Resource, World};
-use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
-use bevy_ecs::system::ScheduleSystem;
-
-use crate::sim::{
-    Control, ControlEpoch, Dynamics, DynamicsPlugin, Network, Phase, Rates, Scheduler, Sensors, SensorsPlugin,
-    SimClock, V2vPlugin, Wifi,
-};
-use crate::world::{SimTime, VehicleId, VehicleSpec, VehicleState, Vehicles, WorldError, spawn_vehicle};
-
+pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use output::{Log, MessagesDelivered, RunSummary, TrajectoryLog, TrajectoryLogPlugin, log_trajectories};
+pub use run::{RunError, RunOptions, ScenarioSource, run_scenario};
 pub use runner::{RealtimeRunner, RunReport, run_headless};
 pub use scenario::{Scenario, ScenarioError};
-
-/// A feature of the simulation: adds resources, modules and systems to a [`SimBuilder`].
-/// A plain `fn(&mut SimBuilder)` is a plugin too.
-pub trait Plugin {
-    /// Add this plugin's resources, modules and systems.
-    fn build(&self, sim: &mut SimBuilder);
-}
-
-impl<F: Fn(&mut SimBuilder)> Plugin for F {
-    fn build(&self, sim: &mut SimBuilder) {
-        self(sim)
-    }
-}
-
-/// The seed of the run: every random choice of a plugin must derive from it.
-#[derive(Resource, Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct SimSeed(pub u64);
-
-/// The built-in modules as one plugin: dynamics, sensors and V2V (default wifi range).
-pub fn default_plugins(sim: &mut SimBuilder) {
-    sim.add_plugin(DynamicsPlugin).add_plugin(SensorsPlugin).add_plugin(V2vPlugin::default());
-}
-
-/// Assembles a [`Sim`]: the world, the modules with their rates and the plugins' systems.
-pub struct SimBuilder {
-    world: World,
-    scheduler: Scheduler,
-}
-
-impl Default for SimBuilder {
-    fn default() -> Self {
-        SimBuilder::new()
-    }
-}
-
-impl SimBuilder {
-    /// An empty world with the five standard modules at the default [`Rates`] and no systems.
-    pub fn new() -> SimBuilder {
-        SimBuilder::with_rates(Rates::default())
-    }
-
-    /// An empty world with the five standard modules at `rates` (each > 0 Hz).
-    pub fn with_rates(rates: Rates) -> SimBuilder {
-        let mut world = World::new();
-        world.insert_resource(SimClock::default());
-        world.insert_resource(ControlEpoch::default());
-        world.insert_resource(Vehicles::default());
-        world.insert_resource(SimSeed::default());
-        let mut scheduler = Scheduler::default();
-        scheduler.add_module("sensors", Sensors, Phase::Sense, rates.sensors);
-        scheduler.add_module("wifi", Wifi, Phase::Communicate, rates.wifi);
-        scheduler.add_module("network", Network, Phase::Communicate, rates.network);
-        scheduler.add_module("control", Control, Phase::Control, rates.control);
-        scheduler.add_module("dynamics", Dynamics, Phase::Dynamics, rates.dynamics);
-        SimBuilder { world, scheduler }
-    }
-
-    /// Add a plugin (runs its `build` now).
-    pub fn add_plugin(&mut self, plugin: impl Plugin) -> &mut Self {
-        plugin.build(self);
-        self
-    }
-
-    /// Add a module of your own: a new schedule `label` running at `rate` [Hz] in `phase`.
-    /// Adding a label twice keeps the first module.
-    pub fn add_module(&mut self, name: &str, label: impl ScheduleLabel, phase: Phase, rate: f64) -> &mut Self {
-        self.scheduler.add_module(name, label, phase, rate);
-        self
-    }
-
-    /// Set the rate of module `label` [Hz].
-    ///
-    /// # Panics
-    /// If there is no such module or the rate is not positive and finite.
-    pub fn set_rate(&mut self, label: impl ScheduleLabel + Clone, rate: f64) -> &mut Self {
-        let known = self.scheduler.set_rate(label.clone(), rate);
-        assert!(known, "no module with schedule label {label:?}");
-        self
-    }
-
-    /// Rate of module `label` [Hz].
-    pub fn rate(&self, label: impl ScheduleLabel) -> Option<f64> {
-        self.scheduler.rate(label)
-    }
-
-    /// Add systems to the schedule of module `label` (e.g. [`Control`]).
-    ///
-    /// # Panics
-    /// If there is no such module (add it first with [`SimBuilder::add_module`]).
-    pub fn add_systems<M>(
-        &mut self,
-        label: impl ScheduleLabel + Clone,
-        systems: impl IntoScheduleConfigs<ScheduleSystem, M>,
-    ) -> &mut Self {
-        match self.scheduler.schedule_mut(label.clone()) {
-            Some(schedule) => {
-                schedule.add_systems(systems);
-            }
-            None => panic!("no module with schedule label {label:?}: add it with SimBuilder::add_module"),
-        }
-        self
-    }
-
-    /// Insert (or replace) a resource.
-    pub fn insert_resource<R: Resource>(&mut self, resource: R) -> &mut Self {
-        self.world.insert_resource(resource);
-        self
-    }
-
-    /// The world being built.
-    pub fn world_mut(&mut self) -> &mut World {
-        &mut self.world
-    }
-
-    /// Spawn a vehicle now (see [`spawn_vehicle`]).
-    pub fn spawn_vehicle(&mut self, spec: VehicleSpec) -> Result<Entity, WorldError> {
-        spawn_vehicle(&mut self.world, spec)
-    }
-
-    /// Finish: the simulation at t = 0.
-    pub fn build(self) -> Sim {
-        Sim { world: self.world, scheduler: self.scheduler, rate_warnings: 0 }
-    }
-}
-
-/// A built simulation: the world plus its scheduler. Run it with [`Sim::run_for`] (headless) or
-/// a [`RealtimeRunner`].
-pub struct Sim {
-    world: World,
-    scheduler: Scheduler,
-    rate_warnings: u64,
-}
-
-impl Sim {
-    /// The world (read it between runs: states, readings, resources).
-    pub fn world(&self) -> &World {
-        &self.world
-    }
-
-    /// The world, mutably (spawn vehicles, set commands, change resources between runs).
-    pub fn world_mut(&mut self) -> &mut World {
-        &mut self.world
-    }
-
-    /// Current sim time.
-    pub fn now(&self) -> SimTime {
-        self.scheduler.now()
-    }
-
-    /// The scheduler (module rates and tick counts).
-    pub fn scheduler(&self) -> &Scheduler {
-        &self.scheduler
-    }
-
-    /// Run the module due next; returns its due time.
-    pub fn step(&mut self) -> Option<SimTime> {
-        self.scheduler.run_next(&mut self.world)
-    }
-
-    /// Run headless until sim time `end`: every tick due before `end` runs.
-    pub fn run_until(&mut self, end: SimTime) {
-        self.scheduler.run_until(&mut self.world, end);
-    }
-
-    /// Run headless for `seconds` [s] of sim time from now.
-    pub fn run_for(&mut self, seconds: f64) {
-        let end = SimTime(self.now().0 + SimTime::from_secs(seconds).0);
-        self.run_until(end);
-    }
-
-    /// Spawn a vehicle (see [`spawn_vehicle`]).
-    pub fn spawn_vehicle(&mut self, spec: VehicleSpec) -> Result<Entity, WorldError> {
-        spawn_vehicle(&mut self.world, spec)
-    }
-
-    /// Entity of vehicle `id`.
-    pub fn entity(&self, id: VehicleId) -> Option<Entity> {
-        self.world.resource::<Vehicles>().get(id)
-    }
-
-    /// State of vehicle `id`.
-    pub fn state(&self, id: VehicleId) -> Option<VehicleState> {
-        self.world.get::<VehicleState>(self.entity(id)?).copied()
-    }
-
-    /// All vehicles' states, in id order.
-    pub fn states(&self) -> Vec<(VehicleId, VehicleState)> {
-        let vehicles = self.world.resource::<Vehicles>();
-        vehicles.iter().filter_map(|(id, e)| Some((id, *self.world.get::<VehicleState>(e)?))).collect()
-    }
-
-    /// FNV-1a hash of the time and of every vehicle's id and state bits, in id order: equal
-    /// hashes mean identical runs (bit for bit).
-    pub fn state_hash(&self) -> u64 {
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        let mut eat = |x: u64| {
-            for b in x.to_le_bytes() {
-                h ^= b as u64;
-                h = h.wrapping_mul(0x0000_0100_0000_01b3);
-            }
-        };
-        eat(self.now().0);
-        for (id, s) in self.states() {
-            eat(id.0 as i64 as u64);
-            for v in [s.position.x, s.position.y, s.yaw, s.velocity.x, s.velocity.y] {
-                eat(v.to_bits());
-            }
-        }
-        h
-    }
-
-    /// Rate warnings logged by real-time runs so far.
-    pub fn rate_warnings(&self) -> u64 {
-        self.rate_warnings
-    }
-}

@@ -7,10 +7,12 @@
 
 use bevy_ecs::prelude::{Local, Query, Res};
 
-use crate::app::{Plugin, SimBuilder};
+use super::{Plugin, SimBuilder};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, VehicleState};
 
-use super::{Dynamics, Parallelism, SimClock};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+
+use super::{Dynamics, Parallelism, SimClock, SimSystems};
 
 /// Wrap an angle to (−π, π] [rad].
 fn wrap_angle(a: f64) -> f64 {
@@ -146,6 +148,9 @@ pub struct DynamicsPlugin;
 impl Plugin for DynamicsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.world_mut().init_resource::<Parallelism>();
-        sim.add_systems(Dynamics, (integrate_kinematic_unicycles, integrate_acceleration_unicycles));
+        sim.add_systems(
+            Dynamics,
+            (integrate_kinematic_unicycles, integrate_acceleration_unicycles).in_set(SimSystems::Integrate),
+        );
     }
 }

@@ -5,7 +5,14 @@
 //! [`Scheduler`] always runs the one due earliest, ties in [`Phase`] order
 //! (sense -> communicate -> control -> dynamics). The systems of each module are plain functions
 //! over the components of [`crate::world`]; the model and geometry maths are pure functions.
+//! Within a schedule, systems say which phase they belong to with the [`SimSystems`] sets.
+//!
+//! [`Plugin`], [`SimBuilder`] and [`Sim`] live here, at the bottom of the plugin layers, so
+//! every plugin (dynamics, sensors, V2V here; controllers in `vehicles`; bridges in `io`; a
+//! student's) imports them downward.
 
+mod builder;
+pub mod controllers;
 pub mod dynamics;
 pub mod grid;
 pub mod parallel;
@@ -13,9 +20,14 @@ mod schedule;
 pub mod sensors;
 pub mod v2v;
 
+pub use builder::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
+pub use controllers::{AttachController, BUILT_IN_CONTROLLERS, ControllerRegistry, ScenarioController};
 pub use dynamics::{DynamicsPlugin, step_acceleration_unicycle, step_kinematic_unicycle};
 pub use grid::{GridEntry, SpatialGrid};
 pub use parallel::Parallelism;
-pub use schedule::{Control, ControlEpoch, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, Wifi};
+pub use schedule::{
+    Control, ControlEpoch, DuplicateModule, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, SimSystems,
+    Wifi,
+};
 pub use sensors::{SensorsPlugin, in_radar_cone};
 pub use v2v::{V2vConfig, V2vPlugin, V2vStats};

@@ -1,9 +1,40 @@
 //! The clock and the multi-rate scheduler: one schedule per module, earliest due first.
 
 use bevy_ecs::prelude::{Resource, Schedule, World};
-use bevy_ecs::schedule::{InternedScheduleLabel, ScheduleLabel, SingleThreadedExecutor};
+use bevy_ecs::schedule::{
+    InternedScheduleLabel, IntoScheduleConfigs, ScheduleLabel, SingleThreadedExecutor, SystemSet,
+};
 
 use crate::world::SimTime;
+
+/// The phases of the simulation as system sets, in the style of bevy's `*Systems` sets: a system
+/// says which phase it belongs to with `.in_set(SimSystems::Control)` and orders itself against
+/// other phases by set (`.after(SimSystems::Integrate)`), never by naming another plugin's
+/// functions. Every module's schedule chains them in this order, so a module that holds systems
+/// of several phases (a student's own module, say) still runs them sense -> communicate ->
+/// control -> integrate. Between modules the [`Phase`] of each module orders the ticks due at the
+/// same instant the same way.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SimSystems {
+    /// Sensors and anything that only observes the world.
+    Sense,
+    /// V2V rounds: out-boxes to in-boxes.
+    Communicate,
+    /// Controllers: read state, readings and mail; write commands and out-going mail.
+    Control,
+    /// Dynamics: integrate the models over the step.
+    Integrate,
+}
+
+/// A module label is already taken.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("a module with schedule label {label} already exists (module `{existing}`): give the new module its own label")]
+pub struct DuplicateModule {
+    /// The label asked for again.
+    pub label: String,
+    /// Name of the module that has it.
+    pub existing: String,
+}
 
 /// Schedule of the sensor module (radar, velodyne, omniscient): [`Phase::Sense`], 20 Hz.
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -64,7 +95,7 @@ pub struct SimClock {
     pub dt: f64,
 }
 
-/// Number of times the [`Control`] schedule has run; V2V in-boxes use it to know when the
+/// Number of times a module of [`Phase::Control`] has run; V2V in-boxes use it to know when the
 /// controllers have seen the rounds they hold.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ControlEpoch(pub u64);
@@ -99,22 +130,32 @@ impl Default for Scheduler {
 }
 
 impl Scheduler {
-    /// Add a module with an empty schedule (single-threaded executor: the multi-threaded one
-    /// costs more than it gains on small machines). Returns false if `label` already exists.
+    /// Add a module with an empty schedule whose [`SimSystems`] sets are chained
+    /// (single-threaded executor: the multi-threaded one costs more than it gains on small
+    /// machines). A label that already exists is an error and changes nothing.
     ///
     /// # Panics
     /// If `rate` is not a positive finite number of Hz (a programming error: scenarios validate
     /// their rates before they get here).
-    pub fn add_module(&mut self, name: &str, label: impl ScheduleLabel, phase: Phase, rate: f64) -> bool {
+    pub fn add_module(
+        &mut self,
+        name: &str,
+        label: impl ScheduleLabel,
+        phase: Phase,
+        rate: f64,
+    ) -> Result<(), DuplicateModule> {
         assert!(rate.is_finite() && rate > 0.0, "module {name}: rate must be positive and finite, got {rate} Hz");
         let label = label.intern();
-        if self.index(label).is_some() {
-            return false;
+        if let Some(i) = self.index(label) {
+            return Err(DuplicateModule { label: format!("{label:?}"), existing: self.modules[i].name.clone() });
         }
         let mut schedule = Schedule::new(label);
         schedule.set_executor(SingleThreadedExecutor::new());
+        schedule.configure_sets(
+            (SimSystems::Sense, SimSystems::Communicate, SimSystems::Control, SimSystems::Integrate).chain(),
+        );
         self.modules.push(Module { name: name.to_string(), label, phase, rate, tick: 0, schedule });
-        true
+        Ok(())
     }
 
     fn index(&self, label: InternedScheduleLabel) -> Option<usize> {
@@ -184,7 +225,9 @@ impl Scheduler {
         }
         m.schedule.run(world);
         m.tick += 1;
-        if m.label == Control.intern() {
+        // Any control-phase module (not only the built-in `Control`) means the controllers have
+        // seen the in-boxes: the next V2V round starts them afresh.
+        if m.phase == Phase::Control {
             world.get_resource_or_insert_with(ControlEpoch::default).0 += 1;
         }
         self.now = due;

@@ -7,10 +7,12 @@
 use bevy_ecs::prelude::{Has, Local, Mut, Query, Res, ResMut, Resource};
 use glam::DVec2;
 
-use crate::app::{Plugin, SimBuilder};
+use super::{Plugin, SimBuilder};
 use crate::world::{Detection, Omniscient, Radar, SensorReadings, VehicleId, VehicleState, Velodyne};
 
-use super::{GridEntry, Parallelism, Sensors, SpatialGrid};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+
+use super::{GridEntry, Parallelism, Sensors, SimSystems, SpatialGrid};
 
 /// Whether a target at offset `relative` [m] from the sensor lies inside a radar cone facing
 /// `heading` (a unit vector) with full opening angle `angle` [rad] (edges inclusive).
@@ -218,6 +220,6 @@ impl Plugin for SensorsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(SensorGrid::default());
         sim.world_mut().init_resource::<Parallelism>();
-        sim.add_systems(Sensors, sense_vehicles);
+        sim.add_systems(Sensors, sense_vehicles.in_set(SimSystems::Sense));
     }
 }

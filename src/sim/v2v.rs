@@ -9,10 +9,12 @@ use std::sync::Arc;
 
 use bevy_ecs::prelude::{Local, Query, Res, ResMut, Resource};
 
-use crate::app::{Plugin, SimBuilder};
+use super::{Plugin, SimBuilder};
 use crate::world::{Mailbox, Message, VehicleId, VehicleState};
 
-use super::{ControlEpoch, GridEntry, Network, SpatialGrid, Wifi};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+
+use super::{ControlEpoch, GridEntry, Network, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
 #[derive(Resource, Debug, Clone, Copy, PartialEq)]
@@ -157,7 +159,7 @@ impl Plugin for V2vPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(self.config);
         sim.insert_resource(V2vStats::default());
-        sim.add_systems(Network, deliver_network);
-        sim.add_systems(Wifi, deliver_wifi);
+        sim.add_systems(Network, deliver_network.in_set(SimSystems::Communicate));
+        sim.add_systems(Wifi, deliver_wifi.in_set(SimSystems::Communicate));
     }
 }

@@ -13,11 +13,11 @@
 use bevy_ecs::prelude::{Component, Query};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use crate::app::{Plugin, SimBuilder};
 use crate::sim::Control;
+use crate::sim::{Plugin, SimBuilder};
 use crate::world::VehicleState;
 
-use super::longitudinal::{LeaderGap, Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
+use super::longitudinal::{LeaderGap, Longitudinal, LongitudinalSystems, install_longitudinal};
 
 /// The braking bound acts once stopping the closing in time needs at least this [m/s²]; below,
 /// the gap law alone handles it (a weaker bound would cap gentle catching up).
@@ -107,6 +107,6 @@ pub struct AccPlugin;
 impl Plugin for AccPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         install_longitudinal(sim);
-        sim.add_systems(Control, control_acc.after(find_leaders).before(actuate_longitudinal));
+        sim.add_systems(Control, control_acc.in_set(LongitudinalSystems::Demand));
     }
 }

@@ -18,16 +18,14 @@ use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
-use crate::app::{Plugin, SimBuilder};
 use crate::map::Path;
 use crate::sim::{Control, SimClock};
+use crate::sim::{Plugin, SimBuilder};
 use crate::world::{Channel, Mailbox, Route, VehicleId, VehicleSize, VehicleState};
 
 use super::PathFollower;
-use super::acc::control_acc;
-use super::cruise::control_cruise;
-use super::longitudinal::{Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
-use super::platoon::{PlatoonMember, control_platoon};
+use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
+use super::platoon::PlatoonMember;
 
 /// Parameters of intersection negotiation.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -205,14 +203,6 @@ pub struct CrossingPlugin;
 impl Plugin for CrossingPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         install_longitudinal(sim);
-        sim.add_systems(
-            Control,
-            yield_at_crossings
-                .after(find_leaders)
-                .after(control_cruise)
-                .after(control_acc)
-                .after(control_platoon)
-                .before(actuate_longitudinal),
-        );
+        sim.add_systems(Control, yield_at_crossings.in_set(LongitudinalSystems::Limit));
     }
 }

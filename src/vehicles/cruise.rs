@@ -10,11 +10,11 @@
 use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use crate::app::{Plugin, SimBuilder};
 use crate::sim::{Control, SimClock};
+use crate::sim::{Plugin, SimBuilder};
 use crate::world::{AccelerationUnicycle, VehicleState};
 
-use super::longitudinal::{Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
+use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
 /// A scripted slow-down: at `at` the reference speed ramps down to `speed` at `deceleration`,
 /// holds for `hold`, then ramps back to the cruise speed at the controller's `max_acceleration`.
@@ -123,6 +123,6 @@ pub struct CruisePlugin;
 impl Plugin for CruisePlugin {
     fn build(&self, sim: &mut SimBuilder) {
         install_longitudinal(sim);
-        sim.add_systems(Control, control_cruise.after(find_leaders).before(actuate_longitudinal));
+        sim.add_systems(Control, control_cruise.in_set(LongitudinalSystems::Demand));
     }
 }

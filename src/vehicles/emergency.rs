@@ -8,15 +8,11 @@
 use bevy_ecs::prelude::{Component, Query};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use crate::app::{Plugin, SimBuilder};
 use crate::sim::Control;
+use crate::sim::{Plugin, SimBuilder};
 use crate::world::VehicleState;
 
-use super::acc::control_acc;
-use super::crossing::yield_at_crossings;
-use super::cruise::control_cruise;
-use super::longitudinal::{Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
-use super::platoon::control_platoon;
+use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
 /// Parameters of emergency braking.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -93,15 +89,6 @@ pub struct EmergencyBrakingPlugin;
 impl Plugin for EmergencyBrakingPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         install_longitudinal(sim);
-        sim.add_systems(
-            Control,
-            brake_for_emergencies
-                .after(find_leaders)
-                .after(control_cruise)
-                .after(control_acc)
-                .after(control_platoon)
-                .after(yield_at_crossings)
-                .before(actuate_longitudinal),
-        );
+        sim.add_systems(Control, brake_for_emergencies.in_set(LongitudinalSystems::Limit));
     }
 }

@@ -1,30 +1,62 @@
 //! The longitudinal pipeline shared by the speed controllers: find the vehicle ahead on the
 //! route, let the controllers agree on one acceleration, turn it into a model command.
 //!
-//! Each control tick, after the path follower has steered ([`crate::vehicles::follow_paths`]):
-//! 1. [`find_leaders`] resets [`Longitudinal::accel`] to "no demand" and finds the nearest
+//! Each control tick, after the path follower has steered ([`crate::vehicles::follow_paths`]),
+//! the steps run as the chained sets of [`LongitudinalSystems`]:
+//! 1. [`LongitudinalSystems::FindLeader`]: [`find_leaders`] resets [`Longitudinal::accel`] to "no demand" and finds the nearest
 //!    vehicle ahead on the vehicle's own route from its sensor readings;
-//! 2. a speed controller ([`crate::vehicles::control_cruise`], [`crate::vehicles::control_acc`],
-//!    [`crate::vehicles::control_platoon`]) writes the acceleration it wants;
-//! 3. limiters ([`crate::vehicles::yield_at_crossings`], then
-//!    [`crate::vehicles::brake_for_emergencies`]) may only lower it;
-//! 4. [`actuate_longitudinal`] turns it into a throttle (acceleration model) or a speed command
+//! 2. [`LongitudinalSystems::Demand`]: a speed controller ([`crate::vehicles::control_cruise`],
+//!    [`crate::vehicles::control_acc`], a student's) writes the acceleration it wants into
+//!    [`Longitudinal::accel`]; [`LongitudinalSystems::Cooperate`]: cooperative laws
+//!    ([`crate::vehicles::control_platoon`]) may replace it with what the platoon agreed;
+//! 3. [`LongitudinalSystems::Limit`]: limiters ([`crate::vehicles::yield_at_crossings`],
+//!    [`crate::vehicles::brake_for_emergencies`]) may only lower it ([`Longitudinal::limit`]);
+//! 4. [`LongitudinalSystems::Actuate`]: [`actuate_longitudinal`] turns it into a throttle (acceleration model) or a speed command
 //!    (kinematic model), never exceeding the route's target speed. A vehicle nobody asked
-//!    anything of keeps the path follower's command.
+//!    anything of keeps the path follower's command;
+//! 5. [`LongitudinalSystems::Report`]: what was finally asked for is told to others (platoon
+//!    beacons).
+//!
+//! A controller written this way (demand in `Demand`, never touching `ControlCommand`) works
+//! on both vehicle models and combines with every limiter.
 
 use bevy_ecs::prelude::{Component, Query, Res, Resource};
-use bevy_ecs::schedule::IntoScheduleConfigs;
+use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
-use crate::app::SimBuilder;
 use crate::map::Path;
-use crate::sim::{Control, SimClock};
+use crate::sim::SimBuilder;
+use crate::sim::{Control, SimClock, SimSystems};
 use crate::world::{
     AccelerationUnicycle, ControlCommand, Detection, KinematicUnicycle, Route, SensorReadings, VehicleId, VehicleSize,
     VehicleState,
 };
 
-use super::{PathFollower, follow_paths};
+use super::PathFollower;
+
+/// The steps of the longitudinal pipeline as system sets of the [`Control`] schedule, chained in
+/// this order inside [`SimSystems::Control`] and after the path follower's steering. A speed
+/// controller of your own goes into [`LongitudinalSystems::Demand`].
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum LongitudinalSystems {
+    /// Reset the demand and find each vehicle's leader on its route ([`find_leaders`]).
+    FindLeader,
+    /// Speed controllers write the acceleration they want ([`Longitudinal::accel`]).
+    Demand,
+    /// Cooperative laws (platooning) may replace the demand with the platoon's.
+    Cooperate,
+    /// Limiters (intersections, emergency braking) may only lower it ([`Longitudinal::limit`]).
+    Limit,
+    /// Turn the demand into the model's command ([`actuate_longitudinal`]).
+    Actuate,
+    /// Tell others what was finally asked for (V2V beacons).
+    Report,
+}
+
+/// Steering and the route's target speed: the path follower, before the longitudinal pipeline
+/// (it writes [`ControlCommand::speed`], which [`find_leaders`] takes as the route's speed).
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct SteeringSystems;
 
 /// The vehicle ahead on the same route, as the sensors see it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -186,12 +218,33 @@ pub fn actuate_longitudinal(
 #[derive(Resource, Debug, Clone, Copy, Default)]
 pub struct LongitudinalInstalled;
 
-/// Add [`find_leaders`] (after the path follower) and [`actuate_longitudinal`] (after every
-/// limiter) to the [`Control`] schedule, once.
+/// Chain the [`LongitudinalSystems`] sets after [`SteeringSystems`] inside
+/// [`SimSystems::Control`] and add [`find_leaders`] and [`actuate_longitudinal`] to the
+/// [`Control`] schedule, once (every speed controller's plugin calls it).
 pub fn install_longitudinal(sim: &mut SimBuilder) {
     if sim.world_mut().contains_resource::<LongitudinalInstalled>() {
         return;
     }
     sim.insert_resource(LongitudinalInstalled);
-    sim.add_systems(Control, (find_leaders.after(follow_paths), actuate_longitudinal.after(find_leaders)));
+    sim.configure_sets(
+        Control,
+        (
+            SteeringSystems,
+            LongitudinalSystems::FindLeader,
+            LongitudinalSystems::Demand,
+            LongitudinalSystems::Cooperate,
+            LongitudinalSystems::Limit,
+            LongitudinalSystems::Actuate,
+            LongitudinalSystems::Report,
+        )
+            .chain()
+            .in_set(SimSystems::Control),
+    );
+    sim.add_systems(
+        Control,
+        (
+            find_leaders.in_set(LongitudinalSystems::FindLeader),
+            actuate_longitudinal.in_set(LongitudinalSystems::Actuate),
+        ),
+    );
 }

@@ -34,12 +34,14 @@ pub use cruise::{CruiseControl, CruiseController, CruisePlugin, SpeedDip, contro
 pub use emergency::{
     EmergencyBrake, EmergencyBraking, EmergencyBrakingPlugin, brake_for_emergencies, time_to_collision,
 };
-pub use longitudinal::{LeaderGap, Longitudinal, actuate_longitudinal, find_leaders, leader_on_path};
+pub use longitudinal::{
+    LeaderGap, Longitudinal, LongitudinalSystems, SteeringSystems, actuate_longitudinal, find_leaders, leader_on_path,
+};
 pub use path_following::{PathFollower, PathFollowing, PathFollowingPlugin, follow_paths};
 pub use platoon::{PlatoonBeacon, PlatoonMember, PlatoonPlugin, Platooning, control_platoon, send_platoon_beacons};
 pub use setup::{AccSetup, CruiseSetup, PlatoonRole, PlatoonSetup, SmartController};
 
-use crate::app::SimBuilder;
+use crate::sim::SimBuilder;
 
 /// Every smart-vehicle controller of this module (not the path follower): cruise control, ACC,
 /// platooning, intersection negotiation and emergency braking. Each acts only on vehicles with

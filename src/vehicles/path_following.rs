@@ -7,8 +7,11 @@
 
 use bevy_ecs::prelude::{Component, Local, Mut, Query, Res};
 
-use crate::app::{Plugin, SimBuilder};
-use crate::sim::{Control, Parallelism, SimClock};
+use crate::sim::{Plugin, SimBuilder};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+
+use super::longitudinal::SteeringSystems;
+use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Route, VehicleState};
 
 /// Parameters of the path follower.
@@ -150,6 +153,6 @@ pub struct PathFollowingPlugin;
 impl Plugin for PathFollowingPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.world_mut().init_resource::<Parallelism>();
-        sim.add_systems(Control, follow_paths);
+        sim.add_systems(Control, follow_paths.in_set(SteeringSystems).in_set(SimSystems::Control));
     }
 }

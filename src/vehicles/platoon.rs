@@ -25,13 +25,12 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use crate::app::{Plugin, SimBuilder};
 use crate::sim::{Control, SimClock};
+use crate::sim::{Plugin, SimBuilder};
 use crate::world::{Channel, Mailbox, SimTime, VehicleId, VehicleState};
 
-use super::acc::{AdaptiveCruise, control_acc};
-use super::cruise::control_cruise;
-use super::longitudinal::{Longitudinal, actuate_longitudinal, find_leaders, install_longitudinal};
+use super::acc::AdaptiveCruise;
+use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
 /// Parameters of a platoon vehicle.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -236,12 +235,8 @@ impl Plugin for PlatoonPlugin {
         sim.add_systems(
             Control,
             (
-                control_platoon
-                    .after(find_leaders)
-                    .after(control_cruise)
-                    .after(control_acc)
-                    .before(actuate_longitudinal),
-                send_platoon_beacons.after(actuate_longitudinal),
+                control_platoon.in_set(LongitudinalSystems::Cooperate),
+                send_platoon_beacons.in_set(LongitudinalSystems::Report),
             ),
         );
     }

@@ -236,4 +236,32 @@ impl Mailbox {
             Channel::Wifi => &self.wifi_in,
         }
     }
+
+    /// Queue a message of type `T` on `channel` (wraps it in the shared [`Payload`]); it leaves
+    /// at the channel's next round.
+    pub fn send_typed<T: Any + Send + Sync>(&mut self, channel: Channel, now: SimTime, message: T) {
+        self.send(channel, now, Arc::new(message));
+    }
+
+    /// Replace this vehicle's queued messages of type `T` on `channel` with `message`: for
+    /// beacons, of which only the newest matters.
+    pub fn send_latest<T: Any + Send + Sync>(&mut self, channel: Channel, now: SimTime, message: T) {
+        let out = match channel {
+            Channel::Network => &mut self.network_out,
+            Channel::Wifi => &mut self.wifi_out,
+        };
+        out.retain(|m| m.payload::<T>().is_none());
+        self.send_typed(channel, now, message);
+    }
+
+    /// The received messages of type `T` on `channel`, with their senders and send times,
+    /// oldest round first (messages of other types are skipped).
+    pub fn received<T: Any>(&self, channel: Channel) -> impl Iterator<Item = (VehicleId, SimTime, &T)> + '_ {
+        self.inbox(channel).iter().filter_map(|m| Some((m.sender, m.sent_at, m.payload::<T>()?)))
+    }
+
+    /// The newest received message of type `T` from `sender` on `channel`, if any.
+    pub fn latest_from<T: Any>(&self, channel: Channel, sender: VehicleId) -> Option<(SimTime, &T)> {
+        self.received::<T>(channel).filter(|(s, _, _)| *s == sender).map(|(_, t, m)| (t, m)).last()
+    }
 }

@@ -5,11 +5,13 @@ use std::time::Instant;
 
 use bevy_ecs::prelude::{Component, Query, Res, ResMut, Resource};
 
-use crate::app::{Plugin, SimBuilder};
 use crate::io::lock;
 use crate::io::mock_mocap::MockMocapServer;
 use crate::io::qualisys::{QtmClient, QtmStats, Tracker};
-use crate::sim::{Dynamics, SimClock};
+use crate::sim::{Plugin, SimBuilder};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+
+use crate::sim::{Dynamics, SimClock, SimSystems};
 use crate::world::{VehicleId, VehicleState, Vehicles};
 
 /// The running motion-capture bridge: the QTM client, the body tracker and, in mock mode, the
@@ -131,6 +133,6 @@ impl Plugin for MocapPlugin {
             world.entity_mut(e).insert(MocapTrack { stale: true, ..Default::default() });
         }
         sim.insert_resource(bridge);
-        sim.add_systems(Dynamics, apply_mocap);
+        sim.add_systems(Dynamics, apply_mocap.in_set(SimSystems::Integrate));
     }
 }

@@ -3,7 +3,7 @@
 //!
 //! The protocol code lives in [`crate::io::viz`], [`crate::io::qualisys`],
 //! [`crate::io::mock_mocap`] and [`crate::io::trucks`]; this module only copies world state in
-//! and out of it, each bridge as a [`crate::app::Plugin`]:
+//! and out of it, each bridge as a [`crate::sim::Plugin`]:
 //! - [`VizStreamPlugin`]: sends every vehicle over UDP in its own module (default 50 Hz);
 //! - [`MocapPlugin`]: each dynamics tick, polls the Qualisys client and writes tracked bodies
 //!   into the [`VehicleState`] of the real vehicles (id >= 0, no
@@ -15,23 +15,10 @@
 //!   round, and the counters of [`RealVehicleStats`] show how often virtual vehicles detected
 //!   them with their sensors and heard them over V2V.
 //!
-//! # Time with motion capture
-//! Motion capture measures the lab in wall-clock time, so a simulation with motion capture has
-//! to run in real time (speed 1): `smlworld run` switches to the real-time runner by itself
-//! when the scenario has `[lab.mocap]` (see [`LabConfig::needs_wall_clock`]). Such a run is not
-//! reproducible bit for bit: the real vehicles' states depend on when frames arrive.
-//!
-//! # Scenario section
-//! ```toml
-//! [lab]
-//! scale = 32.0                          # lab floor -> world factor (trucks are 1:32)
-//! mocap = { mock = true }               # or { addr = "127.0.0.1:22224", password = "..." }
-//!                                       # also: poll_rate = 24.0 [Hz], stale_after = 0.5 [s]
-//! trucks = { base_port = 16000, desired_distance = 20.0 }   # also: rate = 20.0 [Hz], lane_half_width = 2.0 [m]
-//! ```
-//! With `mock = true` the run starts a [`MockMocapServer`] in-process on a free loopback port
-//! whose bodies drive each real vehicle's route at its scenario `speed` from its start (body k
-//! is vehicle k): the script of [`ring_script`].
+//! The scenario's `[lab]` section that configures these bridges is read and wired up by
+//! `crate::app::scenario::lab` (the app layer); this module knows nothing of scenario files.
+//! With `mock = true` there, the run starts a [`crate::io::mock_mocap::MockMocapServer`]
+//! in-process whose bodies follow the script of [`ring_script`].
 
 mod mocap;
 mod stats;
@@ -39,19 +26,10 @@ mod stream;
 mod trucks;
 
 use std::collections::BTreeMap;
-use std::net::{IpAddr, Ipv4Addr, SocketAddr};
-use std::time::Duration;
 
-use serde::Deserialize;
-
-use crate::app::SimBuilder;
-use crate::io::mock_mocap::{DEFAULT_MOCK_RATE_HZ, Keyframe, MocapScript, MockMocapConfig, MockMocapServer};
-use crate::io::qualisys::{DEFAULT_POLL_RATE_HZ, DEFAULT_QTM_ADDR, QtmClient, QtmClientConfig, Tracker, TrackerConfig};
-use crate::io::trucks::{
-    DEFAULT_LAB_SCALE, DEFAULT_TRUCK_BASE_PORT, DEFAULT_TRUCK_RATE_HZ, TruckServer, TruckServerConfig,
-};
-use crate::map::{LaneletMap, Path};
-use crate::world::{AccelerationUnicycle, KinematicUnicycle, Route, VehicleId, VehicleState, Vehicles};
+use crate::io::mock_mocap::{Keyframe, MocapScript};
+use crate::map::Path;
+use crate::world::{VehicleId, VehicleState};
 
 pub use mocap::{MocapBridge, MocapPlugin, MocapTrack, apply_mocap};
 pub use stats::{
@@ -60,266 +38,6 @@ pub use stats::{
 };
 pub use stream::{Stream, VizStream, VizStreamPlugin, stream_vehicles};
 pub use trucks::{LaneIndex, TruckBridge, TruckLine, TruckPlugin, Trucks, leader_gap, publish_trucks};
-
-/// A lab setting that cannot work, naming its key under `[lab]`.
-#[derive(Debug, thiserror::Error)]
-#[error("`lab.{key}` {problem}")]
-pub struct LabError {
-    /// The key under `[lab]` (e.g. `mocap.addr`).
-    pub key: String,
-    /// What is wrong and how to fix it.
-    pub problem: String,
-}
-
-fn lab_error(key: &str, problem: impl Into<String>) -> LabError {
-    LabError { key: key.into(), problem: problem.into() }
-}
-
-/// The `[lab]` section of a scenario.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LabConfig {
-    /// Lab floor to world factor [-] (default 32): world [m] = lab [m] * scale.
-    #[serde(default = "default_scale")]
-    pub scale: f64,
-    /// Motion capture input, if any.
-    #[serde(default)]
-    pub mocap: Option<MocapConfig>,
-    /// Real-truck output, if any.
-    #[serde(default)]
-    pub trucks: Option<TrucksConfig>,
-}
-
-fn default_scale() -> f64 {
-    DEFAULT_LAB_SCALE
-}
-
-/// `mocap = { ... }`: where the Qualisys server is.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MocapConfig {
-    /// Start a mock server in-process (free loopback port) driving the real vehicles' routes.
-    #[serde(default)]
-    pub mock: bool,
-    /// Address of the QTM server (default 127.0.0.1:22224; not with `mock`).
-    #[serde(default)]
-    pub addr: Option<String>,
-    /// `TakeControl` password, when this client is not the master.
-    #[serde(default)]
-    pub password: Option<String>,
-    /// Frame polls per second [Hz] (default 24).
-    #[serde(default = "default_poll_rate")]
-    pub poll_rate: f64,
-    /// A body unseen for longer than this marks its vehicle stale [s] (default 0.5).
-    #[serde(default = "default_stale_after")]
-    pub stale_after: f64,
-}
-
-fn default_poll_rate() -> f64 {
-    DEFAULT_POLL_RATE_HZ
-}
-fn default_stale_after() -> f64 {
-    0.5
-}
-
-/// `trucks = { ... }`: the real trucks' TCP servers.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TrucksConfig {
-    /// Address to listen on (default 127.0.0.1).
-    #[serde(default)]
-    pub ip: Option<String>,
-    /// Vehicle k listens on `base_port + k` (default 16000; 0: free ports, for tests).
-    #[serde(default = "default_base_port")]
-    pub base_port: u16,
-    /// Status lines per second [Hz] (default 20).
-    #[serde(default = "default_truck_rate")]
-    pub rate: f64,
-    /// Gap the trucks are asked to keep to their leader [m] (world units, default 20).
-    #[serde(default = "default_desired_distance")]
-    pub desired_distance: f64,
-    /// A vehicle counts as on the truck's lane when its centre is at most this far from the
-    /// lane's centre line [m] (default 2, half of a 4 m lane).
-    #[serde(default = "default_lane_half_width")]
-    pub lane_half_width: f64,
-    /// Longest gap looked for [m] (default 100); with no leader closer, this is sent.
-    #[serde(default = "default_max_gap")]
-    pub max_gap: f64,
-}
-
-fn default_base_port() -> u16 {
-    DEFAULT_TRUCK_BASE_PORT
-}
-fn default_truck_rate() -> f64 {
-    DEFAULT_TRUCK_RATE_HZ
-}
-fn default_desired_distance() -> f64 {
-    20.0
-}
-fn default_lane_half_width() -> f64 {
-    2.0
-}
-fn default_max_gap() -> f64 {
-    100.0
-}
-
-impl LabConfig {
-    /// Whether a run must be paced to the wall clock at speed 1 (motion capture is on).
-    pub fn needs_wall_clock(&self) -> bool {
-        self.mocap.is_some()
-    }
-
-    /// Check values the types cannot.
-    pub fn check(&self) -> Result<(), LabError> {
-        let positive = |key: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(lab_error(key, format!("must be a positive number, got {v}")))
-            }
-        };
-        positive("scale", self.scale)?;
-        if let Some(m) = &self.mocap {
-            positive("mocap.poll_rate", m.poll_rate)?;
-            if m.poll_rate > 1e3 {
-                return Err(lab_error("mocap.poll_rate", format!("must be at most 1000 Hz, got {}", m.poll_rate)));
-            }
-            positive("mocap.stale_after", m.stale_after)?;
-            if m.mock && m.addr.is_some() {
-                return Err(lab_error("mocap", "takes either `mock = true` or `addr`, not both"));
-            }
-            if let Some(a) = &m.addr {
-                a.parse::<SocketAddr>().map_err(|e| {
-                    lab_error("mocap.addr", format!("{a:?} is not an address like \"127.0.0.1:22224\": {e}"))
-                })?;
-            }
-        }
-        if let Some(t) = &self.trucks {
-            positive("trucks.rate", t.rate)?;
-            if t.rate > 1e3 {
-                return Err(lab_error("trucks.rate", format!("must be at most 1000 Hz, got {}", t.rate)));
-            }
-            positive("trucks.lane_half_width", t.lane_half_width)?;
-            positive("trucks.max_gap", t.max_gap)?;
-            if !(t.desired_distance.is_finite() && t.desired_distance >= 0.0) {
-                return Err(lab_error(
-                    "trucks.desired_distance",
-                    format!("must be zero or more, got {}", t.desired_distance),
-                ));
-            }
-            if let Some(ip) = &t.ip {
-                ip.parse::<IpAddr>()
-                    .map_err(|e| lab_error("trucks.ip", format!("{ip:?} is not an IP address: {e}")))?;
-            }
-        }
-        Ok(())
-    }
-}
-
-/// Start the bridges of `config` for the real vehicles (id >= 0) already spawned in `sim`, and
-/// add their plugins plus [`RealVehicleStatsPlugin`]. `map` gives the trucks their lanes.
-pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&LaneletMap>) -> Result<(), LabError> {
-    config.check()?;
-    let real: Vec<(VehicleId, VehicleState, Option<Route>)> = {
-        let world = sim.world_mut();
-        let entities: Vec<_> = world.resource::<Vehicles>().iter().filter(|(id, _)| id.is_real()).collect();
-        let mut out = Vec::with_capacity(entities.len());
-        for (id, e) in entities {
-            let driven = world.get::<KinematicUnicycle>(e).is_some() || world.get::<AccelerationUnicycle>(e).is_some();
-            if config.mocap.is_some() && driven {
-                return Err(lab_error(
-                    "mocap",
-                    format!(
-                        "drives real vehicle {id}, which also has a dynamics model: give it `model = {{ type = \"none\" }}`"
-                    ),
-                ));
-            }
-            let state = world.get::<VehicleState>(e).copied().unwrap_or_default();
-            out.push((id, state, world.get::<Route>(e).cloned()));
-        }
-        out
-    };
-    sim.add_plugin(RealVehicleStatsPlugin);
-    if let Some(m) = &config.mocap {
-        let mut mock = None;
-        let addr = if m.mock {
-            let script = ring_script(
-                real.iter().filter_map(|(id, s, r)| Some((*id, *s, r.as_ref()?.0.as_ref()))),
-                config.scale,
-                1.0,
-            );
-            let server = MockMocapServer::start(MockMocapConfig {
-                bind: SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 0),
-                rate_hz: DEFAULT_MOCK_RATE_HZ,
-                script,
-            })
-            .map_err(|e| lab_error("mocap.mock", format!("cannot start the mock server: {e}")))?;
-            let addr = server.local_addr();
-            tracing::info!("mock motion capture serving the real vehicles' routes on {addr}");
-            mock = Some(server);
-            addr
-        } else {
-            match &m.addr {
-                Some(a) => a.parse().map_err(|e| lab_error("mocap.addr", format!("{e}")))?,
-                None => DEFAULT_QTM_ADDR,
-            }
-        };
-        let client = QtmClient::spawn(QtmClientConfig {
-            addr,
-            poll_rate_hz: m.poll_rate,
-            password: m.password.clone(),
-            ..Default::default()
-        })
-        .map_err(|e| lab_error("mocap", format!("cannot start the client: {e}")))?;
-        let tracker = Tracker::new(TrackerConfig {
-            scale: config.scale,
-            stale_after: Duration::from_secs_f64(m.stale_after),
-            ..Default::default()
-        });
-        let ids: Vec<VehicleId> = real.iter().map(|(id, _, _)| *id).collect();
-        sim.add_plugin(MocapPlugin::new(MocapBridge::new(client, tracker, mock), ids));
-    }
-    if let Some(t) = &config.trucks {
-        let ip = match &t.ip {
-            Some(ip) => ip.parse().map_err(|e| lab_error("trucks.ip", format!("{e}")))?,
-            None => IpAddr::V4(Ipv4Addr::LOCALHOST),
-        };
-        let ids: Vec<i32> = real.iter().map(|(id, _, _)| id.0).collect();
-        let server = TruckServer::start(
-            &TruckServerConfig { ip, base_port: t.base_port, rate_hz: t.rate, scale: config.scale },
-            &ids,
-        )
-        .map_err(|e| lab_error("trucks", format!("cannot start the truck servers: {e}")))?;
-        for id in &ids {
-            if let Some(a) = server.local_addr(*id) {
-                tracing::info!("truck {id}: status lines on tcp://{a}");
-            }
-        }
-        let bridge = TruckBridge {
-            server,
-            desired_distance: t.desired_distance,
-            lane_half_width: t.lane_half_width,
-            max_gap: t.max_gap,
-        };
-        sim.add_plugin(TruckPlugin::new(bridge, t.rate, map.map(LaneIndex::new)));
-    }
-    Ok(())
-}
-
-/// The mock motion-capture script of `scenario`'s real vehicles (what `mocap = { mock = true }`
-/// serves), without starting any bridge: for `smlworld mock-mocap --scenario`.
-pub fn scenario_script(scenario: &crate::app::Scenario) -> Result<MocapScript, crate::app::ScenarioError> {
-    let mut plain = scenario.clone();
-    let scale = plain.file.lab.take().map_or(DEFAULT_LAB_SCALE, |l| l.scale);
-    let mut builder = plain.builder()?;
-    let world = builder.world_mut();
-    let real: Vec<_> = world.resource::<Vehicles>().iter().filter(|(id, _)| id.is_real()).collect();
-    let vehicles: Vec<(VehicleId, VehicleState, Route)> = real
-        .into_iter()
-        .filter_map(|(id, e)| Some((id, *world.get::<VehicleState>(e)?, world.get::<Route>(e)?.clone())))
-        .collect();
-    Ok(ring_script(vehicles.iter().map(|(id, s, r)| (*id, *s, r.0.as_ref())), scale, 1.0))
-}
 
 /// A mock motion-capture script in which body k drives vehicle k's `path` from its state's
 /// position at its state's speed, one lap (or to the path's end), keyframes every `step` [m];

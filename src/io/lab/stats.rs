@@ -8,9 +8,8 @@ use bevy_ecs::prelude::{Component, Local, Query, Res, Without, World};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
-use crate::app::{Plugin, SimBuilder};
-use crate::sim::sensors::sense_vehicles;
-use crate::sim::{Control, Sensors, SimClock};
+use crate::sim::{Control, Sensors, SimClock, SimSystems};
+use crate::sim::{Plugin, SimBuilder};
 use crate::world::{Channel, Mailbox, SensorReadings, VehicleId, VehicleState, Vehicles};
 
 use super::{MocapTrack, TruckBridge, TruckLine, VizStream};
@@ -128,9 +127,8 @@ impl Plugin for RealVehicleStatsPlugin {
         for e in real {
             world.entity_mut(e).insert(RealVehicleStats::default());
         }
-        sim.add_systems(Control, beacon_real_vehicles);
-        sim.add_systems(Sensors, count_real_detections.after(sense_vehicles));
-        sim.add_systems(Control, count_real_messages);
+        sim.add_systems(Control, (beacon_real_vehicles, count_real_messages).in_set(SimSystems::Control));
+        sim.add_systems(Sensors, count_real_detections.after(SimSystems::Sense));
     }
 }
 

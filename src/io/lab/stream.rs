@@ -7,10 +7,10 @@ use std::time::Duration;
 use bevy_ecs::prelude::{Query, ResMut, Resource};
 use bevy_ecs::schedule::ScheduleLabel;
 
-use crate::app::{Plugin, SimBuilder};
 use crate::io::viz::{DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, VizError, VizSender, VizSenderConfig, VizVehicle};
 use crate::io::{WarnLimiter, lock};
 use crate::sim::Phase;
+use crate::sim::{Plugin, SimBuilder};
 use crate::world::{VehicleClass, VehicleId, VehicleState};
 
 /// Schedule of the visualisation stream ([`Phase::Sense`]: it sends the state at its tick time).

@@ -7,11 +7,11 @@ use bevy_ecs::prelude::{Component, Query, Res, Resource};
 use bevy_ecs::schedule::ScheduleLabel;
 use glam::DVec2;
 
-use crate::app::{Plugin, SimBuilder};
 use crate::io::lock;
 use crate::io::trucks::{Lane, TruckServer, TruckState};
 use crate::map::{LaneletMap, Path};
 use crate::sim::{Phase, SimClock};
+use crate::sim::{Plugin, SimBuilder};
 use crate::world::{Detection, Route, SensorReadings, VehicleId, VehicleState, Vehicles};
 
 /// Schedule of the truck status lines ([`Phase::Sense`], after the sensors at the same instant).

@@ -1,0 +1,309 @@
+//! One call that does what `smlworld run` does: [`run_scenario`] loads a scenario (with the
+//! controllers your plugins register), runs it headless or in real time, and writes
+//! `trajectories.csv`, `summary.json` and optional frames, GIF and UDP stream.
+//!
+//! ```no_run
+//! use smlworld::prelude::*;
+//!
+//! let summary = run_scenario("scenarios/highway.toml", RunOptions::default().out("out/highway")).unwrap();
+//! println!("{} vehicles, {:.1}x real time", summary.vehicles, summary.real_time_factor);
+//! ```
+
+use std::io::IsTerminal;
+use std::net::SocketAddr;
+use std::path::{Path as FsPath, PathBuf};
+
+use crate::io::lab::VizStreamPlugin;
+use crate::io::viz::DEFAULT_VIZ_RATE_HZ;
+use crate::render::{FrameRecorder, RecorderOptions, RenderError};
+use crate::sim::{Plugin, Sim, SimBuilder};
+
+use super::{RealtimeRunner, RunReport, RunSummary, Scenario, ScenarioError, TrajectoryLog, TrajectoryLogPlugin};
+
+/// What to run: a scenario file, or a scenario already loaded.
+pub enum ScenarioSource {
+    /// A scenario file (TOML), loaded with the controllers the run's plugins register.
+    File(PathBuf),
+    /// A scenario already parsed (with [`Scenario::load_with`] if it names registered controllers).
+    Loaded(Box<Scenario>),
+}
+
+impl From<&str> for ScenarioSource {
+    fn from(path: &str) -> Self {
+        ScenarioSource::File(path.into())
+    }
+}
+
+impl From<&FsPath> for ScenarioSource {
+    fn from(path: &FsPath) -> Self {
+        ScenarioSource::File(path.into())
+    }
+}
+
+impl From<PathBuf> for ScenarioSource {
+    fn from(path: PathBuf) -> Self {
+        ScenarioSource::File(path)
+    }
+}
+
+impl From<Scenario> for ScenarioSource {
+    fn from(scenario: Scenario) -> Self {
+        ScenarioSource::Loaded(Box::new(scenario))
+    }
+}
+
+/// How to run a scenario and what to write; the defaults are those of `smlworld run`.
+pub struct RunOptions {
+    /// Output folder for `trajectories.csv` and `summary.json` (created if missing).
+    pub out: PathBuf,
+    /// Sim time to run [s] (default: the scenario's `duration`).
+    pub duration: Option<f64>,
+    /// Pace the run to the wall clock instead of running as fast as possible.
+    pub realtime: bool,
+    /// Sim seconds per wall second in a real-time run.
+    pub speed: f64,
+    /// Trajectory log rate [Hz] (default: the scenario's `rates.log`).
+    pub log_rate: Option<f64>,
+    /// Write numbered PNG frames of the bird's-eye view into this folder.
+    pub frames: Option<PathBuf>,
+    /// Write an animated GIF of the run.
+    pub gif: Option<PathBuf>,
+    /// Frames per second of sim time for `frames` and `gif` [Hz]; does not change the results.
+    pub frame_rate: f64,
+    /// Frame width [px].
+    pub width: u32,
+    /// Frame height [px].
+    pub height: u32,
+    /// Draw radar cones and velodyne circles in the frames.
+    pub sensor_ranges: bool,
+    /// Stream the vehicles over UDP (2015 visualisation format) to this address.
+    pub stream: Option<SocketAddr>,
+    /// Show a progress bar on a terminal for runs of 30 sim s or more.
+    pub progress: bool,
+    /// Your plugins (controllers they register can be named in the scenario), added before the
+    /// scenario's built-in plugins and vehicles.
+    pub plugins: Vec<Box<dyn Plugin>>,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            out: PathBuf::from("out"),
+            duration: None,
+            realtime: false,
+            speed: 1.0,
+            log_rate: None,
+            frames: None,
+            gif: None,
+            frame_rate: 10.0,
+            width: 1280,
+            height: 720,
+            sensor_ranges: false,
+            stream: None,
+            progress: true,
+            plugins: Vec::new(),
+        }
+    }
+}
+
+impl RunOptions {
+    /// Add a plugin of yours (for example one that registers a controller).
+    pub fn plugin(mut self, plugin: impl Plugin + 'static) -> Self {
+        self.plugins.push(Box::new(plugin));
+        self
+    }
+
+    /// Set the output folder.
+    pub fn out(mut self, out: impl Into<PathBuf>) -> Self {
+        self.out = out.into();
+        self
+    }
+
+    /// Set the sim time to run [s].
+    pub fn duration(mut self, seconds: f64) -> Self {
+        self.duration = Some(seconds);
+        self
+    }
+}
+
+/// What can stop a run.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The scenario could not be loaded or assembled.
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// An option is out of range (the message names it and what is allowed).
+    #[error("{0}")]
+    Option(String),
+    /// An output file or folder could not be written.
+    #[error("cannot write {path}: {source}")]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Frames or the GIF could not be drawn or written.
+    #[error("recording frames: {0}")]
+    Render(#[from] RenderError),
+    /// The UDP stream could not be opened.
+    #[error("--stream: {0}")]
+    Stream(String),
+}
+
+fn check_option(ok: bool, message: impl FnOnce() -> String) -> Result<(), RunError> {
+    if ok { Ok(()) } else { Err(RunError::Option(message())) }
+}
+
+/// Run a scenario as `smlworld run` does and write its outputs into `options.out`; returns
+/// what was written to `summary.json`.
+pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> Result<RunSummary, RunError> {
+    let mut builder = SimBuilder::new();
+    for plugin in &options.plugins {
+        plugin.build(&mut builder);
+    }
+    let scenario = match source.into() {
+        ScenarioSource::File(path) => Scenario::load_with(&path, builder.controllers())?,
+        ScenarioSource::Loaded(s) => *s,
+    };
+    let duration = options.duration.unwrap_or(scenario.file.duration);
+    check_option(duration.is_finite() && duration > 0.0, || {
+        format!("--duration must be a positive number of seconds, got {duration}")
+    })?;
+    check_option(options.speed.is_finite() && options.speed > 0.0, || {
+        format!("--speed must be a positive factor, got {}", options.speed)
+    })?;
+    let log_rate = options.log_rate.unwrap_or(scenario.file.rates.log);
+    check_option(log_rate.is_finite() && log_rate > 0.0 && log_rate <= 1e6, || {
+        format!("--log-rate must be in (0, 1e6] Hz, got {log_rate}")
+    })?;
+    // Motion capture measures the lab in wall-clock time: such a scenario runs in real time.
+    let wall_clock = scenario.file.lab.as_ref().is_some_and(|l| l.needs_wall_clock());
+    check_option(!wall_clock || options.speed == 1.0, || {
+        "--speed must be 1 with motion capture (`[lab] mocap`): the lab runs in real time".to_string()
+    })?;
+    let realtime = options.realtime || wall_clock;
+    if wall_clock && !options.realtime {
+        tracing::info!("the scenario uses motion capture: running in real time");
+    }
+    let mut recorder = recorder(&scenario, &options)?;
+
+    scenario.assemble(&mut builder)?;
+    std::fs::create_dir_all(&options.out).map_err(|source| RunError::Io { path: options.out.clone(), source })?;
+    let csv_path = options.out.join("trajectories.csv");
+    let csv = std::fs::File::create(&csv_path).map_err(|source| RunError::Io { path: csv_path.clone(), source })?;
+    if let Some(addr) = options.stream {
+        let plugin = VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ).map_err(|e| RunError::Stream(e.to_string()))?;
+        builder.add_plugin(plugin);
+        tracing::info!(
+            "streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)"
+        );
+        if !realtime {
+            tracing::warn!("--stream without --realtime: the stream runs at sim time, as fast as the run goes");
+        }
+    }
+    builder.insert_resource(TrajectoryLog::new(Box::new(std::io::BufWriter::new(csv))));
+    builder.add_plugin(TrajectoryLogPlugin { rate: log_rate });
+    let mut sim = builder.build();
+
+    let report = drive(&mut sim, &options, duration, realtime, recorder.as_mut())?;
+    if let Some(rec) = &recorder {
+        let to: Vec<String> = options.frames.iter().chain(&options.gif).map(|p| p.display().to_string()).collect();
+        tracing::info!("recorded {} frames at {} Hz into {}", rec.frames(), options.frame_rate, to.join(" and "));
+    }
+    drop(recorder);
+    sim.world_mut()
+        .resource_mut::<TrajectoryLog>()
+        .finish()
+        .map_err(|source| RunError::Io { path: csv_path.clone(), source })?;
+
+    let summary = RunSummary::new(&sim, &report);
+    let summary_path = options.out.join("summary.json");
+    let json = serde_json::to_string_pretty(&summary)
+        .map_err(|e| RunError::Io { path: summary_path.clone(), source: std::io::Error::other(e) })?;
+    std::fs::write(&summary_path, format!("{json}\n"))
+        .map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
+    let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
+    tracing::info!(
+        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), seed {}, max distance to centre line {:.3} m; wrote {} and {}",
+        summary.vehicles,
+        summary.sim_seconds,
+        summary.wall_seconds,
+        summary.real_time_factor,
+        summary.seed,
+        worst,
+        csv_path.display(),
+        summary_path.display()
+    );
+    Ok(summary)
+}
+
+/// Run `sim` for `duration` [s], recording frames and showing progress; the chunk only decides
+/// when the callback runs, never what the simulation computes.
+fn drive(
+    sim: &mut Sim,
+    options: &RunOptions,
+    duration: f64,
+    realtime: bool,
+    mut recorder: Option<&mut FrameRecorder>,
+) -> Result<RunReport, RunError> {
+    let mut record_error = None;
+    let chunk = if recorder.is_some() { 1.0 / options.frame_rate } else { 1.0 };
+    let bar = (options.progress && std::io::stderr().is_terminal() && duration >= 30.0).then(|| {
+        let bar = indicatif::ProgressBar::new((duration * 1000.0).round() as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {msg} sim s, {elapsed} elapsed, eta {eta}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    });
+    let progress = |sim: &Sim| {
+        if let Some(rec) = recorder.as_mut().filter(|_| record_error.is_none())
+            && let Err(e) = rec.record(sim.world())
+        {
+            record_error = Some(e);
+        }
+        if let Some(bar) = &bar {
+            let t = sim.now().as_secs();
+            bar.set_position((t * 1000.0).round() as u64);
+            bar.set_message(format!("{t:.0}/{duration:.0}"));
+        }
+    };
+    let report = if realtime {
+        RealtimeRunner::new(options.speed).run(sim, duration, chunk, progress)
+    } else {
+        super::run_headless(sim, duration, chunk, progress)
+    };
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    match record_error {
+        Some(e) => Err(RunError::Render(e)),
+        None => Ok(report),
+    }
+}
+
+/// The frame recorder when frames or a GIF are asked for.
+fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRecorder>, RunError> {
+    if options.frames.is_none() && options.gif.is_none() {
+        return Ok(None);
+    }
+    check_option(options.frame_rate.is_finite() && options.frame_rate > 0.0 && options.frame_rate <= 1000.0, || {
+        format!("--frame-rate must be in (0, 1000] Hz, got {}", options.frame_rate)
+    })?;
+    let Some(map) = scenario.map.as_ref() else {
+        return Err(RunError::Option(format!(
+            "--frames/--gif draw the scenario's map, but {} names no `map`",
+            scenario.path.display()
+        )));
+    };
+    let opts = RecorderOptions {
+        frames_dir: options.frames.clone(),
+        gif: options.gif.clone(),
+        frame_rate: options.frame_rate,
+        width: options.width,
+        height: options.height,
+        sensor_ranges: options.sensor_ranges,
+    };
+    Ok(Some(FrameRecorder::new(map, &opts)?))
+}

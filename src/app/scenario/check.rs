@@ -1,0 +1,197 @@
+//! Validation of a parsed scenario file: ranges, unique ids, keys that exclude each other, and
+//! controller names (built in or registered).
+
+use std::collections::BTreeMap;
+use std::path::Path as FsPath;
+
+use super::ScenarioError;
+use super::file::{BuiltInController, ControllerConfig, ModelConfig, ScenarioFile, VehicleConfig};
+use crate::sim::ControllerRegistry;
+
+/// Builds the errors of one file: each names the key and what is allowed.
+struct Checker<'a> {
+    path: &'a FsPath,
+}
+
+impl Checker<'_> {
+    fn invalid(&self, key: String, problem: &str) -> ScenarioError {
+        ScenarioError::Invalid { path: self.path.into(), key, problem: problem.into() }
+    }
+
+    fn positive(&self, key: String, v: f64) -> Result<(), ScenarioError> {
+        if v.is_finite() && v > 0.0 {
+            Ok(())
+        } else {
+            Err(self.invalid(key, &format!("must be a positive number, got {v}")))
+        }
+    }
+
+    fn non_negative(&self, key: String, v: f64) -> Result<(), ScenarioError> {
+        if v.is_finite() && v >= 0.0 {
+            Ok(())
+        } else {
+            Err(self.invalid(key, &format!("must be zero or more, got {v}")))
+        }
+    }
+}
+
+/// Check values the types cannot: ranges, unique ids, keys that exclude each other, and that
+/// every controller is built in or in `controllers` (with parameters it accepts).
+pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &ControllerRegistry) -> Result<(), ScenarioError> {
+    let c = Checker { path };
+    c.positive("duration".into(), file.duration)?;
+    c.positive("points_per_meter".into(), file.points_per_meter)?;
+    let r = &file.rates;
+    for (k, v) in [
+        ("dynamics", r.dynamics),
+        ("sensors", r.sensors),
+        ("control", r.control),
+        ("wifi", r.wifi),
+        ("network", r.network),
+        ("log", r.log),
+    ] {
+        c.positive(format!("rates.{k}"), v)?;
+        if v > 1e6 {
+            return Err(c.invalid(
+                format!("rates.{k}"),
+                &format!("must be at most 1e6 Hz (one tick per microsecond), got {v}"),
+            ));
+        }
+    }
+    c.non_negative("v2v.wifi_range".into(), file.v2v.wifi_range)?;
+    if let Some(lab) = &file.lab {
+        lab.check().map_err(|e| c.invalid(format!("lab.{}", e.key), &e.problem))?;
+    }
+    let mut seen = BTreeMap::new();
+    for (i, v) in file.vehicles.iter().enumerate() {
+        if let Some(first) = seen.insert(v.id, i) {
+            let key = format!("vehicles[{i}] (id {}).id", v.id);
+            return Err(c.invalid(key, &format!("is already used by vehicles[{first}]; ids must be unique")));
+        }
+        check_vehicle(&c, i, v, controllers)?;
+    }
+    Ok(())
+}
+
+/// The checks of one `[[vehicles]]` entry (index `i`).
+fn check_vehicle(
+    c: &Checker<'_>,
+    i: usize,
+    v: &VehicleConfig,
+    controllers: &ControllerRegistry,
+) -> Result<(), ScenarioError> {
+    let key = |k: &str| format!("vehicles[{i}] (id {}).{k}", v.id);
+    if let Some(l) = v.length {
+        c.positive(key("length"), l)?;
+    }
+    if let Some(w) = v.width {
+        c.positive(key("width"), w)?;
+    }
+    c.non_negative(key("speed"), v.speed)?;
+    match v.model {
+        ModelConfig::Kinematic { wheelbase, max_steering } => {
+            c.positive(key("model.wheelbase"), wheelbase)?;
+            c.non_negative(key("model.max_steering"), max_steering)?;
+        }
+        ModelConfig::Acceleration { wheelbase, mass, drag, max_steering } => {
+            c.positive(key("model.wheelbase"), wheelbase)?;
+            c.positive(key("model.mass"), mass)?;
+            c.non_negative(key("model.drag"), drag)?;
+            c.non_negative(key("model.max_steering"), max_steering)?;
+        }
+        ModelConfig::None => {}
+    }
+    if let Some(route) = &v.route {
+        match (&route.closed_loop, &route.from, &route.to) {
+            (Some(_), None, None) | (None, Some(_), Some(_)) => {}
+            _ => {
+                return Err(c.invalid(
+                    key("route"),
+                    "needs either `loop = NODE` or both `from = NODE` and `to = NODE` (NODE: a node id or a tag value)",
+                ));
+            }
+        }
+    }
+    if let Some(s) = &v.start {
+        if s.x.is_some() != s.y.is_some() {
+            return Err(c.invalid(key("start"), "needs both `x` and `y` [m], or neither"));
+        }
+        if s.at.is_some() && s.x.is_some() {
+            return Err(c.invalid(key("start"), "takes either `at = NODE` or `x`/`y`, not both"));
+        }
+        if s.offset.is_some() && v.route.is_none() {
+            return Err(c.invalid(key("start.offset"), "is a distance along the route: add a `route`"));
+        }
+        if s.offset.is_some() && s.x.is_some() {
+            return Err(c.invalid(key("start.offset"), "cannot be combined with `x`/`y`"));
+        }
+    }
+    if let Some(r) = v.sensors.radar {
+        if !(r.angle_deg > 0.0 && r.angle_deg <= 360.0) {
+            return Err(c.invalid(
+                key("sensors.radar.angle_deg"),
+                &format!("must be in (0, 360] degrees, got {}", r.angle_deg),
+            ));
+        }
+        c.non_negative(key("sensors.radar.range"), r.range)?;
+    }
+    if let Some(r) = v.sensors.velodyne {
+        c.non_negative(key("sensors.velodyne.range"), r.range)?;
+    }
+    match &v.controller {
+        Some(controller) => check_controller(c, v, controller, controllers, &key),
+        None => Ok(()),
+    }
+}
+
+/// The checks of a vehicle's `controller` table.
+fn check_controller(
+    c: &Checker<'_>,
+    v: &VehicleConfig,
+    controller: &ControllerConfig,
+    controllers: &ControllerRegistry,
+    key: &dyn Fn(&str) -> String,
+) -> Result<(), ScenarioError> {
+    match controller {
+        ControllerConfig::BuiltIn(BuiltInController::PathFollowing {
+            speed,
+            lookahead_min,
+            lookahead_time,
+            speed_gain,
+        }) => {
+            if v.route.is_none() {
+                return Err(c.invalid(key("controller"), "path_following needs a `route` to follow"));
+            }
+            c.non_negative(key("controller.speed"), *speed)?;
+            c.positive(key("controller.lookahead_min"), *lookahead_min)?;
+            c.non_negative(key("controller.lookahead_time"), *lookahead_time)?;
+            c.non_negative(key("controller.speed_gain"), *speed_gain)
+        }
+        ControllerConfig::BuiltIn(_) => {
+            let Some(smart) = controller.smart() else { return Ok(()) };
+            if v.route.is_none() {
+                return Err(c.invalid(key("controller"), "needs a `route` to follow"));
+            }
+            smart.check().map_err(|(k, problem)| c.invalid(key(&format!("controller.{k}")), &problem))
+        }
+        ControllerConfig::Registered { name, params } => {
+            let Some(parsed) = controllers.parse(name, params.clone()) else {
+                return Err(c.invalid(
+                    key("controller.type"),
+                    &format!(
+                        "names no known controller: `{name}` (known: {}); a controller of your own must be registered by its plugin (SimBuilder::register_controller) before the scenario is loaded",
+                        controllers.known_list()
+                    ),
+                ));
+            };
+            if v.route.is_none() {
+                return Err(c.invalid(key("controller"), &format!("`{name}` needs a `route` to follow")));
+            }
+            match parsed {
+                Ok(_) => Ok(()),
+                Err(e) if e.key.is_empty() => Err(c.invalid(key("controller"), &e.problem)),
+                Err(e) => Err(c.invalid(key(&format!("controller.{}", e.key)), &e.problem)),
+            }
+        }
+    }
+}

@@ -1,0 +1,396 @@
+//! The scenario file's TOML types, parsed strictly (unknown keys are errors naming the key).
+
+use std::path::PathBuf;
+
+use serde::Deserialize;
+
+use super::lab::LabConfig;
+use crate::map::routing::Place;
+use crate::sim::{BUILT_IN_CONTROLLERS, Rates, V2vConfig};
+use crate::vehicles::{AccSetup, CruiseSetup, PathFollowing, PlatoonSetup, SmartController};
+use crate::world::{AccelerationUnicycle, KinematicUnicycle, Radar, VehicleClass, Velodyne};
+
+/// A node of the map: an id (integer) or a node tag value (string).
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub enum NodeRef {
+    /// A node id.
+    Id(i64),
+    /// A node tag value (`destination=left_lane_node` -> `"left_lane_node"`).
+    Tag(String),
+}
+
+impl NodeRef {
+    pub(crate) fn place(&self) -> Place {
+        match self {
+            NodeRef::Id(id) => Place::Node(*id),
+            NodeRef::Tag(t) => Place::Tag(t.clone()),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for NodeRef {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<NodeRef, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = NodeRef;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a node id (integer) or a node tag value (string)")
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<NodeRef, E> {
+                Ok(NodeRef::Id(v))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<NodeRef, E> {
+                i64::try_from(v).map(NodeRef::Id).map_err(|_| E::custom("node id out of range"))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<NodeRef, E> {
+                Ok(NodeRef::Tag(v.to_string()))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// The whole scenario file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioFile {
+    /// Seed of the run [-].
+    #[serde(default)]
+    pub seed: u64,
+    /// Default duration [s].
+    #[serde(default = "default_duration")]
+    pub duration: f64,
+    /// Map file, relative to the scenario file.
+    #[serde(default)]
+    pub map: Option<PathBuf>,
+    /// Route resampling density [points per metre].
+    #[serde(default = "default_points_per_meter")]
+    pub points_per_meter: f64,
+    /// Module rates.
+    #[serde(default)]
+    pub rates: RatesConfig,
+    /// V2V settings.
+    #[serde(default)]
+    pub v2v: V2vSection,
+    /// The vehicles.
+    #[serde(default)]
+    pub vehicles: Vec<VehicleConfig>,
+    /// Bridges to the lab (motion capture, real trucks), see [`crate::io::lab`].
+    #[serde(default)]
+    pub lab: Option<LabConfig>,
+}
+
+fn default_duration() -> f64 {
+    60.0
+}
+fn default_points_per_meter() -> f64 {
+    5.0
+}
+
+/// `[rates]`, all [Hz].
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RatesConfig {
+    /// Dynamics [Hz].
+    pub dynamics: f64,
+    /// Sensors [Hz].
+    pub sensors: f64,
+    /// Controllers [Hz].
+    pub control: f64,
+    /// Wifi rounds [Hz].
+    pub wifi: f64,
+    /// Network rounds [Hz].
+    pub network: f64,
+    /// Trajectory log [Hz].
+    pub log: f64,
+}
+
+impl Default for RatesConfig {
+    fn default() -> Self {
+        let r = Rates::default();
+        RatesConfig {
+            dynamics: r.dynamics,
+            sensors: r.sensors,
+            control: r.control,
+            wifi: r.wifi,
+            network: r.network,
+            log: 10.0,
+        }
+    }
+}
+
+/// `[v2v]`.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct V2vSection {
+    /// Wifi range [m], inclusive.
+    pub wifi_range: f64,
+}
+
+impl Default for V2vSection {
+    fn default() -> Self {
+        V2vSection { wifi_range: V2vConfig::default().wifi_range }
+    }
+}
+
+/// One `[[vehicles]]` entry.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VehicleConfig {
+    /// Unique id (< 0 virtual, >= 0 real).
+    pub id: i32,
+    /// Class.
+    #[serde(default)]
+    pub class: VehicleClass,
+    /// Length [m] (default 4.12).
+    #[serde(default)]
+    pub length: Option<f64>,
+    /// Width [m] (default 1.7).
+    #[serde(default)]
+    pub width: Option<f64>,
+    /// Dynamics model.
+    #[serde(default)]
+    pub model: ModelConfig,
+    /// Route or loop to drive.
+    #[serde(default)]
+    pub route: Option<RouteConfig>,
+    /// Where it starts.
+    #[serde(default)]
+    pub start: Option<StartConfig>,
+    /// Initial speed [m/s].
+    #[serde(default)]
+    pub speed: f64,
+    /// Sensors.
+    #[serde(default)]
+    pub sensors: SensorsConfig,
+    /// Whether it takes part in V2V.
+    #[serde(default = "yes")]
+    pub mailbox: bool,
+    /// Controller.
+    #[serde(default)]
+    pub controller: Option<ControllerConfig>,
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// `model = { type = ... }`.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ModelConfig {
+    /// Kinematic unicycle (speed command).
+    Kinematic {
+        /// Wheelbase [m].
+        #[serde(default = "default_wheelbase")]
+        wheelbase: f64,
+        /// Steering limit [rad].
+        #[serde(default = "default_max_steering")]
+        max_steering: f64,
+    },
+    /// Acceleration unicycle (throttle command).
+    Acceleration {
+        /// Wheelbase [m].
+        #[serde(default = "default_wheelbase")]
+        wheelbase: f64,
+        /// Mass [kg].
+        #[serde(default = "default_mass")]
+        mass: f64,
+        /// Drag [N s/m].
+        #[serde(default = "default_drag")]
+        drag: f64,
+        /// Steering limit [rad].
+        #[serde(default = "default_max_steering")]
+        max_steering: f64,
+    },
+    /// No dynamics (a real vehicle, or a parked one).
+    None,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        ModelConfig::Kinematic { wheelbase: default_wheelbase(), max_steering: default_max_steering() }
+    }
+}
+
+fn default_wheelbase() -> f64 {
+    KinematicUnicycle::default().wheelbase
+}
+fn default_max_steering() -> f64 {
+    KinematicUnicycle::default().max_steering
+}
+fn default_mass() -> f64 {
+    AccelerationUnicycle::default().mass
+}
+fn default_drag() -> f64 {
+    AccelerationUnicycle::default().drag
+}
+
+/// `route = { loop = NODE }` or `route = { from = NODE, to = NODE }`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RouteConfig {
+    /// Closed loop through this node.
+    #[serde(rename = "loop", default)]
+    pub closed_loop: Option<NodeRef>,
+    /// Route start.
+    #[serde(default)]
+    pub from: Option<NodeRef>,
+    /// Route end.
+    #[serde(default)]
+    pub to: Option<NodeRef>,
+}
+
+/// `start = { offset }`, `{ at, offset }` or `{ x, y, yaw }`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartConfig {
+    /// A node to start at (projected onto the route if there is one).
+    #[serde(default)]
+    pub at: Option<NodeRef>,
+    /// Distance along the route from the route start (or from `at`) [m].
+    #[serde(default)]
+    pub offset: Option<f64>,
+    /// Position x [m].
+    #[serde(default)]
+    pub x: Option<f64>,
+    /// Position y [m].
+    #[serde(default)]
+    pub y: Option<f64>,
+    /// Heading [rad] (default: the route's heading there, else 0).
+    #[serde(default)]
+    pub yaw: Option<f64>,
+}
+
+/// `sensors = { radar, velodyne, omniscient }`.
+#[derive(Debug, Clone, Copy, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorsConfig {
+    /// Radar cone.
+    #[serde(default)]
+    pub radar: Option<RadarConfig>,
+    /// Velodyne circle.
+    #[serde(default)]
+    pub velodyne: Option<VelodyneConfig>,
+    /// Sees everyone.
+    #[serde(default)]
+    pub omniscient: bool,
+}
+
+/// `radar = { angle_deg, range }`.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RadarConfig {
+    /// Full opening angle [deg] (converted to radians for the simulation).
+    pub angle_deg: f64,
+    /// Range [m].
+    pub range: f64,
+}
+
+impl Default for RadarConfig {
+    fn default() -> Self {
+        let r = Radar::default();
+        RadarConfig { angle_deg: r.angle.to_degrees(), range: r.range }
+    }
+}
+
+/// `velodyne = { range }`.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VelodyneConfig {
+    /// Range [m].
+    pub range: f64,
+}
+
+impl Default for VelodyneConfig {
+    fn default() -> Self {
+        VelodyneConfig { range: Velodyne::default().range }
+    }
+}
+
+/// `controller = { type = ... }`: a built-in controller, or one a plugin registered by name
+/// (see [`crate::sim::ScenarioController`]).
+#[derive(Debug, Clone)]
+pub enum ControllerConfig {
+    /// A built-in controller.
+    BuiltIn(BuiltInController),
+    /// A controller registered by a plugin: its name and the table's other keys, checked against
+    /// the registry when the scenario is loaded with one ([`super::Scenario::load_with`]).
+    Registered {
+        /// The `type` value.
+        name: String,
+        /// The other keys of the table.
+        params: toml::Table,
+    },
+}
+
+/// The built-in `controller = { type = ... }` tables.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum BuiltInController {
+    /// Pure pursuit along the route at a cruise speed.
+    PathFollowing {
+        /// Cruise speed [m/s].
+        #[serde(default = "default_cruise")]
+        speed: f64,
+        /// Shortest look-ahead [m].
+        #[serde(default = "default_lookahead_min")]
+        lookahead_min: f64,
+        /// Look-ahead time [s].
+        #[serde(default = "default_lookahead_time")]
+        lookahead_time: f64,
+        /// Throttle speed gain [1/s].
+        #[serde(default = "default_speed_gain")]
+        speed_gain: f64,
+    },
+    /// Cruise control (PID on speed) along the route.
+    CruiseControl(CruiseSetup),
+    /// Adaptive cruise control on radar along the route.
+    Acc(AccSetup),
+    /// Platooning (cooperative ACC over wifi) along the route.
+    Platoon(PlatoonSetup),
+}
+
+impl<'de> Deserialize<'de> for ControllerConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<ControllerConfig, D::Error> {
+        use serde::de::Error;
+        let mut table = toml::Table::deserialize(d)?;
+        let name = match table.get("type") {
+            Some(toml::Value::String(s)) => s.clone(),
+            Some(other) => return Err(D::Error::custom(format!("`type` must be a string, got {other}"))),
+            None => return Err(D::Error::custom("missing field `type` (the controller's name)")),
+        };
+        if BUILT_IN_CONTROLLERS.contains(&name.as_str()) {
+            let built_in: BuiltInController =
+                toml::Value::Table(table).try_into().map_err(|e: toml::de::Error| D::Error::custom(e.message()))?;
+            return Ok(ControllerConfig::BuiltIn(built_in));
+        }
+        table.remove("type");
+        Ok(ControllerConfig::Registered { name, params: table })
+    }
+}
+
+impl ControllerConfig {
+    /// The smart-vehicle controller this names, if it is one.
+    pub fn smart(&self) -> Option<SmartController> {
+        match self {
+            ControllerConfig::BuiltIn(BuiltInController::CruiseControl(c)) => Some(SmartController::Cruise(*c)),
+            ControllerConfig::BuiltIn(BuiltInController::Acc(c)) => Some(SmartController::Acc(*c)),
+            ControllerConfig::BuiltIn(BuiltInController::Platoon(c)) => Some(SmartController::Platoon(*c)),
+            _ => None,
+        }
+    }
+}
+
+fn default_cruise() -> f64 {
+    PathFollowing::default().speed
+}
+fn default_lookahead_min() -> f64 {
+    PathFollowing::default().lookahead_min
+}
+fn default_lookahead_time() -> f64 {
+    PathFollowing::default().lookahead_time
+}
+fn default_speed_gain() -> f64 {
+    PathFollowing::default().speed_gain
+}

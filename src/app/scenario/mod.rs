@@ -1,0 +1,167 @@
+//! Scenario files (TOML): map, rates, seed, duration and vehicles; parsed strictly, then built
+//! into a [`SimBuilder`].
+//!
+//! ```toml
+//! seed = 7
+//! duration = 600.0                       # [s]
+//! map = "../maps/highway_ring.osm"       # relative to this file
+//! [rates]                                # [Hz]; these are the defaults
+//! dynamics = 50.0
+//! sensors = 20.0
+//! control = 20.0
+//! wifi = 10.0
+//! network = 1.0
+//! log = 10.0                             # trajectory log rate
+//! [v2v]
+//! wifi_range = 50.0                      # [m], inclusive
+//! [[vehicles]]
+//! id = -1                                # < 0 virtual, >= 0 real
+//! class = "car"                          # car, truck, bus, motorcycle, bicycle, emergency
+//! model = { type = "kinematic" }         # or "acceleration" (wheelbase, mass, drag, max_steering)
+//! route = { loop = "right_lane_node" }   # or { from = NODE, to = NODE }; NODE: id or tag value
+//! start = { offset = 30.0 }              # [m] along the route; or { at = NODE, offset = .. }
+//!                                        # or { x = .., y = .., yaw = .. } [m, m, rad]
+//! speed = 10.0                           # initial speed [m/s]
+//! sensors = { radar = { angle_deg = 60.0, range = 100.0 }, velodyne = { range = 50.0 } }
+//! controller = { type = "path_following", speed = 12.0 }
+//! # or a smart controller: type = "cruise_control", "acc" or "platoon" (see crate::vehicles::setup)
+//! # or one a plugin registered: type = "my_cautious", gap = 20.0 (see crate::sim::ScenarioController)
+//! [lab]                                  # optional: motion capture, real trucks (see `lab`)
+//! mocap = { mock = true }
+//! trucks = { base_port = 16000 }
+//! ```
+//! Unknown keys are errors that name the key and list the allowed ones.
+
+mod assemble;
+mod check;
+mod file;
+pub mod lab;
+
+use std::path::{Path as FsPath, PathBuf};
+use std::sync::Arc;
+
+use crate::map::{LaneletMap, MapError};
+use crate::sim::{ControllerRegistry, Rates};
+
+pub use file::{
+    BuiltInController, ControllerConfig, ModelConfig, NodeRef, RadarConfig, RatesConfig, RouteConfig, ScenarioFile,
+    SensorsConfig, StartConfig, V2vSection, VehicleConfig, VelodyneConfig,
+};
+pub use lab::{LabConfig, LabError, MocapConfig, TrucksConfig, add_lab_plugins, scenario_script};
+
+/// What can go wrong with a scenario file.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    /// The file could not be read.
+    #[error("{path}: cannot read the scenario: {source}")]
+    Io {
+        /// The scenario file.
+        path: PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// Not valid TOML, or a key/value the format does not allow (the message names it).
+    #[error("{path}: {message}")]
+    Syntax {
+        /// The scenario file.
+        path: PathBuf,
+        /// The parser's message, with line, column and key.
+        message: String,
+    },
+    /// A value is out of range or keys contradict each other.
+    #[error("{path}: `{key}` {problem}")]
+    Invalid {
+        /// The scenario file.
+        path: PathBuf,
+        /// Which key (e.g. `vehicles[2].start`).
+        key: String,
+        /// What is wrong and what is allowed.
+        problem: String,
+    },
+    /// The map could not be loaded.
+    #[error("{path}: map {map}: {source}")]
+    Map {
+        /// The scenario file.
+        path: PathBuf,
+        /// The map file, as resolved.
+        map: PathBuf,
+        /// Why.
+        source: Box<MapError>,
+    },
+    /// A vehicle's route or start could not be found on the map.
+    #[error("{path}: `{key}`: {source}")]
+    Route {
+        /// The scenario file.
+        path: PathBuf,
+        /// Which key.
+        key: String,
+        /// Why.
+        source: Box<MapError>,
+    },
+}
+
+/// A parsed and checked scenario with its map loaded.
+#[derive(Debug, Clone)]
+pub struct Scenario {
+    /// The scenario file (for messages and relative paths).
+    pub path: PathBuf,
+    /// Its content.
+    pub file: ScenarioFile,
+    /// The map, if the scenario names one.
+    pub map: Option<Arc<LaneletMap>>,
+}
+
+impl Scenario {
+    /// Read, parse, check and load the map of a scenario file that names only built-in
+    /// controllers.
+    pub fn load(path: &FsPath) -> Result<Scenario, ScenarioError> {
+        Scenario::load_with(path, &ControllerRegistry::default())
+    }
+
+    /// [`Scenario::load`] for a scenario that may name the controllers of `controllers` (the
+    /// registry a [`crate::sim::SimBuilder`] collected from its plugins).
+    pub fn load_with(path: &FsPath, controllers: &ControllerRegistry) -> Result<Scenario, ScenarioError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io { path: path.into(), source })?;
+        Scenario::parse_str_with(&text, path, controllers)
+    }
+
+    /// Parse scenario text that names only built-in controllers; `path` names the file in
+    /// messages and anchors its relative paths.
+    pub fn parse_str(text: &str, path: &FsPath) -> Result<Scenario, ScenarioError> {
+        Scenario::parse_str_with(text, path, &ControllerRegistry::default())
+    }
+
+    /// [`Scenario::parse_str`] for a scenario that may name the controllers of `controllers`.
+    pub fn parse_str_with(
+        text: &str,
+        path: &FsPath,
+        controllers: &ControllerRegistry,
+    ) -> Result<Scenario, ScenarioError> {
+        let file: ScenarioFile =
+            toml::from_str(text).map_err(|e| ScenarioError::Syntax { path: path.into(), message: e.to_string() })?;
+        check::check(&file, path, controllers)?;
+        let map = match &file.map {
+            Some(m) => {
+                let resolved = path.parent().unwrap_or(FsPath::new("")).join(m);
+                let map = LaneletMap::load(&resolved).map_err(|e| ScenarioError::Map {
+                    path: path.into(),
+                    map: resolved.clone(),
+                    source: Box::new(e),
+                })?;
+                Some(Arc::new(map))
+            }
+            None => None,
+        };
+        Ok(Scenario { path: path.into(), file, map })
+    }
+
+    /// The module rates of the scenario.
+    pub fn rates(&self) -> Rates {
+        let r = &self.file.rates;
+        Rates { dynamics: r.dynamics, sensors: r.sensors, control: r.control, wifi: r.wifi, network: r.network }
+    }
+
+    fn invalid(&self, key: String, problem: impl Into<String>) -> ScenarioError {
+        ScenarioError::Invalid { path: self.path.clone(), key, problem: problem.into() }
+    }
+}
