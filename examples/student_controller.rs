@@ -1,98 +1,83 @@
-//! A complete controller plugin in one short file: copy it to start your own.
+//! A complete controller in one file: copy it to start your own.
 //!
-//! `Careful` drives a vehicle along its route and keeps a time gap to whatever its radar sees
-//! ahead; it also tells its neighbours its speed over wifi and counts what it hears. Steering
-//! comes from the path follower ([`PathFollowingPlugin`]); this controller only sets the speed.
+//! `Cautious` keeps a bumper-to-bumper gap [m] to the vehicle ahead on its route and cruises
+//! when the road is free. Its plugin registers it under a name, so `scenarios/student.toml`
+//! names it like a built-in controller: `controller = { type = "my_cautious", gap = 25.0 }`.
+//! It writes only its acceleration demand (`Longitudinal::accel`, in `LongitudinalSystems::Demand`);
+//! steering, emergency braking and turning the demand into throttle or speed come from the
+//! simulator, so it brakes on the kinematic and the acceleration model alike.
 //!
-//! The contract (see `smlworld::app`): a system in the `Control` schedule reads, per vehicle,
-//! `VehicleState`, `SensorReadings`, the `Mailbox` in-boxes and the `Route`, and writes the
-//! `ControlCommand` and out-going messages. Its own parameters and memory live in a component.
-//!
-//! Run it: `cargo run --example student_controller`.
+//! Run it: `cargo run --release --example student_controller [SCENARIO] [OUT_DIR]`
+//! (default `scenarios/student.toml`, `out/student`): it writes `trajectories.csv` and
+//! `summary.json` like `smlworld run`.
 
-use std::sync::Arc;
-
-use bevy_ecs::prelude::*;
-use smlworld::map::routing::resample;
 use smlworld::prelude::*;
-use smlworld::vehicles::follow_paths;
 
-/// The controller's parameters and memory: one on every vehicle it drives.
-#[derive(Component, Debug, Clone, Copy, PartialEq)]
-pub struct Careful {
-    /// Time it keeps to the vehicle ahead [s].
-    pub time_gap: f64,
-    /// Distance kept to the vehicle ahead when stopped, centre to centre [m].
-    pub standstill: f64,
-    /// Speed reports heard from other vehicles at the last tick.
-    pub heard: usize,
+/// The controller's parameters, read from the scenario's `controller` table.
+#[derive(Component, serde::Deserialize, Debug, Clone, Copy)]
+#[serde(deny_unknown_fields)]
+pub struct Cautious {
+    /// Bumper-to-bumper gap it keeps to the vehicle ahead [m].
+    pub gap: f64,
+    /// Cruise speed when nobody is ahead [m/s].
+    #[serde(default = "default_speed")]
+    pub speed: f64,
 }
 
-/// What it broadcasts: its own speed [m/s]. Any `Send + Sync` type can be a message.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SpeedReport(pub f64);
-
-/// The plugin: one system in the `Control` schedule, after the path follower has steered.
-pub struct CarefulPlugin;
-
-impl Plugin for CarefulPlugin {
-    fn build(&self, sim: &mut SimBuilder) {
-        sim.add_systems(Control, drive_carefully.after(follow_paths));
-    }
+fn default_speed() -> f64 {
+    10.0
 }
 
-/// Runs every control tick (20 Hz) for every vehicle with a `Careful` component.
-pub fn drive_carefully(
-    clock: Res<SimClock>,
-    mut vehicles: Query<(&VehicleState, &SensorReadings, &mut Mailbox, &mut Careful, &mut ControlCommand)>,
-) {
-    for (state, readings, mut mailbox, mut me, mut command) in &mut vehicles {
-        // 1. Sensors: the nearest vehicle in front of us (readings are sorted nearest first).
-        let ahead = readings.0.iter().find(|d| (d.position - state.position).dot(state.heading()) > 0.0);
-        // 2. Speed: the path follower already asked for its cruise speed (lowered at the end of
-        //    the route); we only ever lower it, so that the room ahead lasts `time_gap` seconds.
-        if let Some(d) = ahead {
-            let room = d.position.distance(state.position) - me.standstill;
-            command.speed = command.speed.min((room / me.time_gap).max(0.0));
+impl ScenarioController for Cautious {
+    fn check(&self) -> Result<(), (String, String)> {
+        match (self.gap.is_finite() && self.gap > 0.0, self.speed.is_finite() && self.speed >= 0.0) {
+            (false, _) => Err(("gap".into(), format!("must be a positive distance [m], got {}", self.gap))),
+            (_, false) => Err(("speed".into(), format!("must be zero or more [m/s], got {}", self.speed))),
+            _ => Ok(()),
         }
-        // 3. Mail: the in-box holds what arrived since our last tick.
-        me.heard = mailbox.wifi_in.iter().filter(|m| m.payload::<SpeedReport>().is_some()).count();
-        // 4. Send: our speed, to everyone within wifi range at the next wifi round.
-        mailbox.send(Channel::Wifi, clock.now, Arc::new(SpeedReport(state.speed())));
+    }
+    fn cruise_speed(&self) -> Option<f64> {
+        Some(self.speed)
+    }
+    fn attach(&self, vehicle: &mut EntityWorldMut<'_>) {
+        vehicle.insert(*self);
     }
 }
 
-/// A demo: on a straight 400 m road a parked car at 300 m, a careful car at 100 m cruising at
-/// 5 m/s and another at 0 m cruising at 10 m/s. Ids: -1 parked, -2 slow, -3 fast.
-pub fn demo() -> Sim {
-    let road = Arc::new(Path::from_points(Vec::new(), resample(&[DVec2::ZERO, DVec2::new(400.0, 0.0)], 2.0), false));
-    let mut builder = SimBuilder::new();
-    builder.add_plugin(default_plugins).add_plugin(PathFollowingPlugin).add_plugin(CarefulPlugin);
-    let mut parked = VehicleSpec::new(VehicleId(-1), VehicleState::new(DVec2::new(300.0, 0.0), 0.0, 0.0));
-    parked.model = VehicleModel::None;
-    builder.spawn_vehicle(parked).expect("fresh id");
-    for (id, x, cruise) in [(-2, 100.0, 5.0), (-3, 0.0, 10.0)] {
-        let mut spec = VehicleSpec::new(VehicleId(id), VehicleState::new(DVec2::new(x, 0.0), 0.0, 0.0));
-        spec.sensors.radar = Some(Radar::default());
-        spec.route = Some(Arc::clone(&road));
-        let entity = builder.spawn_vehicle(spec).expect("fresh id");
-        let follow = PathFollower::new(PathFollowing { speed: cruise, ..Default::default() });
-        let careful = Careful { time_gap: 2.0, standstill: 8.0, heard: 0 };
-        builder.world_mut().entity_mut(entity).insert((follow, careful));
+/// Every control tick: a spring on the gap error plus a damper on the speed difference [m/s²].
+pub fn keep_gap(mut vehicles: Query<(&VehicleState, &Cautious, &mut Longitudinal)>) {
+    for (state, me, mut lon) in &mut vehicles {
+        let v = state.speed();
+        let cruise = 0.5 * (lon.route_speed - v);
+        let follow = lon.leader.map_or(f64::INFINITY, |l| 0.3 * (l.gap - me.gap) + 1.0 * (l.speed - v));
+        lon.accel = cruise.min(follow).clamp(-6.0, 2.0);
     }
-    builder.build()
 }
 
-/// Run the demo for 80 s and print where everyone is every 10 s.
+/// The plugin: registers the controller's name and adds its system.
+pub struct CautiousPlugin;
+
+impl Plugin for CautiousPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        sim.register_controller::<Cautious>("my_cautious");
+        sim.add_systems(Control, keep_gap.in_set(LongitudinalSystems::Demand));
+    }
+}
+
+/// Run the scenario named on the command line (default `scenarios/student.toml`) with the plugin.
 pub fn main() {
-    let mut sim = demo();
-    for _ in 0..8 {
-        sim.run_for(10.0);
-        let line: Vec<String> = sim
-            .states()
-            .iter()
-            .map(|(id, s)| format!("{id}: x {:6.1} m, v {:4.1} m/s", s.position.x, s.speed()))
-            .collect();
-        println!("t {:5.1} s | {}", sim.now().as_secs(), line.join(" | "));
+    let _ = tracing_subscriber::fmt().with_writer(std::io::stderr).try_init();
+    let mut args = std::env::args().skip(1);
+    let scenario = args.next().unwrap_or_else(|| "scenarios/student.toml".into());
+    let out = args.next().unwrap_or_else(|| "out/student".into());
+    match run_scenario(scenario.as_str(), RunOptions::default().out(&out).plugin(CautiousPlugin)) {
+        Ok(summary) => println!(
+            "{} vehicles, {:.0} sim s; wrote {out}/trajectories.csv and summary.json",
+            summary.vehicles, summary.sim_seconds
+        ),
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::exit(1);
+        }
     }
 }

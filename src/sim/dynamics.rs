@@ -5,13 +5,14 @@
 //! an exact circle of radius L / tan φ whatever the step. The acceleration model's speed follows
 //! the exact solution of v̇ = (u − c v) / m over the step and stops at zero when braking.
 
-use bevy_ecs::prelude::{Local, Query, Res};
+use bevy_ecs::prelude::{Local, Mut, Query, Res};
 
 use super::{Plugin, SimBuilder};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, VehicleState};
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
+use super::parallel::recycle;
 use super::{Dynamics, Parallelism, SimClock, SimSystems};
 
 /// Wrap an angle to (−π, π] [rad].
@@ -112,14 +113,18 @@ pub fn integrate_kinematic_unicycles(
     parallelism: Res<Parallelism>,
     mut vehicles: Query<(&mut VehicleState, &ControlCommand, &KinematicUnicycle)>,
     mut scratch: Local<Vec<()>>,
+    mut buffer: Local<Vec<(Mut<'static, VehicleState>, &'static ControlCommand, &'static KinematicUnicycle)>>,
 ) {
     let dt = clock.dt;
-    let mut items: Vec<_> = vehicles.iter_mut().collect();
+    let mut items: Vec<(Mut<'_, VehicleState>, &ControlCommand, &KinematicUnicycle)> =
+        recycle(std::mem::take(&mut *buffer));
+    items.extend(vehicles.iter_mut());
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
         for (state, command, params) in chunk.iter_mut() {
             step_kinematic_unicycle(state, command, params, dt);
         }
     });
+    *buffer = recycle(items);
 }
 
 /// Integrate every vehicle with an [`AccelerationUnicycle`] over the dynamics step, in
@@ -130,14 +135,18 @@ pub fn integrate_acceleration_unicycles(
     parallelism: Res<Parallelism>,
     mut vehicles: Query<(&mut VehicleState, &ControlCommand, &AccelerationUnicycle)>,
     mut scratch: Local<Vec<()>>,
+    mut buffer: Local<Vec<(Mut<'static, VehicleState>, &'static ControlCommand, &'static AccelerationUnicycle)>>,
 ) {
     let dt = clock.dt;
-    let mut items: Vec<_> = vehicles.iter_mut().collect();
+    let mut items: Vec<(Mut<'_, VehicleState>, &ControlCommand, &AccelerationUnicycle)> =
+        recycle(std::mem::take(&mut *buffer));
+    items.extend(vehicles.iter_mut());
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
         for (state, command, params) in chunk.iter_mut() {
             step_acceleration_unicycle(state, command, params, dt);
         }
     });
+    *buffer = recycle(items);
 }
 
 /// Both unicycle models in the [`Dynamics`] schedule. Vehicles without a model component (real

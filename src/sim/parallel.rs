@@ -1,13 +1,49 @@
-//! Splitting per-vehicle work over a few threads with `std::thread::scope`.
+//! Splitting per-vehicle work over a few threads of a persistent rayon pool.
 //!
 //! The heavy per-vehicle systems (sensors, path following, dynamics) compute each vehicle's
 //! outputs from read-only shared data and that vehicle's own components only, so cutting the
 //! vehicles into contiguous chunks and running the chunks on different threads gives the same
-//! bits for any thread count. Small worlds stay on the calling thread: spawning threads costs
-//! more than it saves there. This is not bevy's multi-threaded executor (see DESIGN.md): the
-//! schedules still run one system at a time.
+//! bits for any thread count. The pool's threads are started once per thread count and kept
+//! for the life of the process (no thread is spawned per tick); small worlds stay on the calling
+//! thread, where handing work to the pool costs more than it saves. This is not bevy's
+//! multi-threaded executor (see DESIGN.md): the schedules still run one system at a time.
+//!
+//! The systems gather their query items into a vector each tick; [`recycle`] keeps that
+//! vector's allocation between ticks, so the steady state allocates nothing.
+
+use std::collections::BTreeMap;
+use std::sync::{Mutex, OnceLock};
 
 use bevy_ecs::prelude::Resource;
+
+/// The persistent pool with `threads` threads (started on first use, then shared), or `None`
+/// when the system refuses to start threads (the work then runs on the calling thread).
+fn pool(threads: usize) -> Option<&'static rayon::ThreadPool> {
+    static POOLS: OnceLock<Mutex<BTreeMap<usize, Option<&'static rayon::ThreadPool>>>> = OnceLock::new();
+    let mut pools = POOLS.get_or_init(|| Mutex::new(BTreeMap::new())).lock().unwrap_or_else(|e| e.into_inner());
+    *pools.entry(threads).or_insert_with(|| {
+        match rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("smlworld-worker-{i}"))
+            .build()
+        {
+            Ok(p) => Some(&*Box::leak(Box::new(p))),
+            Err(e) => {
+                tracing::warn!("cannot start {threads} worker threads ({e}); running on one thread");
+                None
+            }
+        }
+    })
+}
+
+/// Empty `v` and reuse its allocation for a vector of another item type of the same layout:
+/// a system keeps `Local<Vec<Item<'static>>>` between ticks and turns it into this tick's
+/// `Vec<Item<'w>>` and back, so gathering query items allocates only while the world grows.
+/// (It relies on the standard library collecting `Vec::into_iter().map(..)` in place.)
+pub fn recycle<T, U>(mut v: Vec<T>) -> Vec<U> {
+    v.clear();
+    v.into_iter().map(|_| -> U { unreachable!("the vector was emptied") }).collect()
+}
 
 /// How many threads the per-vehicle systems may use.
 #[derive(Resource, Debug, Clone, Copy, PartialEq, Eq)]
@@ -55,17 +91,57 @@ impl Parallelism {
             f(items, &mut scratch[0]);
             return;
         }
+        // The calling thread works the first chunk itself; the pool's threads - 1 workers take
+        // the others.
+        let Some(pool) = pool(threads - 1) else {
+            f(items, &mut scratch[0]);
+            return;
+        };
         let size = items.len().div_ceil(threads);
-        std::thread::scope(|scope| {
+        pool.in_place_scope(|scope| {
+            let f = &f;
             let mut chunks = items.chunks_mut(size).zip(scratch.iter_mut());
             let first = chunks.next();
-            let f = &f;
             for (chunk, s) in chunks {
-                scope.spawn(move || f(chunk, s));
+                scope.spawn(move |_| f(chunk, s));
             }
             if let Some((chunk, s)) = first {
                 f(chunk, s);
             }
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recycle_keeps_the_allocation() {
+        let mut v: Vec<&u64> = Vec::with_capacity(1000);
+        let x = 7;
+        v.extend(std::iter::repeat_n(&x, 500));
+        let ptr = v.as_ptr() as usize;
+        let w: Vec<&i64> = recycle(v);
+        assert!(w.is_empty());
+        assert_eq!(w.capacity(), 1000);
+        assert_eq!(w.as_ptr() as usize, ptr, "same allocation");
+    }
+
+    #[test]
+    fn chunks_cover_every_item_once_on_any_thread_count() {
+        for threads in [1, 2, 3, 4] {
+            let p = Parallelism { threads, min_vehicles: 1 };
+            let mut items: Vec<u32> = (0..1001).collect();
+            let mut scratch: Vec<u64> = Vec::new();
+            p.for_each_chunk(&mut items, &mut scratch, |chunk, s| {
+                for x in chunk.iter_mut() {
+                    *x += 1;
+                    *s += 1;
+                }
+            });
+            assert_eq!(items, (1..1002).collect::<Vec<u32>>(), "{threads} threads");
+            assert_eq!(scratch.iter().sum::<u64>(), 1001);
+        }
     }
 }

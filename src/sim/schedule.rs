@@ -95,7 +95,7 @@ pub struct SimClock {
     pub dt: f64,
 }
 
-/// Number of times a module of [`Phase::Control`] has run; V2V in-boxes use it to know when the
+/// Number of times every module of [`Phase::Control`] has run (the in-box epoch); V2V in-boxes use it to know when the
 /// controllers have seen the rounds they hold.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ControlEpoch(pub u64);
@@ -107,6 +107,8 @@ struct Module {
     phase: Phase,
     rate: f64,
     tick: u64,
+    /// For a control-phase module: whether it has run since the in-box epoch last advanced.
+    ran_since_epoch: bool,
     schedule: Schedule,
 }
 
@@ -154,7 +156,15 @@ impl Scheduler {
         schedule.configure_sets(
             (SimSystems::Sense, SimSystems::Communicate, SimSystems::Control, SimSystems::Integrate).chain(),
         );
-        self.modules.push(Module { name: name.to_string(), label, phase, rate, tick: 0, schedule });
+        self.modules.push(Module {
+            name: name.to_string(),
+            label,
+            phase,
+            rate,
+            tick: 0,
+            ran_since_epoch: false,
+            schedule,
+        });
         Ok(())
     }
 
@@ -225,10 +235,19 @@ impl Scheduler {
         }
         m.schedule.run(world);
         m.tick += 1;
-        // Any control-phase module (not only the built-in `Control`) means the controllers have
-        // seen the in-boxes: the next V2V round starts them afresh.
+        // Every control-phase module (the built-in `Control` and any of a student's) reads the
+        // in-boxes: once each of them has run since the last advance, all have seen what the
+        // in-boxes hold and the next V2V round may start them afresh. A slower controller so
+        // never misses a round; a faster one sees the same rounds again.
         if m.phase == Phase::Control {
-            world.get_resource_or_insert_with(ControlEpoch::default).0 += 1;
+            m.ran_since_epoch = true;
+            let controls = || self.modules.iter().filter(|m| m.phase == Phase::Control);
+            if controls().all(|m| m.ran_since_epoch) {
+                for m in self.modules.iter_mut().filter(|m| m.phase == Phase::Control) {
+                    m.ran_since_epoch = false;
+                }
+                world.get_resource_or_insert_with(ControlEpoch::default).0 += 1;
+            }
         }
         self.now = due;
         Some(due)

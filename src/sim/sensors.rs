@@ -12,6 +12,7 @@ use crate::world::{Detection, Omniscient, Radar, SensorReadings, VehicleId, Vehi
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
+use super::parallel::recycle;
 use super::{GridEntry, Parallelism, Sensors, SimSystems, SpatialGrid};
 
 /// Whether a target at offset `relative` [m] from the sensor lies inside a radar cone facing
@@ -190,6 +191,7 @@ pub fn sense_vehicles(
         &mut SensorReadings,
     )>,
     mut scratch: Local<Vec<SenseScratch>>,
+    mut buffer: Local<Vec<SensingItem<'static>>>,
 ) {
     let mut cell: f64 = 0.0;
     for (_, _, radar, velodyne, _, _) in &sensing {
@@ -208,8 +210,10 @@ pub fn sense_vehicles(
         }),
     );
     let grid = &grid.0;
-    let mut items: Vec<SensingItem<'_>> = sensing.iter_mut().collect();
+    let mut items: Vec<SensingItem<'_>> = recycle(std::mem::take(&mut *buffer));
+    items.extend(sensing.iter_mut());
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, s| sense_chunk(grid, chunk, s));
+    *buffer = recycle(items);
 }
 
 /// Radar, velodyne and omniscient sensing in the [`Sensors`] schedule.

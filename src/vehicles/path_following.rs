@@ -11,6 +11,7 @@ use crate::sim::{Plugin, SimBuilder};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::longitudinal::SteeringSystems;
+use crate::sim::parallel::recycle;
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Route, VehicleState};
 
@@ -140,10 +141,13 @@ pub fn follow_paths(
         Option<&AccelerationUnicycle>,
     )>,
     mut scratch: Local<Vec<()>>,
+    mut buffer: Local<Vec<FollowingItem<'static>>>,
 ) {
     let dt = clock.dt;
-    let mut items: Vec<FollowingItem<'_>> = vehicles.iter_mut().collect();
+    let mut items: Vec<FollowingItem<'_>> = recycle(std::mem::take(&mut *buffer));
+    items.extend(vehicles.iter_mut());
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| follow_chunk(chunk, dt));
+    *buffer = recycle(items);
 }
 
 /// The path follower in the [`Control`] schedule.
