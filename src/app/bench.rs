@@ -6,13 +6,13 @@
 use std::sync::Arc;
 
 use bevy_ecs::prelude::{Query, Res};
-use bevy_ecs::schedule::ScheduleLabel;
+use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 
 use crate::map::generate::{GenerateError, RingParams, ring_highway, ring_lane_tag};
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
-use crate::sim::{Phase, Rates, SimClock};
+use crate::sim::{Control, Rates, SimClock, SimSystems};
 use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
-use crate::world::{Channel, Mailbox, Radar, SensorSet, VehicleId, VehicleSpec, VehicleState, Velodyne};
+use crate::world::{Channel, Mailbox, Radar, SensorSet, SimTime, VehicleId, VehicleSpec, VehicleState, Velodyne};
 
 use super::{SimBuilder, default_plugins};
 
@@ -103,8 +103,13 @@ impl BenchWorld {
         let rates = Rates::default();
         let mut b = SimBuilder::with_rates(rates);
         b.add_plugin(default_plugins).add_plugin(PathFollowingPlugin);
-        b.add_module("beacons", Beacons, Phase::Control, rates.network);
-        b.add_systems(Beacons, send_beacons);
+        // Beacons go out from the controllers' own schedule at the network rate: a module of
+        // their own in the control phase would hold the V2V in-boxes until it ran.
+        let period = SimTime::from_secs(1.0 / rates.network).0.max(1);
+        b.add_systems(
+            Control,
+            send_beacons.in_set(SimSystems::Control).run_if(move |clock: Res<SimClock>| clock.now.0 % period == 0),
+        );
         self.spawn(&mut b)?;
         Ok(b)
     }
