@@ -1,15 +1,12 @@
 //! Lanelet map: lanelets with bounds in metres, centre lines, lengths, successors and all tags.
 
 use std::collections::BTreeMap;
-use std::path::Path as FsPath;
 
 use glam::DVec2;
 
-use super::error::{MapError, MapWarning};
-use super::osm::OsmDocument;
+use super::error::MapWarning;
+use super::graph::RoutingGraph;
 use super::projection::Projector;
-
-mod build;
 
 /// Id of a lanelet: the id of its `type=lanelet` relation in the OSM file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
@@ -127,28 +124,11 @@ pub struct LaneletMap {
     pub tag_index: BTreeMap<String, Vec<i64>>,
     /// Recoverable problems found while loading.
     pub warnings: Vec<MapWarning>,
-    index: BTreeMap<LaneletId, usize>,
-    pub(crate) graph: super::routing::RoutingGraph,
+    pub(crate) index: BTreeMap<LaneletId, usize>,
+    pub(crate) graph: RoutingGraph,
 }
 
 impl LaneletMap {
-    /// Load a JOSM/OSM map (`.osm` or `.xml`).
-    pub fn load(path: &FsPath) -> Result<LaneletMap, MapError> {
-        let doc = super::osm::OsmDocument::load(path)?;
-        LaneletMap::from_osm(&doc)
-    }
-
-    /// Parse OSM XML text; `name` stands for the file in messages.
-    pub fn parse_str(text: &str, name: &FsPath) -> Result<LaneletMap, MapError> {
-        let doc = super::osm::parse_osm(text, name)?;
-        LaneletMap::from_osm(&doc)
-    }
-
-    /// Build the lanelet map from a raw OSM document.
-    pub fn from_osm(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
-        build::build(doc)
-    }
-
     /// The lanelet with this id.
     pub fn lanelet(&self, id: LaneletId) -> Option<&Lanelet> {
         self.index.get(&id).map(|&i| &self.lanelets[i])

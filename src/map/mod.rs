@@ -1,18 +1,25 @@
 //! Road network: JOSM/OSM lanelet maps, projection to metres, routing and map generation.
 //!
 //! Layered without cycles, as in Lanelet2: [`osm`] reads the raw XML into an [`osm::OsmDocument`]
-//! (no semantics); [`lanelet`] turns that into a [`LaneletMap`] (metres, bounds, centre lines,
-//! successors, tags); [`routing`] searches that map and never touches XML; [`generate`] writes
-//! parametric maps back as JOSM-compatible XML. Nothing here knows about the ECS or rendering.
+//! (no semantics); the loader turns that into a [`LaneletMap`] ([`lanelet`]: metres, bounds,
+//! centre lines, successors, tags) and builds its routing graph from plain lanelet data;
+//! [`routing`] searches that map and never touches XML; [`polyline`] and [`path`] hold the
+//! geometry every layer shares; [`generate`] writes parametric maps back as JOSM-compatible XML.
+//! Nothing here knows about the ECS or rendering.
 
 pub mod error;
 pub mod generate;
+mod graph;
 pub mod lanelet;
+mod loader;
 pub mod osm;
+pub mod path;
+pub mod polyline;
 pub mod projection;
 pub mod routing;
 
 pub use error::{MapError, MapWarning};
 pub use lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay};
+pub use path::{Path, PathProjection};
 pub use projection::Projector;
-pub use routing::{Path, PathProjection, Place, RouteOptions};
+pub use routing::{Place, RouteOptions};

@@ -2,14 +2,35 @@
 //! centre lines, successors and the traffic rules that decide what a vehicle may drive.
 
 use std::collections::BTreeMap;
+use std::path::Path as FsPath;
 
 use glam::DVec2;
 
-use super::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay, Tags};
-use crate::map::error::{MapError, MapWarning};
-use crate::map::osm::{MemberType, OsmDocument, OsmRelation};
-use crate::map::projection::Projector;
-use crate::map::routing::{polyline_length, resample_count};
+use super::error::{MapError, MapWarning};
+use super::graph::{GraphLanelet, RoutingGraph};
+use super::lanelet::{KNOWN_LINE_TYPES, Lanelet, LaneletId, LaneletMap, MapNode, MapWay, Tags};
+use super::osm::{MemberType, OsmDocument, OsmRelation};
+use super::polyline::{polyline_length, resample_count};
+use super::projection::Projector;
+
+impl LaneletMap {
+    /// Load a JOSM/OSM map (`.osm` or `.xml`).
+    pub fn load(path: &FsPath) -> Result<LaneletMap, MapError> {
+        let doc = OsmDocument::load(path)?;
+        LaneletMap::from_osm(&doc)
+    }
+
+    /// Parse OSM XML text; `name` stands for the file in messages.
+    pub fn parse_str(text: &str, name: &FsPath) -> Result<LaneletMap, MapError> {
+        let doc = super::osm::parse_osm(text, name)?;
+        LaneletMap::from_osm(&doc)
+    }
+
+    /// Build the lanelet map from a raw OSM document.
+    pub fn from_osm(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
+        build(doc)
+    }
+}
 
 /// Node tag keys whose values are not names a user would route to (so not indexed by value).
 const UNINDEXED_NODE_KEYS: [&str; 6] = ["origin", "ele", "x", "y", "local_x", "local_y"];
@@ -17,7 +38,7 @@ const UNINDEXED_NODE_KEYS: [&str; 6] = ["origin", "ele", "x", "y", "local_x", "l
 /// Lanelet `subtype`s that Lanelet2's vehicle traffic rules do not let a vehicle drive.
 const NON_VEHICLE_SUBTYPES: [&str; 4] = ["crosswalk", "walkway", "bicycle_lane", "stairs"];
 
-pub(super) fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
+fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
     let mut warnings = Vec::new();
     let warn = |warnings: &mut Vec<MapWarning>, line: usize, message: String| {
         warnings.push(MapWarning { at: doc.at(line).to_string(), message });
@@ -41,14 +62,14 @@ pub(super) fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
     for w in doc.ways.values() {
         // osm::parse_osm has already checked that every node exists.
         let points = w.nodes.iter().map(|id| nodes[id].position).collect();
-        if let Some(t) = w.tags.get("line_type").filter(|t| !super::KNOWN_LINE_TYPES.contains(&t.as_str())) {
+        if let Some(t) = w.tags.get("line_type").filter(|t| !KNOWN_LINE_TYPES.contains(&t.as_str())) {
             warn(
                 &mut warnings,
                 w.line,
                 format!(
                     "way {}: unknown line_type `{t}` (known: {}); drawn as an untagged way",
                     w.id,
-                    super::KNOWN_LINE_TYPES.join(", ")
+                    KNOWN_LINE_TYPES.join(", ")
                 ),
             );
         }
@@ -90,7 +111,17 @@ pub(super) fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
         index,
         graph: Default::default(),
     };
-    map.graph = crate::map::routing::RoutingGraph::new(&map);
+    let graph_lanelets: Vec<GraphLanelet<'_>> = map
+        .lanelets
+        .iter()
+        .map(|l| GraphLanelet {
+            routable: l.routable,
+            bidirectional: l.bidirectional,
+            right_nodes: &l.right_nodes,
+            left_nodes: &l.left_nodes,
+        })
+        .collect();
+    map.graph = RoutingGraph::new(&graph_lanelets);
     Ok(map)
 }
 

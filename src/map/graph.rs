@@ -1,0 +1,72 @@
+//! The routing graph: directed lanelets and which follows which (by shared bound end nodes),
+//! built from plain lanelet data so the lanelet layer needs nothing of routing.
+
+use std::collections::BTreeMap;
+
+/// Directed lanelets as a graph: state `2 * index + reversed`; reversed states exist only for
+/// `one_way=no` lanelets, and no state exists for lanelets a vehicle may not drive.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct RoutingGraph {
+    pub(crate) successors: Vec<Vec<u32>>,
+    /// Node id -> states whose bounds contain the node.
+    pub(crate) node_states: BTreeMap<i64, Vec<u32>>,
+}
+
+/// What the graph needs of one lanelet (in map order).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct GraphLanelet<'a> {
+    /// Whether a vehicle may drive it.
+    pub routable: bool,
+    /// Whether it may be driven against its direction too (`one_way=no`).
+    pub bidirectional: bool,
+    /// Node ids of the right bound, in driving direction.
+    pub right_nodes: &'a [i64],
+    /// Node ids of the left bound, in driving direction.
+    pub left_nodes: &'a [i64],
+}
+
+impl RoutingGraph {
+    pub(crate) fn new(lanelets: &[GraphLanelet<'_>]) -> RoutingGraph {
+        let n = lanelets.len();
+        let mut valid = vec![false; 2 * n];
+        let mut by_start: BTreeMap<(i64, i64), Vec<u32>> = BTreeMap::new();
+        let mut node_states: BTreeMap<i64, Vec<u32>> = BTreeMap::new();
+        let ends = |l: &GraphLanelet<'_>, reversed: bool| {
+            let (r, lft) = (l.right_nodes, l.left_nodes);
+            if reversed {
+                ((lft[lft.len() - 1], r[r.len() - 1]), (lft[0], r[0]))
+            } else {
+                ((r[0], lft[0]), (r[r.len() - 1], lft[lft.len() - 1]))
+            }
+        };
+        for (i, l) in lanelets.iter().enumerate() {
+            if !l.routable {
+                continue;
+            }
+            for reversed in [false, true] {
+                if reversed && !l.bidirectional {
+                    continue;
+                }
+                let state = (2 * i + reversed as usize) as u32;
+                valid[state as usize] = true;
+                by_start.entry(ends(l, reversed).0).or_default().push(state);
+                for node in l.left_nodes.iter().chain(l.right_nodes) {
+                    let v = node_states.entry(*node).or_default();
+                    if v.last() != Some(&state) {
+                        v.push(state);
+                    }
+                }
+            }
+        }
+        let mut successors = vec![Vec::new(); 2 * n];
+        for (state, ok) in valid.iter().enumerate() {
+            if *ok {
+                let l = &lanelets[state / 2];
+                if let Some(next) = by_start.get(&ends(l, state % 2 == 1).1) {
+                    successors[state] = next.iter().copied().filter(|&s| s as usize != state).collect();
+                }
+            }
+        }
+        RoutingGraph { successors, node_states }
+    }
+}
