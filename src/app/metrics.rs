@@ -219,50 +219,10 @@ pub fn record_metrics(
     // The step just integrated ends at now + dt.
     let t = clock.now.as_secs() + clock.dt;
     let m = &mut *metrics;
-    m.boxes.clear();
-    let mut widest: f64 = 0.0;
-    for (&id, state, size) in &everyone {
-        let b = Footprint {
-            id,
-            centre: state.position,
-            axis: DVec2::from_angle(state.yaw),
-            half: 0.5 * DVec2::new(size.length, size.width),
-        };
-        widest = widest.max(b.radius());
-        m.boxes.push(b);
-    }
-    let boxes = &m.boxes;
-    m.grid.rebuild(
-        (2.0 * widest).max(1.0),
-        boxes.iter().enumerate().map(|(i, b)| GridEntry {
-            position: b.centre,
-            velocity: DVec2::ZERO,
-            id: b.id,
-            index: i as u32,
-        }),
-    );
-    m.touching.clear();
-    for a in boxes {
-        let touching = &mut m.touching;
-        m.grid.for_each_within(a.centre, a.radius() + widest, |_, e, _| {
-            let b = &boxes[e.index as usize];
-            if a.id < b.id && overlap(a, b) {
-                touching.push((a.id, b.id));
-            }
-        });
-    }
-    m.touching.sort_unstable();
-    for &pair in &m.touching {
-        if !m.contacts.contains(&pair) {
-            m.collisions.push(Collision { a: pair.0, b: pair.1, t });
-        }
-    }
-    m.contacts.clear();
-    m.contacts.extend(m.touching.iter().copied());
+    m.record_collisions(t, everyone.iter().map(|(&id, state, size)| (id, state, size)));
     if t < m.warmup {
         return;
     }
-
     for (&id, state, size, route, follower, lon) in &followers {
         let Some(l) = lon.leader else { continue };
         let Some((_, leader_state, leader_size)) = registry.get(l.id).and_then(|e| everyone.get(e).ok()) else {
@@ -277,32 +237,8 @@ pub fn record_metrics(
         let gap = ahead - 0.5 * (size.length + leader_size.length);
         let v = state.speed();
         let error = leader_state.velocity.dot(DVec2::from_angle(p.heading)) - v;
-        let stats = m.followers.entry(id).or_insert(FollowerStats {
-            id,
-            leader: l.id,
-            min_gap: f64::INFINITY,
-            min_time_gap: None,
-            mean_time_gap: None,
-            speed_error_rms: 0.0,
-            samples: 0,
-            time_gap_sum: 0.0,
-            time_gap_samples: 0,
-            speed_error_sq: 0.0,
-        });
-        stats.leader = l.id;
-        stats.samples += 1;
-        stats.min_gap = stats.min_gap.min(gap);
-        if v > 1.0 {
-            let time_gap = gap / v;
-            stats.min_time_gap = Some(stats.min_time_gap.map_or(time_gap, |t| t.min(time_gap)));
-            stats.time_gap_sum += time_gap;
-            stats.time_gap_samples += 1;
-            stats.mean_time_gap = Some(stats.time_gap_sum / stats.time_gap_samples as f64);
-        }
-        stats.speed_error_sq += error * error;
-        stats.speed_error_rms = (stats.speed_error_sq / stats.samples as f64).sqrt();
+        m.followers.entry(id).or_insert_with(|| FollowerStats::new(id, l.id)).sample(l.id, gap, v, error);
     }
-
     for (&id, state, member) in &members {
         let Some(platoon) = member.platoon else { continue };
         let v = state.speed();
@@ -314,6 +250,91 @@ pub fn record_metrics(
         entry.index = member.index;
         entry.min_speed = entry.min_speed.min(v);
         entry.max_speed = entry.max_speed.max(v);
+    }
+}
+
+impl FollowerStats {
+    fn new(id: VehicleId, leader: VehicleId) -> FollowerStats {
+        FollowerStats {
+            id,
+            leader,
+            min_gap: f64::INFINITY,
+            min_time_gap: None,
+            mean_time_gap: None,
+            speed_error_rms: 0.0,
+            samples: 0,
+            time_gap_sum: 0.0,
+            time_gap_samples: 0,
+            speed_error_sq: 0.0,
+        }
+    }
+
+    /// Add one sample: bumper-to-bumper `gap` [m] to `leader`, own speed `v` [m/s], leader
+    /// speed minus own speed `error` [m/s].
+    fn sample(&mut self, leader: VehicleId, gap: f64, v: f64, error: f64) {
+        self.leader = leader;
+        self.samples += 1;
+        self.min_gap = self.min_gap.min(gap);
+        if v > 1.0 {
+            let time_gap = gap / v;
+            self.min_time_gap = Some(self.min_time_gap.map_or(time_gap, |t| t.min(time_gap)));
+            self.time_gap_sum += time_gap;
+            self.time_gap_samples += 1;
+            self.mean_time_gap = Some(self.time_gap_sum / self.time_gap_samples as f64);
+        }
+        self.speed_error_sq += error * error;
+        self.speed_error_rms = (self.speed_error_sq / self.samples as f64).sqrt();
+    }
+}
+
+impl Metrics {
+    /// Find the vehicle pairs whose footprints overlap at time `t` [s] (grid of twice the
+    /// widest footprint, O(N)) and record each contact that is new since the last step.
+    fn record_collisions<'a>(
+        &mut self,
+        t: f64,
+        everyone: impl Iterator<Item = (VehicleId, &'a VehicleState, &'a VehicleSize)>,
+    ) {
+        self.boxes.clear();
+        let mut widest: f64 = 0.0;
+        for (id, state, size) in everyone {
+            let b = Footprint {
+                id,
+                centre: state.position,
+                axis: DVec2::from_angle(state.yaw),
+                half: 0.5 * DVec2::new(size.length, size.width),
+            };
+            widest = widest.max(b.radius());
+            self.boxes.push(b);
+        }
+        let boxes = &self.boxes;
+        self.grid.rebuild(
+            (2.0 * widest).max(1.0),
+            boxes.iter().enumerate().map(|(i, b)| GridEntry {
+                position: b.centre,
+                velocity: DVec2::ZERO,
+                id: b.id,
+                index: i as u32,
+            }),
+        );
+        self.touching.clear();
+        for a in boxes {
+            let touching = &mut self.touching;
+            self.grid.for_each_within(a.centre, a.radius() + widest, |_, e, _| {
+                let b = &boxes[e.index as usize];
+                if a.id < b.id && overlap(a, b) {
+                    touching.push((a.id, b.id));
+                }
+            });
+        }
+        self.touching.sort_unstable();
+        for &pair in &self.touching {
+            if !self.contacts.contains(&pair) {
+                self.collisions.push(Collision { a: pair.0, b: pair.1, t });
+            }
+        }
+        self.contacts.clear();
+        self.contacts.extend(self.touching.iter().copied());
     }
 }
 

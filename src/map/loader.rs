@@ -38,6 +38,9 @@ const UNINDEXED_NODE_KEYS: [&str; 6] = ["origin", "ele", "x", "y", "local_x", "l
 /// Lanelet `subtype`s that Lanelet2's vehicle traffic rules do not let a vehicle drive.
 const NON_VEHICLE_SUBTYPES: [&str; 4] = ["crosswalk", "walkway", "bicycle_lane", "stairs"];
 
+/// The loading stages in order (projection and origin, nodes and their tag index, ways,
+/// lanelets, successors, routing graph); one function of about 85 lines because each stage
+/// reads the previous one's locals and the order is the point.
 fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
     let mut warnings = Vec::new();
     let warn = |warnings: &mut Vec<MapWarning>, line: usize, message: String| {
@@ -153,15 +156,14 @@ fn origin(doc: &OsmDocument, warnings: &mut Vec<MapWarning>) -> Result<(Projecto
     Ok((Projector::new(lat, lon), None))
 }
 
-/// One lanelet from its relation, or `None` (with a warning) when it cannot be used.
-fn lanelet(
+/// The left and right bound ways of lanelet relation `r` (either role convention), or `None`
+/// (with a warning) when it has no members or lacks a usable bound.
+fn bound_ways<'a>(
     doc: &OsmDocument,
     r: &OsmRelation,
-    ways: &BTreeMap<i64, MapWay>,
-    warnings: &mut Vec<MapWarning>,
-) -> Result<Option<Lanelet>, MapError> {
-    let at = doc.at(r.line).to_string();
-    let mut warn = |message: String| warnings.push(MapWarning { at: at.clone(), message });
+    ways: &'a BTreeMap<i64, MapWay>,
+    warn: &mut dyn FnMut(String),
+) -> Result<Option<(&'a MapWay, &'a MapWay)>, MapError> {
     if r.members.is_empty() {
         warn(format!("lanelet {} has no members; skipped", r.id));
         return Ok(None);
@@ -204,6 +206,20 @@ fn lanelet(
             return Ok(None);
         }
     }
+
+    Ok(Some((left, right)))
+}
+
+/// One lanelet from its relation, or `None` (with a warning) when it cannot be used.
+fn lanelet(
+    doc: &OsmDocument,
+    r: &OsmRelation,
+    ways: &BTreeMap<i64, MapWay>,
+    warnings: &mut Vec<MapWarning>,
+) -> Result<Option<Lanelet>, MapError> {
+    let at = doc.at(r.line).to_string();
+    let mut warn = |message: String| warnings.push(MapWarning { at: at.clone(), message });
+    let Some((left, right)) = bound_ways(doc, r, ways, &mut warn)? else { return Ok(None) };
 
     let mut right_nodes = right.nodes.clone();
     let mut right_pts = right.points.clone();

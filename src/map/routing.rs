@@ -138,6 +138,10 @@ impl LaneletMap {
         }
     }
 
+    /// Shortest route from any of `from`'s nodes to any of `to`'s: one Dijkstra over directed
+    /// lanelets with exact integer-mm costs, then the crop and stitch of the winner. Kept in one
+    /// function (about 85 lines) because the search's predecessor map and end candidates are
+    /// what the stitching reads; split, they would travel as a tuple of five.
     fn route_between(
         &self,
         from: &[i64],

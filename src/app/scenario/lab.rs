@@ -193,68 +193,18 @@ impl LabConfig {
     }
 }
 
+/// A real vehicle of the run as the lab bridges see it: id, start state, route.
+type RealVehicle = (VehicleId, VehicleState, Option<Route>);
+
 /// Start the bridges of `config` for the real vehicles (id >= 0) already spawned in `sim`, and
 /// add their plugins plus [`RealVehicleStatsPlugin`]. `map` gives the trucks their lanes.
 pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&LaneletMap>) -> Result<(), LabError> {
     config.check()?;
-    let real: Vec<(VehicleId, VehicleState, Option<Route>)> = {
-        let world = sim.world_mut();
-        let entities: Vec<_> = world.resource::<Vehicles>().iter().filter(|(id, _)| id.is_real()).collect();
-        let mut out = Vec::with_capacity(entities.len());
-        for (id, e) in entities {
-            let driven = world.get::<KinematicUnicycle>(e).is_some() || world.get::<AccelerationUnicycle>(e).is_some();
-            if config.mocap.is_some() && driven {
-                return Err(lab_error(
-                    "mocap",
-                    format!(
-                        "drives real vehicle {id}, which also has a dynamics model: give it `model = {{ type = \"none\" }}`"
-                    ),
-                ));
-            }
-            let state = world.get::<VehicleState>(e).copied().unwrap_or_default();
-            out.push((id, state, world.get::<Route>(e).cloned()));
-        }
-        out
-    };
+    let real = real_vehicles(sim, config)?;
     sim.add_plugin(RealVehicleStatsPlugin);
     if let Some(m) = &config.mocap {
-        let mut mock = None;
-        let addr = if m.mock {
-            let script = ring_script(
-                real.iter().filter_map(|(id, s, r)| Some((*id, *s, r.as_ref()?.0.as_ref()))),
-                config.scale,
-                1.0,
-            );
-            let server = MockMocapServer::start(MockMocapConfig {
-                bind: SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 0),
-                rate_hz: DEFAULT_MOCK_RATE_HZ,
-                script,
-            })
-            .map_err(|e| lab_error("mocap.mock", format!("cannot start the mock server: {e}")))?;
-            let addr = server.local_addr();
-            tracing::info!("mock motion capture serving the real vehicles' routes on {addr}");
-            mock = Some(server);
-            addr
-        } else {
-            match &m.addr {
-                Some(a) => a.parse().map_err(|e| lab_error("mocap.addr", format!("{e}")))?,
-                None => DEFAULT_QTM_ADDR,
-            }
-        };
-        let client = QtmClient::spawn(QtmClientConfig {
-            addr,
-            poll_rate_hz: m.poll_rate,
-            password: m.password.clone(),
-            ..Default::default()
-        })
-        .map_err(|e| lab_error("mocap", format!("cannot start the client: {e}")))?;
-        let tracker = Tracker::new(TrackerConfig {
-            scale: config.scale,
-            stale_after: Duration::from_secs_f64(m.stale_after),
-            ..Default::default()
-        });
         let ids: Vec<VehicleId> = real.iter().map(|(id, _, _)| *id).collect();
-        sim.add_plugin(MocapPlugin::new(MocapBridge::new(client, tracker, mock), ids));
+        sim.add_plugin(MocapPlugin::new(start_mocap(m, config.scale, &real)?, ids));
     }
     if let Some(t) = &config.trucks {
         let ip = match &t.ip {
@@ -281,6 +231,66 @@ pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&La
         sim.add_plugin(TruckPlugin::new(bridge, t.rate, map.map(LaneIndex::new)));
     }
     Ok(())
+}
+
+/// The real vehicles (id >= 0) spawned in `sim`; with motion capture none may have a dynamics
+/// model (the bridge owns their state).
+fn real_vehicles(sim: &mut SimBuilder, config: &LabConfig) -> Result<Vec<RealVehicle>, LabError> {
+    let world = sim.world_mut();
+    let entities: Vec<_> = world.resource::<Vehicles>().iter().filter(|(id, _)| id.is_real()).collect();
+    let mut out = Vec::with_capacity(entities.len());
+    for (id, e) in entities {
+        let driven = world.get::<KinematicUnicycle>(e).is_some() || world.get::<AccelerationUnicycle>(e).is_some();
+        if config.mocap.is_some() && driven {
+            return Err(lab_error(
+                "mocap",
+                format!(
+                    "drives real vehicle {id}, which also has a dynamics model: give it `model = {{ type = \"none\" }}`"
+                ),
+            ));
+        }
+        let state = world.get::<VehicleState>(e).copied().unwrap_or_default();
+        out.push((id, state, world.get::<Route>(e).cloned()));
+    }
+    Ok(out)
+}
+
+/// Connect the motion-capture client (to the mock server it starts for `mock = true`, else to
+/// `addr`) and its tracker.
+fn start_mocap(m: &MocapConfig, scale: f64, real: &[RealVehicle]) -> Result<MocapBridge, LabError> {
+    let mut mock = None;
+    let addr = if m.mock {
+        let script =
+            ring_script(real.iter().filter_map(|(id, s, r)| Some((*id, *s, r.as_ref()?.0.as_ref()))), scale, 1.0);
+        let server = MockMocapServer::start(MockMocapConfig {
+            bind: SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 0),
+            rate_hz: DEFAULT_MOCK_RATE_HZ,
+            script,
+        })
+        .map_err(|e| lab_error("mocap.mock", format!("cannot start the mock server: {e}")))?;
+        let addr = server.local_addr();
+        tracing::info!("mock motion capture serving the real vehicles' routes on {addr}");
+        mock = Some(server);
+        addr
+    } else {
+        match &m.addr {
+            Some(a) => a.parse().map_err(|e| lab_error("mocap.addr", format!("{e}")))?,
+            None => DEFAULT_QTM_ADDR,
+        }
+    };
+    let client = QtmClient::spawn(QtmClientConfig {
+        addr,
+        poll_rate_hz: m.poll_rate,
+        password: m.password.clone(),
+        ..Default::default()
+    })
+    .map_err(|e| lab_error("mocap", format!("cannot start the client: {e}")))?;
+    let tracker = Tracker::new(TrackerConfig {
+        scale,
+        stale_after: Duration::from_secs_f64(m.stale_after),
+        ..Default::default()
+    });
+    Ok(MocapBridge::new(client, tracker, mock))
 }
 
 /// The mock motion-capture script of `scenario`'s real vehicles (what `mocap = { mock = true }`
