@@ -6,7 +6,8 @@
 //! [`Projector::reverse`](super::Projector::reverse), which the loader's
 //! [`Projector::forward`](super::Projector::forward) maps back onto the metres they were built
 //! from, around the fixed origin ([`ORIGIN_LAT`], [`ORIGIN_LON`], the SML lab), which is written
-//! as the first node tagged `origin=true` at local (0, 0). The XML writer is the private `osm_writer` module.
+//! as the first node tagged `origin=true` at local (0, 0). The private `osm_writer` module writes
+//! the XML.
 //!
 //! Conventions shared by all maps, so that they load in SML World, the 2015 tool and Lanelet2:
 //! - a lanelet is a relation `type=lanelet` with the member roles `left` and `right` (Lanelet2's

@@ -30,6 +30,7 @@ pub(super) struct Builder {
 }
 
 impl Builder {
+    /// An empty map holding only the origin node (index 0, tagged `origin=true`).
     pub(super) fn new() -> Builder {
         let mut b = Builder { nodes: Vec::new(), node_tags: Vec::new(), ways: Vec::new(), lanelets: Vec::new() };
         let origin = b.node(DVec2::ZERO);
@@ -37,21 +38,25 @@ impl Builder {
         b
     }
 
+    /// Adds a node at `p` [m]; returns its index.
     pub(super) fn node(&mut self, p: DVec2) -> usize {
         self.nodes.push(p);
         self.node_tags.push(None);
         self.nodes.len() - 1
     }
 
+    /// Sets the one tag of `node`, replacing any earlier one.
     pub(super) fn tag(&mut self, node: usize, key: &'static str, value: String) {
         self.node_tags[node] = Some((key, value));
     }
 
+    /// Adds a way through the node indices `nodes`; returns its index.
     pub(super) fn way(&mut self, nodes: Vec<usize>, tag: WayTag) -> usize {
         self.ways.push((nodes, tag));
         self.ways.len() - 1
     }
 
+    /// Adds a lanelet relation between the ways `left` and `right` (indices).
     pub(super) fn lanelet(&mut self, left: usize, right: usize) {
         self.lanelets.push((left, right));
     }
