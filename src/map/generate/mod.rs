@@ -2,10 +2,12 @@
 //!
 //! Every generator builds the map in metres and writes it the way JOSM saves a new drawing:
 //! single-quoted attributes, negative ids (unique over nodes, ways and relations together),
-//! `<osm version='0.6' generator='smlworld'>`, 10 decimals of lat/lon (about 10 µm) that the
-//! loader's [`Projector::forward`] maps back onto the metres they were built from, around the
-//! fixed origin ([`ORIGIN_LAT`], [`ORIGIN_LON`], the SML lab), which is written as the first node
-//! tagged `origin=true` at local (0, 0).
+//! `<osm version='0.6' generator='smlworld'>`, 10 decimals of lat/lon (about 10 µm) from
+//! [`Projector::reverse`](super::Projector::reverse), which the loader's
+//! [`Projector::forward`](super::Projector::forward) maps back onto the metres they were built
+//! from, around the fixed origin ([`ORIGIN_LAT`], [`ORIGIN_LON`], the SML lab), which is written
+//! as the first node tagged `origin=true` at local (0, 0). The private `osm_writer` module writes
+//! the XML.
 //!
 //! Conventions shared by all maps, so that they load in SML World, the 2015 tool and Lanelet2:
 //! - a lanelet is a relation `type=lanelet` with the member roles `left` and `right` (Lanelet2's
@@ -23,12 +25,14 @@
 //! The maps are built in memory (about 100 bytes per node) and streamed to any [`Write`] at
 //! about 35-70 MB/s (`benches/map.rs`), so a 20 MB grid city takes under a second.
 
+mod osm_writer;
+
 use std::f64::consts::{FRAC_PI_2, TAU};
-use std::io::{self, BufWriter, Write};
+use std::io::{self, Write};
 
 use glam::DVec2;
 
-use super::projection::Projector;
+use self::osm_writer::{Builder, EXTERIOR, INTERIOR, VIRTUAL, to_string};
 
 /// Latitude of the origin of every generated map [deg] (the SML lab, Södertälje).
 pub const ORIGIN_LAT: f64 = 59.15;
@@ -536,166 +540,6 @@ fn bezier(c: &[DVec2; 4], t: f64) -> DVec2 {
 fn bezier_length(c: &[DVec2; 4]) -> f64 {
     const STEPS: usize = 64;
     (1..=STEPS).map(|s| bezier(c, s as f64 / STEPS as f64).distance(bezier(c, (s - 1) as f64 / STEPS as f64))).sum()
-}
-
-/// The one tag of a generated way, key and value.
-type WayTag = (&'static str, &'static str);
-/// Road edge.
-const EXTERIOR: WayTag = ("line_type", "exterior");
-/// Line between two lanes.
-const INTERIOR: WayTag = ("line_type", "interior");
-/// Unpainted bound of a turn inside a junction (Lanelet2's line-string type).
-const VIRTUAL: WayTag = ("type", "virtual");
-
-/// A map under construction, in metres; node 0 is the origin.
-struct Builder {
-    nodes: Vec<DVec2>,
-    /// One `(key, value)` tag per node at most; generated maps never need two.
-    node_tags: Vec<Option<(&'static str, String)>>,
-    /// Node indices and the one tag of each way.
-    ways: Vec<(Vec<usize>, WayTag)>,
-    /// (left way, right way).
-    lanelets: Vec<(usize, usize)>,
-}
-
-impl Builder {
-    fn new() -> Builder {
-        let mut b = Builder { nodes: Vec::new(), node_tags: Vec::new(), ways: Vec::new(), lanelets: Vec::new() };
-        let origin = b.node(DVec2::ZERO);
-        b.tag(origin, "origin", "true".to_string());
-        b
-    }
-
-    fn node(&mut self, p: DVec2) -> usize {
-        self.nodes.push(p);
-        self.node_tags.push(None);
-        self.nodes.len() - 1
-    }
-
-    fn tag(&mut self, node: usize, key: &'static str, value: String) {
-        self.node_tags[node] = Some((key, value));
-    }
-
-    fn way(&mut self, nodes: Vec<usize>, tag: WayTag) -> usize {
-        self.ways.push((nodes, tag));
-        self.ways.len() - 1
-    }
-
-    fn lanelet(&mut self, left: usize, right: usize) {
-        self.lanelets.push((left, right));
-    }
-
-    /// Writes JOSM-style XML. Ids: nodes -1, -2, ..., then ways, then relations, so every id is
-    /// unique over all object kinds. Tag values are generated identifiers: nothing to escape.
-    fn write<W: Write>(&self, out: W) -> io::Result<MapStats> {
-        let mut geo = GeoInverse::new();
-        let node_id = |i: usize| -(i as i64) - 1;
-        let way_id = |i: usize| -((self.nodes.len() + i) as i64) - 1;
-        let relation_id = |i: usize| -((self.nodes.len() + self.ways.len() + i) as i64) - 1;
-        let mut w = CountingWriter { inner: BufWriter::with_capacity(1 << 20, out), bytes: 0 };
-        w.write_all(b"<?xml version='1.0' encoding='UTF-8'?>\n<osm version='0.6' generator='smlworld'>\n")?;
-        for (i, (&p, tag)) in self.nodes.iter().zip(&self.node_tags).enumerate() {
-            let (lat, lon) = if i == 0 { (ORIGIN_LAT, ORIGIN_LON) } else { geo.lat_lon(p) };
-            write!(w, "  <node id='{}' lat='{lat:.10}' lon='{lon:.10}'", node_id(i))?;
-            match tag {
-                Some((k, v)) => write!(w, ">\n    <tag k='{k}' v='{v}' />\n  </node>\n")?,
-                None => w.write_all(b" />\n")?,
-            }
-        }
-        for (i, (nodes, (key, value))) in self.ways.iter().enumerate() {
-            writeln!(w, "  <way id='{}'>", way_id(i))?;
-            for &n in nodes {
-                writeln!(w, "    <nd ref='{}' />", node_id(n))?;
-            }
-            write!(w, "    <tag k='{key}' v='{value}' />\n  </way>\n")?;
-        }
-        for (i, &(left, right)) in self.lanelets.iter().enumerate() {
-            write!(
-                w,
-                "  <relation id='{}'>\n    <member type='way' ref='{}' role='left' />\n    \
-                 <member type='way' ref='{}' role='right' />\n    <tag k='type' v='lanelet' />\n  </relation>\n",
-                relation_id(i),
-                way_id(left),
-                way_id(right)
-            )?;
-        }
-        w.write_all(b"</osm>\n")?;
-        w.flush()?;
-        Ok(MapStats { nodes: self.nodes.len(), ways: self.ways.len(), lanelets: self.lanelets.len(), bytes: w.bytes })
-    }
-}
-
-/// Local metres -> lat/lon [deg], the inverse of the loader's [`Projector::forward`] to 0.1 µm.
-///
-/// Same result as [`Projector::reverse`] (to far below the 1e-10 deg written), about 5 times
-/// faster: nodes come in runs a few metres apart, so Newton steps from the previous node with the
-/// Jacobian at the origin (which varies by 1e-4 over kilometres) usually need a single
-/// [`Projector::forward`] to confirm. Projection dominated the writing time before.
-struct GeoInverse {
-    projector: Projector,
-    /// Inverse Jacobian d(lat, lon)/d(x, y) at the origin [deg/m], columns for x and y.
-    inverse_jacobian: [DVec2; 2],
-    /// Last solved point [m] and its (lat, lon) [deg].
-    last: (DVec2, DVec2),
-}
-
-impl GeoInverse {
-    fn new() -> GeoInverse {
-        let projector = Projector::new(ORIGIN_LAT, ORIGIN_LON);
-        let h = 1e-6;
-        let d_lat =
-            (projector.forward(ORIGIN_LAT + h, ORIGIN_LON) - projector.forward(ORIGIN_LAT - h, ORIGIN_LON)) / (2.0 * h);
-        let d_lon =
-            (projector.forward(ORIGIN_LAT, ORIGIN_LON + h) - projector.forward(ORIGIN_LAT, ORIGIN_LON - h)) / (2.0 * h);
-        // [d_lat d_lon] maps (dlat, dlon) to (dx, dy); invert the 2x2 matrix.
-        let det = d_lat.x * d_lon.y - d_lon.x * d_lat.y;
-        let inverse_jacobian = [DVec2::new(d_lon.y, -d_lat.y) / det, DVec2::new(-d_lon.x, d_lat.x) / det];
-        GeoInverse {
-            projector,
-            inverse_jacobian,
-            last: (projector.forward(ORIGIN_LAT, ORIGIN_LON), DVec2::new(ORIGIN_LAT, ORIGIN_LON)),
-        }
-    }
-
-    fn lat_lon(&mut self, p: DVec2) -> (f64, f64) {
-        let step = |d: DVec2| self.inverse_jacobian[0] * d.x + self.inverse_jacobian[1] * d.y;
-        let (last_p, last_geo) = self.last;
-        let mut geo = last_geo + step(p - last_p);
-        for _ in 0..20 {
-            let error = p - self.projector.forward(geo.x, geo.y);
-            if error.length() < 1e-7 {
-                break;
-            }
-            geo += step(error);
-        }
-        self.last = (p, geo);
-        (geo.x, geo.y)
-    }
-}
-
-/// Counts the bytes written through it.
-struct CountingWriter<W: Write> {
-    inner: W,
-    bytes: u64,
-}
-
-impl<W: Write> Write for CountingWriter<W> {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.bytes += n as u64;
-        Ok(n)
-    }
-
-    fn flush(&mut self) -> io::Result<()> {
-        self.inner.flush()
-    }
-}
-
-fn to_string(write: impl FnOnce(&mut Vec<u8>) -> Result<MapStats, GenerateError>) -> Result<String, GenerateError> {
-    let mut buf = Vec::new();
-    write(&mut buf)?;
-    // Only ASCII is ever written.
-    String::from_utf8(buf).map_err(|e| GenerateError::Io(io::Error::new(io::ErrorKind::InvalidData, e)))
 }
 
 fn invalid(name: &'static str, value: impl std::fmt::Display, allowed: &str) -> GenerateError {

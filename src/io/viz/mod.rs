@@ -1,0 +1,45 @@
+//! The 2015 visualisation datagram over UDP: encoder (with a backward-compatible split of big
+//! frames), decoder, reassembler, sender and receiver.
+//!
+//! # Format (as the 2015 tools spoke it)
+//! One UDP datagram per frame, ASCII:
+//! `<counter>#id=<id>;x=<x>;y=<y>;yaw=<deg>;class_name=<Class>!id=...`
+//! - `counter`: a non-negative integer, 0 for the first frame, +1 per frame;
+//! - after `#`, one record per vehicle, records separated by `!`; an empty body means "no vehicles";
+//! - a record is `;`-separated `key=value` fields: `id` (integer), `x`, `y` [m], `yaw` [degrees],
+//!   `class_name` (text without `#`, `!`, `;`, `=`).
+//!
+//! A receiver drops a datagram whose counter is not newer than the last one it accepted.
+//! The 2015 receiver read one datagram into a 4096-byte buffer ([`MAX_DATAGRAM_LEN`]).
+//!
+//! # Split extension (big frames)
+//! When a frame does not fit in [`MAX_DATAGRAM_LEN`] bytes, the encoder splits its vehicles over
+//! several datagrams ("parts"), each at most 4096 bytes and each a complete, valid 2015 datagram:
+//! - every part carries the **same** counter, the frame's counter;
+//! - the first record of every part gets two extra trailing fields, `part=<i>` (0-based) and
+//!   `parts=<n>` (the number of parts of the frame), e.g.
+//!   `17#id=0;x=1.000;y=2.000;yaw=90.00;class_name=Truck;part=0;parts=3!id=1;...`.
+//!
+//! Why it is backward compatible: a 2015 receiver splits on `#`, `!`, `;` and `=` and reads the
+//! keys it knows, so it ignores the two extra integer fields; it accepts the first part it sees of
+//! a frame (its counter is new) and drops the other parts as stale (same counter), so it shows the
+//! first part of every frame, steadily, instead of flickering between parts. A new receiver
+//! ([`VizReassembler`]) recognises `part`/`parts`, does not treat parts of the frame it is
+//! assembling as stale, and delivers the frame once all its parts have arrived. A frame that fits
+//! in one datagram is sent exactly as in 2015, without the extra fields. Unknown keys are ignored
+//! by the decoder, so later extensions stay compatible too.
+//!
+//! Layout: [`codec`] (datagram text encoding and decoding, the stream's errors), [`reassembly`]
+//! (stale counters and split frames -> whole frames), [`sockets`] (UDP sender and receiver
+//! thread). Everything is re-exported here.
+
+pub mod codec;
+pub mod reassembly;
+pub mod sockets;
+
+pub use codec::{
+    MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder, VizError, VizPart,
+    VizVehicle, decode_datagram, encode_frame,
+};
+pub use reassembly::{VizFrame, VizReassembler, VizStats};
+pub use sockets::{DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, RECV_BUFFER_LEN, VizReceiver, VizSender, VizSenderConfig};
