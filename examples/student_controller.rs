@@ -66,7 +66,8 @@ impl Plugin for CautiousPlugin {
 
 /// Run the scenario named on the command line (default `scenarios/student.toml`) with the plugin.
 pub fn main() {
-    let _ = tracing_subscriber::fmt().with_writer(std::io::stderr).try_init();
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let _ = tracing_subscriber::fmt().with_writer(std::io::stderr).with_ansi(ansi).try_init();
     let mut args = std::env::args().skip(1);
     let scenario = args.next().unwrap_or_else(|| "scenarios/student.toml".into());
     let out = args.next().unwrap_or_else(|| "out/student".into());
