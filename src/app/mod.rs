@@ -35,12 +35,16 @@
 pub mod bench;
 pub mod metrics;
 mod output;
+mod replay;
 mod run;
 mod runner;
 pub mod scenario;
 
 pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
-pub use output::{Log, MessagesDelivered, RunSummary, TrajectoryLog, TrajectoryLogPlugin, log_trajectories};
+pub use output::{
+    Log, MessagesDelivered, ReplayInfo, ReplayVehicle, RunSummary, TrajectoryLog, TrajectoryLogPlugin, log_trajectories,
+};
+pub use replay::{ReplayError, ReplayOptions, ReplayReport, read_replay_info, replay_run};
 pub use run::{RunError, RunOptions, ScenarioSource, run_scenario};
 pub use runner::{RealtimeRunner, RunReport, run_headless};
 pub use scenario::{Scenario, ScenarioError};

@@ -217,7 +217,9 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         .finish()
         .map_err(|source| RunError::Io { path: csv_path.clone(), source })?;
 
-    let summary = RunSummary::new(&sim, &report);
+    let mut summary = RunSummary::new(&sim, &report);
+    let map_path = scenario_map_path(&scenario);
+    summary.replay = Some(super::ReplayInfo::of(sim.world_mut(), map_path, log_rate));
     let summary_path = options.out.join("summary.json");
     let json = serde_json::to_string_pretty(&summary)
         .map_err(|e| RunError::Io { path: summary_path.clone(), source: std::io::Error::other(e) })?;
@@ -306,4 +308,11 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
         sensor_ranges: options.sensor_ranges,
     };
     Ok(Some(FrameRecorder::new(map, &opts)?))
+}
+
+/// The scenario's map file, absolute when it exists (so `smlworld replay` finds it from anywhere).
+fn scenario_map_path(scenario: &Scenario) -> Option<PathBuf> {
+    let name = scenario.file.map.as_ref()?;
+    let path = scenario.path.parent().unwrap_or(FsPath::new("")).join(name);
+    Some(std::fs::canonicalize(&path).unwrap_or(path))
 }

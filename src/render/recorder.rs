@@ -86,8 +86,17 @@ impl FrameRecorder {
 
     /// Render the world as it is now and append the frame to the outputs.
     pub fn record(&mut self, world: &World) -> Result<(), RenderError> {
-        sprites_from_world(world, self.sensor_ranges, &mut self.sprites);
-        let image = self.renderer.render_frame(&self.layer, &self.sprites)?;
+        let mut sprites = std::mem::take(&mut self.sprites);
+        sprites_from_world(world, self.sensor_ranges, &mut sprites);
+        let result = self.record_sprites(&sprites);
+        self.sprites = sprites;
+        result
+    }
+
+    /// Render `sprites` (sorted by id, as [`sprites_from_world`] gives them) over the map and
+    /// append the frame to the outputs: `smlworld replay` draws a finished run's rows this way.
+    pub fn record_sprites(&mut self, sprites: &[VehicleSprite]) -> Result<(), RenderError> {
+        let image = self.renderer.render_frame(&self.layer, sprites)?;
         if let Some(dir) = &self.frames_dir {
             let path = frame_path(dir, self.frames);
             super::write_image(&path, &image)?;
