@@ -17,7 +17,7 @@ fn file(version: &str) -> PathBuf {
 /// Obstacle 100 as tests/commonroad/make_files.py writes it (4 decimals in the file).
 fn obstacle_100_at(k: i64) -> DVec2 {
     let k = k as f64;
-    DVec2::new(10.0 + 1.0123 * k, 1.75 + 0.3 * (k / 5.0).sin())
+    DVec2::new(10.0 + 1.0123 * k, 5.25 + 0.3 * (k / 5.0).sin())
 }
 
 #[test]
@@ -49,7 +49,7 @@ fn both_formats_load_with_the_files_ids_successors_and_obstacles() {
             assert_eq!(s.velocity, 10.123);
         }
         assert!(o.state_at(41).is_none());
-        assert_eq!(sc.obstacles[1].state_at(80).unwrap().position, DVec2::new(60.0, 1.75));
+        assert_eq!(sc.obstacles[1].state_at(80).unwrap().position, DVec2::new(80.0, 1.75));
 
         let pp = &sc.planning_problems[0];
         assert_eq!(pp.id, 200);
@@ -57,8 +57,9 @@ fn both_formats_load_with_the_files_ids_successors_and_obstacles() {
         assert_eq!(pp.initial_state.velocity, 12.0);
         let goal = &pp.goals[0];
         assert_eq!((goal.time_start, goal.time_end), (0, 200));
-        assert!(goal.shapes[0].contains(DVec2::new(93.0, 2.0), &sc.map));
-        assert!(!goal.shapes[0].contains(DVec2::new(80.0, 1.75), &sc.map));
+        assert!(goal.shapes[0].contains(DVec2::new(73.0, 2.0), &sc.map));
+        assert!(!goal.shapes[0].contains(DVec2::new(64.0, 1.75), &sc.map));
+        assert!(!goal.shapes[0].contains(DVec2::new(70.0, 4.0), &sc.map));
     }
 }
 

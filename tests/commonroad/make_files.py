@@ -3,9 +3,9 @@
 Run from this folder: `python3 make_files.py`. The road: two lanes eastwards from x = 0 to 100 m
 (lanelets 1 -> 2 on the right, y 0..3.5 m; 3 -> 4 on the left, y 3.5..7 m; each link listed as
 successor and as predecessor, as commonroad-io expects), then lanelet 5 curving left after
-lanelet 2. Obstacle 100 drives the right lane at 10 m/s with a small weave; obstacle 101
-stands on the right lane at x = 60 m; the planning problem's ego starts at x = 5 m on the right
-lane, goal a rectangle around (90, 1.75) m.
+lanelet 2. Obstacle 100 drives the left lane at 10 m/s with a small weave; obstacle 101 drives
+the right lane at 5 m/s from x = 40 m for 8 s; the planning problem's ego starts at x = 5 m on the
+right lane at 12 m/s, goal a 10 m x 4 m rectangle around (70, 1.75) m by step 200.
 """
 
 import math
@@ -91,22 +91,22 @@ def scenario(version):
     right = arc(40.0, 40.0, 100.0)
     left = arc(36.5, 40.0, 100.0)
     out += lanelet(5, left, right, "solid", "solid", pred=[2], ltype=lt)
-    # Obstacle 100: 10 m/s along the right lane from x = 10 m, weaving +-0.3 m, 40 steps.
+    # Obstacle 100: 10 m/s along the left lane from x = 10 m, weaving +-0.3 m, 40 steps.
     s100 = []
     for k in range(41):
         x = 10.0 + 1.0 * k + 0.0123 * k
-        y = 1.75 + 0.3 * math.sin(k / 5.0)
+        y = 5.25 + 0.3 * math.sin(k / 5.0)
         yaw = math.atan2(0.3 / 5.0 * math.cos(k / 5.0), 1.0123)
         s100.append((x, y, yaw, k, 10.123))
     out += obstacle(100, version, s100)
-    # Obstacle 101: stands at x = 60 m on the right lane for the whole scenario (80 steps).
-    s101 = [(60.0, 1.75, 0.0, k, 0.0) for k in range(0, 81, 1)]
+    # Obstacle 101: 5 m/s along the right lane from x = 40 m for 8 s (80 steps), to x = 80 m.
+    s101 = [(40.0 + 0.5 * k, 1.75, 0.0, k, 5.0) for k in range(0, 81, 1)]
     out += obstacle(101, version, s101)
     out += '  <planningProblem id="200">\n'
     out += state("initialState", 5.0, 1.75, 0.0, 0, 12.0, indent="    ", initial=True)
     out += "    <goalState>\n"
     out += "      <position>\n        <rectangle>\n          <length>10.0</length>\n          <width>4.0</width>\n"
-    out += "          <orientation>0.0</orientation>\n          <center>\n            <x>90.0</x>\n            <y>1.75</y>\n          </center>\n"
+    out += "          <orientation>0.0</orientation>\n          <center>\n            <x>70.0</x>\n            <y>1.75</y>\n          </center>\n"
     out += "        </rectangle>\n      </position>\n"
     out += "      <time>\n        <intervalStart>0</intervalStart>\n        <intervalEnd>200</intervalEnd>\n      </time>\n"
     out += "    </goalState>\n  </planningProblem>\n"
