@@ -143,3 +143,77 @@ fn bad_files_name_file_line_and_what_is_missing() {
     let err = CommonRoadScenario::parse_str("<osm version='0.6'></osm>", name).unwrap_err().to_string();
     assert!(err.contains("no <commonRoad> root element"), "{err}");
 }
+
+fn run(scenario: &str, out: &Path) -> serde_json::Value {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(scenario);
+    let o = Command::new(env!("CARGO_BIN_EXE_smlworld")).arg("run").arg(&path).arg("--out").arg(out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+}
+
+fn collisions(summary: &serde_json::Value) -> Vec<(i64, i64)> {
+    let list = summary["metrics"]["collisions"].as_array().unwrap();
+    list.iter().map(|c| (c["a"].as_i64().unwrap(), c["b"].as_i64().unwrap())).collect()
+}
+
+#[test]
+fn replayed_obstacles_follow_their_trajectories_and_acc_avoids_them() {
+    let dir = std::env::temp_dir().join(format!("smlworld-commonroad-run-{}", std::process::id()));
+    let acc = run("commonroad_acc.toml", &dir.join("acc"));
+
+    // Obstacles -100 and -101 at their time steps (log rate 10 Hz = 1 / timeStepSize): to 1 mm.
+    let csv = std::fs::read_to_string(dir.join("acc/trajectories.csv")).unwrap();
+    let mut checked = 0;
+    for line in csv.lines().skip(1) {
+        let f: Vec<f64> = line.split(',').map(|v| v.parse().unwrap()).collect();
+        let k = (f[0] / 0.1).round() as i64;
+        let p = DVec2::new(f[2], f[3]);
+        let expected = match f[1] as i32 {
+            -100 if k <= 40 => obstacle_100_at(k),
+            -101 if k <= 80 => DVec2::new(40.0 + 0.5 * k as f64, 1.75),
+            _ => continue,
+        };
+        assert!(p.distance(expected) < 1e-3, "obstacle {} at step {k}: {p} instead of {expected}", f[1]);
+        checked += 1;
+    }
+    assert_eq!(checked, 41 + 81);
+
+    // The ACC ego follows the slow obstacle -101 without touching anything and reaches the goal
+    // region (x 65..75 m) once -101 has moved on.
+    assert_eq!(collisions(&acc), vec![]);
+    let follower = &acc["metrics"]["followers"][0];
+    assert_eq!((follower["id"].as_i64(), follower["leader"].as_i64()), (Some(-1), Some(-101)));
+    assert!(follower["min_gap"].as_f64().unwrap() > 2.0, "{follower}");
+    let goal = &acc["commonroad"]["goals"]["-1"];
+    assert_eq!((goal["planning_problem"].as_i64(), goal["reached"].as_bool()), (Some(200), Some(true)), "{goal}");
+    assert_eq!(acc["commonroad"]["obstacles"].as_u64(), Some(2));
+
+    // The same ego without ACC (path following at 12 m/s) runs into -101 (5 m/s, 35 m ahead):
+    // closing at 7 m/s over 35 m - 4.5 m of car lengths, at about 4.4 s.
+    let ignore = run("commonroad_ignore.toml", &dir.join("ignore"));
+    assert_eq!(collisions(&ignore), vec![(-101, -1)]);
+    let t = ignore["metrics"]["collisions"][0]["t"].as_f64().unwrap();
+    assert!((t - 30.5 / 7.0).abs() < 0.15, "collision at {t} s");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn commonroad_keys_need_a_commonroad_map_and_known_problems() {
+    use smlworld::app::Scenario;
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let text = std::fs::read_to_string(dir.join("commonroad_acc.toml")).unwrap();
+    let path = dir.join("probe.toml");
+    let bad = text.replace("planning_problem = 200", "planning_problem = 7");
+    let err = Scenario::parse_str(&bad, &path).unwrap_err().to_string();
+    assert!(
+        err.contains("`vehicles[0] (id -1).planning_problem` 7 is not a planning problem of the map (it has: 200)"),
+        "{err}"
+    );
+    let bad =
+        text.replace("two_lanes_2020a.xml", "../../maps/highway_ring.osm").replace("planning_problem = 200\n", "");
+    let err = Scenario::parse_str(&bad, &path).unwrap_err().to_string();
+    assert!(err.contains("`obstacles` needs a CommonRoad scenario file as `map`"), "{err}");
+    let bad = text.replace("obstacles = \"replay\"", "obstacles = \"ignore\"");
+    let err = Scenario::parse_str(&bad, &path).unwrap_err().to_string();
+    assert!(err.contains("replay"), "{err}");
+}

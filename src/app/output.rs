@@ -124,6 +124,9 @@ pub struct RunSummary {
     /// Real vehicles and lab bridges (motion capture, trucks, stream); absent without them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lab: Option<LabSummary>,
+    /// CommonRoad obstacles and planning-problem goals; absent without a CommonRoad map.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub commonroad: Option<super::scenario::commonroad::CommonRoadSummary>,
     /// What `smlworld replay` needs to redraw the run from `trajectories.csv` (map, log rate,
     /// vehicle classes and sizes); set by [`super::run_scenario`].
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -194,6 +197,7 @@ impl RunSummary {
             max_distance_to_centre_line,
             metrics: world.get_resource::<super::metrics::Metrics>().map(|m| m.summary()),
             lab: LabSummary::of(world),
+            commonroad: world.get_resource::<super::scenario::commonroad::GoalMonitor>().map(|m| m.summary()),
             replay: None,
         }
     }
