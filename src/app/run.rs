@@ -80,6 +80,8 @@ pub struct RunOptions {
     pub stream: Option<SocketAddr>,
     /// Show a progress bar on a terminal for runs of 30 sim s or more.
     pub progress: bool,
+    /// Write the figures of `smlworld plot` into `out/plots` at the end of the run.
+    pub plots: bool,
     /// Your plugins (controllers they register can be named in the scenario), added before the
     /// scenario's built-in plugins and vehicles.
     pub plugins: Vec<Box<dyn Plugin>>,
@@ -101,6 +103,7 @@ impl Default for RunOptions {
             sensor_ranges: false,
             stream: None,
             progress: true,
+            plots: false,
             plugins: Vec::new(),
         }
     }
@@ -149,6 +152,9 @@ pub enum RunError {
     /// The UDP stream could not be opened.
     #[error("--stream: {0}")]
     Stream(String),
+    /// The figures of `--plots` could not be drawn.
+    #[error("--plots: {0}")]
+    Plot(String),
 }
 
 fn check_option(ok: bool, message: impl FnOnce() -> String) -> Result<(), RunError> {
@@ -225,6 +231,11 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         .map_err(|e| RunError::Io { path: summary_path.clone(), source: std::io::Error::other(e) })?;
     std::fs::write(&summary_path, format!("{json}\n"))
         .map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
+    if options.plots {
+        let dir = options.out.join("plots");
+        let written = super::plot_run(&options.out, &dir).map_err(|e| RunError::Plot(e.to_string()))?;
+        tracing::info!("wrote {} figures (PNG + SVG) into {}", written.len(), dir.display());
+    }
     let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
     tracing::info!(
         "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), seed {}, max distance to centre line {:.3} m; wrote {} and {}",

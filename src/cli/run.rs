@@ -47,6 +47,9 @@ pub struct RunArgs {
     /// 127.0.0.1:38008) for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
     pub stream: Option<std::net::SocketAddr>,
+    /// Write figures (speed, gaps, platoons, lateral deviation, trace; PNG + SVG) into OUT/plots.
+    #[arg(long)]
+    pub plots: bool,
 }
 
 /// Run the subcommand.
@@ -65,6 +68,7 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         sensor_ranges: args.sensor_ranges,
         stream: args.stream,
         progress: true,
+        plots: args.plots,
         plugins: Vec::new(),
     };
     run_scenario(args.scenario, options)?;
