@@ -185,3 +185,56 @@ fn replay_errors_name_the_file_and_what_is_needed() {
     assert!(err.contains("no `replay` part"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Pixels of exactly `color` in the top-left `w` x `h` corner.
+fn count_color(img: &RgbaImage, color: [u8; 3], w: u32, h: u32) -> usize {
+    (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).filter(|&(x, y)| img.get_pixel(x, y).0[..3] == color).count()
+}
+
+#[test]
+fn overlay_shows_time_and_legend_on_request_and_on_gifs_by_default() {
+    let dir = tmp("overlay");
+    let out = dir.join("run");
+    ok(&["run", SCENARIO, "--duration", "1", "--out", s(&out)]);
+    let size = ["--width", "640", "--height", "360"];
+    let (plain, marked, gif) = (dir.join("plain"), dir.join("marked"), dir.join("run.gif"));
+    let mut args = vec!["replay", s(&out), "--frames", s(&plain)];
+    args.extend(size);
+    ok(&args);
+    let mut args = vec!["replay", s(&out), "--frames", s(&marked), "--overlay", "--gif", s(&gif)];
+    args.extend(size);
+    ok(&args);
+    let (plain, marked) = (frames_in(&plain), frames_in(&marked));
+    assert_eq!(plain.len(), marked.len());
+
+    // The legend's swatches carry the class colours of highway.toml's cars, trucks and buses.
+    for class in ["Car", "Truck", "Bus"] {
+        let c = smlworld::render::class_color(class);
+        let rgb = [c[0], c[1], c[2]];
+        // A 14 x 14 px swatch (vehicles of the class may also sit in the corner of both frames).
+        let (with, without) = (count_color(&marked[0], rgb, 300, 200), count_color(&plain[0], rgb, 300, 200));
+        assert!(with >= without + 150, "{class} swatch missing: {with} vs {without} pixels");
+    }
+    // The overlay only covers the corner: the rest of the frame is the plain frame.
+    let (w, h) = marked[0].dimensions();
+    let outside = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).filter(|&(x, y)| x >= 300 || y >= 200);
+    assert!(outside.clone().all(|(x, y)| marked[0].get_pixel(x, y) == plain[0].get_pixel(x, y)));
+    // The time stamp (first line) changes from t = 0.1 s to t = 0.5 s; the legend below does not.
+    let differs = |a: &RgbaImage, b: &RgbaImage, y0: u32, y1: u32| {
+        (y0..y1).flat_map(|y| (0..200).map(move |x| (x, y))).any(|(x, y)| a.get_pixel(x, y) != b.get_pixel(x, y))
+    };
+    assert!(differs(&marked[0], &marked[4], 10, 34), "the time stamp did not change");
+    assert!(!differs(&marked[0], &marked[4], 40, 100), "the legend changed");
+
+    // The GIF has the overlay by default (its palette may shift colours a little).
+    let decoder =
+        image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    let first = image::AnimationDecoder::into_frames(decoder).next().unwrap().unwrap().into_buffer();
+    let bg = smlworld::render::OVERLAY_BACKGROUND;
+    let p = first.get_pixel(12, 60).0;
+    let q = plain[0].get_pixel(12, 60).0;
+    let dist = |a: [u8; 4], b: [u8; 3]| (0..3).map(|k| i32::from(a[k]).abs_diff(i32::from(b[k]))).sum::<u32>();
+    assert!(dist(p, [q[0], q[1], q[2]]) > 30, "no overlay box in the GIF: {p:?} vs plain {q:?}");
+    assert!(dist(p, [bg[0] / 2, bg[1] / 2, bg[2] / 2]) < 90, "{p:?} is not the dark overlay box");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -31,14 +31,12 @@ pub const MAX_LEGEND: usize = 12;
 /// Figure size [px]: 1600 x 1000, readable when printed one column wide.
 pub const FIGURE_SIZE: (u32, u32) = (1600, 1000);
 
-static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
-
 fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         // The bytes are a valid TrueType file shipped with the crate; a failure would only mean
         // text is missing, which the plot tests catch.
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, crate::render::FONT_TTF);
     });
 }
 

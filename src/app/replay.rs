@@ -46,11 +46,23 @@ pub struct ReplayOptions {
     pub width: u32,
     /// Frame height [px].
     pub height: u32,
+    /// Time stamp and legend: `Some(true)` on frames and GIF, `Some(false)` on none, `None` on
+    /// the GIF only.
+    pub overlay: Option<bool>,
 }
 
 impl Default for ReplayOptions {
     fn default() -> Self {
-        ReplayOptions { frames: None, gif: None, stream: None, speed: 1.0, frame_rate: 10.0, width: 1280, height: 720 }
+        ReplayOptions {
+            frames: None,
+            gif: None,
+            stream: None,
+            speed: 1.0,
+            frame_rate: 10.0,
+            width: 1280,
+            height: 720,
+            overlay: None,
+        }
     }
 }
 
@@ -288,6 +300,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
             width: options.width,
             height: options.height,
             sensor_ranges: false,
+            overlay: options.overlay,
         };
         Some(FrameRecorder::new(&map, &opts)?)
     } else {
@@ -331,7 +344,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                     sprites.push(VehicleSprite::new(r.id, r.position, r.yaw, length, width, class));
                 }
                 if let Some(rec) = recorder.as_mut() {
-                    rec.record_sprites(&sprites)?;
+                    rec.record_sprites(&sprites, SimTime(next_frame).as_secs())?;
                 }
                 report.frames += 1;
             }

@@ -76,6 +76,9 @@ pub struct RunOptions {
     pub height: u32,
     /// Draw radar cones and velodyne circles in the frames.
     pub sensor_ranges: bool,
+    /// Time stamp and legend in a corner: `Some(true)` on frames and GIF, `Some(false)` on
+    /// none, `None` (default) on the GIF only.
+    pub overlay: Option<bool>,
     /// Stream the vehicles over UDP (2015 visualisation format) to this address.
     pub stream: Option<SocketAddr>,
     /// Show a progress bar on a terminal for runs of 30 sim s or more.
@@ -101,6 +104,7 @@ impl Default for RunOptions {
             width: 1280,
             height: 720,
             sensor_ranges: false,
+            overlay: None,
             stream: None,
             progress: true,
             plots: false,
@@ -317,6 +321,7 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
         width: options.width,
         height: options.height,
         sensor_ranges: options.sensor_ranges,
+        overlay: options.overlay,
     };
     Ok(Some(FrameRecorder::new(map, &opts)?))
 }

@@ -23,6 +23,12 @@ pub struct ReplayArgs {
     /// Sim seconds per wall second of --stream (2 = twice as fast as recorded).
     #[arg(long, default_value_t = 1.0)]
     pub speed: f64,
+    /// Draw a time stamp and a legend (classes; real vs virtual) on every frame (default: on the GIF only).
+    #[arg(long, conflicts_with = "no_overlay")]
+    pub overlay: bool,
+    /// No time stamp and legend, not even on the GIF.
+    #[arg(long)]
+    pub no_overlay: bool,
     /// Frames per second of sim time for --frames and --gif [Hz].
     #[arg(long, default_value_t = 10.0)]
     pub frame_rate: f64,
@@ -44,6 +50,7 @@ pub fn main(args: ReplayArgs) -> anyhow::Result<()> {
         frame_rate: args.frame_rate,
         width: args.width,
         height: args.height,
+        overlay: super::run::overlay(args.overlay, args.no_overlay),
     };
     let report = replay_run(&args.out_dir, &options)?;
     tracing::info!(
