@@ -3,13 +3,13 @@
 use std::collections::BTreeMap;
 use std::io::Write;
 
-use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Query, Res, ResMut, Resource, World};
 use bevy_ecs::schedule::ScheduleLabel;
 
 use crate::io::lab::LabSummary;
 use crate::sim::{Phase, SimClock, V2vStats};
 use crate::vehicles::PathFollower;
-use crate::world::{VehicleState, Vehicles};
+use crate::world::{VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 use super::{Plugin, RunReport, Sim, SimBuilder, SimSeed};
 
@@ -124,6 +124,54 @@ pub struct RunSummary {
     /// Real vehicles and lab bridges (motion capture, trucks, stream); absent without them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lab: Option<LabSummary>,
+    /// CommonRoad obstacles and planning-problem goals; absent without a CommonRoad map.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub commonroad: Option<super::scenario::commonroad::CommonRoadSummary>,
+    /// What `smlworld replay` needs to redraw the run from `trajectories.csv` (map, log rate,
+    /// vehicle classes and sizes); set by [`super::run_scenario`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub replay: Option<ReplayInfo>,
+}
+
+/// The `replay` part of `summary.json`: what a run's `trajectories.csv` does not say.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayInfo {
+    /// The map file the run drove on (absolute when it could be resolved); `None` without a map.
+    pub map: Option<std::path::PathBuf>,
+    /// Trajectory log rate [Hz]: rows of `trajectories.csv` are this far apart in time.
+    pub log_rate: f64,
+    /// Every vehicle, in the order the run's visualisation stream sent them.
+    pub vehicles: Vec<ReplayVehicle>,
+}
+
+/// One vehicle of [`ReplayInfo`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayVehicle {
+    /// Vehicle id (non-negative: real, negative: virtual).
+    pub id: i32,
+    /// Vehicle class (`car`, `truck`, ...).
+    pub class: VehicleClass,
+    /// Body length [m].
+    pub length: f64,
+    /// Body width [m].
+    pub width: f64,
+}
+
+impl ReplayInfo {
+    /// The vehicles of `world` (in the stream's query order), with the run's `map` and `log_rate` [Hz].
+    pub fn of(world: &mut World, map: Option<std::path::PathBuf>, log_rate: f64) -> ReplayInfo {
+        let mut query = world.query::<(&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>)>();
+        let vehicles = query
+            .iter(world)
+            .map(|(id, _, class, size)| {
+                let size = size.copied().unwrap_or_default();
+                ReplayVehicle { id: id.0, class: *class, length: size.length, width: size.width }
+            })
+            .collect();
+        ReplayInfo { map, log_rate, vehicles }
+    }
 }
 
 impl RunSummary {
@@ -149,6 +197,8 @@ impl RunSummary {
             max_distance_to_centre_line,
             metrics: world.get_resource::<super::metrics::Metrics>().map(|m| m.summary()),
             lab: LabSummary::of(world),
+            commonroad: world.get_resource::<super::scenario::commonroad::GoalMonitor>().map(|m| m.summary()),
+            replay: None,
         }
     }
 }

@@ -76,10 +76,15 @@ pub struct RunOptions {
     pub height: u32,
     /// Draw radar cones and velodyne circles in the frames.
     pub sensor_ranges: bool,
+    /// Time stamp and legend in a corner: `Some(true)` on frames and GIF, `Some(false)` on
+    /// none, `None` (default) on the GIF only.
+    pub overlay: Option<bool>,
     /// Stream the vehicles over UDP (2015 visualisation format) to this address.
     pub stream: Option<SocketAddr>,
     /// Show a progress bar on a terminal for runs of 30 sim s or more.
     pub progress: bool,
+    /// Write the figures of `smlworld plot` into `out/plots` at the end of the run.
+    pub plots: bool,
     /// Your plugins (controllers they register can be named in the scenario), added before the
     /// scenario's built-in plugins and vehicles.
     pub plugins: Vec<Box<dyn Plugin>>,
@@ -99,8 +104,10 @@ impl Default for RunOptions {
             width: 1280,
             height: 720,
             sensor_ranges: false,
+            overlay: None,
             stream: None,
             progress: true,
+            plots: false,
             plugins: Vec::new(),
         }
     }
@@ -149,6 +156,9 @@ pub enum RunError {
     /// The UDP stream could not be opened.
     #[error("--stream: {0}")]
     Stream(String),
+    /// The figures of `--plots` could not be drawn.
+    #[error("--plots: {0}")]
+    Plot(String),
 }
 
 fn check_option(ok: bool, message: impl FnOnce() -> String) -> Result<(), RunError> {
@@ -217,12 +227,19 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         .finish()
         .map_err(|source| RunError::Io { path: csv_path.clone(), source })?;
 
-    let summary = RunSummary::new(&sim, &report);
+    let mut summary = RunSummary::new(&sim, &report);
+    let map_path = scenario_map_path(&scenario);
+    summary.replay = Some(super::ReplayInfo::of(sim.world_mut(), map_path, log_rate));
     let summary_path = options.out.join("summary.json");
     let json = serde_json::to_string_pretty(&summary)
         .map_err(|e| RunError::Io { path: summary_path.clone(), source: std::io::Error::other(e) })?;
     std::fs::write(&summary_path, format!("{json}\n"))
         .map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
+    if options.plots {
+        let dir = options.out.join("plots");
+        let written = super::plot_run(&options.out, &dir).map_err(|e| RunError::Plot(e.to_string()))?;
+        tracing::info!("wrote {} figures (PNG + SVG) into {}", written.len(), dir.display());
+    }
     let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
     tracing::info!(
         "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), seed {}, max distance to centre line {:.3} m; wrote {} and {}",
@@ -304,6 +321,14 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
         width: options.width,
         height: options.height,
         sensor_ranges: options.sensor_ranges,
+        overlay: options.overlay,
     };
     Ok(Some(FrameRecorder::new(map, &opts)?))
+}
+
+/// The scenario's map file, absolute when it exists (so `smlworld replay` finds it from anywhere).
+fn scenario_map_path(scenario: &Scenario) -> Option<PathBuf> {
+    let name = scenario.file.map.as_ref()?;
+    let path = scenario.path.parent().unwrap_or(FsPath::new("")).join(name);
+    Some(std::fs::canonicalize(&path).unwrap_or(path))
 }

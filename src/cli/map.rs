@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
+use smlworld::map::commonroad::{CommonRoadScenario, CommonRoadState, is_commonroad};
 use smlworld::map::{LaneletMap, Path, Place, RouteOptions};
 
 use super::{map_generate, map_render};
@@ -30,7 +31,7 @@ pub enum MapCommand {
 /// `smlworld map info MAP [--json]`.
 #[derive(Debug, Args)]
 pub struct InfoArgs {
-    /// Map file (.osm or .xml, as saved by JOSM).
+    /// Map file (.osm or .xml, as saved by JOSM, or a CommonRoad scenario .xml).
     pub map: PathBuf,
     /// Print JSON instead of text.
     #[arg(long)]
@@ -148,10 +149,58 @@ struct Info<'a> {
     tags: &'a BTreeMap<String, Vec<i64>>,
     lanelet_list: Vec<LaneletInfo<'a>>,
     warnings: Vec<String>,
+    /// CommonRoad files only: obstacles (every recorded state) and planning problems.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    commonroad: Option<serde_json::Value>,
+}
+
+fn state_json(s: &CommonRoadState) -> serde_json::Value {
+    serde_json::json!({
+        "time_step": s.time_step, "x": s.position.x, "y": s.position.y,
+        "orientation": s.orientation, "velocity": s.velocity,
+    })
+}
+
+/// The scenario part of a CommonRoad file as JSON (what `map info --json` adds for such files).
+fn commonroad_json(sc: &CommonRoadScenario) -> serde_json::Value {
+    let obstacles: Vec<_> = sc
+        .obstacles
+        .iter()
+        .map(|o| {
+            serde_json::json!({
+                "id": o.id, "type": o.kind, "length": o.length, "width": o.width,
+                "states": o.states.iter().map(state_json).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let problems: Vec<_> = sc
+        .planning_problems
+        .iter()
+        .map(|p| {
+            let goals: Vec<_> = p
+                .goals
+                .iter()
+                .map(|g| serde_json::json!({"time_start": g.time_start, "time_end": g.time_end, "shapes": g.shapes.len()}))
+                .collect();
+            serde_json::json!({"id": p.id, "initial_state": state_json(&p.initial_state), "goals": goals})
+        })
+        .collect();
+    serde_json::json!({
+        "version": sc.version, "time_step_size": sc.time_step_size,
+        "obstacles": obstacles, "planning_problems": problems,
+    })
 }
 
 fn info(a: InfoArgs) -> anyhow::Result<()> {
-    let map = LaneletMap::load(&a.map)?;
+    let text =
+        std::fs::read_to_string(&a.map).with_context(|| format!("{}: cannot read the map file", a.map.display()))?;
+    let (map, commonroad) = if is_commonroad(&text) {
+        let sc = CommonRoadScenario::parse_str(&text, &a.map)?;
+        let json = commonroad_json(&sc);
+        (sc.map, Some(json))
+    } else {
+        (LaneletMap::parse_str(&text, &a.map)?, None)
+    };
     let info = Info {
         nodes: map.nodes.len(),
         ways: map.ways.len(),
@@ -173,6 +222,7 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
             })
             .collect(),
         warnings: map.warnings.iter().map(ToString::to_string).collect(),
+        commonroad,
     };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&info).context("writing JSON")?);
@@ -186,7 +236,11 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
         Some(n) => format!("node {n} (tagged origin=true)"),
         None => "mean of all nodes".to_string(),
     };
-    println!("origin     {:.8} N {:.8} E, {origin}, UTM zone {}", info.origin.lat, info.origin.lon, info.utm_zone);
+    if info.commonroad.is_some() {
+        println!("origin     (0, 0) of the file: CommonRoad is in Cartesian metres, no projection");
+    } else {
+        println!("origin     {:.8} N {:.8} E, {origin}, UTM zone {}", info.origin.lat, info.origin.lon, info.utm_zone);
+    }
     if !info.tags.is_empty() {
         println!("node tags  (usable with --from-tag/--to-tag/--tag)");
         for (value, ids) in info.tags {
@@ -196,6 +250,16 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
     println!("lanelets   id: length -> successors [left way | right way]");
     for l in &info.lanelet_list {
         println!("  {:>10}: {:>8.2} m -> {:?} [{} | {}]", l.id, l.length_m, l.successors, l.left, l.right);
+    }
+    if let Some(cr) = &info.commonroad {
+        let n = |k: &str| cr[k].as_array().map_or(0, Vec::len);
+        println!(
+            "commonroad version {}, time step {} s, {} dynamic obstacles, {} planning problems",
+            cr["version"],
+            cr["time_step_size"],
+            n("obstacles"),
+            n("planning_problems")
+        );
     }
     if !info.warnings.is_empty() {
         println!("warnings   {}", info.warnings.len());

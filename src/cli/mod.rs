@@ -5,6 +5,8 @@ mod map;
 mod map_generate;
 mod map_render;
 mod mock_mocap;
+mod plot;
+mod replay;
 mod run;
 mod view;
 
@@ -29,6 +31,10 @@ pub enum Command {
     Map(map::MapCommand),
     /// Run a scenario (TOML) headless or in real time.
     Run(run::RunArgs),
+    /// Figures of a finished run (speed, gaps, platoons, lateral deviation, trace) as PNG and SVG.
+    Plot(plot::PlotArgs),
+    /// Redraw a finished run (its trajectories.csv and summary.json) as frames, a GIF or a UDP stream.
+    Replay(replay::ReplayArgs),
     /// Benchmark the whole simulation with N vehicles; prints JSON.
     Bench(bench::BenchArgs),
     /// Live bird's-eye viewer for the UDP visualisation stream.
@@ -54,6 +60,8 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Map(c) => map::main(c),
         Command::Run(a) => run::main(a),
+        Command::Replay(a) => replay::main(a),
+        Command::Plot(a) => plot::main(a),
         Command::Bench(a) => bench::main(a),
         Command::View(a) => view::main(a),
         Command::MockMocap(a) => mock_mocap::main(a),

@@ -47,6 +47,15 @@ pub struct RunArgs {
     /// 127.0.0.1:38008) for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
     pub stream: Option<std::net::SocketAddr>,
+    /// Draw a time stamp and a legend (classes; real vs virtual) on every frame (default: on the GIF only).
+    #[arg(long, conflicts_with = "no_overlay")]
+    pub overlay: bool,
+    /// No time stamp and legend, not even on the GIF.
+    #[arg(long)]
+    pub no_overlay: bool,
+    /// Write figures (speed, gaps, platoons, lateral deviation, trace; PNG + SVG) into OUT/plots.
+    #[arg(long)]
+    pub plots: bool,
 }
 
 /// Run the subcommand.
@@ -63,10 +72,21 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         width: args.width,
         height: args.height,
         sensor_ranges: args.sensor_ranges,
+        overlay: overlay(args.overlay, args.no_overlay),
         stream: args.stream,
         progress: true,
+        plots: args.plots,
         plugins: Vec::new(),
     };
     run_scenario(args.scenario, options)?;
     Ok(())
+}
+
+/// `--overlay` / `--no-overlay` / neither (the default: on the GIF only).
+pub fn overlay(on: bool, off: bool) -> Option<bool> {
+    match (on, off) {
+        (true, _) => Some(true),
+        (_, true) => Some(false),
+        _ => None,
+    }
 }

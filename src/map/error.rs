@@ -69,6 +69,14 @@ pub enum MapError {
         /// Line of the first definition.
         first_line: usize,
     },
+    /// A CommonRoad element is missing something or has a value that cannot be used.
+    #[error("{at}: CommonRoad: {message}")]
+    CommonRoad {
+        /// Where the element is.
+        at: Location,
+        /// What is wrong and what is allowed.
+        message: String,
+    },
     /// A way lists a node that the file does not define.
     #[error("{at}: way {way} references node {node}, which is not in the file; add the node or remove it from the way")]
     MissingNode {

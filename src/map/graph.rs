@@ -27,6 +27,16 @@ pub(crate) struct GraphLanelet<'a> {
 
 impl RoutingGraph {
     pub(crate) fn new(lanelets: &[GraphLanelet<'_>]) -> RoutingGraph {
+        RoutingGraph::build(lanelets, None)
+    }
+
+    /// The graph of one-way lanelets whose successors are given (by index into `lanelets`), as
+    /// CommonRoad files list them, instead of found by shared bound nodes.
+    pub(crate) fn with_successors(lanelets: &[GraphLanelet<'_>], successors: &[Vec<usize>]) -> RoutingGraph {
+        RoutingGraph::build(lanelets, Some(successors))
+    }
+
+    fn build(lanelets: &[GraphLanelet<'_>], explicit: Option<&[Vec<usize>]>) -> RoutingGraph {
         let n = lanelets.len();
         let mut valid = vec![false; 2 * n];
         let mut by_start: BTreeMap<(i64, i64), Vec<u32>> = BTreeMap::new();
@@ -59,6 +69,14 @@ impl RoutingGraph {
             }
         }
         let mut successors = vec![Vec::new(); 2 * n];
+        if let Some(explicit) = explicit {
+            for (i, next) in explicit.iter().enumerate() {
+                if valid[2 * i] {
+                    successors[2 * i] = next.iter().filter(|&&j| valid[2 * j]).map(|&j| (2 * j) as u32).collect();
+                }
+            }
+            return RoutingGraph { successors, node_states };
+        }
         for (state, ok) in valid.iter().enumerate() {
             if *ok {
                 let l = &lanelets[state / 2];

@@ -14,9 +14,14 @@ use super::polyline::{polyline_length, resample_count};
 use super::projection::Projector;
 
 impl LaneletMap {
-    /// Load a JOSM/OSM map (`.osm` or `.xml`).
+    /// Load a JOSM/OSM map (`.osm` or `.xml`), or the road network of a CommonRoad scenario
+    /// file (root element `<commonRoad>`, see [`super::commonroad`]).
     pub fn load(path: &FsPath) -> Result<LaneletMap, MapError> {
-        let doc = OsmDocument::load(path)?;
+        let text = std::fs::read_to_string(path).map_err(|source| MapError::Io { path: path.to_path_buf(), source })?;
+        if super::commonroad::is_commonroad(&text) {
+            return Ok(super::commonroad::CommonRoadScenario::parse_str(&text, path)?.map);
+        }
+        let doc = super::osm::parse_osm(&text, path)?;
         LaneletMap::from_osm(&doc)
     }
 

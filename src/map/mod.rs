@@ -4,9 +4,11 @@
 //! (no semantics); the loader turns that into a [`LaneletMap`] ([`lanelet`]: metres, bounds,
 //! centre lines, successors, tags) and builds its routing graph from plain lanelet data;
 //! [`routing`] searches that map and never touches XML; [`polyline`] and [`path`] hold the
-//! geometry every layer shares; [`generate`] writes parametric maps back as JOSM-compatible XML.
+//! geometry every layer shares; [`commonroad`] reads CommonRoad scenario XML (lanelets, obstacles,
+//! planning problems) into the same [`LaneletMap`]; [`generate`] writes parametric maps back as JOSM-compatible XML.
 //! Nothing here knows about the ECS or rendering.
 
+pub mod commonroad;
 pub mod error;
 pub mod generate;
 mod graph;

@@ -13,6 +13,7 @@ use super::{
     BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, VehicleSprite,
 };
 use crate::map::LaneletMap;
+use crate::sim::SimClock;
 use crate::world::{Radar, VehicleClass, VehicleId, VehicleSize, VehicleState, Velodyne};
 
 /// What to record and how.
@@ -30,6 +31,9 @@ pub struct RecorderOptions {
     pub height: u32,
     /// Draw radar cones and velodyne circles.
     pub sensor_ranges: bool,
+    /// Time stamp and legend in the top-left corner ([`super::draw_overlay`]): `Some(true)` on
+    /// every output, `Some(false)` on none, `None` (default) on the GIF only.
+    pub overlay: Option<bool>,
 }
 
 impl Default for RecorderOptions {
@@ -41,6 +45,7 @@ impl Default for RecorderOptions {
             width: 1280,
             height: 720,
             sensor_ranges: false,
+            overlay: None,
         }
     }
 }
@@ -52,6 +57,7 @@ pub struct FrameRecorder {
     frames_dir: Option<PathBuf>,
     gif: Option<GifWriter>,
     sensor_ranges: bool,
+    overlay: Option<bool>,
     sprites: Vec<VehicleSprite>,
     frames: u64,
 }
@@ -79,6 +85,7 @@ impl FrameRecorder {
             frames_dir: opts.frames_dir.clone(),
             gif,
             sensor_ranges: opts.sensor_ranges,
+            overlay: opts.overlay,
             sprites: Vec::new(),
             frames: 0,
         })
@@ -86,13 +93,32 @@ impl FrameRecorder {
 
     /// Render the world as it is now and append the frame to the outputs.
     pub fn record(&mut self, world: &World) -> Result<(), RenderError> {
-        sprites_from_world(world, self.sensor_ranges, &mut self.sprites);
-        let image = self.renderer.render_frame(&self.layer, &self.sprites)?;
+        let mut sprites = std::mem::take(&mut self.sprites);
+        sprites_from_world(world, self.sensor_ranges, &mut sprites);
+        let t = world.get_resource::<SimClock>().map_or(0.0, |c| c.now.as_secs());
+        let result = self.record_sprites(&sprites, t);
+        self.sprites = sprites;
+        result
+    }
+
+    /// Render `sprites` (sorted by id, as [`sprites_from_world`] gives them) at sim time `t` [s]
+    /// over the map and append the frame to the outputs: `smlworld replay` draws a finished
+    /// run's rows this way.
+    pub fn record_sprites(&mut self, sprites: &[VehicleSprite], t: f64) -> Result<(), RenderError> {
+        let mut image = self.renderer.render_frame(&self.layer, sprites)?;
+        let mut overlaid = false;
         if let Some(dir) = &self.frames_dir {
+            if self.overlay == Some(true) {
+                super::draw_overlay(&mut image, t, sprites);
+                overlaid = true;
+            }
             let path = frame_path(dir, self.frames);
             super::write_image(&path, &image)?;
         }
         if let Some(gif) = &mut self.gif {
+            if self.overlay != Some(false) && !overlaid {
+                super::draw_overlay(&mut image, t, sprites);
+            }
             gif.push(image)?;
         }
         self.frames += 1;

@@ -16,6 +16,7 @@ pub mod controllers;
 pub mod dynamics;
 pub mod grid;
 pub mod parallel;
+pub mod recorded;
 mod schedule;
 pub mod sensors;
 pub mod v2v;
@@ -25,6 +26,7 @@ pub use controllers::{AttachController, BUILT_IN_CONTROLLERS, ControllerRegistry
 pub use dynamics::{DynamicsPlugin, step_acceleration_unicycle, step_kinematic_unicycle};
 pub use grid::{GridEntry, SpatialGrid};
 pub use parallel::Parallelism;
+pub use recorded::{RecordedSample, RecordedTrajectory, recorded_trajectories};
 pub use schedule::{
     Control, ControlEpoch, DuplicateModule, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, SimSystems,
     Wifi,

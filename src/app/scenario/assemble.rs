@@ -6,7 +6,10 @@ use std::sync::Arc;
 
 use glam::DVec2;
 
-use super::file::{BuiltInController, ControllerConfig, ModelConfig, NodeRef, RouteConfig, StartConfig, VehicleConfig};
+use super::commonroad::{GoalMonitor, add_goal_monitor, spawn_obstacles};
+use super::file::{
+    BuiltInController, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RouteConfig, StartConfig, VehicleConfig,
+};
 use super::lab::add_lab_plugins;
 use super::{Scenario, ScenarioError};
 use crate::app::metrics::MetricsPlugin;
@@ -16,8 +19,8 @@ use crate::sim::{
 };
 use crate::vehicles::{Longitudinal, PathFollower, PathFollowing, PathFollowingPlugin, smart_vehicles};
 use crate::world::{
-    AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleModel, VehicleSize, VehicleSpec, VehicleState,
-    Velodyne,
+    AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleId, VehicleModel, VehicleSize, VehicleSpec,
+    VehicleState, Velodyne,
 };
 
 impl Scenario {
@@ -54,6 +57,19 @@ impl Scenario {
                 None => None,
             };
             self.spawn(b, v, route, &key)?;
+        }
+        if let (Some(sc), Some(map)) = (&self.commonroad, &self.map) {
+            let obstacles = if self.file.obstacles == Some(ObstaclesMode::Replay) {
+                spawn_obstacles(b, sc).map_err(|e| self.invalid("obstacles".into(), e))?;
+                sc.obstacles.len()
+            } else {
+                0
+            };
+            let egos: Vec<(VehicleId, i64)> =
+                self.file.vehicles.iter().filter_map(|v| Some((VehicleId(v.id), v.planning_problem?))).collect();
+            if obstacles > 0 || !egos.is_empty() {
+                add_goal_monitor(b, GoalMonitor::new(sc, Arc::clone(map), &egos, obstacles));
+            }
         }
         if let Some(lab) = &self.file.lab {
             add_lab_plugins(b, lab, self.map.as_deref())
@@ -168,6 +184,13 @@ impl Scenario {
         route: Option<&Path>,
         key: &dyn Fn(&str) -> String,
     ) -> Result<(VehicleState, f64), ScenarioError> {
+        let problem = v.planning_problem.and_then(|id| {
+            self.commonroad.as_ref()?.planning_problems.iter().find(|p| p.id == id).map(|p| p.initial_state)
+        });
+        if let Some(s) = problem {
+            let along = route.map_or(0.0, |r| r.project(s.position).s);
+            return Ok((VehicleState::new(s.position, s.orientation, s.velocity), along));
+        }
         let start = v.start.clone().unwrap_or(StartConfig { at: None, offset: None, x: None, y: None, yaw: None });
         let node_position = |n: &NodeRef| -> Result<DVec2, ScenarioError> {
             let map =

@@ -78,6 +78,18 @@ pub struct ScenarioFile {
     /// Bridges to the lab (motion capture, real trucks), see [`crate::io::lab`].
     #[serde(default)]
     pub lab: Option<LabConfig>,
+    /// `obstacles = "replay"`: the dynamic obstacles of a CommonRoad `map` drive as recorded.
+    #[serde(default)]
+    pub obstacles: Option<ObstaclesMode>,
+}
+
+/// What to do with a CommonRoad map's dynamic obstacles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ObstaclesMode {
+    /// Each dynamic obstacle N becomes virtual vehicle -N whose state comes from its recorded
+    /// trajectory (no dynamics), seen by sensors and counted in the collision metrics.
+    Replay,
 }
 
 fn default_duration() -> f64 {
@@ -169,6 +181,10 @@ pub struct VehicleConfig {
     /// Controller.
     #[serde(default)]
     pub controller: Option<ControllerConfig>,
+    /// Id of a planning problem of the CommonRoad `map`: the vehicle starts at its initial state
+    /// (position, heading, speed) and the summary says whether it reached the goal.
+    #[serde(default)]
+    pub planning_problem: Option<i64>,
 }
 
 fn yes() -> bool {

@@ -31,21 +31,31 @@
 //! trucks = { base_port = 16000 }
 //! ```
 //! Unknown keys are errors that name the key and list the allowed ones.
+//!
+//! # CommonRoad scenarios
+//! `map` may name a CommonRoad scenario file (`.xml` with a `<commonRoad>` root). Then
+//! `obstacles = "replay"` turns each dynamic obstacle N into virtual vehicle -N driven by its
+//! recorded trajectory, and `planning_problem = ID` in a `[[vehicles]]` entry starts that vehicle
+//! at the planning problem's initial state (no `start` then); `summary.json` says in
+//! `commonroad.goals` whether it reached the goal (see [`commonroad`]). Routes name lanelet ends
+//! by tag: `route = { from = "start_1", to = "end_5" }`.
 
 mod assemble;
 mod check;
+pub mod commonroad;
 mod file;
 pub mod lab;
 
 use std::path::{Path as FsPath, PathBuf};
 use std::sync::Arc;
 
+use crate::map::commonroad::{CommonRoadScenario, is_commonroad};
 use crate::map::{LaneletMap, MapError};
 use crate::sim::{ControllerRegistry, Rates};
 
 pub use file::{
-    BuiltInController, ControllerConfig, ModelConfig, NodeRef, RadarConfig, RatesConfig, RouteConfig, ScenarioFile,
-    SensorsConfig, StartConfig, V2vSection, VehicleConfig, VelodyneConfig,
+    BuiltInController, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RadarConfig, RatesConfig, RouteConfig,
+    ScenarioFile, SensorsConfig, StartConfig, V2vSection, VehicleConfig, VelodyneConfig,
 };
 pub use lab::{LabConfig, LabError, MocapConfig, TrucksConfig, add_lab_plugins, scenario_script};
 
@@ -109,6 +119,9 @@ pub struct Scenario {
     pub file: ScenarioFile,
     /// The map, if the scenario names one.
     pub map: Option<Arc<LaneletMap>>,
+    /// The whole CommonRoad scenario when the map is a CommonRoad file (obstacles, planning
+    /// problems).
+    pub commonroad: Option<Arc<CommonRoadScenario>>,
 }
 
 impl Scenario {
@@ -140,25 +153,56 @@ impl Scenario {
         let file: ScenarioFile =
             toml::from_str(text).map_err(|e| ScenarioError::Syntax { path: path.into(), message: e.to_string() })?;
         check::check(&file, path, controllers)?;
-        let map = match &file.map {
+        let (map, commonroad) = match &file.map {
             Some(m) => {
                 let resolved = path.parent().unwrap_or(FsPath::new("")).join(m);
-                let map = LaneletMap::load(&resolved).map_err(|e| ScenarioError::Map {
-                    path: path.into(),
-                    map: resolved.clone(),
-                    source: Box::new(e),
-                })?;
-                Some(Arc::new(map))
+                let map_err = |e| ScenarioError::Map { path: path.into(), map: resolved.clone(), source: Box::new(e) };
+                let text = std::fs::read_to_string(&resolved)
+                    .map_err(|source| map_err(MapError::Io { path: resolved.clone(), source }))?;
+                if is_commonroad(&text) {
+                    let sc = CommonRoadScenario::parse_str(&text, &resolved).map_err(map_err)?;
+                    (Some(Arc::new(sc.map.clone())), Some(Arc::new(sc)))
+                } else {
+                    (Some(Arc::new(LaneletMap::parse_str(&text, &resolved).map_err(map_err)?)), None)
+                }
             }
-            None => None,
+            None => (None, None),
         };
-        Ok(Scenario { path: path.into(), file, map })
+        let scenario = Scenario { path: path.into(), file, map, commonroad };
+        scenario.check_commonroad()?;
+        Ok(scenario)
     }
 
     /// The module rates of the scenario.
     pub fn rates(&self) -> Rates {
         let r = &self.file.rates;
         Rates { dynamics: r.dynamics, sensors: r.sensors, control: r.control, wifi: r.wifi, network: r.network }
+    }
+
+    /// `obstacles` and `planning_problem` need a CommonRoad map that has them.
+    fn check_commonroad(&self) -> Result<(), ScenarioError> {
+        let ids = |sc: &CommonRoadScenario| {
+            sc.planning_problems.iter().map(|p| p.id.to_string()).collect::<Vec<_>>().join(", ")
+        };
+        if self.file.obstacles.is_some() && self.commonroad.is_none() {
+            return Err(self.invalid("obstacles".into(), "needs a CommonRoad scenario file as `map`"));
+        }
+        for (i, v) in self.file.vehicles.iter().enumerate() {
+            let Some(pp) = v.planning_problem else { continue };
+            let key = format!("vehicles[{i}] (id {}).planning_problem", v.id);
+            let Some(sc) = &self.commonroad else {
+                return Err(self.invalid(key, "needs a CommonRoad scenario file as `map`"));
+            };
+            if !sc.planning_problems.iter().any(|p| p.id == pp) {
+                return Err(
+                    self.invalid(key, format!("{pp} is not a planning problem of the map (it has: {})", ids(sc)))
+                );
+            }
+            if v.start.is_some() {
+                return Err(self.invalid(key, "sets the start: remove `start` (or `planning_problem`)"));
+            }
+        }
+        Ok(())
     }
 
     fn invalid(&self, key: String, problem: impl Into<String>) -> ScenarioError {

@@ -1,0 +1,85 @@
+"""CommonRoad reference test: what `smlworld map info FILE --json` reads from our hand-made
+CommonRoad files (tests/commonroad/, formats 2018b and 2020a) must match what the reference
+reader, the `commonroad-io` package, reads from the same files: the lanelet count, the successor
+pairs, and every dynamic obstacle's position at several time steps (to 1 mm).
+
+Optional locally (skipped without commonroad-io); needs the release binary
+(`cargo build --release`; SMLWORLD_BIN overrides its path).
+"""
+
+import json
+import os
+import pathlib
+import subprocess
+
+import pytest
+
+commonroad_reader = pytest.importorskip("commonroad.common.file_reader")
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+FILES = sorted((ROOT / "tests" / "commonroad").glob("*.xml"))
+STEPS = [0, 1, 7, 20, 40]
+
+
+def smlworld_bin():
+    path = pathlib.Path(os.environ.get("SMLWORLD_BIN", ROOT / "target" / "release" / "smlworld"))
+    if not path.is_absolute():
+        path = ROOT / path
+    if not path.exists():
+        pytest.skip(f"{path} does not exist: run `cargo build --release` first")
+    return path
+
+
+def ours(path):
+    out = subprocess.run(
+        [str(smlworld_bin()), "map", "info", str(path), "--json"], capture_output=True, text=True, check=True
+    )
+    return json.loads(out.stdout)
+
+
+def reference(path):
+    scenario, problems = commonroad_reader.CommonRoadFileReader(str(path)).open()
+    return scenario, problems
+
+
+def test_there_are_files_of_both_formats():
+    versions = {ours(f)["commonroad"]["version"] for f in FILES}
+    assert versions == {"2018b", "2020a"}
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_lanelets_and_successors_match_commonroad_io(path):
+    info = ours(path)
+    scenario, _ = reference(path)
+    lanelets = scenario.lanelet_network.lanelets
+    assert info["lanelets"] == len(lanelets)
+    ours_pairs = {(l["id"], s) for l in info["lanelet_list"] for s in l["successors"]}
+    ref_pairs = {(l.lanelet_id, s) for l in lanelets for s in l.successor}
+    assert ours_pairs == ref_pairs
+    assert info["successor_pairs"] == len(ref_pairs)
+    assert info["commonroad"]["time_step_size"] == pytest.approx(scenario.dt)
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_obstacle_positions_match_commonroad_io(path):
+    info = ours(path)
+    scenario, problems = reference(path)
+    obstacles = {o["id"]: o for o in info["commonroad"]["obstacles"]}
+    assert set(obstacles) == {o.obstacle_id for o in scenario.dynamic_obstacles}
+    for ref in scenario.dynamic_obstacles:
+        states = {s["time_step"]: s for s in obstacles[ref.obstacle_id]["states"]}
+        for step in STEPS:
+            expected = ref.state_at_time(step)
+            if expected is None:
+                assert step not in states
+                continue
+            got = states[step]
+            assert abs(got["x"] - expected.position[0]) < 1e-3
+            assert abs(got["y"] - expected.position[1]) < 1e-3
+            assert abs(got["orientation"] - expected.orientation) < 1e-6
+    ids = [p["id"] for p in info["commonroad"]["planning_problems"]]
+    assert ids == sorted(problems.planning_problem_dict)
+    for p in info["commonroad"]["planning_problems"]:
+        init = problems.planning_problem_dict[p["id"]].initial_state
+        assert abs(p["initial_state"]["x"] - init.position[0]) < 1e-3
+        assert abs(p["initial_state"]["y"] - init.position[1]) < 1e-3

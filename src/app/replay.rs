@@ -1,0 +1,416 @@
+//! `smlworld replay`: redraw a finished run from its `trajectories.csv` and `summary.json`
+//! without simulating.
+//!
+//! [`replay_run`] reads the rows time by time (streaming: memory grows with the vehicle count,
+//! not with the run's length) and, for each output asked for, takes the state of every vehicle
+//! at the output's times:
+//! - frames and GIF at `k / frame_rate` for k = 1, 2, ... (the times at which `run --frames`
+//!   draws), through the map of `summary.json` at the same view, so a replay at the run's frame
+//!   rate draws the run's frames;
+//! - the UDP visualisation stream at 50 Hz of sim time from t = 0 (the times of `run --stream`),
+//!   paced to the wall clock times `speed`, so `smlworld view` shows a recorded run live.
+//!
+//! A time that falls on a logged row uses that row exactly; a time between two rows interpolates
+//! linearly (position, and yaw along the shorter arc). Outputs end at the last logged row: the
+//! trajectory log does not hold the state at the run's very end, so `run --frames` has one frame
+//! more (the one at t = duration) than its replay.
+
+use std::io::BufRead;
+use std::net::SocketAddr;
+use std::path::{Path as FsPath, PathBuf};
+use std::time::{Duration, Instant};
+
+use glam::DVec2;
+
+use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, VizSender, VizSenderConfig, VizVehicle};
+use crate::map::LaneletMap;
+use crate::render::{FrameRecorder, RecorderOptions, RenderError, VehicleSprite};
+use crate::world::SimTime;
+
+use super::output::{ReplayInfo, ReplayVehicle};
+
+/// What `smlworld replay` writes or sends, and how.
+#[derive(Debug, Clone)]
+pub struct ReplayOptions {
+    /// Write numbered PNG frames into this folder.
+    pub frames: Option<PathBuf>,
+    /// Write an animated GIF.
+    pub gif: Option<PathBuf>,
+    /// Send the vehicles over UDP (2015 visualisation format, 50 Hz of sim time) to this address.
+    pub stream: Option<SocketAddr>,
+    /// Sim seconds per wall second of the stream (2 = twice as fast as recorded).
+    pub speed: f64,
+    /// Frames per second of sim time for `frames` and `gif` [Hz].
+    pub frame_rate: f64,
+    /// Frame width [px].
+    pub width: u32,
+    /// Frame height [px].
+    pub height: u32,
+    /// Time stamp and legend: `Some(true)` on frames and GIF, `Some(false)` on none, `None` on
+    /// the GIF only.
+    pub overlay: Option<bool>,
+}
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        ReplayOptions {
+            frames: None,
+            gif: None,
+            stream: None,
+            speed: 1.0,
+            frame_rate: 10.0,
+            width: 1280,
+            height: 720,
+            overlay: None,
+        }
+    }
+}
+
+/// What a replay did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ReplayReport {
+    /// Frames drawn (PNG and/or GIF).
+    pub frames: u64,
+    /// Stream frames sent.
+    pub datagram_frames: u64,
+    /// Rows of `trajectories.csv` read.
+    pub rows: u64,
+}
+
+/// What can stop a replay.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// A file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// `summary.json` is not JSON or lacks its `replay` part.
+    #[error("{path}: {message}")]
+    Summary {
+        /// The summary file.
+        path: PathBuf,
+        /// What is wrong and what to do.
+        message: String,
+    },
+    /// A row of `trajectories.csv` is malformed.
+    #[error("{path}:{line}: {message} (expected `t,id,x,y,yaw,vx,vy`, rows in time order)")]
+    Row {
+        /// The CSV file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// The map named in `summary.json` could not be loaded.
+    #[error("map {path} (named in summary.json): {message}")]
+    Map {
+        /// The map file.
+        path: PathBuf,
+        /// Why.
+        message: String,
+    },
+    /// An option is out of range or missing (the message names it and what is allowed).
+    #[error("{0}")]
+    Option(String),
+    /// Frames or the GIF could not be drawn or written.
+    #[error("drawing frames: {0}")]
+    Render(#[from] RenderError),
+    /// The UDP stream could not be opened or sent.
+    #[error("--stream: {0}")]
+    Stream(String),
+}
+
+/// Read the `replay` part of `OUT_DIR/summary.json`.
+pub fn read_replay_info(out_dir: &FsPath) -> Result<ReplayInfo, ReplayError> {
+    let path = out_dir.join("summary.json");
+    let text = std::fs::read_to_string(&path).map_err(|source| ReplayError::Io { path: path.clone(), source })?;
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| ReplayError::Summary { path: path.clone(), message: format!("not JSON: {e}") })?;
+    let Some(replay) = value.get("replay") else {
+        return Err(ReplayError::Summary {
+            path,
+            message: "no `replay` part: the run is older than `smlworld replay`; run it again".into(),
+        });
+    };
+    serde_json::from_value(replay.clone())
+        .map_err(|e| ReplayError::Summary { path, message: format!("`replay`: {e} (map, log_rate, vehicles)") })
+}
+
+/// One logged row: state of one vehicle at one time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Row {
+    id: i32,
+    position: DVec2,
+    yaw: f64,
+}
+
+/// All rows of one logged time.
+#[derive(Debug, Default)]
+struct Group {
+    t_us: u64,
+    rows: Vec<Row>,
+}
+
+/// Streams `trajectories.csv` one time at a time.
+struct TrajectoryReader {
+    path: PathBuf,
+    lines: std::io::Lines<std::io::BufReader<std::fs::File>>,
+    line: usize,
+    pending: Option<(u64, Row)>,
+    rows: u64,
+}
+
+impl TrajectoryReader {
+    fn open(path: PathBuf) -> Result<TrajectoryReader, ReplayError> {
+        let file = std::fs::File::open(&path).map_err(|source| ReplayError::Io { path: path.clone(), source })?;
+        let mut lines = std::io::BufReader::new(file).lines();
+        let header = lines.next().transpose().map_err(|source| ReplayError::Io { path: path.clone(), source })?;
+        if header.as_deref().map(str::trim) != Some("t,id,x,y,yaw,vx,vy") {
+            return Err(ReplayError::Row { path, line: 1, message: format!("header is {header:?}") });
+        }
+        Ok(TrajectoryReader { path, lines, line: 1, pending: None, rows: 0 })
+    }
+
+    fn error(&self, message: String) -> ReplayError {
+        ReplayError::Row { path: self.path.clone(), line: self.line, message }
+    }
+
+    fn next_row(&mut self) -> Result<Option<(u64, Row)>, ReplayError> {
+        loop {
+            let Some(line) = self.lines.next() else { return Ok(None) };
+            self.line += 1;
+            let line = line.map_err(|source| ReplayError::Io { path: self.path.clone(), source })?;
+            if line.trim().is_empty() {
+                continue;
+            }
+            let f: Vec<&str> = line.trim().split(',').collect();
+            if f.len() != 7 {
+                return Err(self.error(format!("{} fields", f.len())));
+            }
+            let num = |i: usize, name: &str| -> Result<f64, ReplayError> {
+                f[i].parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .ok_or_else(|| self.error(format!("`{name}` = {:?} is not a finite number", f[i])))
+            };
+            let t = num(0, "t")?;
+            if t < 0.0 {
+                return Err(self.error(format!("time {t} is negative")));
+            }
+            let id = f[1].parse::<i32>().map_err(|_| self.error(format!("`id` = {:?} is not an integer", f[1])))?;
+            let row = Row { id, position: DVec2::new(num(2, "x")?, num(3, "y")?), yaw: num(4, "yaw")? };
+            self.rows += 1;
+            return Ok(Some((SimTime::from_secs(t).0, row)));
+        }
+    }
+
+    /// Fill `group` with the rows of the next logged time; `false` at the end of the file.
+    fn next_group(&mut self, group: &mut Group) -> Result<bool, ReplayError> {
+        group.rows.clear();
+        let first = match self.pending.take() {
+            Some(r) => r,
+            None => match self.next_row()? {
+                Some(r) => r,
+                None => return Ok(false),
+            },
+        };
+        if first.0 < group.t_us && self.rows > 1 {
+            return Err(self.error(format!("time {} s goes back in time", SimTime(first.0).as_secs())));
+        }
+        group.t_us = first.0;
+        group.rows.push(first.1);
+        while let Some((t, row)) = self.next_row()? {
+            if t != group.t_us {
+                self.pending = Some((t, row));
+                break;
+            }
+            group.rows.push(row);
+        }
+        group.rows.sort_by_key(|r| r.id);
+        Ok(true)
+    }
+}
+
+/// Angle `a + (b - a) * f` along the shorter arc [rad].
+fn lerp_angle(a: f64, b: f64, f: f64) -> f64 {
+    let d = (b - a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+    a + d * f
+}
+
+/// The states at `t_us`, between `prev` (at or before) and `next` (at or after), into `out`.
+fn states_at(prev: &Group, next: &Group, t_us: u64, out: &mut Vec<Row>) {
+    out.clear();
+    if t_us == next.t_us || next.rows.is_empty() {
+        out.extend_from_slice(if t_us == next.t_us { &next.rows } else { &prev.rows });
+        return;
+    }
+    if t_us == prev.t_us || next.t_us <= prev.t_us {
+        out.extend_from_slice(&prev.rows);
+        return;
+    }
+    let f = (t_us - prev.t_us) as f64 / (next.t_us - prev.t_us) as f64;
+    // Both groups are sorted by id: merge, keeping vehicles known at the earlier time.
+    let mut j = 0;
+    for a in &prev.rows {
+        while j < next.rows.len() && next.rows[j].id < a.id {
+            j += 1;
+        }
+        match next.rows.get(j).filter(|b| b.id == a.id) {
+            Some(b) => {
+                out.push(Row { id: a.id, position: a.position.lerp(b.position, f), yaw: lerp_angle(a.yaw, b.yaw, f) })
+            }
+            None => out.push(*a),
+        }
+    }
+}
+
+/// Redraw (and/or re-send) the run in `out_dir` from its `trajectories.csv` and `summary.json`.
+pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayReport, ReplayError> {
+    if options.frames.is_none() && options.gif.is_none() && options.stream.is_none() {
+        return Err(ReplayError::Option(
+            "replay needs at least one of --gif FILE, --frames DIR, --stream [ADDR]".into(),
+        ));
+    }
+    if !(options.speed.is_finite() && options.speed > 0.0) {
+        return Err(ReplayError::Option(format!("--speed must be a positive factor, got {}", options.speed)));
+    }
+    let drawing = options.frames.is_some() || options.gif.is_some();
+    if drawing && !(options.frame_rate.is_finite() && options.frame_rate > 0.0 && options.frame_rate <= 1000.0) {
+        return Err(ReplayError::Option(format!("--frame-rate must be in (0, 1000] Hz, got {}", options.frame_rate)));
+    }
+    let info = read_replay_info(out_dir)?;
+    let mut recorder = if drawing {
+        let Some(map_path) = &info.map else {
+            return Err(ReplayError::Option(format!(
+                "--frames/--gif draw the run's map, but {} names none (the scenario had no `map`)",
+                out_dir.join("summary.json").display()
+            )));
+        };
+        let map = LaneletMap::load(map_path)
+            .map_err(|e| ReplayError::Map { path: map_path.clone(), message: e.to_string() })?;
+        let opts = RecorderOptions {
+            frames_dir: options.frames.clone(),
+            gif: options.gif.clone(),
+            frame_rate: options.frame_rate,
+            width: options.width,
+            height: options.height,
+            sensor_ranges: false,
+            overlay: options.overlay,
+        };
+        Some(FrameRecorder::new(&map, &opts)?)
+    } else {
+        None
+    };
+    let mut sender = match options.stream {
+        Some(target) => Some(
+            VizSender::new(&VizSenderConfig { target, ..Default::default() })
+                .map_err(|e| ReplayError::Stream(e.to_string()))?,
+        ),
+        None => None,
+    };
+    let by_id: std::collections::BTreeMap<i32, &ReplayVehicle> = info.vehicles.iter().map(|v| (v.id, v)).collect();
+
+    let frame_step = SimTime::from_secs(1.0 / options.frame_rate).0.max(1);
+    let stream_step = SimTime::from_secs(1.0 / DEFAULT_VIZ_RATE_HZ).0.max(1);
+    let mut next_frame = frame_step;
+    let mut next_datagram = 0u64;
+    let mut reader = TrajectoryReader::open(out_dir.join("trajectories.csv"))?;
+    let (mut prev, mut next) = (Group::default(), Group::default());
+    let mut states = Vec::new();
+    let mut sprites: Vec<VehicleSprite> = Vec::new();
+    let mut viz: Vec<VizVehicle> = Vec::new();
+    let mut report = ReplayReport::default();
+    let wall_start = Instant::now();
+    let mut first = true;
+    while reader.next_group(&mut next)? {
+        if first {
+            prev.t_us = next.t_us;
+            prev.rows.clone_from(&next.rows);
+            first = false;
+        }
+        // Every output time in (prev.t, next.t] (and t = 0 for the stream's first frame).
+        while recorder.is_some() && next_frame <= next.t_us {
+            if next_frame >= prev.t_us {
+                states_at(&prev, &next, next_frame, &mut states);
+                sprites.clear();
+                for r in &states {
+                    let (class, length, width) =
+                        by_id.get(&r.id).map_or(("Car", 4.12, 1.7), |v| (v.class.name(), v.length, v.width));
+                    sprites.push(VehicleSprite::new(r.id, r.position, r.yaw, length, width, class));
+                }
+                if let Some(rec) = recorder.as_mut() {
+                    rec.record_sprites(&sprites, SimTime(next_frame).as_secs())?;
+                }
+                report.frames += 1;
+            }
+            next_frame += frame_step;
+        }
+        while let Some(s) = sender.as_mut().filter(|_| next_datagram <= next.t_us) {
+            if next_datagram >= prev.t_us {
+                states_at(&prev, &next, next_datagram, &mut states);
+                viz.clear();
+                // In the run's stream order (summary.json lists the vehicles that way).
+                for v in &info.vehicles {
+                    if let Ok(i) = states.binary_search_by_key(&v.id, |r| r.id) {
+                        let r = states[i];
+                        viz.push(VizVehicle {
+                            id: r.id,
+                            x: r.position.x,
+                            y: r.position.y,
+                            yaw_deg: r.yaw.to_degrees(),
+                            class_name: v.class.name().to_string(),
+                        });
+                    }
+                }
+                let due = wall_start + Duration::from_secs_f64(SimTime(next_datagram).as_secs() / options.speed);
+                if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                    std::thread::sleep(wait);
+                }
+                s.send(&viz).map_err(|e| ReplayError::Stream(e.to_string()))?;
+                report.datagram_frames += 1;
+            }
+            next_datagram += stream_step;
+        }
+        std::mem::swap(&mut prev, &mut next);
+        next.t_us = prev.t_us;
+    }
+    report.rows = reader.rows;
+    if report.rows == 0 {
+        return Err(ReplayError::Row {
+            path: out_dir.join("trajectories.csv"),
+            line: 1,
+            message: "no rows: nothing to replay".into(),
+        });
+    }
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn yaw_interpolates_along_the_shorter_arc() {
+        let pi = std::f64::consts::PI;
+        // From 170 deg to -170 deg the short way passes 180 deg, not 0.
+        let mid = lerp_angle(170f64.to_radians(), (-170f64).to_radians(), 0.5);
+        assert!((mid.rem_euclid(2.0 * pi) - pi).abs() < 1e-12, "{mid}");
+    }
+
+    #[test]
+    fn states_between_rows_interpolate_and_rows_are_exact() {
+        let row = |id, x: f64| Row { id, position: DVec2::new(x, 0.0), yaw: 0.0 };
+        let prev = Group { t_us: 0, rows: vec![row(-2, 0.0), row(-1, 10.0)] };
+        let next = Group { t_us: 100_000, rows: vec![row(-2, 1.0), row(-1, 12.0)] };
+        let mut out = Vec::new();
+        states_at(&prev, &next, 25_000, &mut out);
+        assert_eq!(out, vec![row(-2, 0.25), row(-1, 10.5)]);
+        states_at(&prev, &next, 100_000, &mut out);
+        assert_eq!(out, next.rows);
+    }
+}

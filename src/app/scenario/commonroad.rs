@@ -1,0 +1,159 @@
+//! CommonRoad scenarios in a run: dynamic obstacles as recorded vehicles (`obstacles =
+//! "replay"`), egos started from a planning problem, and whether they reached its goal.
+//!
+//! Obstacle N becomes virtual vehicle -N (class from its `<type>`: car, truck, bus, motorcycle,
+//! bicycle; anything else draws as a car), of its rectangle's size, without a dynamics model,
+//! mailbox or sensors; its state is played from its trajectory at the file's `timeStepSize`
+//! ([`crate::sim::recorded`]). Sensors see it and the collision metrics count it like any
+//! vehicle. An ego's goal counts as reached at the first sensor tick at which its centre lies in
+//! a goal position within the goal's time-step interval (goal orientation and velocity
+//! constraints are not checked).
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+
+use crate::map::LaneletMap;
+use crate::map::commonroad::{CommonRoadScenario, GoalState};
+use crate::sim::{
+    RecordedSample, RecordedTrajectory, Sensors, SimBuilder, SimClock, SimSystems, recorded_trajectories,
+};
+use crate::world::{VehicleClass, VehicleId, VehicleModel, VehicleSize, VehicleSpec, VehicleState, Vehicles};
+
+/// The vehicle id of CommonRoad obstacle `id`: its negation (virtual), if it fits an `i32`.
+pub fn obstacle_vehicle_id(id: i64) -> Option<VehicleId> {
+    i32::try_from(id).ok().filter(|v| *v > 0).map(|v| VehicleId(-v))
+}
+
+fn class_of(kind: &str) -> VehicleClass {
+    match kind {
+        "truck" => VehicleClass::Truck,
+        "bus" => VehicleClass::Bus,
+        "motorcycle" => VehicleClass::Motorcycle,
+        "bicycle" => VehicleClass::Bicycle,
+        _ => VehicleClass::Car,
+    }
+}
+
+/// Spawn every dynamic obstacle of `sc` as a recorded vehicle; the error names the obstacle.
+pub(crate) fn spawn_obstacles(b: &mut SimBuilder, sc: &CommonRoadScenario) -> Result<(), String> {
+    b.add_plugin(recorded_trajectories);
+    for o in &sc.obstacles {
+        let id = obstacle_vehicle_id(o.id)
+            .ok_or_else(|| format!("obstacle {} has no vehicle id (ids 1..=2147483647 become -1, -2, ...)", o.id))?;
+        let samples = o
+            .states
+            .iter()
+            .map(|s| RecordedSample {
+                t: s.time_step as f64 * sc.time_step_size,
+                position: s.position,
+                yaw: s.orientation,
+                speed: s.velocity,
+            })
+            .collect();
+        let Some(mut rec) = RecordedTrajectory::new(samples) else { continue };
+        let mut spec = VehicleSpec::new(id, rec.state_at(0.0));
+        spec.class = class_of(&o.kind);
+        spec.size = VehicleSize { length: o.length, width: o.width };
+        spec.model = VehicleModel::None;
+        spec.mailbox = false;
+        let entity = b
+            .spawn_vehicle(spec)
+            .map_err(|e| format!("obstacle {} as vehicle {id}: {e} (scenario vehicle ids must differ)", o.id))?;
+        b.world_mut().entity_mut(entity).insert(rec);
+    }
+    Ok(())
+}
+
+/// Planning-problem egos and when each reached its goal.
+#[derive(Resource, Debug, Clone)]
+pub struct GoalMonitor {
+    map: Arc<LaneletMap>,
+    time_step_size: f64,
+    egos: Vec<(VehicleId, i64, Vec<GoalState>)>,
+    reached: BTreeMap<i32, Option<f64>>,
+    obstacles: usize,
+}
+
+/// Whether and when a planning problem's ego reached its goal (`summary.json`: `commonroad.goals`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GoalResult {
+    /// The planning problem's id.
+    pub planning_problem: i64,
+    /// Whether the ego reached a goal state.
+    pub reached: bool,
+    /// Sim time it first did [s].
+    pub time: Option<f64>,
+}
+
+/// The `commonroad` part of `summary.json`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct CommonRoadSummary {
+    /// Obstacles driven from their recordings.
+    pub obstacles: usize,
+    /// Per ego vehicle id (JSON keys are strings): its planning problem's goal.
+    pub goals: BTreeMap<i32, GoalResult>,
+}
+
+impl GoalMonitor {
+    /// Watch `egos` (vehicle id, planning problem id) of `sc`; `obstacles` were spawned.
+    pub(crate) fn new(
+        sc: &CommonRoadScenario,
+        map: Arc<LaneletMap>,
+        egos: &[(VehicleId, i64)],
+        obstacles: usize,
+    ) -> GoalMonitor {
+        let egos: Vec<_> = egos
+            .iter()
+            .filter_map(|(v, pp)| Some((*v, *pp, sc.planning_problems.iter().find(|p| p.id == *pp)?.goals.clone())))
+            .collect();
+        let reached = egos.iter().map(|(v, _, _)| (v.0, None)).collect();
+        GoalMonitor { map, time_step_size: sc.time_step_size, egos, reached, obstacles }
+    }
+
+    /// What the summary reports.
+    pub fn summary(&self) -> CommonRoadSummary {
+        let goals = self
+            .egos
+            .iter()
+            .map(|(v, pp, _)| {
+                let time = self.reached.get(&v.0).copied().flatten();
+                (v.0, GoalResult { planning_problem: *pp, reached: time.is_some(), time })
+            })
+            .collect();
+        CommonRoadSummary { obstacles: self.obstacles, goals }
+    }
+}
+
+/// Each sensor tick: mark egos whose centre lies in a goal within its time interval.
+pub fn check_goals(
+    clock: Res<SimClock>,
+    vehicles: Res<Vehicles>,
+    states: Query<&VehicleState>,
+    mut monitor: ResMut<GoalMonitor>,
+) {
+    let t = clock.now.as_secs();
+    let step = (t / monitor.time_step_size).round() as i64;
+    let monitor = &mut *monitor;
+    for (id, _, goals) in &monitor.egos {
+        if monitor.reached.get(&id.0).copied().flatten().is_some() {
+            continue;
+        }
+        let Some(state) = vehicles.get(*id).and_then(|e| states.get(e).ok()) else { continue };
+        let hit = goals.iter().any(|g| {
+            (g.time_start..=g.time_end).contains(&step)
+                && (g.shapes.is_empty() || g.shapes.iter().any(|s| s.contains(state.position, &monitor.map)))
+        });
+        if hit {
+            monitor.reached.insert(id.0, Some(t));
+        }
+    }
+}
+
+/// Insert the monitor and its system (in the sensor module's Sense set).
+pub(crate) fn add_goal_monitor(b: &mut SimBuilder, monitor: GoalMonitor) {
+    b.insert_resource(monitor);
+    b.add_systems(Sensors, check_goals.in_set(SimSystems::Sense));
+}

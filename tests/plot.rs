@@ -1,0 +1,93 @@
+//! `smlworld plot OUT_DIR` and `run --plots`: every figure exists as PNG and SVG, is not blank,
+//! and the speed plot's curve moves when the data change.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use image::RgbImage;
+use plotters::style::{Color, Palette, Palette99};
+
+fn smlworld(args: &[&str]) {
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld")).args(args).output().expect("runs smlworld");
+    assert!(out.status.success(), "smlworld {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("smlworld-plot-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Mean image row of the pixels drawn in `color` (the first vehicle's curve), and their count.
+fn curve_rows(img: &RgbImage, color: [u8; 3]) -> (f64, usize) {
+    let rows: Vec<u32> = img.enumerate_pixels().filter(|(_, _, p)| p.0 == color).map(|(_, y, _)| y).collect();
+    (rows.iter().map(|&y| f64::from(y)).sum::<f64>() / rows.len().max(1) as f64, rows.len())
+}
+
+#[test]
+fn run_plots_writes_every_figure_and_the_speed_curve_follows_the_data() {
+    let dir = tmp("platoon");
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/platoon_brake.toml");
+    smlworld(&["run", scenario, "--duration", "20", "--out", s(&dir), "--plots"]);
+    let plots = dir.join("plots");
+    for name in ["speed", "gaps", "platoon_-1", "lateral", "trace"] {
+        let png = image::open(plots.join(format!("{name}.png"))).unwrap().to_rgb8();
+        assert_eq!(png.dimensions(), smlworld::app::FIGURE_SIZE);
+        // Not blank: white background plus axes, text and curves in many colours.
+        let mut colours: Vec<[u8; 3]> = png.pixels().map(|p| p.0).collect();
+        colours.sort_unstable();
+        colours.dedup();
+        assert!(colours.len() > 50, "{name}.png has only {} colours", colours.len());
+        let non_white = png.pixels().filter(|p| p.0 != [255, 255, 255]).count();
+        assert!(non_white > 20_000, "{name}.png: {non_white} drawn pixels");
+        let svg = std::fs::read_to_string(plots.join(format!("{name}.svg"))).unwrap();
+        assert!(svg.starts_with("<svg") && svg.contains("<polyline"), "{name}.svg");
+    }
+    // Axis labels carry units and a legend names the vehicles (the SVG keeps the text).
+    let svg = std::fs::read_to_string(plots.join("speed.svg")).unwrap();
+    for text in ["time [s]", "speed [m/s]", "vehicle -5", "vehicle -1"] {
+        assert!(svg.contains(text), "speed.svg lacks {text:?}");
+    }
+
+    // Halve the first vehicle's (-5's) speed from 10 s on: its curve (the first palette colour)
+    // moves down in the image; the others keep the axes (the leader's 15 m/s stays the maximum).
+    let rgb = Palette99::pick(0).to_rgba().rgb();
+    let colour = [rgb.0, rgb.1, rgb.2];
+    let before = curve_rows(&image::open(plots.join("speed.png")).unwrap().to_rgb8(), colour);
+    let csv = dir.join("trajectories.csv");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut changed = String::new();
+    for (i, line) in text.lines().enumerate() {
+        let f: Vec<&str> = line.split(',').collect();
+        if i > 0 && f[1] == "-5" && f[0].parse::<f64>().unwrap() >= 10.0 {
+            let half = |v: &str| (v.parse::<f64>().unwrap() / 2.0).to_string();
+            changed.push_str(&format!("{},{},{},{},{},{},{}\n", f[0], f[1], f[2], f[3], f[4], half(f[5]), half(f[6])));
+        } else {
+            changed.push_str(line);
+            changed.push('\n');
+        }
+    }
+    std::fs::write(&csv, changed).unwrap();
+    let other = tmp("changed");
+    smlworld(&["plot", s(&dir), "--out", s(&other)]);
+    let after = curve_rows(&image::open(other.join("speed.png")).unwrap().to_rgb8(), colour);
+    assert!(before.1 > 500 && after.1 > 500, "curve pixels: {before:?} {after:?}");
+    assert!(after.0 > before.0 + 50.0, "the curve did not move down: mean row {} -> {}", before.0, after.0);
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&other);
+}
+
+#[test]
+fn plot_of_a_folder_without_a_run_names_the_missing_file() {
+    let dir = tmp("empty");
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld")).args(["plot", s(&dir)]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("summary.json"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
