@@ -254,7 +254,7 @@ impl LaneletMap {
                     Step::Exit(state) => Self::distance_bound(self.state_end(state), &targets, shrink),
                     Step::Start | Step::Final(_) => 0,
                 };
-                pathfinding::directed::astar::astar(&Step::Start, successors, heuristic, is_final)
+                self.astar(finals.len(), successors, heuristic)
             }
         };
         let (steps, _) = found.ok_or(MapError::NoRoute { from: from_name, to: to_name })?;
@@ -284,6 +284,62 @@ impl LaneletMap {
         let cropped = sub_polyline(&points, first_along, end_arc.max(first_along));
         let lanelets = states.iter().map(|&s| self.lanelets[s as usize / 2].id).collect();
         Ok(Path::from_points(lanelets, resample(&cropped, opts.points_per_meter), false))
+    }
+
+    /// A* from [`Step::Start`] to the first [`Step::Final`] over arrays indexed by step (start,
+    /// every directed lanelet state, every end candidate) instead of a hash map: (steps, cost).
+    /// Among equally promising steps the one furthest from the start goes first, so ties on a
+    /// regular grid run straight for the goal. The heuristic must never overestimate; it need
+    /// not be consistent (a step reached more cheaply is searched again).
+    fn astar(
+        &self,
+        finals: usize,
+        mut successors: impl FnMut(&Step) -> Vec<(Step, u64)>,
+        heuristic: impl Fn(&Step) -> u64,
+    ) -> Option<(Vec<Step>, u64)> {
+        use std::cmp::Reverse;
+        let states = 2 * self.lanelets.len();
+        let index = |s: &Step| match *s {
+            Step::Start => 0,
+            Step::Exit(x) => 1 + x as usize,
+            Step::Final(k) => 1 + states + k as usize,
+        };
+        let step_of = |i: usize| match i {
+            0 => Step::Start,
+            i if i <= states => Step::Exit((i - 1) as u32),
+            i => Step::Final((i - 1 - states) as u32),
+        };
+        let mut best = vec![u64::MAX; 1 + states + finals];
+        let mut parent = vec![usize::MAX; best.len()];
+        let mut open = std::collections::BinaryHeap::new();
+        best[0] = 0;
+        open.push((Reverse(heuristic(&Step::Start)), 0u64, Reverse(0usize)));
+        while let Some((_, cost, Reverse(i))) = open.pop() {
+            if cost > best[i] {
+                continue;
+            }
+            let step = step_of(i);
+            if let Step::Final(_) = step {
+                let mut steps = vec![step];
+                let mut at = i;
+                while parent[at] != usize::MAX {
+                    at = parent[at];
+                    steps.push(step_of(at));
+                }
+                steps.reverse();
+                return Some((steps, cost));
+            }
+            for (next, step_cost) in successors(&step) {
+                let j = index(&next);
+                let reached = cost + step_cost;
+                if reached < best[j] {
+                    best[j] = reached;
+                    parent[j] = i;
+                    open.push((Reverse(reached + heuristic(&next)), reached, Reverse(j)));
+                }
+            }
+        }
+        None
     }
 
     /// Centre lines of consecutive directed lanelets joined into one polyline.
