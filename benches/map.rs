@@ -1,5 +1,5 @@
 //! Map benchmarks on a generated grid city of at least 20 MB: generating it (MB/s), loading it
-//! (MB/s) and routing between far-apart junctions (routes/s).
+//! (MB/s) and routing between far-apart junctions (routes/s, A* and the Dijkstra reference).
 //!
 //! Run: `cargo bench --bench map -- --warm-up-time 1 --measurement-time 5`.
 
@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use criterion::{Criterion, SamplingMode, Throughput, criterion_group, criterion_main};
 use smlworld::map::generate::{Arm, GridParams, grid_junction_tag, write_grid_city};
-use smlworld::map::{LaneletMap, RouteOptions};
+use smlworld::map::{LaneletMap, Place, RouteOptions, RouteSearch};
 
 /// Blocks per side of the benchmark grid: about 35 MB and 16 000 lanelets.
 const BLOCKS: usize = 32;
@@ -58,13 +58,17 @@ fn bench_map(c: &mut Criterion) {
     let opts = RouteOptions::default();
     let mut group = c.benchmark_group("map");
     group.throughput(Throughput::Elements(pairs.len() as u64));
-    group.bench_function(format!("route_corners_grid_{BLOCKS}x{BLOCKS}"), |b| {
-        b.iter(|| {
-            for &(from, to) in &pairs {
-                black_box(map.route(from, to, &opts).expect("corners of a grid are connected"));
-            }
-        })
-    });
+    for (name, search) in [("route_corners", RouteSearch::AStar), ("route_corners_dijkstra", RouteSearch::Dijkstra)] {
+        group.bench_function(format!("{name}_grid_{BLOCKS}x{BLOCKS}"), |b| {
+            b.iter(|| {
+                for &(from, to) in &pairs {
+                    let (from, to) = (Place::Node(from), Place::Node(to));
+                    let route = map.route_places_with(&from, &to, &opts, search);
+                    black_box(route.expect("corners of a grid are connected"));
+                }
+            })
+        });
+    }
     group.finish();
 }
 

@@ -31,6 +31,19 @@ fn sim_with(n: usize, plugin: impl Plugin) -> Sim {
     sim
 }
 
+/// One vehicle in a hundred (ids -100, -200, ...) gets a 500 m radar; the rest keep 100 m.
+fn long_range_radars(mut sim: Sim) -> Sim {
+    let world = sim.world_mut();
+    let mut radars = world.query::<(&VehicleId, &mut Radar)>();
+    for (id, mut radar) in radars.iter_mut(world) {
+        if id.0 % 100 == 0 {
+            radar.range = 500.0;
+        }
+    }
+    sim.run_for(1.0); // warm the buffers of the long-range searches
+    sim
+}
+
 /// Builds the sim of one bench case.
 type MakeSim = Box<dyn Fn() -> Sim>;
 
@@ -41,6 +54,7 @@ fn modules(c: &mut Criterion) {
         let cases: Vec<(&str, MakeSim)> = vec![
             ("dynamics 50 Hz", Box::new(move || sim_with(n, DynamicsPlugin))),
             ("sensors 20 Hz", Box::new(move || sim_with(n, SensorsPlugin))),
+            ("sensors 20 Hz, 1% radar 500 m", Box::new(move || long_range_radars(sim_with(n, SensorsPlugin)))),
             (
                 "network 1 Hz",
                 Box::new(move || {

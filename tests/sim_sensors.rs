@@ -142,8 +142,36 @@ fn grid_sensing_matches_brute_force() {
         };
         vehicles.push((-1 - i, p, yaw, sensors));
     }
+    assert_matches_brute_force(&vehicles);
+}
+
+#[test]
+fn a_few_long_range_sensors_see_as_far_as_their_range_on_a_fine_grid() {
+    // Typical 30 m velodynes make 30 m cells; every 25th vehicle has a 500 m radar (17 cells
+    // each way) and one a 5 km velodyne (more cells than vehicles: it scans everyone).
+    let mut rng = 13u64;
+    let mut vehicles = Vec::new();
+    for i in 0..500 {
+        let p = DVec2::new(lcg(&mut rng) * 1600.0 - 800.0, lcg(&mut rng) * 1600.0 - 800.0);
+        let yaw = lcg(&mut rng) * std::f64::consts::TAU;
+        let sensors = match i {
+            7 => SensorSet { velodyne: Some(Velodyne { range: 5000.0 }), ..Default::default() },
+            _ if i % 25 == 0 => SensorSet { radar: Some(Radar { angle: 1.0, range: 500.0 }), ..Default::default() },
+            _ => SensorSet { velodyne: Some(Velodyne { range: 30.0 }), ..Default::default() },
+        };
+        vehicles.push((-1 - i, p, yaw, sensors));
+    }
     let sim = world_of(&vehicles);
-    for &(id, p, yaw, sensors) in &vehicles {
+    let far = seen(&sim, -1);
+    assert!(far.len() > 10, "the 500 m radar of vehicle -1 sees only {far:?}");
+    assert_eq!(seen(&sim, -8).len(), 499, "the 5 km velodyne sees everyone");
+    assert_matches_brute_force(&vehicles);
+}
+
+/// Every vehicle's readings are those of a brute-force scan over all others, nearest first.
+fn assert_matches_brute_force(vehicles: &[(i32, DVec2, f64, SensorSet)]) {
+    let sim = world_of(vehicles);
+    for &(id, p, yaw, sensors) in vehicles {
         let mut expected: Vec<(f64, i32)> = vehicles
             .iter()
             .filter(|o| o.0 != id)

@@ -10,7 +10,7 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 
 use crate::map::generate::{GenerateError, RingParams, ring_highway, ring_lane_tag};
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
-use crate::sim::{Control, Rates, SimClock, SimSystems};
+use crate::sim::{Control, Dynamics, Parallelism, Rates, SimClock, SimSystems};
 use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
 use crate::world::{Channel, Mailbox, Radar, SensorSet, SimTime, VehicleId, VehicleSpec, VehicleState, Velodyne};
 
@@ -141,6 +141,153 @@ impl BenchWorld {
     }
 }
 
+/// The map a benchmark ran on.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct BenchMap {
+    /// What generated it (`ring_highway`).
+    pub kind: &'static str,
+    /// Lanes, all in one direction.
+    pub lanes: usize,
+    /// Radius of the ring's inner edge [m].
+    pub radius_m: f64,
+    /// Lane width [m].
+    pub lane_width_m: f64,
+    /// Length of one lane's closed loop (the middle one's centre line) [m].
+    pub lane_length_m: f64,
+}
+
+/// The sensors every benchmark vehicle carries.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct BenchSensors {
+    /// Radar range [m].
+    pub radar_range_m: f64,
+    /// Radar full opening angle [deg].
+    pub radar_angle_deg: f64,
+    /// Velodyne range [m].
+    pub velodyne_range_m: f64,
+}
+
+/// Rates of the modules [Hz].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct BenchRates {
+    /// Dynamics [Hz].
+    pub dynamics: f64,
+    /// Sensors (radar + velodyne) [Hz].
+    pub sensors: f64,
+    /// Controllers (path following, beacons) [Hz].
+    pub control: f64,
+    /// Wifi rounds [Hz].
+    pub wifi: f64,
+    /// Network rounds [Hz].
+    pub network: f64,
+}
+
+/// Wall time of one module's schedule over the run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ModuleTime {
+    /// Module name (`sensors`, `wifi`, `network`, `control`, `dynamics`).
+    pub module: String,
+    /// Wall time its schedule ran [s].
+    pub seconds: f64,
+    /// Its share of the run's wall time (0..1); what is left to 1 is the scheduler itself.
+    pub share: f64,
+}
+
+/// What one benchmark run measured, and on what: printed as JSON by `smlworld bench`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct BenchReport {
+    /// The map.
+    pub map: BenchMap,
+    /// Number of vehicles.
+    pub vehicles: usize,
+    /// Sensors of every vehicle.
+    pub sensors: BenchSensors,
+    /// Module rates [Hz].
+    pub rates: BenchRates,
+    /// Threads the per-vehicle systems were allowed.
+    pub threads: usize,
+    /// Threads they used at this vehicle count (1 below [`Parallelism::min_vehicles`]).
+    pub threads_used: usize,
+    /// Sim time run [s].
+    pub sim_seconds: f64,
+    /// Wall time of the run, set-up excluded [s].
+    pub wall_seconds: f64,
+    /// Sim seconds per wall second.
+    pub real_time_factor: f64,
+    /// Vehicle dynamics steps (vehicles x dynamics ticks) per wall second.
+    pub vehicle_steps_per_second: f64,
+    /// Wall time per vehicle per sim second [µs]: flat in N when the cost is linear.
+    pub us_per_vehicle_sim_second: f64,
+    /// Where the wall time went, module by module, in the order the modules were added.
+    pub modules: Vec<ModuleTime>,
+    /// Peak resident memory of the process [MB] (Linux only).
+    pub peak_rss_mb: Option<f64>,
+}
+
+/// Peak resident memory of this process [MB] (Linux `VmHWM`), if known.
+pub fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+impl BenchWorld {
+    /// Build the world, run it for `duration` sim seconds with `parallelism` (the default when
+    /// `None`) and the scheduler's per-module timing on, and say what was measured.
+    pub fn run(&self, duration: f64, parallelism: Option<Parallelism>) -> Result<BenchReport, BenchError> {
+        let lanes = self.lanes()?;
+        let ring = self.ring();
+        let mut builder = self.builder()?;
+        let parallelism = parallelism.unwrap_or_default();
+        builder.insert_resource(parallelism);
+        let rates = Rates::default();
+        let mut sim = builder.build();
+        sim.scheduler_mut().set_timing(true);
+        let wall = std::time::Instant::now();
+        sim.run_for(duration);
+        let wall_seconds = wall.elapsed().as_secs_f64();
+        let steps = sim.scheduler().ticks(Dynamics).unwrap_or(0) as f64 * self.vehicles as f64;
+        let modules = sim
+            .scheduler()
+            .module_times()
+            .map(|(name, seconds)| ModuleTime { module: name.to_string(), seconds, share: seconds / wall_seconds })
+            .collect();
+        let radar = Radar::default();
+        Ok(BenchReport {
+            map: BenchMap {
+                kind: "ring_highway",
+                lanes: ring.lanes,
+                radius_m: ring.radius,
+                lane_width_m: ring.lane_width,
+                lane_length_m: lanes[lanes.len() / 2].length,
+            },
+            vehicles: self.vehicles,
+            sensors: BenchSensors {
+                radar_range_m: radar.range,
+                radar_angle_deg: radar.angle.to_degrees(),
+                velodyne_range_m: Velodyne::default().range,
+            },
+            rates: BenchRates {
+                dynamics: rates.dynamics,
+                sensors: rates.sensors,
+                control: rates.control,
+                wifi: rates.wifi,
+                network: rates.network,
+            },
+            threads: parallelism.threads,
+            threads_used: parallelism.threads_for(self.vehicles),
+            sim_seconds: duration,
+            wall_seconds,
+            real_time_factor: duration / wall_seconds,
+            vehicle_steps_per_second: steps / wall_seconds,
+            us_per_vehicle_sim_second: wall_seconds * 1e6 / (self.vehicles as f64 * duration),
+            modules,
+            peak_rss_mb: peak_rss_mb(),
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use bevy_ecs::prelude::With;
@@ -171,6 +318,28 @@ mod tests {
             .collect();
         rows.sort_by_key(|r| r.0);
         rows
+    }
+
+    #[test]
+    fn the_report_names_what_it_measured_and_where_the_time_went() {
+        let world = BenchWorld { vehicles: 300, ..Default::default() };
+        let report = world.run(1.0, Some(Parallelism::single())).expect("the bench world runs");
+        assert_eq!(report.vehicles, 300);
+        assert_eq!((report.threads, report.threads_used), (1, 1));
+        assert_eq!(report.map.lanes, 3);
+        // 100 vehicles per lane at 40 m need 4 km of lane, more than a 500 m ring gives.
+        assert!((report.map.lane_length_m / 100.0 - 40.0).abs() < 1.0, "{} m", report.map.lane_length_m);
+        assert_eq!(report.rates.dynamics, 50.0);
+        assert_eq!(report.sensors.radar_range_m, 100.0);
+        let names: Vec<&str> = report.modules.iter().map(|m| m.module.as_str()).collect();
+        assert_eq!(names, ["sensors", "wifi", "network", "control", "dynamics"]);
+        assert!(report.modules.iter().all(|m| m.seconds > 0.0), "{:?}", report.modules);
+        let shares: f64 = report.modules.iter().map(|m| m.share).sum();
+        assert!(shares > 0.5 && shares <= 1.0, "module shares sum to {shares}");
+        let json = serde_json::to_value(&report).expect("the report serialises");
+        for key in ["map", "vehicles", "sensors", "rates", "threads", "modules"] {
+            assert!(json.get(key).is_some(), "JSON lacks `{key}`");
+        }
     }
 
     #[test]

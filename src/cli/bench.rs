@@ -1,7 +1,8 @@
-//! `smlworld bench`: the whole simulation with N vehicles, every module on; prints JSON.
+//! `smlworld bench`: the whole simulation with N vehicles, every module on; prints JSON naming
+//! the map, vehicles, sensors, rates, threads and each module's share of the wall time.
 
 use smlworld::app::bench::BenchWorld;
-use smlworld::sim::{Dynamics, Parallelism};
+use smlworld::sim::Parallelism;
 
 /// Arguments of `smlworld bench`.
 #[derive(Debug, clap::Args)]
@@ -17,31 +18,6 @@ pub struct BenchArgs {
     pub threads: Option<usize>,
 }
 
-/// What `smlworld bench` prints.
-#[derive(Debug, serde::Serialize)]
-struct BenchReport {
-    /// Number of vehicles.
-    vehicles: usize,
-    /// Sim time run [s].
-    sim_seconds: f64,
-    /// Wall time of the run, set-up excluded [s].
-    wall_seconds: f64,
-    /// Sim seconds per wall second.
-    real_time_factor: f64,
-    /// Vehicle dynamics steps (vehicles x dynamics ticks) per wall second.
-    vehicle_steps_per_second: f64,
-    /// Peak resident memory of the process [MB].
-    peak_rss_mb: Option<f64>,
-}
-
-/// Peak resident memory of this process [MB] (Linux `VmHWM`), if known.
-fn peak_rss_mb() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
-}
-
 /// Run the subcommand.
 pub fn main(args: BenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
@@ -54,27 +30,10 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         "--duration must be a positive number of seconds, got {}",
         args.duration
     );
+    anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
     let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
-    let setup = std::time::Instant::now();
-    let mut builder = world.builder()?;
-    if let Some(threads) = args.threads {
-        anyhow::ensure!(threads > 0, "--threads must be at least 1, got 0");
-        builder.insert_resource(Parallelism { threads, ..Default::default() });
-    }
-    let mut sim = builder.build();
-    tracing::debug!("set up {} vehicles in {:.2} s", args.vehicles, setup.elapsed().as_secs_f64());
-    let wall = std::time::Instant::now();
-    sim.run_for(args.duration);
-    let wall_seconds = wall.elapsed().as_secs_f64();
-    let steps = sim.scheduler().ticks(Dynamics).unwrap_or(0) as f64 * args.vehicles as f64;
-    let report = BenchReport {
-        vehicles: args.vehicles,
-        sim_seconds: args.duration,
-        wall_seconds,
-        real_time_factor: args.duration / wall_seconds,
-        vehicle_steps_per_second: steps / wall_seconds,
-        peak_rss_mb: peak_rss_mb(),
-    };
+    let parallelism = args.threads.map(|threads| Parallelism { threads, ..Default::default() });
+    let report = world.run(args.duration, parallelism)?;
     println!("{}", serde_json::to_string(&report)?);
     Ok(())
 }

@@ -1,4 +1,5 @@
-//! Routing over lanelets: Dijkstra between nodes or tags, closed loops, stitched and resampled paths.
+//! Routing over lanelets: A* (or Dijkstra) between nodes or tags, closed loops, stitched and
+//! resampled paths.
 
 use std::collections::BTreeMap;
 
@@ -22,6 +23,19 @@ impl Default for RouteOptions {
     fn default() -> Self {
         Self { points_per_meter: 5.0 }
     }
+}
+
+/// How a route between two places is searched; both give a shortest route (equal length to
+/// the millimetre), and where several routes tie either may be returned.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum RouteSearch {
+    /// A* guided by the straight-line distance to the nearest end (admissible: no lanelet
+    /// sequence is shorter than the straight line). The default: on a city grid it expands a
+    /// narrow band around the straight line instead of a disc.
+    #[default]
+    AStar,
+    /// Plain Dijkstra: the reference the A* search is tested against.
+    Dijkstra,
 }
 
 /// Where a route starts or ends: a node id, or the value of a node tag
@@ -76,6 +90,22 @@ impl LaneletMap {
         self.lanelets[state as usize / 2].length
     }
 
+    /// Where a directed lanelet state ends: the last point of its centre line in its direction.
+    fn state_end(&self, state: u32) -> DVec2 {
+        let centre = &self.lanelets[state as usize / 2].centre;
+        let end = if state % 2 == 1 { centre.first() } else { centre.last() };
+        end.copied().unwrap_or(DVec2::ZERO)
+    }
+
+    /// Lower bound [mm] on the cost of any route from `p` to the nearest of `targets`, in the
+    /// search's rounded millimetres: the straight line shrunk by the worst rounding (half a
+    /// millimetre per lanelet, so relative to the shortest lanelet) and 1 m for centre lines
+    /// that do not quite meet.
+    fn distance_bound(p: DVec2, targets: &[DVec2], shrink: f64) -> u64 {
+        let d = targets.iter().map(|t| p.distance_squared(*t)).fold(f64::INFINITY, f64::min).sqrt();
+        (d * 1000.0 * shrink - 1000.0).max(0.0) as u64
+    }
+
     /// Ids of the nodes carrying a tag with this value.
     pub fn nodes_with_tag(&self, value: &str) -> Result<&[i64], MapError> {
         self.tag_index.get(value).map(Vec::as_slice).ok_or_else(|| MapError::UnknownTag(value.to_string()))
@@ -121,7 +151,19 @@ impl LaneletMap {
 
     /// Shortest route between two places, each a node id or a node tag value.
     pub fn route_places(&self, from: &Place, to: &Place, opts: &RouteOptions) -> Result<Path, MapError> {
-        self.route_between(&self.place_nodes(from)?, &self.place_nodes(to)?, from.to_string(), to.to_string(), opts)
+        self.route_places_with(from, to, opts, RouteSearch::default())
+    }
+
+    /// [`Self::route_places`] with a chosen search algorithm.
+    pub fn route_places_with(
+        &self,
+        from: &Place,
+        to: &Place,
+        opts: &RouteOptions,
+        search: RouteSearch,
+    ) -> Result<Path, MapError> {
+        let (from_nodes, to_nodes) = (self.place_nodes(from)?, self.place_nodes(to)?);
+        self.route_between(&from_nodes, &to_nodes, from.to_string(), to.to_string(), opts, search)
     }
 
     /// Shortest closed loop through a place (a node id or a node tag value).
@@ -149,6 +191,7 @@ impl LaneletMap {
         from_name: String,
         to_name: String,
         opts: &RouteOptions,
+        search: RouteSearch,
     ) -> Result<Path, MapError> {
         check_options(opts)?;
         let starts = self.useful_ends(from, true)?;
@@ -197,9 +240,28 @@ impl LaneletMap {
             }
             out
         };
-        let (steps, _) =
-            pathfinding::directed::dijkstra::dijkstra(&Step::Start, successors, |s| matches!(s, Step::Final(_)))
-                .ok_or(MapError::NoRoute { from: from_name, to: to_name })?;
+        let is_final = |s: &Step| matches!(s, Step::Final(_));
+        let found = match search {
+            RouteSearch::Dijkstra => pathfinding::directed::dijkstra::dijkstra(&Step::Start, successors, is_final),
+            RouteSearch::AStar => {
+                let targets: Vec<DVec2> = finals
+                    .iter()
+                    .map(|f| {
+                        let centre = self.state_centre(f.state);
+                        sub_polyline(&centre, 0.0, f.along).last().copied().unwrap_or(centre[0])
+                    })
+                    .collect();
+                // Every rounded lanelet cost is at least its length minus 0.5 mm.
+                let shortest = self.lanelets.iter().map(|l| l.length).fold(f64::INFINITY, f64::min) * 1000.0;
+                let shrink = if shortest > 1.0 { 1.0 - 0.5 / shortest } else { 0.0 };
+                let heuristic = |s: &Step| match *s {
+                    Step::Exit(state) => Self::distance_bound(self.state_end(state), &targets, shrink),
+                    Step::Start | Step::Final(_) => 0,
+                };
+                self.astar(finals.len(), successors, heuristic)
+            }
+        };
+        let (steps, _) = found.ok_or(MapError::NoRoute { from: from_name, to: to_name })?;
 
         let Some(&Step::Final(k)) = steps.last() else { unreachable!("dijkstra ends on a Final step") };
         let fin = finals[k as usize];
@@ -226,6 +288,62 @@ impl LaneletMap {
         let cropped = sub_polyline(&points, first_along, end_arc.max(first_along));
         let lanelets = states.iter().map(|&s| self.lanelets[s as usize / 2].id).collect();
         Ok(Path::from_points(lanelets, resample(&cropped, opts.points_per_meter), false))
+    }
+
+    /// A* from [`Step::Start`] to the first [`Step::Final`] over arrays indexed by step (start,
+    /// every directed lanelet state, every end candidate) instead of a hash map: (steps, cost).
+    /// Among equally promising steps the one furthest from the start goes first, so ties on a
+    /// regular grid run straight for the goal. The heuristic must never overestimate; it need
+    /// not be consistent (a step reached more cheaply is searched again).
+    fn astar(
+        &self,
+        finals: usize,
+        mut successors: impl FnMut(&Step) -> Vec<(Step, u64)>,
+        heuristic: impl Fn(&Step) -> u64,
+    ) -> Option<(Vec<Step>, u64)> {
+        use std::cmp::Reverse;
+        let states = 2 * self.lanelets.len();
+        let index = |s: &Step| match *s {
+            Step::Start => 0,
+            Step::Exit(x) => 1 + x as usize,
+            Step::Final(k) => 1 + states + k as usize,
+        };
+        let step_of = |i: usize| match i {
+            0 => Step::Start,
+            i if i <= states => Step::Exit((i - 1) as u32),
+            i => Step::Final((i - 1 - states) as u32),
+        };
+        let mut best = vec![u64::MAX; 1 + states + finals];
+        let mut parent = vec![usize::MAX; best.len()];
+        let mut open = std::collections::BinaryHeap::new();
+        best[0] = 0;
+        open.push((Reverse(heuristic(&Step::Start)), 0u64, Reverse(0usize)));
+        while let Some((_, cost, Reverse(i))) = open.pop() {
+            if cost > best[i] {
+                continue;
+            }
+            let step = step_of(i);
+            if let Step::Final(_) = step {
+                let mut steps = vec![step];
+                let mut at = i;
+                while parent[at] != usize::MAX {
+                    at = parent[at];
+                    steps.push(step_of(at));
+                }
+                steps.reverse();
+                return Some((steps, cost));
+            }
+            for (next, step_cost) in successors(&step) {
+                let j = index(&next);
+                let reached = cost + step_cost;
+                if reached < best[j] {
+                    best[j] = reached;
+                    parent[j] = i;
+                    open.push((Reverse(reached + heuristic(&next)), reached, Reverse(j)));
+                }
+            }
+        }
+        None
     }
 
     /// Centre lines of consecutive directed lanelets joined into one polyline.

@@ -251,6 +251,11 @@ impl Sim {
         &self.scheduler
     }
 
+    /// The scheduler, to switch on per-module timing ([`Scheduler::set_timing`]).
+    pub fn scheduler_mut(&mut self) -> &mut Scheduler {
+        &mut self.scheduler
+    }
+
     /// Run the module due next; returns its due time.
     pub fn step(&mut self) -> Option<SimTime> {
         self.scheduler.run_next(&mut self.world)

@@ -70,7 +70,7 @@ impl Parallelism {
     }
 
     /// Threads to use for `items` vehicles.
-    fn threads_for(&self, items: usize) -> usize {
+    pub fn threads_for(&self, items: usize) -> usize {
         if items < self.min_vehicles.max(2) { 1 } else { self.threads.clamp(1, items) }
     }
 

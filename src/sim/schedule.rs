@@ -109,6 +109,8 @@ struct Module {
     tick: u64,
     /// For a control-phase module: whether it has run since the in-box epoch last advanced.
     ran_since_epoch: bool,
+    /// Wall time spent running the schedule, counted only while timing is on.
+    busy: std::time::Duration,
     schedule: Schedule,
 }
 
@@ -123,11 +125,13 @@ impl Module {
 pub struct Scheduler {
     modules: Vec<Module>,
     now: SimTime,
+    /// Whether each schedule run is timed ([`Scheduler::set_timing`]).
+    timing: bool,
 }
 
 impl Default for Scheduler {
     fn default() -> Self {
-        Scheduler { modules: Vec::new(), now: SimTime::ZERO }
+        Scheduler { modules: Vec::new(), now: SimTime::ZERO, timing: false }
     }
 }
 
@@ -163,6 +167,7 @@ impl Scheduler {
             rate,
             tick: 0,
             ran_since_epoch: false,
+            busy: std::time::Duration::ZERO,
             schedule,
         });
         Ok(())
@@ -200,6 +205,18 @@ impl Scheduler {
         self.index(label.intern()).map(|i| self.modules[i].tick)
     }
 
+    /// Time every schedule run with the wall clock (two `Instant::now` calls per module tick;
+    /// off by default). See [`Scheduler::module_times`].
+    pub fn set_timing(&mut self, on: bool) {
+        self.timing = on;
+    }
+
+    /// Wall time each module's schedule has run while timing was on [s], in the order the
+    /// modules were added: where a run's time went, module by module.
+    pub fn module_times(&self) -> impl Iterator<Item = (&str, f64)> {
+        self.modules.iter().map(|m| (m.name.as_str(), m.busy.as_secs_f64()))
+    }
+
     /// Names of all modules, in the order they were added.
     pub fn module_names(&self) -> impl Iterator<Item = &str> {
         self.modules.iter().map(|m| m.name.as_str())
@@ -233,7 +250,13 @@ impl Scheduler {
             Some(mut c) => *c = clock,
             None => world.insert_resource(clock),
         }
-        m.schedule.run(world);
+        if self.timing {
+            let start = std::time::Instant::now();
+            m.schedule.run(world);
+            m.busy += start.elapsed();
+        } else {
+            m.schedule.run(world);
+        }
         m.tick += 1;
         // Every control-phase module (the built-in `Control` and any of a student's) reads the
         // in-boxes: once each of them has run since the last advance, all have seen what the

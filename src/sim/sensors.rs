@@ -1,8 +1,11 @@
 //! Simulated sensors: radar cone, velodyne circle and omniscient, over one spatial grid per tick.
 //!
-//! Every sensor tick the grid is rebuilt from all vehicles with cells as large as the largest
-//! bounded sensor range, then each sensing vehicle scans only its neighbouring cells: O(N) for
-//! bounded ranges. An [`Omniscient`] vehicle scans everyone (O(N) per such vehicle).
+//! Every sensor tick the grid is rebuilt from all vehicles with cells as large as the typical
+//! (median) sensor range, then each sensing vehicle scans only the cells its own range reaches:
+//! its 3 x 3 neighbourhood when its range is typical, a wider square for the few with a longer
+//! range, so a few long-range sensors cost only their own wider search, never a coarser grid for
+//! everyone. O(N) for bounded ranges. An [`Omniscient`] vehicle scans everyone (O(N) per such
+//! vehicle).
 
 use bevy_ecs::prelude::{Has, Local, Mut, Query, Res, ResMut, Resource};
 use glam::DVec2;
@@ -65,6 +68,31 @@ pub struct SenseScratch {
     around: Vec<(u32, DVec2, VehicleId)>,
     /// Detections of the current vehicle as sort keys, see [`detection_key`].
     found: Vec<u128>,
+}
+
+/// Cells each side a vehicle of sensor range `range` [m] must search on a grid of `cell` [m]:
+/// a point within `range` of a vehicle lies at most `ceil(range / cell)` cells away.
+fn reach(range: f64, cell: f64) -> i32 {
+    ((range / cell).ceil() as i32).max(1)
+}
+
+/// Gather the candidates (slot, position, id) of the square of cells `reach` cells around
+/// `centre`, or of the whole grid when that square has more cells than the grid has entries.
+fn gather(grid: &SpatialGrid, centre: (i32, i32), reach: i32, around: &mut Vec<(u32, DVec2, VehicleId)>) {
+    around.clear();
+    let side = 2.0 * reach as f64 + 1.0;
+    if side * side > grid.len() as f64 {
+        around.extend((0..grid.len() as u32).map(|slot| {
+            let e = grid.get(slot);
+            (slot, e.position, e.id)
+        }));
+        return;
+    }
+    for dx in -reach..=reach {
+        for dy in -reach..=reach {
+            grid.for_each_in_cell((centre.0 + dx, centre.1 + dy), |slot, e| around.push((slot, e.position, e.id)));
+        }
+    }
 }
 
 /// One detection as an integer sort key: squared distance, then id, then grid slot (the slot
@@ -135,7 +163,7 @@ type SensingItem<'a> =
 
 /// Fill the readings of a contiguous chunk of sensing vehicles from the (read-only) grid.
 fn sense_chunk(grid: &SpatialGrid, chunk: &mut [SensingItem<'_>], s: &mut SenseScratch) {
-    let mut gathered: Option<(i32, i32)> = None;
+    let mut gathered: Option<((i32, i32), i32)> = None;
     for (id, state, radar, velodyne, omniscient, readings) in chunk.iter_mut() {
         let sight = Sight::new(**id, state, *radar, *velodyne, *omniscient);
         let mut n = 0;
@@ -147,15 +175,11 @@ fn sense_chunk(grid: &SpatialGrid, chunk: &mut [SensingItem<'_>], s: &mut SenseS
                 n = sight.consider(slot, e.position, e.id, &mut s.found, n);
             }
         } else {
-            let (cx, cy) = grid.cell_of(state.position);
-            if gathered != Some((cx, cy)) {
-                s.around.clear();
-                for dx in -1..=1 {
-                    for dy in -1..=1 {
-                        grid.for_each_in_cell((cx + dx, cy + dy), |slot, e| s.around.push((slot, e.position, e.id)));
-                    }
-                }
-                gathered = Some((cx, cy));
+            let centre = grid.cell_of(state.position);
+            let reach = reach(sensor_range(*radar, *velodyne), grid.cell_size());
+            if gathered != Some((centre, reach)) {
+                gather(grid, centre, reach, &mut s.around);
+                gathered = Some((centre, reach));
             }
             s.found.clear();
             s.found.resize(s.around.len(), 0);
@@ -168,10 +192,27 @@ fn sense_chunk(grid: &SpatialGrid, chunk: &mut [SensingItem<'_>], s: &mut SenseS
     }
 }
 
+/// Largest bounded range of a vehicle's sensors [m] (0 without radar and velodyne).
+fn sensor_range(radar: Option<&Radar>, velodyne: Option<&Velodyne>) -> f64 {
+    radar.map_or(0.0, |r| r.range).max(velodyne.map_or(0.0, |v| v.range))
+}
+
+/// Side of the sensor grid's cells [m]: the median of the sensing vehicles' positive ranges
+/// (100 m when none has one). `ranges` is scratch space, reused between ticks.
+fn typical_range(ranges: &mut [f64]) -> f64 {
+    if ranges.is_empty() {
+        return 100.0;
+    }
+    let middle = ranges.len() / 2;
+    let (_, median, _) = ranges.select_nth_unstable_by(middle, f64::total_cmp);
+    *median
+}
+
 /// Rebuild the sensor grid and fill every sensing vehicle's [`SensorReadings`], nearest first.
 ///
-/// The grid's cells are as large as the largest bounded range, so a vehicle sees only vehicles
-/// of its own cell and the eight around it. Vehicles are visited in query order (spawn order,
+/// The grid's cells are as large as the median bounded range, so a typical vehicle sees only
+/// vehicles of its own cell and the eight around it, and one of longer range searches as many
+/// cells around it as its range reaches. Vehicles are visited in query order (spawn order,
 /// which keeps each one's components in cache lines next to the previous one's); the candidates
 /// around a cell are gathered into a small buffer and reused while consecutive vehicles share
 /// that cell. The vehicles are cut into contiguous chunks over [`Parallelism::threads`]
@@ -192,16 +233,20 @@ pub fn sense_vehicles(
     )>,
     mut scratch: Local<Vec<SenseScratch>>,
     mut buffer: Local<Vec<SensingItem<'static>>>,
+    mut ranges: Local<Vec<f64>>,
 ) {
-    let mut cell: f64 = 0.0;
-    for (_, _, radar, velodyne, _, _) in &sensing {
-        cell = cell.max(radar.map_or(0.0, |r| r.range)).max(velodyne.map_or(0.0, |v| v.range));
-    }
     if sensing.is_empty() {
         return;
     }
+    ranges.clear();
+    ranges.extend(
+        sensing
+            .iter()
+            .map(|(_, _, radar, velodyne, _, _)| sensor_range(radar, velodyne))
+            .filter(|&r| r > 0.0 && r.is_finite()),
+    );
     grid.0.rebuild(
-        if cell > 0.0 { cell } else { 100.0 },
+        typical_range(&mut ranges),
         everyone.iter().map(|(&id, state)| GridEntry {
             position: state.position,
             velocity: state.velocity,
