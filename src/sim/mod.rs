@@ -16,6 +16,7 @@ pub mod controllers;
 pub mod dynamics;
 pub mod grid;
 pub mod parallel;
+pub mod params;
 mod schedule;
 pub mod sensors;
 pub mod v2v;
