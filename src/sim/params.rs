@@ -70,11 +70,14 @@ impl Range {
         if self.contains(v) {
             return Ok(());
         }
-        let open = if self.min_exclusive { "(" } else { "[" };
-        Err(ParamError {
-            key: key.to_string(),
-            problem: format!("must be a finite number in {open}{}, {}], got {v}", self.min, self.max),
-        })
+        let (min, max) = (self.min, self.max);
+        let want = match (self.min_exclusive, min == 0.0) {
+            (true, true) => format!("a positive number, at most {max}"),
+            (false, true) => format!("zero or more, at most {max}"),
+            (true, false) => format!("a number in ({min}, {max}]"),
+            (false, false) => format!("a number in [{min}, {max}]"),
+        };
+        Err(ParamError { key: key.to_string(), problem: format!("must be {want}, got {v}") })
     }
 }
 
