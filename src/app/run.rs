@@ -200,8 +200,12 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
 
     scenario.assemble(&mut builder)?;
     std::fs::create_dir_all(&options.out).map_err(|source| RunError::Io { path: options.out.clone(), source })?;
+    // Outputs are written beside their final names and renamed into place only when the run
+    // has ended, so a failed run never truncates the previous run's results.
     let csv_path = options.out.join("trajectories.csv");
-    let csv = std::fs::File::create(&csv_path).map_err(|source| RunError::Io { path: csv_path.clone(), source })?;
+    let csv_tmp = options.out.join(".trajectories.csv.partial");
+    let csv = std::fs::File::create(&csv_tmp).map_err(|source| RunError::Io { path: csv_tmp.clone(), source })?;
+    let outputs = PendingOutputs(vec![csv_tmp.clone()]);
     if let Some(addr) = options.stream {
         let plugin = VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ).map_err(|e| RunError::Stream(e.to_string()))?;
         builder.add_plugin(plugin);
@@ -225,16 +229,21 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     sim.world_mut()
         .resource_mut::<TrajectoryLog>()
         .finish()
-        .map_err(|source| RunError::Io { path: csv_path.clone(), source })?;
+        .map_err(|source| RunError::Io { path: csv_tmp.clone(), source })?;
 
     let mut summary = RunSummary::new(&sim, &report);
     let map_path = scenario_map_path(&scenario);
     summary.replay = Some(super::ReplayInfo::of(sim.world_mut(), map_path, log_rate));
     let summary_path = options.out.join("summary.json");
+    let summary_tmp = options.out.join(".summary.json.partial");
     let json = serde_json::to_string_pretty(&summary)
         .map_err(|e| RunError::Io { path: summary_path.clone(), source: std::io::Error::other(e) })?;
-    std::fs::write(&summary_path, format!("{json}\n"))
-        .map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
+    std::fs::write(&summary_tmp, format!("{json}\n"))
+        .map_err(|source| RunError::Io { path: summary_tmp.clone(), source })?;
+    for (tmp, path) in [(&csv_tmp, &csv_path), (&summary_tmp, &summary_path)] {
+        std::fs::rename(tmp, path).map_err(|source| RunError::Io { path: path.clone(), source })?;
+    }
+    outputs.keep();
     if options.plots {
         let dir = options.out.join("plots");
         let written = super::plot_run(&options.out, &dir).map_err(|e| RunError::Plot(e.to_string()))?;
@@ -253,6 +262,25 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         summary_path.display()
     );
     Ok(summary)
+}
+
+/// Temporary output files of a run, removed if the run ends early with an error (dropped before
+/// [`PendingOutputs::keep`]).
+struct PendingOutputs(Vec<PathBuf>);
+
+impl PendingOutputs {
+    /// The run finished and renamed its outputs: nothing to clean up.
+    fn keep(mut self) {
+        self.0.clear();
+    }
+}
+
+impl Drop for PendingOutputs {
+    fn drop(&mut self) {
+        for path in &self.0 {
+            let _ = std::fs::remove_file(path);
+        }
+    }
 }
 
 /// Run `sim` for `duration` [s], recording frames and showing progress; the chunk only decides

@@ -62,7 +62,7 @@ pub fn step_kinematic_unicycle(
     params: &KinematicUnicycle,
     dt: f64,
 ) {
-    let steering = command.steering.clamp(-params.max_steering, params.max_steering);
+    let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
     let curvature = steering.tan() / params.wheelbase;
     advance_arc(state, command.speed * dt, curvature, command.speed);
 }
@@ -76,7 +76,7 @@ pub fn step_acceleration_unicycle(
     params: &AccelerationUnicycle,
     dt: f64,
 ) {
-    let steering = command.steering.clamp(-params.max_steering, params.max_steering);
+    let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
     let curvature = steering.tan() / params.wheelbase;
     let (u, m, c) = (command.throttle, params.mass, params.drag);
     let v0 = state.speed().max(0.0);

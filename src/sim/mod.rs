@@ -17,6 +17,7 @@ pub mod dynamics;
 pub mod grid;
 pub mod parallel;
 pub mod recorded;
+pub mod params;
 mod schedule;
 pub mod sensors;
 pub mod v2v;

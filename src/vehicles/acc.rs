@@ -14,6 +14,7 @@ use bevy_ecs::prelude::{Component, Query};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::sim::Control;
+use crate::sim::params::{MAX_ACCEL, MAX_DISTANCE, MAX_GAIN, MAX_TIME, ParamError, Range, check_all};
 use crate::sim::{Plugin, SimBuilder};
 use crate::world::VehicleState;
 
@@ -59,6 +60,20 @@ impl Default for AdaptiveCruise {
 }
 
 impl AdaptiveCruise {
+    /// Check the values (keys relative to this table): time gap [0, 86400] s, standstill
+    /// [0, 1e7] m, gains [0, 1e6], accelerations (0, 1e3] m/s².
+    pub fn check(&self) -> Result<(), ParamError> {
+        check_all([
+            ("time_gap", self.time_gap, Range::non_negative(MAX_TIME)),
+            ("standstill", self.standstill, Range::non_negative(MAX_DISTANCE)),
+            ("gap_gain", self.gap_gain, Range::non_negative(MAX_GAIN)),
+            ("speed_gain", self.speed_gain, Range::non_negative(MAX_GAIN)),
+            ("cruise_gain", self.cruise_gain, Range::non_negative(MAX_GAIN)),
+            ("max_acceleration", self.max_acceleration, Range::positive(MAX_ACCEL)),
+            ("max_deceleration", self.max_deceleration, Range::positive(MAX_ACCEL)),
+        ])
+    }
+
     /// Desired gap [m] at speed `v` [m/s]: d₀ + h·v.
     pub fn desired_gap(&self, v: f64) -> f64 {
         self.standstill + self.time_gap * v.max(0.0)
@@ -81,7 +96,9 @@ impl AdaptiveCruise {
                 }
             }
         }
-        a.clamp(-self.max_deceleration, self.max_acceleration)
+        debug_assert!(self.check().is_ok(), "ACC parameters not checked: {self:?}");
+        // max/min, not clamp: total even on parameters that skipped `check` (clamp panics).
+        a.max(-self.max_deceleration).min(self.max_acceleration)
     }
 }
 

@@ -19,6 +19,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
 use crate::map::Path;
+use crate::sim::params::{MAX_ACCEL, MAX_DISTANCE, ParamError, Range, check_all};
 use crate::sim::{Control, SimClock};
 use crate::sim::{Plugin, SimBuilder};
 use crate::world::{Channel, Mailbox, Route, VehicleId, VehicleSize, VehicleState};
@@ -42,6 +43,21 @@ pub struct Crossing {
     pub deceleration: f64,
     /// Acceleration assumed when estimating the arrival time [m/s²].
     pub acceleration: f64,
+}
+
+impl Crossing {
+    /// Check the values (keys relative to this table): centre within 1e7 m, radius and margin
+    /// [0, 1e7] m (radius > 0), accelerations (0, 1e3] m/s².
+    pub fn check(&self) -> Result<(), ParamError> {
+        check_all([
+            ("center[0]", self.center[0], Range::between(-MAX_DISTANCE, MAX_DISTANCE)),
+            ("center[1]", self.center[1], Range::between(-MAX_DISTANCE, MAX_DISTANCE)),
+            ("radius", self.radius, Range::positive(MAX_DISTANCE)),
+            ("stop_margin", self.stop_margin, Range::non_negative(MAX_DISTANCE)),
+            ("deceleration", self.deceleration, Range::positive(MAX_ACCEL)),
+            ("acceleration", self.acceleration, Range::positive(MAX_ACCEL)),
+        ])
+    }
 }
 
 impl Default for Crossing {

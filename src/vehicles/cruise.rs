@@ -10,6 +10,7 @@
 use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
+use crate::sim::params::{MAX_ACCEL, MAX_GAIN, MAX_SPEED, MAX_TIME, ParamError, Range, check_all};
 use crate::sim::{Control, SimClock};
 use crate::sim::{Plugin, SimBuilder};
 use crate::world::{AccelerationUnicycle, VehicleState};
@@ -48,6 +49,43 @@ pub struct CruiseControl {
     pub max_deceleration: f64,
     /// Optional scripted slow-down.
     pub dip: Option<SpeedDip>,
+}
+
+impl SpeedDip {
+    /// Check the values (keys relative to `dip`).
+    pub fn check(&self) -> Result<(), ParamError> {
+        check_all([
+            ("at", self.at, Range::non_negative(MAX_TIME)),
+            ("speed", self.speed, Range::non_negative(MAX_SPEED)),
+            ("deceleration", self.deceleration, Range::positive(MAX_ACCEL)),
+        ])?;
+        // `hold` may be infinite (keep the low speed for ever), never NaN or negative.
+        if self.hold.is_nan() || self.hold < 0.0 {
+            return Err(ParamError {
+                key: "hold".into(),
+                problem: format!("must be zero or more [s] (inf: for ever), got {}", self.hold),
+            });
+        }
+        Ok(())
+    }
+}
+
+impl CruiseControl {
+    /// Check the values: every gain in [0, 1e6], `max_acceleration` and `max_deceleration` in
+    /// (0, 1e3] m/s², and the dip's (keys relative to this table).
+    pub fn check(&self) -> Result<(), ParamError> {
+        check_all([
+            ("kp", self.kp, Range::non_negative(MAX_GAIN)),
+            ("ki", self.ki, Range::non_negative(MAX_GAIN)),
+            ("kd", self.kd, Range::non_negative(MAX_GAIN)),
+            ("max_acceleration", self.max_acceleration, Range::positive(MAX_ACCEL)),
+            ("max_deceleration", self.max_deceleration, Range::positive(MAX_ACCEL)),
+        ])?;
+        match &self.dip {
+            Some(d) => d.check().map_err(|e| e.within("dip")),
+            None => Ok(()),
+        }
+    }
 }
 
 impl Default for CruiseControl {
@@ -102,7 +140,7 @@ pub fn control_cruise(
             cc.reference = v;
         }
         let (target, rate) = reference_target(&p, lon.route_speed, t);
-        let step = (target - cc.reference).clamp(-rate * dt, rate * dt);
+        let step = (target - cc.reference).max(-rate * dt).min(rate * dt);
         let ff = if dt > 0.0 { step / dt } else { 0.0 };
         cc.reference += step;
         let error = cc.reference - v;
@@ -112,7 +150,9 @@ pub fn control_cruise(
         let mass = model.map_or(1000.0, |m| m.mass);
         let pid = (p.kp * error + p.ki * cc.integral + p.kd * derivative) * mass / 1000.0;
         let accel = ff + pid / mass;
-        lon.accel = accel.clamp(-p.max_deceleration, p.max_acceleration.max(ff));
+        debug_assert!(p.check().is_ok(), "cruise parameters not checked: {p:?}");
+        // max/min, not clamp: total even on parameters that skipped `check` (clamp panics).
+        lon.accel = accel.max(-p.max_deceleration).min(p.max_acceleration.max(ff));
     }
 }
 

@@ -9,6 +9,7 @@ use bevy_ecs::prelude::{Component, Query};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::sim::Control;
+use crate::sim::params::{MAX_ACCEL, MAX_TIME, ParamError, Range, check_all};
 use crate::sim::{Plugin, SimBuilder};
 use crate::world::VehicleState;
 
@@ -22,6 +23,17 @@ pub struct EmergencyBraking {
     pub ttc: f64,
     /// Braking applied [m/s²] (positive).
     pub deceleration: f64,
+}
+
+impl EmergencyBraking {
+    /// Check the values (keys relative to this table): `ttc` [0, 86400] s (0: off),
+    /// `deceleration` (0, 1e3] m/s².
+    pub fn check(&self) -> Result<(), ParamError> {
+        check_all([
+            ("ttc", self.ttc, Range::non_negative(MAX_TIME)),
+            ("deceleration", self.deceleration, Range::positive(MAX_ACCEL)),
+        ])
+    }
 }
 
 impl Default for EmergencyBraking {

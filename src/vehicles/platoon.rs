@@ -25,6 +25,7 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
+use crate::sim::params::{MAX_GAIN, MAX_TIME, ParamError, Range, check_all};
 use crate::sim::{Control, SimClock};
 use crate::sim::{Plugin, SimBuilder};
 use crate::world::{Channel, Mailbox, SimTime, VehicleId, VehicleState};
@@ -77,6 +78,17 @@ impl Default for Platooning {
 }
 
 impl Platooning {
+    /// Check the values (keys relative to this table): the gap law's ranges, feed-forward gain
+    /// [0, 1e6], beacon timeout (0, 86400] s.
+    pub fn check(&self) -> Result<(), ParamError> {
+        self.law(self.time_gap).check()?;
+        check_all([
+            ("acc_time_gap", self.acc_time_gap, Range::non_negative(MAX_TIME)),
+            ("feedforward_gain", self.feedforward_gain, Range::non_negative(MAX_GAIN)),
+            ("beacon_timeout", self.beacon_timeout, Range::positive(MAX_TIME)),
+        ])
+    }
+
     /// The gap law with time gap `time_gap` [s].
     fn law(&self, time_gap: f64) -> AdaptiveCruise {
         AdaptiveCruise {

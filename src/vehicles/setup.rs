@@ -17,6 +17,7 @@ use super::{
     AccController, AdaptiveCruise, Crossing, CrossingNegotiator, CruiseControl, CruiseController, EmergencyBrake,
     EmergencyBraking, PathFollower, PathFollowing, PlatoonMember, Platooning,
 };
+use crate::sim::params::{MAX_SPEED, MAX_TIME, ParamError, Range};
 use crate::world::SimTime;
 
 fn default_speed() -> f64 {
@@ -105,55 +106,39 @@ pub enum SmartController {
 
 impl SmartController {
     /// Check the values: `Err((key, problem))` names the key (relative to `controller`) and what
-    /// is allowed.
+    /// is allowed. Each parameter table checks its own ranges ([`CruiseControl::check`] and the
+    /// like), so TOML, CLI and Python share one definition.
     pub fn check(&self) -> Result<(), (String, String)> {
-        let mut checks: Vec<(&str, f64, bool)> = Vec::new();
+        self.check_params().map_err(Into::into)
+    }
+
+    fn check_params(&self) -> Result<(), ParamError> {
         let (speed, emergency, crossing) = match self {
-            SmartController::Cruise(c) => (c.speed, c.emergency, None),
+            SmartController::Cruise(c) => {
+                c.cruise.check().map_err(|e| e.within("cruise"))?;
+                (c.speed, c.emergency, None)
+            }
             SmartController::Acc(c) => {
-                checks.extend([
-                    ("acc.time_gap", c.acc.time_gap, false),
-                    ("acc.standstill", c.acc.standstill, false),
-                    ("acc.max_deceleration", c.acc.max_deceleration, true),
-                ]);
+                c.acc.check().map_err(|e| e.within("acc"))?;
                 (c.speed, c.emergency, c.crossing)
             }
             SmartController::Platoon(c) => {
-                checks.extend([
-                    ("platoon.time_gap", c.platoon.time_gap, false),
-                    ("platoon.acc_time_gap", c.platoon.acc_time_gap, false),
-                    ("platoon.standstill", c.platoon.standstill, false),
-                    ("platoon.max_deceleration", c.platoon.max_deceleration, true),
-                    ("platoon.beacon_timeout", c.platoon.beacon_timeout, true),
-                ]);
+                c.platoon.check().map_err(|e| e.within("platoon"))?;
+                if c.role == PlatoonRole::Leader {
+                    c.cruise.check().map_err(|e| e.within("cruise"))?;
+                }
                 if let Some(t) = c.leave_at {
-                    checks.push(("leave_at", t, false));
+                    Range::non_negative(MAX_TIME).check("leave_at", t)?;
                 }
                 (c.speed, c.emergency, c.crossing)
             }
         };
-        checks.push(("speed", speed, false));
-        checks.push(("emergency.ttc", emergency.ttc, false));
-        checks.push(("emergency.deceleration", emergency.deceleration, true));
-        if let Some(c) = crossing {
-            checks.push(("crossing.radius", c.radius, true));
-            checks.push(("crossing.deceleration", c.deceleration, true));
-            checks.push(("crossing.acceleration", c.acceleration, true));
+        Range::non_negative(MAX_SPEED).check("speed", speed)?;
+        emergency.check().map_err(|e| e.within("emergency"))?;
+        match crossing {
+            Some(c) => c.check().map_err(|e| e.within("crossing")),
+            None => Ok(()),
         }
-        if let SmartController::Cruise(CruiseSetup { cruise: CruiseControl { dip: Some(d), .. }, .. })
-        | SmartController::Platoon(PlatoonSetup { cruise: CruiseControl { dip: Some(d), .. }, .. }) = self
-        {
-            checks.push(("cruise.dip.deceleration", d.deceleration, true));
-            checks.push(("cruise.dip.speed", d.speed, false));
-        }
-        for (key, value, strictly_positive) in checks {
-            let ok = value.is_finite() && if strictly_positive { value > 0.0 } else { value >= 0.0 };
-            if !ok {
-                let want = if strictly_positive { "a positive number" } else { "zero or more" };
-                return Err((key.to_string(), format!("must be {want}, got {value}")));
-            }
-        }
-        Ok(())
     }
 
     /// Add the controller's components (and the path follower's) to vehicle `entity`.

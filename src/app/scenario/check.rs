@@ -7,6 +7,7 @@ use std::path::Path as FsPath;
 use super::ScenarioError;
 use super::file::{BuiltInController, ControllerConfig, ModelConfig, ScenarioFile, VehicleConfig};
 use crate::sim::ControllerRegistry;
+use crate::sim::params::{MAX_DISTANCE, MAX_GAIN, MAX_SPEED, MAX_TIME, MAX_VEHICLE_SIZE, Range};
 
 /// Builds the errors of one file: each names the key and what is allowed.
 struct Checker<'a> {
@@ -18,20 +19,9 @@ impl Checker<'_> {
         ScenarioError::Invalid { path: self.path.into(), key, problem: problem.into() }
     }
 
-    fn positive(&self, key: String, v: f64) -> Result<(), ScenarioError> {
-        if v.is_finite() && v > 0.0 {
-            Ok(())
-        } else {
-            Err(self.invalid(key, &format!("must be a positive number, got {v}")))
-        }
-    }
-
-    fn non_negative(&self, key: String, v: f64) -> Result<(), ScenarioError> {
-        if v.is_finite() && v >= 0.0 {
-            Ok(())
-        } else {
-            Err(self.invalid(key, &format!("must be zero or more, got {v}")))
-        }
+    /// `v` inside `range` (the one place that range is defined), else an error naming `key`.
+    fn within(&self, key: String, v: f64, range: Range) -> Result<(), ScenarioError> {
+        range.check(&key, v).map_err(|e| self.invalid(key, &e.problem))
     }
 }
 
@@ -39,8 +29,8 @@ impl Checker<'_> {
 /// every controller is built in or in `controllers` (with parameters it accepts).
 pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &ControllerRegistry) -> Result<(), ScenarioError> {
     let c = Checker { path };
-    c.positive("duration".into(), file.duration)?;
-    c.positive("points_per_meter".into(), file.points_per_meter)?;
+    c.within("duration".into(), file.duration, Range::positive(1e9))?;
+    c.within("points_per_meter".into(), file.points_per_meter, Range::positive(100.0))?;
     let r = &file.rates;
     for (k, v) in [
         ("dynamics", r.dynamics),
@@ -50,15 +40,10 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
         ("network", r.network),
         ("log", r.log),
     ] {
-        c.positive(format!("rates.{k}"), v)?;
-        if v > 1e6 {
-            return Err(c.invalid(
-                format!("rates.{k}"),
-                &format!("must be at most 1e6 Hz (one tick per microsecond), got {v}"),
-            ));
-        }
+        // At most 1e6 Hz: one tick per microsecond.
+        c.within(format!("rates.{k}"), v, Range::positive(1e6))?;
     }
-    c.non_negative("v2v.wifi_range".into(), file.v2v.wifi_range)?;
+    c.within("v2v.wifi_range".into(), file.v2v.wifi_range, Range::non_negative(MAX_DISTANCE))?;
     if let Some(lab) = &file.lab {
         lab.check().map_err(|e| c.invalid(format!("lab.{}", e.key), &e.problem))?;
     }
@@ -81,23 +66,25 @@ fn check_vehicle(
     controllers: &ControllerRegistry,
 ) -> Result<(), ScenarioError> {
     let key = |k: &str| format!("vehicles[{i}] (id {}).{k}", v.id);
+    let size = Range::positive(MAX_VEHICLE_SIZE);
     if let Some(l) = v.length {
-        c.positive(key("length"), l)?;
+        c.within(key("length"), l, size)?;
     }
     if let Some(w) = v.width {
-        c.positive(key("width"), w)?;
+        c.within(key("width"), w, size)?;
     }
-    c.non_negative(key("speed"), v.speed)?;
+    c.within(key("speed"), v.speed, Range::non_negative(MAX_SPEED))?;
+    let steering = Range::non_negative(std::f64::consts::FRAC_PI_2);
     match v.model {
         ModelConfig::Kinematic { wheelbase, max_steering } => {
-            c.positive(key("model.wheelbase"), wheelbase)?;
-            c.non_negative(key("model.max_steering"), max_steering)?;
+            c.within(key("model.wheelbase"), wheelbase, size)?;
+            c.within(key("model.max_steering"), max_steering, steering)?;
         }
         ModelConfig::Acceleration { wheelbase, mass, drag, max_steering } => {
-            c.positive(key("model.wheelbase"), wheelbase)?;
-            c.positive(key("model.mass"), mass)?;
-            c.non_negative(key("model.drag"), drag)?;
-            c.non_negative(key("model.max_steering"), max_steering)?;
+            c.within(key("model.wheelbase"), wheelbase, size)?;
+            c.within(key("model.mass"), mass, Range::between(0.1, 1e6))?;
+            c.within(key("model.drag"), drag, Range::non_negative(1e6))?;
+            c.within(key("model.max_steering"), max_steering, steering)?;
         }
         ModelConfig::None => {}
     }
@@ -125,6 +112,15 @@ fn check_vehicle(
         if s.offset.is_some() && s.x.is_some() {
             return Err(c.invalid(key("start.offset"), "cannot be combined with `x`/`y`"));
         }
+        let position = Range::between(-MAX_DISTANCE, MAX_DISTANCE);
+        for (k, value) in [("start.offset", s.offset), ("start.x", s.x), ("start.y", s.y)] {
+            if let Some(value) = value {
+                c.within(key(k), value, position)?;
+            }
+        }
+        if let Some(yaw) = s.yaw {
+            c.within(key("start.yaw"), yaw, Range::between(-1e3, 1e3))?;
+        }
     }
     if let Some(r) = v.sensors.radar {
         if !(r.angle_deg > 0.0 && r.angle_deg <= 360.0) {
@@ -133,10 +129,10 @@ fn check_vehicle(
                 &format!("must be in (0, 360] degrees, got {}", r.angle_deg),
             ));
         }
-        c.non_negative(key("sensors.radar.range"), r.range)?;
+        c.within(key("sensors.radar.range"), r.range, Range::non_negative(MAX_DISTANCE))?;
     }
     if let Some(r) = v.sensors.velodyne {
-        c.non_negative(key("sensors.velodyne.range"), r.range)?;
+        c.within(key("sensors.velodyne.range"), r.range, Range::non_negative(MAX_DISTANCE))?;
     }
     match &v.controller {
         Some(controller) => check_controller(c, v, controller, controllers, &key),
@@ -162,10 +158,10 @@ fn check_controller(
             if v.route.is_none() {
                 return Err(c.invalid(key("controller"), "path_following needs a `route` to follow"));
             }
-            c.non_negative(key("controller.speed"), *speed)?;
-            c.positive(key("controller.lookahead_min"), *lookahead_min)?;
-            c.non_negative(key("controller.lookahead_time"), *lookahead_time)?;
-            c.non_negative(key("controller.speed_gain"), *speed_gain)
+            c.within(key("controller.speed"), *speed, Range::non_negative(MAX_SPEED))?;
+            c.within(key("controller.lookahead_min"), *lookahead_min, Range::positive(MAX_DISTANCE))?;
+            c.within(key("controller.lookahead_time"), *lookahead_time, Range::non_negative(MAX_TIME))?;
+            c.within(key("controller.speed_gain"), *speed_gain, Range::non_negative(MAX_GAIN))
         }
         ControllerConfig::BuiltIn(_) => {
             let Some(smart) = controller.smart() else { return Ok(()) };

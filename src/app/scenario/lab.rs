@@ -34,6 +34,7 @@ use crate::io::trucks::{
 };
 use crate::map::LaneletMap;
 use crate::sim::SimBuilder;
+use crate::sim::params::MAX_TIME;
 use crate::world::{AccelerationUnicycle, KinematicUnicycle, Route, VehicleId, VehicleState, Vehicles};
 
 use super::{Scenario, ScenarioError};
@@ -162,6 +163,12 @@ impl LabConfig {
                 return Err(lab_error("mocap.poll_rate", format!("must be at most 1000 Hz, got {}", m.poll_rate)));
             }
             positive("mocap.stale_after", m.stale_after)?;
+            if m.stale_after > MAX_TIME {
+                return Err(lab_error(
+                    "mocap.stale_after",
+                    format!("must be at most {MAX_TIME} s (one day), got {}", m.stale_after),
+                ));
+            }
             if m.mock && m.addr.is_some() {
                 return Err(lab_error("mocap", "takes either `mock = true` or `addr`, not both"));
             }
