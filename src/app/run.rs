@@ -212,6 +212,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         tracing::info!("recorded {} frames at {} Hz into {}", rec.frames(), options.frame_rate, to.join(" and "));
     }
     drop(recorder);
+    super::output::log_final_state(&mut sim);
     sim.world_mut()
         .resource_mut::<TrajectoryLog>()
         .finish()
