@@ -289,6 +289,12 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
     if options.frames.is_none() && options.gif.is_none() {
         return Ok(None);
     }
+    if let Some(gif) = &options.gif {
+        let is_gif = gif.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"));
+        check_option(is_gif, || {
+            format!("--gif writes GIF data: name the file with a .gif extension, got {}", gif.display())
+        })?;
+    }
     check_option(options.frame_rate.is_finite() && options.frame_rate > 0.0 && options.frame_rate <= 1000.0, || {
         format!("--frame-rate must be in (0, 1000] Hz, got {}", options.frame_rate)
     })?;
