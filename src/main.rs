@@ -11,7 +11,7 @@ fn main() -> std::process::ExitCode {
     match cli::dispatch(args.command) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", cli::error_line(&e));
             std::process::ExitCode::FAILURE
         }
     }

@@ -85,3 +85,23 @@ fn errors_are_messages_not_panics() {
         assert!(!stderr.contains("panicked"), "{args:?} panicked: {stderr}");
     }
 }
+
+/// Issue 10: the README's `map route` example works on the map it names, and `--json` reports
+/// the nodes actually used.
+#[test]
+fn readme_route_example_works_and_reports_its_nodes() {
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
+    let line = readme.lines().find(|l| l.starts_with("smlworld map route ")).expect("README has a route example");
+    let cmd = line.split('#').next().unwrap();
+    let args: Vec<String> = cmd
+        .split_whitespace()
+        .skip(1)
+        .map(|a| a.replace("../shared/data/", &format!("{}/", common::shared_data().display())))
+        .collect();
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    assert!(args.contains(&"--json"), "the example prints JSON: {line}");
+    let v = json(&args);
+    assert!(v["length_m"].as_f64().unwrap() > 1.0, "{line}: {}", v["length_m"]);
+    assert_eq!(v["from_node"], -142);
+    assert!(v.get("note").is_none(), "HighwaySML follows the 2015 rule: {v}");
+}

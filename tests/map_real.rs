@@ -129,9 +129,11 @@ fn lanelet2_example_loads_all_lanelets_resampled() {
     for c in crosswalks {
         assert!(!c.routable, "crosswalk {} must not be routable for vehicles", c.id);
     }
-    // Route between two lanelets far apart (ids found by searching the whole map for the longest
-    // shortest route; they lie on opposite sides of the map).
-    let a = map.lanelet(LaneletId(45258)).unwrap();
+    // Route between two lanelets far apart (ids found by searching the map for the longest
+    // shortest route between right-bound nodes; they lie on opposite sides of the map). Issue 10
+    // changed the start from lanelet 45258: under the 2015 right-bound rule its first node no
+    // longer selects the opposite lane whose left bound holds it.
+    let a = map.lanelet(LaneletId(45256)).unwrap();
     let b = map.lanelet(LaneletId(45566)).unwrap();
     let (from, to) = (a.right_nodes[0], b.right_nodes[b.right_nodes.len() - 1]);
     let route = map.route(from, to, &RouteOptions::default()).unwrap();
@@ -165,4 +167,32 @@ fn lanelet2_example_loads_all_lanelets_resampled() {
     for p in route.points.windows(2) {
         assert!(p[0].distance(p[1]) < 0.5, "gap in the route");
     }
+}
+
+/// Issue 10: the 2015 rule (seed §3.3.2) picks the lanelets whose RIGHT bound holds the node, so
+/// `map loop --tag T` and `map route --from-tag T --to-tag T` drive the same lane, and a route from
+/// the right lane's node to the centre lane's node does not stay inside the right lane.
+#[test]
+fn highway_tags_select_the_lane_whose_right_bound_holds_the_node() {
+    let map = highway();
+    let opts = RouteOptions::default();
+    for tag in ["right_lane_node", "center_lane_node", "left_lane_node"] {
+        let node = map.nodes_with_tag(tag).unwrap()[0];
+        let lp = map.closed_loop_tag(tag, &opts).unwrap();
+        let rt = map.route_tags(tag, tag, &opts).unwrap();
+        let loop_lane: std::collections::BTreeSet<_> = lp.lanelets.iter().collect();
+        for id in &rt.lanelets {
+            assert!(loop_lane.contains(id), "{tag}: route lanelet {id} is not in the loop's lane {:?}", lp.lanelets);
+        }
+        for id in lp.lanelets.iter().chain(&rt.lanelets) {
+            let l = map.lanelet(*id).unwrap();
+            assert!(
+                !l.left_nodes.contains(&node) || l.right_nodes.contains(&node),
+                "{tag}: lanelet {id} has node {node} only on its left bound"
+            );
+        }
+    }
+    // Right lane to centre lane: no lane change in the graph, so no route (2015: no route either),
+    // never a 0.25 m hop inside the right lane.
+    assert!(map.route_tags("right_lane_node", "center_lane_node", &opts).is_err());
 }

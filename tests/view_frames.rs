@@ -81,3 +81,43 @@ fn without_a_display_or_frames_the_viewer_fails_clearly() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no display") && err.contains("--frames DIR"), "{err}");
 }
+
+/// Issue 10: `--frame-rate` caps the frames written: a 50 Hz stream for 3 s at `--frame-rate 2`
+/// writes about 6 frames, not 150.
+#[test]
+fn view_frame_rate_caps_the_frames_written() {
+    let addr = free_udp_port();
+    let dir = temp_dir("view_frame_rate");
+    let viewer = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["view", "--listen", &addr.to_string(), "--width", "64", "--height", "48", "--frame-rate", "2"])
+        .args(["--duration", "30", "--frames"])
+        .arg(dir.join("frames"))
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start smlworld view");
+    let viewer = ChildGuard(viewer);
+    let scene: [Car; 1] = [(0, 0.0, 0.0, 0.0, "Car")];
+    let sender = UdpSocket::bind((Ipv4Addr::LOCALHOST, 0)).expect("bind sender");
+    let count = || std::fs::read_dir(dir.join("frames")).into_iter().flatten().flatten().count();
+    // Wait for the first frame (the renderer may take a while to start), then stream 3 s at 50 Hz.
+    let deadline = Instant::now() + Duration::from_secs(25);
+    let mut counter = 0;
+    while count() == 0 && Instant::now() < deadline {
+        send_scene(&sender, addr, counter, &scene);
+        counter += 1;
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(count() > 0, "no frame written");
+    for _ in 0..150 {
+        send_scene(&sender, addr, counter, &scene);
+        counter += 1;
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    drop(viewer);
+    let n = count();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!((3..=10).contains(&n), "{n} frames for about 3 s at --frame-rate 2");
+}

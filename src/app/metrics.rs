@@ -59,6 +59,10 @@ pub struct FollowerStats {
     speed_error_sq: f64,
 }
 
+/// A leader speed range below this [m/s] is no disturbance: `amplification` is not computed.
+/// The same 0.01 m/s as the string-stability tolerance.
+pub const NO_DISTURBANCE: f64 = 0.01;
+
 /// Speed range of one platoon member.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct MemberStats {
@@ -76,8 +80,14 @@ pub struct PlatoonStats {
     pub members: Vec<VehicleId>,
     /// Range of each member's speed (max − min) after the warm-up [m/s], same order.
     pub speed_amplitudes: Vec<f64>,
-    /// Last member's range over the leader's [-]: below 1 means the disturbance shrank.
-    pub amplification: f64,
+    /// Last member's range over the leader's [-]: below 1 means the disturbance shrank. `None`
+    /// (JSON `null`) when the leader's range is below [`NO_DISTURBANCE`]: there was nothing to
+    /// amplify, and a ratio of two near-zero ranges would be noise.
+    pub amplification: Option<f64>,
+    /// `"no disturbance"` when the leader's speed range stayed below [`NO_DISTURBANCE`] (for
+    /// example a run that ends before the leader brakes), else `None` (not written).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<&'static str>,
     /// Whether no member's range exceeds the one ahead of it (1% + 0.01 m/s tolerance).
     pub string_stable: bool,
 }
@@ -184,14 +194,15 @@ impl Metrics {
                 let amplitudes: Vec<f64> = order.iter().map(|o| o.2).collect();
                 let string_stable = amplitudes.windows(2).all(|w| w[1] <= w[0] * 1.01 + 0.01);
                 let amplification = match (amplitudes.first(), amplitudes.last()) {
-                    (Some(&first), Some(&last)) if first > 0.0 => last / first,
-                    _ => 1.0,
+                    (Some(&first), Some(&last)) if first >= NO_DISTURBANCE => Some(last / first),
+                    _ => None,
                 };
                 PlatoonStats {
                     leader,
                     members: order.iter().map(|o| o.1).collect(),
                     speed_amplitudes: amplitudes,
                     amplification,
+                    note: amplification.is_none().then_some("no disturbance"),
                     string_stable,
                 }
             })
@@ -355,5 +366,37 @@ impl Plugin for MetricsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(Metrics::new(self.warmup));
         sim.add_systems(Dynamics, record_metrics.after(SimSystems::Integrate));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn platoon(ranges: &[(f64, f64)]) -> Metrics {
+        let mut m = Metrics::new(0.0);
+        let members = ranges
+            .iter()
+            .enumerate()
+            .map(|(k, &(min_speed, max_speed))| {
+                (VehicleId(-(k as i32) - 1), MemberStats { index: k as u32, min_speed, max_speed })
+            })
+            .collect();
+        m.platoons.insert(VehicleId(-1), members);
+        m
+    }
+
+    /// Issue 10: a run that ends before the leader brakes has a leader range of ~1e-13 m/s; the
+    /// summary says "no disturbance" instead of a ratio of two rounding errors.
+    #[test]
+    fn a_leader_that_never_changed_speed_is_no_disturbance() {
+        let s = platoon(&[(15.0, 15.0 + 6.6e-14), (15.0, 15.0 + 1.6e-1)]).summary();
+        assert_eq!(s.platoons[0].amplification, None);
+        assert_eq!(s.platoons[0].note, Some("no disturbance"));
+        let json = serde_json::to_value(&s.platoons[0]).unwrap();
+        assert!(json["amplification"].is_null() && json["note"] == "no disturbance", "{json}");
+        let s = platoon(&[(10.0, 15.0), (11.0, 14.0)]).summary();
+        assert_eq!(s.platoons[0].amplification, Some(3.0 / 5.0));
+        assert_eq!(s.platoons[0].note, None);
     }
 }

@@ -24,13 +24,15 @@ pub struct TrajectoryLog {
     writer: Box<dyn Write + Send + Sync>,
     rows: u64,
     error: Option<std::io::Error>,
+    /// Sim time of the last rows written [s], so the final state is logged exactly once.
+    last_t: Option<f64>,
 }
 
 impl TrajectoryLog {
     /// Log into `writer` (the header is written at once).
     pub fn new(mut writer: Box<dyn Write + Send + Sync>) -> TrajectoryLog {
         let error = writeln!(writer, "t,id,x,y,yaw,vx,vy").err();
-        TrajectoryLog { writer, rows: 0, error }
+        TrajectoryLog { writer, rows: 0, error, last_t: None }
     }
 
     /// Rows written so far.
@@ -59,12 +61,21 @@ pub fn log_trajectories(
         return;
     }
     let t = clock.now.as_secs();
+    if log.last_t == Some(t) {
+        return;
+    }
+    log.last_t = Some(t);
     for (id, e) in vehicles.iter() {
         if let Ok(s) = states.get(e) {
+            // `+ 0.0` turns -0.0 into 0.0: `-0` in a CSV reads as a sign that is not there.
             let r = writeln!(
                 log.writer,
                 "{t:.6},{id},{},{},{},{},{}",
-                s.position.x, s.position.y, s.yaw, s.velocity.x, s.velocity.y
+                s.position.x + 0.0,
+                s.position.y + 0.0,
+                s.yaw + 0.0,
+                s.velocity.x + 0.0,
+                s.velocity.y + 0.0
             );
             if let Err(e) = r {
                 log.error = Some(e);
@@ -73,6 +84,15 @@ pub fn log_trajectories(
             log.rows += 1;
         }
     }
+}
+
+/// Log the state at the end of a run (unless the logger's own tick already did): a 600 s run
+/// ends with rows at t = 600, not at the last tick of the log rate.
+pub fn log_final_state(sim: &mut Sim) {
+    use bevy_ecs::system::RunSystemOnce;
+    // The system's parameters are all resources and a query, always valid: the error is
+    // unreachable, and a write error is kept in the log for `finish` to report.
+    let _ = sim.world_mut().run_system_once(log_trajectories);
 }
 
 /// The trajectory logger as a module of its own at `rate` [Hz]; insert a [`TrajectoryLog`]

@@ -226,6 +226,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         tracing::info!("recorded {} frames at {} Hz into {}", rec.frames(), options.frame_rate, to.join(" and "));
     }
     drop(recorder);
+    super::output::log_final_state(&mut sim);
     sim.world_mut()
         .resource_mut::<TrajectoryLog>()
         .finish()
@@ -332,6 +333,12 @@ fn drive(
 fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRecorder>, RunError> {
     if options.frames.is_none() && options.gif.is_none() {
         return Ok(None);
+    }
+    if let Some(gif) = &options.gif {
+        let is_gif = gif.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"));
+        check_option(is_gif, || {
+            format!("--gif writes GIF data: name the file with a .gif extension, got {}", gif.display())
+        })?;
     }
     check_option(options.frame_rate.is_finite() && options.frame_rate > 0.0 && options.frame_rate <= 1000.0, || {
         format!("--frame-rate must be in (0, 1000] Hz, got {}", options.frame_rate)

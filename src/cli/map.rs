@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
 use smlworld::map::commonroad::{CommonRoadScenario, CommonRoadState, is_commonroad};
-use smlworld::map::{LaneletMap, Path, Place, RouteOptions};
+use smlworld::map::{LaneletMap, Place, RouteOptions, Routed};
 
 use super::{map_generate, map_render};
 
@@ -90,14 +90,14 @@ pub fn main(command: MapCommand) -> anyhow::Result<()> {
             let map = load(&a.map)?;
             let from = place(a.from, a.from_tag);
             let to = place(a.to, a.to_tag);
-            let path = map.route_places(&from, &to, &RouteOptions { points_per_meter: a.points_per_meter })?;
-            print_path(&path, a.json)
+            let routed = map.route_places_routed(&from, &to, &RouteOptions { points_per_meter: a.points_per_meter })?;
+            print_path(&routed, a.json)
         }
         MapCommand::Loop(a) => {
             let map = load(&a.map)?;
             let at = place(a.node, a.tag);
-            let path = map.closed_loop_at(&at, &RouteOptions { points_per_meter: a.points_per_meter })?;
-            print_path(&path, a.json)
+            let routed = map.closed_loop_routed(&at, &RouteOptions { points_per_meter: a.points_per_meter })?;
+            print_path(&routed, a.json)
         }
         MapCommand::Generate(a) => map_generate::main(a),
         MapCommand::Render(a) => map_render::main(a),
@@ -271,16 +271,27 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
 }
 
 #[derive(Serialize)]
-struct PathJson {
+struct PathJson<'a> {
     lanelets: Vec<i64>,
     length_m: f64,
+    /// Node the path starts at (a tag may name several; this is the one used).
+    from_node: i64,
+    /// Node the path ends at.
+    to_node: i64,
+    /// Present when a node was matched on a lanelet's left bound (no right bound holds it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    note: Option<&'a str>,
     points: Vec<[f64; 2]>,
 }
 
-fn print_path(path: &Path, json: bool) -> anyhow::Result<()> {
+fn print_path(routed: &Routed, json: bool) -> anyhow::Result<()> {
+    let path = &routed.path;
     let out = PathJson {
         lanelets: path.lanelets.iter().map(|l| l.0).collect(),
         length_m: path.length,
+        from_node: routed.from_node,
+        to_node: routed.to_node,
+        note: routed.note.as_deref(),
         points: path.points.iter().map(|p| [p.x, p.y]).collect(),
     };
     if json {
@@ -296,7 +307,13 @@ fn print_path(path: &Path, json: bool) -> anyhow::Result<()> {
     );
     println!("{} points, {:.3} m apart", out.points.len(), path.spacing());
     if let (Some(a), Some(b)) = (path.points.first(), path.points.last()) {
-        println!("from ({:.2}, {:.2}) to ({:.2}, {:.2}) [m]", a.x, a.y, b.x, b.y);
+        println!(
+            "from node {} ({:.2}, {:.2}) to node {} ({:.2}, {:.2}) [m]",
+            out.from_node, a.x, a.y, out.to_node, b.x, b.y
+        );
+    }
+    if let Some(note) = out.note {
+        println!("note: {note}");
     }
     Ok(())
 }

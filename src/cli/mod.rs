@@ -43,7 +43,7 @@ pub enum Command {
     MockMocap(mock_mocap::MockMocapArgs),
 }
 
-/// Log to stderr; `RUST_LOG` wins over `-v`.
+/// Log to stderr, in colour only when stderr is a terminal; `RUST_LOG` wins over `-v`.
 pub fn init_logging(verbose: u8) {
     let default = match verbose {
         0 => "info",
@@ -52,7 +52,13 @@ pub fn init_logging(verbose: u8) {
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    use std::io::IsTerminal;
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_target(false)
+        .init();
 }
 
 /// Run one subcommand.
@@ -66,4 +72,21 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::View(a) => view::main(a),
         Command::MockMocap(a) => mock_mocap::main(a),
     }
+}
+
+/// An error and its causes as one line, each cause once: many of our errors already print their
+/// source in their own message, so a cause whose text the line holds already is left out.
+pub fn error_line(e: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&text);
+    }
+    line
 }

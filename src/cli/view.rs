@@ -57,6 +57,10 @@ pub struct ViewArgs {
     /// Stop after this many seconds (default: run until closed or stopped with Ctrl-C).
     #[arg(long)]
     pub duration: Option<f64>,
+    /// Most frames per wall-clock second written to --frames [Hz]; newer frames in between are
+    /// shown but not written (the stream runs at 50 Hz: 1.7 GB of PNGs in 25 s unthrottled).
+    #[arg(long, default_value_t = 10.0)]
+    pub frame_rate: f64,
 }
 
 fn parse_point(s: &str) -> Result<DVec2, String> {
@@ -92,6 +96,8 @@ struct Scene {
     sprites: Vec<VehicleSprite>,
     drawn: Option<u64>,
     written: u64,
+    /// When the next frame may be written to --frames (wall clock).
+    next_write: Instant,
 }
 
 impl Scene {
@@ -103,6 +109,8 @@ impl Scene {
         if let Some(d) = args.duration {
             anyhow::ensure!(d.is_finite() && d > 0.0, "--duration must be a positive number of seconds, got {d}");
         }
+        let r = args.frame_rate;
+        anyhow::ensure!(r.is_finite() && r > 0.0 && r <= 1000.0, "--frame-rate must be in (0, 1000] Hz, got {r}");
         let map = match &args.map {
             Some(path) => {
                 Some(LaneletMap::load(path).with_context(|| format!("cannot load the map {}", path.display()))?)
@@ -141,6 +149,7 @@ impl Scene {
             sprites: Vec::new(),
             drawn: None,
             written: 0,
+            next_write: Instant::now(),
         })
     }
 
@@ -169,8 +178,12 @@ impl Scene {
         }
         self.renderer.render_frame_into(&self.layer, &self.sprites, &mut self.image)?;
         if let (Some(dir), Some(_)) = (&self.args.frames, frame) {
-            write_image(&frame_path(dir, self.written), &self.image)?;
-            self.written += 1;
+            let now = Instant::now();
+            if now >= self.next_write {
+                write_image(&frame_path(dir, self.written), &self.image)?;
+                self.written += 1;
+                self.next_write = now + Duration::from_secs_f64(1.0 / self.args.frame_rate);
+            }
         }
         Ok(())
     }

@@ -8,8 +8,12 @@ use std::collections::BTreeMap;
 #[derive(Debug, Clone, Default)]
 pub(crate) struct RoutingGraph {
     pub(crate) successors: Vec<Vec<u32>>,
-    /// Node id -> states whose bounds contain the node.
+    /// Node id -> states whose right bound (in their driving direction) contains the node: the
+    /// 2015 rule (seed §3.3.2) for which lanelets a start or end node selects.
     pub(crate) node_states: BTreeMap<i64, Vec<u32>>,
+    /// Node id -> states whose left bound (in their driving direction) contains the node: the
+    /// fallback for nodes on no right bound (Lanelet2 maps tag the left marking too).
+    pub(crate) node_left_states: BTreeMap<i64, Vec<u32>>,
 }
 
 /// What the graph needs of one lanelet (in map order).
@@ -41,6 +45,7 @@ impl RoutingGraph {
         let mut valid = vec![false; 2 * n];
         let mut by_start: BTreeMap<(i64, i64), Vec<u32>> = BTreeMap::new();
         let mut node_states: BTreeMap<i64, Vec<u32>> = BTreeMap::new();
+        let mut node_left_states: BTreeMap<i64, Vec<u32>> = BTreeMap::new();
         let ends = |l: &GraphLanelet<'_>, reversed: bool| {
             let (r, lft) = (l.right_nodes, l.left_nodes);
             if reversed {
@@ -60,10 +65,14 @@ impl RoutingGraph {
                 let state = (2 * i + reversed as usize) as u32;
                 valid[state as usize] = true;
                 by_start.entry(ends(l, reversed).0).or_default().push(state);
-                for node in l.left_nodes.iter().chain(l.right_nodes) {
-                    let v = node_states.entry(*node).or_default();
-                    if v.last() != Some(&state) {
-                        v.push(state);
+                let (right, left) =
+                    if reversed { (l.left_nodes, l.right_nodes) } else { (l.right_nodes, l.left_nodes) };
+                for (nodes, index) in [(right, &mut node_states), (left, &mut node_left_states)] {
+                    for node in nodes {
+                        let v = index.entry(*node).or_default();
+                        if v.last() != Some(&state) {
+                            v.push(state);
+                        }
                     }
                 }
             }
@@ -75,7 +84,7 @@ impl RoutingGraph {
                     successors[2 * i] = next.iter().filter(|&&j| valid[2 * j]).map(|&j| (2 * j) as u32).collect();
                 }
             }
-            return RoutingGraph { successors, node_states };
+            return RoutingGraph { successors, node_states, node_left_states };
         }
         for (state, ok) in valid.iter().enumerate() {
             if *ok {
@@ -85,6 +94,6 @@ impl RoutingGraph {
                 }
             }
         }
-        RoutingGraph { successors, node_states }
+        RoutingGraph { successors, node_states, node_left_states }
     }
 }

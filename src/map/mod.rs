@@ -24,4 +24,4 @@ pub use error::{MapError, MapWarning};
 pub use lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay};
 pub use path::{Path, PathProjection};
 pub use projection::Projector;
-pub use routing::{Place, RouteOptions, RouteSearch};
+pub use routing::{Place, RouteOptions, RouteSearch, Routed};

@@ -63,11 +63,29 @@ fn mm(metres: f64) -> u64 {
     (metres.max(0.0) * 1000.0).round() as u64
 }
 
-/// A search end: a directed lanelet and how far along its centre line the node lies [m].
+/// A search end: a directed lanelet, how far along its centre line the node lies [m], which node
+/// it stands for and whether it was found on the lanelet's left bound (the fallback).
 #[derive(Debug, Clone, Copy)]
 struct End {
     state: u32,
     along: f64,
+    node: i64,
+    left: bool,
+}
+
+/// A route or loop with what the search chose: the nodes actually used (a tag may name several)
+/// and a note when a node was matched by the left-bound fallback instead of the 2015 rule.
+#[derive(Debug, Clone)]
+pub struct Routed {
+    /// The path.
+    pub path: Path,
+    /// Node the path starts at.
+    pub from_node: i64,
+    /// Node the path ends at (for a loop, the same as `from_node`).
+    pub to_node: i64,
+    /// Set when a used node lies on no lanelet's right bound and a lanelet whose left bound holds
+    /// it was taken instead (Lanelet2 maps); says which node and lanelet.
+    pub note: Option<String>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -111,14 +129,22 @@ impl LaneletMap {
         self.tag_index.get(value).map(Vec::as_slice).ok_or_else(|| MapError::UnknownTag(value.to_string()))
     }
 
-    /// Every directed routable lanelet the nodes lie on, with the position along it.
+    /// The directed routable lanelets each node selects, with the position along them: the 2015
+    /// rule (seed §3.3.2) takes the lanelets whose right bound (in driving direction) holds the
+    /// node; only a node on no right bound falls back to the lanelets whose left bound holds it.
     fn ends_of(&self, nodes: &[i64]) -> Result<Vec<End>, MapError> {
         let mut out = Vec::new();
         for &id in nodes {
             let node = self.nodes.get(&id).ok_or(MapError::UnknownNode(id))?;
-            for &state in self.graph.node_states.get(&id).map(Vec::as_slice).unwrap_or(&[]) {
+            let right = self.graph.node_states.get(&id).map(Vec::as_slice).unwrap_or(&[]);
+            let (states, left) = if right.is_empty() {
+                (self.graph.node_left_states.get(&id).map(Vec::as_slice).unwrap_or(&[]), true)
+            } else {
+                (right, false)
+            };
+            for &state in states {
                 let (along, _) = project_polyline(&self.state_centre(state), node.position);
-                out.push(End { state, along });
+                out.push(End { state, along, node: id, left });
             }
         }
         if out.is_empty() {
@@ -151,7 +177,14 @@ impl LaneletMap {
 
     /// Shortest route between two places, each a node id or a node tag value.
     pub fn route_places(&self, from: &Place, to: &Place, opts: &RouteOptions) -> Result<Path, MapError> {
-        self.route_places_with(from, to, opts, RouteSearch::default())
+        Ok(self.route_places_routed(from, to, opts)?.path)
+    }
+
+    /// [`Self::route_places`] with the nodes it used and the fallback note. A tag naming several
+    /// nodes is the best of all of them: the shortest route from any start node to any end node.
+    pub fn route_places_routed(&self, from: &Place, to: &Place, opts: &RouteOptions) -> Result<Routed, MapError> {
+        let (from_nodes, to_nodes) = (self.place_nodes(from)?, self.place_nodes(to)?);
+        self.route_between(&from_nodes, &to_nodes, from.to_string(), to.to_string(), opts, RouteSearch::default())
     }
 
     /// [`Self::route_places`] with a chosen search algorithm.
@@ -163,12 +196,34 @@ impl LaneletMap {
         search: RouteSearch,
     ) -> Result<Path, MapError> {
         let (from_nodes, to_nodes) = (self.place_nodes(from)?, self.place_nodes(to)?);
-        self.route_between(&from_nodes, &to_nodes, from.to_string(), to.to_string(), opts, search)
+        Ok(self.route_between(&from_nodes, &to_nodes, from.to_string(), to.to_string(), opts, search)?.path)
     }
 
     /// Shortest closed loop through a place (a node id or a node tag value).
     pub fn closed_loop_at(&self, place: &Place, opts: &RouteOptions) -> Result<Path, MapError> {
+        Ok(self.closed_loop_routed(place, opts)?.path)
+    }
+
+    /// [`Self::closed_loop_at`] with the node it used and the fallback note. A tag naming several
+    /// nodes is the best of all of them: the shortest loop through any of them.
+    pub fn closed_loop_routed(&self, place: &Place, opts: &RouteOptions) -> Result<Routed, MapError> {
         self.loop_through(&self.place_nodes(place)?, place.to_string(), opts)
+    }
+
+    /// The note for ends matched on a left bound, `None` when both follow the 2015 rule.
+    fn fallback_note(&self, ends: &[End]) -> Option<String> {
+        let notes: Vec<String> = ends
+            .iter()
+            .filter(|e| e.left)
+            .map(|e| {
+                format!(
+                    "node {} lies on no lanelet's right bound; used lanelet {} whose left bound holds it",
+                    e.node,
+                    self.lanelets[e.state as usize / 2].id
+                )
+            })
+            .collect();
+        if notes.is_empty() { None } else { Some(notes.join("; ")) }
     }
 
     /// The node ids a place stands for.
@@ -192,7 +247,7 @@ impl LaneletMap {
         to_name: String,
         opts: &RouteOptions,
         search: RouteSearch,
-    ) -> Result<Path, MapError> {
+    ) -> Result<Routed, MapError> {
         check_options(opts)?;
         let starts = self.useful_ends(from, true)?;
         let finals = self.useful_ends(to, false)?;
@@ -267,27 +322,32 @@ impl LaneletMap {
         let fin = finals[k as usize];
         let mut states: Vec<u32> =
             steps.iter().filter_map(|s| if let Step::Exit(st) = s { Some(*st) } else { None }).collect();
-        let (first_along, last_along);
-        if states.is_empty() {
+        let start = if states.is_empty() {
             // Same lanelet: the start is the furthest-along start candidate behind the end.
             let start = starts
                 .iter()
                 .filter(|s| s.state == fin.state && s.along <= fin.along)
-                .map(|s| s.along)
-                .fold(f64::NEG_INFINITY, f64::max);
+                .fold(None::<End>, |b, s| if b.is_some_and(|b| b.along >= s.along) { b } else { Some(*s) })
+                .expect("dijkstra only stays on a lanelet with a start behind the end");
             states.push(fin.state);
-            first_along = start;
+            start
         } else {
-            first_along = best_start[&states[0]].along;
+            let start = best_start[&states[0]];
             states.push(fin.state);
-        }
-        last_along = fin.along;
+            start
+        };
+        let (first_along, last_along) = (start.along, fin.along);
         let points = self.stitch(&states);
         let total = polyline_length(&points);
         let end_arc = total - self.state_length(fin.state) + last_along;
         let cropped = sub_polyline(&points, first_along, end_arc.max(first_along));
         let lanelets = states.iter().map(|&s| self.lanelets[s as usize / 2].id).collect();
-        Ok(Path::from_points(lanelets, resample(&cropped, opts.points_per_meter), false))
+        Ok(Routed {
+            path: Path::from_points(lanelets, resample(&cropped, opts.points_per_meter), false),
+            from_node: start.node,
+            to_node: fin.node,
+            note: self.fallback_note(&[start, fin]),
+        })
     }
 
     /// A* from [`Step::Start`] to the first [`Step::Final`] over arrays indexed by step (start,
@@ -367,7 +427,7 @@ impl LaneletMap {
         self.closed_loop_at(&Place::Tag(tag.into()), opts)
     }
 
-    fn loop_through(&self, nodes: &[i64], name: String, opts: &RouteOptions) -> Result<Path, MapError> {
+    fn loop_through(&self, nodes: &[i64], name: String, opts: &RouteOptions) -> Result<Routed, MapError> {
         check_options(opts)?;
         let mut best: Option<(u64, Vec<u32>, End)> = None;
         for start in self.ends_of(nodes)? {
@@ -411,7 +471,12 @@ impl LaneletMap {
         let mut points = resample(&rotated, opts.points_per_meter);
         points.pop();
         let lanelets = states.iter().map(|&s| self.lanelets[s as usize / 2].id).collect();
-        Ok(Path::from_points(lanelets, points, true))
+        Ok(Routed {
+            path: Path::from_points(lanelets, points, true),
+            from_node: start.node,
+            to_node: start.node,
+            note: self.fallback_note(&[start]),
+        })
     }
 
     /// Number of (i, j) lanelet pairs where j follows i.

@@ -120,9 +120,9 @@ pub fn ring_highway(params: &RingParams) -> Result<String, GenerateError> {
 /// `radius + b * lane_width` drawn as 4 quarter ways in the driving direction and shared by the
 /// two lanes beside it; the two road edges are `line_type=exterior`, the lines between lanes
 /// `interior`. Lane `k` from the right carries [`ring_lane_tag`] on the node where its first
-/// lanelet starts, on its outer bound (its right bound when counter-clockwise, as in HighwaySML;
-/// its left bound when clockwise). The outer bound is used because the lane sharing that line
-/// is the longer one, so the shortest closed loop through the node is this lane's.
+/// lanelet starts, on its right bound (the outer circle when counter-clockwise, as in HighwaySML;
+/// the inner one when clockwise): routing selects the lanes whose right bound holds a node (the
+/// 2015 rule), so the node picks this lane in either direction.
 ///
 /// Counts: `1 + 4 n (lanes + 1)` nodes with `n = max(2, ceil(pi/2 * r_outer / node_spacing))`
 /// segments per quarter, `4 (lanes + 1)` ways, `4 lanes` lanelets and successor pairs.
@@ -166,7 +166,8 @@ pub fn write_ring_highway<W: Write>(params: &RingParams, out: W) -> Result<MapSt
             b.lanelet(l, r);
         }
         let k = if p.clockwise { m } else { p.lanes - 1 - m };
-        b.tag(circles[m + 1][0], "destination", ring_lane_tag(p.lanes, k));
+        // On the lane's right marking: the 2015 rule selects the lane whose right bound holds it.
+        b.tag(circles[right][0], "destination", ring_lane_tag(p.lanes, k));
     }
     Ok(b.write(out)?)
 }
