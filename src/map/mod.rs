@@ -12,6 +12,7 @@ pub mod generate;
 mod graph;
 pub mod lanelet;
 mod loader;
+pub mod neighbours;
 pub mod osm;
 pub mod path;
 pub mod polyline;
@@ -20,6 +21,7 @@ pub mod routing;
 
 pub use error::{MapError, MapWarning};
 pub use lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay};
+pub use neighbours::Neighbours;
 pub use path::{Path, PathProjection};
 pub use projection::Projector;
 pub use routing::{Place, RouteOptions};
