@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
-use smlworld::map::{LaneletMap, Path, Place, RouteOptions};
+use smlworld::map::{LaneChange, LaneChangeOptions, LaneletMap, Path, Place, RouteOptions};
 
 use super::{map_generate, map_render};
 
@@ -60,6 +60,13 @@ pub struct RouteArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Allow lane changes into neighbours whose shared line allows it; lists them
+    /// (`lane_changes: [{from, to, at_m}]` in JSON).
+    #[arg(long)]
+    pub lane_changes: bool,
+    /// Cost of one lane change [m of driving] (with --lane-changes).
+    #[arg(long, default_value_t = 50.0, requires = "lane_changes")]
+    pub lane_change_penalty: f64,
 }
 
 /// `smlworld map loop MAP (--node ID | --tag T)`.
@@ -89,6 +96,15 @@ pub fn main(command: MapCommand) -> anyhow::Result<()> {
             let map = load(&a.map)?;
             let from = place(a.from, a.from_tag);
             let to = place(a.to, a.to_tag);
+            if a.lane_changes {
+                let opts = LaneChangeOptions {
+                    points_per_meter: a.points_per_meter,
+                    change_penalty_m: a.lane_change_penalty,
+                    ..LaneChangeOptions::default()
+                };
+                let route = map.route_with_lane_changes(&from, &to, &opts)?;
+                return print_path_with_changes(&route.path, Some(&route.lane_changes), a.json);
+            }
             let path = map.route_places(&from, &to, &RouteOptions { points_per_meter: a.points_per_meter })?;
             print_path(&path, a.json)
         }
@@ -211,13 +227,28 @@ struct PathJson {
     lanelets: Vec<i64>,
     length_m: f64,
     points: Vec<[f64; 2]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    lane_changes: Option<Vec<LaneChangeJson>>,
+}
+
+#[derive(Serialize)]
+struct LaneChangeJson {
+    from: i64,
+    to: i64,
+    at_m: f64,
 }
 
 fn print_path(path: &Path, json: bool) -> anyhow::Result<()> {
+    print_path_with_changes(path, None, json)
+}
+
+fn print_path_with_changes(path: &Path, changes: Option<&[LaneChange]>, json: bool) -> anyhow::Result<()> {
     let out = PathJson {
         lanelets: path.lanelets.iter().map(|l| l.0).collect(),
         length_m: path.length,
         points: path.points.iter().map(|p| [p.x, p.y]).collect(),
+        lane_changes: changes
+            .map(|c| c.iter().map(|c| LaneChangeJson { from: c.from.0, to: c.to.0, at_m: c.at_m }).collect()),
     };
     if json {
         println!("{}", serde_json::to_string(&out).context("writing JSON")?);
@@ -231,6 +262,9 @@ fn print_path(path: &Path, json: bool) -> anyhow::Result<()> {
         out.lanelets
     );
     println!("{} points, {:.3} m apart", out.points.len(), path.spacing());
+    for c in out.lane_changes.iter().flatten() {
+        println!("lane change {} -> {} at {:.2} m", c.from, c.to, c.at_m);
+    }
     if let (Some(a), Some(b)) = (path.points.first(), path.points.last()) {
         println!("from ({:.2}, {:.2}) to ({:.2}, {:.2}) [m]", a.x, a.y, b.x, b.y);
     }

@@ -10,6 +10,7 @@
 pub mod error;
 pub mod generate;
 mod graph;
+pub mod lane_routing;
 pub mod lanelet;
 mod loader;
 pub mod neighbours;
@@ -20,6 +21,7 @@ pub mod projection;
 pub mod routing;
 
 pub use error::{MapError, MapWarning};
+pub use lane_routing::{LaneChange, LaneChangeOptions, LaneChangeRoute};
 pub use lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay};
 pub use neighbours::Neighbours;
 pub use path::{Path, PathProjection};
