@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
 use smlworld::map::commonroad::{CommonRoadScenario, CommonRoadState, is_commonroad};
-use smlworld::map::{LaneletMap, Place, RouteOptions, Routed};
+use smlworld::map::{LaneChange, LaneChangeOptions, LaneletMap, Place, RouteOptions, Routed};
 
 use super::{map_generate, map_render};
 
@@ -61,6 +61,13 @@ pub struct RouteArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Allow lane changes into neighbours whose shared line allows it; lists them
+    /// (`lane_changes: [{from, to, at_m}]` in JSON).
+    #[arg(long)]
+    pub lane_changes: bool,
+    /// Cost of one lane change [m of driving] (with --lane-changes).
+    #[arg(long, default_value_t = 50.0, requires = "lane_changes")]
+    pub lane_change_penalty: f64,
 }
 
 /// `smlworld map loop MAP (--node ID | --tag T)`.
@@ -90,6 +97,17 @@ pub fn main(command: MapCommand) -> anyhow::Result<()> {
             let map = load(&a.map)?;
             let from = place(a.from, a.from_tag);
             let to = place(a.to, a.to_tag);
+            if a.lane_changes {
+                let opts = LaneChangeOptions {
+                    points_per_meter: a.points_per_meter,
+                    change_penalty_m: a.lane_change_penalty,
+                    ..LaneChangeOptions::default()
+                };
+                let route = map.route_with_lane_changes(&from, &to, &opts)?;
+                let first = |p: &Place| map.place_nodes(p).ok().and_then(|n| n.first().copied()).unwrap_or_default();
+                let routed = Routed { path: route.path, from_node: first(&from), to_node: first(&to), note: None };
+                return print_path_with_changes(&routed, Some(&route.lane_changes), a.json);
+            }
             let routed = map.route_places_routed(&from, &to, &RouteOptions { points_per_meter: a.points_per_meter })?;
             print_path(&routed, a.json)
         }
@@ -282,9 +300,22 @@ struct PathJson<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     note: Option<&'a str>,
     points: Vec<[f64; 2]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    lane_changes: Option<Vec<LaneChangeJson>>,
+}
+
+#[derive(Serialize)]
+struct LaneChangeJson {
+    from: i64,
+    to: i64,
+    at_m: f64,
 }
 
 fn print_path(routed: &Routed, json: bool) -> anyhow::Result<()> {
+    print_path_with_changes(routed, None, json)
+}
+
+fn print_path_with_changes(routed: &Routed, changes: Option<&[LaneChange]>, json: bool) -> anyhow::Result<()> {
     let path = &routed.path;
     let out = PathJson {
         lanelets: path.lanelets.iter().map(|l| l.0).collect(),
@@ -293,6 +324,8 @@ fn print_path(routed: &Routed, json: bool) -> anyhow::Result<()> {
         to_node: routed.to_node,
         note: routed.note.as_deref(),
         points: path.points.iter().map(|p| [p.x, p.y]).collect(),
+        lane_changes: changes
+            .map(|c| c.iter().map(|c| LaneChangeJson { from: c.from.0, to: c.to.0, at_m: c.at_m }).collect()),
     };
     if json {
         println!("{}", serde_json::to_string(&out).context("writing JSON")?);
@@ -306,6 +339,9 @@ fn print_path(routed: &Routed, json: bool) -> anyhow::Result<()> {
         out.lanelets
     );
     println!("{} points, {:.3} m apart", out.points.len(), path.spacing());
+    for c in out.lane_changes.iter().flatten() {
+        println!("lane change {} -> {} at {:.2} m", c.from, c.to, c.at_m);
+    }
     if let (Some(a), Some(b)) = (path.points.first(), path.points.last()) {
         println!(
             "from node {} ({:.2}, {:.2}) to node {} ({:.2}, {:.2}) [m]",

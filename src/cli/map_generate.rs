@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use smlworld::map::generate::{self, GridParams, IntersectionParams, MapStats, RingParams};
+use smlworld::map::generate::{self, GridParams, IntersectionParams, LaneDropParams, MapStats, RingParams};
 
 /// Which map to generate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -21,6 +21,9 @@ pub enum MapKind {
     /// Grid city of ROWS x COLS blocks with all turns at every junction (--rows, --cols, --block,
     /// --lanes, --lane-width, --corner-radius, --node-spacing).
     Grid,
+    /// Straight two-lane road whose left lane ends, for the GCDC merge (--length, --drop-at,
+    /// --lane-width, --node-spacing).
+    LaneDrop,
 }
 
 /// Arguments of `map generate`. Flags left out take the defaults shown; a flag that does not
@@ -29,7 +32,8 @@ pub enum MapKind {
 #[command(after_help = "Examples:\n  smlworld map generate ring --out ring.osm\n  \
     smlworld map generate grid --rows 30 --cols 30 --out city.osm\n\n\
     Destination tags: ring lanes right_lane_node/center_lane_node/left_lane_node (3 lanes) or \
-    lane_<k>_node; intersections <arm>_start and <arm>_end; grids r<row>c<col>_<arm>.")]
+    lane_<k>_node; intersections <arm>_start and <arm>_end; grids r<row>c<col>_<arm>; lane-drop \
+    lane_drop_right_start, lane_drop_left_start, lane_drop_left_end, lane_drop_end.")]
 pub struct GenerateArgs {
     /// Kind of map.
     #[arg(value_enum)]
@@ -67,6 +71,12 @@ pub struct GenerateArgs {
     /// Grid only: distance between neighbouring junction centres [m] (default 50.0).
     #[arg(long, value_name = "M")]
     pub block: Option<f64>,
+    /// Lane drop only: length of the road [m] (default 500.0).
+    #[arg(long, value_name = "M")]
+    pub length: Option<f64>,
+    /// Lane drop only: where the left lane ends [m from the start] (default 300.0).
+    #[arg(long, value_name = "M")]
+    pub drop_at: Option<f64>,
 }
 
 /// Run `map generate`: one match arm per generator, each a few lines of argument checks (81
@@ -81,6 +91,9 @@ pub fn main(a: GenerateArgs) -> anyhow::Result<()> {
         ("--rows", a.rows.is_some(), a.kind == MapKind::Grid),
         ("--cols", a.cols.is_some(), a.kind == MapKind::Grid),
         ("--block", a.block.is_some(), a.kind == MapKind::Grid),
+        ("--length", a.length.is_some(), a.kind == MapKind::LaneDrop),
+        ("--drop-at", a.drop_at.is_some(), a.kind == MapKind::LaneDrop),
+        ("--lanes", a.lanes.is_some(), a.kind != MapKind::LaneDrop),
     ];
     for (flag, set, applies) in given {
         if set && !applies {
@@ -129,6 +142,17 @@ pub fn main(a: GenerateArgs) -> anyhow::Result<()> {
                 node_spacing: a.node_spacing.unwrap_or(d.node_spacing),
             };
             generate::write_grid_city(&p, file)
+        }
+        MapKind::LaneDrop => {
+            let d = LaneDropParams::default();
+            let p = LaneDropParams {
+                length: a.length.unwrap_or(d.length),
+                drop_at: a.drop_at.unwrap_or(d.drop_at),
+                lane_width: a.lane_width.unwrap_or(d.lane_width),
+                node_spacing: a.node_spacing.unwrap_or(d.node_spacing),
+                ..d
+            };
+            generate::write_lane_drop(&p, file)
         }
     };
     let stats = match written {

@@ -21,6 +21,7 @@ pub mod acc;
 pub mod crossing;
 pub mod cruise;
 pub mod emergency;
+pub mod lane_change;
 pub mod longitudinal;
 pub mod path_following;
 pub mod platoon;

@@ -25,6 +25,7 @@
 //! The maps are built in memory (about 100 bytes per node) and streamed to any [`Write`] at
 //! about 35-70 MB/s (`benches/map.rs`), so a 20 MB grid city takes under a second.
 
+mod lane_drop;
 mod osm_writer;
 
 use std::f64::consts::{FRAC_PI_2, TAU};
@@ -33,6 +34,10 @@ use std::io::{self, Write};
 use glam::DVec2;
 
 use self::osm_writer::{Builder, EXTERIOR, INTERIOR, VIRTUAL, to_string};
+pub use lane_drop::{
+    LANE_DROP_END, LANE_DROP_LEFT_END, LANE_DROP_LEFT_START, LANE_DROP_RIGHT_START, LaneDropParams, lane_drop,
+    write_lane_drop,
+};
 
 /// Latitude of the origin of every generated map [deg] (the SML lab, Södertälje).
 pub const ORIGIN_LAT: f64 = 59.15;
