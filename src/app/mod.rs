@@ -38,9 +38,11 @@ mod output;
 mod run;
 mod runner;
 pub mod scenario;
+pub mod session;
 
 pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use output::{Log, MessagesDelivered, RunSummary, TrajectoryLog, TrajectoryLogPlugin, log_trajectories};
 pub use run::{RunError, RunOptions, ScenarioSource, run_scenario};
 pub use runner::{RealtimeRunner, RunReport, run_headless};
 pub use scenario::{Scenario, ScenarioError};
+pub use session::{CommandOverride, Session, SessionError, StateColumns};
