@@ -34,6 +34,8 @@ def wave(obs):
 
 
 sim.add_controller(leader, wave, rate=20.0)
+# (The followers still brake at 30 s: the leader's own Rust controller keeps running and keeps
+# announcing its scripted stop over wifi; only its command is replaced by ours.)
 
 times, speeds = [], []
 for _ in range(600):  # 60 s in steps of 0.1 s
