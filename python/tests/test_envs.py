@@ -58,3 +58,27 @@ def test_platoon_follow_tracks_and_collides():
     obs, rewards, term = _rollout(3, lambda o: np.array([3.0], dtype=np.float32), steps=600)
     assert term and rewards[-1] < -99.0
     assert obs[-1, 1] <= 0.0  # bumper to bumper
+
+
+def test_platoon_parallel_api():
+    from pettingzoo.test import parallel_api_test
+
+    from smlworld.envs import platoon_parallel_env
+
+    parallel_api_test(platoon_parallel_env(n=5), num_cycles=200)
+
+
+def test_platoon_parallel_observes_predecessor_over_wifi():
+    from smlworld.envs import platoon_parallel_env
+
+    env = platoon_parallel_env(n=3)
+    obs, _ = env.reset(seed=4)
+    assert set(obs) == {"member_0", "member_1", "member_2"}
+    heard = 0
+    for _ in range(50):
+        actions = {a: np.array([0.5 * (o[1] - (5 + o[0])) + o[2]], dtype=np.float32) for a, o in obs.items()}
+        obs, rew, term, trunc, info = env.step(actions)
+        heard += sum(o[3] != 0.0 for o in obs.values())
+        assert not any(term.values())
+    assert heard > 50
+    assert all(2.0 < info[a]["gap"] < 40.0 for a in info)
