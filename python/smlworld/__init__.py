@@ -147,6 +147,11 @@ class Sim:
         tick = math.ceil(self.time * rate - 1e-9)
         self._controllers.append((ids, fn, rate, tick))
 
+    def frame(self, width: int = 640, height: int = 480) -> np.ndarray:
+        """The bird's-eye view of the map with the vehicles now: an (height, width, 4) uint8 RGBA
+        array from the off-screen renderer (Vulkan; Mesa's lavapipe works without a GPU)."""
+        return self._core.frame(int(width), int(height))
+
     def send(self, id: int, channel: str, payload: bytes) -> None:
         """Queue ``payload`` from vehicle ``id`` on ``channel`` ("wifi" or "network"); it leaves
         at the channel's next V2V round, as a Rust controller's message does."""

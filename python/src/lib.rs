@@ -176,6 +176,12 @@ impl Core {
         self.lock().set_commands(ids, t, s, v).map_err(session_err)
     }
 
+    #[pyo3(signature = (width=640, height=480))]
+    fn frame<'py>(&self, py: Python<'py>, width: u32, height: u32) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
+        let pixels = py.detach(|| self.lock().frame(width, height)).map_err(session_err)?;
+        Ok(PyArray1::from_vec(py, pixels).reshape([height as usize, width as usize, 4])?)
+    }
+
     fn clear_commands(&self, ids: PyReadonlyArray1<'_, i32>) -> PyResult<()> {
         let ids = ids.as_slice().map_err(|_| PyValueError::new_err("ids must be a contiguous 1-d int array"))?;
         self.lock().clear_commands(ids).map_err(session_err)

@@ -110,3 +110,15 @@ def test_load_map_route_and_loop(root):
     seg = np.hypot(*np.diff(loop, axis=0).T)
     assert seg.max() < 5.0
     assert seg.sum() > 200.0
+
+
+def test_frame_is_an_rgba_picture_of_the_map(sim, tmp_path):
+    sim.step(1.0)
+    img = sim.frame(width=320, height=240)
+    assert img.shape == (240, 320, 4) and img.dtype == np.uint8
+    assert (img[..., 3] == 255).all()
+    # roads, grass and vehicles: many distinct colours, not a blank image
+    colours = np.unique(img.reshape(-1, 4), axis=0)
+    assert len(colours) > 20
+    with pytest.raises(ValueError, match="frame size"):
+        sim.frame(width=0, height=10)

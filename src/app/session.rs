@@ -24,6 +24,7 @@ use bevy_ecs::prelude::{Component, Query};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::map::LaneletMap;
+use crate::render::{FrameRecorder, RecorderOptions};
 use crate::sim::{Control, Sim, SimSystems};
 use crate::world::{Channel, ControlCommand, Mailbox, SensorReadings, SimTime, VehicleId, Vehicles};
 
@@ -159,6 +160,9 @@ pub fn load_scenario_with_overrides(
 /// A scenario's simulation, stepped by the caller.
 pub struct Session {
     sim: Sim,
+    /// The off-screen renderer of [`Session::frame`], made at the first call (and again when the
+    /// size changes).
+    renderer: Option<(u32, u32, FrameRecorder)>,
     scenario: Scenario,
     wall_seconds: f64,
     start: SimTime,
@@ -182,7 +186,7 @@ impl Session {
         b.add_systems(Control, apply_overrides.after(SimSystems::Control).before(SimSystems::Integrate));
         let sim = b.build();
         let start = sim.now();
-        Ok(Session { sim, scenario, wall_seconds: 0.0, start })
+        Ok(Session { sim, renderer: None, scenario, wall_seconds: 0.0, start })
     }
 
     /// The simulation.
@@ -220,6 +224,31 @@ impl Session {
         self.sim.run_for(dt);
         self.wall_seconds += wall.elapsed().as_secs_f64();
         Ok(())
+    }
+
+    /// The bird's-eye view of the whole map with the vehicles as they are now, `width` x `height`
+    /// RGBA pixels (row-major, 4 bytes per pixel), from the off-screen renderer.
+    pub fn frame(&mut self, width: u32, height: u32) -> Result<Vec<u8>, SessionError> {
+        if !(16..=8192).contains(&width) || !(16..=8192).contains(&height) {
+            return arg(format!("frame size must be 16..=8192 px each way, got {width} x {height}"));
+        }
+        if self.renderer.as_ref().is_none_or(|(w, h, _)| (*w, *h) != (width, height)) {
+            let Some(map) = self.scenario.map.as_ref() else {
+                return arg(format!(
+                    "frame draws the scenario's map, but {} names no `map`",
+                    self.scenario.path.display()
+                ));
+            };
+            let opts =
+                RecorderOptions { frames_dir: None, gif: None, frame_rate: 10.0, width, height, sensor_ranges: false };
+            let rec = FrameRecorder::new(map, &opts).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
+            self.renderer = Some((width, height, rec));
+        }
+        let Some((_, _, rec)) = self.renderer.as_mut() else {
+            return arg("renderer: not available".to_string());
+        };
+        let image = rec.render(self.sim.world()).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
+        Ok(image.into_raw())
     }
 
     /// Advance by `duration` [s] and summarise everything run so far as `summary.json` does.
