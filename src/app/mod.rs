@@ -40,6 +40,7 @@ mod replay;
 mod run;
 mod runner;
 pub mod scenario;
+pub mod session;
 
 pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use output::{
@@ -50,3 +51,4 @@ pub use replay::{ReplayError, ReplayOptions, ReplayReport, read_replay_info, rep
 pub use run::{RunError, RunOptions, ScenarioSource, run_scenario};
 pub use runner::{RealtimeRunner, RunReport, run_headless};
 pub use scenario::{Scenario, ScenarioError};
+pub use session::{CommandOverride, Session, SessionError, StateColumns};

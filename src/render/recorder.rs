@@ -125,6 +125,12 @@ impl FrameRecorder {
         Ok(())
     }
 
+    /// Render the world as it is now and return the frame, without writing it anywhere.
+    pub fn render(&mut self, world: &World) -> Result<image::RgbaImage, RenderError> {
+        sprites_from_world(world, self.sensor_ranges, &mut self.sprites);
+        self.renderer.render_frame(&self.layer, &self.sprites)
+    }
+
     /// Number of frames recorded so far.
     pub fn frames(&self) -> u64 {
         self.frames

@@ -1,0 +1,189 @@
+"""SML World as a Python library: the Rust simulator stepped from notebooks, learning code and
+parameter sweeps.
+
+Units: metres, seconds, radians, m/s, newtons. Arrays are numpy arrays; nothing creates a Python
+object per vehicle on the hot paths, and the GIL is released while Rust runs. Errors raise
+``FileNotFoundError`` (missing scenario or map) or ``ValueError`` carrying the Rust message (file,
+line, key or id).
+
+    import smlworld
+    sim = smlworld.Sim.from_scenario("scenarios/platoon_brake.toml", seed=3)
+    sim.step(1.0)
+    print(sim.time, sim.states()["vx"])
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+
+from . import _smlworld
+from ._smlworld import Map
+
+__all__ = ["Sim", "Map", "run", "load_map", "sweep"]
+
+
+class Sim:
+    """A scenario's simulation, advanced by the caller.
+
+    Build it with :meth:`Sim.from_scenario`. Python controllers added with
+    :meth:`add_controller` run at their rate between chunks of Rust stepping.
+    """
+
+    def __init__(self, core: "_smlworld.Core"):
+        self._core = core
+        self._controllers: List[Tuple[np.ndarray, Callable, float, int]] = []
+
+    @classmethod
+    def from_scenario(cls, path, seed: Optional[int] = None, **overrides) -> "Sim":
+        """Load a scenario file (TOML). ``seed`` replaces the scenario's seed; each override is
+        a dotted scenario key, e.g. ``duration=20.0`` or
+        ``**{"vehicles.controller.platoon.time_gap": 0.8}`` (a key through ``vehicles`` applies
+        to every vehicle that has the tables on the way)."""
+        return cls(_smlworld.Core.from_scenario(str(path), seed, **overrides))
+
+    @property
+    def time(self) -> float:
+        """Sim time [s]."""
+        return self._core.time
+
+    @property
+    def control_rate(self) -> float:
+        """The scenario's control rate [Hz]."""
+        return self._core.control_rate
+
+    def step(self, dt: float) -> None:
+        """Advance sim time by ``dt`` [s] through the normal multi-rate schedule; Python
+        controllers run at their ticks on the way."""
+        dt = float(dt)
+        if not math.isfinite(dt) or dt < 0:
+            raise ValueError(f"dt must be a finite number of seconds >= 0, got {dt}")
+        if not self._controllers:
+            self._core.step(dt)
+            return
+        end = self.time + dt
+        while True:
+            now = self.time
+            due = [(k, c) for k, c in enumerate(self._controllers) if c[3] / c[2] <= now + 1e-9]
+            for k, (ids, fn, rate, tick) in due:
+                self._call(ids, fn)
+                self._controllers[k] = (ids, fn, rate, tick + 1)
+            nxt = min(c[3] / c[2] for c in self._controllers)
+            if nxt >= end - 1e-9:
+                self._core.step(max(0.0, end - now))
+                return
+            self._core.step(nxt - now)
+
+    def _call(self, ids: np.ndarray, fn: Callable) -> None:
+        obs = self.observe(ids)
+        act = fn(obs)
+        if not isinstance(act, dict):
+            raise TypeError(f"a controller must return a dict of arrays, got {type(act).__name__}")
+        unknown = set(act) - {"throttle", "steering", "speed"}
+        if unknown:
+            raise ValueError(f"controller returned unknown keys {sorted(unknown)}; allowed: throttle, steering, speed")
+        self.set_commands(ids, **act)
+
+    def observe(self, ids) -> Dict[str, np.ndarray]:
+        """The observation a Python controller gets: ``id, x, y, yaw, vx, vy`` for ``ids``
+        (in that order) and ``time`` [s]."""
+        ids = np.asarray(ids, dtype=np.int32)
+        st = self.states()
+        pos = np.searchsorted(st["id"], ids)
+        pos = np.clip(pos, 0, len(st["id"]) - 1)
+        bad = st["id"][pos] != ids
+        if bad.any():
+            raise ValueError(f"unknown vehicle id {int(ids[bad][0])}; the scenario has ids {st['id'].tolist()}")
+        out = {k: v[pos] for k, v in st.items()}
+        out["time"] = np.full(len(ids), self.time)
+        return out
+
+    def run(self, duration: float) -> dict:
+        """Advance by ``duration`` [s]; returns the summary of everything run so far (the
+        content of ``summary.json``)."""
+        self.step(duration)
+        return self._core.summary()
+
+    def summary(self) -> dict:
+        """The content of ``summary.json`` for everything run so far."""
+        return self._core.summary()
+
+    def states(self) -> Dict[str, np.ndarray]:
+        """All vehicles, sorted by id: ``id`` (int32), ``x, y`` [m], ``yaw`` [rad], ``vx, vy`` [m/s]."""
+        return self._core.states()
+
+    def readings(self, id: int) -> np.ndarray:
+        """Vehicle ``id``'s sensor readings of the last sensor tick, nearest first: a (k, 5)
+        array of ``id, x, y, vx, vy`` [-, m, m, m/s, m/s]."""
+        return self._core.readings(int(id))
+
+    def set_commands(self, ids, throttle=None, steering=None, speed=None) -> None:
+        """Set commands for vehicles ``ids``: ``throttle`` [N] (acceleration model),
+        ``steering`` [rad], ``speed`` [m/s] (kinematic model), one finite value per id; a column
+        left out keeps its value. They act at once and win over the vehicle's own Rust controller
+        at every later control tick, until :meth:`clear_commands`."""
+        ids = np.ascontiguousarray(ids, dtype=np.int32).reshape(-1)
+
+        def col(a):
+            return None if a is None else np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+
+        self._core.set_commands(ids, col(throttle), col(steering), col(speed))
+
+    def clear_commands(self, ids) -> None:
+        """Give vehicles ``ids`` back to their own Rust controllers."""
+        self._core.clear_commands(np.ascontiguousarray(ids, dtype=np.int32).reshape(-1))
+
+    def add_controller(self, ids, fn: Callable[[dict], dict], rate: float = 20.0) -> None:
+        """Call ``fn(obs) -> dict`` every ``1/rate`` s of sim time for the whole batch ``ids``
+        (one call per tick). ``obs`` is :meth:`observe` of ``ids``; the result holds arrays
+        ``throttle`` [N], ``steering`` [rad] and/or ``speed`` [m/s], one value per id."""
+        rate = float(rate)
+        if not math.isfinite(rate) or rate <= 0:
+            raise ValueError(f"rate must be a positive number of Hz, got {rate}")
+        ids = np.ascontiguousarray(ids, dtype=np.int32).reshape(-1)
+        self.observe(ids)  # unknown ids fail here, not at the first tick
+        tick = math.ceil(self.time * rate - 1e-9)
+        self._controllers.append((ids, fn, rate, tick))
+
+    def frame(self, width: int = 640, height: int = 480) -> np.ndarray:
+        """The bird's-eye view of the map with the vehicles now: an (height, width, 4) uint8 RGBA
+        array from the off-screen renderer (Vulkan; Mesa's lavapipe works without a GPU)."""
+        return self._core.frame(int(width), int(height))
+
+    def send(self, id: int, channel: str, payload: bytes) -> None:
+        """Queue ``payload`` from vehicle ``id`` on ``channel`` ("wifi" or "network"); it leaves
+        at the channel's next V2V round, as a Rust controller's message does."""
+        self._core.send(int(id), channel, bytes(payload))
+
+    def inbox(self, id: int, channel: str) -> List[Tuple[int, bytes]]:
+        """Byte messages in vehicle ``id``'s in-box of ``channel``: ``[(sender, bytes), ...]``."""
+        return self._core.inbox(int(id), channel)
+
+    def models(self) -> Dict[str, np.ndarray]:
+        """Per vehicle (sorted by id): ``mass`` [kg] and ``drag`` [N s/m] (NaN for kinematic models)."""
+        return self._core.models()
+
+    def map(self) -> Optional[Map]:
+        """The scenario's map, if it names one."""
+        return self._core.map()
+
+
+def run(path, out=None, seed: Optional[int] = None, **overrides) -> dict:
+    """Do what ``smlworld run PATH --out OUT`` does (``out`` defaults to ``out``): write
+    ``trajectories.csv`` and ``summary.json``; returns the summary. Overrides as in
+    :meth:`Sim.from_scenario`."""
+    return _smlworld.run(str(path), None if out is None else str(out), seed, **overrides)
+
+
+def load_map(path) -> Map:
+    """Load a lanelet map: ``.lanelets`` (ids), ``.successors`` ((n, 2) pairs),
+    ``.centre(id)``, ``.route(from_node, to_node)`` and ``.loop(node)`` return numpy arrays
+    of points [m]."""
+    return _smlworld.load_map(str(path))
+
+
+# `smlworld.sweep(...)` runs a sweep and `python -m smlworld.sweep` reads a sweep file: the
+# module is callable (see smlworld/sweep.py), so both names stay one object.
+from . import sweep  # noqa: E402

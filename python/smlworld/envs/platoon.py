@@ -1,0 +1,106 @@
+"""``smlworld/PlatoonFollow-v0`` (see :mod:`smlworld.envs`)."""
+
+from __future__ import annotations
+
+import struct
+from importlib import resources
+from typing import Optional
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+import smlworld
+
+LEADER, EGO = -1, -2
+CAR_LENGTH = 4.5  # [m], the default car length
+A_MIN, A_MAX = -6.0, 3.0  # [m/s^2]
+DT = 0.1  # [s] per step
+MAX_STEPS = 600
+
+
+def _scenario_path() -> str:
+    return str(resources.files("smlworld") / "data" / "platoon_follow.toml")
+
+
+class PlatoonFollowEnv(gym.Env):
+    """Follow a leader that changes its speed every few seconds (see :mod:`smlworld.envs`)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, dt: float = DT, max_steps: int = MAX_STEPS):
+        self.dt = float(dt)
+        self.max_steps = int(max_steps)
+        self.action_space = spaces.Box(A_MIN, A_MAX, shape=(1,), dtype=np.float32)
+        high = np.array([40.0, 200.0, 40.0, 10.0], dtype=np.float32)
+        self.observation_space = spaces.Box(np.array([0.0, -50.0, -40.0, -10.0], dtype=np.float32), high, dtype=np.float32)
+        self._sim: Optional[smlworld.Sim] = None
+        self._ids = np.array([LEADER, EGO], dtype=np.int32)
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _kinematics(self):
+        st = self._sim.states()  # sorted by id: [-2, -1]
+        v = np.hypot(st["vx"], st["vy"])
+        centre = float(np.hypot(st["x"][1] - st["x"][0], st["y"][1] - st["y"][0]))
+        return float(v[1]), float(v[0]), centre - CAR_LENGTH
+
+    def _obs(self):
+        v_lead, v_ego, gap = self._kinematics()
+        a_lead = 0.0
+        msgs = self._sim.inbox(EGO, "wifi")
+        for sender, payload in msgs:
+            if sender == LEADER and len(payload) == 8:
+                a_lead = struct.unpack("<d", payload)[0]
+        if msgs:
+            self._last_a_lead = a_lead
+        obs = np.array([v_ego, gap, v_lead - v_ego, self._last_a_lead], dtype=np.float32)
+        return np.clip(obs, self.observation_space.low, self.observation_space.high), gap, v_ego
+
+    # -- gymnasium API -----------------------------------------------------------------------
+    def reset(self, *, seed: Optional[int] = None, options=None):
+        super().reset(seed=seed)
+        sim_seed = int(self.np_random.integers(0, 2**31 - 1))
+        self._sim = smlworld.Sim.from_scenario(_scenario_path(), seed=sim_seed)
+        m = self._sim.models()
+        self._mass, self._drag = m["mass"][::-1].copy(), m["drag"][::-1].copy()  # leader, ego
+        # the leader's speed profile: a new target every 4-10 s, 8-22 m/s
+        self._targets = []
+        t = 0.0
+        while t < self.max_steps * self.dt + 10:
+            t += float(self.np_random.uniform(4.0, 10.0))
+            self._targets.append((t, float(self.np_random.uniform(8.0, 22.0))))
+        self._target = 15.0
+        self._steps = 0
+        self._last_a = 0.0
+        self._last_a_lead = 0.0
+        self._a_lead = 0.0
+        obs, _, _ = self._obs()
+        return obs, {}
+
+    def step(self, action):
+        if self._sim is None:
+            raise RuntimeError("call reset() before step()")
+        a = float(np.clip(np.asarray(action, dtype=np.float64).reshape(-1)[0], A_MIN, A_MAX))
+        if not np.isfinite(a):
+            raise ValueError(f"action must be finite, got {action!r}")
+        t = self._sim.time
+        while self._targets and self._targets[0][0] <= t:
+            self._target = self._targets.pop(0)[1]
+        v_lead, v_ego, _ = self._kinematics()
+        self._a_lead = float(np.clip(0.5 * (self._target - v_lead), -3.0, 1.5))
+        accel = np.array([self._a_lead, a])
+        v = np.array([v_lead, v_ego])
+        self._sim.set_commands(self._ids, throttle=self._mass * accel + self._drag * v)
+        self._sim.send(LEADER, "wifi", struct.pack("<d", self._a_lead))
+        self._sim.step(self.dt)
+        self._steps += 1
+        obs, gap, v_ego = self._obs()
+        collided = gap <= 0.0
+        gap_ref = 5.0 + 1.0 * v_ego
+        jerk = (a - self._last_a) / self.dt
+        self._last_a = a
+        reward = -((gap - gap_ref) / gap_ref) ** 2 - 0.02 * a * a - 0.05 * (jerk * self.dt) ** 2
+        if collided:
+            reward -= 100.0
+        truncated = self._steps >= self.max_steps
+        return obs, float(reward), bool(collided), bool(truncated), {"gap": gap, "time": self._sim.time}

@@ -1,0 +1,181 @@
+"""Parameter sweeps: one run per grid point and seed, locally (process pool) or on Ray.
+
+    import smlworld
+    df = smlworld.sweep("scenarios/platoon_brake.toml",
+                        grid={"vehicles.controller.platoon.time_gap": [0.5, 1.0]},
+                        seeds=[1, 2, 3], backend="local")
+
+Grid keys are dotted scenario keys (see ``smlworld.Sim.from_scenario``). Each run is one task
+that carries the scenario text and its map's bytes, so a Ray cluster needs no shared file
+system. The result has one row per run: the parameters, ``seed``, and the summary's entries
+flattened with dots (``metrics.min_gap.-2``, ...).
+
+From a file (TOML: ``scenario`` relative to the file, ``seeds``, a ``[grid]`` table, optional
+``duration`` [s]):
+
+    python -m smlworld.sweep SWEEP.toml --backend ray --address auto --out results.parquet
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import re
+import sys
+import tempfile
+import types
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+_MAP_LINE = re.compile(r'^\s*map\s*=\s*"([^"]+)"', re.M)
+
+
+def _bundle(scenario) -> dict:
+    """The scenario text and its map's bytes: everything a task needs on any machine."""
+    path = Path(scenario)
+    text = path.read_text()
+    head = re.split(r"^\s*\[", text, maxsplit=1, flags=re.M)[0]  # top-level keys only
+    m = _MAP_LINE.search(head)
+    bundle = {"name": path.name, "text": text, "map_name": None, "map": None}
+    if m:
+        map_path = path.parent / m.group(1)
+        bundle["map_name"] = map_path.name
+        bundle["map"] = map_path.read_bytes()
+    return bundle
+
+
+def flatten(d, prefix: str = "") -> dict:
+    """Nested dicts to one level with dotted keys; lists become ``key.0``, ``key.1``, ..."""
+    out = {}
+    items = d.items() if isinstance(d, dict) else enumerate(d)
+    for k, v in items:
+        key = f"{prefix}{k}"
+        if isinstance(v, (dict, list, tuple)):
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def run_one(bundle: dict, params: dict, seed: int, duration: Optional[float] = None) -> dict:
+    """One sweep run in a fresh temporary folder; returns its table row."""
+    import smlworld
+
+    with tempfile.TemporaryDirectory(prefix="smlworld-sweep-") as tmp:
+        scenario = os.path.join(tmp, bundle["name"])
+        with open(scenario, "w") as f:
+            f.write(bundle["text"])
+        overrides = dict(params)
+        if bundle["map"] is not None:
+            with open(os.path.join(tmp, bundle["map_name"]), "wb") as f:
+                f.write(bundle["map"])
+            overrides["map"] = bundle["map_name"]
+        if duration is not None:
+            overrides["duration"] = float(duration)
+        summary = smlworld.run(scenario, out=os.path.join(tmp, "out"), seed=int(seed), **overrides)
+    row = dict(params)
+    row["seed"] = int(seed)
+    summary.pop("seed", None)
+    row.update(flatten(summary))
+    return row
+
+
+def _grid_points(grid: Dict[str, Sequence]) -> List[dict]:
+    keys = list(grid)
+    for k in keys:
+        if isinstance(grid[k], (str, bytes)) or not hasattr(grid[k], "__iter__"):
+            raise ValueError(f"grid[{k!r}] must be a list of values, got {grid[k]!r}")
+    return [dict(zip(keys, values)) for values in itertools.product(*(list(grid[k]) for k in keys))]
+
+
+def sweep(
+    scenario,
+    grid: Dict[str, Sequence],
+    seeds: Sequence[int] = (0,),
+    backend: str = "local",
+    address: Optional[str] = None,
+    duration: Optional[float] = None,
+    max_workers: Optional[int] = None,
+):
+    """Run ``scenario`` for every combination of ``grid`` values and every seed; returns a
+    ``pandas.DataFrame`` with one row per run (grid order, seeds innermost).
+
+    backend: ``"local"`` (a process pool on this machine) or ``"ray"`` (one Ray task per run;
+    ``address`` is passed to ``ray.init``, e.g. ``"auto"``; Ray is started locally when it is
+    None and not yet running). ``duration`` [s] overrides the scenario's duration."""
+    import pandas as pd
+
+    if backend not in ("local", "ray"):
+        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
+    bundle = _bundle(scenario)
+    jobs = [(p, int(s)) for p in _grid_points(grid) for s in seeds]
+    if backend == "local":
+        from concurrent.futures import ProcessPoolExecutor
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(max_workers=max_workers, mp_context=mp.get_context("spawn")) as pool:
+            futures = [pool.submit(run_one, bundle, p, s, duration) for p, s in jobs]
+            rows = [f.result() for f in futures]
+    else:
+        import ray
+
+        if not ray.is_initialized():
+            ray.init(address=address)
+        task = ray.remote(run_one)
+        ref = ray.put(bundle)
+        rows = ray.get([task.remote(ref, p, s, duration) for p, s in jobs])
+    return pd.DataFrame(rows)
+
+
+def _load_toml(path: Path) -> dict:
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python < 3.11
+        import tomli as tomllib
+    with open(path, "rb") as f:
+        return tomllib.load(f)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m smlworld.sweep", description="Run a parameter sweep from a TOML file.")
+    ap.add_argument("file", help="sweep file: scenario = PATH, seeds = [...], [grid] KEY = [values], duration = S")
+    ap.add_argument("--backend", choices=["local", "ray"], default="local")
+    ap.add_argument("--address", default=None, help="Ray cluster address (e.g. auto)")
+    ap.add_argument("--out", default="results.parquet", help="output table (.parquet or .csv)")
+    args = ap.parse_args(argv)
+    path = Path(args.file)
+    spec = _load_toml(path)
+    allowed = {"scenario", "seeds", "grid", "duration"}
+    unknown = set(spec) - allowed
+    if unknown:
+        raise SystemExit(f"{path}: unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}")
+    if "scenario" not in spec or "grid" not in spec:
+        raise SystemExit(f"{path}: needs `scenario` and a `[grid]` table")
+    df = sweep(
+        path.parent / spec["scenario"],
+        spec["grid"],
+        spec.get("seeds", [0]),
+        backend=args.backend,
+        address=args.address,
+        duration=spec.get("duration"),
+    )
+    if args.out.endswith(".csv"):
+        df.to_csv(args.out, index=False)
+    else:
+        df.to_parquet(args.out, index=False)
+    print(f"{len(df)} runs -> {args.out}")
+    return 0
+
+
+class _CallableModule(types.ModuleType):
+    """``smlworld.sweep`` is both this module and the function: calling it runs :func:`sweep`."""
+
+    def __call__(self, *args, **kwargs):
+        return sweep(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule
+
+if __name__ == "__main__":
+    sys.exit(main())

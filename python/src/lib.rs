@@ -1,0 +1,345 @@
+//! The `smlworld._smlworld` extension: thin PyO3 wrappers over [`smlworld::app::Session`],
+//! [`smlworld::app::run_scenario`] and [`smlworld::map::LaneletMap`]. Arrays go in and out as
+//! numpy arrays, the GIL is released while Rust runs, and every Rust error becomes a Python
+//! exception carrying its message (file, line, key or id).
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1};
+use pyo3::exceptions::{PyFileNotFoundError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyList};
+
+use smlworld::app::session::{SessionError, load_scenario_with_overrides};
+use smlworld::app::{RunError, RunOptions, ScenarioError, Session, StateColumns, run_scenario};
+use smlworld::map::{LaneletMap, MapError, RouteOptions};
+
+fn scenario_err(e: ScenarioError) -> PyErr {
+    match &e {
+        ScenarioError::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+            PyFileNotFoundError::new_err(e.to_string())
+        }
+        ScenarioError::Map { source, .. } if matches!(**source, MapError::Io { .. }) => {
+            PyFileNotFoundError::new_err(e.to_string())
+        }
+        _ => PyValueError::new_err(e.to_string()),
+    }
+}
+
+fn session_err(e: SessionError) -> PyErr {
+    match e {
+        SessionError::Scenario(e) => scenario_err(e),
+        SessionError::Argument(m) => PyValueError::new_err(m),
+    }
+}
+
+fn run_err(e: RunError) -> PyErr {
+    match e {
+        RunError::Scenario(e) => scenario_err(e),
+        RunError::Option(m) => PyValueError::new_err(m),
+        e => PyRuntimeError::new_err(e.to_string()),
+    }
+}
+
+/// Python value -> TOML value for an override (bool, int, float, str, list).
+fn to_toml(key: &str, v: &Bound<'_, PyAny>) -> PyResult<toml::Value> {
+    if let Ok(b) = v.extract::<bool>() {
+        return Ok(toml::Value::Boolean(b));
+    }
+    if let Ok(i) = v.extract::<i64>() {
+        return Ok(toml::Value::Integer(i));
+    }
+    if let Ok(f) = v.extract::<f64>() {
+        return Ok(toml::Value::Float(f));
+    }
+    if let Ok(s) = v.extract::<String>() {
+        return Ok(toml::Value::String(s));
+    }
+    if let Ok(l) = v.cast::<PyList>() {
+        return l.iter().map(|x| to_toml(key, &x)).collect::<PyResult<Vec<_>>>().map(toml::Value::Array);
+    }
+    Err(PyValueError::new_err(format!(
+        "override `{key}`: a value must be a bool, int, float, str or list, got {}",
+        v.get_type().name()?
+    )))
+}
+
+fn overrides(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Vec<(String, toml::Value)>> {
+    let mut out = Vec::new();
+    if let Some(kw) = kwargs {
+        for (k, v) in kw.iter() {
+            let key: String = k.extract()?;
+            let value = to_toml(&key, &v)?;
+            out.push((key, value));
+        }
+    }
+    Ok(out)
+}
+
+fn json_to_py<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyAny>> {
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+fn column<'py>(py: Python<'py>, v: &[f64]) -> Bound<'py, PyArray1<f64>> {
+    PyArray1::from_slice(py, v)
+}
+
+/// A scenario's simulation, stepped from Python (see `smlworld.Sim`).
+#[pyclass(module = "smlworld._smlworld")]
+struct Core {
+    session: Mutex<Session>,
+    states: Mutex<StateColumns>,
+}
+
+impl Core {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Session> {
+        self.session.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+fn slice<'a>(a: &'a Option<PyReadonlyArray1<'_, f64>>, name: &str) -> PyResult<Option<&'a [f64]>> {
+    match a {
+        Some(a) => a
+            .as_slice()
+            .map(Some)
+            .map_err(|_| PyValueError::new_err(format!("{name} must be a contiguous 1-d float array"))),
+        None => Ok(None),
+    }
+}
+
+#[pymethods]
+impl Core {
+    #[staticmethod]
+    #[pyo3(signature = (path, seed=None, **kwargs))]
+    fn from_scenario(
+        py: Python<'_>,
+        path: PathBuf,
+        seed: Option<u64>,
+        kwargs: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Core> {
+        let ov = overrides(kwargs)?;
+        let session = py.detach(|| Session::from_scenario(&path, seed, &ov)).map_err(session_err)?;
+        Ok(Core { session: Mutex::new(session), states: Mutex::new(StateColumns::default()) })
+    }
+
+    #[getter]
+    fn time(&self) -> f64 {
+        self.lock().time()
+    }
+
+    fn step(&self, py: Python<'_>, dt: f64) -> PyResult<()> {
+        py.detach(|| self.lock().step(dt)).map_err(session_err)
+    }
+
+    fn run<'py>(&self, py: Python<'py>, duration: f64) -> PyResult<Bound<'py, PyAny>> {
+        let summary = py.detach(|| self.lock().run(duration)).map_err(session_err)?;
+        let text = serde_json_string(&summary)?;
+        json_to_py(py, &text)
+    }
+
+    fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let summary = py.detach(|| self.lock().summary());
+        json_to_py(py, &serde_json_string(&summary)?)
+    }
+
+    fn states<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let mut cols = self.states.lock().unwrap_or_else(|p| p.into_inner());
+        self.lock().states_into(&mut cols);
+        let d = PyDict::new(py);
+        d.set_item("id", PyArray1::from_slice(py, &cols.id))?;
+        d.set_item("x", column(py, &cols.x))?;
+        d.set_item("y", column(py, &cols.y))?;
+        d.set_item("yaw", column(py, &cols.yaw))?;
+        d.set_item("vx", column(py, &cols.vx))?;
+        d.set_item("vy", column(py, &cols.vy))?;
+        Ok(d)
+    }
+
+    fn readings<'py>(&self, py: Python<'py>, id: i32) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let rows = self.lock().readings(id).map_err(session_err)?;
+        let flat: Vec<f64> = rows.iter().flatten().copied().collect();
+        let a = PyArray1::from_vec(py, flat);
+        Ok(a.reshape([rows.len(), 5])?)
+    }
+
+    #[pyo3(signature = (ids, throttle=None, steering=None, speed=None))]
+    fn set_commands(
+        &self,
+        ids: PyReadonlyArray1<'_, i32>,
+        throttle: Option<PyReadonlyArray1<'_, f64>>,
+        steering: Option<PyReadonlyArray1<'_, f64>>,
+        speed: Option<PyReadonlyArray1<'_, f64>>,
+    ) -> PyResult<()> {
+        let ids = ids.as_slice().map_err(|_| PyValueError::new_err("ids must be a contiguous 1-d int array"))?;
+        let (t, s, v) = (slice(&throttle, "throttle")?, slice(&steering, "steering")?, slice(&speed, "speed")?);
+        self.lock().set_commands(ids, t, s, v).map_err(session_err)
+    }
+
+    #[pyo3(signature = (width=640, height=480))]
+    fn frame<'py>(&self, py: Python<'py>, width: u32, height: u32) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
+        let pixels = py.detach(|| self.lock().frame(width, height)).map_err(session_err)?;
+        Ok(PyArray1::from_vec(py, pixels).reshape([height as usize, width as usize, 4])?)
+    }
+
+    fn clear_commands(&self, ids: PyReadonlyArray1<'_, i32>) -> PyResult<()> {
+        let ids = ids.as_slice().map_err(|_| PyValueError::new_err("ids must be a contiguous 1-d int array"))?;
+        self.lock().clear_commands(ids).map_err(session_err)
+    }
+
+    fn send(&self, id: i32, channel: &str, payload: &[u8]) -> PyResult<()> {
+        self.lock().send(id, channel, payload.to_vec()).map_err(session_err)
+    }
+
+    fn inbox<'py>(&self, py: Python<'py>, id: i32, channel: &str) -> PyResult<Vec<(i32, Bound<'py, PyBytes>)>> {
+        let msgs = self.lock().inbox(id, channel).map_err(session_err)?;
+        Ok(msgs.into_iter().map(|(s, b)| (s, PyBytes::new(py, &b))).collect())
+    }
+
+    /// Per vehicle (sorted by id): mass [kg] and drag [N s/m] of acceleration models, NaN for
+    /// kinematic ones.
+    fn models<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = self.lock();
+        let mut ids = Vec::new();
+        let mut mass = Vec::new();
+        let mut drag = Vec::new();
+        for v in &s.scenario().file.vehicles {
+            ids.push(v.id);
+            match v.model {
+                smlworld::app::scenario::ModelConfig::Acceleration { mass: m, drag: d, .. } => {
+                    mass.push(m);
+                    drag.push(d);
+                }
+                _ => {
+                    mass.push(f64::NAN);
+                    drag.push(f64::NAN);
+                }
+            }
+        }
+        let mut order: Vec<usize> = (0..ids.len()).collect();
+        order.sort_by_key(|&i| ids[i]);
+        let d = PyDict::new(py);
+        d.set_item("id", PyArray1::from_vec(py, order.iter().map(|&i| ids[i]).collect()))?;
+        d.set_item("mass", PyArray1::from_vec(py, order.iter().map(|&i| mass[i]).collect()))?;
+        d.set_item("drag", PyArray1::from_vec(py, order.iter().map(|&i| drag[i]).collect()))?;
+        Ok(d)
+    }
+
+    /// The control rate of the scenario [Hz].
+    #[getter]
+    fn control_rate(&self) -> f64 {
+        self.lock().scenario().file.rates.control
+    }
+
+    /// The scenario's map, if any.
+    fn map(&self) -> Option<Map> {
+        self.lock().map().cloned().map(|m| Map { map: m })
+    }
+}
+
+fn serde_json_string(summary: &smlworld::app::RunSummary) -> PyResult<String> {
+    serde_json::to_string(summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
+/// `smlworld run`: run a scenario file (with overrides) and write trajectories.csv and
+/// summary.json into `out`; returns the summary.
+#[pyfunction]
+#[pyo3(signature = (path, out=None, seed=None, **kwargs))]
+fn run<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    out: Option<PathBuf>,
+    seed: Option<u64>,
+    kwargs: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let ov = overrides(kwargs)?;
+    let summary = py.detach(|| -> Result<_, PyErr> {
+        let scenario = load_scenario_with_overrides(&path, seed, &ov).map_err(session_err)?;
+        let mut options = RunOptions { progress: false, ..RunOptions::default() };
+        if let Some(out) = out {
+            options.out = out;
+        }
+        run_scenario(scenario, options).map_err(run_err)
+    })?;
+    json_to_py(py, &serde_json_string(&summary)?)
+}
+
+/// A lanelet map (see `smlworld.load_map`).
+#[pyclass(module = "smlworld._smlworld", frozen)]
+struct Map {
+    map: Arc<LaneletMap>,
+}
+
+fn points<'py>(py: Python<'py>, pts: &[smlworld::prelude::DVec2]) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let flat: Vec<f64> = pts.iter().flat_map(|p| [p.x, p.y]).collect();
+    Ok(PyArray1::from_vec(py, flat).reshape([pts.len(), 2])?)
+}
+
+#[pymethods]
+impl Map {
+    /// Lanelet ids, ascending.
+    #[getter]
+    fn lanelets<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i64>> {
+        PyArray1::from_vec(py, self.map.lanelets.iter().map(|l| l.id.0).collect())
+    }
+
+    /// Successor pairs `(from, to)` as an (n, 2) int array.
+    #[getter]
+    fn successors<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<i64>>> {
+        let pairs: Vec<i64> =
+            self.map.lanelets.iter().flat_map(|l| l.successors.iter().flat_map(move |s| [l.id.0, s.0])).collect();
+        let n = pairs.len() / 2;
+        Ok(PyArray1::from_vec(py, pairs).reshape([n, 2])?)
+    }
+
+    /// Centre line of lanelet `id` as an (n, 2) array [m].
+    fn centre<'py>(&self, py: Python<'py>, id: i64) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let l = self
+            .map
+            .lanelet(smlworld::map::LaneletId(id))
+            .ok_or_else(|| PyValueError::new_err(format!("unknown lanelet id {id}")))?;
+        points(py, &l.centre)
+    }
+
+    /// Shortest route from node `from_node` to node `to_node` as an (n, 2) array of points [m].
+    fn route<'py>(&self, py: Python<'py>, from_node: i64, to_node: i64) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let p = self
+            .map
+            .route(from_node, to_node, &RouteOptions::default())
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        points(py, &p.points)
+    }
+
+    /// The closed loop through node `node` (an id, or a node tag value such as
+    /// "right_lane_node") as an (n, 2) array of points [m].
+    #[pyo3(name = "loop")]
+    fn closed_loop<'py>(&self, py: Python<'py>, node: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let opts = RouteOptions::default();
+        let p = if let Ok(id) = node.extract::<i64>() {
+            self.map.closed_loop(id, &opts)
+        } else {
+            self.map.closed_loop_tag(&node.extract::<String>()?, &opts)
+        }
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        points(py, &p.points)
+    }
+}
+
+/// Load a lanelet map (JOSM/OSM XML).
+#[pyfunction]
+fn load_map(py: Python<'_>, path: PathBuf) -> PyResult<Map> {
+    let map = py.detach(|| LaneletMap::load(&path)).map_err(|e| match e {
+        MapError::Io { .. } => PyFileNotFoundError::new_err(e.to_string()),
+        e => PyValueError::new_err(e.to_string()),
+    })?;
+    Ok(Map { map: Arc::new(map) })
+}
+
+#[pymodule]
+fn _smlworld(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Core>()?;
+    m.add_class::<Map>()?;
+    m.add_function(wrap_pyfunction!(run, m)?)?;
+    m.add_function(wrap_pyfunction!(load_map, m)?)?;
+    Ok(())
+}

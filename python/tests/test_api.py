@@ -1,0 +1,124 @@
+"""The core API: stepping, states, readings, commands, Python controllers, V2V bytes, maps."""
+
+import math
+
+import numpy as np
+import pytest
+
+import smlworld
+
+PLATOON = "scenarios/platoon_brake.toml"
+
+
+@pytest.fixture
+def sim(root):
+    return smlworld.Sim.from_scenario(root / PLATOON, seed=3, duration=10.0)
+
+
+def test_step_advances_time_and_states_are_sorted_columns(sim):
+    assert sim.time == 0.0
+    s0 = sim.states()
+    assert list(s0) == ["id", "x", "y", "yaw", "vx", "vy"]
+    assert s0["id"].tolist() == [-5, -4, -3, -2, -1]
+    sim.step(0.5)
+    assert sim.time == pytest.approx(0.5)
+    s1 = sim.states()
+    # the trucks drive at 15 m/s: in 0.5 s each moves about 7.5 m
+    moved = np.hypot(s1["x"] - s0["x"], s1["y"] - s0["y"])
+    assert np.all((moved > 7.0) & (moved < 8.0)), moved
+    speeds = np.hypot(s1["vx"], s1["vy"])
+    assert speeds[-1] == pytest.approx(15.0)  # the leader cruises
+    assert np.all((speeds > 12.0) & (speeds <= 15.0 + 1e-9))  # followers open their gaps
+
+
+def test_stepping_in_chunks_equals_one_step(root):
+    a = smlworld.Sim.from_scenario(root / PLATOON, seed=3)
+    b = smlworld.Sim.from_scenario(root / PLATOON, seed=3)
+    a.step(3.0)
+    for _ in range(30):
+        b.step(0.1)
+    for k in ("x", "y", "vx", "vy"):
+        assert np.array_equal(a.states()[k], b.states()[k])
+
+
+def test_run_returns_the_summary(sim):
+    summary = sim.run(10.0)
+    assert summary["sim_seconds"] == pytest.approx(10.0)
+    assert summary["vehicles"] == 5
+    assert summary["seed"] == 3
+    assert summary["metrics"]["collision_count"] == 0
+
+
+def test_readings_nearest_first(sim):
+    sim.step(1.0)
+    r = sim.readings(-2)  # the truck behind the leader sees it with its radar
+    assert r.shape[1] == 5 and r.shape[0] >= 1
+    assert r[0, 0] == -1
+    st = sim.states()
+    me = np.array([st["x"][st["id"] == -2][0], st["y"][st["id"] == -2][0]])
+    d = np.hypot(r[:, 1] - me[0], r[:, 2] - me[1])
+    assert np.all(np.diff(d) >= 0)
+    assert 15.0 < d[0] < 30.0  # 21.5 m between centres at the start
+
+
+def test_set_commands_brakes_a_vehicle(root):
+    sim = smlworld.Sim.from_scenario(root / PLATOON, seed=3)
+    ids = np.array([-1])
+    # a Python controller that brakes the leader hard at every control tick overrides nothing
+    # of the followers and stops the leader
+    sim.add_controller(ids, lambda obs: {"throttle": np.full(len(obs["id"]), -60000.0)}, rate=50.0)
+    v0 = float(np.hypot(*[sim.states()[k][sim.states()["id"] == -1][0] for k in ("vx", "vy")]))
+    sim.step(1.0)
+    st = sim.states()
+    v1 = float(np.hypot(st["vx"][st["id"] == -1][0], st["vy"][st["id"] == -1][0]))
+    assert v1 < v0 - 3.0, (v0, v1)
+
+
+def test_python_controller_called_once_per_tick_for_the_batch(root):
+    sim = smlworld.Sim.from_scenario(root / PLATOON, seed=3)
+    calls = []
+
+    def fn(obs):
+        calls.append((obs["time"][0], obs["id"].tolist()))
+        return {}
+
+    sim.add_controller([-2, -3], fn, rate=20.0)
+    sim.step(1.0)
+    assert len(calls) == 20
+    assert calls[0][1] == [-2, -3]
+    assert [round(t, 6) for t, _ in calls] == [round(k / 20.0, 6) for k in range(20)]
+
+
+def test_v2v_bytes_round_trip(sim):
+    sim.send(-1, "wifi", b"hello")
+    sim.step(0.05)  # the wifi round at t = 0 delivers it (10 Hz rounds, 20 Hz control)
+    got = sim.inbox(-2, "wifi")
+    assert (-1, b"hello") in got
+    assert all(s != -2 for s, _ in got)
+    assert (-1, b"hello") not in sim.inbox(-1, "wifi")  # never to itself
+    far = sim.inbox(-5, "wifi")  # 86 m behind the leader: beyond the 50 m wifi range
+    assert (-1, b"hello") not in far
+
+
+def test_load_map_route_and_loop(root):
+    m = smlworld.load_map(root / "maps/highway_ring.osm")
+    assert len(m.lanelets) > 0
+    assert m.successors.shape[1] == 2
+    loop = m.loop("right_lane_node")
+    assert loop.shape[1] == 2 and loop.shape[0] > 10
+    # a closed loop: consecutive points are close, and the ring is hundreds of metres long
+    seg = np.hypot(*np.diff(loop, axis=0).T)
+    assert seg.max() < 5.0
+    assert seg.sum() > 200.0
+
+
+def test_frame_is_an_rgba_picture_of_the_map(sim, tmp_path):
+    sim.step(1.0)
+    img = sim.frame(width=320, height=240)
+    assert img.shape == (240, 320, 4) and img.dtype == np.uint8
+    assert (img[..., 3] == 255).all()
+    # roads, grass and vehicles: many distinct colours, not a blank image
+    colours = np.unique(img.reshape(-1, 4), axis=0)
+    assert len(colours) > 20
+    with pytest.raises(ValueError, match="frame size"):
+        sim.frame(width=0, height=10)

@@ -1,0 +1,394 @@
+//! A simulation driven step by step from another program (the Python package `smlworld` is
+//! built on it): load a scenario with overrides, advance it by any sim time, read all states into
+//! flat arrays, read one vehicle's sensor readings, set commands for many vehicles at once,
+//! send and receive V2V bytes, and summarise the run as `summary.json` does.
+//!
+//! ```no_run
+//! use smlworld::app::Session;
+//!
+//! let mut s = Session::from_scenario("scenarios/platoon_brake.toml".as_ref(), Some(3), &[]).unwrap();
+//! s.step(1.0);
+//! let mut states = Default::default();
+//! s.states_into(&mut states);
+//! println!("{} vehicles at t = {} s", states.id.len(), s.time());
+//! ```
+//!
+//! Every call is O(N) in the vehicles it touches; nothing here changes what the simulation
+//! computes (a session stepped in any chunks gives the trajectories of `smlworld run`).
+
+use std::path::Path as FsPath;
+use std::sync::Arc;
+use std::time::Instant;
+
+use bevy_ecs::prelude::{Component, Query};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+
+use crate::map::LaneletMap;
+use crate::render::{FrameRecorder, RecorderOptions};
+use crate::sim::{Control, Sim, SimSystems};
+use crate::world::{Channel, ControlCommand, Mailbox, SensorReadings, SimTime, VehicleId, Vehicles};
+
+use super::{RunReport, RunSummary, Scenario, ScenarioError};
+
+/// What a session call can reject (the message names the key, id or argument and what is allowed).
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    /// The scenario could not be loaded or assembled.
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// A bad argument (unknown id, wrong length, NaN, bad override ...).
+    #[error("{0}")]
+    Argument(String),
+}
+
+fn arg<T>(message: String) -> Result<T, SessionError> {
+    Err(SessionError::Argument(message))
+}
+
+/// The payload type of V2V messages sent through [`Session::send`]: raw bytes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Bytes(pub Vec<u8>);
+
+/// Commands set from outside ([`Session::set_commands`]): they replace what the vehicle's own
+/// controller wrote, at every control tick after all controllers ran, until cleared.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
+pub struct CommandOverride {
+    /// Throttle [N].
+    pub throttle: Option<f64>,
+    /// Steering [rad].
+    pub steering: Option<f64>,
+    /// Speed [m/s].
+    pub speed: Option<f64>,
+}
+
+impl CommandOverride {
+    fn apply(&self, c: &mut ControlCommand) {
+        if let Some(t) = self.throttle {
+            c.throttle = t;
+        }
+        if let Some(s) = self.steering {
+            c.steering = s;
+        }
+        if let Some(v) = self.speed {
+            c.speed = v;
+        }
+    }
+}
+
+/// Control-phase system: overrides win over the controllers (runs after [`SimSystems::Control`]).
+fn apply_overrides(mut q: Query<(&CommandOverride, &mut ControlCommand)>) {
+    for (o, mut c) in &mut q {
+        o.apply(&mut c);
+    }
+}
+
+/// All vehicles' states as columns, sorted by id (see [`Session::states_into`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StateColumns {
+    /// Vehicle ids, ascending.
+    pub id: Vec<i32>,
+    /// Position x [m].
+    pub x: Vec<f64>,
+    /// Position y [m].
+    pub y: Vec<f64>,
+    /// Heading [rad].
+    pub yaw: Vec<f64>,
+    /// Velocity x [m/s].
+    pub vx: Vec<f64>,
+    /// Velocity y [m/s].
+    pub vy: Vec<f64>,
+}
+
+/// Set `key` (dotted, e.g. `vehicles.controller.platoon.time_gap`) to `value` in a scenario
+/// table. A key through an array of tables (`vehicles`) sets it in every element that has the
+/// tables on the way; the last key is created if missing (the strict parser then rejects keys
+/// the format does not know). Errors name the key.
+pub fn apply_override(table: &mut toml::Table, key: &str, value: toml::Value) -> Result<(), String> {
+    fn set(item: &mut toml::Value, parts: &[&str], value: &toml::Value) -> usize {
+        match item {
+            toml::Value::Array(a) => a.iter_mut().map(|e| set(e, parts, value)).sum(),
+            toml::Value::Table(t) => set_in(t, parts, value),
+            _ => 0,
+        }
+    }
+    fn set_in(t: &mut toml::Table, parts: &[&str], value: &toml::Value) -> usize {
+        match parts {
+            [] => 0,
+            [last] => {
+                t.insert((*last).to_string(), value.clone());
+                1
+            }
+            [first, rest @ ..] => t.get_mut(*first).map_or(0, |item| set(item, rest, value)),
+        }
+    }
+    let parts: Vec<&str> = key.split('.').collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        return Err(format!("override `{key}`: keys are dotted names like `seed` or `vehicles.speed`"));
+    }
+    match set_in(table, &parts, &value) {
+        0 => Err(format!("override `{key}`: the scenario has no table `{}`", parts[..parts.len() - 1].join("."))),
+        _ => Ok(()),
+    }
+}
+
+/// Load a scenario file with `overrides` (dotted keys, see [`apply_override`]) and an optional
+/// seed applied before it is checked; errors name the file, line and key.
+pub fn load_scenario_with_overrides(
+    path: &FsPath,
+    seed: Option<u64>,
+    overrides: &[(String, toml::Value)],
+) -> Result<Scenario, SessionError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io { path: path.into(), source })?;
+    if seed.is_none() && overrides.is_empty() {
+        return Ok(Scenario::parse_str(&text, path)?);
+    }
+    let mut table: toml::Table =
+        toml::from_str(&text).map_err(|e| ScenarioError::Syntax { path: path.into(), message: e.to_string() })?;
+    for (key, value) in overrides {
+        apply_override(&mut table, key, value.clone())
+            .map_err(|m| SessionError::Argument(format!("{}: {m}", path.display())))?;
+    }
+    if let Some(seed) = seed {
+        let seed =
+            i64::try_from(seed).map_err(|_| SessionError::Argument(format!("seed must be < 2^63, got {seed}")))?;
+        table.insert("seed".into(), toml::Value::Integer(seed));
+    }
+    let text = toml::to_string(&table).map_err(|e| SessionError::Argument(format!("{}: {e}", path.display())))?;
+    Ok(Scenario::parse_str(&text, path)?)
+}
+
+/// A scenario's simulation, stepped by the caller.
+pub struct Session {
+    sim: Sim,
+    /// The off-screen renderer of [`Session::frame`], made at the first call (and again when the
+    /// size changes).
+    renderer: Option<(u32, u32, FrameRecorder)>,
+    scenario: Scenario,
+    wall_seconds: f64,
+    start: SimTime,
+}
+
+impl Session {
+    /// Load `path` (with `seed` and `overrides`, see [`load_scenario_with_overrides`]) and build
+    /// its simulation at time 0.
+    pub fn from_scenario(
+        path: &FsPath,
+        seed: Option<u64>,
+        overrides: &[(String, toml::Value)],
+    ) -> Result<Session, SessionError> {
+        let scenario = load_scenario_with_overrides(path, seed, overrides)?;
+        Session::new(scenario)
+    }
+
+    /// Build the simulation of a loaded scenario.
+    pub fn new(scenario: Scenario) -> Result<Session, SessionError> {
+        let mut b = scenario.builder()?;
+        b.add_systems(Control, apply_overrides.after(SimSystems::Control).before(SimSystems::Integrate));
+        let sim = b.build();
+        let start = sim.now();
+        Ok(Session { sim, renderer: None, scenario, wall_seconds: 0.0, start })
+    }
+
+    /// The simulation.
+    pub fn sim(&self) -> &Sim {
+        &self.sim
+    }
+
+    /// The simulation, mutably.
+    pub fn sim_mut(&mut self) -> &mut Sim {
+        &mut self.sim
+    }
+
+    /// The scenario.
+    pub fn scenario(&self) -> &Scenario {
+        &self.scenario
+    }
+
+    /// The scenario's map, if it names one.
+    pub fn map(&self) -> Option<&Arc<LaneletMap>> {
+        self.scenario.map.as_ref()
+    }
+
+    /// Sim time [s].
+    pub fn time(&self) -> f64 {
+        self.sim.now().as_secs()
+    }
+
+    /// Advance sim time by `dt` [s] through the normal multi-rate schedule (every tick due before
+    /// the new time runs).
+    pub fn step(&mut self, dt: f64) -> Result<(), SessionError> {
+        if !(dt.is_finite() && dt >= 0.0) {
+            return arg(format!("dt must be a finite number of seconds >= 0, got {dt}"));
+        }
+        let wall = Instant::now();
+        self.sim.run_for(dt);
+        self.wall_seconds += wall.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// The bird's-eye view of the whole map with the vehicles as they are now, `width` x `height`
+    /// RGBA pixels (row-major, 4 bytes per pixel), from the off-screen renderer.
+    pub fn frame(&mut self, width: u32, height: u32) -> Result<Vec<u8>, SessionError> {
+        if !(16..=8192).contains(&width) || !(16..=8192).contains(&height) {
+            return arg(format!("frame size must be 16..=8192 px each way, got {width} x {height}"));
+        }
+        if self.renderer.as_ref().is_none_or(|(w, h, _)| (*w, *h) != (width, height)) {
+            let Some(map) = self.scenario.map.as_ref() else {
+                return arg(format!(
+                    "frame draws the scenario's map, but {} names no `map`",
+                    self.scenario.path.display()
+                ));
+            };
+            let opts =
+                RecorderOptions { frames_dir: None, gif: None, frame_rate: 10.0, width, height, sensor_ranges: false };
+            let rec = FrameRecorder::new(map, &opts).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
+            self.renderer = Some((width, height, rec));
+        }
+        let Some((_, _, rec)) = self.renderer.as_mut() else {
+            return arg("renderer: not available".to_string());
+        };
+        let image = rec.render(self.sim.world()).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
+        Ok(image.into_raw())
+    }
+
+    /// Advance by `duration` [s] and summarise everything run so far as `summary.json` does.
+    pub fn run(&mut self, duration: f64) -> Result<RunSummary, SessionError> {
+        self.step(duration)?;
+        Ok(self.summary())
+    }
+
+    /// The summary of everything run so far (the content of `summary.json`).
+    pub fn summary(&self) -> RunSummary {
+        let report = RunReport {
+            sim_seconds: SimTime(self.sim.now().0 - self.start.0).as_secs(),
+            wall_seconds: self.wall_seconds,
+            rate_warnings: 0,
+            max_lag_seconds: 0.0,
+        };
+        RunSummary::new(&self.sim, &report)
+    }
+
+    /// Every vehicle's state, sorted by id, into `out` (its vectors are reused).
+    pub fn states_into(&self, out: &mut StateColumns) {
+        for v in [&mut out.x, &mut out.y, &mut out.yaw, &mut out.vx, &mut out.vy] {
+            v.clear();
+        }
+        out.id.clear();
+        for (id, s) in self.sim.states() {
+            out.id.push(id.0);
+            out.x.push(s.position.x);
+            out.y.push(s.position.y);
+            out.yaw.push(s.yaw);
+            out.vx.push(s.velocity.x);
+            out.vy.push(s.velocity.y);
+        }
+    }
+
+    fn entity(&self, id: i32) -> Result<bevy_ecs::entity::Entity, SessionError> {
+        match self.sim.entity(VehicleId(id)) {
+            Some(e) => Ok(e),
+            None => {
+                let ids: Vec<i32> = self.sim.world().resource::<Vehicles>().iter().map(|(id, _)| id.0).collect();
+                arg(format!("unknown vehicle id {id}; the scenario has ids {ids:?}"))
+            }
+        }
+    }
+
+    /// What vehicle `id`'s sensors saw at the last sensor tick, nearest first, as rows
+    /// `[id, x, y, vx, vy]` [-, m, m, m/s, m/s].
+    pub fn readings(&self, id: i32) -> Result<Vec<[f64; 5]>, SessionError> {
+        let e = self.entity(id)?;
+        let readings = self.sim.world().get::<SensorReadings>(e);
+        Ok(readings
+            .map(|r| {
+                r.0.iter().map(|d| [d.id.0 as f64, d.position.x, d.position.y, d.velocity.x, d.velocity.y]).collect()
+            })
+            .unwrap_or_default())
+    }
+
+    /// Set the commands of vehicles `ids`: each given column (throttle [N], steering [rad],
+    /// speed [m/s]) must have one finite value per id; a column left out keeps its value. Checks
+    /// everything before changing anything. They act at once and replace what the vehicle's own
+    /// controller (if any) writes at every later control tick, until [`Session::clear_commands`].
+    pub fn set_commands(
+        &mut self,
+        ids: &[i32],
+        throttle: Option<&[f64]>,
+        steering: Option<&[f64]>,
+        speed: Option<&[f64]>,
+    ) -> Result<(), SessionError> {
+        for (name, col) in [("throttle", throttle), ("steering", steering), ("speed", speed)] {
+            if let Some(col) = col {
+                if col.len() != ids.len() {
+                    return arg(format!("{name} has {} values for {} ids; give one per id", col.len(), ids.len()));
+                }
+                if let Some(i) = col.iter().position(|v| !v.is_finite()) {
+                    return arg(format!("{name}[{i}] (vehicle {}) is {}; commands must be finite", ids[i], col[i]));
+                }
+            }
+        }
+        let entities = ids.iter().map(|&id| self.entity(id)).collect::<Result<Vec<_>, _>>()?;
+        let world = self.sim.world_mut();
+        for (i, e) in entities.into_iter().enumerate() {
+            let Some(mut entity) = world.get_entity_mut(e).ok().filter(|w| w.contains::<ControlCommand>()) else {
+                return arg(format!("vehicle {} takes no commands", ids[i]));
+            };
+            let mut o = entity.get::<CommandOverride>().copied().unwrap_or_default();
+            if let Some(t) = throttle {
+                o.throttle = Some(t[i]);
+            }
+            if let Some(s) = steering {
+                o.steering = Some(s[i]);
+            }
+            if let Some(s) = speed {
+                o.speed = Some(s[i]);
+            }
+            if let Some(mut c) = entity.get_mut::<ControlCommand>() {
+                o.apply(&mut c);
+            }
+            entity.insert(o);
+        }
+        Ok(())
+    }
+
+    /// Give vehicles `ids` back to their own controllers (drop what [`Session::set_commands`] set).
+    pub fn clear_commands(&mut self, ids: &[i32]) -> Result<(), SessionError> {
+        let entities = ids.iter().map(|&id| self.entity(id)).collect::<Result<Vec<_>, _>>()?;
+        for e in entities {
+            self.sim.world_mut().entity_mut(e).remove::<CommandOverride>();
+        }
+        Ok(())
+    }
+
+    fn channel(name: &str) -> Result<Channel, SessionError> {
+        match name {
+            "wifi" => Ok(Channel::Wifi),
+            "network" => Ok(Channel::Network),
+            _ => arg(format!("unknown channel `{name}`; use \"wifi\" or \"network\"")),
+        }
+    }
+
+    /// Queue `payload` from vehicle `id` on `channel` (`"wifi"` or `"network"`); it leaves at the
+    /// channel's next V2V round, like a Rust controller's message.
+    pub fn send(&mut self, id: i32, channel: &str, payload: Vec<u8>) -> Result<(), SessionError> {
+        let channel = Session::channel(channel)?;
+        let e = self.entity(id)?;
+        let now = self.sim.now();
+        let Some(mut mb) = self.sim.world_mut().get_mut::<Mailbox>(e) else {
+            return arg(format!("vehicle {id} has no mailbox (`mailbox = false` in the scenario)"));
+        };
+        mb.send_typed(channel, now, Bytes(payload));
+        Ok(())
+    }
+
+    /// The byte messages in vehicle `id`'s in-box of `channel` (see [`crate::world::Mailbox`] for
+    /// how long they stay), as `(sender, bytes)`; messages of other payload types are skipped.
+    pub fn inbox(&self, id: i32, channel: &str) -> Result<Vec<(i32, Vec<u8>)>, SessionError> {
+        let channel = Session::channel(channel)?;
+        let e = self.entity(id)?;
+        let Some(mb) = self.sim.world().get::<Mailbox>(e) else {
+            return arg(format!("vehicle {id} has no mailbox (`mailbox = false` in the scenario)"));
+        };
+        Ok(mb.received::<Bytes>(channel).map(|(sender, _, b)| (sender.0, b.0.clone())).collect())
+    }
+}

@@ -1,0 +1,63 @@
+//! `app::Session` (what the Python package drives): overrides, stepping in chunks, commands that
+//! win over controllers, checked arguments.
+
+use std::path::Path;
+
+use smlworld::app::session::{apply_override, load_scenario_with_overrides};
+use smlworld::app::{Session, StateColumns, run_headless};
+
+const PLATOON: &str = "scenarios/platoon_brake.toml";
+
+#[test]
+fn override_through_vehicles_sets_every_follower() {
+    let s = load_scenario_with_overrides(
+        Path::new(PLATOON),
+        Some(11),
+        &[("vehicles.controller.platoon.time_gap".into(), toml::Value::Float(0.9))],
+    )
+    .unwrap();
+    assert_eq!(s.file.seed, 11);
+    let text = std::fs::read_to_string(PLATOON).unwrap();
+    let mut table: toml::Table = toml::from_str(&text).unwrap();
+    apply_override(&mut table, "vehicles.controller.platoon.time_gap", toml::Value::Float(0.9)).unwrap();
+    let gaps: Vec<f64> = table["vehicles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|v| v["controller"].get("platoon")?.get("time_gap")?.as_float())
+        .collect();
+    assert_eq!(gaps, vec![0.9; 4]); // the four followers; the leader has no `platoon` table
+    let err = apply_override(&mut table, "nosuch.key", toml::Value::Integer(1)).unwrap_err();
+    assert!(err.contains("nosuch"), "{err}");
+}
+
+#[test]
+fn session_steps_in_chunks_like_one_headless_run() {
+    let mut a = Session::from_scenario(Path::new(PLATOON), None, &[]).unwrap();
+    for _ in 0..40 {
+        a.step(0.05).unwrap();
+    }
+    let scenario = smlworld::app::Scenario::load(Path::new(PLATOON)).unwrap();
+    let mut b = scenario.builder().unwrap().build();
+    run_headless(&mut b, 2.0, 1.0, |_| {});
+    assert_eq!(a.sim().state_hash(), b.state_hash());
+}
+
+#[test]
+fn commands_win_over_the_controller_and_are_checked() {
+    let mut s = Session::from_scenario(Path::new(PLATOON), None, &[]).unwrap();
+    s.set_commands(&[-1], Some(&[-60_000.0]), None, None).unwrap();
+    s.step(1.0).unwrap();
+    let mut cols = StateColumns::default();
+    s.states_into(&mut cols);
+    let v = cols.vx[4].hypot(cols.vy[4]); // id -1 is last (sorted by id)
+    assert_eq!(cols.id, vec![-5, -4, -3, -2, -1]);
+    assert!(v < 12.0, "the leader should brake hard, speed {v}");
+    s.clear_commands(&[-1]).unwrap();
+    let e = s.set_commands(&[-1, -2], Some(&[0.0]), None, None).unwrap_err().to_string();
+    assert!(e.contains("1 values for 2 ids"), "{e}");
+    let e = s.set_commands(&[-1], None, Some(&[f64::NAN]), None).unwrap_err().to_string();
+    assert!(e.contains("steering[0] (vehicle -1) is NaN"), "{e}");
+    let e = s.readings(99).unwrap_err().to_string();
+    assert!(e.contains("unknown vehicle id 99"), "{e}");
+}
