@@ -239,8 +239,15 @@ impl Session {
                     self.scenario.path.display()
                 ));
             };
-            let opts =
-                RecorderOptions { frames_dir: None, gif: None, frame_rate: 10.0, width, height, sensor_ranges: false };
+            let opts = RecorderOptions {
+                frames_dir: None,
+                gif: None,
+                frame_rate: 10.0,
+                width,
+                height,
+                sensor_ranges: false,
+                overlay: Some(false),
+            };
             let rec = FrameRecorder::new(map, &opts).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
             self.renderer = Some((width, height, rec));
         }
