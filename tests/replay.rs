@@ -64,9 +64,10 @@ fn replay_draws_the_frames_of_the_run() {
 
     let run = frames_in(&run_frames);
     let replay = frames_in(&replay_frames);
-    // Frames at 0.2, 0.4, ..., 2.0 s; the log (10 Hz) ends at 1.9 s, so the replay ends at 1.8 s.
+    // Frames at 0.2, 0.4, ..., 2.0 s; the log (10 Hz) also holds the final state at 2.0 s, so the
+    // replay draws the same ten frames.
     assert_eq!(run.len(), 10);
-    assert_eq!(replay.len(), 9);
+    assert_eq!(replay.len(), 10);
     for (k, (a, b)) in run.iter().zip(&replay).enumerate() {
         let d = differing(a, b, TOLERANCE.channel);
         assert!(d <= TOLERANCE.fraction, "replay frame {k} differs from the run's in {:.3} % of pixels", d * 100.0);
@@ -80,7 +81,7 @@ fn replay_draws_the_frames_of_the_run() {
     args.extend(size);
     ok(&args);
     let fine = frames_in(&fine);
-    assert_eq!(fine.len(), 38, "0.05 .. 1.9 s at 20 Hz");
+    assert_eq!(fine.len(), 40, "0.05 .. 2.0 s at 20 Hz (the log ends with the final state at 2.0 s)");
     assert!(differing(&fine[7], &run[1], TOLERANCE.channel) <= TOLERANCE.fraction);
     // An interpolated frame (0.45 s) lies between its neighbours, equal to neither.
     assert!(differing(&fine[8], &fine[7], TOLERANCE.channel) > 0.0);
@@ -138,7 +139,8 @@ fn replay_sends_the_datagrams_of_the_run() {
 
     // 2 s at 50 Hz: counters 0..99, in both, with the same vehicles at the same places.
     assert_eq!(run.keys().copied().collect::<Vec<_>>(), (0..100).collect::<Vec<u64>>());
-    assert_eq!(replay.len(), run.len());
+    // The replay also sends the final state the log holds at t = 2 s.
+    assert_eq!(replay.len(), run.len() + 1);
     for (counter, records) in &run {
         assert_eq!(records.len(), 12);
         assert_eq!(Some(records), replay.get(counter), "frame {counter}");
