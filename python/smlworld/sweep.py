@@ -77,6 +77,8 @@ def run_one(bundle: dict, params: dict, seed: int, duration: Optional[float] = N
     row = dict(params)
     row["seed"] = int(seed)
     summary.pop("seed", None)
+    # What a replay needs (map path in this task's temporary folder, classes, sizes) is no result.
+    summary.pop("replay", None)
     row.update(flatten(summary))
     return row
 
