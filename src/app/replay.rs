@@ -280,8 +280,8 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         return Err(ReplayError::Option(format!("--speed must be a positive factor, got {}", options.speed)));
     }
     let drawing = options.frames.is_some() || options.gif.is_some();
-    if drawing && !(options.frame_rate.is_finite() && options.frame_rate > 0.0 && options.frame_rate <= 1000.0) {
-        return Err(ReplayError::Option(format!("--frame-rate must be in (0, 1000] Hz, got {}", options.frame_rate)));
+    if drawing {
+        crate::render::check_frame_rate(options.frame_rate).map_err(ReplayError::Option)?;
     }
     let info = read_replay_info(out_dir)?;
     let mut recorder = if drawing {

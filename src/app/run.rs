@@ -340,9 +340,7 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
             format!("--gif writes GIF data: name the file with a .gif extension, got {}", gif.display())
         })?;
     }
-    check_option(options.frame_rate.is_finite() && options.frame_rate > 0.0 && options.frame_rate <= 1000.0, || {
-        format!("--frame-rate must be in (0, 1000] Hz, got {}", options.frame_rate)
-    })?;
+    crate::render::check_frame_rate(options.frame_rate).map_err(RunError::Option)?;
     let Some(map) = scenario.map.as_ref() else {
         return Err(RunError::Option(format!(
             "--frames/--gif draw the scenario's map, but {} names no `map`",

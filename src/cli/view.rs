@@ -109,8 +109,7 @@ impl Scene {
         if let Some(d) = args.duration {
             anyhow::ensure!(d.is_finite() && d > 0.0, "--duration must be a positive number of seconds, got {d}");
         }
-        let r = args.frame_rate;
-        anyhow::ensure!(r.is_finite() && r > 0.0 && r <= 1000.0, "--frame-rate must be in (0, 1000] Hz, got {r}");
+        smlworld::render::check_frame_rate(args.frame_rate).map_err(anyhow::Error::msg)?;
         let map = match &args.map {
             Some(path) => {
                 Some(LaneletMap::load(path).with_context(|| format!("cannot load the map {}", path.display()))?)

@@ -39,7 +39,7 @@ pub use gpu::{EnvironmentLayer, Renderer};
 pub use output::{GifWriter, frame_path, write_gif, write_image, write_meta};
 pub use overlay::{FONT_TTF, OVERLAY_BACKGROUND, OVERLAY_TEXT_PX, draw_overlay};
 pub use patterns::{PATTERN_SIZE, Pattern, PatternKind, PatternSet};
-pub use recorder::{FrameRecorder, RecorderOptions, sprites_from_world};
+pub use recorder::{FrameRecorder, RecorderOptions, check_frame_rate, sprites_from_world};
 pub use sprites::{Overlays, RadarCone, VehicleSprite, class_color};
 pub use triangulate::triangulate;
 pub use view::{BirdseyeView, MAX_IMAGE_SIDE};

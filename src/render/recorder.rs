@@ -62,6 +62,16 @@ pub struct FrameRecorder {
     frames: u64,
 }
 
+/// The one range check of a frame rate a user gives (`--frame-rate` on run, replay and view):
+/// `Err` with the message naming the option and the allowed range (0, 1000] Hz.
+pub fn check_frame_rate(hz: f64) -> Result<(), String> {
+    if hz.is_finite() && hz > 0.0 && hz <= 1000.0 {
+        Ok(())
+    } else {
+        Err(format!("--frame-rate must be in (0, 1000] Hz, got {hz}"))
+    }
+}
+
 impl FrameRecorder {
     /// A recorder whose view fits the whole map; creates the frame folder and the GIF file.
     pub fn new(map: &LaneletMap, opts: &RecorderOptions) -> Result<FrameRecorder, RenderError> {
