@@ -157,6 +157,7 @@ pub struct PathFollowingPlugin;
 impl Plugin for PathFollowingPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.world_mut().init_resource::<Parallelism>();
-        sim.add_systems(Control, follow_paths.in_set(SteeringSystems).in_set(SimSystems::Control));
+        sim.configure_sets(Control, SteeringSystems.in_set(SimSystems::Control));
+        sim.add_systems(Control, follow_paths.in_set(SteeringSystems));
     }
 }
