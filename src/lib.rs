@@ -1,6 +1,7 @@
 //! SML World: a simulator for autonomous and cooperative driving research.
 //!
 //! Modules, with dependencies pointing one way (no cycles):
+//! - [`files`]: atomic output files (written aside, renamed into place);
 //! - [`map`]: lanelet road maps from JOSM/OSM XML, projection, routing, map generation;
 //! - [`world`]: ECS data (vehicles as entities, their state, sensors, mailboxes);
 //! - [`sim`]: plugins, the sim builder, clock, multi-rate scheduler, phases as system sets,
@@ -11,10 +12,11 @@
 //! - [`app`]: scenarios, runners and run outputs ([`app::run_scenario`] does what `smlworld run`
 //!   does).
 //!
-//! Layers, lowest first: map < world < sim < vehicles, io, render < app < cli (the binary). A
+//! Layers, lowest first: files < map < world < sim < vehicles, io, render < app < cli (the binary). A
 //! module imports only from layers below it (`tests/architecture.rs` checks it); [`sim::Plugin`],
 //! [`sim::SimBuilder`] and [`sim::Sim`] sit in `sim` so every plugin imports them downward.
 pub mod app;
+pub mod files;
 pub mod io;
 pub mod map;
 pub mod render;

@@ -9,7 +9,11 @@ fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
     cli::init_logging(args.verbose);
     match cli::dispatch(args.command) {
-        Ok(()) => std::process::ExitCode::SUCCESS,
+        // A run stopped by Ctrl-C or SIGTERM wrote its outputs and ends as shells expect: 130 / 143.
+        Ok(()) => match smlworld::app::interrupt::requested() {
+            Some(signal) => std::process::ExitCode::from(smlworld::app::interrupt::exit_code(signal) as u8),
+            None => std::process::ExitCode::SUCCESS,
+        },
         Err(e) => {
             eprintln!("error: {}", cli::error_line(&e));
             std::process::ExitCode::FAILURE

@@ -208,8 +208,10 @@ pub struct BenchReport {
     pub threads: usize,
     /// Threads they used at this vehicle count (1 below [`Parallelism::min_vehicles`]).
     pub threads_used: usize,
-    /// Sim time run [s].
+    /// Sim time run [s] (the time reached when interrupted).
     pub sim_seconds: f64,
+    /// Whether Ctrl-C or SIGTERM stopped the benchmark early (the figures cover what ran).
+    pub interrupted: bool,
     /// Wall time of the run, set-up excluded [s].
     pub wall_seconds: f64,
     /// Sim seconds per wall second.
@@ -245,8 +247,9 @@ impl BenchWorld {
         let mut sim = builder.build();
         sim.scheduler_mut().set_timing(true);
         let wall = std::time::Instant::now();
-        sim.run_for(duration);
+        let run = super::run_headless(&mut sim, duration, duration, |_| {});
         let wall_seconds = wall.elapsed().as_secs_f64();
+        let duration = run.sim_seconds;
         let steps = sim.scheduler().ticks(Dynamics).unwrap_or(0) as f64 * self.vehicles as f64;
         let modules = sim
             .scheduler()
@@ -278,6 +281,7 @@ impl BenchWorld {
             threads: parallelism.threads,
             threads_used: parallelism.threads_for(self.vehicles),
             sim_seconds: duration,
+            interrupted: run.interrupted,
             wall_seconds,
             real_time_factor: duration / wall_seconds,
             vehicle_steps_per_second: steps / wall_seconds,

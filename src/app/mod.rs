@@ -33,6 +33,7 @@
 //! dynamics step that starts at t.
 
 pub mod bench;
+pub mod interrupt;
 pub mod metrics;
 mod output;
 mod plot;

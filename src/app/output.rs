@@ -122,8 +122,10 @@ pub struct MessagesDelivered {
 /// `summary.json` of a run.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RunSummary {
-    /// Sim time covered [s].
+    /// Sim time covered [s] (the time reached when the run was interrupted).
     pub sim_seconds: f64,
+    /// Whether Ctrl-C or SIGTERM stopped the run before its end (the outputs hold what ran).
+    pub interrupted: bool,
     /// Wall-clock time taken [s].
     pub wall_seconds: f64,
     /// Sim seconds per wall second.
@@ -204,6 +206,7 @@ impl RunSummary {
             vehicles.iter().filter_map(|(id, e)| Some((id.0, world.get::<PathFollower>(e)?.max_offset))).collect();
         RunSummary {
             sim_seconds: report.sim_seconds,
+            interrupted: report.interrupted,
             wall_seconds: report.wall_seconds,
             real_time_factor: if report.wall_seconds > 0.0 {
                 report.sim_seconds / report.wall_seconds

@@ -21,6 +21,7 @@ use glam::DVec2;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use crate::files::AtomicFile;
 use crate::map::LaneletMap;
 use crate::map::polyline::project_polyline;
 
@@ -204,8 +205,13 @@ fn save(dir: &FsPath, name: &str, chart: &Chart) -> Result<PathBuf, ReplayError>
     draw_chart(BitMapBackend::with_buffer(&mut buffer, (w, h)).into_drawing_area(), chart)
         .map_err(|m| plot_err(&png, m))?;
     let image = image::RgbImage::from_raw(w, h, buffer).ok_or_else(|| plot_err(&png, "buffer size".into()))?;
-    image.save(&png).map_err(|e| plot_err(&png, e.to_string()))?;
-    draw_chart(SVGBackend::new(&svg, (w, h)).into_drawing_area(), chart).map_err(|m| plot_err(&svg, m))?;
+    // Both written aside and renamed into place: a failed plot keeps the earlier figure.
+    let png_file = AtomicFile::new(&png).map_err(|e| plot_err(&png, e.to_string()))?;
+    image.save_with_format(png_file.path(), image::ImageFormat::Png).map_err(|e| plot_err(&png, e.to_string()))?;
+    png_file.commit().map_err(|e| plot_err(&png, e.to_string()))?;
+    let svg_file = AtomicFile::new(&svg).map_err(|e| plot_err(&svg, e.to_string()))?;
+    draw_chart(SVGBackend::new(svg_file.path(), (w, h)).into_drawing_area(), chart).map_err(|m| plot_err(&svg, m))?;
+    svg_file.commit().map_err(|e| plot_err(&svg, e.to_string()))?;
     Ok(png)
 }
 

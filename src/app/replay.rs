@@ -75,6 +75,8 @@ pub struct ReplayReport {
     pub datagram_frames: u64,
     /// Rows of `trajectories.csv` read.
     pub rows: u64,
+    /// Whether Ctrl-C or SIGTERM stopped the replay early (the GIF holds the frames drawn so far).
+    pub interrupted: bool,
 }
 
 /// What can stop a replay.
@@ -328,6 +330,10 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     let wall_start = Instant::now();
     let mut first = true;
     while reader.next_group(&mut next)? {
+        if super::interrupt::requested().is_some() {
+            report.interrupted = true;
+            break;
+        }
         if first {
             prev.t_us = next.t_us;
             prev.rows.clone_from(&next.rows);
@@ -378,6 +384,9 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         }
         std::mem::swap(&mut prev, &mut next);
         next.t_us = prev.t_us;
+    }
+    if let Some(rec) = recorder {
+        rec.finish()?;
     }
     report.rows = reader.rows;
     if report.rows == 0 {

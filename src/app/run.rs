@@ -225,7 +225,9 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         let to: Vec<String> = options.frames.iter().chain(&options.gif).map(|p| p.display().to_string()).collect();
         tracing::info!("recorded {} frames at {} Hz into {}", rec.frames(), options.frame_rate, to.join(" and "));
     }
-    drop(recorder);
+    if let Some(rec) = recorder {
+        rec.finish()?;
+    }
     super::output::log_final_state(&mut sim);
     sim.world_mut()
         .resource_mut::<TrajectoryLog>()
@@ -249,6 +251,14 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         let dir = options.out.join("plots");
         let written = super::plot_run(&options.out, &dir).map_err(|e| RunError::Plot(e.to_string()))?;
         tracing::info!("wrote {} figures (PNG + SVG) into {}", written.len(), dir.display());
+    }
+    if summary.interrupted {
+        tracing::warn!(
+            "interrupted at sim time {:.3} s: wrote what ran so far into {} (summary.json says \"interrupted\": true)",
+            summary.sim_seconds,
+            options.out.display()
+        );
+        return Ok(summary);
     }
     let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
     tracing::info!(

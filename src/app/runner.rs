@@ -21,25 +21,42 @@ pub struct RunReport {
     pub rate_warnings: u64,
     /// Largest lag behind the wall clock seen [s] (0 for headless runs).
     pub max_lag_seconds: f64,
+    /// The run stopped early on Ctrl-C or SIGTERM ([`super::interrupt`]); `sim_seconds` is the
+    /// sim time it reached.
+    pub interrupted: bool,
 }
 
-/// Run headless for `seconds` [s], calling `progress` after every `chunk` [s] of sim time.
+/// Run headless for `seconds` [s], calling `progress` after every `chunk` [s] of sim time. A stop
+/// signal ([`super::interrupt::requested`]) ends the run after the step that is running.
 pub fn run_headless(sim: &mut Sim, seconds: f64, chunk: f64, mut progress: impl FnMut(&Sim)) -> RunReport {
     let wall = Instant::now();
     let start = sim.now();
     let end = SimTime(start.0 + SimTime::from_secs(seconds).0);
     let step = SimTime::from_secs(chunk).0.max(1);
     let mut t = start;
-    while t < end {
+    let mut interrupted = false;
+    'run: while t < end {
         t = SimTime((t.0 + step).min(end.0));
+        // The same ticks as `sim.run_until(t)`, with a look at the stop flag before each.
+        while let Some((_, due, _, _)) = sim.scheduler.peek() {
+            if due >= t {
+                break;
+            }
+            if super::interrupt::requested().is_some() {
+                interrupted = true;
+                break 'run;
+            }
+            sim.step();
+        }
         sim.run_until(t);
         progress(sim);
     }
     RunReport {
-        sim_seconds: seconds,
+        sim_seconds: if interrupted { SimTime(sim.now().0 - start.0).as_secs() } else { seconds },
         wall_seconds: wall.elapsed().as_secs_f64(),
         rate_warnings: 0,
         max_lag_seconds: 0.0,
+        interrupted,
     }
 }
 
@@ -75,8 +92,13 @@ impl RealtimeRunner {
         let mut last_warning: Option<Instant> = None;
         let mut warnings = 0;
         let mut max_lag: f64 = 0.0;
+        let mut interrupted = false;
         while let Some((_, due, name, period)) = sim.scheduler.peek() {
             if due >= end {
+                break;
+            }
+            if super::interrupt::requested().is_some() {
+                interrupted = true;
                 break;
             }
             let target = Duration::from_secs_f64((due.0 - start.0) as f64 * 1e-6 / self.speed);
@@ -103,14 +125,17 @@ impl RealtimeRunner {
                 next_progress += chunk;
             }
         }
-        sim.run_until(end);
+        if !interrupted {
+            sim.run_until(end);
+        }
         progress(sim);
         sim.rate_warnings += warnings;
         RunReport {
-            sim_seconds: seconds,
+            sim_seconds: if interrupted { SimTime(sim.now().0 - start.0).as_secs() } else { seconds },
             wall_seconds: wall.elapsed().as_secs_f64(),
             rate_warnings: warnings,
             max_lag_seconds: max_lag,
+            interrupted,
         }
     }
 }

@@ -271,6 +271,7 @@ impl Session {
             wall_seconds: self.wall_seconds,
             rate_warnings: 0,
             max_lag_seconds: 0.0,
+            interrupted: false,
         };
         RunSummary::new(&self.sim, &report)
     }

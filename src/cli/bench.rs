@@ -33,6 +33,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
     let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
     let parallelism = args.threads.map(|threads| Parallelism { threads, ..Default::default() });
+    smlworld::app::interrupt::install();
     let report = world.run(args.duration, parallelism)?;
     println!("{}", serde_json::to_string(&report)?);
     Ok(())

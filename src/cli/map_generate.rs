@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
+use smlworld::files::AtomicFile;
 use smlworld::map::generate::{self, GridParams, IntersectionParams, LaneDropParams, MapStats, RingParams};
 
 /// Which map to generate.
@@ -102,10 +103,8 @@ pub fn main(a: GenerateArgs) -> anyhow::Result<()> {
     }
     // Written beside the target and renamed at the end, so bad parameters or a failed write
     // never leave a truncated map behind.
-    let mut partial = a.out.clone().into_os_string();
-    partial.push(".partial");
-    let partial = PathBuf::from(partial);
-    let file = File::create(&partial).with_context(|| format!("cannot create {}", partial.display()))?;
+    let partial = AtomicFile::new(&a.out).with_context(|| format!("cannot write {}", a.out.display()))?;
+    let file = File::create(partial.path()).with_context(|| format!("cannot create {}", partial.path().display()))?;
     let written: Result<MapStats, generate::GenerateError> = match a.kind {
         MapKind::Ring => {
             let d = RingParams::default();
@@ -157,14 +156,10 @@ pub fn main(a: GenerateArgs) -> anyhow::Result<()> {
     };
     let stats = match written {
         Ok(stats) => stats,
-        Err(e) => {
-            // Best effort: the error about the parameters matters more than a leftover file.
-            let _ = std::fs::remove_file(&partial);
-            return Err(e).with_context(|| format!("generating {}", a.out.display()));
-        }
+        // The temporary file is removed when `partial` drops; the target keeps what it had.
+        Err(e) => return Err(e).with_context(|| format!("generating {}", a.out.display())),
     };
-    std::fs::rename(&partial, &a.out)
-        .with_context(|| format!("cannot move {} to {}", partial.display(), a.out.display()))?;
+    partial.commit().with_context(|| format!("cannot move the new map to {}", a.out.display()))?;
     println!(
         "wrote {}: {} map, {} nodes, {} ways, {} lanelets, {} bytes",
         a.out.display(),

@@ -52,9 +52,11 @@ pub fn main(args: ReplayArgs) -> anyhow::Result<()> {
         height: args.height,
         overlay: super::run::overlay(args.overlay, args.no_overlay),
     };
+    smlworld::app::interrupt::install();
     let report = replay_run(&args.out_dir, &options)?;
+    let what = if report.interrupted { "interrupted after" } else { "replayed" };
     tracing::info!(
-        "replayed {} rows of {}: {} frames drawn, {} stream frames sent",
+        "{what} {} rows of {}: {} frames drawn, {} stream frames sent",
         report.rows,
         args.out_dir.display(),
         report.frames,

@@ -78,6 +78,8 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         plots: args.plots,
         plugins: Vec::new(),
     };
+    // Ctrl-C / SIGTERM: the run stops after its step and writes what it has (exit 130 / 143).
+    smlworld::app::interrupt::install();
     run_scenario(args.scenario, options)?;
     Ok(())
 }

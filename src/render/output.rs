@@ -1,6 +1,9 @@
-//! Output files: PNG/BMP images, the original's `.meta` file, animated GIFs.
+//! Output files: PNG/BMP images, the original's `.meta` file, animated GIFs. Each is written
+//! atomically ([`crate::files::AtomicFile`]): a failed write never replaces a good file.
 
 use std::path::Path;
+
+use crate::files::AtomicFile;
 
 use image::RgbaImage;
 
@@ -13,23 +16,29 @@ pub(super) fn write_error(path: &Path, e: impl std::fmt::Display) -> RenderError
 
 /// Write an image; the extension picks the format: `.png` (RGBA) or `.bmp` (24-bit RGB, the
 /// original's bitmap format).
+/// Parent folders are created; the file is replaced only once the new one is complete.
 pub fn write_image(path: &Path, image: &RgbaImage) -> Result<(), RenderError> {
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("png") => image.save_with_format(path, image::ImageFormat::Png).map_err(|e| write_error(path, e)),
-        Some("bmp") => image::DynamicImage::ImageRgba8(image.clone())
-            .to_rgb8()
-            .save_with_format(path, image::ImageFormat::Bmp)
-            .map_err(|e| write_error(path, e)),
-        _ => Err(write_error(path, "unknown image format: use a .png or .bmp file name")),
-    }
+    let format = match ext.as_deref() {
+        Some("png") => image::ImageFormat::Png,
+        Some("bmp") => image::ImageFormat::Bmp,
+        _ => return Err(write_error(path, "unknown image format: use a .png or .bmp file name")),
+    };
+    let file = AtomicFile::new(path).map_err(|e| write_error(path, e))?;
+    let saved = if format == image::ImageFormat::Bmp {
+        image::DynamicImage::ImageRgba8(image.clone()).to_rgb8().save_with_format(file.path(), format)
+    } else {
+        image.save_with_format(file.path(), format)
+    };
+    saved.map_err(|e| write_error(path, e))?;
+    file.commit().map_err(|e| write_error(path, e))
 }
 
 /// Write the original's metadata file beside an image: `FILE.meta` (the image's extension
 /// replaced) containing `image_width=W;image_height=H;pixel_per_meter=P`, no trailing newline.
 pub fn write_meta(image_path: &Path, view: &BirdseyeView) -> Result<std::path::PathBuf, RenderError> {
     let meta = image_path.with_extension("meta");
-    std::fs::write(&meta, view.meta()).map_err(|e| write_error(&meta, e))?;
+    crate::files::write_atomic(&meta, view.meta().as_bytes()).map_err(|e| write_error(&meta, e))?;
     Ok(meta)
 }
 
@@ -46,15 +55,18 @@ pub fn write_gif(path: &Path, frames: &[RgbaImage], frame_rate: f64) -> Result<(
     for f in frames {
         gif.push(f.clone())?;
     }
-    Ok(())
+    gif.finish()
 }
 
-/// An animated GIF written frame by frame. Each frame after the first stores only what changed
+/// An animated GIF written frame by frame, under a temporary name until [`GifWriter::finish`]
+/// renames it into place (dropped unfinished, the temporary file is removed and an earlier GIF
+/// of the same name stays). Each frame after the first stores only what changed
 /// since the previous one (the bounding box of the changed pixels, unchanged pixels transparent,
 /// `Keep` disposal), so a static ground costs nothing after the first frame: GIFs of a run are
 /// tens of times smaller and faster to write than with full frames.
 pub struct GifWriter {
     path: std::path::PathBuf,
+    file: AtomicFile,
     encoder: gif::Encoder<std::io::BufWriter<std::fs::File>>,
     previous: Option<RgbaImage>,
     /// Frame delay [1/100 s].
@@ -70,13 +82,15 @@ impl GifWriter {
         let side = |px: u32| {
             u16::try_from(px).map_err(|_| write_error(path, format!("{px} px is too large for a GIF (at most 65535)")))
         };
-        let file = std::fs::File::create(path).map_err(|e| write_error(path, e))?;
-        let mut encoder = gif::Encoder::new(std::io::BufWriter::new(file), side(width)?, side(height)?, &[])
-            .map_err(|e| write_error(path, e))?;
+        let (w, h) = (side(width)?, side(height)?);
+        let file = AtomicFile::new(path).map_err(|e| write_error(path, e))?;
+        let out = std::fs::File::create(file.path()).map_err(|e| write_error(path, e))?;
+        let mut encoder =
+            gif::Encoder::new(std::io::BufWriter::new(out), w, h, &[]).map_err(|e| write_error(path, e))?;
         encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(path, e))?;
         // GIF delays are in hundredths of a second; 2 is the shortest most viewers honour.
         let delay = (100.0 / frame_rate).round().clamp(2.0, f64::from(u16::MAX)) as u16;
-        Ok(GifWriter { path: path.to_path_buf(), encoder, previous: None, delay })
+        Ok(GifWriter { path: path.to_path_buf(), file, encoder, previous: None, delay })
     }
 
     /// Append a frame (of the size given to [`GifWriter::create`]).
@@ -85,6 +99,14 @@ impl GifWriter {
         self.encoder.write_frame(&frame).map_err(|e| write_error(&self.path, e))?;
         self.previous = Some(image);
         Ok(())
+    }
+
+    /// End the GIF (its trailer written, the file flushed) and rename it into place.
+    pub fn finish(self) -> Result<(), RenderError> {
+        let GifWriter { path, file, encoder, .. } = self;
+        let out = encoder.into_inner().map_err(|e| write_error(&path, e))?;
+        out.into_inner().map_err(|e| write_error(&path, e.error().to_string()))?;
+        file.commit().map_err(|e| write_error(&path, e))
     }
 }
 

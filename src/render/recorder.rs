@@ -141,6 +141,15 @@ impl FrameRecorder {
         self.renderer.render_frame(&self.layer, &self.sprites)
     }
 
+    /// Finish the outputs: the GIF is completed and renamed into place (frames are written one by
+    /// one as they come). A recorder dropped without this leaves an earlier GIF of the same name.
+    pub fn finish(self) -> Result<(), RenderError> {
+        match self.gif {
+            Some(gif) => gif.finish(),
+            None => Ok(()),
+        }
+    }
+
     /// Number of frames recorded so far.
     pub fn frames(&self) -> u64 {
         self.frames
