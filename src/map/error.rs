@@ -57,6 +57,25 @@ pub enum MapError {
         /// What is wrong and what is allowed.
         problem: String,
     },
+    /// The file's structure is wrong in a way XML allows: an object nested inside another, an
+    /// object outside `<osm>`, a file that ends before `</osm>`, an attribute given twice.
+    #[error("{at}: {message}")]
+    Structure {
+        /// Where.
+        at: Location,
+        /// What is wrong, which object, and what to do.
+        message: String,
+    },
+    /// A node cannot be projected (outside UTM's latitudes, or the map crosses the antimeridian).
+    #[error("{at}: node {node}: {message}")]
+    Coordinates {
+        /// Where the node is defined.
+        at: Location,
+        /// The node.
+        node: i64,
+        /// What is wrong and what is allowed.
+        message: String,
+    },
     /// Two objects of the same kind share an id.
     #[error("{at}: duplicate {element} id {id} (first defined on line {first_line}); ids must be unique")]
     DuplicateId {

@@ -7,6 +7,7 @@ use std::path::Path as FsPath;
 use glam::DVec2;
 
 use super::error::{MapError, MapWarning};
+use super::geometry_checks;
 use super::graph::{GraphLanelet, RoutingGraph};
 use super::lanelet::{KNOWN_LINE_TYPES, Lanelet, LaneletId, LaneletMap, MapNode, MapWay, Tags};
 use super::osm::{MemberType, OsmDocument, OsmRelation};
@@ -52,6 +53,7 @@ fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
         warnings.push(MapWarning { at: doc.at(line).to_string(), message });
     };
 
+    check_coordinates(doc)?;
     let (projector, origin_node) = origin(doc, &mut warnings)?;
 
     let mut nodes = BTreeMap::new();
@@ -85,10 +87,11 @@ fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
     }
 
     let mut lanelets = Vec::new();
+    let mut checked_ways = std::collections::BTreeSet::new();
     for r in doc.relations.values() {
         match r.tags.get("type").map(String::as_str) {
             Some("lanelet") => {
-                if let Some(l) = lanelet(doc, r, &ways, &mut warnings)? {
+                if let Some(l) = lanelet(doc, r, &ways, &mut checked_ways, &mut warnings)? {
                     lanelets.push(l);
                 }
             }
@@ -131,6 +134,40 @@ fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
         .collect();
     map.graph = RoutingGraph::new(&graph_lanelets);
     Ok(map)
+}
+
+/// Southern and northern limits of UTM [deg]: beyond them the projection is not defined (polar
+/// maps need UPS).
+const UTM_LATITUDES: (f64, f64) = (-80.0, 84.0);
+
+/// Every node within UTM's latitudes, and the map not spread over the antimeridian (a map with
+/// nodes at +179.9 and -179.9 degrees would be projected 40,000 km wide).
+fn check_coordinates(doc: &OsmDocument) -> Result<(), MapError> {
+    let bad =
+        |n: &super::osm::OsmNode, message: String| MapError::Coordinates { at: doc.at(n.line), node: n.id, message };
+    if let Some(n) = doc.nodes.values().find(|n| n.lat < UTM_LATITUDES.0 || n.lat > UTM_LATITUDES.1) {
+        return Err(bad(
+            n,
+            format!(
+                "latitude {} is outside UTM's range ({}..={} degrees); such a map cannot be projected (a typo in `lat`?)",
+                n.lat, UTM_LATITUDES.0, UTM_LATITUDES.1
+            ),
+        ));
+    }
+    let west = doc.nodes.values().min_by(|a, b| a.lon.total_cmp(&b.lon));
+    let east = doc.nodes.values().max_by(|a, b| a.lon.total_cmp(&b.lon));
+    if let (Some(w), Some(e)) = (west, east)
+        && e.lon - w.lon > 180.0
+    {
+        return Err(bad(
+            e,
+            format!(
+                "longitude {} and node {}'s {} are more than 180 degrees apart: the map crosses the antimeridian (or a `lon` has a typo), which one UTM zone cannot draw; split the map or move it",
+                e.lon, w.id, w.lon
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// The origin: the node tagged `origin=true`, else the mean of all nodes.
@@ -216,15 +253,34 @@ fn bound_ways<'a>(
 }
 
 /// One lanelet from its relation, or `None` (with a warning) when it cannot be used.
+/// `checked_ways` holds the bound ways already checked for repeats and self-crossings (each is
+/// reported once, on its own line, however many lanelets share it).
 fn lanelet(
     doc: &OsmDocument,
     r: &OsmRelation,
     ways: &BTreeMap<i64, MapWay>,
+    checked_ways: &mut std::collections::BTreeSet<i64>,
     warnings: &mut Vec<MapWarning>,
 ) -> Result<Option<Lanelet>, MapError> {
     let at = doc.at(r.line).to_string();
     let mut warn = |message: String| warnings.push(MapWarning { at: at.clone(), message });
     let Some((left, right)) = bound_ways(doc, r, ways, &mut warn)? else { return Ok(None) };
+    for way in [left, right] {
+        if checked_ways.insert(way.id) {
+            let way_at = doc.ways.get(&way.id).map_or_else(|| at.clone(), |w| doc.at(w.line).to_string());
+            for message in geometry_checks::way_problems(way) {
+                warnings.push(MapWarning { at: way_at.clone(), message });
+            }
+        }
+    }
+    let mut warn = |message: String| warnings.push(MapWarning { at: at.clone(), message });
+    if let Some(message) = geometry_checks::unusable(r.id, left, right) {
+        warn(message);
+        return Ok(None);
+    }
+    if let Some(message) = geometry_checks::length_mismatch(r.id, left, right) {
+        warn(message);
+    }
 
     let mut right_nodes = right.nodes.clone();
     let mut right_pts = right.points.clone();

@@ -11,6 +11,7 @@
 pub mod commonroad;
 pub mod error;
 pub mod generate;
+mod geometry_checks;
 mod graph;
 pub mod lane_routing;
 pub mod lanelet;

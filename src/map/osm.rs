@@ -144,7 +144,15 @@ pub fn parse_osm(text: &str, source: &FsPath) -> Result<OsmDocument, MapError> {
     reader.config_mut().trim_text(true);
     let mut lines = LineCounter { bytes: text.as_bytes(), offset: 0, line: 1 };
     let mut open: Option<Open> = None;
+    // Where the open object started (line), for nesting messages.
+    let mut open_line = 0;
     let mut saw_osm = false;
+    // 0: before `<osm>`, 1: inside it, 2: after `</osm>`.
+    let mut osm_state = 0u8;
+    let structure = |line: usize, message: String| MapError::Structure {
+        at: Location { file: source.to_path_buf(), line },
+        message,
+    };
     loop {
         let start = reader.buffer_position() as usize;
         let event = reader.read_event().map_err(|e| {
@@ -154,16 +162,37 @@ pub fn parse_osm(text: &str, source: &FsPath) -> Result<OsmDocument, MapError> {
         // The element starts at the first '<' after the previous event.
         let elem_offset = start + text[start..].find('<').unwrap_or(0);
         match event {
-            Event::Start(e) | Event::Empty(e) if e.name().as_ref() == "osm" => saw_osm = true,
+            Event::Start(ref e) | Event::Empty(ref e) if e.name().as_ref() == "osm" => {
+                saw_osm = true;
+                osm_state = if matches!(event, Event::Start(_)) { 1 } else { 2 };
+            }
             Event::Start(ref e) | Event::Empty(ref e) => {
                 let empty = matches!(event, Event::Empty(_));
                 let at = Location { file: source.to_path_buf(), line: lines.line_at(elem_offset) };
+                check_unique_attributes(e, &at)?;
                 match e.name().as_ref() {
-                    "node" | "way" | "relation" => {
+                    name @ ("node" | "way" | "relation") => {
+                        let name = name.to_string();
+                        if let Some(outer) = &open {
+                            return Err(structure(
+                                at.line,
+                                format!(
+                                    "<{name}> inside {} (opened on line {open_line}); an OSM object cannot hold another: close the outer one first",
+                                    outer.describe()
+                                ),
+                            ));
+                        }
+                        if saw_osm && osm_state != 1 {
+                            return Err(structure(
+                                at.line,
+                                format!("<{name}> after </osm>; objects must lie inside <osm>...</osm>"),
+                            ));
+                        }
                         let object = read_object(e, &at)?;
                         if empty {
                             finish(&mut doc, object)?;
                         } else {
+                            open_line = at.line;
                             open = Some(object);
                         }
                     }
@@ -195,9 +224,25 @@ pub fn parse_osm(text: &str, source: &FsPath) -> Result<OsmDocument, MapError> {
                     if let Some(object) = open.take() {
                         finish(&mut doc, object)?;
                     }
+                } else if e.name().as_ref() == "osm" {
+                    osm_state = 2;
                 }
             }
-            Event::Eof => break,
+            Event::Eof => {
+                if osm_state == 1 {
+                    let line = lines.line_at(text.len());
+                    let inside = open
+                        .as_ref()
+                        .map_or(String::new(), |o| format!(" (inside {}, line {open_line})", o.describe()));
+                    return Err(structure(
+                        line,
+                        format!(
+                            "the file ends before </osm>{inside}: it looks cut short; re-save it in JOSM or restore the whole file"
+                        ),
+                    ));
+                }
+                break;
+            }
             _ => {}
         }
     }
@@ -209,6 +254,40 @@ pub fn parse_osm(text: &str, source: &FsPath) -> Result<OsmDocument, MapError> {
     }
     check_way_nodes(&doc)?;
     Ok(doc)
+}
+
+impl Open {
+    /// `way -10` for messages.
+    fn describe(&self) -> String {
+        match self {
+            Open::Node(n) => format!("node {}", n.id),
+            Open::Way(w) => format!("way {}", w.id),
+            Open::Relation(r) => format!("relation {}", r.id),
+            Open::Skipped => "a skipped element".into(),
+        }
+    }
+}
+
+/// XML forbids an attribute twice on one element; quick-xml only checks it when asked, and
+/// [`attr`] stops at the first match, so `<node id="1" lat="1" lat="2">` would load silently.
+fn check_unique_attributes(e: &BytesStart, at: &Location) -> Result<(), MapError> {
+    let mut seen: Vec<&str> = Vec::new();
+    for a in e.attributes().with_checks(false) {
+        let a = a.map_err(|err| MapError::Xml { at: at.clone(), message: err.to_string() })?;
+        let key = a.key.into_inner();
+        if seen.contains(&key) {
+            let id = attr(e, "id", at)?.map_or(String::new(), |id| format!(" {id}"));
+            return Err(MapError::Structure {
+                at: at.clone(),
+                message: format!(
+                    "{}{id}: attribute `{key}` given twice; an attribute may appear once per element (which value is meant?)",
+                    e.name().as_ref()
+                ),
+            });
+        }
+        seen.push(key);
+    }
+    Ok(())
 }
 
 /// `<tag>` keys are unique per object in OSM; the last one wins like in JOSM.

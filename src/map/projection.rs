@@ -23,7 +23,8 @@ pub struct Projector {
 impl Projector {
     /// A projector whose local (0, 0) is at `origin_lat`, `origin_lon` [deg].
     pub fn new(origin_lat: f64, origin_lon: f64) -> Projector {
-        let zone = utm::lat_lon_to_zone_number(origin_lat, origin_lon);
+        // The utm crate gives zone 61 at exactly 180 degrees east; zones run 1..=60.
+        let zone = utm::lat_lon_to_zone_number(origin_lat, origin_lon).clamp(1, 60);
         let band = utm::lat_to_zone_letter(origin_lat).unwrap_or(if origin_lat >= 0.0 { 'X' } else { 'C' });
         // utm returns (northing, easting, convergence): mind the order.
         let (northing, easting, _) = utm::to_utm_wgs84(origin_lat, origin_lon, zone);
