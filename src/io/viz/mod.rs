@@ -41,5 +41,7 @@ pub use codec::{
     MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder, VizError, VizPart,
     VizVehicle, decode_datagram, encode_frame,
 };
-pub use reassembly::{VizFrame, VizReassembler, VizStats};
+pub use reassembly::{
+    MAX_VEHICLES_PER_DATAGRAM, MAX_VEHICLES_PER_FRAME, RESTART_AFTER, VizFrame, VizReassembler, VizStats,
+};
 pub use sockets::{DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, RECV_BUFFER_LEN, VizReceiver, VizSender, VizSenderConfig};

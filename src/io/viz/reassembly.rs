@@ -25,7 +25,26 @@ pub struct VizStats {
     pub stale: u64,
     /// Split frames abandoned before all their parts arrived.
     pub incomplete: u64,
+    /// Times the sender was taken as restarted (its counter went back and stayed back).
+    pub restarts: u64,
+    /// Vehicles dropped by the caps ([`MAX_VEHICLES_PER_DATAGRAM`], [`MAX_VEHICLES_PER_FRAME`]).
+    pub vehicles_dropped: u64,
 }
+
+/// Most vehicles taken from one datagram: our sender puts about 150 in its 4 KiB datagrams and
+/// the 2015 sender all of a frame's in one (a UDP datagram holds at most ~2,000 records); the
+/// rest of a larger one is dropped with a warning.
+pub const MAX_VEHICLES_PER_DATAGRAM: usize = 2_000;
+
+/// Most vehicles in one frame (split frames included), so a malformed or hostile stream cannot
+/// make the viewer allocate gigabytes (a 4 M-vehicle frame crashed it in a GPU allocation).
+pub const MAX_VEHICLES_PER_FRAME: usize = 100_000;
+
+/// Consecutive stale datagrams, each at or after the previous one's counter, after which the
+/// sender is taken as restarted (a second `run --stream`, a counter that jumped to u64::MAX):
+/// the receiver follows the new counters instead of dropping them forever. Reordering on a
+/// network swaps a datagram or two, never ten in order.
+pub const RESTART_AFTER: u32 = 10;
 
 #[derive(Debug)]
 struct Pending {
@@ -45,6 +64,10 @@ pub struct VizReassembler {
     last: Option<u64>,
     pending: Option<Pending>,
     stats: VizStats,
+    /// Consecutive stale datagrams in counter order, and the last one's counter.
+    stale_run: (u32, u64),
+    /// Whether the caps' warning was logged (once per receiver; later drops are counted).
+    warned_cap: bool,
 }
 
 impl VizReassembler {
@@ -72,11 +95,28 @@ impl VizReassembler {
         self.push_decoded(datagram)
     }
 
-    fn push_decoded(&mut self, d: VizDatagram) -> Option<VizFrame> {
+    fn push_decoded(&mut self, mut d: VizDatagram) -> Option<VizFrame> {
         let older_than_pending = self.pending.as_ref().is_some_and(|p| d.counter < p.counter);
         if older_than_pending || self.last.is_some_and(|l| d.counter <= l) {
-            self.stats.stale += 1;
-            return None;
+            let (run, previous) = self.stale_run;
+            self.stale_run = (if run > 0 && d.counter >= previous { run + 1 } else { 1 }, d.counter);
+            if self.stale_run.0 < RESTART_AFTER {
+                self.stats.stale += 1;
+                return None;
+            }
+            tracing::info!(
+                "visualisation stream: the sender's counter went back (now {}, was {}); taking it as restarted",
+                d.counter,
+                self.last.unwrap_or(0)
+            );
+            self.stats.restarts += 1;
+            self.last = None;
+            self.pending = None;
+        }
+        self.stale_run = (0, 0);
+        if d.vehicles.len() > MAX_VEHICLES_PER_DATAGRAM {
+            self.drop_vehicles(d.vehicles.len() - MAX_VEHICLES_PER_DATAGRAM, "datagram", MAX_VEHICLES_PER_DATAGRAM);
+            d.vehicles.truncate(MAX_VEHICLES_PER_DATAGRAM);
         }
         let Some(part) = d.part else {
             if self.pending.take().is_some() {
@@ -95,19 +135,38 @@ impl VizReassembler {
             }
         }
         let pending = self.pending.as_mut()?;
-        let slot = &mut pending.parts[part.index as usize];
-        if slot.is_some() {
+        if pending.parts[part.index as usize].is_some() {
             self.stats.stale += 1;
             return None;
         }
-        *slot = Some(d.vehicles);
+        let so_far: usize = pending.parts.iter().flatten().map(Vec::len).sum();
+        let room = MAX_VEHICLES_PER_FRAME.saturating_sub(so_far);
+        let mut vehicles = d.vehicles;
+        let excess = vehicles.len().saturating_sub(room);
+        vehicles.truncate(room);
+        pending.parts[part.index as usize] = Some(vehicles);
         pending.missing -= 1;
+        if excess > 0 {
+            self.drop_vehicles(excess, "frame", MAX_VEHICLES_PER_FRAME);
+        }
+        let pending = self.pending.as_mut()?;
         if pending.missing > 0 {
             return None;
         }
         let done = self.pending.take()?;
         let vehicles = done.parts.into_iter().flatten().flatten().collect();
         Some(self.deliver(done.counter, vehicles))
+    }
+
+    /// Count vehicles dropped by a cap; warn the first time.
+    fn drop_vehicles(&mut self, n: usize, what: &str, cap: usize) {
+        self.stats.vehicles_dropped += n as u64;
+        if !self.warned_cap {
+            self.warned_cap = true;
+            tracing::warn!(
+                "visualisation stream: a {what} holds more than {cap} vehicles; {n} dropped (later drops are only counted)"
+            );
+        }
     }
 
     fn deliver(&mut self, counter: u64, vehicles: Vec<VizVehicle>) -> VizFrame {
