@@ -42,6 +42,7 @@ mod run;
 mod runner;
 pub mod scenario;
 pub mod session;
+pub mod soak;
 
 pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use output::{

@@ -2,6 +2,7 @@
 //! the map, vehicles, sensors, rates, threads and each module's share of the wall time.
 
 use smlworld::app::bench::BenchWorld;
+use smlworld::app::soak::soak;
 use smlworld::sim::Parallelism;
 
 /// Arguments of `smlworld bench`.
@@ -16,6 +17,13 @@ pub struct BenchArgs {
     /// Threads of the per-vehicle systems (default: the machine's cores, at most 4).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Soak test: run for this many seconds of WALL time, sampling the process's memory (RSS),
+    /// and report whether it stayed flat after the warm-up (the first minute).
+    #[arg(long, value_name = "SECONDS")]
+    pub soak: Option<f64>,
+    /// Memory sample interval of --soak [s of wall time].
+    #[arg(long, default_value_t = 10.0, requires = "soak")]
+    pub sample_every: f64,
 }
 
 /// Run the subcommand.
@@ -34,6 +42,22 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
     let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
     let parallelism = args.threads.map(|threads| Parallelism { threads, ..Default::default() });
     smlworld::app::interrupt::install();
+    if let Some(seconds) = args.soak {
+        anyhow::ensure!(
+            seconds.is_finite() && seconds > 0.0 && seconds <= 1e6,
+            "--soak must be in (0, 1e6] seconds of wall time, got {seconds}"
+        );
+        anyhow::ensure!(
+            args.sample_every.is_finite() && args.sample_every > 0.0 && args.sample_every <= seconds,
+            "--sample-every must be in (0, --soak] seconds, got {}",
+            args.sample_every
+        );
+        let report = soak(&world, seconds, args.sample_every, parallelism, |s| {
+            eprintln!("soak {:7.1} s wall: sim {:9.1} s, RSS {:7.1} MB", s.wall_s, s.sim_s, s.rss_mb);
+        })?;
+        println!("{}", serde_json::to_string(&report)?);
+        return Ok(());
+    }
     let report = world.run(args.duration, parallelism)?;
     println!("{}", serde_json::to_string(&report)?);
     Ok(())
