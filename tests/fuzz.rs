@@ -4,8 +4,13 @@
 //! The normal suite runs a fixed number of cases per target (a few seconds in all); a developer
 //! runs each target for a time budget with `SMLWORLD_FUZZ_SECS=600 cargo test --release fuzz`
 //! (the cases tried are printed). A failure's shrunk input is saved under
-//! `tests/fuzz_regressions/<target>/` and replayed by `fuzz_regressions_replay` from then on.
+//! `tests/fuzz-corpus/<target>/crash-*.bin`; with `SMLWORLD_FUZZ_SAVE=1` a long run also keeps
+//! the first input of every distinct outcome it reached (each error kind, each kind of success:
+//! the corpus) as `tests/fuzz-corpus/<target>/<outcome hash>.bin`. `fuzz_corpus_replay` runs every
+//! file there in the normal suite.
 
+use std::cell::RefCell;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -20,25 +25,47 @@ fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// Where a target's corpus and crashes live.
+fn corpus_dir(name: &str) -> PathBuf {
+    root().join("tests/fuzz-corpus").join(name)
+}
+
+/// Most corpus files one run adds per target.
+const CORPUS_PER_TARGET: usize = 64;
+
+/// An outcome as a short signature: the letters of `text` (numbers, names and positions left
+/// out, so one kind of error is one outcome however its values differ).
+fn outcome(text: &str) -> String {
+    let words: Vec<&str> = text.split(|c: char| !c.is_ascii_alphabetic()).filter(|w| w.len() > 1).take(8).collect();
+    words.join(" ")
+}
+
 /// Run `target` on inputs from `strategy`: `cases` of them, or batches until
-/// `SMLWORLD_FUZZ_SECS` have passed. A failure saves its shrunk input and fails the test.
-fn fuzz(name: &str, cases: u32, strategy: impl Strategy<Value = Vec<u8>>, target: fn(&[u8])) {
+/// `SMLWORLD_FUZZ_SECS` have passed. A failure saves its shrunk input and fails the test; with
+/// `SMLWORLD_FUZZ_SAVE=1` the first input of each new outcome is kept in the corpus.
+fn fuzz(name: &str, cases: u32, strategy: impl Strategy<Value = Vec<u8>>, target: fn(&[u8]) -> String) {
     let budget = std::env::var("SMLWORLD_FUZZ_SECS").ok().and_then(|s| s.parse::<f64>().ok());
+    let save = std::env::var("SMLWORLD_FUZZ_SAVE").is_ok_and(|v| v == "1");
     let deadline = budget.map(|s| Instant::now() + Duration::from_secs_f64(s));
     let batch = if deadline.is_some() { 256 } else { cases };
     let mut tried = 0u64;
+    let outcomes: RefCell<BTreeMap<String, Vec<u8>>> = RefCell::default();
     for round in 0u64.. {
         let mut seed = [0u8; 32];
         seed[..8].copy_from_slice(&round.to_le_bytes());
         let config = Config { cases: batch, failure_persistence: None, ..Config::default() };
         let mut runner = TestRunner::new_with_rng(config, TestRng::from_seed(RngAlgorithm::ChaCha, &seed));
         let result = runner.run(&strategy, |input| {
-            target(&input);
+            let seen = target(&input);
+            let mut outcomes = outcomes.borrow_mut();
+            if outcomes.len() < CORPUS_PER_TARGET {
+                outcomes.entry(seen).or_insert(input);
+            }
             Ok(())
         });
         tried += u64::from(batch);
         if let Err(TestError::Fail(reason, input)) = result {
-            let dir = root().join("tests/fuzz_regressions").join(name);
+            let dir = corpus_dir(name);
             std::fs::create_dir_all(&dir).unwrap();
             let file = dir.join(format!("crash-{:016x}.bin", fxhash(&input)));
             std::fs::write(&file, &input).unwrap();
@@ -49,7 +76,15 @@ fn fuzz(name: &str, cases: u32, strategy: impl Strategy<Value = Vec<u8>>, target
             break;
         }
     }
-    eprintln!("fuzz {name}: {tried} cases, 0 crashes");
+    let outcomes = outcomes.into_inner();
+    if save {
+        let dir = corpus_dir(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        for (seen, input) in &outcomes {
+            std::fs::write(dir.join(format!("{:016x}.bin", fxhash(seen.as_bytes()))), input).unwrap();
+        }
+    }
+    eprintln!("fuzz {name}: {tried} cases, 0 crashes, {} distinct outcomes", outcomes.len());
 }
 
 fn fxhash(bytes: &[u8]) -> u64 {
@@ -112,12 +147,17 @@ fn mutated(base: Vec<u8>) -> impl Strategy<Value = Vec<u8>> {
     )
 }
 
-fn osm_target(bytes: &[u8]) {
+fn osm_target(bytes: &[u8]) -> String {
     let text = String::from_utf8_lossy(bytes);
-    if let Ok(map) = LaneletMap::parse_str(&text, Path::new("fuzz.osm")) {
-        for l in &map.lanelets {
-            let _ = l.polygon();
+    match LaneletMap::parse_str(&text, Path::new("fuzz.osm")) {
+        Ok(map) => {
+            for l in &map.lanelets {
+                let _ = l.polygon();
+            }
+            let warning = map.warnings.first().map_or(String::new(), |w| outcome(&w.message));
+            format!("ok {} {warning}", map.lanelets.len().min(2))
         }
+        Err(e) => outcome(&e.to_string()),
     }
 }
 
@@ -131,13 +171,19 @@ fn fuzz_osm_reader_on_mutated_map() {
 /// byte of the input so regression files replay.
 const SCENARIOS: [&str; 5] = ["highway", "acc_highway", "intersection", "platoon_brake", "platoon_merge"];
 
-fn scenario_target(bytes: &[u8]) {
+fn scenario_target(bytes: &[u8]) -> String {
     let (which, text) = bytes.split_first().unwrap_or((&0, &[]));
     let name = SCENARIOS[usize::from(*which) % SCENARIOS.len()];
     let path = root().join(format!("scenarios/{name}.toml"));
     let text = String::from_utf8_lossy(text);
-    let Ok(scenario) = Scenario::parse_str(&text, &path) else { return };
-    let Ok(builder) = scenario.builder() else { return };
+    let scenario = match Scenario::parse_str(&text, &path) {
+        Ok(s) => s,
+        Err(e) => return format!("{name} load {}", outcome(&e.to_string().replace(&path.display().to_string(), ""))),
+    };
+    let builder = match scenario.builder() {
+        Ok(b) => b,
+        Err(e) => return format!("{name} build {}", outcome(&e.to_string())),
+    };
     let mut sim = builder.build();
     sim.run_for(0.5);
     for (id, s) in sim.states() {
@@ -146,6 +192,7 @@ fn scenario_target(bytes: &[u8]) {
             "{name}: vehicle {id} has a non-finite state {s:?} after a scenario that passed validation"
         );
     }
+    format!("{name} ran")
 }
 
 fn scenario_inputs() -> impl Strategy<Value = Vec<u8>> {
@@ -186,8 +233,11 @@ fn fuzz_scenario_every_number_extreme() {
     }
 }
 
-fn viz_target(bytes: &[u8]) {
-    let _ = decode_datagram(bytes);
+fn viz_target(bytes: &[u8]) -> String {
+    match decode_datagram(bytes) {
+        Ok(d) => format!("ok {} {}", d.part.is_some(), d.vehicles.len().min(2)),
+        Err(e) => outcome(&format!("{e:?}")),
+    }
 }
 
 #[test]
@@ -196,13 +246,20 @@ fn fuzz_viz_decoder() {
     fuzz("viz", 2000, bytes, viz_target);
 }
 
-fn qualisys_target(bytes: &[u8]) {
-    let _ = parse_data(bytes);
+fn qualisys_target(bytes: &[u8]) -> String {
+    let data = match parse_data(bytes) {
+        Ok(_) => "ok".to_string(),
+        Err(e) => outcome(&format!("{e:?}")),
+    };
     let mut decoder = PacketDecoder::new(1 << 16);
+    let mut packets = 0;
     for chunk in bytes.chunks(97) {
         decoder.push(chunk);
-        while let Some(Ok(_)) = decoder.next_packet() {}
+        while let Some(Ok(_)) = decoder.next_packet() {
+            packets += 1;
+        }
     }
+    format!("{data} packets {}", packets.min(2))
 }
 
 #[test]
@@ -212,7 +269,7 @@ fn fuzz_qualisys_decoder() {
 }
 
 /// The first 73 bytes are 9 f64 and a lane; what the line encoder makes of them must be one line.
-fn truck_target(bytes: &[u8]) {
+fn truck_target(bytes: &[u8]) -> String {
     let mut b = bytes.to_vec();
     b.resize(8 * 9 + 1, 0);
     let f = |i: usize| f64::from_le_bytes(b[8 * i..8 * i + 8].try_into().unwrap());
@@ -231,6 +288,7 @@ fn truck_target(bytes: &[u8]) {
     let mut line = String::new();
     format_truck_line(&mut line, i32::from_le_bytes(b[64..68].try_into().unwrap()), &state, f(8));
     assert!(line.ends_with("\r\n") && !line[..line.len() - 2].contains(['\r', '\n']), "not one line: {line:?}");
+    outcome(&line.replace(|c: char| c.is_ascii_digit(), ""))
 }
 
 #[test]
@@ -246,22 +304,25 @@ fn fuzz_truck_line_encoder_extreme_states() {
     fuzz("truck_line", 2000, bytes, truck_target);
 }
 
-/// Every saved crash replays without a panic.
+/// Every corpus file and saved crash replays without a panic (and the corpus is not empty:
+/// a long run's findings are kept).
 #[test]
-fn fuzz_regressions_replay() {
-    let targets: [(&str, fn(&[u8])); 5] = [
+fn fuzz_corpus_replay() {
+    let targets: [(&str, fn(&[u8]) -> String); 5] = [
         ("osm", osm_target),
         ("scenario", scenario_target),
         ("viz", viz_target),
         ("qualisys", qualisys_target),
         ("truck_line", truck_target),
     ];
+    let mut replayed = 0;
     for (name, target) in targets {
-        let dir: PathBuf = root().join("tests/fuzz_regressions").join(name);
-        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+        let Ok(entries) = std::fs::read_dir(corpus_dir(name)) else { continue };
         for entry in entries {
             let path = entry.unwrap().path();
             target(&std::fs::read(&path).unwrap());
+            replayed += 1;
         }
     }
+    assert!(replayed > 0, "tests/fuzz-corpus holds no input; run the long mode with SMLWORLD_FUZZ_SAVE=1");
 }
