@@ -50,6 +50,12 @@ fn frames_are_numbered_in_order_and_bad_extensions_are_errors() {
     let img = image::RgbaImage::new(2, 2);
     let err = write_image(std::path::Path::new("/tmp/x.jpeg"), &img).unwrap_err();
     assert!(err.to_string().contains(".png or .bmp"), "{err}");
-    let err = write_image(std::path::Path::new("/nonexistent-dir/x.png"), &img).unwrap_err();
-    assert!(err.to_string().contains("/nonexistent-dir/x.png"), "{err}");
+    // A folder that cannot be made (its parent is a plain file) is an error naming the path, for
+    // every user (root included, who may create `/nonexistent-dir`).
+    let blocker = std::env::temp_dir().join(format!("smlworld-render-blocker-{}", std::process::id()));
+    std::fs::write(&blocker, b"a file, not a folder").unwrap();
+    let bad = blocker.join("x.png");
+    let err = write_image(&bad, &img).unwrap_err();
+    assert!(err.to_string().contains(&bad.display().to_string()), "{err}");
+    std::fs::remove_file(&blocker).unwrap();
 }
