@@ -27,7 +27,10 @@ fn override_through_vehicles_sets_every_follower() {
         .filter_map(|v| v["controller"].get("platoon")?.get("time_gap")?.as_float())
         .collect();
     assert_eq!(gaps, vec![0.9; 4]); // the four followers; the leader has no `platoon` table
-    let err = apply_override(&mut table, "nosuch.key", toml::Value::Integer(1)).unwrap_err();
+    // A misspelt table is created on the way, then refused by the strict parser, naming it.
+    let err = load_scenario_with_overrides(Path::new(PLATOON), None, &[("nosuch.key".into(), toml::Value::Integer(1))])
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("nosuch"), "{err}");
 }
 

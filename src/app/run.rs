@@ -16,7 +16,7 @@ use std::path::{Path as FsPath, PathBuf};
 use crate::io::lab::VizStreamPlugin;
 use crate::io::viz::DEFAULT_VIZ_RATE_HZ;
 use crate::render::{FrameRecorder, RecorderOptions, RenderError};
-use crate::sim::{Plugin, Sim, SimBuilder};
+use crate::sim::{Parallelism, Plugin, Sim, SimBuilder};
 
 use super::{RealtimeRunner, RunReport, RunSummary, Scenario, ScenarioError, TrajectoryLog, TrajectoryLogPlugin};
 
@@ -88,6 +88,15 @@ pub struct RunOptions {
     /// Your plugins (controllers they register can be named in the scenario), added before the
     /// scenario's built-in plugins and vehicles.
     pub plugins: Vec<Box<dyn Plugin>>,
+    /// Replaces the scenario's `seed` [-].
+    pub seed: Option<u64>,
+    /// Dotted-key overrides of the scenario file, applied in order before it is checked (see
+    /// [`super::scenario::overrides`]); needs a scenario file, not a loaded scenario.
+    pub overrides: Vec<(String, toml::Value)>,
+    /// Most threads the per-vehicle systems use; above 1 they split the vehicles at any vehicle
+    /// count (default: [`Parallelism::default`], which splits from 2,000 vehicles on). The
+    /// results are the same bits for any value.
+    pub threads: Option<usize>,
 }
 
 impl Default for RunOptions {
@@ -109,6 +118,9 @@ impl Default for RunOptions {
             progress: true,
             plots: false,
             plugins: Vec::new(),
+            seed: None,
+            overrides: Vec::new(),
+            threads: None,
         }
     }
 }
@@ -173,9 +185,21 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         plugin.build(&mut builder);
     }
     let scenario = match source.into() {
-        ScenarioSource::File(path) => Scenario::load_with(&path, builder.controllers())?,
-        ScenarioSource::Loaded(s) => *s,
+        ScenarioSource::File(path) => {
+            super::scenario::load_with_overrides(&path, options.seed, &options.overrides, builder.controllers())?
+        }
+        ScenarioSource::Loaded(s) => {
+            check_option(options.overrides.is_empty(), || {
+                format!("overrides (--set) change a scenario file; {} is already loaded", s.path.display())
+            })?;
+            let mut s = *s;
+            if let Some(seed) = options.seed {
+                s.file.seed = seed;
+            }
+            s
+        }
     };
+    check_option(options.threads != Some(0), || "--threads must be at least 1, got 0".to_string())?;
     let duration = options.duration.unwrap_or(scenario.file.duration);
     check_option(duration.is_finite() && duration > 0.0, || {
         format!("--duration must be a positive number of seconds, got {duration}")
@@ -199,6 +223,9 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     let mut recorder = recorder(&scenario, &options)?;
 
     scenario.assemble(&mut builder)?;
+    if let Some(threads) = options.threads {
+        builder.insert_resource(Parallelism::split(threads));
+    }
     std::fs::create_dir_all(&options.out).map_err(|source| RunError::Io { path: options.out.clone(), source })?;
     // Outputs are written beside their final names and renamed into place only when the run
     // has ended, so a failed run never truncates the previous run's results.

@@ -99,62 +99,17 @@ pub struct StateColumns {
     pub vy: Vec<f64>,
 }
 
-/// Set `key` (dotted, e.g. `vehicles.controller.platoon.time_gap`) to `value` in a scenario
-/// table. A key through an array of tables (`vehicles`) sets it in every element that has the
-/// tables on the way; the last key is created if missing (the strict parser then rejects keys
-/// the format does not know). Errors name the key.
-pub fn apply_override(table: &mut toml::Table, key: &str, value: toml::Value) -> Result<(), String> {
-    fn set(item: &mut toml::Value, parts: &[&str], value: &toml::Value) -> usize {
-        match item {
-            toml::Value::Array(a) => a.iter_mut().map(|e| set(e, parts, value)).sum(),
-            toml::Value::Table(t) => set_in(t, parts, value),
-            _ => 0,
-        }
-    }
-    fn set_in(t: &mut toml::Table, parts: &[&str], value: &toml::Value) -> usize {
-        match parts {
-            [] => 0,
-            [last] => {
-                t.insert((*last).to_string(), value.clone());
-                1
-            }
-            [first, rest @ ..] => t.get_mut(*first).map_or(0, |item| set(item, rest, value)),
-        }
-    }
-    let parts: Vec<&str> = key.split('.').collect();
-    if parts.iter().any(|p| p.is_empty()) {
-        return Err(format!("override `{key}`: keys are dotted names like `seed` or `vehicles.speed`"));
-    }
-    match set_in(table, &parts, &value) {
-        0 => Err(format!("override `{key}`: the scenario has no table `{}`", parts[..parts.len() - 1].join("."))),
-        _ => Ok(()),
-    }
-}
+pub use super::scenario::apply_override;
 
-/// Load a scenario file with `overrides` (dotted keys, see [`apply_override`]) and an optional
-/// seed applied before it is checked; errors name the file, line and key.
+/// Load a scenario file with `overrides` (dotted keys, `*` for every element of an array, see
+/// [`super::scenario::overrides`]) and an optional seed applied before it is checked; errors
+/// name the file, line and key.
 pub fn load_scenario_with_overrides(
     path: &FsPath,
     seed: Option<u64>,
     overrides: &[(String, toml::Value)],
 ) -> Result<Scenario, SessionError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io { path: path.into(), source })?;
-    if seed.is_none() && overrides.is_empty() {
-        return Ok(Scenario::parse_str(&text, path)?);
-    }
-    let mut table: toml::Table =
-        toml::from_str(&text).map_err(|e| ScenarioError::Syntax { path: path.into(), message: e.to_string() })?;
-    for (key, value) in overrides {
-        apply_override(&mut table, key, value.clone())
-            .map_err(|m| SessionError::Argument(format!("{}: {m}", path.display())))?;
-    }
-    if let Some(seed) = seed {
-        let seed =
-            i64::try_from(seed).map_err(|_| SessionError::Argument(format!("seed must be < 2^63, got {seed}")))?;
-        table.insert("seed".into(), toml::Value::Integer(seed));
-    }
-    let text = toml::to_string(&table).map_err(|e| SessionError::Argument(format!("{}: {e}", path.display())))?;
-    Ok(Scenario::parse_str(&text, path)?)
+    Ok(super::scenario::load_with_overrides(path, seed, overrides, &Default::default())?)
 }
 
 /// A scenario's simulation, stepped by the caller.

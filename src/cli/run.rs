@@ -56,6 +56,24 @@ pub struct RunArgs {
     /// Write figures (speed, gaps, platoons, lateral deviation, trace; PNG + SVG) into OUT/plots.
     #[arg(long)]
     pub plots: bool,
+    /// Replace the scenario's `seed`.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Most threads the per-vehicle systems use; above 1 they split at any vehicle count (the
+    /// results are the same bits for any N). Default: the machine's cores, at most 4, from
+    /// 2,000 vehicles on.
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
+    /// Override a scenario key (repeatable, applied in order): dotted keys, an index or `*` for
+    /// the elements of an array, the value as TOML (`--set 'vehicles.*.speed=12.5'`,
+    /// `--set traffic.0.count=80`, `--set v2v.wifi.loss=0.1`).
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_set)]
+    pub set: Vec<(String, toml::Value)>,
+}
+
+/// `--set KEY=VALUE` (see [`smlworld::app::scenario::parse_override`]).
+pub fn parse_set(text: &str) -> Result<(String, toml::Value), String> {
+    smlworld::app::scenario::parse_override(text)
 }
 
 /// Run the subcommand.
@@ -77,6 +95,9 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         progress: true,
         plots: args.plots,
         plugins: Vec::new(),
+        seed: args.seed,
+        overrides: args.set,
+        threads: args.threads,
     };
     run_scenario(args.scenario, options)?;
     Ok(())
