@@ -101,6 +101,9 @@ pub struct MetricsSummary {
     pub collision_count: usize,
     /// Every collision, in time order.
     pub collisions: Vec<Collision>,
+    /// Every vehicle that collided (JSON keys are its id as a string): the sim time of its first
+    /// collision [s].
+    pub collided: BTreeMap<i32, f64>,
     /// Every follower, in id order.
     pub followers: Vec<FollowerStats>,
     /// Every platoon, in leader id order.
@@ -114,6 +117,8 @@ pub struct Metrics {
     pub warmup: f64,
     /// Collisions so far.
     pub collisions: Vec<Collision>,
+    /// Sim time of each vehicle's first collision [s].
+    pub collided: BTreeMap<VehicleId, f64>,
     /// Followers so far, by id.
     pub followers: BTreeMap<VehicleId, FollowerStats>,
     platoons: BTreeMap<VehicleId, BTreeMap<VehicleId, MemberStats>>,
@@ -211,6 +216,7 @@ impl Metrics {
             warmup: self.warmup,
             collision_count: self.collisions.len(),
             collisions: self.collisions.clone(),
+            collided: self.collided.iter().map(|(id, t)| (id.0, *t)).collect(),
             followers: self.followers.values().copied().collect(),
             platoons,
         }
@@ -342,6 +348,8 @@ impl Metrics {
         for &pair in &self.touching {
             if !self.contacts.contains(&pair) {
                 self.collisions.push(Collision { a: pair.0, b: pair.1, t });
+                self.collided.entry(pair.0).or_insert(t);
+                self.collided.entry(pair.1).or_insert(t);
             }
         }
         self.contacts.clear();

@@ -278,18 +278,26 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         tracing::info!("wrote {} figures (PNG + SVG) into {}", written.len(), dir.display());
     }
     let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
+    let collisions = summary.metrics.as_ref().map_or(0, |m| m.collision_count);
     tracing::info!(
-        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), seed {}, max distance to centre line {:.3} m; wrote {} and {}",
+        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), {}, seed {}, max distance to centre line {:.3} m; wrote {} and {}",
         summary.vehicles,
         summary.sim_seconds,
         summary.wall_seconds,
         summary.real_time_factor,
+        collisions_text(collisions, std::io::stderr().is_terminal()),
         summary.seed,
         worst,
         csv_path.display(),
         summary_path.display()
     );
     Ok(summary)
+}
+
+/// `collisions N` for the closing line; in bold red when there were any and `colour` (stderr is
+/// a terminal: a log file or pipe gets no escape codes).
+pub fn collisions_text(n: usize, colour: bool) -> String {
+    if colour && n > 0 { format!("\x1b[1;31mcollisions {n}\x1b[0m") } else { format!("collisions {n}") }
 }
 
 /// Temporary output files of a run, removed if the run ends early with an error (dropped before
