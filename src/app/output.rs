@@ -154,8 +154,10 @@ pub struct RunSummary {
     pub rate_warnings: u64,
     /// The scenario's seed.
     pub seed: u64,
-    /// Per vehicle id (JSON keys are strings): largest distance to its route's centre line seen
-    /// by its path follower [m], checked at every control tick.
+    /// Per vehicle id (JSON keys are strings), for every vehicle with a route: largest distance
+    /// to its route's centre line [m], seen by its path follower at every control tick, or for a
+    /// vehicle without one (driven from Python, by a student's controller, by nothing) after
+    /// every dynamics step.
     pub max_distance_to_centre_line: BTreeMap<i32, f64>,
     /// Collisions, follower gaps and platoon string stability (when [`super::metrics::MetricsPlugin`] ran).
     pub metrics: Option<super::metrics::MetricsSummary>,
@@ -218,8 +220,14 @@ impl RunSummary {
         let world = sim.world();
         let stats = world.get_resource::<V2vStats>().copied().unwrap_or_default();
         let vehicles = world.resource::<Vehicles>();
-        let max_distance_to_centre_line =
-            vehicles.iter().filter_map(|(id, e)| Some((id.0, world.get::<PathFollower>(e)?.max_offset))).collect();
+        let deviation = world.get_resource::<super::metrics::Metrics>().map(|m| &m.route_deviation);
+        let max_distance_to_centre_line = vehicles
+            .iter()
+            .filter_map(|(id, e)| match world.get::<PathFollower>(e) {
+                Some(f) => Some((id.0, f.max_offset)),
+                None => Some((id.0, deviation?.get(&id)?.max_offset)),
+            })
+            .collect();
         RunSummary {
             sim_seconds: report.sim_seconds,
             wall_seconds: report.wall_seconds,
