@@ -112,6 +112,29 @@ fn lab_mixed_tracks_the_real_trucks_and_virtual_vehicles_see_them() {
     let v: f64 = fields["velocity"].parse().expect("number");
     assert!((v - 8.0 / 32.0).abs() < 0.04, "velocity {v}, expected 8/32");
 
+    // Issue 22 item 1: yaw in degrees (truck 1 drives counter-clockwise round the origin, so
+    // its heading is its polar angle + 90 deg), and time the motion-capture frame time: the
+    // mock's frames are 1/DEFAULT_MOCK_RATE_HZ apart, the truck ticks 1/20 s.
+    for line in &lines[lines.len() - 10..] {
+        let (_, f) = parse_truck_line(line);
+        let num = |k: &str| f[k].parse::<f64>().expect("number");
+        let heading = (num("y").atan2(num("x")).to_degrees() + 90.0).rem_euclid(360.0);
+        let yaw = num("yaw").rem_euclid(360.0);
+        let diff = (yaw - heading).abs();
+        assert!(diff < 3.0 || diff > 357.0, "yaw {yaw} deg, heading {heading} deg: {line}");
+    }
+    let times: Vec<f64> =
+        lines.iter().map(|l| l["time=".len()..].split("XcRt").next().unwrap().parse().unwrap()).collect();
+    let rate = smlworld::io::mock_mocap::DEFAULT_MOCK_RATE_HZ;
+    assert!(
+        times.iter().all(|t| ((t * rate) - (t * rate).round()).abs() < 1e-3),
+        "times are not motion-capture frame times (1/{rate} s apart): {times:?}"
+    );
+    assert!(
+        times.iter().any(|t| ((t * 20.0) - (t * 20.0).round()).abs() > 1e-3),
+        "every time is a truck tick (sim time), none a motion-capture frame time: {times:?}"
+    );
+
     // The stream carried every vehicle, real ones where the simulation has them.
     let frame = viewer.latest().expect("stream frames arrived");
     assert_eq!(frame.vehicles.len(), 8);

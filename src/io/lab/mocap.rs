@@ -57,8 +57,9 @@ pub struct MocapTrack {
     pub stale: bool,
     /// Sim time spent stale [s], counted per dynamics step.
     pub stale_seconds: f64,
-    /// Timestamp of the last frame counted [µs], to count each frame once.
-    last_timestamp_us: Option<i64>,
+    /// Motion-capture timestamp of the last frame that saw its body [µs] (QTM's clock; the
+    /// truck line's `time`), also used to count each frame once.
+    pub last_timestamp_us: Option<i64>,
 }
 
 /// Each [`Dynamics`] tick: feed the frames received since the last tick into the tracker, mark
