@@ -81,6 +81,8 @@ pub struct RunOptions {
     pub overlay: Option<bool>,
     /// Stream the vehicles over UDP (2015 visualisation format) to this address.
     pub stream: Option<SocketAddr>,
+    /// Class names and reference point of the stream (see [`crate::io::viz::StreamFormat`]).
+    pub stream_format: crate::io::viz::StreamFormat,
     /// Show a progress bar on a terminal for runs of 30 sim s or more.
     pub progress: bool,
     /// Write the figures of `smlworld plot` into `out/plots` at the end of the run.
@@ -115,6 +117,7 @@ impl Default for RunOptions {
             sensor_ranges: false,
             overlay: None,
             stream: None,
+            stream_format: crate::io::viz::StreamFormat::Smlworld,
             progress: true,
             plots: false,
             plugins: Vec::new(),
@@ -234,7 +237,9 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     let csv = std::fs::File::create(&csv_tmp).map_err(|source| RunError::Io { path: csv_tmp.clone(), source })?;
     let outputs = PendingOutputs(vec![csv_tmp.clone()]);
     if let Some(addr) = options.stream {
-        let plugin = VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ).map_err(|e| RunError::Stream(e.to_string()))?;
+        let plugin = VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ)
+            .map_err(|e| RunError::Stream(e.to_string()))?
+            .with_format(options.stream_format);
         builder.add_plugin(plugin);
         tracing::info!(
             "streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)"

@@ -47,6 +47,11 @@ pub struct RunArgs {
     /// 127.0.0.1:38008) for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
     pub stream: Option<std::net::SocketAddr>,
+    /// Class names and reference point of --stream: `smlworld` (ours: `Car`, `Truck`, ...; x, y the
+    /// body centre) or `2015` (what the 2015 viewers draw: `SmartVehicle`, `DummyVehicle`; x, y the
+    /// rear-axle point).
+    #[arg(long, value_name = "FORMAT", default_value = "smlworld", value_parser = parse_stream_format)]
+    pub stream_format: smlworld::io::viz::StreamFormat,
     /// Draw a time stamp and a legend (classes; real vs virtual) on every frame (default: on the GIF only).
     #[arg(long, conflicts_with = "no_overlay")]
     pub overlay: bool,
@@ -92,6 +97,7 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         sensor_ranges: args.sensor_ranges,
         overlay: overlay(args.overlay, args.no_overlay),
         stream: args.stream,
+        stream_format: args.stream_format,
         progress: true,
         plots: args.plots,
         plugins: Vec::new(),
@@ -101,6 +107,11 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
     };
     run_scenario(args.scenario, options)?;
     Ok(())
+}
+
+/// `--stream-format smlworld|2015` (see [`smlworld::io::viz::StreamFormat`]).
+pub fn parse_stream_format(text: &str) -> Result<smlworld::io::viz::StreamFormat, String> {
+    text.parse()
 }
 
 /// `--overlay` / `--no-overlay` / neither (the default: on the GIF only).
