@@ -76,7 +76,7 @@ pub fn apply_mocap(
     while let Some(f) = client.try_next() {
         bridge.tracker.update(&f.frame, f.received_at);
         for b in &f.frame.bodies {
-            let Some(t) = bridge.tracker.bodies().find(|t| t.body == b.index) else { continue };
+            let Some(t) = bridge.tracker.bodies().find(|t| t.body == b.number()) else { continue };
             if t.timestamp_us != f.frame.timestamp_us {
                 continue;
             }
