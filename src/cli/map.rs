@@ -135,7 +135,7 @@ fn no_route_in_lane(map: &LaneletMap, from: &Place, to: &Place, points_per_meter
     let opts = LaneChangeOptions { points_per_meter, ..LaneChangeOptions::default() };
     match map.route_with_lane_changes(from, to, &opts) {
         Ok(route) => anyhow::anyhow!(
-            "from {from} to {to}: no route in lane; try --lane-changes (a route with {} lane change{} exists)",
+            "no route from {from} to {to}: no route in lane; try --lane-changes (a route with {} lane change{} exists)",
             route.lane_changes.len(),
             if route.lane_changes.len() == 1 { "" } else { "s" }
         ),
