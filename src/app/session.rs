@@ -20,13 +20,17 @@ use std::path::Path as FsPath;
 use std::sync::Arc;
 use std::time::Instant;
 
-use bevy_ecs::prelude::{Component, Query};
+use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::map::LaneletMap;
 use crate::render::{FrameRecorder, RecorderOptions};
-use crate::sim::{Control, Sim, SimSystems};
-use crate::world::{Channel, ControlCommand, Mailbox, SensorReadings, SimTime, VehicleId, Vehicles};
+use crate::sim::{Control, Sim, SimClock, SimSystems};
+use crate::vehicles::{Longitudinal, LongitudinalSystems};
+use crate::world::{
+    AccelerationUnicycle, Channel, ControlCommand, KinematicUnicycle, Mailbox, SensorReadings, SimTime, VehicleId,
+    VehicleState, Vehicles,
+};
 
 use super::{RunReport, RunSummary, Scenario, ScenarioError};
 
@@ -79,6 +83,37 @@ impl CommandOverride {
 fn apply_overrides(mut q: Query<(&CommandOverride, &mut ControlCommand)>) {
     for (o, mut c) in &mut q {
         o.apply(&mut c);
+    }
+}
+
+/// Control-phase system, after the longitudinal pipeline decided and before it reports: a
+/// vehicle whose commands are set from outside tells the others (V2V beacons) the acceleration
+/// those commands give, not what its own controller asked for (issue 22 item 5: CACC followers
+/// of a Python-driven leader must brake with it). Acceleration model: `(throttle - drag v) /
+/// mass`; kinematic model: `(speed - v) / dt` [m/s²].
+fn report_overridden_accel(
+    clock: Res<SimClock>,
+    mut q: Query<(
+        &CommandOverride,
+        &ControlCommand,
+        &VehicleState,
+        &mut Longitudinal,
+        Option<&AccelerationUnicycle>,
+        Option<&KinematicUnicycle>,
+    )>,
+) {
+    for (o, command, state, mut lon, acceleration, kinematic) in &mut q {
+        let mut c = *command;
+        o.apply(&mut c);
+        let v = state.speed().max(0.0);
+        let accel = match (acceleration, kinematic) {
+            (Some(m), None) if m.mass > 0.0 => (c.throttle - m.drag * v) / m.mass,
+            _ if clock.dt > 0.0 => (c.speed - v) / clock.dt,
+            _ => continue,
+        };
+        if accel.is_finite() {
+            lon.accel = accel;
+        }
     }
 }
 
@@ -139,6 +174,10 @@ impl Session {
     pub fn new(scenario: Scenario) -> Result<Session, SessionError> {
         let mut b = scenario.builder()?;
         b.add_systems(Control, apply_overrides.after(SimSystems::Control).before(SimSystems::Integrate));
+        b.add_systems(
+            Control,
+            report_overridden_accel.after(LongitudinalSystems::Actuate).before(LongitudinalSystems::Report),
+        );
         let sim = b.build();
         let start = sim.now();
         Ok(Session { sim, renderer: None, scenario, wall_seconds: 0.0, start })
