@@ -105,3 +105,18 @@ fn readme_route_example_works_and_reports_its_nodes() {
     assert_eq!(v["from_node"], -142);
     assert!(v.get("note").is_none(), "HighwaySML follows the 2015 rule: {v}");
 }
+
+/// Issue 22 item 11: a route that exists only with lane changes says so and names the flag.
+#[test]
+fn route_between_lanes_suggests_lane_changes() {
+    let map = concat!(env!("CARGO_MANIFEST_DIR"), "/maps/highway_ring.osm");
+    let args = ["map", "route", map, "--from-tag", "right_lane_node", "--to-tag", "left_lane_node"];
+    let (ok, _, stderr) = smlworld(&args);
+    assert!(!ok);
+    assert!(stderr.contains("no route in lane; try --lane-changes"), "{stderr}");
+    assert!(stderr.contains("right_lane_node") && stderr.contains("left_lane_node"), "{stderr}");
+    let mut with = args.to_vec();
+    with.push("--lane-changes");
+    let (ok, _, stderr) = smlworld(&with);
+    assert!(ok, "the suggested flag finds the route: {stderr}");
+}

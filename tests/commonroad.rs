@@ -194,6 +194,17 @@ fn replayed_obstacles_follow_their_trajectories_and_acc_avoids_them() {
     assert_eq!(collisions(&ignore), vec![(-101, -1)]);
     let t = ignore["metrics"]["collisions"][0]["t"].as_f64().unwrap();
     assert!((t - 30.5 / 7.0).abs() < 0.15, "collision at {t} s");
+    // Issue 22 item 7: it drives on into the goal region at 5 s, but a goal reached after a
+    // collision does not count; summary.json marks both collided vehicles.
+    let goal = &ignore["commonroad"]["goals"]["-1"];
+    assert_eq!(goal["reached"].as_bool(), Some(false), "{goal}");
+    assert_eq!(goal["collision"].as_f64(), Some(t), "{goal}");
+    let collided = ignore["metrics"]["collided"].as_object().expect("metrics.collided");
+    let ids: Vec<&str> = collided.keys().map(String::as_str).collect();
+    assert_eq!(ids, vec!["-1", "-101"], "{collided:?}");
+    assert_eq!(collided["-1"].as_f64(), Some(t));
+    assert_eq!(acc["metrics"]["collided"].as_object().map(|o| o.len()), Some(0));
+    assert_eq!(acc["commonroad"]["goals"]["-1"]["collision"], serde_json::Value::Null);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -220,7 +220,7 @@ fn tracker_scales_estimates_velocity_and_marks_lost_bodies_stale() {
     let mut t = Tracker::new(TrackerConfig::default());
     let t0 = Instant::now();
     t.update(&frame(0, 1, &[[1000.0, 0.0, 0.0, 0.0, 0.0, 90.0], [0.0, 500.0, 0.0, 0.0, 0.0, 0.0]]), t0);
-    let b0 = t.get(0).expect("body 0 is vehicle 0");
+    let b0 = t.get(1).expect("QTM body 1 (the first in the frame) is vehicle 1");
     // 1000 mm on the lab floor is 1 m, times the scale 32.
     assert!((b0.position - DVec2::new(32.0, 0.0)).length() < 1e-9);
     assert!((b0.yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-6);
@@ -228,28 +228,28 @@ fn tracker_scales_estimates_velocity_and_marks_lost_bodies_stale() {
     // 100 mm in 0.1 s along x: 1 m/s in the lab, 32 m/s in the world.
     let t1 = t0 + Duration::from_millis(100);
     t.update(&frame(100_000, 2, &[[1100.0, 0.0, 0.0, 0.0, 0.0, 90.0], NAN6]), t1);
-    let b0 = t.get(0).expect("body 0");
+    let b0 = t.get(1).expect("body 1");
     assert!((b0.velocity - DVec2::new(32.0, 0.0)).length() < 1e-3, "{:?}", b0.velocity);
     assert_eq!(b0.frame, 2);
     // A duplicate of frame 2 (polled twice) changes nothing.
     t.update(&frame(100_000, 2, &[[5000.0, 0.0, 0.0, 0.0, 0.0, 0.0], NAN6]), t1);
-    assert!((t.get(0).expect("body 0").position.x - 35.2).abs() < 1e-4);
-    // Body 1 was last seen at t0: stale after 0.5 s, kept.
+    assert!((t.get(1).expect("body 1").position.x - 35.2).abs() < 1e-4);
+    // Body 2 was last seen at t0: stale after 0.5 s, kept.
     assert_eq!(t.refresh(t0 + Duration::from_millis(400)), 0);
     assert_eq!(t.refresh(t0 + Duration::from_millis(700)), 2, "both last seen more than 0.5 s before");
-    let b1 = t.get(1).expect("a lost body is not deleted");
+    let b1 = t.get(2).expect("a lost body is not deleted");
     assert!(b1.stale);
     assert!((b1.position - DVec2::new(0.0, 16.0)).length() < 1e-9, "keeps its last position");
-    assert!(t.get(0).expect("body 0").stale);
+    assert!(t.get(1).expect("body 1").stale);
     assert_eq!(t.refresh(t0 + Duration::from_millis(800)), 0, "reported once");
     // Seen again: fresh, velocity restarts from zero rather than spanning the gap.
     t.update(&frame(1_000_000, 3, &[NAN6, [0.0, 900.0, 0.0, 0.0, 0.0, 0.0]]), t0 + Duration::from_secs(1));
-    let b1 = t.get(1).expect("body 1");
+    let b1 = t.get(2).expect("body 2");
     assert!(!b1.stale);
     assert_eq!(b1.velocity, DVec2::ZERO);
     // QTM restarted its measurement: timestamps start again from zero; the body still moves.
     t.update(&frame(40_000, 1, &[NAN6, [0.0, 1000.0, 0.0, 0.0, 0.0, 0.0]]), t0 + Duration::from_millis(1100));
-    let b1 = t.get(1).expect("body 1");
+    let b1 = t.get(2).expect("body 2");
     assert!((b1.position - DVec2::new(0.0, 32.0)).length() < 1e-9);
     assert_eq!(b1.velocity, DVec2::ZERO);
     assert_eq!(b1.frame, 1);
@@ -258,15 +258,15 @@ fn tracker_scales_estimates_velocity_and_marks_lost_bodies_stale() {
 #[test]
 fn tracker_mapping_table_and_scale() {
     let config = TrackerConfig {
-        mapping: BodyMapping::Table(BTreeMap::from([(1, 7)])),
+        mapping: BodyMapping::Table(BTreeMap::from([(2, 7)])),
         scale: 10.0,
         stale_after: Duration::from_secs(1),
     };
     let mut t = Tracker::new(config);
     t.update(&frame(0, 0, &[[1.0; 6], [2000.0, -1000.0, 0.0, 0.0, 0.0, 0.0]]), Instant::now());
     assert_eq!(t.bodies().map(|b| b.id).collect::<Vec<_>>(), [7], "only mapped bodies are tracked");
-    let b = t.get(7).expect("body 1 is vehicle 7");
-    assert_eq!(b.body, 1);
+    let b = t.get(7).expect("body 2 (the second in the frame) is vehicle 7");
+    assert_eq!(b.body, 2);
     assert!((b.position - DVec2::new(20.0, -10.0)).length() < 1e-9);
 }
 
@@ -363,7 +363,7 @@ fn client_tracks_mock_bodies_driving_circles() {
     }
     assert!(frames >= 15, "only {frames} frames from the mock");
     // Radii 1.0 m and 1.3 m on the floor, times 32; speed 0.3 m/s times 32.
-    for (id, radius) in [(0, 32.0), (1, 41.6)] {
+    for (id, radius) in [(1, 32.0), (2, 41.6)] {
         let b = tracker.get(id).expect("body tracked");
         assert!(!b.stale);
         assert!((b.position.length() - radius).abs() < 1e-3 * radius, "vehicle {id} at {:?}", b.position);
@@ -380,9 +380,9 @@ fn client_tracks_mock_bodies_driving_circles() {
 #[test]
 fn a_body_hidden_by_the_script_becomes_stale_but_stays() {
     let csv = "t_s,body,x_mm,y_mm,z_mm,roll_deg,pitch_deg,yaw_deg\n\
-               0,0,0,0,0,0,0,0\n60,0,0,0,0,0,0,0\n\
-               # body 1 visible for 1 s, then hidden\n\
-               0,1,500,0,0,0,0,0\n1.0,1,nan,nan,nan,nan,nan,nan\n";
+               0,1,0,0,0,0,0,0\n60,1,0,0,0,0,0,0\n\
+               # body 2 visible for 1 s, then hidden\n\
+               0,2,500,0,0,0,0,0\n1.0,2,nan,nan,nan,nan,nan,nan\n";
     let script = MocapScript::from_csv(csv, "<test>").expect("script");
     assert_eq!(script.body_count(), 2);
     let server = MockMocapServer::start(MockMocapConfig { bind: loopback0(), rate_hz: 100.0, script }).expect("mock");
@@ -395,30 +395,33 @@ fn a_body_hidden_by_the_script_becomes_stale_but_stays() {
     while Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(20));
         client.poll(&mut tracker, Instant::now());
-        match tracker.get(1) {
+        match tracker.get(2) {
             Some(b) if !b.stale => seen_fresh = true,
             Some(b) if b.stale && seen_fresh => break,
             _ => {}
         }
     }
-    let b1 = tracker.get(1).expect("body 1 kept");
-    assert!(seen_fresh && b1.stale, "body 1 should be seen, then stale");
+    let b1 = tracker.get(2).expect("body 2 kept");
+    assert!(seen_fresh && b1.stale, "body 2 should be seen, then stale");
     assert!((b1.position - DVec2::new(16.0, 0.0)).length() < 1e-6, "last position kept");
-    assert!(!tracker.get(0).expect("body 0").stale, "body 0 is still visible");
+    assert!(!tracker.get(1).expect("body 1").stale, "body 1 is still visible");
 }
 
 #[test]
 fn bad_scripts_name_the_line() {
-    let e = MocapScript::from_csv("0,0,1,2,3,4,5,6\n0.5,0,1,2,x,4,5,6\n", "s.csv").expect_err("bad value");
+    let e = MocapScript::from_csv("0,1,1,2,3,4,5,6\n0.5,1,1,2,x,4,5,6\n", "s.csv").expect_err("bad value");
     assert!(e.to_string().contains("s.csv:2"), "{e}");
     assert!(MocapScript::from_csv("1,2,3\n", "s.csv").is_err());
     assert!(MocapScript::from_csv("-1,0,0,0,0,0,0,0\n", "s.csv").is_err());
     assert!(MocapScript::from_csv("# nothing\n", "s.csv").is_err());
-    let with_header = "# a comment first\nt_s,body,x,y,z,r,p,yaw\n0,0,0,0,0,0,0,0\n";
+    // Issue 22 item 2: bodies are numbered from 1, as in QTM.
+    let e = MocapScript::from_csv("0,0,0,0,0,0,0,0\n", "s.csv").expect_err("body 0");
+    assert!(e.to_string().contains("from 1"), "{e}");
+    let with_header = "# a comment first\nt_s,body,x,y,z,r,p,yaw\n0,1,0,0,0,0,0,0\n";
     assert_eq!(MocapScript::from_csv(with_header, "s.csv").expect("header after a comment").body_count(), 1);
     // Interpolation: halfway between two keyframes; yaw the short way round.
-    let s = MocapScript::from_csv("0,0,0,0,0,0,0,170\n2,0,1000,0,0,0,0,-170\n", "s.csv").expect("valid");
-    let p = s.pose(0, 1.0).expect("visible");
+    let s = MocapScript::from_csv("0,1,0,0,0,0,0,170\n2,1,1000,0,0,0,0,-170\n", "s.csv").expect("valid");
+    let p = s.pose(1, 1.0).expect("visible");
     assert!((p[0] - 500.0).abs() < 1e-9);
     assert!((p[5] - 180.0).abs() < 1e-9, "yaw {}", p[5]);
 }

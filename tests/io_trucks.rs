@@ -75,13 +75,14 @@ fn the_2015_line_scaled_by_32() {
     );
     assert_eq!(fields[0].1, "3");
     assert_eq!(fields[1].1, "left");
-    // World values divided by the lab scale 32; yaw and time as given.
+    // World values divided by the lab scale 32; time as given.
     assert_eq!(value(&fields, "current_distance"), 2.0);
     assert_eq!(value(&fields, "desired_distance"), 1.0);
     assert_eq!(value(&fields, "velocity"), 0.5);
     assert_eq!(value(&fields, "x"), 10.0);
     assert_eq!(value(&fields, "y"), -3.0);
-    assert_eq!(value(&fields, "yaw"), 1.5);
+    // Issue 22 item 1: yaw in degrees, as the 2015 sender sent it (1.5 rad = 85.9437 deg).
+    assert!((value(&fields, "yaw") - 1.5f64.to_degrees()).abs() < 1e-4, "{fields:?}");
     assert_eq!(value(&fields, "lane_offset"), 0.05);
     // Later states show up in later lines; lanes are spelled as in 2015.
     for (lane, name) in [(Lane::Center, "center"), (Lane::Right, "right")] {

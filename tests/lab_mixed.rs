@@ -112,6 +112,29 @@ fn lab_mixed_tracks_the_real_trucks_and_virtual_vehicles_see_them() {
     let v: f64 = fields["velocity"].parse().expect("number");
     assert!((v - 8.0 / 32.0).abs() < 0.04, "velocity {v}, expected 8/32");
 
+    // Issue 22 item 1: yaw in degrees (truck 1 drives counter-clockwise round the origin, so
+    // its heading is its polar angle + 90 deg), and time the motion-capture frame time: the
+    // mock's frames are 1/DEFAULT_MOCK_RATE_HZ apart, the truck ticks 1/20 s.
+    for line in &lines[lines.len() - 10..] {
+        let (_, f) = parse_truck_line(line);
+        let num = |k: &str| f[k].parse::<f64>().expect("number");
+        let heading = (num("y").atan2(num("x")).to_degrees() + 90.0).rem_euclid(360.0);
+        let yaw = num("yaw").rem_euclid(360.0);
+        let diff = (yaw - heading).abs();
+        assert!(diff < 3.0 || diff > 357.0, "yaw {yaw} deg, heading {heading} deg: {line}");
+    }
+    let times: Vec<f64> =
+        lines.iter().map(|l| l["time=".len()..].split("XcRt").next().unwrap().parse().unwrap()).collect();
+    let rate = smlworld::io::mock_mocap::DEFAULT_MOCK_RATE_HZ;
+    assert!(
+        times.iter().all(|t| ((t * rate) - (t * rate).round()).abs() < 1e-3),
+        "times are not motion-capture frame times (1/{rate} s apart): {times:?}"
+    );
+    assert!(
+        times.iter().any(|t| ((t * 20.0) - (t * 20.0).round()).abs() > 1e-3),
+        "every time is a truck tick (sim time), none a motion-capture frame time: {times:?}"
+    );
+
     // The stream carried every vehicle, real ones where the simulation has them.
     let frame = viewer.latest().expect("stream frames arrived");
     assert_eq!(frame.vehicles.len(), 8);
@@ -135,6 +158,7 @@ fn scenario_text(addr: SocketAddr) -> String {
 duration = 3.0
 [lab]
 mocap = {{ addr = "{addr}", stale_after = 0.3 }}
+bodies = {{ 1 = 0, 2 = 1 }}
 [[vehicles]]
 id = 0
 class = "truck"
@@ -157,16 +181,17 @@ sensors = {{ omniscient = true }}
 fn a_lost_body_marks_its_vehicle_stale_and_keeps_it() {
     let nan = [f64::NAN; 6];
     let mut bodies = BTreeMap::new();
-    // Body 0 stands at (1000, 0) mm for 10 s; body 1 stands at (0, 500) mm and vanishes at 1 s.
+    // Body 1 (vehicle 0) stands at (1000, 0) mm for 10 s; body 2 (vehicle 1) stands at
+    // (0, 500) mm and vanishes at 1 s.
     bodies.insert(
-        0,
+        1,
         vec![
             Keyframe { t_s: 0.0, pose: [1000.0, 0.0, 0.0, 0.0, 0.0, 90.0] },
             Keyframe { t_s: 10.0, pose: [1000.0, 0.0, 0.0, 0.0, 0.0, 90.0] },
         ],
     );
     bodies.insert(
-        1,
+        2,
         vec![Keyframe { t_s: 0.0, pose: [0.0, 500.0, 0.0, 0.0, 0.0, 0.0] }, Keyframe { t_s: 1.0, pose: nan }],
     );
     let server = start_mock(bodies);
@@ -198,7 +223,7 @@ fn a_lost_body_marks_its_vehicle_stale_and_keeps_it() {
 
 #[test]
 fn motion_capture_refuses_real_vehicles_with_a_dynamics_model() {
-    let server = start_mock(BTreeMap::from([(0, vec![Keyframe { t_s: 0.0, pose: [0.0; 6] }])]));
+    let server = start_mock(BTreeMap::from([(1, vec![Keyframe { t_s: 0.0, pose: [0.0; 6] }])]));
     let text = scenario_text(server.local_addr()).replacen("model = { type = \"none\" }\n", "", 1);
     let scenario = Scenario::parse_str(&text, Path::new("bad.toml")).expect("parses");
     let err =
@@ -233,7 +258,7 @@ fn the_mock_script_drives_the_trucks_along_the_right_lane_in_lab_millimetres() {
     // Truck 0 starts 60 m along the right lane (radius 60 m, from the positive x axis,
     // counter-clockwise) at 8 m/s; lab mm = world m / 32 * 1000.
     for t in [0.0, 5.0, 20.0] {
-        let pose = script.pose(0, t).expect("body 0 visible");
+        let pose = script.pose(1, t).expect("body 1 (truck 0) visible");
         let angle = (60.0 + 8.0 * t) / 60.0;
         let (x, y) = (60.0 * f64::cos(angle) / 32.0 * 1000.0, 60.0 * f64::sin(angle) / 32.0 * 1000.0);
         // Keyframes every metre on a 60 m circle: chords sag at most 1/(8*60) m = 65 µm x 31.25.
@@ -244,7 +269,7 @@ fn the_mock_script_drives_the_trucks_along_the_right_lane_in_lab_millimetres() {
     }
     // One lap of 2 pi 60 m at 8 m/s, then it starts over.
     let lap = std::f64::consts::TAU * 60.0 / 8.0;
-    let (a, b) = (script.pose(1, 1.0).expect("visible"), script.pose(1, 1.0 + lap).expect("visible"));
+    let (a, b) = (script.pose(2, 1.0).expect("visible"), script.pose(2, 1.0 + lap).expect("visible"));
     assert!((a[0] - b[0]).abs() < 5.0 && (a[1] - b[1]).abs() < 5.0, "{a:?} vs {b:?}");
 }
 
@@ -284,4 +309,53 @@ fn lanes_of_the_ring_and_gaps_along_a_lane() {
     assert!((gap - 30.0).abs() < 0.05, "gap {gap}, expected 30 m along the lane");
     assert!(leader_gap(&route, s, &others[1..], 2.0, 100.0).is_some_and(|(id, _)| id == VehicleId(8)));
     assert!(leader_gap(&route, s, &others[1..], 2.0, 80.0).is_none(), "nothing within 80 m ahead on the lane");
+}
+
+/// Issue 22 item 2: QTM numbers its bodies from 1; `[lab] bodies` maps body numbers to any
+/// vehicle ids (here virtual ones), the mock server numbering its bodies the same way; bad
+/// tables name the key.
+#[test]
+fn qtm_bodies_are_numbered_from_1_and_mapped_by_lab_bodies() {
+    // Body 1 stands at (1000, 0) mm, body 2 at (0, 500) mm.
+    let mut bodies = BTreeMap::new();
+    bodies.insert(1, vec![Keyframe { t_s: 0.0, pose: [1000.0, 0.0, 0.0, 0.0, 0.0, 0.0] }]);
+    bodies.insert(2, vec![Keyframe { t_s: 0.0, pose: [0.0, 500.0, 0.0, 0.0, 0.0, 90.0] }]);
+    let server = start_mock(bodies);
+    let text = format!(
+        r#"
+duration = 1.0
+[lab]
+mocap = {{ addr = "{}", stale_after = 0.3 }}
+bodies = {{ 1 = -1, 2 = -2 }}
+[[vehicles]]
+id = -1
+model = {{ type = "none" }}
+[[vehicles]]
+id = -2
+model = {{ type = "none" }}
+"#,
+        server.local_addr()
+    );
+    let scenario = Scenario::parse_str(&text, Path::new("bodies.toml")).expect("scenario");
+    let mut sim = scenario.builder().expect("builder").build();
+    RealtimeRunner::new(1.0).run(&mut sim, 1.0, 1.0, |_| {});
+    let s1 = sim.state(VehicleId(-1)).unwrap();
+    let s2 = sim.state(VehicleId(-2)).unwrap();
+    assert!((s1.position - glam::DVec2::new(32.0, 0.0)).length() < 1e-3, "body 1 drives -1: {:?}", s1.position);
+    assert!((s2.position - glam::DVec2::new(0.0, 16.0)).length() < 1e-3, "body 2 drives -2: {:?}", s2.position);
+
+    // Vehicle 0 has no body without a table; bad tables name their key.
+    let no_zero = "[lab]\nmocap = { addr = \"127.0.0.1:1\" }\n[[vehicles]]\nid = 0\nmodel = { type = \"none\" }\n";
+    let err = Scenario::parse_str(no_zero, Path::new("zero.toml")).unwrap().builder().err().unwrap().to_string();
+    assert!(err.contains("bodies = { 1 = 0 }") && err.contains("from 1"), "{err}");
+    for (bodies, key) in
+        [("{ 0 = -1 }", "lab.bodies.0"), ("{ 1 = -1, 2 = -1 }", "lab.bodies.2"), ("{ x = -1 }", "lab.bodies.x")]
+    {
+        let err =
+            Scenario::parse_str(&format!("[lab]\nbodies = {bodies}\n"), Path::new("b.toml")).err().unwrap().to_string();
+        assert!(err.contains(key), "{bodies}: {err}");
+    }
+    let missing = "[lab]\nmocap = { addr = \"127.0.0.1:1\" }\nbodies = { 3 = -7 }\n";
+    let err = Scenario::parse_str(missing, Path::new("m.toml")).unwrap().builder().err().unwrap().to_string();
+    assert!(err.contains("lab.bodies.3") && err.contains("-7"), "{err}");
 }

@@ -21,3 +21,30 @@ fn map_info_on_a_closed_pipe_does_not_panic() {
     assert!(!err.contains("panicked"), "panicked on a closed stdout:\n{err}");
     assert_ne!(status.code(), Some(101), "exit code 101 (a panic):\n{err}");
 }
+
+/// Issue 22 item 9: off-screen rendering without a Wayland session (no `XDG_RUNTIME_DIR`, as on
+/// CI) prints no `error:` line for what is no error (Mesa's device-select layer used to print
+/// `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` twice per GIF run).
+#[test]
+fn rendering_without_a_wayland_session_prints_no_error_lines() {
+    let dir = std::env::temp_dir().join(format!("smlworld-quiet-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let gif = dir.join("run.gif");
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["run", "scenarios/highway.toml", "--duration", "0.3", "--gif"])
+        .arg(&gif)
+        .arg("--out")
+        .arg(&dir)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("NODEVICE_SELECT")
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    let wrote = gif.is_file();
+    let _ = std::fs::remove_dir_all(&dir);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && wrote, "the GIF run failed:\n{err}");
+    assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
+    assert!(!err.to_lowercase().contains("error"), "an error line in a run that succeeded:\n{err}");
+}

@@ -27,7 +27,10 @@ fn override_through_vehicles_sets_every_follower() {
         .filter_map(|v| v["controller"].get("platoon")?.get("time_gap")?.as_float())
         .collect();
     assert_eq!(gaps, vec![0.9; 4]); // the four followers; the leader has no `platoon` table
-    let err = apply_override(&mut table, "nosuch.key", toml::Value::Integer(1)).unwrap_err();
+    // A misspelt table is created on the way, then refused by the strict parser, naming it.
+    let err = load_scenario_with_overrides(Path::new(PLATOON), None, &[("nosuch.key".into(), toml::Value::Integer(1))])
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("nosuch"), "{err}");
 }
 
@@ -60,4 +63,34 @@ fn commands_win_over_the_controller_and_are_checked() {
     assert!(e.contains("steering[0] (vehicle -1) is NaN"), "{e}");
     let e = s.readings(99).unwrap_err().to_string();
     assert!(e.contains("unknown vehicle id 99"), "{e}");
+}
+
+/// Issue 22 item 5: a leader driven from outside (Python's `set_commands`) tells its followers
+/// (V2V beacons) the acceleration its commands give, so CACC followers brake with it: the
+/// platoon_brake leader brakes at 6 m/s² to a stop from 10 s on (before its own dip at 30 s).
+#[test]
+fn followers_of_a_leader_braking_from_outside_brake_with_it() {
+    let mut s = Session::from_scenario(Path::new(PLATOON), None, &[]).unwrap();
+    s.step(10.0).unwrap();
+    let (mass, drag) = (10_000.0, 500.0);
+    let mut cols = StateColumns::default();
+    while s.time() < 25.0 {
+        s.states_into(&mut cols);
+        let i = cols.id.iter().position(|&id| id == -1).unwrap();
+        let v = cols.vx[i].hypot(cols.vy[i]);
+        let throttle = if v > 0.3 { mass * -6.0 + drag * v } else { 0.0 };
+        s.set_commands(&[-1], Some(&[throttle]), None, Some(&[0.0])).unwrap();
+        s.step(0.05).unwrap();
+    }
+    s.states_into(&mut cols);
+    let i = cols.id.iter().position(|&id| id == -1).unwrap();
+    assert!(cols.vx[i].hypot(cols.vy[i]) < 0.5, "the leader stopped");
+    let json = serde_json::to_value(s.summary()).unwrap();
+    let m = &json["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    let followers = m["followers"].as_array().unwrap();
+    assert_eq!(followers.len(), 4);
+    for f in followers {
+        assert!(f["min_gap"].as_f64().unwrap() > 1.0, "{f}");
+    }
 }

@@ -195,3 +195,23 @@ fn highway_scenario_keeps_every_vehicle_on_its_lane_for_600_s() {
 fn highway_scenario_on_the_2015_ring_keeps_every_vehicle_on_its_lane() {
     stays_on_lanes(&highway_on_sml2015(), 120.0);
 }
+
+/// Issue 22 item 10: at 50x the platoon keeps up easily (30 sim s in about 0.6 wall s), so no
+/// rate warning, though single steps start a millisecond late when a sleep oversleeps.
+#[test]
+fn a_fast_real_time_run_that_keeps_up_warns_nothing() {
+    let scenario = Scenario::load(std::path::Path::new("scenarios/platoon_brake.toml")).unwrap();
+    let mut sim = scenario.builder().expect("builds").build();
+    let report = RealtimeRunner::new(50.0).run(&mut sim, 40.0, 1.0, |_| {});
+    assert!(report.wall_seconds < 2.0, "40 sim s at 50x took {} wall s", report.wall_seconds);
+    assert_eq!(report.rate_warnings, 0, "max lag {} s", report.max_lag_seconds);
+}
+
+/// ... while a run asked to go faster than the machine can still says so.
+#[test]
+fn a_real_time_run_that_cannot_keep_up_warns() {
+    let mut sim = highway().builder().expect("builds").build();
+    let report = RealtimeRunner::new(1e6).run(&mut sim, 4000.0, 10.0, |_| {});
+    assert!(report.wall_seconds > 0.5, "{} wall s: too short to fall behind", report.wall_seconds);
+    assert!(report.rate_warnings >= 1, "{report:?}");
+}

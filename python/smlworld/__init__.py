@@ -41,7 +41,9 @@ class Sim:
         """Load a scenario file (TOML). ``seed`` replaces the scenario's seed; each override is
         a dotted scenario key, e.g. ``duration=20.0`` or
         ``**{"vehicles.controller.platoon.time_gap": 0.8}`` (a key through ``vehicles`` applies
-        to every vehicle that has the tables on the way)."""
+        to every vehicle that has the tables on the way), ``**{"vehicles.0.speed": 9.0}`` (one
+        element) or ``**{"vehicles.*.lane_change.politeness": 0.5}`` (every element, tables
+        created), the same keys as ``smlworld run --set``."""
         return cls(_smlworld.Core.from_scenario(str(path), seed, **overrides))
 
     @property

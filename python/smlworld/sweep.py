@@ -123,6 +123,14 @@ def sweep(
         import ray
 
         if not ray.is_initialized():
+            if address is None:
+                print(
+                    "smlworld.sweep: no address given, starting a local Ray on this machine; to use a "
+                    "cluster, start it (`ray start --head` on one machine, `ray start --address HEAD:6379` "
+                    "on the others) and pass address=\"auto\" (on a cluster machine) or "
+                    "address=\"ray://HEAD:10001\"",
+                    file=sys.stderr,
+                )
             ray.init(address=address)
         task = ray.remote(run_one)
         ref = ray.put(bundle)

@@ -13,7 +13,7 @@ use pyo3::types::{PyBytes, PyDict, PyList};
 
 use smlworld::app::session::{SessionError, load_scenario_with_overrides};
 use smlworld::app::{RunError, RunOptions, ScenarioError, Session, StateColumns, run_scenario};
-use smlworld::map::{LaneletMap, MapError, RouteOptions};
+use smlworld::map::{LaneletMap, MapError, Place, RouteOptions};
 
 fn scenario_err(e: ScenarioError) -> PyErr {
     match &e {
@@ -301,11 +301,26 @@ impl Map {
         points(py, &l.centre)
     }
 
-    /// Shortest route from node `from_node` to node `to_node` as an (n, 2) array of points [m].
-    fn route<'py>(&self, py: Python<'py>, from_node: i64, to_node: i64) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    /// Shortest route from `from_node` to `to_node`, each a node id or a node tag value (such as
+    /// "right_lane_node"; a tag on several nodes: the best of them), like `smlworld map route
+    /// --from/--from-tag`, as an (n, 2) array of points [m].
+    fn route<'py>(
+        &self,
+        py: Python<'py>,
+        from_node: &Bound<'py, PyAny>,
+        to_node: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let place = |n: &Bound<'py, PyAny>| -> PyResult<Place> {
+            if let Ok(id) = n.extract::<i64>() {
+                return Ok(Place::Node(id));
+            }
+            n.extract::<String>().map(Place::Tag).map_err(|_| {
+                PyValueError::new_err(format!("a route end is a node id (int) or a node tag value (str), got {n}"))
+            })
+        };
         let p = self
             .map
-            .route(from_node, to_node, &RouteOptions::default())
+            .route_places(&place(from_node)?, &place(to_node)?, &RouteOptions::default())
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         points(py, &p.points)
     }

@@ -110,6 +110,14 @@ def test_load_map_route_and_loop(root):
     seg = np.hypot(*np.diff(loop, axis=0).T)
     assert seg.max() < 5.0
     assert seg.sum() > 200.0
+    # Issue 22 item 12: route ends are node ids or tag values, like the CLI's --from/--from-tag.
+    by_tag = m.route("right_lane_node", "right_lane_node")
+    assert by_tag.shape[1] == 2 and np.hypot(*np.diff(by_tag, axis=0).T).sum() > 200.0
+    assert np.array_equal(by_tag, m.route(-590, "right_lane_node"))  # node -590 carries the tag
+    with pytest.raises(ValueError, match="no route in lane|not connected"):
+        m.route("right_lane_node", "left_lane_node")
+    with pytest.raises(ValueError, match="node id .* or a node tag"):
+        m.route(1.5, "right_lane_node")
 
 
 def test_frame_is_an_rgba_picture_of_the_map(sim, tmp_path):

@@ -15,7 +15,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Query, Res, ResMut, Resource, Without};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
@@ -101,6 +101,9 @@ pub struct MetricsSummary {
     pub collision_count: usize,
     /// Every collision, in time order.
     pub collisions: Vec<Collision>,
+    /// Every vehicle that collided (JSON keys are its id as a string): the sim time of its first
+    /// collision [s].
+    pub collided: BTreeMap<i32, f64>,
     /// Every follower, in id order.
     pub followers: Vec<FollowerStats>,
     /// Every platoon, in leader id order.
@@ -114,6 +117,12 @@ pub struct Metrics {
     pub warmup: f64,
     /// Collisions so far.
     pub collisions: Vec<Collision>,
+    /// Sim time of each vehicle's first collision [s].
+    pub collided: BTreeMap<VehicleId, f64>,
+    /// Routed vehicles that no path follower measures (driven from Python, a student's
+    /// controller, none): where each was on its route and its largest distance to the route's
+    /// centre line so far, after every dynamics step.
+    pub route_deviation: BTreeMap<VehicleId, RouteTrack>,
     /// Followers so far, by id.
     pub followers: BTreeMap<VehicleId, FollowerStats>,
     platoons: BTreeMap<VehicleId, BTreeMap<VehicleId, MemberStats>>,
@@ -121,6 +130,36 @@ pub struct Metrics {
     touching: Vec<(VehicleId, VehicleId)>,
     boxes: Vec<Footprint>,
     grid: SpatialGrid,
+}
+
+/// Where a routed vehicle without a path follower was on its route (see
+/// [`Metrics::route_deviation`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RouteTrack {
+    /// Arc length of its projection on the route at the last step [m].
+    pub s: f64,
+    /// Largest distance to the route's centre line so far [m].
+    pub max_offset: f64,
+}
+
+/// After every dynamics step: the distance to its route's centre line of every routed vehicle
+/// that no [`PathFollower`] measures. The first step projects onto the whole route; later ones
+/// search around the last arc length, as far as the vehicle can have moved.
+pub fn record_route_deviation(
+    clock: Res<SimClock>,
+    mut metrics: ResMut<Metrics>,
+    routed: Query<(&VehicleId, &VehicleState, &Route), Without<PathFollower>>,
+) {
+    for (&id, state, route) in &routed {
+        let path = &route.0;
+        let track = metrics.route_deviation.get(&id).copied();
+        let projection = match track {
+            Some(t) => path.project_near(state.position, t.s, state.speed() * clock.dt + path.spacing()),
+            None => path.project(state.position),
+        };
+        let max_offset = track.map_or(0.0, |t| t.max_offset).max(projection.lateral.abs());
+        metrics.route_deviation.insert(id, RouteTrack { s: projection.s, max_offset });
+    }
 }
 
 /// An oriented rectangle.
@@ -211,6 +250,7 @@ impl Metrics {
             warmup: self.warmup,
             collision_count: self.collisions.len(),
             collisions: self.collisions.clone(),
+            collided: self.collided.iter().map(|(id, t)| (id.0, *t)).collect(),
             followers: self.followers.values().copied().collect(),
             platoons,
         }
@@ -342,6 +382,8 @@ impl Metrics {
         for &pair in &self.touching {
             if !self.contacts.contains(&pair) {
                 self.collisions.push(Collision { a: pair.0, b: pair.1, t });
+                self.collided.entry(pair.0).or_insert(t);
+                self.collided.entry(pair.1).or_insert(t);
             }
         }
         self.contacts.clear();
@@ -365,7 +407,7 @@ impl Default for MetricsPlugin {
 impl Plugin for MetricsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(Metrics::new(self.warmup));
-        sim.add_systems(Dynamics, record_metrics.after(SimSystems::Integrate));
+        sim.add_systems(Dynamics, (record_metrics, record_route_deviation).after(SimSystems::Integrate));
     }
 }
 

@@ -18,7 +18,8 @@ use super::{Plugin, RunReport, Sim, SimBuilder, SimSeed};
 pub struct Log;
 
 /// Where trajectory rows go: `t,id,x,y,yaw,vx,vy` [s, -, m, m, rad, m/s, m/s], vehicles in id
-/// order, full precision.
+/// order, each number with the precision of its unit (`t` to the clock's 1 µs; the rest [`Fixed`]: 1 mm,
+/// 1e-5 rad, 1 mm/s).
 #[derive(Resource)]
 pub struct TrajectoryLog {
     writer: Box<dyn Write + Send + Sync>,
@@ -49,6 +50,24 @@ impl TrajectoryLog {
     }
 }
 
+/// Decimals of lengths [m] and speeds [m/s] in `trajectories.csv`: 1 mm and 1 mm/s.
+pub const LENGTH_DECIMALS: usize = 3;
+/// Decimals of angles [rad] in `trajectories.csv`: 1e-5 rad (0.6 mdeg, 1 mm at 100 m).
+pub const ANGLE_DECIMALS: usize = 5;
+
+/// A number written with at most `.1` decimals, trailing zeros dropped (`12.5`, `0`, `-3.142`),
+/// never `-0`: a CSV carries the precision of its unit, not 17 digits of float noise.
+pub struct Fixed(pub f64, pub usize);
+
+impl std::fmt::Display for Fixed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let text = format!("{:.*}", self.1, self.0);
+        let text = if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.') } else { &text };
+        // A value that rounds to zero from below prints as `-0`: a sign that is not there.
+        f.write_str(if text == "-0" { "0" } else { text })
+    }
+}
+
 /// Append every vehicle's state at this tick to the [`TrajectoryLog`].
 pub fn log_trajectories(
     clock: Res<SimClock>,
@@ -67,15 +86,14 @@ pub fn log_trajectories(
     log.last_t = Some(t);
     for (id, e) in vehicles.iter() {
         if let Ok(s) = states.get(e) {
-            // `+ 0.0` turns -0.0 into 0.0: `-0` in a CSV reads as a sign that is not there.
             let r = writeln!(
                 log.writer,
                 "{t:.6},{id},{},{},{},{},{}",
-                s.position.x + 0.0,
-                s.position.y + 0.0,
-                s.yaw + 0.0,
-                s.velocity.x + 0.0,
-                s.velocity.y + 0.0
+                Fixed(s.position.x, LENGTH_DECIMALS),
+                Fixed(s.position.y, LENGTH_DECIMALS),
+                Fixed(s.yaw, ANGLE_DECIMALS),
+                Fixed(s.velocity.x, LENGTH_DECIMALS),
+                Fixed(s.velocity.y, LENGTH_DECIMALS)
             );
             if let Err(e) = r {
                 log.error = Some(e);
@@ -138,8 +156,10 @@ pub struct RunSummary {
     pub rate_warnings: u64,
     /// The scenario's seed.
     pub seed: u64,
-    /// Per vehicle id (JSON keys are strings): largest distance to its route's centre line seen
-    /// by its path follower [m], checked at every control tick.
+    /// Per vehicle id (JSON keys are strings), for every vehicle with a route: largest distance
+    /// to its route's centre line [m], seen by its path follower at every control tick, or for a
+    /// vehicle without one (driven from Python, by a student's controller, by nothing) after
+    /// every dynamics step.
     pub max_distance_to_centre_line: BTreeMap<i32, f64>,
     /// Collisions, follower gaps and platoon string stability (when [`super::metrics::MetricsPlugin`] ran).
     pub metrics: Option<super::metrics::MetricsSummary>,
@@ -202,8 +222,14 @@ impl RunSummary {
         let world = sim.world();
         let stats = world.get_resource::<V2vStats>().copied().unwrap_or_default();
         let vehicles = world.resource::<Vehicles>();
-        let max_distance_to_centre_line =
-            vehicles.iter().filter_map(|(id, e)| Some((id.0, world.get::<PathFollower>(e)?.max_offset))).collect();
+        let deviation = world.get_resource::<super::metrics::Metrics>().map(|m| &m.route_deviation);
+        let max_distance_to_centre_line = vehicles
+            .iter()
+            .filter_map(|(id, e)| match world.get::<PathFollower>(e) {
+                Some(f) => Some((id.0, f.max_offset)),
+                None => Some((id.0, deviation?.get(&id)?.max_offset)),
+            })
+            .collect();
         RunSummary {
             sim_seconds: report.sim_seconds,
             interrupted: report.interrupted,

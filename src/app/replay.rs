@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 
 use glam::DVec2;
 
-use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, VizSender, VizSenderConfig, VizVehicle};
+use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, StreamFormat, VizSender, VizSenderConfig, VizVehicle};
 use crate::map::LaneletMap;
 use crate::render::{FrameRecorder, RecorderOptions, RenderError, VehicleSprite};
 use crate::world::SimTime;
@@ -40,6 +40,8 @@ pub struct ReplayOptions {
     pub stream: Option<SocketAddr>,
     /// Sim seconds per wall second of the stream (2 = twice as fast as recorded).
     pub speed: f64,
+    /// Class names and reference point of the stream (see [`StreamFormat`]).
+    pub stream_format: StreamFormat,
     /// Frames per second of sim time for `frames` and `gif` [Hz].
     pub frame_rate: f64,
     /// Frame width [px].
@@ -58,6 +60,7 @@ impl Default for ReplayOptions {
             gif: None,
             stream: None,
             speed: 1.0,
+            stream_format: StreamFormat::Smlworld,
             frame_rate: 10.0,
             width: 1280,
             height: 720,
@@ -364,12 +367,14 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                 for v in &info.vehicles {
                     if let Ok(i) = states.binary_search_by_key(&v.id, |r| r.id) {
                         let r = states[i];
+                        let f = options.stream_format;
+                        let p = f.point_from_centre(r.position, r.yaw, v.length);
                         viz.push(VizVehicle {
                             id: r.id,
-                            x: r.position.x,
-                            y: r.position.y,
+                            x: p.x,
+                            y: p.y,
                             yaw_deg: r.yaw.to_degrees(),
-                            class_name: v.class.name().to_string(),
+                            class_name: f.class_name(r.id, v.class.name()).to_string(),
                         });
                     }
                 }

@@ -16,7 +16,7 @@ use std::path::{Path as FsPath, PathBuf};
 use crate::io::lab::VizStreamPlugin;
 use crate::io::viz::DEFAULT_VIZ_RATE_HZ;
 use crate::render::{FrameRecorder, RecorderOptions, RenderError};
-use crate::sim::{Plugin, Sim, SimBuilder};
+use crate::sim::{Parallelism, Plugin, Sim, SimBuilder};
 
 use super::{RealtimeRunner, RunReport, RunSummary, Scenario, ScenarioError, TrajectoryLog, TrajectoryLogPlugin};
 
@@ -81,6 +81,8 @@ pub struct RunOptions {
     pub overlay: Option<bool>,
     /// Stream the vehicles over UDP (2015 visualisation format) to this address.
     pub stream: Option<SocketAddr>,
+    /// Class names and reference point of the stream (see [`crate::io::viz::StreamFormat`]).
+    pub stream_format: crate::io::viz::StreamFormat,
     /// Show a progress bar on a terminal for runs of 30 sim s or more.
     pub progress: bool,
     /// Write the figures of `smlworld plot` into `out/plots` at the end of the run.
@@ -88,6 +90,15 @@ pub struct RunOptions {
     /// Your plugins (controllers they register can be named in the scenario), added before the
     /// scenario's built-in plugins and vehicles.
     pub plugins: Vec<Box<dyn Plugin>>,
+    /// Replaces the scenario's `seed` [-].
+    pub seed: Option<u64>,
+    /// Dotted-key overrides of the scenario file, applied in order before it is checked (see
+    /// [`super::scenario::overrides`]); needs a scenario file, not a loaded scenario.
+    pub overrides: Vec<(String, toml::Value)>,
+    /// Most threads the per-vehicle systems use; above 1 they split the vehicles at any vehicle
+    /// count (default: [`Parallelism::default`], which splits from 2,000 vehicles on). The
+    /// results are the same bits for any value.
+    pub threads: Option<usize>,
 }
 
 impl Default for RunOptions {
@@ -106,9 +117,13 @@ impl Default for RunOptions {
             sensor_ranges: false,
             overlay: None,
             stream: None,
+            stream_format: crate::io::viz::StreamFormat::Smlworld,
             progress: true,
             plots: false,
             plugins: Vec::new(),
+            seed: None,
+            overrides: Vec::new(),
+            threads: None,
         }
     }
 }
@@ -173,9 +188,21 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         plugin.build(&mut builder);
     }
     let scenario = match source.into() {
-        ScenarioSource::File(path) => Scenario::load_with(&path, builder.controllers())?,
-        ScenarioSource::Loaded(s) => *s,
+        ScenarioSource::File(path) => {
+            super::scenario::load_with_overrides(&path, options.seed, &options.overrides, builder.controllers())?
+        }
+        ScenarioSource::Loaded(s) => {
+            check_option(options.overrides.is_empty(), || {
+                format!("overrides (--set) change a scenario file; {} is already loaded", s.path.display())
+            })?;
+            let mut s = *s;
+            if let Some(seed) = options.seed {
+                s.file.seed = seed;
+            }
+            s
+        }
     };
+    check_option(options.threads != Some(0), || "--threads must be at least 1, got 0".to_string())?;
     let duration = options.duration.unwrap_or(scenario.file.duration);
     check_option(duration.is_finite() && duration > 0.0, || {
         format!("--duration must be a positive number of seconds, got {duration}")
@@ -199,6 +226,9 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     let mut recorder = recorder(&scenario, &options)?;
 
     scenario.assemble(&mut builder)?;
+    if let Some(threads) = options.threads {
+        builder.insert_resource(Parallelism::split(threads));
+    }
     std::fs::create_dir_all(&options.out).map_err(|source| RunError::Io { path: options.out.clone(), source })?;
     // Outputs are written beside their final names and renamed into place only when the run
     // has ended, so a failed run never truncates the previous run's results.
@@ -207,7 +237,9 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     let csv = std::fs::File::create(&csv_tmp).map_err(|source| RunError::Io { path: csv_tmp.clone(), source })?;
     let outputs = PendingOutputs(vec![csv_tmp.clone()]);
     if let Some(addr) = options.stream {
-        let plugin = VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ).map_err(|e| RunError::Stream(e.to_string()))?;
+        let plugin = VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ)
+            .map_err(|e| RunError::Stream(e.to_string()))?
+            .with_format(options.stream_format);
         builder.add_plugin(plugin);
         tracing::info!(
             "streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)"
@@ -261,18 +293,26 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         return Ok(summary);
     }
     let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
+    let collisions = summary.metrics.as_ref().map_or(0, |m| m.collision_count);
     tracing::info!(
-        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), seed {}, max distance to centre line {:.3} m; wrote {} and {}",
+        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), {}, seed {}, max distance to centre line {:.3} m; wrote {} and {}",
         summary.vehicles,
         summary.sim_seconds,
         summary.wall_seconds,
         summary.real_time_factor,
+        collisions_text(collisions, std::io::stderr().is_terminal()),
         summary.seed,
         worst,
         csv_path.display(),
         summary_path.display()
     );
     Ok(summary)
+}
+
+/// `collisions N` for the closing line; in bold red when there were any and `colour` (stderr is
+/// a terminal: a log file or pipe gets no escape codes).
+pub fn collisions_text(n: usize, colour: bool) -> String {
+    if colour && n > 0 { format!("\x1b[1;31mcollisions {n}\x1b[0m") } else { format!("collisions {n}") }
 }
 
 /// Temporary output files of a run, removed if the run ends early with an error (dropped before

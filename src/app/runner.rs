@@ -3,6 +3,10 @@
 //! Both run the same fixed steps in the same order, so they give the same results bit for bit;
 //! the real-time runner only waits between steps, and when it falls behind it logs a
 //! rate-limited warning naming the module and the lag, then catches up without skipping a step.
+//! "Behind" compares sim time with the wall clock times the speed: a step that starts late
+//! because a sleep overslept or the machine was busy for a moment is no warning as long as the
+//! run catches up (waits again) within [`RealtimeRunner::tolerance`]; only a run that stays
+//! behind that long, by more than a period of the module, cannot keep its rate.
 
 use std::time::{Duration, Instant};
 
@@ -67,11 +71,15 @@ pub struct RealtimeRunner {
     pub speed: f64,
     /// At most one rate warning per this wall time [s].
     pub warn_interval: f64,
+    /// Wall time [s] the run may stay behind the scaled wall clock without catching up before
+    /// it counts as not keeping its rate (what an oversleeping `sleep` or a busy moment of the
+    /// machine costs is no warning).
+    pub tolerance: f64,
 }
 
 impl Default for RealtimeRunner {
     fn default() -> Self {
-        RealtimeRunner { speed: 1.0, warn_interval: 1.0 }
+        RealtimeRunner { speed: 1.0, warn_interval: 1.0, tolerance: 0.2 }
     }
 }
 
@@ -93,6 +101,8 @@ impl RealtimeRunner {
         let mut warnings = 0;
         let mut max_lag: f64 = 0.0;
         let mut interrupted = false;
+        // Since when (wall clock) every step has started late, without a wait in between.
+        let mut behind_since: Option<Instant> = None;
         while let Some((_, due, name, period)) = sim.scheduler.peek() {
             if due >= end {
                 break;
@@ -104,12 +114,15 @@ impl RealtimeRunner {
             let target = Duration::from_secs_f64((due.0 - start.0) as f64 * 1e-6 / self.speed);
             let elapsed = wall.elapsed();
             if elapsed < target {
+                behind_since = None;
                 std::thread::sleep(target - elapsed);
             } else {
                 let lag = (elapsed - target).as_secs_f64();
                 max_lag = max_lag.max(lag);
+                let since = *behind_since.get_or_insert_with(Instant::now);
                 let quiet = last_warning.is_some_and(|w| w.elapsed().as_secs_f64() < self.warn_interval);
-                if lag > period / self.speed && !quiet {
+                let stays_behind = since.elapsed().as_secs_f64() >= self.tolerance;
+                if lag > period / self.speed && stays_behind && !quiet {
                     tracing::warn!(
                         "module {name} cannot keep its rate ({:.1} Hz): {:.3} s behind the wall clock at sim time {due}; catching up with fixed steps",
                         1.0 / period,

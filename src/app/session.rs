@@ -20,13 +20,17 @@ use std::path::Path as FsPath;
 use std::sync::Arc;
 use std::time::Instant;
 
-use bevy_ecs::prelude::{Component, Query};
+use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::map::LaneletMap;
 use crate::render::{FrameRecorder, RecorderOptions};
-use crate::sim::{Control, Sim, SimSystems};
-use crate::world::{Channel, ControlCommand, Mailbox, SensorReadings, SimTime, VehicleId, Vehicles};
+use crate::sim::{Control, Sim, SimClock, SimSystems};
+use crate::vehicles::{Longitudinal, LongitudinalSystems};
+use crate::world::{
+    AccelerationUnicycle, Channel, ControlCommand, KinematicUnicycle, Mailbox, SensorReadings, SimTime, VehicleId,
+    VehicleState, Vehicles,
+};
 
 use super::{RunReport, RunSummary, Scenario, ScenarioError};
 
@@ -82,6 +86,37 @@ fn apply_overrides(mut q: Query<(&CommandOverride, &mut ControlCommand)>) {
     }
 }
 
+/// Control-phase system, after the longitudinal pipeline decided and before it reports: a
+/// vehicle whose commands are set from outside tells the others (V2V beacons) the acceleration
+/// those commands give, not what its own controller asked for (issue 22 item 5: CACC followers
+/// of a Python-driven leader must brake with it). Acceleration model: `(throttle - drag v) /
+/// mass`; kinematic model: `(speed - v) / dt` [m/s²].
+fn report_overridden_accel(
+    clock: Res<SimClock>,
+    mut q: Query<(
+        &CommandOverride,
+        &ControlCommand,
+        &VehicleState,
+        &mut Longitudinal,
+        Option<&AccelerationUnicycle>,
+        Option<&KinematicUnicycle>,
+    )>,
+) {
+    for (o, command, state, mut lon, acceleration, kinematic) in &mut q {
+        let mut c = *command;
+        o.apply(&mut c);
+        let v = state.speed().max(0.0);
+        let accel = match (acceleration, kinematic) {
+            (Some(m), None) if m.mass > 0.0 => (c.throttle - m.drag * v) / m.mass,
+            _ if clock.dt > 0.0 => (c.speed - v) / clock.dt,
+            _ => continue,
+        };
+        if accel.is_finite() {
+            lon.accel = accel;
+        }
+    }
+}
+
 /// All vehicles' states as columns, sorted by id (see [`Session::states_into`]).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct StateColumns {
@@ -99,62 +134,17 @@ pub struct StateColumns {
     pub vy: Vec<f64>,
 }
 
-/// Set `key` (dotted, e.g. `vehicles.controller.platoon.time_gap`) to `value` in a scenario
-/// table. A key through an array of tables (`vehicles`) sets it in every element that has the
-/// tables on the way; the last key is created if missing (the strict parser then rejects keys
-/// the format does not know). Errors name the key.
-pub fn apply_override(table: &mut toml::Table, key: &str, value: toml::Value) -> Result<(), String> {
-    fn set(item: &mut toml::Value, parts: &[&str], value: &toml::Value) -> usize {
-        match item {
-            toml::Value::Array(a) => a.iter_mut().map(|e| set(e, parts, value)).sum(),
-            toml::Value::Table(t) => set_in(t, parts, value),
-            _ => 0,
-        }
-    }
-    fn set_in(t: &mut toml::Table, parts: &[&str], value: &toml::Value) -> usize {
-        match parts {
-            [] => 0,
-            [last] => {
-                t.insert((*last).to_string(), value.clone());
-                1
-            }
-            [first, rest @ ..] => t.get_mut(*first).map_or(0, |item| set(item, rest, value)),
-        }
-    }
-    let parts: Vec<&str> = key.split('.').collect();
-    if parts.iter().any(|p| p.is_empty()) {
-        return Err(format!("override `{key}`: keys are dotted names like `seed` or `vehicles.speed`"));
-    }
-    match set_in(table, &parts, &value) {
-        0 => Err(format!("override `{key}`: the scenario has no table `{}`", parts[..parts.len() - 1].join("."))),
-        _ => Ok(()),
-    }
-}
+pub use super::scenario::apply_override;
 
-/// Load a scenario file with `overrides` (dotted keys, see [`apply_override`]) and an optional
-/// seed applied before it is checked; errors name the file, line and key.
+/// Load a scenario file with `overrides` (dotted keys, `*` for every element of an array, see
+/// [`super::scenario::overrides`]) and an optional seed applied before it is checked; errors
+/// name the file, line and key.
 pub fn load_scenario_with_overrides(
     path: &FsPath,
     seed: Option<u64>,
     overrides: &[(String, toml::Value)],
 ) -> Result<Scenario, SessionError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io { path: path.into(), source })?;
-    if seed.is_none() && overrides.is_empty() {
-        return Ok(Scenario::parse_str(&text, path)?);
-    }
-    let mut table: toml::Table =
-        toml::from_str(&text).map_err(|e| ScenarioError::Syntax { path: path.into(), message: e.to_string() })?;
-    for (key, value) in overrides {
-        apply_override(&mut table, key, value.clone())
-            .map_err(|m| SessionError::Argument(format!("{}: {m}", path.display())))?;
-    }
-    if let Some(seed) = seed {
-        let seed =
-            i64::try_from(seed).map_err(|_| SessionError::Argument(format!("seed must be < 2^63, got {seed}")))?;
-        table.insert("seed".into(), toml::Value::Integer(seed));
-    }
-    let text = toml::to_string(&table).map_err(|e| SessionError::Argument(format!("{}: {e}", path.display())))?;
-    Ok(Scenario::parse_str(&text, path)?)
+    Ok(super::scenario::load_with_overrides(path, seed, overrides, &Default::default())?)
 }
 
 /// A scenario's simulation, stepped by the caller.
@@ -184,6 +174,10 @@ impl Session {
     pub fn new(scenario: Scenario) -> Result<Session, SessionError> {
         let mut b = scenario.builder()?;
         b.add_systems(Control, apply_overrides.after(SimSystems::Control).before(SimSystems::Integrate));
+        b.add_systems(
+            Control,
+            report_overridden_accel.after(LongitudinalSystems::Actuate).before(LongitudinalSystems::Report),
+        );
         let sim = b.build();
         let start = sim.now();
         Ok(Session { sim, renderer: None, scenario, wall_seconds: 0.0, start })

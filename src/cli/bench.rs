@@ -14,7 +14,8 @@ pub struct BenchArgs {
     /// Sim time to run [s].
     #[arg(long, default_value_t = 10.0)]
     pub duration: f64,
-    /// Threads of the per-vehicle systems (default: the machine's cores, at most 4).
+    /// Most threads of the per-vehicle systems; above 1 they split at any vehicle count
+    /// (default: the machine's cores, at most 4, from 2,000 vehicles on).
     #[arg(long)]
     pub threads: Option<usize>,
     /// Soak test: run for this many seconds of WALL time, sampling the process's memory (RSS),
@@ -40,7 +41,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
     );
     anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
     let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
-    let parallelism = args.threads.map(|threads| Parallelism { threads, ..Default::default() });
+    let parallelism = args.threads.map(Parallelism::split);
     smlworld::app::interrupt::install();
     if let Some(seconds) = args.soak {
         anyhow::ensure!(

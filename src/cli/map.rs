@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
 use smlworld::map::commonroad::{CommonRoadScenario, CommonRoadState, is_commonroad};
-use smlworld::map::{LaneChange, LaneChangeOptions, LaneletMap, Place, RouteOptions, Routed};
+use smlworld::map::{LaneChange, LaneChangeOptions, LaneletMap, MapError, Place, RouteOptions, Routed};
 
 use super::{map_generate, map_render};
 
@@ -108,7 +108,13 @@ pub fn main(command: MapCommand) -> anyhow::Result<()> {
                 let routed = Routed { path: route.path, from_node: first(&from), to_node: first(&to), note: None };
                 return print_path_with_changes(&routed, Some(&route.lane_changes), a.json);
             }
-            let routed = map.route_places_routed(&from, &to, &RouteOptions { points_per_meter: a.points_per_meter })?;
+            let routed =
+                match map.route_places_routed(&from, &to, &RouteOptions { points_per_meter: a.points_per_meter }) {
+                    Err(MapError::NoRoute { .. }) => {
+                        return Err(no_route_in_lane(&map, &from, &to, a.points_per_meter));
+                    }
+                    r => r?,
+                };
             print_path(&routed, a.json)
         }
         MapCommand::Loop(a) => {
@@ -119,6 +125,21 @@ pub fn main(command: MapCommand) -> anyhow::Result<()> {
         }
         MapCommand::Generate(a) => map_generate::main(a),
         MapCommand::Render(a) => map_render::main(a),
+    }
+}
+
+/// The error of a route that does not exist in lane: when one with lane changes does, say so
+/// and name the flag that finds it.
+fn no_route_in_lane(map: &LaneletMap, from: &Place, to: &Place, points_per_meter: f64) -> anyhow::Error {
+    let in_lane = MapError::NoRoute { from: from.to_string(), to: to.to_string() };
+    let opts = LaneChangeOptions { points_per_meter, ..LaneChangeOptions::default() };
+    match map.route_with_lane_changes(from, to, &opts) {
+        Ok(route) => anyhow::anyhow!(
+            "no route from {from} to {to}: no route in lane; try --lane-changes (a route with {} lane change{} exists)",
+            route.lane_changes.len(),
+            if route.lane_changes.len() == 1 { "" } else { "s" }
+        ),
+        Err(_) => in_lane.into(),
     }
 }
 

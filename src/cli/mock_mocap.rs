@@ -20,7 +20,8 @@ pub struct MockMocapArgs {
     /// Capture rate [Hz]: how fast frame numbers advance.
     #[arg(long, default_value_t = DEFAULT_MOCK_RATE_HZ)]
     pub rate: f64,
-    /// Keyframe script (CSV: t_s,body,x_mm,y_mm,z_mm,roll_deg,pitch_deg,yaw_deg) instead of circles.
+    /// Keyframe script (CSV: t_s,body,x_mm,y_mm,z_mm,roll_deg,pitch_deg,yaw_deg; bodies numbered
+    /// from 1, as in QTM) instead of circles.
     #[arg(long, conflicts_with = "scenario")]
     pub script: Option<PathBuf>,
     /// Drive the real vehicles (id >= 0) of this scenario along their routes at their speeds,

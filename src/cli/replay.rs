@@ -20,6 +20,11 @@ pub struct ReplayArgs {
     /// (default 127.0.0.1:38008), paced to the wall clock, for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
     pub stream: Option<std::net::SocketAddr>,
+    /// Class names and reference point of --stream: `smlworld` (ours: `Car`, `Truck`, ...; x, y the
+    /// body centre) or `2015` (what the 2015 viewers draw: `SmartVehicle`, `DummyVehicle`; x, y the
+    /// rear-axle point).
+    #[arg(long, value_name = "FORMAT", default_value = "smlworld", value_parser = super::run::parse_stream_format)]
+    pub stream_format: smlworld::io::viz::StreamFormat,
     /// Sim seconds per wall second of --stream (2 = twice as fast as recorded).
     #[arg(long, default_value_t = 1.0)]
     pub speed: f64,
@@ -46,6 +51,7 @@ pub fn main(args: ReplayArgs) -> anyhow::Result<()> {
         frames: args.frames,
         gif: args.gif,
         stream: args.stream,
+        stream_format: args.stream_format,
         speed: args.speed,
         frame_rate: args.frame_rate,
         width: args.width,

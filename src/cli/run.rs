@@ -47,6 +47,11 @@ pub struct RunArgs {
     /// 127.0.0.1:38008) for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
     pub stream: Option<std::net::SocketAddr>,
+    /// Class names and reference point of --stream: `smlworld` (ours: `Car`, `Truck`, ...; x, y the
+    /// body centre) or `2015` (what the 2015 viewers draw: `SmartVehicle`, `DummyVehicle`; x, y the
+    /// rear-axle point).
+    #[arg(long, value_name = "FORMAT", default_value = "smlworld", value_parser = parse_stream_format)]
+    pub stream_format: smlworld::io::viz::StreamFormat,
     /// Draw a time stamp and a legend (classes; real vs virtual) on every frame (default: on the GIF only).
     #[arg(long, conflicts_with = "no_overlay")]
     pub overlay: bool,
@@ -56,6 +61,24 @@ pub struct RunArgs {
     /// Write figures (speed, gaps, platoons, lateral deviation, trace; PNG + SVG) into OUT/plots.
     #[arg(long)]
     pub plots: bool,
+    /// Replace the scenario's `seed`.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Most threads the per-vehicle systems use; above 1 they split at any vehicle count (the
+    /// results are the same bits for any N). Default: the machine's cores, at most 4, from
+    /// 2,000 vehicles on.
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
+    /// Override a scenario key (repeatable, applied in order): dotted keys, an index or `*` for
+    /// the elements of an array, the value as TOML (`--set 'vehicles.*.speed=12.5'`,
+    /// `--set traffic.0.count=80`, `--set v2v.wifi.loss=0.1`).
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = parse_set)]
+    pub set: Vec<(String, toml::Value)>,
+}
+
+/// `--set KEY=VALUE` (see [`smlworld::app::scenario::parse_override`]).
+pub fn parse_set(text: &str) -> Result<(String, toml::Value), String> {
+    smlworld::app::scenario::parse_override(text)
 }
 
 /// Run the subcommand.
@@ -74,14 +97,23 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         sensor_ranges: args.sensor_ranges,
         overlay: overlay(args.overlay, args.no_overlay),
         stream: args.stream,
+        stream_format: args.stream_format,
         progress: true,
         plots: args.plots,
         plugins: Vec::new(),
+        seed: args.seed,
+        overrides: args.set,
+        threads: args.threads,
     };
     // Ctrl-C / SIGTERM: the run stops after its step and writes what it has (exit 130 / 143).
     smlworld::app::interrupt::install();
     run_scenario(args.scenario, options)?;
     Ok(())
+}
+
+/// `--stream-format smlworld|2015` (see [`smlworld::io::viz::StreamFormat`]).
+pub fn parse_stream_format(text: &str) -> Result<smlworld::io::viz::StreamFormat, String> {
+    text.parse()
 }
 
 /// `--overlay` / `--no-overlay` / neither (the default: on the GIF only).

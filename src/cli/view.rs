@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context as _;
 use glam::DVec2;
 use image::RgbaImage;
-use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizReceiver};
+use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizReceiver, viewer_body};
 use smlworld::map::LaneletMap;
 use smlworld::render::{
     BirdseyeView, Environment, EnvironmentLayer, PatternSet, Renderer, VehicleSprite, frame_path, write_image,
@@ -36,6 +36,10 @@ pub struct ViewArgs {
     /// UDP address to receive the stream on.
     #[arg(long, default_value_t = DEFAULT_VIZ_ADDR)]
     pub listen: SocketAddr,
+    /// Format of the stream: `smlworld` (ours; x, y the body centre) or `2015` (a 2015 sender's:
+    /// x, y the rear-axle point, drawn where the 2015 viewer draws it).
+    #[arg(long, value_name = "FORMAT", default_value = "smlworld", value_parser = super::run::parse_stream_format)]
+    pub stream_format: smlworld::io::viz::StreamFormat,
     /// Lanelet map drawn as the background (the view then fits the map).
     #[arg(long)]
     pub map: Option<PathBuf>,
@@ -69,18 +73,6 @@ fn parse_point(s: &str) -> Result<DVec2, String> {
         v.trim().parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| format!("{v:?} is not a number"))
     };
     Ok(DVec2::new(num(x)?, num(y)?))
-}
-
-/// Footprint drawn for a class name of the stream (which carries no sizes) [m]: the scenario
-/// defaults of the 2015 tool.
-fn footprint(class: &str) -> (f64, f64) {
-    match class.to_ascii_lowercase().as_str() {
-        "truck" => (12.0, 2.5),
-        "bus" => (12.0, 2.55),
-        "motorcycle" => (2.2, 0.8),
-        "bicycle" | "bike" => (1.8, 0.6),
-        _ => (4.12, 1.7),
-    }
 }
 
 /// The receiving and drawing half of the viewer (no window).
@@ -169,9 +161,10 @@ impl Scene {
     fn draw(&mut self, frame: Option<&VizFrame>) -> anyhow::Result<()> {
         self.sprites.clear();
         if let Some(f) = frame {
+            let format = self.args.stream_format;
             self.sprites.extend(f.vehicles.iter().map(|v| {
-                let (length, width) = footprint(&v.class_name);
-                VehicleSprite::new(v.id, DVec2::new(v.x, v.y), v.yaw_deg.to_radians(), length, width, &v.class_name)
+                let (centre, yaw, length, width) = viewer_body(format, v);
+                VehicleSprite::new(v.id, centre, yaw, length, width, &v.class_name)
             }));
             self.drawn = Some(f.counter);
         }

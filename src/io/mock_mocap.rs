@@ -6,10 +6,12 @@
 //!
 //! ```text
 //! # t_s, body, x_mm, y_mm, z_mm, roll_deg, pitch_deg, yaw_deg
-//! 0.0, 0, 0, 0, 0, 0, 0, 0
-//! 2.0, 0, 1000, 0, 0, 0, 0, 0
-//! 1.0, 1, nan, nan, nan, nan, nan, nan
+//! 0.0, 1, 0, 0, 0, 0, 0, 0
+//! 2.0, 1, 1000, 0, 0, 0, 0, 0
+//! 1.0, 2, nan, nan, nan, nan, nan, nan
 //! ```
+//! Bodies are numbered from 1 as QTM numbers them (body 1 is the first 6DOF body in the data
+//! packets); a number without keyframes is sent hidden (NaN).
 //! Lines starting with `#` and blank lines are ignored; the first other line may name the
 //! columns. Between two keyframes of a body the pose is interpolated linearly (yaw along the
 //! shorter way); a keyframe with NaN values hides the body until its next keyframe; before its
@@ -82,18 +84,19 @@ pub struct Keyframe {
 #[derive(Debug, Clone, PartialEq)]
 pub enum MocapScript {
     /// Body k drives counter-clockwise around the lab origin on a circle of radius
-    /// `radius_mm + k * spacing_mm`, at `speed_mm_s`, starting at angle `k * 2π / bodies`.
+    /// `radius_mm + k * spacing_mm`, at `speed_mm_s`, starting at angle `k * 2π / bodies`, for
+    /// body number k + 1.
     Circles {
         /// Number of bodies.
         bodies: u32,
-        /// Radius of body 0's circle [mm].
+        /// Radius of body 1's circle [mm].
         radius_mm: f64,
         /// Extra radius per body index [mm].
         spacing_mm: f64,
         /// Speed along the circle [mm/s].
         speed_mm_s: f64,
     },
-    /// Keyframes per body index, sorted by time.
+    /// Keyframes per body number (1-based), sorted by time.
     Keyframes(BTreeMap<u32, Vec<Keyframe>>),
 }
 
@@ -131,7 +134,9 @@ impl MocapScript {
             if !(t_s.is_finite() && t_s >= 0.0) {
                 return Err(err(format!("time {t_s} must be finite and >= 0")));
             }
-            let body: u32 = cols[1].parse().map_err(|_| err(format!("body {:?} is not an index >= 0", cols[1])))?;
+            let body: u32 = cols[1].parse().ok().filter(|&b| b >= 1).ok_or_else(|| {
+                err(format!("body {:?} is not a body number >= 1 (QTM numbers its bodies from 1)", cols[1]))
+            })?;
             let mut pose = [0.0; 6];
             for (k, v) in pose.iter_mut().enumerate() {
                 *v = cols[2 + k].parse().map_err(|_| err(format!("value {:?} is not a number", cols[2 + k])))?;
@@ -147,21 +152,22 @@ impl MocapScript {
         Ok(Self::Keyframes(bodies))
     }
 
-    /// Number of bodies the server reports (highest index + 1 for keyframes).
+    /// Number of bodies the server reports (the highest body number for keyframes).
     pub fn body_count(&self) -> u32 {
         match self {
             Self::Circles { bodies, .. } => *bodies,
-            Self::Keyframes(b) => b.keys().next_back().map_or(0, |k| k + 1),
+            Self::Keyframes(b) => b.keys().next_back().copied().unwrap_or(0),
         }
     }
 
-    /// Pose of body `body` at `t_s` [s], `None` when hidden.
-    pub fn pose(&self, body: u32, t_s: f64) -> Option<[f64; 6]> {
+    /// Pose of body number `number` (1-based) at `t_s` [s], `None` when hidden.
+    pub fn pose(&self, number: u32, t_s: f64) -> Option<[f64; 6]> {
         match self {
             Self::Circles { bodies, radius_mm, spacing_mm, speed_mm_s } => {
-                if body >= *bodies {
+                if number == 0 || number > *bodies {
                     return None;
                 }
+                let body = number - 1;
                 let r = radius_mm + f64::from(body) * spacing_mm;
                 let phase = f64::from(body) * std::f64::consts::TAU / f64::from(*bodies);
                 let a = phase + speed_mm_s / r * t_s;
@@ -169,7 +175,7 @@ impl MocapScript {
                 Some([r * a.cos(), r * a.sin(), 0.0, 0.0, 0.0, yaw.to_degrees()])
             }
             Self::Keyframes(all) => {
-                let frames = all.get(&body)?;
+                let frames = all.get(&number)?;
                 let period = all.values().filter_map(|f| f.last()).map(|k| k.t_s).fold(0.0, f64::max);
                 let t = if period > 0.0 { t_s.rem_euclid(period) } else { t_s };
                 let next = frames.partition_point(|k| k.t_s <= t);
@@ -278,7 +284,7 @@ impl MockWorld {
     fn frame_packet(&self) -> Vec<u8> {
         let frame = (self.start.elapsed().as_secs_f64() * self.rate_hz).floor();
         let t = frame / self.rate_hz;
-        let bodies: Vec<[f32; 6]> = (0..self.script.body_count())
+        let bodies: Vec<[f32; 6]> = (1..=self.script.body_count())
             .map(|b| self.script.pose(b, t).map_or([f32::NAN; 6], |p| p.map(|v| v as f32)))
             .collect();
         encode_6d_euler_packet((t * 1e6) as i64, frame as i32, &bodies)

@@ -4,7 +4,10 @@
 //! `time=<t>XcRtid=<id>,lane=<left|center|right>,current_distance=<d>,desired_distance=<dd>,velocity=<v>,x=<x>,y=<y>,yaw=<yaw>,lane_offset=<o>\r\n`
 //!
 //! Distances, speed, position and lane offset are divided by the lab scale (default 32) before
-//! sending, as the trucks expect; `time` [s] and `yaw` [rad] are sent as given. A truck that
+//! sending, as the trucks expect; `yaw` is sent in degrees and `time` in seconds, as the 2015
+//! sender did (`scripts/sml_world_old/vehiclecontrolmodule.py`, `get_tcp_string`: the body's
+//! `yaw` in degrees as motion capture gives it, `time` its motion-capture timestamp / 1e6; see
+//! [`crate::io::lab`] for which time a virtual vehicle sends). A truck that
 //! disconnects can reconnect at any time; a new connection on a port replaces the old one; other
 //! trucks are not affected. Nothing is sent before the first [`TruckServer::publish`] for an id.
 
@@ -51,7 +54,7 @@ impl std::fmt::Display for Lane {
 /// What a truck is told, in world units (the server scales to the lab).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct TruckState {
-    /// Time stamp [s] (sent unscaled).
+    /// Time stamp [s] (sent unscaled): the motion-capture frame time of a real truck.
     pub time: f64,
     /// Lane.
     pub lane: Lane,
@@ -65,7 +68,7 @@ pub struct TruckState {
     pub x: f64,
     /// Position [m] (world; sent / scale).
     pub y: f64,
-    /// Heading [rad] (sent unscaled).
+    /// Heading [rad] (sent in degrees, as the 2015 sender did).
     pub yaw: f64,
     /// Lateral offset from the lane centre [m] (world; sent / scale).
     pub lane_offset: f64,
@@ -75,7 +78,7 @@ pub struct TruckState {
 pub fn format_truck_line(out: &mut String, id: i32, s: &TruckState, scale: f64) {
     let _ = write!(
         out,
-        "time={:.3}XcRtid={id},lane={},current_distance={:.4},desired_distance={:.4},velocity={:.4},x={:.4},y={:.4},yaw={:.4},lane_offset={:.4}\r\n",
+        "time={:.6}XcRtid={id},lane={},current_distance={:.4},desired_distance={:.4},velocity={:.4},x={:.4},y={:.4},yaw={:.4},lane_offset={:.4}\r\n",
         s.time,
         s.lane,
         s.current_distance / scale,
@@ -83,7 +86,7 @@ pub fn format_truck_line(out: &mut String, id: i32, s: &TruckState, scale: f64) 
         s.velocity / scale,
         s.x / scale,
         s.y / scale,
-        s.yaw,
+        s.yaw.to_degrees(),
         s.lane_offset / scale,
     );
 }

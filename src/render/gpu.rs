@@ -137,6 +137,25 @@ fn alpha_target() -> [Option<wgpu::ColorTargetState>; 1] {
     })]
 }
 
+/// Turn off Mesa's Vulkan device-selection layer where it has nothing to select by: without
+/// `XDG_RUNTIME_DIR` there is no Wayland session, and the layer's attempt to connect to one only
+/// prints `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` (libwayland) on
+/// stderr, twice per renderer, though nothing failed. Off-screen rendering takes any adapter, so
+/// the layer's choice of the display's GPU does not matter here. Its own switch is the
+/// `NODEVICE_SELECT=1` environment variable (its manifest's `disable_environment`); a value the
+/// user set is kept.
+fn quiet_device_select() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        if std::env::var_os("XDG_RUNTIME_DIR").is_none() && std::env::var_os("NODEVICE_SELECT").is_none() {
+            // SAFETY: this runs once, before the first Vulkan instance of the process, and every
+            // renderer waits here before creating one, so no Vulkan or Mesa code of ours reads the
+            // environment meanwhile; Rust's own readers take the standard library's lock.
+            unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+        }
+    });
+}
+
 impl Renderer {
     /// Open any adapter (a software one such as Mesa's lavapipe is fine) and build the pipelines.
     pub fn new() -> Result<Renderer, RenderError> {
@@ -144,6 +163,7 @@ impl Renderer {
     }
 
     async fn new_async() -> Result<Renderer, RenderError> {
+        quiet_device_select();
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = instance
             .request_adapter(&wgpu::RequestAdapterOptions::default())

@@ -69,6 +69,12 @@ impl Parallelism {
         Parallelism { threads: 1, min_vehicles: usize::MAX }
     }
 
+    /// At most `threads` threads, split at any vehicle count when above 1 (so that a small
+    /// scenario can check that the results do not depend on the thread count).
+    pub fn split(threads: usize) -> Parallelism {
+        if threads > 1 { Parallelism { threads, min_vehicles: 0 } } else { Parallelism::single() }
+    }
+
     /// Threads to use for `items` vehicles.
     pub fn threads_for(&self, items: usize) -> usize {
         if items < self.min_vehicles.max(2) { 1 } else { self.threads.clamp(1, items) }

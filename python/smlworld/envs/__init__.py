@@ -3,9 +3,11 @@
 - ``smlworld/PlatoonFollow-v0``: one learning car behind a leader that varies its speed.
   Action: longitudinal acceleration [m/s^2] in [-6, 3]. Observation: own speed [m/s], gap to the
   leader [m] (bumper to bumper), relative speed (leader - own) [m/s], the leader's acceleration
-  [m/s^2] as received over wifi (0 until the first message). Reward per step:
-  ``-((gap - gap_ref) / gap_ref)^2 - 0.02 * a^2 - 0.05 * jerk^2`` with ``gap_ref = 5 + 1.0 * v``
-  (gap tracking and comfort); -100 and termination on collision (gap <= 0). 0.1 s per step,
+  [m/s^2] as received over wifi (0 until the first message). Reward per step in [-1, 1]
+  (:func:`smlworld.envs.platoon.step_reward`): ``1 - 2 * penalty``, the penalty weighing gap
+  tracking ``((gap - gap_ref) / gap_ref)^2`` (0.8), comfort ``(a / 6)^2`` (0.1) and smoothness
+  (0.1), each capped at 1, with ``gap_ref = 5 + 1.0 * v``; -1 and termination on collision
+  (gap <= 0). 0.1 s per step,
   truncated after 600 steps (60 s). Bit-reproducible from ``reset(seed=...)``.
 
 ``platoon_parallel_env(n=5)`` is the PettingZoo parallel version: every member behind the

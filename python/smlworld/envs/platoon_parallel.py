@@ -24,7 +24,7 @@ from pettingzoo import ParallelEnv
 
 import smlworld
 
-from .platoon import A_MAX, A_MIN, CAR_LENGTH, DT
+from .platoon import A_MAX, A_MIN, CAR_LENGTH, DT, step_reward
 
 _VEHICLE = """
 [[vehicles]]
@@ -137,11 +137,7 @@ class PlatoonParallelEnv(ParallelEnv):
         trunc = self._steps >= self.max_steps
         for k, agent in enumerate(self.possible_agents):
             ref = 5.0 + v[k + 1]
-            jerk = a[k + 1] - self._last[k]
-            r = -((gaps[k] - ref) / ref) ** 2 - 0.02 * a[k + 1] ** 2 - 0.05 * jerk**2
-            if gaps[k] <= 0.0:
-                r -= 100.0
-            rewards[agent] = float(r)
+            rewards[agent] = step_reward(float(gaps[k]), ref, float(a[k + 1]), float(a[k + 1] - self._last[k]))
             terms[agent] = collided
             truncs[agent] = trunc
             infos[agent] = {"gap": float(gaps[k])}

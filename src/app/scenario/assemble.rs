@@ -23,6 +23,13 @@ use crate::world::{
     VehicleState, Velodyne,
 };
 
+/// A start pose farther than this from its route's centre line is warned about at load time [m]
+/// (half a 4 m lane: the vehicle would start beside its lane).
+const START_OFF_ROUTE: f64 = 2.0;
+/// The same for a start node [m]: route nodes lie on a lane's bound (the 2015 convention), half
+/// a lane from the centre line, so only a node more than a lane away is off the route.
+const START_NODE_OFF_ROUTE: f64 = 4.5;
+
 impl Scenario {
     /// A builder with the scenario's rates, seed, built-in plugins (dynamics, sensors, V2V, path
     /// following, the smart-vehicle controllers, metrics) and vehicles; add your own plugins,
@@ -178,6 +185,31 @@ impl Scenario {
         Ok(())
     }
 
+    /// Project vehicle `v`'s start point `p` on its route `r`, warning at load time when it lies
+    /// more than `limit` [m] from the route's centre line (the vehicle would start beside its
+    /// lane, or somewhere else than at its node).
+    fn project_start(
+        &self,
+        v: &VehicleConfig,
+        r: &Path,
+        p: DVec2,
+        what: &str,
+        limit: f64,
+    ) -> crate::map::PathProjection {
+        let projection = r.project(p);
+        if projection.lateral.abs() > limit {
+            tracing::warn!(
+                "{}: vehicle {}: {what} lies {:.1} m off its route (nearest route point ({:.1}, {:.1}) m); check `start` and `route`",
+                self.path.display(),
+                v.id,
+                projection.lateral.abs(),
+                projection.point.x,
+                projection.point.y
+            );
+        }
+        projection
+    }
+
     fn start_state(
         &self,
         v: &VehicleConfig,
@@ -188,7 +220,9 @@ impl Scenario {
             self.commonroad.as_ref()?.planning_problems.iter().find(|p| p.id == id).map(|p| p.initial_state)
         });
         if let Some(s) = problem {
-            let along = route.map_or(0.0, |r| r.project(s.position).s);
+            let along = route.map_or(0.0, |r| {
+                self.project_start(v, r, s.position, "its planning problem's initial state", START_OFF_ROUTE).s
+            });
             return Ok((VehicleState::new(s.position, s.orientation, s.velocity), along));
         }
         let start = v.start.clone().unwrap_or(StartConfig { at: None, offset: None, x: None, y: None, yaw: None });
@@ -209,14 +243,17 @@ impl Scenario {
             (_, None, Some(p)) => {
                 let p = DVec2::new(p.0, p.1);
                 let (heading, along) = route.map_or((0.0, 0.0), |r| {
-                    let projection = r.project(p);
+                    let projection = self.project_start(v, r, p, "its start `x`, `y`", START_OFF_ROUTE);
                     (projection.heading, projection.s)
                 });
                 (p, start.yaw.unwrap_or(heading), along)
             }
             (Some(r), at, None) => {
                 let base = match at {
-                    Some(n) => r.project(node_position(n)?).s,
+                    Some(n) => {
+                        let what = format!("its start node `{}`", n.place());
+                        self.project_start(v, r, node_position(n)?, &what, START_NODE_OFF_ROUTE).s
+                    }
                     None => 0.0,
                 };
                 let along = base + start.offset.unwrap_or(0.0);

@@ -7,7 +7,8 @@
 //! ([`crate::sim::recorded`]). Sensors see it and the collision metrics count it like any
 //! vehicle. An ego's goal counts as reached at the first sensor tick at which its centre lies in
 //! a goal position within the goal's time-step interval (goal orientation and velocity
-//! constraints are not checked).
+//! constraints are not checked), and only if it did not collide before (`collision` in
+//! `summary.json` then says when it did).
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -15,6 +16,7 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
+use crate::app::metrics::Metrics;
 use crate::map::LaneletMap;
 use crate::map::commonroad::{CommonRoadScenario, GoalState};
 use crate::sim::{
@@ -74,6 +76,8 @@ pub struct GoalMonitor {
     time_step_size: f64,
     egos: Vec<(VehicleId, i64, Vec<GoalState>)>,
     reached: BTreeMap<i32, Option<f64>>,
+    /// First collision of each ego that collided before reaching its goal [s].
+    collided: BTreeMap<i32, f64>,
     obstacles: usize,
 }
 
@@ -82,10 +86,14 @@ pub struct GoalMonitor {
 pub struct GoalResult {
     /// The planning problem's id.
     pub planning_problem: i64,
-    /// Whether the ego reached a goal state.
+    /// Whether the ego reached a goal state without colliding before (a goal reached after a
+    /// collision does not count).
     pub reached: bool,
     /// Sim time it first did [s].
     pub time: Option<f64>,
+    /// Sim time of the ego's first collision [s], if it collided before reaching the goal
+    /// (`reached` is then false).
+    pub collision: Option<f64>,
 }
 
 /// The `commonroad` part of `summary.json`.
@@ -110,7 +118,7 @@ impl GoalMonitor {
             .filter_map(|(v, pp)| Some((*v, *pp, sc.planning_problems.iter().find(|p| p.id == *pp)?.goals.clone())))
             .collect();
         let reached = egos.iter().map(|(v, _, _)| (v.0, None)).collect();
-        GoalMonitor { map, time_step_size: sc.time_step_size, egos, reached, obstacles }
+        GoalMonitor { map, time_step_size: sc.time_step_size, egos, reached, collided: BTreeMap::new(), obstacles }
     }
 
     /// What the summary reports.
@@ -120,25 +128,32 @@ impl GoalMonitor {
             .iter()
             .map(|(v, pp, _)| {
                 let time = self.reached.get(&v.0).copied().flatten();
-                (v.0, GoalResult { planning_problem: *pp, reached: time.is_some(), time })
+                let collision = self.collided.get(&v.0).copied();
+                (v.0, GoalResult { planning_problem: *pp, reached: time.is_some(), time, collision })
             })
             .collect();
         CommonRoadSummary { obstacles: self.obstacles, goals }
     }
 }
 
-/// Each sensor tick: mark egos whose centre lies in a goal within its time interval.
+/// Each sensor tick: mark egos whose centre lies in a goal within its time interval; an ego
+/// that collided first (see [`Metrics::collided`]) can no longer reach its goal.
 pub fn check_goals(
     clock: Res<SimClock>,
     vehicles: Res<Vehicles>,
     states: Query<&VehicleState>,
+    metrics: Option<Res<Metrics>>,
     mut monitor: ResMut<GoalMonitor>,
 ) {
     let t = clock.now.as_secs();
     let step = (t / monitor.time_step_size).round() as i64;
     let monitor = &mut *monitor;
     for (id, _, goals) in &monitor.egos {
-        if monitor.reached.get(&id.0).copied().flatten().is_some() {
+        if monitor.reached.get(&id.0).copied().flatten().is_some() || monitor.collided.contains_key(&id.0) {
+            continue;
+        }
+        if let Some(&crash) = metrics.as_ref().and_then(|m| m.collided.get(id)).filter(|&&crash| crash <= t) {
+            monitor.collided.insert(id.0, crash);
             continue;
         }
         let Some(state) = vehicles.get(*id).and_then(|e| states.get(e).ok()) else { continue };

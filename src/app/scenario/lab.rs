@@ -14,10 +14,13 @@
 //! mocap = { mock = true }               # or { addr = "127.0.0.1:22224", password = "..." }
 //!                                       # also: poll_rate = 24.0 [Hz], stale_after = 0.5 [s]
 //! trucks = { base_port = 16000, desired_distance = 20.0 }   # also: rate = 20.0 [Hz], lane_half_width = 2.0 [m]
+//! bodies = { 1 = 0, 2 = 1 }             # QTM body number (1-based) -> vehicle id
 //! ```
-//! With `mock = true` the run starts a [`MockMocapServer`] in-process on a free loopback port
-//! whose bodies drive each real vehicle's route at its scenario `speed` from its start (body k
-//! is vehicle k): the script of [`ring_script`].
+//! QTM numbers its bodies from 1 (body 1 is the first 6DOF body). Without `bodies`, body k
+//! drives real vehicle k (so vehicle 0 needs `bodies`); with it, motion capture drives exactly
+//! the vehicles it names (any id). With `mock = true` the run starts a [`MockMocapServer`]
+//! in-process on a free loopback port whose bodies (numbered the same way) drive their
+//! vehicles' routes at their scenario `speed` from their start: the script of [`ring_script`].
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::time::Duration;
@@ -28,7 +31,9 @@ use crate::io::lab::{
     LaneIndex, MocapBridge, MocapPlugin, RealVehicleStatsPlugin, TruckBridge, TruckPlugin, ring_script,
 };
 use crate::io::mock_mocap::{DEFAULT_MOCK_RATE_HZ, MocapScript, MockMocapConfig, MockMocapServer};
-use crate::io::qualisys::{DEFAULT_POLL_RATE_HZ, DEFAULT_QTM_ADDR, QtmClient, QtmClientConfig, Tracker, TrackerConfig};
+use crate::io::qualisys::{
+    BodyMapping, DEFAULT_POLL_RATE_HZ, DEFAULT_QTM_ADDR, QtmClient, QtmClientConfig, Tracker, TrackerConfig,
+};
 use crate::io::trucks::{
     DEFAULT_LAB_SCALE, DEFAULT_TRUCK_BASE_PORT, DEFAULT_TRUCK_RATE_HZ, TruckServer, TruckServerConfig,
 };
@@ -66,6 +71,10 @@ pub struct LabConfig {
     /// Real-truck output, if any.
     #[serde(default)]
     pub trucks: Option<TrucksConfig>,
+    /// QTM body number (1-based, as TOML keys: `{ 1 = 0, 2 = 1 }`) -> vehicle id; default: body
+    /// k drives real vehicle k.
+    #[serde(default)]
+    pub bodies: Option<std::collections::BTreeMap<String, i32>>,
 }
 
 fn default_scale() -> f64 {
@@ -147,8 +156,31 @@ impl LabConfig {
         self.mocap.is_some()
     }
 
+    /// Which vehicle each QTM body drives (see the module docs).
+    pub fn body_mapping(&self) -> Result<BodyMapping, LabError> {
+        let Some(bodies) = &self.bodies else { return Ok(BodyMapping::Identity) };
+        let mut table = std::collections::BTreeMap::new();
+        for (key, &id) in bodies {
+            let number = key.parse::<u32>().ok().filter(|&n| n >= 1).ok_or_else(|| {
+                lab_error(
+                    &format!("bodies.{key}"),
+                    "is not a QTM body number: bodies are numbered from 1 (body 1 is the first 6DOF body)",
+                )
+            })?;
+            if let Some((other, _)) = table.iter().find(|(_, v)| **v == id) {
+                return Err(lab_error(
+                    &format!("bodies.{key}"),
+                    format!("drives vehicle {id}, which body {other} drives already; one body per vehicle"),
+                ));
+            }
+            table.insert(number, id);
+        }
+        Ok(BodyMapping::Table(table))
+    }
+
     /// Check values the types cannot.
     pub fn check(&self) -> Result<(), LabError> {
+        self.body_mapping()?;
         let positive = |key: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
@@ -210,8 +242,10 @@ pub fn add_lab_plugins(sim: &mut SimBuilder, config: &LabConfig, map: Option<&La
     let real = real_vehicles(sim, config)?;
     sim.add_plugin(RealVehicleStatsPlugin);
     if let Some(m) = &config.mocap {
-        let ids: Vec<VehicleId> = real.iter().map(|(id, _, _)| *id).collect();
-        sim.add_plugin(MocapPlugin::new(start_mocap(m, config.scale, &real)?, ids));
+        let mapping = config.body_mapping()?;
+        let tracked = tracked_vehicles(sim, config, &mapping)?;
+        let ids: Vec<VehicleId> = tracked.iter().map(|(_, (id, _, _))| *id).collect();
+        sim.add_plugin(MocapPlugin::new(start_mocap(m, config.scale, mapping, &tracked)?, ids));
     }
     if let Some(t) = &config.trucks {
         let ip = match &t.ip {
@@ -262,13 +296,71 @@ fn real_vehicles(sim: &mut SimBuilder, config: &LabConfig) -> Result<Vec<RealVeh
     Ok(out)
 }
 
+/// The vehicles motion capture drives, with their body numbers: those `[lab] bodies` names (each
+/// must exist), else the real vehicles (id >= 0), body k for vehicle k (vehicle 0 has none: an
+/// error naming the fix). None may have a dynamics model (the bridge owns their state).
+fn tracked_vehicles(
+    sim: &mut SimBuilder,
+    config: &LabConfig,
+    mapping: &BodyMapping,
+) -> Result<Vec<(u32, RealVehicle)>, LabError> {
+    let world = sim.world_mut();
+    let wanted: Vec<(u32, VehicleId)> = match mapping {
+        BodyMapping::Table(t) => t.iter().map(|(b, id)| (*b, VehicleId(*id))).collect(),
+        BodyMapping::Identity => {
+            let mut out = Vec::new();
+            for (id, _) in world.resource::<Vehicles>().iter().filter(|(id, _)| id.is_real()) {
+                let Some(body) = mapping.body_of(id.0) else {
+                    return Err(lab_error(
+                        "mocap",
+                        format!(
+                            "drives real vehicle {id} by QTM body {id}, but QTM numbers its bodies from 1: map a body to it with `[lab] bodies = {{ 1 = {id} }}`"
+                        ),
+                    ));
+                };
+                out.push((body, id));
+            }
+            out
+        }
+    };
+    let mut out = Vec::with_capacity(wanted.len());
+    for (body, id) in wanted {
+        let Some(e) = world.resource::<Vehicles>().get(id) else {
+            return Err(lab_error(
+                &format!("bodies.{body}"),
+                format!("names vehicle {id}, which the scenario does not have"),
+            ));
+        };
+        let driven = world.get::<KinematicUnicycle>(e).is_some() || world.get::<AccelerationUnicycle>(e).is_some();
+        if config.mocap.is_some() && driven {
+            return Err(lab_error(
+                "mocap",
+                format!(
+                    "drives vehicle {id} (QTM body {body}), which also has a dynamics model: give it `model = {{ type = \"none\" }}`"
+                ),
+            ));
+        }
+        let state = world.get::<VehicleState>(e).copied().unwrap_or_default();
+        out.push((body, (id, state, world.get::<Route>(e).cloned())));
+    }
+    Ok(out)
+}
+
 /// Connect the motion-capture client (to the mock server it starts for `mock = true`, else to
-/// `addr`) and its tracker.
-fn start_mocap(m: &MocapConfig, scale: f64, real: &[RealVehicle]) -> Result<MocapBridge, LabError> {
+/// `addr`) and its tracker; `tracked` are the vehicles it drives with their body numbers.
+fn start_mocap(
+    m: &MocapConfig,
+    scale: f64,
+    mapping: BodyMapping,
+    tracked: &[(u32, RealVehicle)],
+) -> Result<MocapBridge, LabError> {
     let mut mock = None;
     let addr = if m.mock {
-        let script =
-            ring_script(real.iter().filter_map(|(id, s, r)| Some((*id, *s, r.as_ref()?.0.as_ref()))), scale, 1.0);
+        let script = ring_script(
+            tracked.iter().filter_map(|(body, (_, s, r))| Some((*body, *s, r.as_ref()?.0.as_ref()))),
+            scale,
+            1.0,
+        );
         let server = MockMocapServer::start(MockMocapConfig {
             bind: SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 0),
             rate_hz: DEFAULT_MOCK_RATE_HZ,
@@ -293,6 +385,7 @@ fn start_mocap(m: &MocapConfig, scale: f64, real: &[RealVehicle]) -> Result<Moca
     })
     .map_err(|e| lab_error("mocap", format!("cannot start the client: {e}")))?;
     let tracker = Tracker::new(TrackerConfig {
+        mapping,
         scale,
         stale_after: Duration::from_secs_f64(m.stale_after),
         ..Default::default()
@@ -304,13 +397,23 @@ fn start_mocap(m: &MocapConfig, scale: f64, real: &[RealVehicle]) -> Result<Moca
 /// serves), without starting any bridge: for `smlworld mock-mocap --scenario`.
 pub fn scenario_script(scenario: &Scenario) -> Result<MocapScript, ScenarioError> {
     let mut plain = scenario.clone();
-    let scale = plain.file.lab.take().map_or(DEFAULT_LAB_SCALE, |l| l.scale);
+    let lab = plain.file.lab.take();
+    let scale = lab.as_ref().map_or(DEFAULT_LAB_SCALE, |l| l.scale);
+    let mapping = lab.as_ref().map_or(Ok(BodyMapping::Identity), LabConfig::body_mapping).map_err(|e| {
+        ScenarioError::Invalid { path: scenario.path.clone(), key: format!("lab.{}", e.key), problem: e.problem }
+    })?;
     let mut builder = plain.builder()?;
     let world = builder.world_mut();
-    let real: Vec<_> = world.resource::<Vehicles>().iter().filter(|(id, _)| id.is_real()).collect();
-    let vehicles: Vec<(VehicleId, VehicleState, Route)> = real
-        .into_iter()
-        .filter_map(|(id, e)| Some((id, *world.get::<VehicleState>(e)?, world.get::<Route>(e)?.clone())))
+    let vehicles: Vec<(u32, VehicleState, Route)> = world
+        .resource::<Vehicles>()
+        .iter()
+        .filter_map(|(id, e)| {
+            let body = match &mapping {
+                BodyMapping::Identity if !id.is_real() => return None,
+                m => m.body_of(id.0)?,
+            };
+            Some((body, *world.get::<VehicleState>(e)?, world.get::<Route>(e)?.clone()))
+        })
         .collect();
-    Ok(ring_script(vehicles.iter().map(|(id, s, r)| (*id, *s, r.0.as_ref())), scale, 1.0))
+    Ok(ring_script(vehicles.iter().map(|(b, s, r)| (*b, *s, r.0.as_ref())), scale, 1.0))
 }

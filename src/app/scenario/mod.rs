@@ -45,6 +45,7 @@ mod check;
 pub mod commonroad;
 mod file;
 pub mod lab;
+pub mod overrides;
 
 use std::path::{Path as FsPath, PathBuf};
 use std::sync::Arc;
@@ -58,6 +59,7 @@ pub use file::{
     ScenarioFile, SensorsConfig, StartConfig, V2vSection, VehicleConfig, VelodyneConfig,
 };
 pub use lab::{LabConfig, LabError, MocapConfig, TrucksConfig, add_lab_plugins, scenario_script};
+pub use overrides::{apply_override, load_with_overrides, parse_override};
 
 /// What can go wrong with a scenario file.
 #[derive(Debug, thiserror::Error)]

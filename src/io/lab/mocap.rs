@@ -57,8 +57,9 @@ pub struct MocapTrack {
     pub stale: bool,
     /// Sim time spent stale [s], counted per dynamics step.
     pub stale_seconds: f64,
-    /// Timestamp of the last frame counted [µs], to count each frame once.
-    last_timestamp_us: Option<i64>,
+    /// Motion-capture timestamp of the last frame that saw its body [µs] (QTM's clock; the
+    /// truck line's `time`), also used to count each frame once.
+    pub last_timestamp_us: Option<i64>,
 }
 
 /// Each [`Dynamics`] tick: feed the frames received since the last tick into the tracker, mark
@@ -75,7 +76,7 @@ pub fn apply_mocap(
     while let Some(f) = client.try_next() {
         bridge.tracker.update(&f.frame, f.received_at);
         for b in &f.frame.bodies {
-            let Some(t) = bridge.tracker.bodies().find(|t| t.body == b.index) else { continue };
+            let Some(t) = bridge.tracker.bodies().find(|t| t.body == b.number()) else { continue };
             if t.timestamp_us != f.frame.timestamp_us {
                 continue;
             }

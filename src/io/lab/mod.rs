@@ -29,7 +29,7 @@ use std::collections::BTreeMap;
 
 use crate::io::mock_mocap::{Keyframe, MocapScript};
 use crate::map::Path;
-use crate::world::{VehicleId, VehicleState};
+use crate::world::VehicleState;
 
 pub use mocap::{MocapBridge, MocapPlugin, MocapTrack, apply_mocap};
 pub use stats::{
@@ -39,19 +39,19 @@ pub use stats::{
 pub use stream::{Stream, VizStream, VizStreamPlugin, stream_vehicles};
 pub use trucks::{LaneIndex, TruckBridge, TruckLine, TruckPlugin, Trucks, leader_gap, publish_trucks};
 
-/// A mock motion-capture script in which body k drives vehicle k's `path` from its state's
-/// position at its state's speed, one lap (or to the path's end), keyframes every `step` [m];
+/// A mock motion-capture script in which each body number (1-based, as QTM numbers them) drives
+/// its vehicle's `path` from its state's position at its state's speed, one lap (or to the
+/// path's end), keyframes every `step` [m];
 /// positions in lab millimetres (world metres / `scale` * 1000), yaw in degrees. A vehicle that
 /// stands still gets one keyframe. The script loops with the longest lap's period.
 pub fn ring_script<'a>(
-    vehicles: impl IntoIterator<Item = (VehicleId, VehicleState, &'a Path)>,
+    vehicles: impl IntoIterator<Item = (u32, VehicleState, &'a Path)>,
     scale: f64,
     step: f64,
 ) -> MocapScript {
     let mut bodies: BTreeMap<u32, Vec<Keyframe>> = BTreeMap::new();
     let mm = 1000.0 / scale;
-    for (id, state, path) in vehicles {
-        let Ok(body) = u32::try_from(id.0) else { continue };
+    for (body, state, path) in vehicles {
         let s0 = path.project(state.position).s;
         let speed = state.speed().abs();
         let pose = |s: f64| {

@@ -7,11 +7,13 @@ use std::time::Duration;
 use bevy_ecs::prelude::{Query, ResMut, Resource};
 use bevy_ecs::schedule::ScheduleLabel;
 
-use crate::io::viz::{DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, VizError, VizSender, VizSenderConfig, VizVehicle};
+use crate::io::viz::{
+    DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, StreamFormat, VizError, VizSender, VizSenderConfig, VizVehicle,
+};
 use crate::io::{WarnLimiter, lock};
 use crate::sim::Phase;
 use crate::sim::{Plugin, SimBuilder};
-use crate::world::{VehicleClass, VehicleId, VehicleState};
+use crate::world::{VehicleClass, VehicleId, VehicleSize, VehicleState};
 
 /// Schedule of the visualisation stream ([`Phase::Sense`]: it sends the state at its tick time).
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -23,6 +25,8 @@ pub struct VizStream {
     sender: VizSender,
     frame: Vec<VizVehicle>,
     warn: WarnLimiter,
+    /// Class names and reference point of the datagrams.
+    pub format: StreamFormat,
     /// Frames sent so far.
     pub frames_sent: u64,
     /// Frames that could not be sent (nobody listening is not an error on UDP, but a full
@@ -38,29 +42,38 @@ impl VizStream {
             sender,
             frame: Vec::new(),
             warn: WarnLimiter::new(Duration::from_secs(5)),
+            format: StreamFormat::default(),
             frames_sent: 0,
             send_errors: 0,
         })
     }
 }
 
-/// Each [`Stream`] tick: send every vehicle (id order is not needed by receivers; entity order).
-/// The frame buffer and its class-name strings are reused, so steady state does not allocate.
-pub fn stream_vehicles(mut stream: ResMut<VizStream>, vehicles: Query<(&VehicleId, &VehicleState, &VehicleClass)>) {
+/// Each [`Stream`] tick: send every vehicle (id order is not needed by receivers; entity order)
+/// in the stream's [`StreamFormat`]. The frame buffer and its class-name strings are reused, so
+/// steady state does not allocate.
+pub fn stream_vehicles(
+    mut stream: ResMut<VizStream>,
+    vehicles: Query<(&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>)>,
+) {
     let stream = &mut *stream;
+    let format = stream.format;
     let mut n = 0;
-    for (id, s, class) in &vehicles {
+    for (id, s, class, size) in &vehicles {
         if n == stream.frame.len() {
             stream.frame.push(VizVehicle { id: 0, x: 0.0, y: 0.0, yaw_deg: 0.0, class_name: String::new() });
         }
         let v = &mut stream.frame[n];
         v.id = id.0;
-        v.x = s.position.x;
-        v.y = s.position.y;
+        let length = size.copied().unwrap_or_default().length;
+        let p = format.point_from_centre(s.position, s.yaw, length);
+        v.x = p.x;
+        v.y = p.y;
         v.yaw_deg = s.yaw.to_degrees();
-        if v.class_name != class.name() {
+        let name = format.class_name(id.0, class.name());
+        if v.class_name != name {
             v.class_name.clear();
-            v.class_name.push_str(class.name());
+            v.class_name.push_str(name);
         }
         n += 1;
     }
@@ -91,6 +104,14 @@ impl VizStreamPlugin {
             return Err(VizError::BadRate(rate));
         }
         Ok(VizStreamPlugin { stream: Mutex::new(Some(VizStream::new(target)?)), rate })
+    }
+
+    /// Send in `format` (default: ours).
+    pub fn with_format(self, format: StreamFormat) -> VizStreamPlugin {
+        if let Some(stream) = lock(&self.stream).as_mut() {
+            stream.format = format;
+        }
+        self
     }
 
     /// The 2015 defaults: 127.0.0.1:38008 at 50 Hz.

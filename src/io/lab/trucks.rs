@@ -7,6 +7,7 @@ use bevy_ecs::prelude::{Component, Query, Res, Resource};
 use bevy_ecs::schedule::ScheduleLabel;
 use glam::DVec2;
 
+use super::mocap::MocapTrack;
 use crate::io::lock;
 use crate::io::trucks::{Lane, TruckServer, TruckState};
 use crate::map::{LaneletMap, Path};
@@ -138,10 +139,17 @@ pub fn publish_trucks(
     clock: Res<SimClock>,
     lanes: Option<Res<LaneIndex>>,
     everyone: Query<(&VehicleId, &VehicleState)>,
-    mut served: Query<(&VehicleId, &VehicleState, Option<&Route>, Option<&SensorReadings>, &mut TruckLine)>,
+    mut served: Query<(
+        &VehicleId,
+        &VehicleState,
+        Option<&Route>,
+        Option<&SensorReadings>,
+        Option<&MocapTrack>,
+        &mut TruckLine,
+    )>,
     mut all: bevy_ecs::prelude::Local<Vec<Detection>>,
 ) {
-    for (&id, state, route, readings, mut line) in &mut served {
+    for (&id, state, route, readings, track, mut line) in &mut served {
         let others: &[Detection] = match readings {
             Some(r) => &r.0,
             None => {
@@ -191,7 +199,10 @@ pub fn publish_trucks(
         line.lane = lane;
         line.lane_offset = offset;
         let status = TruckState {
-            time: clock.now.as_secs(),
+            // The 2015 sender sent the body's motion-capture time (QTM µs / 1e6, see
+            // `MotionCaptureModule.py` and `vehiclecontrolmodule.py` `get_tcp_string`); a
+            // vehicle motion capture has not seen yet, or one without it, sends sim time.
+            time: track.and_then(|t| t.last_timestamp_us).map_or(clock.now.as_secs(), |us| us as f64 * 1e-6),
             lane,
             current_distance: line.current_distance,
             desired_distance: bridge.desired_distance,

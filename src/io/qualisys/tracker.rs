@@ -8,22 +8,31 @@ use glam::DVec2;
 
 use super::wire::DataFrame;
 
-/// Which vehicle id each QTM body drives.
+/// Which vehicle id each QTM body drives. Bodies are named by QTM's 1-based body number
+/// ([`super::Body6DEuler::number`]: body 1 is the first 6DOF body).
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub enum BodyMapping {
-    /// Body k is real vehicle k.
+    /// Body k is real vehicle k (k >= 1).
     #[default]
     Identity,
-    /// Body index -> vehicle id; bodies not listed are ignored.
+    /// Body number -> vehicle id (the scenario's `[lab] bodies`); bodies not listed are ignored.
     Table(BTreeMap<u32, i32>),
 }
 
 impl BodyMapping {
-    /// The vehicle id of body `index`, if it is tracked.
-    pub fn id_of(&self, index: u32) -> Option<i32> {
+    /// The vehicle id of body `number` (1-based), if it is tracked.
+    pub fn id_of(&self, number: u32) -> Option<i32> {
         match self {
-            Self::Identity => i32::try_from(index).ok(),
-            Self::Table(t) => t.get(&index).copied(),
+            Self::Identity => i32::try_from(number).ok().filter(|&n| n >= 1),
+            Self::Table(t) => t.get(&number).copied(),
+        }
+    }
+
+    /// The body number (1-based) that drives vehicle `id`, if any.
+    pub fn body_of(&self, id: i32) -> Option<u32> {
+        match self {
+            Self::Identity => u32::try_from(id).ok().filter(|&n| n >= 1),
+            Self::Table(t) => t.iter().find(|(_, v)| **v == id).map(|(b, _)| *b),
         }
     }
 }
@@ -51,7 +60,7 @@ impl Default for TrackerConfig {
 pub struct TrackedBody {
     /// Vehicle id (from the body mapping).
     pub id: i32,
-    /// QTM body index.
+    /// QTM body number (1-based).
     pub body: u32,
     /// World position [m] (lab position scaled by the factor).
     pub position: DVec2,
@@ -89,7 +98,7 @@ impl Tracker {
     pub fn update(&mut self, frame: &DataFrame, received_at: Instant) {
         let s = self.config.scale / 1000.0;
         for b in &frame.bodies {
-            let Some(id) = self.config.mapping.id_of(b.index) else { continue };
+            let Some(id) = self.config.mapping.id_of(b.number()) else { continue };
             let position = DVec2::new(f64::from(b.x_mm) * s, f64::from(b.y_mm) * s);
             let yaw = f64::from(b.yaw_deg).to_radians();
             match self.bodies.get_mut(&id) {
@@ -99,7 +108,7 @@ impl Tracker {
                     // dt < 0: QTM started a new measurement (timestamps restart): no velocity yet.
                     t.velocity = if t.stale || dt < 0.0 { DVec2::ZERO } else { (position - t.position) / dt };
                     if t.stale {
-                        tracing::info!("motion capture: vehicle {id} (body {}) tracked again", b.index);
+                        tracing::info!("motion capture: vehicle {id} (body {}) tracked again", b.number());
                     }
                     t.position = position;
                     t.yaw = yaw;
@@ -113,7 +122,7 @@ impl Tracker {
                         id,
                         TrackedBody {
                             id,
-                            body: b.index,
+                            body: b.number(),
                             position,
                             yaw,
                             velocity: DVec2::ZERO,

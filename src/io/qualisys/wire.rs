@@ -252,7 +252,7 @@ impl PacketDecoder {
 /// One visible 6DOF body of a frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Body6DEuler {
-    /// 0-based index of the body in QTM's body list.
+    /// 0-based index of the body in QTM's body list (see [`Body6DEuler::number`]).
     pub index: u32,
     /// Position [mm].
     pub x_mm: f32,
@@ -266,6 +266,14 @@ pub struct Body6DEuler {
     pub pitch_deg: f32,
     /// Third Euler angle, used as yaw [degrees].
     pub yaw_deg: f32,
+}
+
+impl Body6DEuler {
+    /// QTM's body number, 1-based as QTM numbers its bodies (body 1 is the first 6DOF body):
+    /// what `[lab] bodies` and the identity mapping name.
+    pub fn number(&self) -> u32 {
+        self.index + 1
+    }
 }
 
 /// A parsed data packet: its 6DOF Euler bodies.

@@ -243,8 +243,16 @@ fn digits(mut n: u64) -> usize {
     d
 }
 
+/// `v` rounded to `scale` (1000: 3 decimals), with -0 made 0: a value that rounds to zero from
+/// below would otherwise print as `-0.000`, a sign that is not there (and a replay, reading the
+/// run's CSV at 1 mm, would send `0.000` where the run sent `-0.000`).
+fn rounded(v: f64, scale: f64) -> f64 {
+    (v * scale).round() / scale + 0.0
+}
+
 fn write_record(out: &mut String, v: &VizVehicle) {
-    let _ = write!(out, "id={};x={:.3};y={:.3};yaw={:.2};class_name=", v.id, v.x, v.y, v.yaw_deg);
+    let (x, y, yaw) = (rounded(v.x, 1e3), rounded(v.y, 1e3), rounded(v.yaw_deg, 1e2));
+    let _ = write!(out, "id={};x={x:.3};y={y:.3};yaw={yaw:.2};class_name=", v.id);
     for c in v.class_name.chars().take(MAX_CLASS_NAME_LEN) {
         let ok = c.is_ascii_graphic() && !matches!(c, '#' | '!' | ';' | '=');
         out.push(if ok { c } else { '_' });

@@ -29,11 +29,15 @@
 //! in one datagram is sent exactly as in 2015, without the extra fields. Unknown keys are ignored
 //! by the decoder, so later extensions stay compatible too.
 //!
+//! Which class names and reference point a stream carries: [`format`] (ours by default, the
+//! 2015 viewers' with `--stream-format 2015`).
+//!
 //! Layout: [`codec`] (datagram text encoding and decoding, the stream's errors), [`reassembly`]
 //! (stale counters and split frames -> whole frames), [`sockets`] (UDP sender and receiver
 //! thread). Everything is re-exported here.
 
 pub mod codec;
+pub mod format;
 pub mod reassembly;
 pub mod sockets;
 
@@ -41,6 +45,7 @@ pub use codec::{
     MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder, VizError, VizPart,
     VizVehicle, decode_datagram, encode_frame,
 };
+pub use format::{REAR_AXLE_FROM_REAR, StreamFormat, viewer_body, viewer_footprint};
 pub use reassembly::{
     MAX_VEHICLES_PER_DATAGRAM, MAX_VEHICLES_PER_FRAME, RESTART_AFTER, VizFrame, VizReassembler, VizStats,
 };
