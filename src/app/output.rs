@@ -8,7 +8,7 @@ use bevy_ecs::schedule::ScheduleLabel;
 
 use crate::io::lab::LabSummary;
 use crate::sim::{Phase, SimClock, V2vStats};
-use crate::vehicles::PathFollower;
+use crate::vehicles::{LanePosition, PathFollower};
 use crate::world::{VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 use super::{Plugin, RunReport, Sim, SimBuilder, SimSeed};
@@ -17,8 +17,10 @@ use super::{Plugin, RunReport, Sim, SimBuilder, SimSeed};
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Log;
 
-/// Where trajectory rows go: `t,id,x,y,yaw,vx,vy` [s, -, m, m, rad, m/s, m/s], vehicles in id
-/// order, full precision.
+/// Where trajectory rows go: `t,id,x,y,yaw,vx,vy,lanelet,lane_offset` [s, -, m, m, rad, m/s,
+/// m/s, -, m], vehicles in id order, full precision; `lanelet` is the id of the lanelet under
+/// the reference point and `lane_offset` the signed offset from its centre line (left positive),
+/// both empty off-road or without a map.
 #[derive(Resource)]
 pub struct TrajectoryLog {
     writer: Box<dyn Write + Send + Sync>,
@@ -31,7 +33,7 @@ pub struct TrajectoryLog {
 impl TrajectoryLog {
     /// Log into `writer` (the header is written at once).
     pub fn new(mut writer: Box<dyn Write + Send + Sync>) -> TrajectoryLog {
-        let error = writeln!(writer, "t,id,x,y,yaw,vx,vy").err();
+        let error = writeln!(writer, "t,id,x,y,yaw,vx,vy,lanelet,lane_offset").err();
         TrajectoryLog { writer, rows: 0, error, last_t: None }
     }
 
@@ -53,7 +55,7 @@ impl TrajectoryLog {
 pub fn log_trajectories(
     clock: Res<SimClock>,
     vehicles: Res<Vehicles>,
-    states: Query<&VehicleState>,
+    states: Query<(&VehicleState, Option<&LanePosition>)>,
     log: Option<ResMut<TrajectoryLog>>,
 ) {
     let Some(mut log) = log else { return };
@@ -66,9 +68,9 @@ pub fn log_trajectories(
     }
     log.last_t = Some(t);
     for (id, e) in vehicles.iter() {
-        if let Ok(s) = states.get(e) {
+        if let Ok((s, lane)) = states.get(e) {
             // `+ 0.0` turns -0.0 into 0.0: `-0` in a CSV reads as a sign that is not there.
-            let r = writeln!(
+            let r = write!(
                 log.writer,
                 "{t:.6},{id},{},{},{},{},{}",
                 s.position.x + 0.0,
@@ -76,7 +78,11 @@ pub fn log_trajectories(
                 s.yaw + 0.0,
                 s.velocity.x + 0.0,
                 s.velocity.y + 0.0
-            );
+            )
+            .and_then(|()| match lane.and_then(|l| Some((l.lanelet?, l.offset))) {
+                Some((id, offset)) => writeln!(log.writer, ",{},{}", id.0, offset + 0.0),
+                None => writeln!(log.writer, ",,"),
+            });
             if let Err(e) = r {
                 log.error = Some(e);
                 return;
@@ -215,7 +221,14 @@ impl RunSummary {
             rate_warnings: sim.rate_warnings(),
             seed: world.get_resource::<SimSeed>().map_or(0, |s| s.0),
             max_distance_to_centre_line,
-            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| m.summary()),
+            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| {
+                let mut summary = m.summary();
+                if let Some(log) = world.get_resource::<crate::vehicles::LaneChangeLog>() {
+                    summary.lane_changes = Some(log.events.clone());
+                    summary.lane_change_summary = Some(super::metrics::LaneChangeSummary::of(log));
+                }
+                summary
+            }),
             lab: LabSummary::of(world),
             commonroad: world.get_resource::<super::scenario::commonroad::GoalMonitor>().map(|m| m.summary()),
             replay: None,

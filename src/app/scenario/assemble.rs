@@ -17,7 +17,10 @@ use crate::map::{Path, RouteOptions};
 use crate::sim::{
     Control, Dynamics, Network, Sensors, SimBuilder, SimSeed, V2vConfig, V2vPlugin, Wifi, default_plugins,
 };
-use crate::vehicles::{Longitudinal, PathFollower, PathFollowing, PathFollowingPlugin, smart_vehicles};
+use crate::vehicles::{
+    FollowLaw, Idm, LaneChangePlugin, LaneChanger, LaneMap, LanePosition, LanesPlugin, Longitudinal, PathFollower,
+    PathFollowing, PathFollowingPlugin, RouteGoal, SmartController, smart_vehicles,
+};
 use crate::world::{
     AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleId, VehicleModel, VehicleSize, VehicleSpec,
     VehicleState, Velodyne,
@@ -49,6 +52,10 @@ impl Scenario {
         b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: self.file.v2v.wifi_range } });
         b.add_plugin(PathFollowingPlugin);
         b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default());
+        if let Some(map) = &self.map {
+            b.add_plugin(LanesPlugin { map: Arc::clone(map) });
+            b.add_plugin(LaneChangePlugin { points_per_meter: self.file.points_per_meter });
+        }
         let mut routes: BTreeMap<String, Arc<Path>> = BTreeMap::new();
         for (i, v) in self.file.vehicles.iter().enumerate() {
             let key = |k: &str| format!("vehicles[{i}] (id {}).{k}", v.id);
@@ -174,6 +181,27 @@ impl Scenario {
                 controller.attach(&mut vehicle);
             }
             None => {}
+        }
+        if let Some(lanes) = b.world_mut().get_resource::<LaneMap>() {
+            let lane = match lanes.locate(state.position, None, 0.0) {
+                Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset },
+                None => LanePosition::default(),
+            };
+            b.world_mut().entity_mut(entity).insert(lane);
+        }
+        if let (Some(params), Some(r)) = (v.lane_change.0, &v.route) {
+            let speed =
+                b.world_mut().get::<PathFollower>(entity).map_or(PathFollowing::default().speed, |f| f.params.speed);
+            let law = match v.controller.as_ref().and_then(ControllerConfig::smart) {
+                Some(SmartController::Idm(p)) => FollowLaw::Idm(p),
+                Some(SmartController::Acc(a)) => FollowLaw::Acc(a.acc, a.speed),
+                _ => FollowLaw::Idm(Idm { speed: speed.max(0.1), ..Idm::default() }),
+            };
+            let goal = match &r.to {
+                Some(to) if r.closed_loop.is_none() => RouteGoal::To(to.place()),
+                _ => RouteGoal::Loop,
+            };
+            b.world_mut().entity_mut(entity).insert(LaneChanger::new(params, law, goal));
         }
         Ok(())
     }

@@ -134,6 +134,26 @@ fn check_vehicle(
     if let Some(r) = v.sensors.velodyne {
         c.within(key("sensors.velodyne.range"), r.range, Range::non_negative(MAX_DISTANCE))?;
     }
+    if let Some(p) = &v.lane_change.0 {
+        p.check().map_err(|e| c.invalid(key(&format!("lane_change.{}", e.key)), &e.problem))?;
+        if v.route.is_none() {
+            return Err(c.invalid(key("lane_change"), "needs a `route` (lanes are changed along it)"));
+        }
+    }
+    if let Some(smart) = v.controller.as_ref().and_then(ControllerConfig::smart)
+        && smart.needs_sensing_ahead()
+        && v.sensors.radar.is_none()
+        && v.sensors.velodyne.is_none()
+        && !v.sensors.omniscient
+    {
+        return Err(c.invalid(
+            key("sensors"),
+            &format!(
+                "controller `{}` needs a sensor that sees the vehicle ahead, and this vehicle has none (it would drive into it); add one, e.g. `sensors = {{ radar = {{ angle_deg = 60.0, range = 100.0 }} }}` (or `velodyne = {{ range = 50.0 }}`, or `omniscient = true`)",
+                smart.type_name()
+            ),
+        ));
+    }
     match &v.controller {
         Some(controller) => check_controller(c, v, controller, controllers, &key),
         None => Ok(()),

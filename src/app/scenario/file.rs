@@ -7,7 +7,7 @@ use serde::Deserialize;
 use super::lab::LabConfig;
 use crate::map::routing::Place;
 use crate::sim::{BUILT_IN_CONTROLLERS, Rates, V2vConfig};
-use crate::vehicles::{AccSetup, CruiseSetup, PathFollowing, PlatoonSetup, SmartController};
+use crate::vehicles::{AccSetup, CruiseSetup, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, SmartController};
 use crate::world::{AccelerationUnicycle, KinematicUnicycle, Radar, VehicleClass, Velodyne};
 
 /// A node of the map: an id (integer) or a node tag value (string).
@@ -185,6 +185,31 @@ pub struct VehicleConfig {
     /// (position, heading, speed) and the summary says whether it reached the goal.
     #[serde(default)]
     pub planning_problem: Option<i64>,
+    /// Lane changes: `lane_change = { politeness, ... }`, `true` (the defaults) or `false`
+    /// (none, as without the key).
+    #[serde(default)]
+    pub lane_change: LaneChangeSetting,
+}
+
+/// `lane_change = false`, `true` or a table of [`LaneChangeParams`].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LaneChangeSetting(pub Option<LaneChangeParams>);
+
+impl<'de> Deserialize<'de> for LaneChangeSetting {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<LaneChangeSetting, D::Error> {
+        use serde::de::Error;
+        match toml::Value::deserialize(d)? {
+            toml::Value::Boolean(false) => Ok(LaneChangeSetting(None)),
+            toml::Value::Boolean(true) => Ok(LaneChangeSetting(Some(LaneChangeParams::default()))),
+            v @ toml::Value::Table(_) => v
+                .try_into()
+                .map(|p| LaneChangeSetting(Some(p)))
+                .map_err(|e: toml::de::Error| D::Error::custom(e.message())),
+            other => Err(D::Error::custom(format!(
+                "`lane_change` must be `false`, `true` or a table such as {{ politeness = 0.2 }}, got {other}"
+            ))),
+        }
+    }
 }
 
 fn yes() -> bool {
@@ -365,6 +390,8 @@ pub enum BuiltInController {
     Acc(AccSetup),
     /// Platooning (cooperative ACC over wifi) along the route.
     Platoon(PlatoonSetup),
+    /// Treiber's IDM on radar along the route.
+    Idm(Idm),
 }
 
 impl<'de> Deserialize<'de> for ControllerConfig {
@@ -393,6 +420,7 @@ impl ControllerConfig {
             ControllerConfig::BuiltIn(BuiltInController::CruiseControl(c)) => Some(SmartController::Cruise(*c)),
             ControllerConfig::BuiltIn(BuiltInController::Acc(c)) => Some(SmartController::Acc(*c)),
             ControllerConfig::BuiltIn(BuiltInController::Platoon(c)) => Some(SmartController::Platoon(*c)),
+            ControllerConfig::BuiltIn(BuiltInController::Idm(c)) => Some(SmartController::Idm(*c)),
             _ => None,
         }
     }

@@ -1,0 +1,192 @@
+//! Lane changes in runs (issue 19): the overtaking scenario's figures, the sensor requirement of
+//! controllers that follow a leader, and the shipped scenarios without `lane_change` driving
+//! exactly as before lane changes existed.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use serde_json::Value;
+use smlworld::app::Scenario;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Run `smlworld run scenarios/<name>.toml`; return summary.json and the trajectory rows.
+fn run(name: &str) -> (Value, Vec<Vec<String>>) {
+    let out = std::env::temp_dir().join(format!("smlworld-lc-{name}-{}", std::process::id()));
+    let output = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .arg("run")
+        .arg(root().join("scenarios").join(format!("{name}.toml")))
+        .arg("--out")
+        .arg(&out)
+        .current_dir(root())
+        .output()
+        .expect("the smlworld binary runs");
+    assert!(output.status.success(), "{name}: {}", String::from_utf8_lossy(&output.stderr));
+    let summary = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let csv = std::fs::read_to_string(out.join("trajectories.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("t,id,x,y,yaw,vx,vy,lanelet,lane_offset"));
+    let rows = lines.map(|l| l.split(',').map(str::to_string).collect()).collect();
+    let _ = std::fs::remove_dir_all(&out);
+    (summary, rows)
+}
+
+fn num(v: &str) -> f64 {
+    v.parse().unwrap_or_else(|_| panic!("{v:?} is not a number"))
+}
+
+/// Unwrapped angle [rad] round the origin of vehicle `id` at every logged time.
+fn ring_angles(rows: &[Vec<String>], id: &str) -> Vec<(f64, f64)> {
+    let mut out: Vec<(f64, f64)> = Vec::new();
+    for r in rows.iter().filter(|r| r[1] == id) {
+        let a = num(&r[3]).atan2(num(&r[2]));
+        let a = match out.last() {
+            Some(&(_, last)) => {
+                last + (a - last + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+            }
+            None => a,
+        };
+        out.push((num(&r[0]), a));
+    }
+    out
+}
+
+#[test]
+fn overtaking_car_changes_left_passes_the_truck_and_returns_right() {
+    let (summary, rows) = run("overtaking");
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{m}");
+    let changes = m["lane_changes"].as_array().expect("lane_changes listed");
+    let car: Vec<&Value> = changes.iter().filter(|c| c["id"] == -2).collect();
+    assert!(changes.iter().all(|c| c["id"] == -2), "only the car changes lanes: {changes:?}");
+    let left = car.iter().position(|c| c["direction"] == "left" && c["aborted"] == false).expect("a change left");
+    let right = car[left..].iter().find(|c| c["direction"] == "right" && c["aborted"] == false).expect("then right");
+    assert_eq!(car[left]["kind"], "discretionary");
+    assert!(num(&car[left]["t_start"].to_string()) <= 10.0, "starts overtaking early: {car:?}");
+    for c in &car {
+        let peak = c["peak_lateral_accel"].as_f64().unwrap();
+        assert!(peak > 0.0 && peak <= 1.1 * 1.5, "peak lateral acceleration {peak} over 1.1 x 1.5: {c}");
+    }
+    // It passed: when it is back on the right lane it is ahead of the truck round the ring.
+    let t_back = right["t_end"].as_f64().unwrap();
+    let at = |angles: &[(f64, f64)], t: f64| angles.iter().find(|(tt, _)| *tt >= t - 1e-9).unwrap().1;
+    let (car_a, truck_a) = (ring_angles(&rows, "-2"), ring_angles(&rows, "-1"));
+    assert!(at(&car_a, 0.0) < at(&truck_a, 0.0), "the car starts behind the truck");
+    assert!(at(&car_a, t_back) > at(&truck_a, t_back), "back right at {t_back} s ahead of the truck");
+    // The CSV says which lane: the car ends on a lanelet of the truck's lane (they share it).
+    let summary_of = &m["lane_change_summary"];
+    assert_eq!(summary_of["count"].as_u64().unwrap() as usize, changes.len());
+    assert_eq!(summary_of["missed_exits"], 0);
+    let last_lanelet = |id: &str| rows.iter().rev().find(|r| r[1] == id).unwrap()[7].clone();
+    assert!(!last_lanelet("-2").is_empty() && !last_lanelet("-1").is_empty(), "on the road at the end");
+}
+
+/// Final (x, y) of every vehicle, as the run before lane changes existed wrote them (commit
+/// d24ab97, `smlworld run`; the last row of each vehicle in trajectories.csv).
+const BEFORE: [(&str, &[(i64, f64, f64)]); 3] = [
+    (
+        "highway",
+        &[
+            (-12, -47.883909, 20.265328),
+            (-11, 19.637688, 48.144501),
+            (-10, 48.395422, -19.010494),
+            (-9, -18.376830, -48.639643),
+            (-8, 46.747048, 30.824714),
+            (-7, 31.376985, -46.378517),
+            (-6, -46.006162, -31.920037),
+            (-5, -32.461532, 45.625438),
+            (-4, -31.584492, -51.007750),
+            (-3, -51.343075, 31.036907),
+            (-2, 30.486444, 51.671358),
+            (-1, 51.996810, -29.928308),
+        ],
+    ),
+    (
+        "platoon_brake",
+        &[
+            (-5, -59.984609, -1.109566),
+            (-4, -55.784952, -22.077627),
+            (-3, -44.496568, -40.242164),
+            (-2, -27.553597, -53.293233),
+            (-1, -7.270126, -59.552679),
+        ],
+    ),
+    (
+        "acc_highway",
+        &[
+            (-14, -48.207389, 28.486406),
+            (-13, -55.056714, 10.207471),
+            (-12, -55.215342, -9.311856),
+            (-11, -48.664005, -27.699861),
+            (-10, -36.198770, -42.721522),
+            (-4, -43.775655, 41.025225),
+            (-3, -57.298818, 17.782520),
+            (-2, -59.310977, -9.032691),
+            (-1, -49.407613, -34.033306),
+        ],
+    ),
+];
+
+#[test]
+fn shipped_scenarios_without_lane_change_drive_as_before() {
+    for (name, before) in BEFORE {
+        let (_, rows) = run(name);
+        for &(id, x, y) in before {
+            let last = rows.iter().rev().find(|r| num(&r[1]) as i64 == id).unwrap();
+            let (gx, gy) = (num(&last[2]), num(&last[3]));
+            assert!(
+                (gx - x).abs() < 2e-6 && (gy - y).abs() < 2e-6,
+                "{name}: vehicle {id} ends at ({gx}, {gy}), before ({x}, {y})"
+            );
+        }
+    }
+}
+
+fn load(text: &str) -> Result<Scenario, String> {
+    Scenario::parse_str(text, &root().join("scenarios/test.toml")).map_err(|e| e.to_string())
+}
+
+const RING_VEHICLE: &str = r#"
+map = "../maps/highway_ring.osm"
+[[vehicles]]
+id = -7
+route = { loop = "right_lane_node" }
+"#;
+
+#[test]
+fn a_controller_that_follows_a_leader_needs_a_sensor_that_sees_it() {
+    for controller in [
+        r#"{ type = "acc", speed = 10.0 }"#,
+        r#"{ type = "idm", speed = 10.0 }"#,
+        r#"{ type = "platoon", role = "follower", speed = 10.0 }"#,
+    ] {
+        let err = load(&format!("{RING_VEHICLE}controller = {controller}\n")).expect_err(controller);
+        assert!(err.contains("vehicles[0] (id -7).sensors") && err.contains("radar"), "{controller}: {err}");
+        for sensors in ["{ radar = {} }", "{ velodyne = {} }", "{ omniscient = true }"] {
+            load(&format!("{RING_VEHICLE}controller = {controller}\nsensors = {sensors}\n"))
+                .unwrap_or_else(|e| panic!("{controller} with {sensors}: {e}"));
+        }
+    }
+    // Cruise control and path following do not look ahead.
+    load(&format!("{RING_VEHICLE}controller = {{ type = \"cruise_control\" }}\n")).unwrap();
+}
+
+#[test]
+fn lane_change_tables_are_parsed_strictly() {
+    let base = format!("{RING_VEHICLE}controller = {{ type = \"idm\" }}\nsensors = {{ radar = {{}} }}\n");
+    load(&format!("{base}lane_change = false\n")).unwrap();
+    load(&format!("{base}lane_change = true\n")).unwrap();
+    load(&format!("{base}lane_change = {{ politeness = 0.5, keep_right = false, min_interval = 2.0 }}\n")).unwrap();
+    let err = load(&format!("{base}lane_change = {{ politenes = 0.5 }}\n")).unwrap_err();
+    assert!(err.contains("politenes"), "{err}");
+    let err = load(&format!("{base}lane_change = {{ safe_deceleration = -1.0 }}\n")).unwrap_err();
+    assert!(err.contains("lane_change.safe_deceleration"), "{err}");
+    let err = load(
+        &format!("{base}controller = {{ type = \"idm\", speeed = 3.0 }}\n")
+            .replace("controller = { type = \"idm\" }\n", ""),
+    )
+    .unwrap_err();
+    assert!(err.contains("speeed"), "{err}");
+}
