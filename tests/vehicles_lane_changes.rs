@@ -190,3 +190,96 @@ fn lane_change_tables_are_parsed_strictly() {
     .unwrap_err();
     assert!(err.contains("speeed"), "{err}");
 }
+
+#[test]
+fn lane_drop_merges_everyone_without_missing_the_exit() {
+    let (summary, rows) = run("lane_drop");
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    let traffic = &m["traffic"];
+    let inserted = traffic["inserted"].as_u64().unwrap();
+    assert!(inserted >= 60, "{traffic}");
+    assert_eq!(traffic["removed"], inserted, "every inserted vehicle leaves by the end: {traffic}");
+    assert_eq!(m["throughput"]["vehicles_out"], inserted);
+    let end = rows.last().unwrap()[0].clone();
+    assert!(rows.iter().filter(|r| r[0] == end).count() == 0 || summary["vehicles"] == 0, "nobody left at the end");
+    let lc = &m["lane_change_summary"];
+    assert_eq!(lc["missed_exits"], 0, "{lc}");
+    assert!(lc["max_wait_s"].as_f64().unwrap() <= 30.0, "{lc}");
+    assert!(lc["mandatory"].as_u64().unwrap() >= 10, "{lc}");
+    // Every mandatory change is to the right (the left lane ends) and starts before the drop.
+    for c in m["lane_changes"].as_array().unwrap().iter().filter(|c| c["kind"] == "mandatory" && c["aborted"] == false)
+    {
+        assert_eq!(c["direction"], "right", "{c}");
+    }
+    // Vehicles on the left lane after the drop (x > 300 m, y > 3.5 m) would have driven off the road.
+    assert!(
+        rows.iter().all(|r| !(num(&r[2]) > 301.0 && num(&r[3]) > 3.6)),
+        "a vehicle drove on where the left lane has ended"
+    );
+}
+
+#[test]
+fn highway_traffic_changes_lanes_in_mixed_traffic_without_collisions() {
+    let (summary, rows) = run("highway_traffic");
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    assert!(m["traffic"]["inserted"].as_u64().unwrap() >= 100, "{}", m["traffic"]);
+    assert!(m["lane_change_summary"]["count"].as_u64().unwrap() >= 10, "{}", m["lane_change_summary"]);
+    let vehicles = summary["replay"]["vehicles"].as_array().unwrap();
+    let classes: std::collections::BTreeSet<&str> = vehicles.iter().map(|v| v["class"].as_str().unwrap()).collect();
+    assert!(classes.len() >= 2, "mixed classes: {classes:?}");
+    // Mixed speeds: the vehicles' mean speeds over the run spread by more than 1 m/s.
+    let mut mean: std::collections::BTreeMap<&str, (f64, f64)> = Default::default();
+    for r in &rows {
+        let e = mean.entry(r[1].as_str()).or_default();
+        e.0 += num(&r[5]).hypot(num(&r[6]));
+        e.1 += 1.0;
+    }
+    let speeds: Vec<f64> = mean.values().map(|(s, n)| s / n).collect();
+    let (lo, hi) = speeds.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
+    assert!(speeds.len() >= 100 && hi - lo > 1.0, "{lo} .. {hi}");
+}
+
+mod determinism {
+    use smlworld::app::session::load_scenario_with_overrides;
+    use smlworld::sim::Parallelism;
+    use smlworld::vehicles::LaneChangeLog;
+    use smlworld::world::{VehicleId, VehicleState};
+
+    /// Every vehicle's state bits and every lane change after `seconds` of `name` with `seed`
+    /// on `threads` threads (split at any vehicle count).
+    fn fingerprint(name: &str, seed: u64, threads: usize, seconds: f64) -> (Vec<(i32, [u64; 5])>, String) {
+        let path = super::root().join("scenarios").join(format!("{name}.toml"));
+        let scenario = load_scenario_with_overrides(&path, Some(seed), &[]).unwrap();
+        let mut b = scenario.builder().unwrap();
+        b.insert_resource(Parallelism { threads, min_vehicles: 0 });
+        let mut sim = b.build();
+        sim.run_for(seconds);
+        let world = sim.world_mut();
+        let mut q = world.query::<(&VehicleId, &VehicleState)>();
+        let mut states: Vec<(i32, [u64; 5])> = q
+            .iter(world)
+            .map(|(id, s)| {
+                let bits = [s.position.x, s.position.y, s.yaw, s.velocity.x, s.velocity.y].map(|v: f64| v.to_bits());
+                (id.0, bits)
+            })
+            .collect();
+        states.sort();
+        let log = format!("{:?}", world.resource::<LaneChangeLog>().events);
+        (states, log)
+    }
+
+    #[test]
+    fn traffic_and_lane_changes_are_bit_identical_on_one_and_two_threads_and_follow_the_seed() {
+        for (name, seconds) in [("lane_drop", 90.0), ("highway_traffic", 60.0)] {
+            let one = fingerprint(name, 7, 1, seconds);
+            let two = fingerprint(name, 7, 2, seconds);
+            assert!(!one.0.is_empty(), "{name}: traffic on the road");
+            assert!(name != "lane_drop" || one.1.contains("t_start"), "{name}: lane changes happened");
+            assert_eq!(one, two, "{name}: 1 and 2 threads differ");
+            let other = fingerprint(name, 8, 1, seconds);
+            assert_ne!(one.0, other.0, "{name}: seeds 7 and 8 gave the same traffic");
+        }
+    }
+}

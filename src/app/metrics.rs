@@ -111,6 +111,12 @@ pub struct MetricsSummary {
     /// Lane changes counted (runs on a map only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lane_change_summary: Option<LaneChangeSummary>,
+    /// Background traffic placed, inserted and removed (with `[[traffic]]` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub traffic: Option<super::traffic::TrafficSummary>,
+    /// Vehicles that left at their route's end (with `[[traffic]]` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub throughput: Option<super::traffic::Throughput>,
 }
 
 /// `metrics.lane_change_summary` of `summary.json`.
@@ -253,6 +259,8 @@ impl Metrics {
             platoons,
             lane_changes: None,
             lane_change_summary: None,
+            traffic: None,
+            throughput: None,
         }
     }
 }

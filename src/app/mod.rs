@@ -41,6 +41,7 @@ mod run;
 mod runner;
 pub mod scenario;
 pub mod session;
+pub mod traffic;
 
 pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use output::{

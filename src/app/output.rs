@@ -227,6 +227,14 @@ impl RunSummary {
                     summary.lane_changes = Some(log.events.clone());
                     summary.lane_change_summary = Some(super::metrics::LaneChangeSummary::of(log));
                 }
+                if let Some(t) = world.get_resource::<super::traffic::Traffic>() {
+                    use super::traffic::{Throughput, TrafficSummary};
+                    summary.traffic =
+                        Some(TrafficSummary { inserted: t.inserted, removed: t.removed, waiting_max: t.waiting_max });
+                    let hours = report.sim_seconds / 3600.0;
+                    let per_hour = if hours > 0.0 { t.removed as f64 / hours } else { 0.0 };
+                    summary.throughput = Some(Throughput { vehicles_out: t.removed, per_hour });
+                }
                 summary
             }),
             lab: LabSummary::of(world),

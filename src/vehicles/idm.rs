@@ -5,13 +5,13 @@
 //! `a = a_max [1 − (v/v₀)^δ − (s*/s)²]`, `s* = s₀ + v T + v Δv / (2 √(a_max b))`, with gap `s`
 //! [m] to the leader and approach rate `Δv = v − v_leader` [m/s] (see REFERENCE.md).
 
-use bevy_ecs::prelude::{Component, Query};
+use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::sim::Control;
 use crate::sim::params::{MAX_ACCEL, MAX_DISTANCE, MAX_SPEED, MAX_TIME, ParamError, Range, check_all};
 use crate::sim::{Plugin, SimBuilder};
-use crate::world::VehicleState;
+use crate::world::{VehicleSize, VehicleState, Vehicles};
 
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
@@ -82,10 +82,20 @@ pub struct IdmController {
 }
 
 /// The IDM for every vehicle with an [`IdmController`]: the leader is
-/// [`Longitudinal::leader`] (from the sensors).
-pub fn control_idm(mut vehicles: Query<(&VehicleState, &IdmController, &mut Longitudinal)>) {
-    for (state, idm, mut lon) in &mut vehicles {
-        lon.accel = idm.params.acceleration(state.speed(), lon.leader.map(|l| (l.gap, l.speed)));
+/// [`Longitudinal::leader`] (from the sensors). The gap is bumper to bumper with the leader's
+/// own length (a radar measures to the rear of what it sees), not [`super::LeaderGap::gap`]'s
+/// assumption that the leader is as long as we are: a car behind a truck keeps its gap.
+pub fn control_idm(
+    registry: Option<Res<Vehicles>>,
+    sizes: Query<&VehicleSize>,
+    mut vehicles: Query<(&VehicleState, &VehicleSize, &IdmController, &mut Longitudinal)>,
+) {
+    for (state, size, idm, mut lon) in &mut vehicles {
+        let leader = lon.leader.map(|l| {
+            let length = registry.as_ref().and_then(|r| sizes.get(r.get(l.id)?).ok()).map_or(size.length, |s| s.length);
+            (l.distance - 0.5 * (size.length + length), l.speed)
+        });
+        lon.accel = idm.params.acceleration(state.speed(), leader);
     }
 }
 

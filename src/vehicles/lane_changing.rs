@@ -234,6 +234,10 @@ pub struct LaneChanger {
     pub virtual_leader: Option<(f64, f64)>,
     /// A neighbour signalling a mandatory change in our gap: (gap [m], speed [m/s]).
     pub yield_to: Option<(f64, f64)>,
+    /// Road left [m] to the end of a lane the vehicle must leave (a mandatory change waits).
+    pub lane_end: Option<f64>,
+    /// While crossing: the vehicles ahead in both lanes, (gap [m], speed [m/s]) each.
+    pub crossing_leaders: [Option<(f64, f64)>; 2],
     wait_since: Option<f64>,
     missed: bool,
 }
@@ -250,6 +254,8 @@ impl LaneChanger {
             last_change: f64::NEG_INFINITY,
             virtual_leader: None,
             yield_to: None,
+            lane_end: None,
+            crossing_leaders: [None; 2],
             wait_since: None,
             missed: false,
         }
@@ -546,9 +552,12 @@ pub fn mobil_for(p: &LaneChangeParams, side: Side, kind: ChangeKind, urgency: f6
         ChangeKind::Discretionary => {
             Mobil { politeness: p.politeness, threshold: p.threshold + bias, safe_deceleration: p.safe_deceleration }
         }
+        // Leaving a lane that does not lead to the destination is worth b_safe on top of the
+        // usual incentive: any gap the safety criterion accepts is taken, and that criterion
+        // widens as the end nears.
         ChangeKind::Mandatory | ChangeKind::Requested => Mobil {
             politeness: p.politeness,
-            threshold: (p.threshold + bias) * (1.0 - urgency) - 2.0 * p.safe_deceleration * urgency,
+            threshold: (p.threshold + bias) * (1.0 - urgency) - p.safe_deceleration,
             safe_deceleration: p.safe_deceleration * (0.5 + 0.5 * urgency),
         },
     }
@@ -623,6 +632,8 @@ pub fn decide_lane_changes(
         let me = *id;
         ch.virtual_leader = None;
         ch.yield_to = None;
+        ch.lane_end = None;
+        ch.crossing_leaders = [None; 2];
         let Some(i) = pos.on() else { continue };
         let len_i = lanes.length(i);
         let law = ch.law;
@@ -635,14 +646,27 @@ pub fn decide_lane_changes(
             let leader = index.ahead(lanes, i, pos.s, me).map_or(f64::INFINITY, |f| f.distance);
             let nearest = list
                 .iter()
-                .filter(|(s, _, _, sid)| *sid != me && *s > pos.s && *s - pos.s < leader.min(60.0))
+                .filter(|(s, _, _, sid)| *sid != me && *s > pos.s && *s - pos.s < leader.min(150.0))
                 .min_by(|a, b| a.0.total_cmp(&b.0));
             if let Some(&(s, speed, length, _)) = nearest {
-                ch.yield_to = Some((s - pos.s - 0.5 * (length + size.length), speed));
+                // Only when we can fall behind it braking at most b_safe / 2; a neighbour already
+                // alongside is passed instead (it merges behind us), or both would wait for ever.
+                let gap = s - pos.s - 0.5 * (length + size.length);
+                let closing = (v - speed).max(0.0);
+                if gap > 2.0 && closing * closing / (2.0 * (gap - 2.0)) <= 0.5 * p.safe_deceleration {
+                    ch.yield_to = Some((gap, speed));
+                }
             }
         }
 
         if let Some(mut m) = ch.active.take() {
+            // In both lanes: follow the vehicle ahead in each (from the index, real lengths).
+            let gap_of = |f: Found| (f.distance - 0.5 * (f.length + size.length), f.speed);
+            ch.crossing_leaders[0] = index.ahead(lanes, i, pos.s, me).map(gap_of);
+            if let Some(j) = other_lane(pos, i) {
+                let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+                ch.crossing_leaders[1] = index.ahead(lanes, j, s_j, me).map(gap_of);
+            }
             let driven = m.driven(&route.0, follower.s);
             let d2 = profile_curvature(&m.profile, driven);
             m.peak_lateral_accel = m.peak_lateral_accel.max(v * v * d2);
@@ -719,6 +743,7 @@ pub fn decide_lane_changes(
         }
         let u = if mandatory.is_some() { urgency(remaining, v) } else { 0.0 };
         if mandatory.is_some() {
+            ch.lane_end = Some(remaining);
             if v < 0.5 {
                 let since = *ch.wait_since.get_or_insert(t);
                 log.max_wait_s = log.max_wait_s.max(t - since);
@@ -781,7 +806,7 @@ pub fn decide_lane_changes(
                     }
                 }
                 _ if kind == ChangeKind::Requested => ch.request = None,
-                MobilDecision::Occupied | MobilDecision::Unsafe(_) if kind == ChangeKind::Mandatory => {
+                MobilDecision::Occupied | MobilDecision::Unsafe(_) if kind == ChangeKind::Mandatory && u > 0.5 => {
                     // Fall behind the vehicle beside us in the target lane, then signal.
                     if let Some(l) = tl.filter(|f| f.distance < size.length + f.length) {
                         ch.virtual_leader = Some((l.distance - 0.5 * (l.length + size.length), l.speed));
@@ -855,10 +880,15 @@ fn profile_curvature(p: &LaneChangeProfile, s: f64) -> f64 {
 /// Lower the demand for lane changes: fall behind a vehicle in the target lane while a mandatory
 /// change waits, open a gap for a neighbour that must change in (braking at most
 /// `safe_deceleration / 2`), and keep under the speed the manoeuvre was sized for.
-pub fn limit_for_lane_changes(mut vehicles: Query<(&VehicleState, &LaneChanger, &mut Longitudinal)>) {
-    for (state, ch, mut lon) in &mut vehicles {
+pub fn limit_for_lane_changes(mut vehicles: Query<(&VehicleState, &VehicleSize, &LaneChanger, &mut Longitudinal)>) {
+    for (state, size, ch, mut lon) in &mut vehicles {
         let v = state.speed();
         let floor = -0.5 * ch.params.safe_deceleration;
+        if let Some(remaining) = ch.lane_end {
+            // Stop before the end as behind a standing vehicle there (the last resort).
+            let gap = remaining - 0.5 * size.length - 1.0;
+            lon.limit(ch.law.accel(v, Some((gap, 0.0))));
+        }
         if let Some(leader) = ch.virtual_leader {
             lon.limit(ch.law.accel(v, Some(leader)).max(floor));
         }
@@ -867,6 +897,9 @@ pub fn limit_for_lane_changes(mut vehicles: Query<(&VehicleState, &LaneChanger, 
         }
         if let Some(m) = &ch.active {
             lon.limit(2.0 * (m.speed_cap - v));
+            for leader in ch.crossing_leaders.into_iter().flatten() {
+                lon.limit(ch.law.accel(v, Some(leader)));
+            }
         }
     }
 }
