@@ -283,3 +283,91 @@ mod determinism {
         }
     }
 }
+
+/// Lane changes of the overtaking scenario on its map with the line between the lanes retagged
+/// `tag` (the OSM text of the tag that replaces `line_type=interior`).
+fn overtaking_changes_with_line(tag: &str) -> Vec<(String, bool)> {
+    let dir = std::env::temp_dir().join(format!("smlworld-lc-lines-{}-{}", tag.len(), std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let map = std::fs::read_to_string(root().join("maps/two_lane_ring.osm")).unwrap();
+    let retagged = map.replace("<tag k='line_type' v='interior' />", tag);
+    assert!(map.contains("<tag k='line_type' v='interior' />"), "the map has an interior line to retag");
+    std::fs::write(dir.join("ring.osm"), retagged).unwrap();
+    let text = std::fs::read_to_string(root().join("scenarios/overtaking.toml"))
+        .unwrap()
+        .replace("../maps/two_lane_ring.osm", "ring.osm");
+    let scenario = Scenario::parse_str(&text, &dir.join("overtaking.toml")).unwrap();
+    let mut sim = scenario.builder().unwrap().build();
+    sim.run_for(60.0);
+    let log = sim.world().resource::<smlworld::vehicles::LaneChangeLog>();
+    let out = log.events.iter().map(|e| (format!("{:?}", e.direction), e.aborted)).collect();
+    let _ = std::fs::remove_dir_all(&dir);
+    out
+}
+
+#[test]
+fn lines_between_lanes_decide_which_changes_are_allowed() {
+    // Interior (dashed) line: left and back right.
+    let both = overtaking_changes_with_line("<tag k='line_type' v='interior' />");
+    assert!(both.iter().any(|c| c.0 == "Left") && both.iter().any(|c| c.0 == "Right"), "{both:?}");
+    // A solid line: no change at all (the car follows the truck).
+    assert_eq!(overtaking_changes_with_line("<tag k='line_type' v='exterior' />"), vec![]);
+    assert_eq!(overtaking_changes_with_line("<tag k='subtype' v='solid' />"), vec![]);
+    // Solid on one side, dashed on the other: one direction only.
+    for one_way in ["<tag k='subtype' v='solid_dashed' />", "<tag k='subtype' v='dashed_solid' />"] {
+        let changes = overtaking_changes_with_line(one_way);
+        let left = changes.iter().any(|c| c.0 == "Left");
+        let right = changes.iter().any(|c| c.0 == "Right");
+        assert!(!(left && right), "{one_way}: both directions crossed: {changes:?}");
+    }
+}
+
+const TRAFFIC_RING: &str = r#"
+map = "../maps/highway_ring.osm"
+duration = 10.0
+[[vehicles]]
+id = 1005
+route = { loop = "right_lane_node" }
+controller = { type = "path_following" }
+"#;
+
+fn traffic_error(table: &str) -> String {
+    let text = format!("{TRAFFIC_RING}[[traffic]]\n{table}\n");
+    match Scenario::parse_str(&text, &root().join("scenarios/test.toml")) {
+        Ok(s) => match s.builder() {
+            Ok(_) => panic!("accepted: {table}"),
+            Err(e) => e.to_string(),
+        },
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn bad_traffic_tables_are_refused_naming_the_key() {
+    let cases = [
+        ("route = { loop = \"right_lane_node\" }\ncount = 10\nid_start = 1000", "traffic[0].id_start", "1005"),
+        ("route = { loop = \"right_lane_node\" }\ncount = 500\nid_start = 2000", "traffic[0].count", "fit"),
+        ("route = { loop = \"right_lane_node\" }\ncount = 5\nspeeed = [1.0, 2.0]\nid_start = 2000", "speeed", ""),
+        (
+            "route = { loop = \"right_lane_node\" }\ncount = 5\nspeed = [9.0, 2.0]\nid_start = 2000",
+            "traffic[0].speed",
+            "",
+        ),
+        ("route = { loop = \"no_such_tag\" }\ncount = 5\nid_start = 2000", "traffic[0].route", "no_such_tag"),
+        ("route = { loop = \"right_lane_node\" }\nid_start = 2000", "traffic[0].count", "rate"),
+        (
+            "route = { loop = \"right_lane_node\" }\ncount = 5\nsensors = {}\nid_start = 2000",
+            "traffic[0].sensors",
+            "radar",
+        ),
+        (
+            "route = { loop = \"right_lane_node\" }\ncount = 5\ncontroller = { type = \"path_following\" }\nid_start = 2000",
+            "traffic[0].controller.type",
+            "idm",
+        ),
+    ];
+    for (table, key, also) in cases {
+        let err = traffic_error(table);
+        assert!(err.contains(key) && err.contains(also), "{table}\n-> {err}");
+    }
+}

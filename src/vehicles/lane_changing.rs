@@ -692,14 +692,8 @@ pub fn decide_lane_changes(
                 let target = if (pos.offset > 0.0) == moving_left { neighbour(lanes, i, m.direction) } else { Some(i) };
                 let closed = target.is_some_and(|j| {
                     let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
-                    let ahead = index.ahead(lanes, j, s_j, me);
-                    let behind = index.behind(lanes, j, s_j, me);
-                    let front = ahead.is_some_and(|f| f.distance - 0.5 * (f.length + size.length) <= 0.0);
-                    let back = behind.is_some_and(|f| {
-                        let gap = f.distance - 0.5 * (f.length + size.length);
-                        gap <= 0.0 || law.accel(f.speed, Some((gap, v))) < -p.safe_deceleration
-                    });
-                    front || back
+                    let (ahead, behind) = (index.ahead(lanes, j, s_j, me), index.behind(lanes, j, s_j, me));
+                    target_gap_closed(&law, p.safe_deceleration, v, size.length, ahead, behind)
                 });
                 if closed {
                     let back = m.old_route.project_near(state.position, m.old_s, 10.0);
@@ -851,6 +845,25 @@ pub fn decide_lane_changes(
     }
 }
 
+/// Whether the gap a change aims at has closed (the abort rule before the halfway point): the
+/// vehicle ahead in the target lane overlaps us, or the one behind overlaps us or would have to
+/// brake harder than `safe_deceleration` [m/s²] behind us at our speed `v` [m/s] (`length`: ours).
+pub fn target_gap_closed(
+    law: &FollowLaw,
+    safe_deceleration: f64,
+    v: f64,
+    length: f64,
+    ahead: Option<Found>,
+    behind: Option<Found>,
+) -> bool {
+    let front = ahead.is_some_and(|f| f.distance - 0.5 * (f.length + length) <= 0.0);
+    let back = behind.is_some_and(|f| {
+        let gap = f.distance - 0.5 * (f.length + length);
+        gap <= 0.0 || law.accel(f.speed, Some((gap, v))) < -safe_deceleration
+    });
+    front || back
+}
+
 /// The neighbour on `side` of lanelet `i`, if any.
 fn neighbour(lanes: &LaneMap, i: u32, side: Side) -> Option<u32> {
     let n = lanes.neighbours[i as usize];
@@ -924,5 +937,116 @@ impl Plugin for LaneChangePlugin {
         sim.add_systems(Control, decide_lane_changes.in_set(LaneChangeSystems));
         sim.add_systems(Control, limit_for_lane_changes.in_set(LongitudinalSystems::Limit));
         let _ = LaneSystems;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn idm() -> FollowLaw {
+        FollowLaw::Idm(Idm { speed: 30.0, ..Idm::default() })
+    }
+
+    fn around(leader: Option<Seen>, target_leader: Option<Seen>, target_follower: Option<Seen>) -> Surroundings {
+        Surroundings {
+            me: Seen { s: 0.0, speed: 20.0 },
+            length: 4.0,
+            leader,
+            follower: None,
+            target_leader,
+            target_follower,
+        }
+    }
+
+    fn decide(p: &LaneChangeParams, side: Side, a: &Surroundings) -> MobilDecision {
+        let law = idm();
+        mobil_decision(&mobil_for(p, side, ChangeKind::Discretionary, 0.0), a, |v, l| law.accel(v, l))
+    }
+
+    #[test]
+    fn mobil_changes_towards_the_faster_lane_only() {
+        let p = LaneChangeParams { keep_right: false, ..LaneChangeParams::default() };
+        let slow = Some(Seen { s: 30.0, speed: 10.0 });
+        // Behind a slow leader with a free target lane: a positive incentive, change.
+        let go = decide(&p, Side::Left, &around(slow, None, None));
+        assert!(matches!(go, MobilDecision::Change(g) if g > p.threshold), "{go:?}");
+        // The other way round (free now, slow leader there): the incentive is negative, stay.
+        let stay = decide(&p, Side::Left, &around(None, slow, None));
+        assert!(matches!(stay, MobilDecision::NoGain(g) if g < 0.0), "{stay:?}");
+    }
+
+    #[test]
+    fn mobil_refuses_a_gap_whose_new_follower_would_brake_harder_than_safe() {
+        let p = LaneChangeParams::default();
+        let slow = Some(Seen { s: 30.0, speed: 10.0 });
+        // A fast follower 8 m behind in the target lane: it would have to brake hard.
+        let fast_close = Some(Seen { s: -12.0, speed: 30.0 });
+        let d = decide(&p, Side::Left, &around(slow, None, fast_close));
+        assert!(matches!(d, MobilDecision::Unsafe(a) if a < -p.safe_deceleration), "{d:?}");
+        // The same follower 150 m back: safe, change.
+        let far = Some(Seen { s: -150.0, speed: 30.0 });
+        assert!(matches!(decide(&p, Side::Left, &around(slow, None, far)), MobilDecision::Change(_)));
+    }
+
+    #[test]
+    fn keep_right_makes_left_harder_and_right_easier() {
+        let p = LaneChangeParams::default();
+        let left = mobil_for(&p, Side::Left, ChangeKind::Discretionary, 0.0);
+        let right = mobil_for(&p, Side::Right, ChangeKind::Discretionary, 0.0);
+        assert!(left.threshold > p.threshold && right.threshold < p.threshold);
+        assert!((left.threshold - right.threshold - 2.0 * KEEP_RIGHT_BIAS).abs() < 1e-12);
+        // On a free road both lanes give the same acceleration: only keep-right moves the car.
+        let free = around(None, None, None);
+        assert!(matches!(decide(&p, Side::Right, &free), MobilDecision::Change(_)));
+        assert!(matches!(decide(&p, Side::Left, &free), MobilDecision::NoGain(_)));
+        let symmetric = LaneChangeParams { keep_right: false, ..p };
+        assert!(matches!(decide(&symmetric, Side::Right, &free), MobilDecision::NoGain(_)));
+    }
+
+    #[test]
+    fn mandatory_urgency_grows_towards_the_end_and_widens_the_accepted_gap() {
+        assert_eq!(urgency(1000.0, 20.0), 0.0);
+        assert_eq!(urgency(5.0, 20.0), 1.0);
+        let mut last = -1.0;
+        for r in (0..=200).rev().map(|r| r as f64) {
+            let u = urgency(r, 20.0);
+            assert!(u >= last, "urgency falls nearer the end at {r} m");
+            last = u;
+        }
+        let p = LaneChangeParams::default();
+        // The threshold (keep-right bias included) falls to 0 at the end, under a constant
+        // bonus of b_safe for leaving a lane that does not lead to the destination.
+        let far = mobil_for(&p, Side::Left, ChangeKind::Mandatory, 0.0);
+        let near = mobil_for(&p, Side::Left, ChangeKind::Mandatory, 1.0);
+        assert!(near.threshold < far.threshold, "{far:?} {near:?}");
+        assert_eq!(near.threshold, -p.safe_deceleration);
+        assert_eq!(far.threshold, p.threshold + KEEP_RIGHT_BIAS - p.safe_deceleration);
+        assert!(near.safe_deceleration > far.safe_deceleration);
+        assert_eq!(near.safe_deceleration, p.safe_deceleration);
+        // A gap whose new follower brakes at 3 m/s²: refused far from the end, taken near it.
+        let law = idm();
+        let mut gap = 1.0;
+        while law.accel(20.0, Some((gap, 20.0))) < -3.0 {
+            gap += 0.05;
+        }
+        let a = around(None, None, Some(Seen { s: -(gap + 4.0), speed: 20.0 }));
+        let decide_at =
+            |u| mobil_decision(&mobil_for(&p, Side::Right, ChangeKind::Mandatory, u), &a, |v, l| law.accel(v, l));
+        assert!(matches!(decide_at(0.0), MobilDecision::Unsafe(_)), "{:?}", decide_at(0.0));
+        assert!(matches!(decide_at(1.0), MobilDecision::Change(_)), "{:?}", decide_at(1.0));
+    }
+
+    fn found(distance: f64, speed: f64) -> Found {
+        Found { distance, speed, length: 4.0, id: VehicleId(9) }
+    }
+
+    #[test]
+    fn the_target_gap_closes_when_a_follower_closes_in_or_a_leader_overlaps() {
+        let law = idm();
+        assert!(!target_gap_closed(&law, 4.0, 20.0, 4.0, Some(found(40.0, 20.0)), Some(found(40.0, 20.0))));
+        assert!(target_gap_closed(&law, 4.0, 20.0, 4.0, None, Some(found(10.0, 30.0))), "fast follower 6 m behind");
+        assert!(target_gap_closed(&law, 4.0, 20.0, 4.0, Some(found(3.0, 20.0)), None), "leader overlapping");
+        assert!(!target_gap_closed(&law, 4.0, 20.0, 4.0, None, Some(found(10.0, 10.0))), "slow follower falls back");
     }
 }
