@@ -16,6 +16,9 @@ pub struct BenchArgs {
     /// Threads of the per-vehicle systems (default: the machine's cores, at most 4).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Every vehicle drives the IDM and changes lanes (MOBIL) instead of plain path following.
+    #[arg(long)]
+    pub lane_change: bool,
 }
 
 /// Run the subcommand.
@@ -31,7 +34,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         args.duration
     );
     anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
-    let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
+    let world = BenchWorld { vehicles: args.vehicles, lane_change: args.lane_change, ..Default::default() };
     let parallelism = args.threads.map(|threads| Parallelism { threads, ..Default::default() });
     let report = world.run(args.duration, parallelism)?;
     println!("{}", serde_json::to_string(&report)?);

@@ -39,6 +39,8 @@ use super::path_following::PathFollower;
 pub const KEEP_RIGHT_BIAS: f64 = 0.3;
 /// How far the leader and follower searches look along the lane [m].
 pub const SEARCH_HORIZON: f64 = 200.0;
+/// Discretionary changes are weighed every this many control ticks (0.5 s at 20 Hz).
+pub const DISCRETIONARY_EVERY: i64 = 10;
 /// Shortest manoeuvre [m].
 pub const MIN_CHANGE_LENGTH: f64 = 10.0;
 
@@ -598,6 +600,7 @@ pub fn decide_lane_changes(
     let lanes = &*lanes;
     let t = clock.now.as_secs();
     let dt = clock.dt;
+    let tick = if dt > 0.0 { (t / dt).round() as i64 } else { 0 };
     crossings.0.clear();
     for (id, _, _, _, _, _, ch) in changers.iter() {
         if let Some(m) = &ch.active {
@@ -760,7 +763,9 @@ pub fn decide_lane_changes(
                 candidates[0] = (side, ChangeKind::Mandatory);
                 n = 1;
             }
-        } else if since_last >= p.min_interval {
+        } else if since_last >= p.min_interval && (tick + i64::from(me.0)).rem_euclid(DISCRETIONARY_EVERY) == 0 {
+            // Discretionary changes are weighed every DISCRETIONARY_EVERY control ticks, the
+            // vehicles staggered by id: a driver does not reconsider at 20 Hz.
             candidates = [(Side::Right, ChangeKind::Discretionary), (Side::Left, ChangeKind::Discretionary)];
             n = 2;
         }

@@ -39,7 +39,8 @@ pub struct LaneMap {
     pub successors: Vec<Vec<u32>>,
     /// Predecessors of every lanelet (indices, routable only).
     pub predecessors: Vec<Vec<u32>>,
-    grid: BTreeMap<(i64, i64), Vec<u32>>,
+    /// Cell -> (lanelet, arc length [m] where its centre line enters the cell).
+    grid: BTreeMap<(i64, i64), Vec<(u32, f64)>>,
 }
 
 fn cell_of(p: DVec2) -> (i64, i64) {
@@ -55,7 +56,7 @@ impl LaneMap {
         let mut half_widths = Vec::with_capacity(n);
         let mut successors = vec![Vec::new(); n];
         let mut predecessors = vec![Vec::new(); n];
-        let mut grid: BTreeMap<(i64, i64), Vec<u32>> = BTreeMap::new();
+        let mut grid: BTreeMap<(i64, i64), Vec<(u32, f64)>> = BTreeMap::new();
         for (i, l) in map.lanelets.iter().enumerate() {
             let segments = (l.length.ceil() as usize).max(1);
             let centre = crate::map::polyline::resample_count(&l.centre, segments + 1);
@@ -70,16 +71,23 @@ impl LaneMap {
                         predecessors[j].push(i as u32);
                     }
                 }
-                let mut cells = std::collections::BTreeSet::new();
-                for p in l.left.iter().chain(&l.right).chain(&l.centre) {
+                // The centre path has a point every metre or less: every cell the lane crosses,
+                // with the arc length where it enters (again after leaving).
+                let path = &centres[i];
+                let step = path.spacing().max(1e-9);
+                let mut last: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+                for (k, p) in path.points.iter().enumerate() {
+                    let s = k as f64 * step;
                     for dx in [-1.0, 1.0] {
                         for dy in [-1.0, 1.0] {
-                            cells.insert(cell_of(*p + DVec2::new(dx, dy) * half.min(CELL)));
+                            let c = cell_of(*p + DVec2::new(dx, dy) * half.min(CELL));
+                            let seen = last.get(&c).copied();
+                            if seen.is_none_or(|t| s - t > 2.0 * CELL) {
+                                grid.entry(c).or_default().push((i as u32, s));
+                            }
+                            last.insert(c, s);
                         }
                     }
-                }
-                for c in cells {
-                    grid.entry(c).or_default().push(i as u32);
                 }
             }
         }
@@ -98,9 +106,9 @@ impl LaneMap {
 
     /// `p` on lanelet `i` near arc length `hint` [m] (whole lanelet when `hint` is NaN): its arc
     /// length and signed offset, if it lies on the lanelet.
-    fn on(&self, i: u32, p: DVec2, hint: f64) -> Option<(f64, f64)> {
+    fn on(&self, i: u32, p: DVec2, hint: f64, window: f64) -> Option<(f64, f64)> {
         let path = &self.centres[i as usize];
-        let q = if hint.is_nan() { path.project(p) } else { path.project_near(p, hint, 6.0) };
+        let q = path.project_near(p, hint, window);
         if q.lateral.abs() > self.half_widths[i as usize] + 1e-9 {
             return None;
         }
@@ -123,32 +131,33 @@ impl LaneMap {
         };
         if let Some((i, s)) = last {
             let hint = s + ds;
-            let mut best = self.on(i, p, hint).map(|(s, o)| (i, s, o));
+            let mut best = self.on(i, p, hint, 6.0).map(|(s, o)| (i, s, o));
             if best.is_some_and(|b| b.2.abs() < 0.5 * self.half_widths[i as usize]) {
                 return best;
             }
             let len = self.length(i);
             for &j in &self.successors[i as usize] {
-                best = better(best, self.on(j, p, hint - len).map(|(s, o)| (j, s, o)));
+                best = better(best, self.on(j, p, hint - len, 6.0).map(|(s, o)| (j, s, o)));
             }
             let n = self.neighbours[i as usize];
             for id in [n.left, n.right].into_iter().flatten() {
                 if let Some(j) = self.map.lanelet_index(id) {
                     let j = j as u32;
                     let h = hint * self.length(j) / len.max(1e-9);
-                    best = better(best, self.on(j, p, h).map(|(s, o)| (j, s, o)));
+                    best = better(best, self.on(j, p, h, 6.0).map(|(s, o)| (j, s, o)));
                 }
             }
             for &j in &self.predecessors[i as usize] {
-                best = better(best, self.on(j, p, hint + self.length(j)).map(|(s, o)| (j, s, o)));
+                best = better(best, self.on(j, p, hint + self.length(j), 6.0).map(|(s, o)| (j, s, o)));
             }
             if best.is_some() {
                 return best;
             }
         }
         let mut best = None;
-        for &j in self.grid.get(&cell_of(p)).map(Vec::as_slice).unwrap_or(&[]) {
-            best = better(best, self.on(j, p, f64::NAN).map(|(s, o)| (j, s, o)));
+        for &(j, s) in self.grid.get(&cell_of(p)).map(Vec::as_slice).unwrap_or(&[]) {
+            // The cell spans at most √2 · CELL of centre line from where it entered.
+            best = better(best, self.on(j, p, s + CELL, 1.5 * CELL).map(|(s, o)| (j, s, o)));
         }
         best
     }
