@@ -371,3 +371,25 @@ fn bad_traffic_tables_are_refused_naming_the_key() {
         assert!(err.contains(key) && err.contains(also), "{table}\n-> {err}");
     }
 }
+
+#[test]
+fn a_session_reports_lanes_and_carries_out_requested_changes() {
+    use smlworld::app::session::{Session, StateColumns};
+    let mut s = Session::from_scenario(&root().join("scenarios/overtaking.toml"), None, &[]).unwrap();
+    s.step(30.0).unwrap();
+    let mut cols = StateColumns::default();
+    s.states_into(&mut cols);
+    assert!(cols.lanelet.iter().all(|l| l.is_finite()) && cols.lane_offset.iter().all(|o| o.abs() < 2.0), "{cols:?}");
+    // The truck has no lane_change table: the error says how to add one.
+    let err = s.change_lane(-1, "left").unwrap_err().to_string();
+    assert!(err.contains("lane_change"), "{err}");
+    assert!(s.change_lane(-2, "up").is_err());
+    // Back on the right lane after overtaking: nothing to its right, the left lane is free.
+    assert!(!s.change_lane(-2, "right").unwrap(), "no lane right of the right lane");
+    assert!(s.change_lane(-2, "left").unwrap());
+    s.step(10.0).unwrap();
+    let changes = s.summary().metrics.unwrap().lane_changes.unwrap();
+    let requested: Vec<_> = changes.iter().filter(|c| c.kind == smlworld::vehicles::ChangeKind::Requested).collect();
+    assert_eq!(requested.len(), 1, "{changes:?}");
+    assert_eq!(requested[0].direction, smlworld::vehicles::Side::Left);
+}
