@@ -197,6 +197,10 @@ fn check_vehicle(
             return Err(c.invalid(key("lane_change"), "needs a `route` (lanes are changed along it)"));
         }
     }
+    // The controller's own values first (the more specific error), then what it needs.
+    if let Some(controller) = &v.controller {
+        check_controller(c, v, controller, controllers, &key)?;
+    }
     if let Some(smart) = v.controller.as_ref().and_then(ControllerConfig::smart)
         && smart.needs_sensing_ahead()
         && v.sensors.radar.is_none()
@@ -211,10 +215,7 @@ fn check_vehicle(
             ),
         ));
     }
-    match &v.controller {
-        Some(controller) => check_controller(c, v, controller, controllers, &key),
-        None => Ok(()),
-    }
+    Ok(())
 }
 
 /// The checks of a vehicle's `controller` table.
