@@ -41,8 +41,12 @@ fn assert_same_xml(expected: &str, actual: &str, what: &str) {
 
 #[test]
 fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
-    let cases: [(&str, String); 4] = [
+    let cases: [(&str, String); 5] = [
         ("maps/highway_ring.osm", ring_highway(&RingParams::default()).expect("defaults are valid")),
+        (
+            "maps/two_lane_ring.osm",
+            ring_highway(&RingParams { lanes: 2, radius: 150.0, ..RingParams::default() }).expect("valid"),
+        ),
         (
             "maps/intersection3.osm",
             intersection(&IntersectionParams { arms: 3, ..IntersectionParams::default() }).expect("valid"),

@@ -48,5 +48,5 @@ fn a_successful_run_leaves_only_its_final_files() {
     assert!(ok, "{err}");
     assert_eq!(names(&out), ["summary.json", "trajectories.csv"]);
     let csv = std::fs::read_to_string(out.join("trajectories.csv")).unwrap();
-    assert!(csv.starts_with("t,id,x,y,yaw,vx,vy\n") && csv.lines().count() > 12, "{csv}");
+    assert!(csv.starts_with("t,id,x,y,yaw,vx,vy,lanelet,lane_offset\n") && csv.lines().count() > 12, "{csv}");
 }

@@ -26,7 +26,7 @@ fn positions_at(csv: &Path, t: f64) -> Vec<(i32, DVec2)> {
     let text = std::fs::read_to_string(csv).unwrap();
     let mut last = std::collections::BTreeMap::new();
     for line in text.lines().skip(1) {
-        let f: Vec<f64> = line.split(',').map(|v| v.parse().unwrap()).collect();
+        let f: Vec<f64> = line.split(',').take(7).map(|v| v.parse().unwrap()).collect();
         let (p, v) = (DVec2::new(f[2], f[3]), DVec2::new(f[5], f[6]));
         last.insert(f[1] as i32, p + v * (t - f[0]));
     }

@@ -113,8 +113,18 @@ class Sim:
         return self._core.summary()
 
     def states(self) -> Dict[str, np.ndarray]:
-        """All vehicles, sorted by id: ``id`` (int32), ``x, y`` [m], ``yaw`` [rad], ``vx, vy`` [m/s]."""
+        """All vehicles, sorted by id: ``id`` (int32), ``x, y`` [m], ``yaw`` [rad], ``vx, vy`` [m/s],
+        ``lanelet`` (id of the lanelet under the vehicle, NaN off the road or without a map) and
+        ``lane_offset`` [m] (signed offset from its centre line, left positive; NaN off the road)."""
         return self._core.states()
+
+    def change_lane(self, id: int, side: str) -> bool:
+        """Ask vehicle ``id`` (it needs a ``lane_change`` table) to change lanes, ``side`` =
+        ``"left"`` or ``"right"``. False when the map (no lane there, a solid line) or the gap
+        forbids it now; True when the lane-change plugin takes the request, which it carries out
+        with the same safety check as its own changes (``kind = "requested"`` in
+        ``metrics.lane_changes``)."""
+        return bool(self._core.change_lane(int(id), str(side)))
 
     def readings(self, id: int) -> np.ndarray:
         """Vehicle ``id``'s sensor readings of the last sensor tick, nearest first: a (k, 5)

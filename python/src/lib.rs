@@ -153,7 +153,15 @@ impl Core {
         d.set_item("yaw", column(py, &cols.yaw))?;
         d.set_item("vx", column(py, &cols.vx))?;
         d.set_item("vy", column(py, &cols.vy))?;
+        d.set_item("lanelet", column(py, &cols.lanelet))?;
+        d.set_item("lane_offset", column(py, &cols.lane_offset))?;
         Ok(d)
+    }
+
+    /// Ask vehicle `id` to change lanes, `side` = "left" or "right": False when the map or the
+    /// gap forbids it now (see `Session::change_lane`).
+    fn change_lane(&self, id: i32, side: &str) -> PyResult<bool> {
+        self.lock().change_lane(id, side).map_err(session_err)
     }
 
     fn readings<'py>(&self, py: Python<'py>, id: i32) -> PyResult<Bound<'py, PyArray2<f64>>> {

@@ -18,7 +18,7 @@ def sim(root):
 def test_step_advances_time_and_states_are_sorted_columns(sim):
     assert sim.time == 0.0
     s0 = sim.states()
-    assert list(s0) == ["id", "x", "y", "yaw", "vx", "vy"]
+    assert list(s0) == ["id", "x", "y", "yaw", "vx", "vy", "lanelet", "lane_offset"]
     assert s0["id"].tolist() == [-5, -4, -3, -2, -1]
     sim.step(0.5)
     assert sim.time == pytest.approx(0.5)

@@ -11,6 +11,10 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 use crate::map::generate::{GenerateError, RingParams, ring_highway, ring_lane_tag};
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
 use crate::sim::{Control, Dynamics, Parallelism, Rates, SimClock, SimSystems};
+use crate::vehicles::{
+    FollowLaw, Idm, IdmController, IdmPlugin, LaneChangeParams, LaneChangePlugin, LaneChanger, LanePosition,
+    LanesPlugin, RouteGoal,
+};
 use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
 use crate::world::{Channel, Mailbox, Radar, SensorSet, SimTime, VehicleId, VehicleSpec, VehicleState, Velodyne};
 
@@ -48,6 +52,9 @@ pub struct BenchWorld {
     /// Largest distance between the generated map's boundary and a true circle [m]: sets the
     /// map's node spacing (coarser for bigger rings, so the map stays small).
     pub chord_error: f64,
+    /// Every vehicle drives the IDM (desired speeds spread ±20 % around `speed`) and changes
+    /// lanes (MOBIL, the lane-change plugin's defaults), instead of plain path following.
+    pub lane_change: bool,
 }
 
 impl Default for BenchWorld {
@@ -61,6 +68,7 @@ impl Default for BenchWorld {
             lane_width: 3.5,
             points_per_meter: 0.5,
             chord_error: 0.1,
+            lane_change: false,
         }
     }
 }
@@ -91,11 +99,19 @@ impl BenchWorld {
 
     /// The closed loops of the generated ring's lanes, rightmost first.
     pub fn lanes(&self) -> Result<Vec<Arc<Path>>, BenchError> {
+        Ok(self.map_and_lanes()?.1)
+    }
+
+    /// The generated ring's map and the closed loops of its lanes, rightmost first.
+    pub fn map_and_lanes(&self) -> Result<(Arc<LaneletMap>, Vec<Arc<Path>>), BenchError> {
         let ring = self.ring();
         let xml = ring_highway(&ring)?;
         let map = LaneletMap::parse_str(&xml, std::path::Path::new("generated bench ring"))?;
         let options = RouteOptions { points_per_meter: self.points_per_meter };
-        (0..ring.lanes).map(|k| Ok(Arc::new(map.closed_loop_tag(&ring_lane_tag(ring.lanes, k), &options)?))).collect()
+        let lanes = (0..ring.lanes)
+            .map(|k| Ok(Arc::new(map.closed_loop_tag(&ring_lane_tag(ring.lanes, k), &options)?)))
+            .collect::<Result<_, BenchError>>()?;
+        Ok((Arc::new(map), lanes))
     }
 
     /// A builder with every module on at the default rates and the vehicles spawned.
@@ -117,7 +133,11 @@ impl BenchWorld {
     /// Spawn the vehicles into `b` (ids −1, −2, ...), evenly spread over the lanes and along
     /// each lane, lane after lane.
     pub fn spawn(&self, b: &mut SimBuilder) -> Result<(), BenchError> {
-        let lanes = self.lanes()?;
+        let (map, lanes) = self.map_and_lanes()?;
+        if self.lane_change {
+            b.add_plugin(LanesPlugin { map }).add_plugin(IdmPlugin);
+            b.add_plugin(LaneChangePlugin { points_per_meter: self.points_per_meter });
+        }
         let params = PathFollowing { speed: self.speed, ..Default::default() };
         let sensors =
             SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
@@ -133,6 +153,18 @@ impl BenchWorld {
                 spec.route = Some(Arc::clone(path));
                 if let Ok(e) = b.spawn_vehicle(spec) {
                     b.world_mut().entity_mut(e).insert(PathFollower::starting_at(params, s));
+                    if self.lane_change {
+                        // Desired speeds spread by a fixed low-discrepancy sequence, so faster
+                        // vehicles catch up and overtake.
+                        let spread = (next as f64 * 0.618_033_988_749_895).fract();
+                        let idm = Idm { speed: self.speed * (0.8 + 0.4 * spread), ..Idm::default() };
+                        let law = FollowLaw::Idm(idm);
+                        b.world_mut().entity_mut(e).insert((
+                            IdmController { params: idm },
+                            LanePosition::default(),
+                            LaneChanger::new(LaneChangeParams::default(), law, RouteGoal::Loop),
+                        ));
+                    }
                 }
                 next += 1;
             }

@@ -20,7 +20,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
 use crate::sim::{Dynamics, GridEntry, Plugin, SimBuilder, SimClock, SimSystems, SpatialGrid};
-use crate::vehicles::{Longitudinal, PathFollower, PlatoonMember};
+use crate::vehicles::{ChangeKind, LaneChangeEvent, LaneChangeLog, Longitudinal, PathFollower, PlatoonMember};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 /// One collision: two footprints started to overlap.
@@ -108,6 +108,50 @@ pub struct MetricsSummary {
     pub followers: Vec<FollowerStats>,
     /// Every platoon, in leader id order.
     pub platoons: Vec<PlatoonStats>,
+    /// Every lane change, in the order they ended (runs on a map only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lane_changes: Option<Vec<LaneChangeEvent>>,
+    /// Lane changes counted (runs on a map only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lane_change_summary: Option<LaneChangeSummary>,
+    /// Background traffic placed, inserted and removed (with `[[traffic]]` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub traffic: Option<super::traffic::TrafficSummary>,
+    /// Vehicles that left at their route's end (with `[[traffic]]` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub throughput: Option<super::traffic::Throughput>,
+}
+
+/// `metrics.lane_change_summary` of `summary.json`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct LaneChangeSummary {
+    /// Lane changes (aborted ones included).
+    pub count: usize,
+    /// Of which discretionary (MOBIL).
+    pub discretionary: usize,
+    /// Of which mandatory (the lane did not lead to the destination).
+    pub mandatory: usize,
+    /// Of which aborted back to the old lane.
+    pub aborted: usize,
+    /// Vehicles that reached the end of a lane they had to leave.
+    pub missed_exits: usize,
+    /// Longest time a vehicle stood (below 0.5 m/s) waiting for a gap [s].
+    pub max_wait_s: f64,
+}
+
+impl LaneChangeSummary {
+    /// Count the changes of `log`.
+    pub fn of(log: &LaneChangeLog) -> LaneChangeSummary {
+        let kind = |k: ChangeKind| log.events.iter().filter(|e| e.kind == k).count();
+        LaneChangeSummary {
+            count: log.events.len(),
+            discretionary: kind(ChangeKind::Discretionary),
+            mandatory: kind(ChangeKind::Mandatory),
+            aborted: log.events.iter().filter(|e| e.aborted).count(),
+            missed_exits: log.missed_exits.len(),
+            max_wait_s: log.max_wait_s,
+        }
+    }
 }
 
 /// The metrics being recorded.
@@ -253,6 +297,10 @@ impl Metrics {
             collided: self.collided.iter().map(|(id, t)| (id.0, *t)).collect(),
             followers: self.followers.values().copied().collect(),
             platoons,
+            lane_changes: None,
+            lane_change_summary: None,
+            traffic: None,
+            throughput: None,
         }
     }
 }

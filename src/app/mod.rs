@@ -43,6 +43,7 @@ mod runner;
 pub mod scenario;
 pub mod session;
 pub mod soak;
+pub mod traffic;
 
 pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use output::{

@@ -8,7 +8,7 @@ use bevy_ecs::schedule::ScheduleLabel;
 
 use crate::io::lab::LabSummary;
 use crate::sim::{Phase, SimClock, V2vStats};
-use crate::vehicles::PathFollower;
+use crate::vehicles::{LanePosition, PathFollower};
 use crate::world::{VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 use super::{Plugin, RunReport, Sim, SimBuilder, SimSeed};
@@ -17,9 +17,11 @@ use super::{Plugin, RunReport, Sim, SimBuilder, SimSeed};
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Log;
 
-/// Where trajectory rows go: `t,id,x,y,yaw,vx,vy` [s, -, m, m, rad, m/s, m/s], vehicles in id
-/// order, each number with the precision of its unit (`t` to the clock's 1 µs; the rest [`Fixed`]: 1 mm,
-/// 1e-5 rad, 1 mm/s).
+/// Where trajectory rows go: `t,id,x,y,yaw,vx,vy,lanelet,lane_offset` [s, -, m, m, rad, m/s,
+/// m/s, -, m], vehicles in id order, each number with the precision of its unit (`t` to the
+/// clock's 1 µs; the rest [`Fixed`]: 1 mm, 1e-5 rad, 1 mm/s); `lanelet` is the id of the lanelet
+/// under the reference point and `lane_offset` the signed offset from its centre line (left
+/// positive), both empty off-road or without a map.
 #[derive(Resource)]
 pub struct TrajectoryLog {
     writer: Box<dyn Write + Send + Sync>,
@@ -32,7 +34,7 @@ pub struct TrajectoryLog {
 impl TrajectoryLog {
     /// Log into `writer` (the header is written at once).
     pub fn new(mut writer: Box<dyn Write + Send + Sync>) -> TrajectoryLog {
-        let error = writeln!(writer, "t,id,x,y,yaw,vx,vy").err();
+        let error = writeln!(writer, "t,id,x,y,yaw,vx,vy,lanelet,lane_offset").err();
         TrajectoryLog { writer, rows: 0, error, last_t: None }
     }
 
@@ -72,7 +74,7 @@ impl std::fmt::Display for Fixed {
 pub fn log_trajectories(
     clock: Res<SimClock>,
     vehicles: Res<Vehicles>,
-    states: Query<&VehicleState>,
+    states: Query<(&VehicleState, Option<&LanePosition>)>,
     log: Option<ResMut<TrajectoryLog>>,
 ) {
     let Some(mut log) = log else { return };
@@ -85,8 +87,8 @@ pub fn log_trajectories(
     }
     log.last_t = Some(t);
     for (id, e) in vehicles.iter() {
-        if let Ok(s) = states.get(e) {
-            let r = writeln!(
+        if let Ok((s, lane)) = states.get(e) {
+            let r = write!(
                 log.writer,
                 "{t:.6},{id},{},{},{},{},{}",
                 Fixed(s.position.x, LENGTH_DECIMALS),
@@ -94,7 +96,11 @@ pub fn log_trajectories(
                 Fixed(s.yaw, ANGLE_DECIMALS),
                 Fixed(s.velocity.x, LENGTH_DECIMALS),
                 Fixed(s.velocity.y, LENGTH_DECIMALS)
-            );
+            )
+            .and_then(|()| match lane.and_then(|l| Some((l.lanelet?, l.offset))) {
+                Some((id, offset)) => writeln!(log.writer, ",{},{}", id.0, Fixed(offset, LENGTH_DECIMALS)),
+                None => writeln!(log.writer, ",,"),
+            });
             if let Err(e) = r {
                 log.error = Some(e);
                 return;
@@ -244,7 +250,22 @@ impl RunSummary {
             rate_warnings: sim.rate_warnings(),
             seed: world.get_resource::<SimSeed>().map_or(0, |s| s.0),
             max_distance_to_centre_line,
-            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| m.summary()),
+            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| {
+                let mut summary = m.summary();
+                if let Some(log) = world.get_resource::<crate::vehicles::LaneChangeLog>() {
+                    summary.lane_changes = Some(log.events.clone());
+                    summary.lane_change_summary = Some(super::metrics::LaneChangeSummary::of(log));
+                }
+                if let Some(t) = world.get_resource::<super::traffic::Traffic>() {
+                    use super::traffic::{Throughput, TrafficSummary};
+                    summary.traffic =
+                        Some(TrafficSummary { inserted: t.inserted, removed: t.removed, waiting_max: t.waiting_max });
+                    let hours = report.sim_seconds / 3600.0;
+                    let per_hour = if hours > 0.0 { t.removed as f64 / hours } else { 0.0 };
+                    summary.throughput = Some(Throughput { vehicles_out: t.removed, per_hour });
+                }
+                summary
+            }),
             lab: LabSummary::of(world),
             commonroad: world.get_resource::<super::scenario::commonroad::GoalMonitor>().map(|m| m.summary()),
             replay: None,

@@ -222,7 +222,7 @@ fn read_rows(out_dir: &FsPath) -> Result<BTreeMap<i32, Vec<Row>>, ReplayError> {
     for (i, line) in text.lines().enumerate().skip(1) {
         let bad = |message: String| ReplayError::Row { path: path.clone(), line: i + 1, message };
         let f: Vec<&str> = line.split(',').collect();
-        if f.len() != 7 {
+        if f.len() != 7 && f.len() != 9 {
             return Err(bad(format!("{} fields", f.len())));
         }
         let num = |k: usize| f[k].parse::<f64>().map_err(|_| bad(format!("{:?} is not a number", f[k])));

@@ -175,7 +175,9 @@ impl TrajectoryReader {
         let file = std::fs::File::open(&path).map_err(|source| ReplayError::Io { path: path.clone(), source })?;
         let mut lines = std::io::BufReader::new(file).lines();
         let header = lines.next().transpose().map_err(|source| ReplayError::Io { path: path.clone(), source })?;
-        if header.as_deref().map(str::trim) != Some("t,id,x,y,yaw,vx,vy") {
+        // Runs before the lane columns wrote only the first seven.
+        let header = header.as_deref().map(str::trim);
+        if header != Some("t,id,x,y,yaw,vx,vy,lanelet,lane_offset") && header != Some("t,id,x,y,yaw,vx,vy") {
             return Err(ReplayError::Row { path, line: 1, message: format!("header is {header:?}") });
         }
         Ok(TrajectoryReader { path, lines, line: 1, pending: None, rows: 0 })
@@ -194,7 +196,7 @@ impl TrajectoryReader {
                 continue;
             }
             let f: Vec<&str> = line.trim().split(',').collect();
-            if f.len() != 7 {
+            if f.len() != 7 && f.len() != 9 {
                 return Err(self.error(format!("{} fields", f.len())));
             }
             let num = |i: usize, name: &str| -> Result<f64, ReplayError> {

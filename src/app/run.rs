@@ -293,9 +293,15 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         return Ok(summary);
     }
     let worst = summary.max_distance_to_centre_line.values().copied().fold(0.0, f64::max);
+    // Runs on a map count their lane changes (issue 19).
+    let lane_changes = summary
+        .metrics
+        .as_ref()
+        .and_then(|m| m.lane_change_summary)
+        .map_or(String::new(), |l| format!(", lane changes {} ({} aborted)", l.count, l.aborted));
     let collisions = summary.metrics.as_ref().map_or(0, |m| m.collision_count);
     tracing::info!(
-        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), {}, seed {}, max distance to centre line {:.3} m; wrote {} and {}",
+        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), {}, seed {}, max distance to centre line {:.3} m{lane_changes}; wrote {} and {}",
         summary.vehicles,
         summary.sim_seconds,
         summary.wall_seconds,

@@ -132,6 +132,10 @@ pub struct StateColumns {
     pub vx: Vec<f64>,
     /// Velocity y [m/s].
     pub vy: Vec<f64>,
+    /// Id of the lanelet under the reference point (NaN off the road or without a map).
+    pub lanelet: Vec<f64>,
+    /// Signed offset from that lanelet's centre line [m], left positive (NaN off the road).
+    pub lane_offset: Vec<f64>,
 }
 
 pub use super::scenario::apply_override;
@@ -272,7 +276,9 @@ impl Session {
 
     /// Every vehicle's state, sorted by id, into `out` (its vectors are reused).
     pub fn states_into(&self, out: &mut StateColumns) {
-        for v in [&mut out.x, &mut out.y, &mut out.yaw, &mut out.vx, &mut out.vy] {
+        for v in
+            [&mut out.x, &mut out.y, &mut out.yaw, &mut out.vx, &mut out.vy, &mut out.lanelet, &mut out.lane_offset]
+        {
             v.clear();
         }
         out.id.clear();
@@ -283,7 +289,65 @@ impl Session {
             out.yaw.push(s.yaw);
             out.vx.push(s.velocity.x);
             out.vy.push(s.velocity.y);
+            let lane = self
+                .sim
+                .entity(id)
+                .and_then(|e| self.sim.world().get::<crate::vehicles::LanePosition>(e))
+                .and_then(|l| Some((l.lanelet?.0 as f64, l.offset)));
+            out.lanelet.push(lane.map_or(f64::NAN, |l| l.0));
+            out.lane_offset.push(lane.map_or(f64::NAN, |l| l.1));
         }
+    }
+
+    /// Ask vehicle `id` (which needs a `lane_change` table) to change lanes to `side` (`"left"`
+    /// or `"right"`): `Ok(false)` when the map forbids it (no lane there, or a solid line), a
+    /// change is already under way, or the target gap is closed now; `Ok(true)` when the
+    /// lane-change plugin takes the request, which it carries out with MOBIL's safety check
+    /// (dropping it if the gap closes before it can start).
+    pub fn change_lane(&mut self, id: i32, side: &str) -> Result<bool, SessionError> {
+        use crate::vehicles::lane_changing::{LaneIndex, allowed, target_gap_closed};
+        use crate::vehicles::{LaneChanger, LaneMap, LanePosition, Side};
+        let side = match side {
+            "left" => Side::Left,
+            "right" => Side::Right,
+            other => return arg(format!("side must be \"left\" or \"right\", got {other:?}")),
+        };
+        let e = self.entity(id)?;
+        let world = self.sim.world();
+        let Some(changer) = world.get::<LaneChanger>(e) else {
+            return arg(format!(
+                "vehicle {id} has no `lane_change` table; add `lane_change = true` to it in the scenario"
+            ));
+        };
+        if changer.active.is_some() {
+            return Ok(false);
+        }
+        let (Some(lanes), Some(pos)) = (world.get_resource::<LaneMap>(), world.get::<LanePosition>(e)) else {
+            return Ok(false);
+        };
+        let Some(i) = pos.on() else { return Ok(false) };
+        let Some(j) = allowed(lanes, i, side) else { return Ok(false) };
+        if let Some(index) = world.get_resource::<LaneIndex>() {
+            let me = VehicleId(id);
+            let s_j = pos.s * lanes.length(j) / lanes.length(i).max(1e-9);
+            let v = world.get::<crate::world::VehicleState>(e).map_or(0.0, |s| s.speed());
+            let length = world.get::<crate::world::VehicleSize>(e).map_or(4.12, |s| s.length);
+            let closed = target_gap_closed(
+                &changer.law,
+                changer.params.safe_deceleration,
+                v,
+                length,
+                index.ahead(lanes, j, s_j, me),
+                index.behind(lanes, j, s_j, me),
+            );
+            if closed {
+                return Ok(false);
+            }
+        }
+        if let Some(mut c) = self.sim.world_mut().get_mut::<LaneChanger>(e) {
+            c.request = Some(side);
+        }
+        Ok(true)
     }
 
     fn entity(&self, id: i32) -> Result<bevy_ecs::entity::Entity, SessionError> {

@@ -25,6 +25,9 @@ pub struct BenchArgs {
     /// Memory sample interval of --soak [s of wall time].
     #[arg(long, default_value_t = 10.0, requires = "soak")]
     pub sample_every: f64,
+    /// Every vehicle drives the IDM and changes lanes (MOBIL) instead of plain path following.
+    #[arg(long)]
+    pub lane_change: bool,
 }
 
 /// Run the subcommand.
@@ -40,7 +43,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         args.duration
     );
     anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
-    let world = BenchWorld { vehicles: args.vehicles, ..Default::default() };
+    let world = BenchWorld { vehicles: args.vehicles, lane_change: args.lane_change, ..Default::default() };
     let parallelism = args.threads.map(Parallelism::split);
     smlworld::app::interrupt::install();
     if let Some(seconds) = args.soak {

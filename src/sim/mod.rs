@@ -17,6 +17,7 @@ pub mod dynamics;
 pub mod grid;
 pub mod parallel;
 pub mod params;
+pub mod random;
 pub mod recorded;
 mod schedule;
 pub mod sensors;

@@ -33,6 +33,7 @@ use crate::world::{
 };
 
 use super::PathFollower;
+use super::lane_changing::{LaneChanger, LaneCrossings};
 
 /// The steps of the longitudinal pipeline as system sets of the [`Control`] schedule, chained in
 /// this order inside [`SimSystems::Control`] and after the path follower's steering. A speed
@@ -118,13 +119,28 @@ pub fn leader_on_path(
     detections: &[Detection],
     lane_half_width: f64,
 ) -> Option<LeaderGap> {
+    leader_on_path_with(path, s, position, own_length, detections, lane_half_width, |_| false)
+}
+
+/// [`leader_on_path`], where a detection for which `crossing(id)` holds (a vehicle changing
+/// into or out of this lane) counts up to three half widths from the centre line: while it
+/// crosses, a vehicle is in both lanes.
+pub fn leader_on_path_with(
+    path: &Path,
+    s: f64,
+    position: DVec2,
+    own_length: f64,
+    detections: &[Detection],
+    lane_half_width: f64,
+    crossing: impl Fn(VehicleId) -> bool,
+) -> Option<LeaderGap> {
     if path.points.len() < 2 {
         return None;
     }
     for d in detections {
         let r = d.position.distance(position);
         let p = path.project_near(d.position, s + r, 0.3 * r + 5.0);
-        if p.lateral.abs() > lane_half_width {
+        if p.lateral.abs() > lane_half_width && !(p.lateral.abs() <= 3.0 * lane_half_width && crossing(d.id)) {
             continue;
         }
         let mut ahead = p.s - s;
@@ -147,6 +163,7 @@ pub fn leader_on_path(
 #[allow(clippy::type_complexity)]
 pub fn find_leaders(
     clock: Res<SimClock>,
+    crossings: Option<Res<LaneCrossings>>,
     mut vehicles: Query<(
         &VehicleState,
         &VehicleSize,
@@ -155,16 +172,40 @@ pub fn find_leaders(
         &ControlCommand,
         Option<&SensorReadings>,
         &mut Longitudinal,
+        Option<&LaneChanger>,
     )>,
 ) {
-    for (state, size, route, follower, command, readings, mut lon) in &mut vehicles {
+    let crossings = crossings.as_deref().map(|c| &c.0).filter(|c| !c.is_empty());
+    for (state, size, route, follower, command, readings, mut lon, changer) in &mut vehicles {
         let previous = lon.leader;
         lon.accel = f64::NAN;
         lon.emergency = false;
         lon.route_speed = command.speed;
         let detections = readings.map_or(&[][..], |r| &r.0[..]);
-        let mut leader =
-            leader_on_path(&route.0, follower.s, state.position, size.length, detections, lon.lane_half_width);
+        let mut leader = match crossings {
+            None => leader_on_path(&route.0, follower.s, state.position, size.length, detections, lon.lane_half_width),
+            Some(c) => {
+                let lanes = &route.0.lanelets;
+                let crossing = |id: VehicleId| c.get(&id).is_some_and(|(a, b)| lanes.contains(a) || lanes.contains(b));
+                leader_on_path_with(
+                    &route.0,
+                    follower.s,
+                    state.position,
+                    size.length,
+                    detections,
+                    lon.lane_half_width,
+                    crossing,
+                )
+            }
+        };
+        // While changing lanes the vehicle is in both: the nearer leader of the old lane counts too.
+        if let Some(m) = changer.and_then(|c| c.active.as_ref()) {
+            let old =
+                leader_on_path(&m.old_route, m.old_s, state.position, size.length, detections, lon.lane_half_width);
+            if old.is_some_and(|o| leader.is_none_or(|l| o.distance < l.distance)) {
+                leader = old;
+            }
+        }
         if let (Some(l), Some(p)) = (leader.as_mut(), previous)
             && l.id == p.id
             && clock.dt > 0.0

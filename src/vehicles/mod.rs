@@ -14,6 +14,8 @@
 //! | [`PlatoonPlugin`] | [`PlatoonMember`] | [`Platooning`] |
 //! | [`EmergencyBrakingPlugin`] | [`EmergencyBrake`] | [`EmergencyBraking`] |
 //! | [`CrossingPlugin`] | [`CrossingNegotiator`] | [`Crossing`] |
+//! | [`IdmPlugin`] | [`IdmController`] | [`Idm`] |
+//! | [`LaneChangePlugin`] | [`LaneChanger`] | [`LaneChangeParams`] |
 //!
 //! [`smart_vehicles`] adds them all.
 
@@ -21,7 +23,10 @@ pub mod acc;
 pub mod crossing;
 pub mod cruise;
 pub mod emergency;
+pub mod idm;
 pub mod lane_change;
+pub mod lane_changing;
+pub mod lanes;
 pub mod longitudinal;
 pub mod path_following;
 pub mod platoon;
@@ -35,6 +40,12 @@ pub use cruise::{CruiseControl, CruiseController, CruisePlugin, SpeedDip, contro
 pub use emergency::{
     EmergencyBrake, EmergencyBraking, EmergencyBrakingPlugin, brake_for_emergencies, time_to_collision,
 };
+pub use idm::{Idm, IdmController, IdmPlugin, control_idm};
+pub use lane_changing::{
+    ChangeKind, FollowLaw, LaneChangeEvent, LaneChangeLog, LaneChangeParams, LaneChangePlugin, LaneChanger,
+    LaneCrossings, RouteGoal, Side,
+};
+pub use lanes::{LaneMap, LanePosition, LanesPlugin};
 pub use longitudinal::{
     LeaderGap, Longitudinal, LongitudinalSystems, SteeringSystems, actuate_longitudinal, find_leaders, leader_on_path,
 };
@@ -50,6 +61,7 @@ use crate::sim::SimBuilder;
 pub fn smart_vehicles(sim: &mut SimBuilder) {
     sim.add_plugin(CruisePlugin)
         .add_plugin(AccPlugin)
+        .add_plugin(IdmPlugin)
         .add_plugin(PlatoonPlugin)
         .add_plugin(CrossingPlugin)
         .add_plugin(EmergencyBrakingPlugin);

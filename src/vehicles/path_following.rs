@@ -10,10 +10,12 @@ use bevy_ecs::prelude::{Component, Local, Mut, Query, Res};
 use crate::sim::{Plugin, SimBuilder};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
+use super::lane_changing::LaneChanger;
 use super::longitudinal::SteeringSystems;
 use crate::sim::parallel::recycle;
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Route, VehicleState};
+use glam::DVec2;
 
 /// Parameters of the path follower.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -71,12 +73,14 @@ type FollowingItem<'a> = (
     Mut<'a, ControlCommand>,
     Option<&'a KinematicUnicycle>,
     Option<&'a AccelerationUnicycle>,
+    Option<&'a LaneChanger>,
 );
 
 /// Steer a contiguous chunk of vehicles; `dt` is the control step [s].
 fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
-    for (state, route, follower, command, kinematic, acceleration) in chunk.iter_mut() {
+    for (state, route, follower, command, kinematic, acceleration, changer) in chunk.iter_mut() {
         let (state, kinematic, acceleration) = (*state, *kinematic, *acceleration);
+        let manoeuvre = changer.and_then(|c| c.active.as_ref());
         let path = &route.0;
         if path.points.len() < 2 {
             continue;
@@ -93,11 +97,16 @@ fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
         let p = follower.params;
         follower.tracking = true;
         follower.s = projection.s;
-        follower.max_offset = follower.max_offset.max(projection.lateral.abs());
+        // During a lane change the vehicle aims at the profile's offset from the (new) route.
+        let planned = manoeuvre.map_or(0.0, |m| m.offset_at(path, projection.s));
+        follower.max_offset = follower.max_offset.max((projection.lateral - planned).abs());
 
         let wheelbase = kinematic.map(|m| m.wheelbase).or(acceleration.map(|m| m.wheelbase)).unwrap_or(2.8);
         let lookahead = p.lookahead_min.max(p.lookahead_time * speed.abs());
-        let (target, _) = path.sample(projection.s + lookahead);
+        let (mut target, heading) = path.sample(projection.s + lookahead);
+        if let Some(m) = manoeuvre {
+            target += DVec2::from_angle(heading).perp() * m.offset_at(path, projection.s + lookahead);
+        }
         let relative = target - state.position;
         // Pure pursuit curvature 2 sin(α) / d, with d sin(α) the cross product of heading and
         // the offset to the target.
@@ -139,6 +148,7 @@ pub fn follow_paths(
         &mut ControlCommand,
         Option<&KinematicUnicycle>,
         Option<&AccelerationUnicycle>,
+        Option<&LaneChanger>,
     )>,
     mut scratch: Local<Vec<()>>,
     mut buffer: Local<Vec<FollowingItem<'static>>>,

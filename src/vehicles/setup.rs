@@ -7,6 +7,7 @@
 //! controller = { type = "acc", speed = 8.0, crossing = { center = [0.0, 0.0], radius = 10.0 } }
 //! controller = { type = "platoon", role = "leader", speed = 20.0, cruise = { dip = { at = 30.0, speed = 10.0, deceleration = 6.0 } } }
 //! controller = { type = "platoon", role = "follower", speed = 22.0, platoon = { time_gap = 0.5 } }
+//! controller = { type = "idm", speed = 30.0, time_gap = 1.5, min_gap = 2.0, accel = 1.0, decel = 2.0, delta = 4.0 }
 //! ```
 //! Every vehicle with one of these also gets the path follower (steering, and its `speed` as
 //! the cruise speed) and emergency braking (`emergency.ttc = 0` turns it off).
@@ -15,7 +16,7 @@ use bevy_ecs::prelude::{Entity, World};
 
 use super::{
     AccController, AdaptiveCruise, Crossing, CrossingNegotiator, CruiseControl, CruiseController, EmergencyBrake,
-    EmergencyBraking, PathFollower, PathFollowing, PlatoonMember, Platooning,
+    EmergencyBraking, Idm, IdmController, PathFollower, PathFollowing, PlatoonMember, Platooning,
 };
 use crate::sim::params::{MAX_SPEED, MAX_TIME, ParamError, Range};
 use crate::world::SimTime;
@@ -102,6 +103,8 @@ pub enum SmartController {
     Acc(AccSetup),
     /// Platooning.
     Platoon(PlatoonSetup),
+    /// Treiber's IDM (`controller = { type = "idm", speed, time_gap, min_gap, accel, decel, delta }`).
+    Idm(Idm),
 }
 
 impl SmartController {
@@ -132,12 +135,36 @@ impl SmartController {
                 }
                 (c.speed, c.emergency, c.crossing)
             }
+            SmartController::Idm(c) => {
+                c.check()?;
+                (c.speed, EmergencyBraking::default(), None)
+            }
         };
         Range::non_negative(MAX_SPEED).check("speed", speed)?;
         emergency.check().map_err(|e| e.within("emergency"))?;
         match crossing {
             Some(c) => c.check().map_err(|e| e.within("crossing")),
             None => Ok(()),
+        }
+    }
+
+    /// Whether the controller needs a sensor that sees the vehicle ahead (ACC, IDM, platoon
+    /// followers): without one it would drive into whatever is ahead.
+    pub fn needs_sensing_ahead(&self) -> bool {
+        match self {
+            SmartController::Cruise(_) => false,
+            SmartController::Acc(_) | SmartController::Idm(_) => true,
+            SmartController::Platoon(p) => p.role == PlatoonRole::Follower,
+        }
+    }
+
+    /// The controller's name in a scenario file.
+    pub fn type_name(&self) -> &'static str {
+        match self {
+            SmartController::Cruise(_) => "cruise_control",
+            SmartController::Acc(_) => "acc",
+            SmartController::Platoon(_) => "platoon",
+            SmartController::Idm(_) => "idm",
         }
     }
 
@@ -164,6 +191,10 @@ impl SmartController {
                 member.leave_at = c.leave_at.map(SimTime::from_secs);
                 e.insert(member);
                 (c.speed, c.emergency, c.crossing)
+            }
+            SmartController::Idm(c) => {
+                e.insert(IdmController { params: c });
+                (c.speed, EmergencyBraking::default(), None)
             }
         };
         e.insert(PathFollower::new(PathFollowing { speed, ..Default::default() }));

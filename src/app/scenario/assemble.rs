@@ -8,16 +8,23 @@ use glam::DVec2;
 
 use super::commonroad::{GoalMonitor, add_goal_monitor, spawn_obstacles};
 use super::file::{
-    BuiltInController, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RouteConfig, StartConfig, VehicleConfig,
+    BuiltInController, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RouteConfig, SensorsConfig, StartConfig,
+    TrafficLanes, VehicleConfig,
 };
 use super::lab::add_lab_plugins;
 use super::{Scenario, ScenarioError};
 use crate::app::metrics::MetricsPlugin;
+use crate::app::traffic::{Traffic, TrafficLane, TrafficPlugin, TrafficSource, place};
 use crate::map::{Path, RouteOptions};
 use crate::sim::{
     Control, Dynamics, Network, Sensors, SimBuilder, SimSeed, V2vConfig, V2vPlugin, Wifi, default_plugins,
 };
-use crate::vehicles::{Longitudinal, PathFollower, PathFollowing, PathFollowingPlugin, smart_vehicles};
+use crate::vehicles::Side;
+use crate::vehicles::lane_changing::LanePaths;
+use crate::vehicles::{
+    FollowLaw, Idm, LaneChangePlugin, LaneChanger, LaneMap, LanePosition, LanesPlugin, Longitudinal, PathFollower,
+    PathFollowing, PathFollowingPlugin, RouteGoal, SmartController, smart_vehicles,
+};
 use crate::world::{
     AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleId, VehicleModel, VehicleSize, VehicleSpec,
     VehicleState, Velodyne,
@@ -29,6 +36,37 @@ const START_OFF_ROUTE: f64 = 2.0;
 /// The same for a start node [m]: route nodes lie on a lane's bound (the 2015 convention), half
 /// a lane from the centre line, so only a node more than a lane away is off the route.
 const START_NODE_OFF_ROUTE: f64 = 4.5;
+/// The dynamics model of a `model` table.
+fn model_of(m: ModelConfig) -> VehicleModel {
+    match m {
+        ModelConfig::Kinematic { wheelbase, max_steering } => {
+            VehicleModel::Kinematic(KinematicUnicycle { wheelbase, max_steering })
+        }
+        ModelConfig::Acceleration { wheelbase, mass, drag, max_steering } => {
+            VehicleModel::Acceleration(AccelerationUnicycle { wheelbase, mass, drag, max_steering })
+        }
+        ModelConfig::None => VehicleModel::None,
+    }
+}
+
+/// The sensors of a `sensors` table.
+fn sensors_of(s: &SensorsConfig) -> SensorSet {
+    SensorSet {
+        radar: s.radar.map(|r| Radar { angle: r.angle_deg.to_radians(), range: r.range }),
+        velodyne: s.velodyne.map(|r| Velodyne { range: r.range }),
+        omniscient: s.omniscient,
+    }
+}
+
+/// The neighbour of lanelet `i` on `side` (whatever the line between them).
+fn side_of(lanes: &LaneMap, i: u32, side: Side) -> Option<u32> {
+    let n = lanes.neighbours[i as usize];
+    let id = match side {
+        Side::Left => n.left,
+        Side::Right => n.right,
+    }?;
+    lanes.map.lanelet_index(id).map(|j| j as u32)
+}
 
 impl Scenario {
     /// A builder with the scenario's rates, seed, built-in plugins (dynamics, sensors, V2V, path
@@ -56,6 +94,10 @@ impl Scenario {
         b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: self.file.v2v.wifi_range } });
         b.add_plugin(PathFollowingPlugin);
         b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default());
+        if let Some(map) = &self.map {
+            b.add_plugin(LanesPlugin { map: Arc::clone(map) });
+            b.add_plugin(LaneChangePlugin { points_per_meter: self.file.points_per_meter });
+        }
         let mut routes: BTreeMap<String, Arc<Path>> = BTreeMap::new();
         for (i, v) in self.file.vehicles.iter().enumerate() {
             let key = |k: &str| format!("vehicles[{i}] (id {}).{k}", v.id);
@@ -65,6 +107,7 @@ impl Scenario {
             };
             self.spawn(b, v, route, &key)?;
         }
+        self.traffic(b, &mut routes)?;
         if let (Some(sc), Some(map)) = (&self.commonroad, &self.map) {
             let obstacles = if self.file.obstacles == Some(ObstaclesMode::Replay) {
                 spawn_obstacles(b, sc).map_err(|e| self.invalid("obstacles".into(), e))?;
@@ -121,20 +164,8 @@ impl Scenario {
         spec.class = v.class;
         let d = VehicleSize::default();
         spec.size = VehicleSize { length: v.length.unwrap_or(d.length), width: v.width.unwrap_or(d.width) };
-        spec.model = match v.model {
-            ModelConfig::Kinematic { wheelbase, max_steering } => {
-                VehicleModel::Kinematic(KinematicUnicycle { wheelbase, max_steering })
-            }
-            ModelConfig::Acceleration { wheelbase, mass, drag, max_steering } => {
-                VehicleModel::Acceleration(AccelerationUnicycle { wheelbase, mass, drag, max_steering })
-            }
-            ModelConfig::None => VehicleModel::None,
-        };
-        spec.sensors = SensorSet {
-            radar: v.sensors.radar.map(|r| Radar { angle: r.angle_deg.to_radians(), range: r.range }),
-            velodyne: v.sensors.velodyne.map(|r| Velodyne { range: r.range }),
-            omniscient: v.sensors.omniscient,
-        };
+        spec.model = model_of(v.model);
+        spec.sensors = sensors_of(&v.sensors);
         spec.mailbox = v.mailbox;
         spec.route = route;
         let entity = b.spawn_vehicle(spec).map_err(|e| self.invalid(key("id"), e.to_string()))?;
@@ -182,6 +213,146 @@ impl Scenario {
             }
             None => {}
         }
+        if let Some(lanes) = b.world_mut().get_resource::<LaneMap>() {
+            let lane = match lanes.locate(state.position, None, 0.0) {
+                Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset },
+                None => LanePosition::default(),
+            };
+            b.world_mut().entity_mut(entity).insert(lane);
+        }
+        if let (Some(params), Some(r)) = (v.lane_change.0, &v.route) {
+            let speed =
+                b.world_mut().get::<PathFollower>(entity).map_or(PathFollowing::default().speed, |f| f.params.speed);
+            let law = match v.controller.as_ref().and_then(ControllerConfig::smart) {
+                Some(SmartController::Idm(p)) => FollowLaw::Idm(p),
+                Some(SmartController::Acc(a)) => FollowLaw::Acc(a.acc, a.speed),
+                _ => FollowLaw::Idm(Idm { speed: speed.max(0.1), ..Idm::default() }),
+            };
+            let goal = match &r.to {
+                Some(to) if r.closed_loop.is_none() => RouteGoal::To(to.place()),
+                _ => RouteGoal::Loop,
+            };
+            b.world_mut().entity_mut(entity).insert(LaneChanger::new(params, law, goal));
+        }
+        Ok(())
+    }
+
+    /// Resolve the `[[traffic]]` tables and place their `count` vehicles (after the vehicles).
+    fn traffic(&self, b: &mut SimBuilder, routes: &mut BTreeMap<String, Arc<Path>>) -> Result<(), ScenarioError> {
+        if self.file.traffic.is_empty() {
+            return Ok(());
+        }
+        let Some(lanes) = b.world_mut().get_resource::<LaneMap>().cloned() else {
+            return Err(self.invalid("traffic".into(), "needs a `map` in the scenario"));
+        };
+        b.add_plugin(TrafficPlugin);
+        let mut paths = LanePaths::new(self.file.points_per_meter);
+        let mut traffic = Traffic { seed: self.file.seed, ..Traffic::default() };
+        let mut ranges: Vec<(i64, i64, usize)> = Vec::new();
+        let mut next_default: i64 = 1000;
+        for (k, t) in self.file.traffic.iter().enumerate() {
+            let key = |s: &str| format!("traffic[{k}].{s}");
+            let route = self.route(&t.route, routes, &key)?;
+            let goal = match (&t.route.closed_loop, &t.route.to) {
+                (None, Some(to)) => RouteGoal::To(to.place()),
+                _ => RouteGoal::Loop,
+            };
+            let locate = |p: &Path| lanes.locate(p.points[0], None, 0.0).map(|(i, s, _)| (i, s));
+            let Some((start, start_s)) = locate(&route) else {
+                return Err(self.invalid(key("route"), "starts off every lanelet of the map"));
+            };
+            let mut lane_list = Vec::new();
+            match &t.lanes {
+                TrafficLanes::All => {
+                    lane_list.push(TrafficLane { lanelet: start, entry_s: start_s, path: Arc::clone(&route) });
+                    for side in [Side::Left, Side::Right] {
+                        let mut i = start;
+                        while let Some(j) = side_of(&lanes, i, side) {
+                            if lane_list.iter().any(|l| l.lanelet == j) {
+                                break;
+                            }
+                            let path = paths.path(&lanes, j, &goal).ok_or_else(|| {
+                                self.invalid(key("lanes"), "a lane beside the route's has no path to drive")
+                            })?;
+                            lane_list.push(TrafficLane { lanelet: j, entry_s: 0.0, path });
+                            i = j;
+                        }
+                    }
+                }
+                TrafficLanes::Tags(tags) => {
+                    for tag in tags {
+                        let r = match &t.route.closed_loop {
+                            Some(_) => RouteConfig { closed_loop: Some(tag.clone()), from: None, to: None },
+                            None => RouteConfig { closed_loop: None, from: Some(tag.clone()), to: t.route.to.clone() },
+                        };
+                        let path = self.route(&r, routes, &|_| key("lanes"))?;
+                        let Some((i, s)) = locate(&path) else {
+                            return Err(self.invalid(key("lanes"), "a lane starts off every lanelet of the map"));
+                        };
+                        lane_list.push(TrafficLane { lanelet: i, entry_s: s, path });
+                    }
+                }
+            }
+            let total: f64 = t.classes.values().sum();
+            let mut acc = 0.0;
+            let classes = t
+                .classes
+                .iter()
+                .filter(|c| *c.1 > 0.0)
+                .map(|(c, w)| {
+                    acc += w / total;
+                    (*c, acc)
+                })
+                .collect();
+            let controller = t.controller.as_ref().and_then(ControllerConfig::smart);
+            let duration = t.until.unwrap_or(self.file.duration).min(self.file.duration);
+            let most = t.count as i64 + (t.rate * duration / 3600.0 * 3.0).ceil() as i64 + 20;
+            let first = t.id_start.map_or(next_default, i64::from);
+            let last = first + most;
+            if last > i64::from(i32::MAX) {
+                return Err(self.invalid(key("id_start"), "leaves no room for the ids this table needs; lower it"));
+            }
+            if let Some(v) = self.file.vehicles.iter().find(|v| (first..last).contains(&i64::from(v.id))) {
+                return Err(self.invalid(
+                    key("id_start"),
+                    format!(
+                        "traffic ids {first}..{last} clash with vehicle id {}; set `id_start` so that the range is free (e.g. {})",
+                        v.id,
+                        self.file.vehicles.iter().map(|v| i64::from(v.id)).max().unwrap_or(0).max(0) + 1000
+                    ),
+                ));
+            }
+            if let Some(&(a, b2, other)) = ranges.iter().find(|(a, b2, _)| first < *b2 && *a < last) {
+                return Err(self.invalid(
+                    key("id_start"),
+                    format!("traffic ids {first}..{last} overlap those of traffic[{other}] ({a}..{b2}); set `id_start` apart"),
+                ));
+            }
+            ranges.push((first, last, k));
+            next_default = (last / 1000 + 1) * 1000;
+            traffic.sources.push(TrafficSource {
+                stream: k as u64,
+                lanes: lane_list,
+                goal,
+                rate_per_s: t.rate / 3600.0,
+                until: duration,
+                speed: t.speed,
+                classes,
+                controller,
+                lane_change: t.lane_change.0,
+                model: model_of(t.model),
+                sensors: sensors_of(&t.sensors),
+                yield_to_emergency: t.yield_to_emergency,
+                next_id: first as i32,
+                drawn: 0,
+                next_time: 0.0,
+                queue: 0,
+            });
+            if t.count > 0 {
+                place(b.world_mut(), &mut traffic, k, t.count).map_err(|e| self.invalid(key("count"), e))?;
+            }
+        }
+        b.insert_resource(traffic);
         Ok(())
     }
 

@@ -55,6 +55,63 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
         }
         check_vehicle(&c, i, v, controllers)?;
     }
+    for (k, t) in file.traffic.iter().enumerate() {
+        check_traffic(&c, k, t)?;
+    }
+    Ok(())
+}
+
+/// The checks of one `[[traffic]]` table (index `k`).
+fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> Result<(), ScenarioError> {
+    let key = |s: &str| format!("traffic[{k}].{s}");
+    match (&t.route.closed_loop, &t.route.from, &t.route.to) {
+        (Some(_), None, None) | (None, Some(_), Some(_)) => {}
+        _ => return Err(c.invalid(key("route"), "needs either `loop = NODE` or both `from = NODE` and `to = NODE`")),
+    }
+    c.within(key("rate"), t.rate, Range::non_negative(1e6))?;
+    if t.count == 0 && t.rate == 0.0 {
+        return Err(
+            c.invalid(key("count"), "and `rate` are both 0: set `count` (vehicles at t = 0) and/or `rate` [veh/h]")
+        );
+    }
+    if let Some(u) = t.until {
+        c.within(key("until"), u, Range::non_negative(1e9))?;
+    }
+    let [lo, hi] = t.speed;
+    c.within(key("speed[0]"), lo, Range::positive(MAX_SPEED))?;
+    c.within(key("speed[1]"), hi, Range::positive(MAX_SPEED))?;
+    if lo > hi {
+        return Err(c.invalid(key("speed"), &format!("is [low, high] [m/s]: {lo} is above {hi}")));
+    }
+    for (class, w) in &t.classes {
+        c.within(key(&format!("classes.{}", format!("{class:?}").to_lowercase())), *w, Range::non_negative(1e9))?;
+    }
+    if t.classes.values().sum::<f64>() <= 0.0 {
+        return Err(c.invalid(key("classes"), "needs a share above 0, e.g. { car = 1.0 }"));
+    }
+    if let Some(p) = &t.lane_change.0 {
+        p.check().map_err(|e| c.invalid(key(&format!("lane_change.{}", e.key)), &e.problem))?;
+    }
+    match &t.controller {
+        None => {}
+        Some(controller) => {
+            let smart = controller.smart().filter(|s| !matches!(s, crate::vehicles::SmartController::Platoon(_)));
+            let Some(smart) = smart else {
+                return Err(
+                    c.invalid(key("controller.type"), "traffic drives `idm` (the default), `acc` or `cruise_control`")
+                );
+            };
+            smart.check().map_err(|(k2, problem)| c.invalid(key(&format!("controller.{k2}")), &problem))?;
+        }
+    }
+    let sees = t.sensors.radar.is_some() || t.sensors.velodyne.is_some() || t.sensors.omniscient;
+    let follows = t.controller.as_ref().and_then(ControllerConfig::smart).is_none_or(|s| s.needs_sensing_ahead());
+    if follows && !sees {
+        return Err(c.invalid(
+            key("sensors"),
+            "the traffic's controller needs a sensor that sees the vehicle ahead; add one, e.g. `sensors = { radar = { angle_deg = 60.0, range = 100.0 } }`",
+        ));
+    }
     Ok(())
 }
 
@@ -134,10 +191,31 @@ fn check_vehicle(
     if let Some(r) = v.sensors.velodyne {
         c.within(key("sensors.velodyne.range"), r.range, Range::non_negative(MAX_DISTANCE))?;
     }
-    match &v.controller {
-        Some(controller) => check_controller(c, v, controller, controllers, &key),
-        None => Ok(()),
+    if let Some(p) = &v.lane_change.0 {
+        p.check().map_err(|e| c.invalid(key(&format!("lane_change.{}", e.key)), &e.problem))?;
+        if v.route.is_none() {
+            return Err(c.invalid(key("lane_change"), "needs a `route` (lanes are changed along it)"));
+        }
     }
+    // The controller's own values first (the more specific error), then what it needs.
+    if let Some(controller) = &v.controller {
+        check_controller(c, v, controller, controllers, &key)?;
+    }
+    if let Some(smart) = v.controller.as_ref().and_then(ControllerConfig::smart)
+        && smart.needs_sensing_ahead()
+        && v.sensors.radar.is_none()
+        && v.sensors.velodyne.is_none()
+        && !v.sensors.omniscient
+    {
+        return Err(c.invalid(
+            key("sensors"),
+            &format!(
+                "controller `{}` needs a sensor that sees the vehicle ahead, and this vehicle has none (it would drive into it); add one, e.g. `sensors = {{ radar = {{ angle_deg = 60.0, range = 100.0 }} }}` (or `velodyne = {{ range = 50.0 }}`, or `omniscient = true`)",
+                smart.type_name()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// The checks of a vehicle's `controller` table.

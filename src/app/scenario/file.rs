@@ -7,7 +7,7 @@ use serde::Deserialize;
 use super::lab::LabConfig;
 use crate::map::routing::Place;
 use crate::sim::{BUILT_IN_CONTROLLERS, Rates, V2vConfig};
-use crate::vehicles::{AccSetup, CruiseSetup, PathFollowing, PlatoonSetup, SmartController};
+use crate::vehicles::{AccSetup, CruiseSetup, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, SmartController};
 use crate::world::{AccelerationUnicycle, KinematicUnicycle, Radar, VehicleClass, Velodyne};
 
 /// A node of the map: an id (integer) or a node tag value (string).
@@ -81,6 +81,91 @@ pub struct ScenarioFile {
     /// `obstacles = "replay"`: the dynamic obstacles of a CommonRoad `map` drive as recorded.
     #[serde(default)]
     pub obstacles: Option<ObstaclesMode>,
+    /// Background traffic (`[[traffic]]`).
+    #[serde(default)]
+    pub traffic: Vec<TrafficConfig>,
+}
+
+/// `lanes = "all"` or a list of node tags (one start lane each).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum TrafficLanes {
+    /// Every lane beside the route's start lane.
+    #[default]
+    All,
+    /// The lanes starting at these nodes.
+    Tags(Vec<NodeRef>),
+}
+
+impl<'de> Deserialize<'de> for TrafficLanes {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<TrafficLanes, D::Error> {
+        use serde::de::Error;
+        match toml::Value::deserialize(d)? {
+            toml::Value::String(s) if s == "all" => Ok(TrafficLanes::All),
+            v @ toml::Value::Array(_) => {
+                v.try_into().map(TrafficLanes::Tags).map_err(|e: toml::de::Error| D::Error::custom(e.message()))
+            }
+            other => Err(D::Error::custom(format!("`lanes` must be \"all\" or a list of node tags, got {other}"))),
+        }
+    }
+}
+
+/// One `[[traffic]]` table: background vehicles on a route, placed at the start and/or inserted
+/// at a rate, everything random drawn from the scenario's `seed`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrafficConfig {
+    /// `{ loop = NODE }` or `{ from = NODE, to = NODE }`.
+    pub route: RouteConfig,
+    /// Vehicles placed at t = 0 (evenly over the lanes, safe spacing for their speed).
+    #[serde(default)]
+    pub count: usize,
+    /// Vehicles inserted at the route start per hour [veh/h] (Poisson arrivals; a blocked entry waits).
+    #[serde(default)]
+    pub rate: f64,
+    /// No insertion after this sim time [s] (default: the whole run), so that every inserted
+    /// vehicle can leave by the end.
+    #[serde(default)]
+    pub until: Option<f64>,
+    /// `"all"` or a list of node tags naming the start lanes.
+    #[serde(default)]
+    pub lanes: TrafficLanes,
+    /// Desired speed range [m/s], drawn uniformly per vehicle.
+    #[serde(default = "default_traffic_speed")]
+    pub speed: [f64; 2],
+    /// Class shares, e.g. `{ car = 0.85, truck = 0.15 }` (normalised).
+    #[serde(default = "default_traffic_classes")]
+    pub classes: std::collections::BTreeMap<VehicleClass, f64>,
+    /// Controller (default IDM); its `speed` is replaced by each vehicle's drawn desired speed.
+    #[serde(default)]
+    pub controller: Option<ControllerConfig>,
+    /// Lane changes (default on, with the defaults).
+    #[serde(default = "default_traffic_lane_change")]
+    pub lane_change: LaneChangeSetting,
+    /// Dynamics model.
+    #[serde(default)]
+    pub model: ModelConfig,
+    /// Sensors (default: a radar of 60° and 100 m).
+    #[serde(default = "default_traffic_sensors")]
+    pub sensors: SensorsConfig,
+    /// Whether these vehicles make way for emergency vehicles (used by a later issue).
+    #[serde(default = "yes")]
+    pub yield_to_emergency: bool,
+    /// First id [-]; ids count up from it (default: 1000, or after the previous table's).
+    #[serde(default)]
+    pub id_start: Option<i32>,
+}
+
+fn default_traffic_speed() -> [f64; 2] {
+    [25.0, 33.0]
+}
+fn default_traffic_classes() -> std::collections::BTreeMap<VehicleClass, f64> {
+    [(VehicleClass::Car, 1.0)].into_iter().collect()
+}
+fn default_traffic_lane_change() -> LaneChangeSetting {
+    LaneChangeSetting(Some(LaneChangeParams::default()))
+}
+fn default_traffic_sensors() -> SensorsConfig {
+    SensorsConfig { radar: Some(RadarConfig::default()), velodyne: None, omniscient: false }
 }
 
 /// What to do with a CommonRoad map's dynamic obstacles.
@@ -185,6 +270,31 @@ pub struct VehicleConfig {
     /// (position, heading, speed) and the summary says whether it reached the goal.
     #[serde(default)]
     pub planning_problem: Option<i64>,
+    /// Lane changes: `lane_change = { politeness, ... }`, `true` (the defaults) or `false`
+    /// (none, as without the key).
+    #[serde(default)]
+    pub lane_change: LaneChangeSetting,
+}
+
+/// `lane_change = false`, `true` or a table of [`LaneChangeParams`].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LaneChangeSetting(pub Option<LaneChangeParams>);
+
+impl<'de> Deserialize<'de> for LaneChangeSetting {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<LaneChangeSetting, D::Error> {
+        use serde::de::Error;
+        match toml::Value::deserialize(d)? {
+            toml::Value::Boolean(false) => Ok(LaneChangeSetting(None)),
+            toml::Value::Boolean(true) => Ok(LaneChangeSetting(Some(LaneChangeParams::default()))),
+            v @ toml::Value::Table(_) => v
+                .try_into()
+                .map(|p| LaneChangeSetting(Some(p)))
+                .map_err(|e: toml::de::Error| D::Error::custom(e.message())),
+            other => Err(D::Error::custom(format!(
+                "`lane_change` must be `false`, `true` or a table such as {{ politeness = 0.2 }}, got {other}"
+            ))),
+        }
+    }
 }
 
 fn yes() -> bool {
@@ -365,6 +475,8 @@ pub enum BuiltInController {
     Acc(AccSetup),
     /// Platooning (cooperative ACC over wifi) along the route.
     Platoon(PlatoonSetup),
+    /// Treiber's IDM on radar along the route.
+    Idm(Idm),
 }
 
 impl<'de> Deserialize<'de> for ControllerConfig {
@@ -393,6 +505,7 @@ impl ControllerConfig {
             ControllerConfig::BuiltIn(BuiltInController::CruiseControl(c)) => Some(SmartController::Cruise(*c)),
             ControllerConfig::BuiltIn(BuiltInController::Acc(c)) => Some(SmartController::Acc(*c)),
             ControllerConfig::BuiltIn(BuiltInController::Platoon(c)) => Some(SmartController::Platoon(*c)),
+            ControllerConfig::BuiltIn(BuiltInController::Idm(c)) => Some(SmartController::Idm(*c)),
             _ => None,
         }
     }

@@ -1,0 +1,353 @@
+//! Background traffic (`[[traffic]]`): vehicles placed at t = 0 (`count`) and inserted at the
+//! route start over time (`rate`, Poisson arrivals), removed (despawned, leaving the `Vehicles`
+//! registry) when they reach the end of an open route. Every random choice (desired speed, class,
+//! lane, arrival time) is a counter-based draw of (seed, table, vehicle, draw)
+//! ([`crate::sim::random::uniform`]), so a run depends on the seed only.
+
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Component, Mut, Resource, World};
+use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
+
+use crate::map::Path;
+use crate::sim::random::uniform;
+use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
+use crate::vehicles::lane_changing::{LaneChangeSystems, LaneIndex};
+use crate::vehicles::{
+    AccSetup, CruiseSetup, FollowLaw, Idm, LaneChangeParams, LaneChanger, LaneMap, LanePosition, PathFollower,
+    PathFollowing, RouteGoal, SmartController,
+};
+use crate::world::{
+    Route, SensorSet, VehicleClass, VehicleId, VehicleModel, VehicleSize, VehicleSpec, VehicleState, WorldError,
+    despawn_vehicle, spawn_vehicle,
+};
+
+/// Bumper-to-bumper gap a placed or inserted vehicle keeps at least [m].
+const MIN_GAP: f64 = 2.0;
+/// Time gap used to choose a safe speed for a placed or inserted vehicle [s].
+const TIME_GAP: f64 = 1.5;
+/// A vehicle this close to the end of its route [m] has left the world.
+const LEAVE_AT: f64 = 5.0;
+
+/// Footprint of a traffic vehicle of class `c` [m].
+pub fn class_size(c: VehicleClass) -> VehicleSize {
+    match c {
+        VehicleClass::Truck => VehicleSize { length: 12.0, width: 2.5 },
+        VehicleClass::Bus => VehicleSize { length: 12.0, width: 2.55 },
+        VehicleClass::Motorcycle => VehicleSize { length: 2.2, width: 0.8 },
+        VehicleClass::Bicycle => VehicleSize { length: 1.8, width: 0.6 },
+        VehicleClass::Emergency => VehicleSize { length: 5.5, width: 2.0 },
+        VehicleClass::Car => VehicleSize::default(),
+    }
+}
+
+/// One start lane of a traffic table: its lanelet, where the path enters it, and the path.
+#[derive(Debug, Clone)]
+pub struct TrafficLane {
+    /// Lanelet index of the path's start.
+    pub lanelet: u32,
+    /// Arc length of the path's start on that lanelet [m].
+    pub entry_s: f64,
+    /// The path (a loop, or to the destination).
+    pub path: Arc<Path>,
+}
+
+/// One `[[traffic]]` table, resolved.
+#[derive(Debug, Clone)]
+pub struct TrafficSource {
+    /// Table index (the random stream).
+    pub stream: u64,
+    /// Start lanes.
+    pub lanes: Vec<TrafficLane>,
+    /// Where the routes go.
+    pub goal: RouteGoal,
+    /// Arrivals per second [1/s] (0: none).
+    pub rate_per_s: f64,
+    /// No insertion after this time [s].
+    pub until: f64,
+    /// Desired speed range [m/s].
+    pub speed: [f64; 2],
+    /// Classes with cumulative shares (the last is 1).
+    pub classes: Vec<(VehicleClass, f64)>,
+    /// Controller (default IDM).
+    pub controller: Option<SmartController>,
+    /// Lane changes.
+    pub lane_change: Option<LaneChangeParams>,
+    /// Dynamics model.
+    pub model: VehicleModel,
+    /// Sensors.
+    pub sensors: SensorSet,
+    /// Make way for emergency vehicles (a later issue).
+    pub yield_to_emergency: bool,
+    /// Next id to give.
+    pub next_id: i32,
+    /// Vehicles drawn so far (the random index).
+    pub drawn: u64,
+    /// Next arrival time [s].
+    pub next_time: f64,
+    /// Arrivals waiting for a free entry.
+    pub queue: u64,
+}
+
+/// A traffic vehicle (its table index).
+#[derive(Component, Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TrafficVehicle(pub usize);
+
+/// All traffic tables and what they did.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct Traffic {
+    /// The tables.
+    pub sources: Vec<TrafficSource>,
+    /// The scenario's seed.
+    pub seed: u64,
+    /// Vehicles placed or inserted.
+    pub inserted: u64,
+    /// Vehicles removed at the end of their route.
+    pub removed: u64,
+    /// Most arrivals waiting at once for a free entry.
+    pub waiting_max: u64,
+}
+
+/// `metrics.traffic` of `summary.json`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct TrafficSummary {
+    /// Vehicles placed or inserted.
+    pub inserted: u64,
+    /// Vehicles removed at the end of their route.
+    pub removed: u64,
+    /// Most arrivals waiting at once for a free entry.
+    pub waiting_max: u64,
+}
+
+/// `metrics.throughput` of `summary.json`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Throughput {
+    /// Vehicles that left at their route's end.
+    pub vehicles_out: u64,
+    /// The same per hour of sim time [veh/h].
+    pub per_hour: f64,
+}
+
+/// What one vehicle draws: desired speed [m/s], class, lane index.
+fn draw(seed: u64, src: &TrafficSource, k: u64) -> (f64, VehicleClass, usize) {
+    let [lo, hi] = src.speed;
+    let v0 = lo + (hi - lo) * uniform(seed, src.stream, k, 0);
+    let u = uniform(seed, src.stream, k, 1);
+    let class = src.classes.iter().find(|c| u < c.1).or(src.classes.last()).map_or(VehicleClass::Car, |c| c.0);
+    let lane = (uniform(seed, src.stream, k, 2) * src.lanes.len() as f64) as usize;
+    (v0, class, lane.min(src.lanes.len().saturating_sub(1)))
+}
+
+/// Spawn one traffic vehicle of table `index` on `lane` at arc length `s` [m] with initial speed
+/// `v` [m/s] and desired speed `v0` [m/s].
+#[allow(clippy::too_many_arguments)]
+pub fn spawn_traffic_vehicle(
+    world: &mut World,
+    src: &TrafficSource,
+    index: usize,
+    id: VehicleId,
+    lane: &TrafficLane,
+    s: f64,
+    v: f64,
+    v0: f64,
+    class: VehicleClass,
+) -> Result<(), WorldError> {
+    let (p, heading) = lane.path.sample(s);
+    let mut spec = VehicleSpec::new(id, VehicleState::new(p, heading, v));
+    spec.class = class;
+    spec.size = class_size(class);
+    spec.model = src.model;
+    spec.sensors = src.sensors;
+    spec.route = Some(Arc::clone(&lane.path));
+    let entity = spawn_vehicle(world, spec)?;
+    let smart = match src.controller {
+        Some(SmartController::Idm(p)) => SmartController::Idm(Idm { speed: v0, ..p }),
+        Some(SmartController::Acc(a)) => SmartController::Acc(AccSetup { speed: v0, ..a }),
+        Some(SmartController::Cruise(c)) => SmartController::Cruise(CruiseSetup { speed: v0, ..c }),
+        Some(other @ SmartController::Platoon(_)) => other,
+        None => SmartController::Idm(Idm { speed: v0, ..Idm::default() }),
+    };
+    smart.attach(world, entity);
+    // Through traffic does not brake for the end of its route: it leaves the world there.
+    let follow = PathFollowing { speed: v0, stop_deceleration: 50.0, ..PathFollowing::default() };
+    let lane_pos = world.get_resource::<LaneMap>().map(|lanes| match lanes.locate(p, None, 0.0) {
+        Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset },
+        None => LanePosition::default(),
+    });
+    let mut e = world.entity_mut(entity);
+    e.insert((PathFollower::starting_at(follow, s), TrafficVehicle(index)));
+    if let Some(l) = lane_pos {
+        e.insert(l);
+    }
+    if let Some(params) = src.lane_change {
+        let law = match smart {
+            SmartController::Acc(a) => FollowLaw::Acc(a.acc, a.speed),
+            SmartController::Idm(p) => FollowLaw::Idm(p),
+            _ => FollowLaw::Idm(Idm { speed: v0.max(0.1), ..Idm::default() }),
+        };
+        e.insert(LaneChanger::new(params, law, src.goal.clone()));
+    }
+    Ok(())
+}
+
+/// Longest body of the classes a table may draw [m].
+pub fn longest(src: &TrafficSource) -> f64 {
+    src.classes.iter().map(|c| class_size(c.0).length).fold(0.0, f64::max)
+}
+
+/// Place `count` vehicles of table `index` at t = 0: round-robin over its lanes, one after the
+/// other along each (a random phase per lane) with equal bumper-to-bumper gaps, each at a speed
+/// it can stop from in the gap ahead. `Err` says how many fit.
+pub fn place(world: &mut World, traffic: &mut Traffic, index: usize, count: usize) -> Result<(), String> {
+    let seed = traffic.seed;
+    let src = &mut traffic.sources[index];
+    let lanes = src.lanes.len().max(1);
+    let usable =
+        |lane: &TrafficLane| if lane.path.closed { lane.path.length } else { (lane.path.length - 40.0).max(0.0) };
+    // Draw first: lane l gets vehicles l, l + lanes, ...
+    let drawn: Vec<(f64, VehicleClass)> = (0..count as u64)
+        .map(|k| {
+            let (v0, class, _) = draw(seed, src, src.drawn + k);
+            (v0, class)
+        })
+        .collect();
+    let mut fits = 0usize;
+    let mut too_many = false;
+    for (l, lane) in src.lanes.iter().enumerate() {
+        let mine: Vec<f64> = drawn.iter().skip(l).step_by(lanes).map(|d| class_size(d.1).length + MIN_GAP).collect();
+        let need: f64 = mine.iter().sum();
+        too_many |= need > usable(lane);
+        let mean = if mine.is_empty() { longest(src) + MIN_GAP } else { need / mine.len() as f64 };
+        fits += (usable(lane) / mean).floor() as usize;
+    }
+    if too_many {
+        return Err(format!(
+            "{count} vehicles do not fit on the {lanes} lane(s) of this route with {MIN_GAP} m between them: about {fits} do; lower `count`, use more `lanes`, shorter `classes` or a longer route"
+        ));
+    }
+    for (l, lane) in src.lanes.iter().enumerate() {
+        let mine: Vec<(f64, VehicleClass)> = drawn.iter().skip(l).step_by(lanes).copied().collect();
+        if mine.is_empty() {
+            continue;
+        }
+        let bodies: f64 = mine.iter().map(|d| class_size(d.1).length).sum();
+        let gap = (usable(lane) - bodies) / mine.len() as f64;
+        let phase = uniform(seed, src.stream, u64::MAX - l as u64, 0) * (gap - MIN_GAP).max(0.0) * 0.5;
+        let mut s = phase;
+        for &(v0, class) in &mine {
+            let half = 0.5 * class_size(class).length;
+            s += half;
+            let v = v0.min(((gap - MIN_GAP) / TIME_GAP).max(0.0));
+            let id = VehicleId(src.next_id);
+            src.next_id += 1;
+            spawn_traffic_vehicle(world, src, index, id, lane, s, v, v0, class).map_err(|e| e.to_string())?;
+            s += half + gap;
+        }
+    }
+    src.drawn += count as u64;
+    traffic.inserted += count as u64;
+    Ok(())
+}
+
+/// The traffic systems' set in the [`Control`] schedule, before the lane changes.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct TrafficSystems;
+
+/// Remove vehicles at the end of their route, then insert the arrivals whose entry is free.
+pub fn run_traffic(world: &mut World) {
+    let t = world.resource::<SimClock>().now.as_secs();
+    let mut leaving: Vec<VehicleId> = Vec::new();
+    let mut q = world.query::<(&VehicleId, &Route, &PathFollower, &TrafficVehicle, Option<&LaneChanger>)>();
+    for (id, route, follower, _, changer) in q.iter(world) {
+        let mandatory = changer.is_some_and(|c| c.lane_end.is_some() || c.active.is_some());
+        if !route.0.closed && route.0.length - follower.s < LEAVE_AT && !mandatory {
+            leaving.push(*id);
+        }
+    }
+    leaving.sort();
+    world.resource_scope(|world, mut traffic: Mut<Traffic>| {
+        for id in leaving {
+            if despawn_vehicle(world, id).is_ok() {
+                traffic.removed += 1;
+            }
+        }
+        let seed = traffic.seed;
+        for index in 0..traffic.sources.len() {
+            let mut src = traffic.sources[index].clone();
+            if src.rate_per_s > 0.0 {
+                while src.next_time <= t && src.next_time <= src.until {
+                    src.queue += 1;
+                    let u = uniform(seed, src.stream, src.drawn + src.queue, 3);
+                    src.next_time += -(1.0 - u).ln() / src.rate_per_s;
+                }
+            }
+            // One vehicle per lane and tick: the lane index does not show this tick's insertions yet.
+            let mut used = [false; 16];
+            while src.queue > 0 {
+                let k = src.drawn;
+                let (v0, class, first) = draw(seed, &src, k);
+                let length = class_size(class).length;
+                let mut placed = false;
+                for n in 0..src.lanes.len() {
+                    let l = (first + n) % src.lanes.len();
+                    if used[l.min(15)] {
+                        continue;
+                    }
+                    let lane = src.lanes[l].clone();
+                    let Some(v) = entry_speed(world, &lane, v0, length) else { continue };
+                    let id = VehicleId(src.next_id);
+                    if spawn_traffic_vehicle(world, &src, index, id, &lane, 0.0, v, v0, class).is_ok() {
+                        src.next_id += 1;
+                        src.drawn += 1;
+                        src.queue -= 1;
+                        traffic.inserted += 1;
+                        used[l.min(15)] = true;
+                        placed = true;
+                    }
+                    break;
+                }
+                if !placed {
+                    break;
+                }
+            }
+            traffic.waiting_max = traffic.waiting_max.max(src.queue);
+            traffic.sources[index] = src;
+        }
+    });
+}
+
+/// The speed [m/s] a vehicle of `length` [m] wanting `v0` [m/s] may enter `lane` at, or `None`
+/// when the entry is blocked (by the vehicles of the last lane index).
+fn entry_speed(world: &World, lane: &TrafficLane, v0: f64, length: f64) -> Option<f64> {
+    let (Some(lanes), Some(index)) = (world.get_resource::<LaneMap>(), world.get_resource::<LaneIndex>()) else {
+        return Some(v0);
+    };
+    let nobody = VehicleId(i32::MIN);
+    let mut v = v0;
+    if let Some(a) = index.ahead(lanes, lane.lanelet, lane.entry_s, nobody) {
+        let gap = a.distance - 0.5 * (a.length + length);
+        if gap < MIN_GAP + 2.0 {
+            return None;
+        }
+        v = v.min(((gap - MIN_GAP) / TIME_GAP).max(a.speed));
+    }
+    if let Some(b) = index.behind(lanes, lane.lanelet, lane.entry_s, nobody) {
+        let gap = b.distance - 0.5 * (b.length + length);
+        if gap < MIN_GAP + TIME_GAP * (b.speed - v).max(0.0) + 0.5 * b.speed {
+            return None;
+        }
+    }
+    Some(v.max(0.0))
+}
+
+/// Background traffic: the [`Traffic`] resource and [`run_traffic`] each control tick.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TrafficPlugin;
+
+impl Plugin for TrafficPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        sim.world_mut().init_resource::<Traffic>();
+        sim.configure_sets(Control, TrafficSystems.in_set(SimSystems::Control).before(LaneChangeSystems));
+        sim.add_systems(Control, run_traffic.in_set(TrafficSystems));
+    }
+}

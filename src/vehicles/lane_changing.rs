@@ -1,0 +1,1057 @@
+//! The lane-change plugin: MOBIL's discretionary changes (with keep-right), mandatory changes
+//! where the lane cannot reach the destination (lane drops, lane ends), cooperative gap opening,
+//! and the manoeuvre itself along a [`LaneChangeProfile`], aborted when the target gap closes
+//! before the halfway point.
+//!
+//! Sources: MOBIL, Kesting, Treiber, Helbing 2007, "General lane-changing model MOBIL for
+//! car-following models", Transp. Res. Rec. 1999 (incentive, safety criterion, the asymmetric
+//! keep-right bias); the 2015 smart vehicle (`scripts/sml_world_old/smartvehicle.py` of
+//! marinarantanen/sml_world) drove one path per lane and switched between them, which is what a
+//! change does here: the vehicle's [`Route`] becomes the target lane's path and the path
+//! follower follows it plus the profile's offset, which starts at the vehicle's offset from the
+//! new lane and ends at zero.
+//!
+//! Each control tick, before the path follower ([`LaneChangeSystems`]): one index of every
+//! vehicle by lanelet and arc length ([`LaneIndex`]) is built (a crossing vehicle is in both
+//! lanes), then every vehicle with a [`LaneChanger`] advances its manoeuvre or decides. The
+//! decisions run one vehicle at a time in query order, so any thread count gives the same run.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Component, Query, Res, ResMut, Resource};
+use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
+use glam::DVec2;
+
+use crate::map::{LaneletId, Path, Place, RouteOptions};
+use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
+use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
+
+use super::acc::AdaptiveCruise;
+use super::idm::Idm;
+use super::lane_change::{LaneChangeProfile, Mobil, MobilDecision, Seen, Surroundings, mobil_decision};
+use super::lanes::{LaneMap, LanePosition, LaneSystems};
+use super::longitudinal::{Longitudinal, LongitudinalSystems, SteeringSystems};
+use super::path_following::PathFollower;
+
+/// Keep-right bias Δa_bias [m/s²] of MOBIL's asymmetric rule: a change to the left needs this
+/// much more incentive, a change to the right this much less (Kesting et al. 2007, section 3).
+pub const KEEP_RIGHT_BIAS: f64 = 0.3;
+/// How far the leader and follower searches look along the lane [m].
+pub const SEARCH_HORIZON: f64 = 200.0;
+/// Discretionary changes are weighed every this many control ticks (0.5 s at 20 Hz).
+pub const DISCRETIONARY_EVERY: i64 = 10;
+/// Shortest manoeuvre [m].
+pub const MIN_CHANGE_LENGTH: f64 = 10.0;
+
+/// `lane_change = { politeness, threshold, safe_deceleration, max_lateral_accel, keep_right,
+/// cooperative, min_interval }` (all optional, these defaults).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LaneChangeParams {
+    /// MOBIL politeness p [-]: weight of the followers' acceleration changes.
+    pub politeness: f64,
+    /// MOBIL threshold Δa_th [m/s²]: the net gain a discretionary change must bring.
+    pub threshold: f64,
+    /// Safe deceleration b_safe [m/s²]: the new follower may not have to brake harder.
+    pub safe_deceleration: f64,
+    /// Largest lateral acceleration of the manoeuvre [m/s²] (sets its length).
+    pub max_lateral_accel: f64,
+    /// Asymmetric keep-right rule (European motorways).
+    pub keep_right: bool,
+    /// Open a gap (braking up to `safe_deceleration / 2`) for a neighbour that must change.
+    pub cooperative: bool,
+    /// Least time between two changes of one vehicle [s] (no ping-pong).
+    pub min_interval: f64,
+}
+
+impl Default for LaneChangeParams {
+    fn default() -> Self {
+        LaneChangeParams {
+            politeness: 0.2,
+            threshold: 0.1,
+            safe_deceleration: 4.0,
+            max_lateral_accel: 1.5,
+            keep_right: true,
+            cooperative: true,
+            min_interval: 4.0,
+        }
+    }
+}
+
+impl LaneChangeParams {
+    /// Check the values (keys relative to `lane_change`).
+    pub fn check(&self) -> Result<(), crate::sim::params::ParamError> {
+        use crate::sim::params::{MAX_ACCEL, MAX_TIME, Range, check_all};
+        check_all([
+            ("politeness", self.politeness, Range::between(0.0, 10.0)),
+            ("threshold", self.threshold, Range::between(-MAX_ACCEL, MAX_ACCEL)),
+            ("safe_deceleration", self.safe_deceleration, Range::positive(MAX_ACCEL)),
+            ("max_lateral_accel", self.max_lateral_accel, Range::positive(MAX_ACCEL)),
+            ("min_interval", self.min_interval, Range::non_negative(MAX_TIME)),
+        ])
+    }
+}
+
+/// The longitudinal law MOBIL evaluates (the vehicle's own).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FollowLaw {
+    /// Treiber's IDM.
+    Idm(Idm),
+    /// Adaptive cruise control at a cruise speed [m/s].
+    Acc(AdaptiveCruise, f64),
+}
+
+impl FollowLaw {
+    /// Acceleration [m/s²] at speed `v` [m/s] behind `leader = (gap [m], speed [m/s])`.
+    pub fn accel(&self, v: f64, leader: Option<(f64, f64)>) -> f64 {
+        match self {
+            FollowLaw::Idm(p) => p.acceleration(v, leader),
+            FollowLaw::Acc(p, cruise) => {
+                let gap = leader.map(|(gap, speed)| super::LeaderGap {
+                    id: VehicleId(0),
+                    distance: gap,
+                    gap,
+                    speed,
+                    acceleration: 0.0,
+                });
+                p.acceleration(v, *cruise, gap.as_ref(), 0.0)
+            }
+        }
+    }
+
+    /// Desired speed [m/s].
+    pub fn desired_speed(&self) -> f64 {
+        match self {
+            FollowLaw::Idm(p) => p.speed,
+            FollowLaw::Acc(_, cruise) => *cruise,
+        }
+    }
+}
+
+/// Where a vehicle's route goes: round a loop, or to a place.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RouteGoal {
+    /// A closed loop: any lane of the loop will do.
+    Loop,
+    /// An open route to this place: only lanes that reach it will do.
+    To(Place),
+}
+
+impl RouteGoal {
+    fn key(&self) -> String {
+        match self {
+            RouteGoal::Loop => String::new(),
+            RouteGoal::To(p) => format!("{p:?}"),
+        }
+    }
+}
+
+/// A side.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Side {
+    /// To the left.
+    Left,
+    /// To the right.
+    Right,
+}
+
+/// Why a change was made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ChangeKind {
+    /// MOBIL found it worth it.
+    Discretionary,
+    /// The lane does not lead to the destination.
+    Mandatory,
+    /// Asked for from outside (Python's `change_lane`).
+    Requested,
+}
+
+/// A lane change in progress.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Manoeuvre {
+    /// Lanelet left (of the change as first intended).
+    pub from: LaneletId,
+    /// Lanelet aimed at (of the change as first intended).
+    pub to: LaneletId,
+    /// Direction as first intended.
+    pub direction: Side,
+    /// Why.
+    pub kind: ChangeKind,
+    /// Lateral profile: the offset from the route goes from `start_offset` to 0.
+    pub profile: LaneChangeProfile,
+    /// Offset from the (new) route at the start [m], positive left.
+    pub start_offset: f64,
+    /// Arc length along the route where it began [m].
+    pub s_start: f64,
+    /// The route driven before (searched for leaders while crossing, and driven back to on an abort).
+    pub old_route: Arc<Path>,
+    /// Arc length along `old_route` [m].
+    pub old_s: f64,
+    /// Start time [s].
+    pub t_start: f64,
+    /// Whether it is being aborted (driving back).
+    pub aborted: bool,
+    /// Largest lateral acceleration of the profile so far, v² |d''(s)| [m/s²].
+    pub peak_lateral_accel: f64,
+    /// Speed cap while changing [m/s] (the profile was sized for it).
+    pub speed_cap: f64,
+}
+
+impl Manoeuvre {
+    /// Distance driven since the start along `route` [m].
+    pub fn driven(&self, route: &Path, s: f64) -> f64 {
+        let d = s - self.s_start;
+        if route.closed { d.rem_euclid(route.length) } else { d }
+    }
+
+    /// Offset from the route [m] (positive left) the path follower aims at, `s` along the route.
+    pub fn offset_at(&self, route: &Path, s: f64) -> f64 {
+        let d = self.driven(route, s);
+        if route.closed && d > 0.5 * route.length {
+            return self.start_offset;
+        }
+        self.start_offset + self.profile.offset_at(d)
+    }
+}
+
+/// Per-vehicle lane-change state (the `lane_change` table of a scenario vehicle).
+#[derive(Component, Debug, Clone, PartialEq)]
+pub struct LaneChanger {
+    /// Parameters.
+    pub params: LaneChangeParams,
+    /// The longitudinal law MOBIL evaluates.
+    pub law: FollowLaw,
+    /// Where the route goes.
+    pub goal: RouteGoal,
+    /// A change asked for from outside, carried out when safe (cleared when done or refused).
+    pub request: Option<Side>,
+    /// The change in progress.
+    pub active: Option<Manoeuvre>,
+    /// End time of the last change [s].
+    pub last_change: f64,
+    /// A slower vehicle in the target lane to fall behind while a mandatory change waits: (gap [m], speed [m/s]).
+    pub virtual_leader: Option<(f64, f64)>,
+    /// A neighbour signalling a mandatory change in our gap: (gap [m], speed [m/s]).
+    pub yield_to: Option<(f64, f64)>,
+    /// Road left [m] to the end of a lane the vehicle must leave (a mandatory change waits).
+    pub lane_end: Option<f64>,
+    /// While crossing: the vehicles ahead in both lanes, (gap [m], speed [m/s]) each.
+    pub crossing_leaders: [Option<(f64, f64)>; 2],
+    wait_since: Option<f64>,
+    missed: bool,
+}
+
+impl LaneChanger {
+    /// A vehicle that has not changed lanes yet.
+    pub fn new(params: LaneChangeParams, law: FollowLaw, goal: RouteGoal) -> LaneChanger {
+        LaneChanger {
+            params,
+            law,
+            goal,
+            request: None,
+            active: None,
+            last_change: f64::NEG_INFINITY,
+            virtual_leader: None,
+            yield_to: None,
+            lane_end: None,
+            crossing_leaders: [None; 2],
+            wait_since: None,
+            missed: false,
+        }
+    }
+}
+
+/// One finished (or aborted) lane change, for `summary.json`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LaneChangeEvent {
+    /// Vehicle.
+    pub id: VehicleId,
+    /// Start [s].
+    pub t_start: f64,
+    /// End [s] (back in the old lane for an aborted one).
+    pub t_end: f64,
+    /// Lanelet left.
+    pub from: i64,
+    /// Lanelet aimed at.
+    pub to: i64,
+    /// `left` or `right`.
+    pub direction: Side,
+    /// `discretionary`, `mandatory` or `requested`.
+    pub kind: ChangeKind,
+    /// Whether it was aborted back to the old lane.
+    pub aborted: bool,
+    /// Largest lateral acceleration of the manoeuvre [m/s²].
+    pub peak_lateral_accel: f64,
+}
+
+/// What the lane changes of a run did.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct LaneChangeLog {
+    /// Every change, in the order they ended.
+    pub events: Vec<LaneChangeEvent>,
+    /// Vehicles that reached the end of a lane they had to leave.
+    pub missed_exits: std::collections::BTreeSet<VehicleId>,
+    /// Longest time a vehicle stood (below 0.5 m/s) waiting for a gap [s].
+    pub max_wait_s: f64,
+}
+
+/// Vehicles crossing between two lanes this tick: id -> (from, to). Leader searches count them
+/// in both lanes.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct LaneCrossings(pub BTreeMap<VehicleId, (LaneletId, LaneletId)>);
+
+/// One vehicle in the [`LaneIndex`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IndexEntry {
+    /// Lanelet index.
+    pub lanelet: u32,
+    /// Arc length along it [m].
+    pub s: f64,
+    /// Speed [m/s].
+    pub speed: f64,
+    /// Length [m].
+    pub length: f64,
+    /// Its id.
+    pub id: VehicleId,
+}
+
+/// Every vehicle by lanelet and arc length, built once per control tick: leader and follower
+/// in any lane in O(log k) for k vehicles on a lanelet.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct LaneIndex {
+    entries: Vec<IndexEntry>,
+    starts: Vec<u32>,
+    counts: Vec<u32>,
+}
+
+/// A vehicle found by the index: distance along the lane [m, centre to centre], speed, length.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Found {
+    /// Distance along the lane from the asking position [m], positive.
+    pub distance: f64,
+    /// Speed [m/s].
+    pub speed: f64,
+    /// Length [m].
+    pub length: f64,
+    /// Id.
+    pub id: VehicleId,
+}
+
+impl LaneIndex {
+    /// Rebuild from `items` (counting sort by lanelet, then by arc length and id): allocation
+    /// free once the buffers have grown.
+    pub fn rebuild(&mut self, lanelets: usize, items: impl Iterator<Item = IndexEntry> + Clone) {
+        self.counts.clear();
+        self.counts.resize(lanelets + 1, 0);
+        for e in items.clone() {
+            self.counts[e.lanelet as usize] += 1;
+        }
+        self.starts.clear();
+        let mut acc = 0;
+        for c in &self.counts {
+            self.starts.push(acc);
+            acc += c;
+        }
+        self.entries.clear();
+        self.entries.resize(acc as usize, IndexEntry { lanelet: 0, s: 0.0, speed: 0.0, length: 0.0, id: VehicleId(0) });
+        let mut fill = self.starts.clone();
+        for e in items {
+            let k = &mut fill[e.lanelet as usize];
+            self.entries[*k as usize] = e;
+            *k += 1;
+        }
+        for i in 0..lanelets {
+            let (a, b) = (self.starts[i] as usize, self.starts[i + 1] as usize);
+            self.entries[a..b].sort_unstable_by(|x, y| x.s.total_cmp(&y.s).then(x.id.cmp(&y.id)));
+        }
+    }
+
+    fn on(&self, i: u32) -> &[IndexEntry] {
+        let i = i as usize;
+        if i + 1 >= self.starts.len() {
+            return &[];
+        }
+        &self.entries[self.starts[i] as usize..self.starts[i + 1] as usize]
+    }
+
+    /// Nearest vehicle at or ahead of arc length `s` on lanelet `i` (then its first successors),
+    /// other than `me`, within [`SEARCH_HORIZON`].
+    pub fn ahead(&self, lanes: &LaneMap, mut i: u32, s: f64, me: VehicleId) -> Option<Found> {
+        // Distance from the asking point to the start of lanelet `i` (after the first one).
+        let mut base = 0.0;
+        let mut first = true;
+        for _ in 0..8 {
+            let list = self.on(i);
+            let from = if first { list.partition_point(|e| e.s < s) } else { 0 };
+            if let Some(e) = list[from..].iter().find(|e| e.id != me) {
+                let distance = if first { e.s - s } else { base + e.s };
+                return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
+            }
+            base = if first { lanes.length(i) - s } else { base + lanes.length(i) };
+            first = false;
+            if base > SEARCH_HORIZON {
+                return None;
+            }
+            i = *lanes.successors[i as usize].first()?;
+        }
+        None
+    }
+
+    /// Nearest vehicle behind arc length `s` on lanelet `i` (then its first predecessors),
+    /// other than `me`, within [`SEARCH_HORIZON`].
+    pub fn behind(&self, lanes: &LaneMap, mut i: u32, s: f64, me: VehicleId) -> Option<Found> {
+        // Distance from the asking point back to the end of lanelet `i` (after the first one).
+        let mut base = 0.0;
+        let mut first = true;
+        for _ in 0..8 {
+            let list = self.on(i);
+            let end = if first { list.partition_point(|e| e.s < s) } else { list.len() };
+            if let Some(e) = list[..end].iter().rev().find(|e| e.id != me) {
+                let distance = if first { s - e.s } else { base + lanes.length(i) - e.s };
+                return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
+            }
+            base = if first { s } else { base + lanes.length(i) };
+            first = false;
+            if base > SEARCH_HORIZON {
+                return None;
+            }
+            i = *lanes.predecessors[i as usize].first()?;
+        }
+        None
+    }
+}
+
+/// Lane paths (a lanelet to the goal) and which lanelets reach a goal, computed once each.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct LanePaths {
+    /// Route resampling density [points per metre].
+    pub points_per_meter: f64,
+    paths: BTreeMap<(u32, String), Option<Arc<Path>>>,
+    reach: BTreeMap<String, Arc<Vec<bool>>>,
+}
+
+impl LanePaths {
+    /// Paths resampled at `points_per_meter`.
+    pub fn new(points_per_meter: f64) -> LanePaths {
+        LanePaths { points_per_meter, ..Default::default() }
+    }
+
+    /// Which lanelets reach `goal` by driving on (every lanelet for a loop).
+    pub fn reach(&mut self, lanes: &LaneMap, goal: &RouteGoal) -> Arc<Vec<bool>> {
+        let key = goal.key();
+        if let Some(r) = self.reach.get(&key) {
+            return Arc::clone(r);
+        }
+        let n = lanes.map.lanelets.len();
+        let r = match goal {
+            RouteGoal::Loop => vec![true; n],
+            RouteGoal::To(place) => {
+                let nodes = lanes.map.place_nodes(place).unwrap_or_default();
+                let mut reach = vec![false; n];
+                let mut stack = Vec::new();
+                for (i, l) in lanes.map.lanelets.iter().enumerate() {
+                    if l.routable && nodes.iter().any(|n| l.right_nodes.contains(n) || l.left_nodes.contains(n)) {
+                        reach[i] = true;
+                        stack.push(i as u32);
+                    }
+                }
+                while let Some(i) = stack.pop() {
+                    for &p in &lanes.predecessors[i as usize] {
+                        if !reach[p as usize] {
+                            reach[p as usize] = true;
+                            stack.push(p);
+                        }
+                    }
+                }
+                reach
+            }
+        };
+        let r = Arc::new(r);
+        self.reach.insert(key, Arc::clone(&r));
+        r
+    }
+
+    /// The path from the start of lanelet `i` along its lane to `goal` (round the loop; to the
+    /// place; or to the lane's end when the lane does not reach the place).
+    pub fn path(&mut self, lanes: &LaneMap, i: u32, goal: &RouteGoal) -> Option<Arc<Path>> {
+        let key = (i, goal.key());
+        if let Some(p) = self.paths.get(&key) {
+            return p.clone();
+        }
+        let reach = self.reach(lanes, goal);
+        let map = &lanes.map;
+        let l = &map.lanelets[i as usize];
+        let opts = RouteOptions { points_per_meter: self.points_per_meter };
+        let start = l.right_nodes.first().map(|n| Place::Node(*n));
+        let path = match (goal, start) {
+            (RouteGoal::Loop, Some(start)) => map.closed_loop_at(&start, &opts).ok(),
+            (RouteGoal::To(to), Some(start)) if reach[i as usize] => map.route_places(&start, to, &opts).ok(),
+            _ => None,
+        };
+        let path = path.or_else(|| {
+            // The lane's own centre lines to its end (a lane that does not reach the goal).
+            let mut points: Vec<DVec2> = Vec::new();
+            let mut ids = Vec::new();
+            let mut j = i;
+            for _ in 0..64 {
+                if ids.contains(&lanes.id(j)) {
+                    break;
+                }
+                ids.push(lanes.id(j));
+                let c = &map.lanelets[j as usize].centre;
+                let skip = usize::from(points.last().zip(c.first()).is_some_and(|(a, b)| a.distance(*b) < 1e-6));
+                points.extend_from_slice(&c[skip.min(c.len())..]);
+                match lanes.successors[j as usize].first() {
+                    Some(&k) => j = k,
+                    None => break,
+                }
+            }
+            (points.len() >= 2)
+                .then(|| Path::from_points(ids, crate::map::polyline::resample(&points, self.points_per_meter), false))
+        });
+        let path = path.map(Arc::new);
+        self.paths.insert(key, path.clone());
+        path
+    }
+}
+
+/// Mandatory-change signals of the last tick: target lanelet -> (arc length [m], speed [m/s],
+/// length [m], id) of the vehicles waiting to move in.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct LaneSignals(pub BTreeMap<u32, Vec<(f64, f64, f64, VehicleId)>>);
+
+/// Claims of this tick: target lanelet and arc length of the changes just started, so two
+/// vehicles do not take one gap.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct Claims(pub Vec<(u32, f64)>);
+
+/// The lane-change systems, in [`SimSystems::Control`] before [`SteeringSystems`].
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct LaneChangeSystems;
+
+/// Urgency [0, 1] of a mandatory change with `remaining` [m] of lane left at speed `v` [m/s].
+pub fn urgency(remaining: f64, v: f64) -> f64 {
+    let horizon = 100.0 + 4.0 * v.max(0.0);
+    (1.0 - (remaining - 10.0) / horizon).clamp(0.0, 1.0)
+}
+
+/// MOBIL's parameters for a change to `side` of `kind` at `urgency`: keep-right bias; for a
+/// mandatory change the threshold falls to far below 0 and the accepted deceleration of the new
+/// follower grows from half of `safe_deceleration` to all of it as the end nears.
+pub fn mobil_for(p: &LaneChangeParams, side: Side, kind: ChangeKind, urgency: f64) -> Mobil {
+    let bias = if p.keep_right {
+        match side {
+            Side::Left => KEEP_RIGHT_BIAS,
+            Side::Right => -KEEP_RIGHT_BIAS,
+        }
+    } else {
+        0.0
+    };
+    match kind {
+        ChangeKind::Discretionary => {
+            Mobil { politeness: p.politeness, threshold: p.threshold + bias, safe_deceleration: p.safe_deceleration }
+        }
+        // Leaving a lane that does not lead to the destination is worth b_safe on top of the
+        // usual incentive: any gap the safety criterion accepts is taken, and that criterion
+        // widens as the end nears.
+        ChangeKind::Mandatory | ChangeKind::Requested => Mobil {
+            politeness: p.politeness,
+            threshold: (p.threshold + bias) * (1.0 - urgency) - p.safe_deceleration,
+            safe_deceleration: p.safe_deceleration * (0.5 + 0.5 * urgency),
+        },
+    }
+}
+
+fn seen_ahead(f: Found, me: f64) -> Seen {
+    // MOBIL assumes every vehicle is as long as we are: shift centres so its gaps are the real ones.
+    Seen { s: f.distance - 0.5 * (f.length - me), speed: f.speed }
+}
+
+fn seen_behind(f: Found, me: f64) -> Seen {
+    Seen { s: -f.distance + 0.5 * (f.length - me), speed: f.speed }
+}
+
+/// Advance or decide every [`LaneChanger`]'s lane change (see the module documentation).
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
+pub fn decide_lane_changes(
+    clock: Res<SimClock>,
+    lanes: Option<Res<LaneMap>>,
+    mut paths: ResMut<LanePaths>,
+    mut index: ResMut<LaneIndex>,
+    mut log: ResMut<LaneChangeLog>,
+    mut crossings: ResMut<LaneCrossings>,
+    mut signals: ResMut<LaneSignals>,
+    mut claims: ResMut<Claims>,
+    all: Query<(&VehicleId, &VehicleState, &VehicleSize, &LanePosition)>,
+    mut changers: Query<(
+        &VehicleId,
+        &VehicleState,
+        &VehicleSize,
+        &LanePosition,
+        &mut Route,
+        &mut PathFollower,
+        &mut LaneChanger,
+    )>,
+) {
+    let Some(lanes) = lanes else { return };
+    let lanes = &*lanes;
+    let t = clock.now.as_secs();
+    let dt = clock.dt;
+    let tick = if dt > 0.0 { (t / dt).round() as i64 } else { 0 };
+    crossings.0.clear();
+    for (id, _, _, _, _, _, ch) in changers.iter() {
+        if let Some(m) = &ch.active {
+            crossings.0.insert(*id, (m.from, m.to));
+        }
+    }
+    let other_lane = |pos: &LanePosition, i: u32| -> Option<u32> {
+        let n = lanes.neighbours[i as usize];
+        let id = if pos.offset > 0.0 { n.left } else { n.right }?;
+        lanes.map.lanelet_index(id).map(|j| j as u32)
+    };
+    let crossing = &crossings.0;
+    let items = all.iter().filter_map(|(id, state, size, pos)| {
+        let i = pos.on()?;
+        Some(IndexEntry { lanelet: i, s: pos.s, speed: state.speed(), length: size.length, id: *id })
+    });
+    let extra = all.iter().filter_map(|(id, state, size, pos)| {
+        let i = pos.on()?;
+        if !crossing.contains_key(id) {
+            return None;
+        }
+        let j = other_lane(pos, i)?;
+        let s = pos.s * lanes.length(j) / lanes.length(i).max(1e-9);
+        Some(IndexEntry { lanelet: j, s, speed: state.speed(), length: size.length, id: *id })
+    });
+    index.rebuild(lanes.map.lanelets.len(), items.chain(extra));
+    let last_signals = std::mem::take(&mut signals.0);
+    claims.0.clear();
+
+    for (id, state, size, pos, mut route, mut follower, mut ch) in &mut changers {
+        let v = state.speed();
+        let me = *id;
+        ch.virtual_leader = None;
+        ch.yield_to = None;
+        ch.lane_end = None;
+        ch.crossing_leaders = [None; 2];
+        let Some(i) = pos.on() else { continue };
+        let len_i = lanes.length(i);
+        let law = ch.law;
+        let p = ch.params;
+
+        // Cooperation: a neighbour signalling a mandatory change into our gap.
+        if p.cooperative
+            && let Some(list) = last_signals.get(&i)
+        {
+            let leader = index.ahead(lanes, i, pos.s, me).map_or(f64::INFINITY, |f| f.distance);
+            let nearest = list
+                .iter()
+                .filter(|(s, _, _, sid)| *sid != me && *s > pos.s && *s - pos.s < leader.min(150.0))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some(&(s, speed, length, _)) = nearest {
+                // Only when we can fall behind it braking at most b_safe / 2; a neighbour already
+                // alongside is passed instead (it merges behind us), or both would wait for ever.
+                let gap = s - pos.s - 0.5 * (length + size.length);
+                let closing = (v - speed).max(0.0);
+                if gap > 2.0 && closing * closing / (2.0 * (gap - 2.0)) <= 0.5 * p.safe_deceleration {
+                    ch.yield_to = Some((gap, speed));
+                }
+            }
+        }
+
+        if let Some(mut m) = ch.active.take() {
+            // In both lanes: follow the vehicle ahead in each (from the index, real lengths).
+            let gap_of = |f: Found| (f.distance - 0.5 * (f.length + size.length), f.speed);
+            ch.crossing_leaders[0] = index.ahead(lanes, i, pos.s, me).map(gap_of);
+            if let Some(j) = other_lane(pos, i) {
+                let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+                ch.crossing_leaders[1] = index.ahead(lanes, j, s_j, me).map(gap_of);
+            }
+            let driven = m.driven(&route.0, follower.s);
+            let d2 = profile_curvature(&m.profile, driven);
+            m.peak_lateral_accel = m.peak_lateral_accel.max(v * v * d2);
+            m.old_s = m.old_route.project_near(state.position, m.old_s + v * dt, v.abs() * dt + 5.0).s;
+            if driven >= m.profile.length {
+                log.events.push(LaneChangeEvent {
+                    id: me,
+                    t_start: m.t_start,
+                    t_end: t,
+                    from: m.from.0,
+                    to: m.to.0,
+                    direction: m.direction,
+                    kind: m.kind,
+                    aborted: m.aborted,
+                    peak_lateral_accel: m.peak_lateral_accel,
+                });
+                ch.last_change = t;
+                continue;
+            }
+            if !m.aborted && driven < 0.5 * m.profile.length {
+                // Still mostly in the old lane: is the target gap still there?
+                let moving_left = m.direction == Side::Left;
+                let target = if (pos.offset > 0.0) == moving_left { neighbour(lanes, i, m.direction) } else { Some(i) };
+                let closed = target.is_some_and(|j| {
+                    let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+                    let (ahead, behind) = (index.ahead(lanes, j, s_j, me), index.behind(lanes, j, s_j, me));
+                    target_gap_closed(&law, p.safe_deceleration, v, size.length, ahead, behind)
+                });
+                if closed {
+                    let back = m.old_route.project_near(state.position, m.old_s, 10.0);
+                    let offset = back.lateral;
+                    let profile =
+                        LaneChangeProfile::for_speed(-offset, m.speed_cap, p.max_lateral_accel, MIN_CHANGE_LENGTH);
+                    let old = std::mem::replace(&mut route.0, Arc::clone(&m.old_route));
+                    let aborted = Manoeuvre {
+                        profile,
+                        start_offset: offset,
+                        s_start: back.s,
+                        old_route: old,
+                        old_s: follower.s,
+                        aborted: true,
+                        ..m
+                    };
+                    let (params, max_offset) = (follower.params, follower.max_offset);
+                    *follower = PathFollower::starting_at(params, back.s);
+                    follower.max_offset = max_offset;
+                    ch.active = Some(aborted);
+                    continue;
+                }
+            }
+            ch.active = Some(m);
+            continue;
+        }
+
+        // Mandatory need: this lane does not reach the destination.
+        let reach = paths.reach(lanes, &ch.goal);
+        let remaining = if route.0.closed { f64::INFINITY } else { (route.0.length - follower.s).max(0.0) };
+        let mut mandatory: Option<Side> = None;
+        if !reach[i as usize] {
+            for side in [Side::Right, Side::Left] {
+                if let Some(j) = allowed(lanes, i, side)
+                    && reach[j as usize]
+                {
+                    mandatory = Some(side);
+                    break;
+                }
+            }
+        }
+        let u = if mandatory.is_some() { urgency(remaining, v) } else { 0.0 };
+        if mandatory.is_some() {
+            ch.lane_end = Some(remaining);
+            if v < 0.5 {
+                let since = *ch.wait_since.get_or_insert(t);
+                log.max_wait_s = log.max_wait_s.max(t - since);
+            } else {
+                ch.wait_since = None;
+            }
+            if remaining < 1.0 && !ch.missed {
+                ch.missed = true;
+                log.missed_exits.insert(me);
+            }
+        }
+        let since_last = t - ch.last_change;
+        let mut candidates: [(Side, ChangeKind); 2] = [(Side::Left, ChangeKind::Discretionary); 2];
+        let mut n = 0;
+        if let Some(side) = ch.request {
+            candidates[0] = (side, ChangeKind::Requested);
+            n = 1;
+        } else if let Some(side) = mandatory {
+            if since_last >= p.min_interval || u > 0.5 {
+                candidates[0] = (side, ChangeKind::Mandatory);
+                n = 1;
+            }
+        } else if since_last >= p.min_interval && (tick + i64::from(me.0)).rem_euclid(DISCRETIONARY_EVERY) == 0 {
+            // Discretionary changes are weighed every DISCRETIONARY_EVERY control ticks, the
+            // vehicles staggered by id: a driver does not reconsider at 20 Hz.
+            candidates = [(Side::Right, ChangeKind::Discretionary), (Side::Left, ChangeKind::Discretionary)];
+            n = 2;
+        }
+        let leader = index.ahead(lanes, i, pos.s, me);
+        let follower_now = index.behind(lanes, i, pos.s, me);
+        let mut best: Option<(f64, Side, ChangeKind, u32)> = None;
+        for &(side, kind) in &candidates[..n] {
+            let Some(j) = allowed(lanes, i, side) else {
+                if kind == ChangeKind::Requested {
+                    ch.request = None;
+                }
+                continue;
+            };
+            if kind == ChangeKind::Discretionary && !reach[j as usize] {
+                continue;
+            }
+            let scale = len_i / lanes.length(j).max(1e-9);
+            let s_j = pos.s / scale;
+            let unscale = |f: Found| Found { distance: f.distance * scale, ..f };
+            let tl = index.ahead(lanes, j, s_j, me).map(unscale);
+            let tf = index.behind(lanes, j, s_j, me).map(unscale);
+            let claimed = claims.0.iter().any(|&(cj, cs)| cj == j && (cs - s_j).abs() < 2.0 * size.length + v);
+            let around = Surroundings {
+                me: Seen { s: 0.0, speed: v },
+                length: size.length,
+                leader: leader.map(|f| seen_ahead(f, size.length)),
+                follower: follower_now.map(|f| seen_behind(f, size.length)),
+                target_leader: tl.map(|f| seen_ahead(f, size.length)),
+                target_follower: tf.map(|f| seen_behind(f, size.length)),
+            };
+            let mobil = mobil_for(&p, side, kind, u);
+            let decision = mobil_decision(&mobil, &around, |v, l| law.accel(v, l));
+            match decision {
+                MobilDecision::Change(gain) if !claimed => {
+                    if best.is_none_or(|b| gain > b.0) {
+                        best = Some((gain, side, kind, j));
+                    }
+                }
+                _ if kind == ChangeKind::Requested => ch.request = None,
+                MobilDecision::Occupied | MobilDecision::Unsafe(_) if kind == ChangeKind::Mandatory && u > 0.5 => {
+                    // Fall behind the vehicle beside us in the target lane, then signal.
+                    if let Some(l) = tl.filter(|f| f.distance < size.length + f.length) {
+                        ch.virtual_leader = Some((l.distance - 0.5 * (l.length + size.length), l.speed));
+                    }
+                }
+                _ => {}
+            }
+            if kind == ChangeKind::Mandatory {
+                signals.0.entry(j).or_default().push((s_j, v, size.length, me));
+            }
+        }
+        let Some((_, side, kind, j)) = best else { continue };
+        let Some(path) = paths.path(lanes, j, &ch.goal) else { continue };
+        let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+        let q = path.project_near(state.position, s_j, 15.0);
+        let cap = v.max(law.desired_speed().min(v + 3.0));
+        let profile = LaneChangeProfile::for_speed(-q.lateral, cap, p.max_lateral_accel, MIN_CHANGE_LENGTH);
+        let m = Manoeuvre {
+            from: lanes.id(i),
+            to: lanes.id(j),
+            direction: side,
+            kind,
+            profile,
+            start_offset: q.lateral,
+            s_start: q.s,
+            old_route: Arc::clone(&route.0),
+            old_s: follower.s,
+            t_start: t,
+            aborted: false,
+            peak_lateral_accel: 0.0,
+            speed_cap: cap,
+        };
+        let params = follower.params;
+        let max_offset = follower.max_offset;
+        route.0 = path;
+        *follower = PathFollower::starting_at(params, q.s);
+        follower.max_offset = max_offset;
+        claims.0.push((j, s_j));
+        ch.request = None;
+        ch.wait_since = None;
+        ch.active = Some(m);
+    }
+}
+
+/// Whether the gap a change aims at has closed (the abort rule before the halfway point): the
+/// vehicle ahead in the target lane overlaps us, or the one behind overlaps us or would have to
+/// brake harder than `safe_deceleration` [m/s²] behind us at our speed `v` [m/s] (`length`: ours).
+pub fn target_gap_closed(
+    law: &FollowLaw,
+    safe_deceleration: f64,
+    v: f64,
+    length: f64,
+    ahead: Option<Found>,
+    behind: Option<Found>,
+) -> bool {
+    let front = ahead.is_some_and(|f| f.distance - 0.5 * (f.length + length) <= 0.0);
+    let back = behind.is_some_and(|f| {
+        let gap = f.distance - 0.5 * (f.length + length);
+        gap <= 0.0 || law.accel(f.speed, Some((gap, v))) < -safe_deceleration
+    });
+    front || back
+}
+
+/// The neighbour on `side` of lanelet `i`, if any.
+fn neighbour(lanes: &LaneMap, i: u32, side: Side) -> Option<u32> {
+    let n = lanes.neighbours[i as usize];
+    let id = match side {
+        Side::Left => n.left,
+        Side::Right => n.right,
+    }?;
+    lanes.map.lanelet_index(id).map(|j| j as u32)
+}
+
+/// The neighbour on `side` of lanelet `i` when the line between them may be crossed that way.
+pub fn allowed(lanes: &LaneMap, i: u32, side: Side) -> Option<u32> {
+    let n = lanes.neighbours[i as usize];
+    let ok = match side {
+        Side::Left => n.change_left,
+        Side::Right => n.change_right,
+    };
+    if ok { neighbour(lanes, i, side) } else { None }
+}
+
+/// `|d''(s)|` of a profile [1/m] at `s` [m] driven: the quintic's second derivative.
+fn profile_curvature(p: &LaneChangeProfile, s: f64) -> f64 {
+    let u = (s / p.length).clamp(0.0, 1.0);
+    (p.offset * (60.0 * u - 180.0 * u * u + 120.0 * u * u * u) / (p.length * p.length)).abs()
+}
+
+/// Lower the demand for lane changes: fall behind a vehicle in the target lane while a mandatory
+/// change waits, open a gap for a neighbour that must change in (braking at most
+/// `safe_deceleration / 2`), and keep under the speed the manoeuvre was sized for.
+pub fn limit_for_lane_changes(mut vehicles: Query<(&VehicleState, &VehicleSize, &LaneChanger, &mut Longitudinal)>) {
+    for (state, size, ch, mut lon) in &mut vehicles {
+        let v = state.speed();
+        let floor = -0.5 * ch.params.safe_deceleration;
+        if let Some(remaining) = ch.lane_end {
+            // Stop before the end as behind a standing vehicle there (the last resort).
+            let gap = remaining - 0.5 * size.length - 1.0;
+            lon.limit(ch.law.accel(v, Some((gap, 0.0))));
+        }
+        if let Some(leader) = ch.virtual_leader {
+            lon.limit(ch.law.accel(v, Some(leader)).max(floor));
+        }
+        if let Some(leader) = ch.yield_to {
+            lon.limit(ch.law.accel(v, Some(leader)).max(floor));
+        }
+        if let Some(m) = &ch.active {
+            lon.limit(2.0 * (m.speed_cap - v));
+            for leader in ch.crossing_leaders.into_iter().flatten() {
+                lon.limit(ch.law.accel(v, Some(leader)));
+            }
+        }
+    }
+}
+
+/// Lane changes for every vehicle with a [`LaneChanger`] (needs the [`super::lanes::LanesPlugin`]).
+#[derive(Debug, Clone, Copy)]
+pub struct LaneChangePlugin {
+    /// Route resampling density of the lane paths [points per metre].
+    pub points_per_meter: f64,
+}
+
+impl Plugin for LaneChangePlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        super::longitudinal::install_longitudinal(sim);
+        sim.insert_resource(LanePaths::new(self.points_per_meter));
+        sim.world_mut().init_resource::<LaneIndex>();
+        sim.world_mut().init_resource::<LaneChangeLog>();
+        sim.world_mut().init_resource::<LaneCrossings>();
+        sim.world_mut().init_resource::<LaneSignals>();
+        sim.world_mut().init_resource::<Claims>();
+        sim.configure_sets(Control, LaneChangeSystems.in_set(SimSystems::Control).before(SteeringSystems));
+        sim.add_systems(Control, decide_lane_changes.in_set(LaneChangeSystems));
+        sim.add_systems(Control, limit_for_lane_changes.in_set(LongitudinalSystems::Limit));
+        let _ = LaneSystems;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn idm() -> FollowLaw {
+        FollowLaw::Idm(Idm { speed: 30.0, ..Idm::default() })
+    }
+
+    fn around(leader: Option<Seen>, target_leader: Option<Seen>, target_follower: Option<Seen>) -> Surroundings {
+        Surroundings {
+            me: Seen { s: 0.0, speed: 20.0 },
+            length: 4.0,
+            leader,
+            follower: None,
+            target_leader,
+            target_follower,
+        }
+    }
+
+    fn decide(p: &LaneChangeParams, side: Side, a: &Surroundings) -> MobilDecision {
+        let law = idm();
+        mobil_decision(&mobil_for(p, side, ChangeKind::Discretionary, 0.0), a, |v, l| law.accel(v, l))
+    }
+
+    #[test]
+    fn mobil_changes_towards_the_faster_lane_only() {
+        let p = LaneChangeParams { keep_right: false, ..LaneChangeParams::default() };
+        let slow = Some(Seen { s: 30.0, speed: 10.0 });
+        // Behind a slow leader with a free target lane: a positive incentive, change.
+        let go = decide(&p, Side::Left, &around(slow, None, None));
+        assert!(matches!(go, MobilDecision::Change(g) if g > p.threshold), "{go:?}");
+        // The other way round (free now, slow leader there): the incentive is negative, stay.
+        let stay = decide(&p, Side::Left, &around(None, slow, None));
+        assert!(matches!(stay, MobilDecision::NoGain(g) if g < 0.0), "{stay:?}");
+    }
+
+    #[test]
+    fn mobil_refuses_a_gap_whose_new_follower_would_brake_harder_than_safe() {
+        let p = LaneChangeParams::default();
+        let slow = Some(Seen { s: 30.0, speed: 10.0 });
+        // A fast follower 8 m behind in the target lane: it would have to brake hard.
+        let fast_close = Some(Seen { s: -12.0, speed: 30.0 });
+        let d = decide(&p, Side::Left, &around(slow, None, fast_close));
+        assert!(matches!(d, MobilDecision::Unsafe(a) if a < -p.safe_deceleration), "{d:?}");
+        // The same follower 150 m back: safe, change.
+        let far = Some(Seen { s: -150.0, speed: 30.0 });
+        assert!(matches!(decide(&p, Side::Left, &around(slow, None, far)), MobilDecision::Change(_)));
+    }
+
+    #[test]
+    fn keep_right_makes_left_harder_and_right_easier() {
+        let p = LaneChangeParams::default();
+        let left = mobil_for(&p, Side::Left, ChangeKind::Discretionary, 0.0);
+        let right = mobil_for(&p, Side::Right, ChangeKind::Discretionary, 0.0);
+        assert!(left.threshold > p.threshold && right.threshold < p.threshold);
+        assert!((left.threshold - right.threshold - 2.0 * KEEP_RIGHT_BIAS).abs() < 1e-12);
+        // On a free road both lanes give the same acceleration: only keep-right moves the car.
+        let free = around(None, None, None);
+        assert!(matches!(decide(&p, Side::Right, &free), MobilDecision::Change(_)));
+        assert!(matches!(decide(&p, Side::Left, &free), MobilDecision::NoGain(_)));
+        let symmetric = LaneChangeParams { keep_right: false, ..p };
+        assert!(matches!(decide(&symmetric, Side::Right, &free), MobilDecision::NoGain(_)));
+    }
+
+    #[test]
+    fn mandatory_urgency_grows_towards_the_end_and_widens_the_accepted_gap() {
+        assert_eq!(urgency(1000.0, 20.0), 0.0);
+        assert_eq!(urgency(5.0, 20.0), 1.0);
+        let mut last = -1.0;
+        for r in (0..=200).rev().map(|r| r as f64) {
+            let u = urgency(r, 20.0);
+            assert!(u >= last, "urgency falls nearer the end at {r} m");
+            last = u;
+        }
+        let p = LaneChangeParams::default();
+        // The threshold (keep-right bias included) falls to 0 at the end, under a constant
+        // bonus of b_safe for leaving a lane that does not lead to the destination.
+        let far = mobil_for(&p, Side::Left, ChangeKind::Mandatory, 0.0);
+        let near = mobil_for(&p, Side::Left, ChangeKind::Mandatory, 1.0);
+        assert!(near.threshold < far.threshold, "{far:?} {near:?}");
+        assert_eq!(near.threshold, -p.safe_deceleration);
+        assert_eq!(far.threshold, p.threshold + KEEP_RIGHT_BIAS - p.safe_deceleration);
+        assert!(near.safe_deceleration > far.safe_deceleration);
+        assert_eq!(near.safe_deceleration, p.safe_deceleration);
+        // A gap whose new follower brakes at 3 m/s²: refused far from the end, taken near it.
+        let law = idm();
+        let mut gap = 1.0;
+        while law.accel(20.0, Some((gap, 20.0))) < -3.0 {
+            gap += 0.05;
+        }
+        let a = around(None, None, Some(Seen { s: -(gap + 4.0), speed: 20.0 }));
+        let decide_at =
+            |u| mobil_decision(&mobil_for(&p, Side::Right, ChangeKind::Mandatory, u), &a, |v, l| law.accel(v, l));
+        assert!(matches!(decide_at(0.0), MobilDecision::Unsafe(_)), "{:?}", decide_at(0.0));
+        assert!(matches!(decide_at(1.0), MobilDecision::Change(_)), "{:?}", decide_at(1.0));
+    }
+
+    fn found(distance: f64, speed: f64) -> Found {
+        Found { distance, speed, length: 4.0, id: VehicleId(9) }
+    }
+
+    #[test]
+    fn the_target_gap_closes_when_a_follower_closes_in_or_a_leader_overlaps() {
+        let law = idm();
+        assert!(!target_gap_closed(&law, 4.0, 20.0, 4.0, Some(found(40.0, 20.0)), Some(found(40.0, 20.0))));
+        assert!(target_gap_closed(&law, 4.0, 20.0, 4.0, None, Some(found(10.0, 30.0))), "fast follower 6 m behind");
+        assert!(target_gap_closed(&law, 4.0, 20.0, 4.0, Some(found(3.0, 20.0)), None), "leader overlapping");
+        assert!(!target_gap_closed(&law, 4.0, 20.0, 4.0, None, Some(found(10.0, 10.0))), "slow follower falls back");
+    }
+}

@@ -1,0 +1,243 @@
+//! Where each vehicle is on the road: the [`LanePosition`] component (lanelet, arc length along
+//! its centre line, signed offset), updated once per dynamics step, and the [`LaneMap`] resource
+//! it is looked up in (the map with per-lanelet centre paths, neighbours, successors and
+//! predecessors, and a coarse grid of lanelets).
+//!
+//! The lookup is O(1) per vehicle: the lanelet of the last step, then its successors,
+//! neighbours and predecessors, each projected in a window around the expected arc length; only a
+//! vehicle found in none of them (a start, a jump) falls back to the grid cell under it.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Component, Local, Mut, Query, Res, Resource};
+use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
+use glam::DVec2;
+
+use crate::map::{LaneletId, LaneletMap, Neighbours, Path};
+use crate::sim::parallel::recycle;
+use crate::sim::{Dynamics, Parallelism, Plugin, SimBuilder, SimSystems};
+use crate::world::VehicleState;
+
+/// Size of a cell of the lanelet grid [m].
+const CELL: f64 = 25.0;
+/// How far beyond a lanelet's end a projection may lie and still count as on it [m].
+const END_SLACK: f64 = 0.05;
+
+/// The map as the lane systems use it, built once per run.
+#[derive(Resource, Debug, Clone)]
+pub struct LaneMap {
+    /// The map.
+    pub map: Arc<LaneletMap>,
+    /// Neighbours of every lanelet (in [`LaneletMap::lanelets`] order).
+    pub neighbours: Vec<Neighbours>,
+    /// Centre line of every lanelet as a path resampled every metre or finer.
+    pub centres: Vec<Path>,
+    /// Half the mean width of every lanelet [m].
+    pub half_widths: Vec<f64>,
+    /// Successors of every lanelet (indices, routable only).
+    pub successors: Vec<Vec<u32>>,
+    /// Predecessors of every lanelet (indices, routable only).
+    pub predecessors: Vec<Vec<u32>>,
+    /// Cell -> (lanelet, arc length [m] where its centre line enters the cell).
+    grid: BTreeMap<(i64, i64), Vec<(u32, f64)>>,
+}
+
+fn cell_of(p: DVec2) -> (i64, i64) {
+    ((p.x / CELL).floor() as i64, (p.y / CELL).floor() as i64)
+}
+
+impl LaneMap {
+    /// Index `map` (O(lanelets · points)).
+    pub fn new(map: Arc<LaneletMap>) -> LaneMap {
+        let neighbours = map.neighbours();
+        let n = map.lanelets.len();
+        let mut centres = Vec::with_capacity(n);
+        let mut half_widths = Vec::with_capacity(n);
+        let mut successors = vec![Vec::new(); n];
+        let mut predecessors = vec![Vec::new(); n];
+        let mut grid: BTreeMap<(i64, i64), Vec<(u32, f64)>> = BTreeMap::new();
+        for (i, l) in map.lanelets.iter().enumerate() {
+            let segments = (l.length.ceil() as usize).max(1);
+            let centre = crate::map::polyline::resample_count(&l.centre, segments + 1);
+            centres.push(Path::from_points(vec![l.id], centre, false));
+            let widths: f64 = l.left.iter().zip(&l.right).map(|(a, b)| a.distance(*b)).sum();
+            let half = 0.5 * widths / l.left.len().max(1) as f64;
+            half_widths.push(half);
+            if l.routable {
+                for s in &l.successors {
+                    if let Some(j) = map.lanelet_index(*s).filter(|&j| map.lanelets[j].routable) {
+                        successors[i].push(j as u32);
+                        predecessors[j].push(i as u32);
+                    }
+                }
+                // The centre path has a point every metre or less: every cell the lane crosses,
+                // with the arc length where it enters (again after leaving).
+                let path = &centres[i];
+                let step = path.spacing().max(1e-9);
+                let mut last: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+                for (k, p) in path.points.iter().enumerate() {
+                    let s = k as f64 * step;
+                    for dx in [-1.0, 1.0] {
+                        for dy in [-1.0, 1.0] {
+                            let c = cell_of(*p + DVec2::new(dx, dy) * half.min(CELL));
+                            let seen = last.get(&c).copied();
+                            if seen.is_none_or(|t| s - t > 2.0 * CELL) {
+                                grid.entry(c).or_default().push((i as u32, s));
+                            }
+                            last.insert(c, s);
+                        }
+                    }
+                }
+            }
+        }
+        LaneMap { map, neighbours, centres, half_widths, successors, predecessors, grid }
+    }
+
+    /// Length of lanelet `i`'s centre line [m].
+    pub fn length(&self, i: u32) -> f64 {
+        self.centres[i as usize].length
+    }
+
+    /// Id of lanelet `i`.
+    pub fn id(&self, i: u32) -> LaneletId {
+        self.map.lanelets[i as usize].id
+    }
+
+    /// `p` on lanelet `i` near arc length `hint` [m] (whole lanelet when `hint` is NaN): its arc
+    /// length and signed offset, if it lies on the lanelet.
+    fn on(&self, i: u32, p: DVec2, hint: f64, window: f64) -> Option<(f64, f64)> {
+        let path = &self.centres[i as usize];
+        let q = path.project_near(p, hint, window);
+        if q.lateral.abs() > self.half_widths[i as usize] + 1e-9 {
+            return None;
+        }
+        // At either end the nearest point may be the end itself with `p` beyond it.
+        let along = (p - q.point).dot(DVec2::from_angle(q.heading));
+        if (q.s <= 0.0 && along < -END_SLACK) || (q.s >= path.length && along > END_SLACK) {
+            return None;
+        }
+        // Perpendicular offset (the full distance when `p` lies just past an end).
+        Some((q.s, q.lateral))
+    }
+
+    /// Where `p` is: `(lanelet index, s [m], offset [m])`, looking first around `last` (the
+    /// lanelet and arc length of the previous step, advanced by `ds` [m]), else in the grid.
+    pub fn locate(&self, p: DVec2, last: Option<(u32, f64)>, ds: f64) -> Option<(u32, f64, f64)> {
+        let better = |best: Option<(u32, f64, f64)>, c: Option<(u32, f64, f64)>| match (best, c) {
+            (Some(b), Some(c)) if c.2.abs() < b.2.abs() => Some(c),
+            (None, c) => c,
+            (b, _) => b,
+        };
+        if let Some((i, s)) = last {
+            let hint = s + ds;
+            let mut best = self.on(i, p, hint, 6.0).map(|(s, o)| (i, s, o));
+            if best.is_some_and(|b| b.2.abs() < 0.5 * self.half_widths[i as usize]) {
+                return best;
+            }
+            let len = self.length(i);
+            for &j in &self.successors[i as usize] {
+                best = better(best, self.on(j, p, hint - len, 6.0).map(|(s, o)| (j, s, o)));
+            }
+            let n = self.neighbours[i as usize];
+            for id in [n.left, n.right].into_iter().flatten() {
+                if let Some(j) = self.map.lanelet_index(id) {
+                    let j = j as u32;
+                    let h = hint * self.length(j) / len.max(1e-9);
+                    best = better(best, self.on(j, p, h, 6.0).map(|(s, o)| (j, s, o)));
+                }
+            }
+            for &j in &self.predecessors[i as usize] {
+                best = better(best, self.on(j, p, hint + self.length(j), 6.0).map(|(s, o)| (j, s, o)));
+            }
+            if best.is_some() {
+                return best;
+            }
+        }
+        let mut best = None;
+        for &(j, s) in self.grid.get(&cell_of(p)).map(Vec::as_slice).unwrap_or(&[]) {
+            // The cell spans at most √2 · CELL of centre line from where it entered.
+            best = better(best, self.on(j, p, s + CELL, 1.5 * CELL).map(|(s, o)| (j, s, o)));
+        }
+        best
+    }
+}
+
+/// Where a vehicle is on the road, updated after every dynamics step ([`LaneSystems`]).
+#[derive(Component, Debug, Clone, Copy, PartialEq)]
+pub struct LanePosition {
+    /// The lanelet under the reference point (`None` off-road).
+    pub lanelet: Option<LaneletId>,
+    /// Its index in [`LaneletMap::lanelets`] (`u32::MAX` off-road).
+    pub index: u32,
+    /// Arc length along the lanelet's centre line [m].
+    pub s: f64,
+    /// Signed offset from the centre line [m], positive to the left.
+    pub offset: f64,
+}
+
+impl Default for LanePosition {
+    fn default() -> Self {
+        LanePosition { lanelet: None, index: u32::MAX, s: 0.0, offset: 0.0 }
+    }
+}
+
+impl LanePosition {
+    /// Index of the lanelet, if on one.
+    pub fn on(&self) -> Option<u32> {
+        (self.index != u32::MAX).then_some(self.index)
+    }
+}
+
+/// The set of the lane-position update in the [`Dynamics`] schedule, after
+/// [`SimSystems::Integrate`].
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct LaneSystems;
+
+type LaneItem<'a> = (&'a VehicleState, Mut<'a, LanePosition>);
+
+/// Update every [`LanePosition`] from the vehicle's state (split over threads; each vehicle's
+/// result depends only on itself, so any thread count gives the same bits).
+pub fn update_lane_positions(
+    lanes: Option<Res<LaneMap>>,
+    parallelism: Res<Parallelism>,
+    mut vehicles: Query<(&VehicleState, &mut LanePosition)>,
+    mut scratch: Local<Vec<()>>,
+    mut buffer: Local<Vec<LaneItem<'static>>>,
+) {
+    let Some(lanes) = lanes else { return };
+    let lanes = &*lanes;
+    let mut items: Vec<LaneItem<'_>> = recycle(std::mem::take(&mut *buffer));
+    items.extend(vehicles.iter_mut());
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
+        for (state, pos) in chunk.iter_mut() {
+            let last = pos.on().map(|i| (i, pos.s));
+            // The step is at most a few metres: the speed times 0.1 s bounds it at any rate used.
+            let found = lanes.locate(state.position, last, 0.0);
+            let new = match found {
+                Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset },
+                None => LanePosition::default(),
+            };
+            if **pos != new {
+                **pos = new;
+            }
+        }
+    });
+    *buffer = recycle(items);
+}
+
+/// Keeps [`LanePosition`] up to date on a map ([`LaneMap`] resource).
+#[derive(Debug, Clone)]
+pub struct LanesPlugin {
+    /// The map.
+    pub map: Arc<LaneletMap>,
+}
+
+impl Plugin for LanesPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        sim.world_mut().init_resource::<Parallelism>();
+        sim.insert_resource(LaneMap::new(Arc::clone(&self.map)));
+        sim.configure_sets(Dynamics, LaneSystems.after(SimSystems::Integrate));
+        sim.add_systems(Dynamics, update_lane_positions.in_set(LaneSystems));
+    }
+}
