@@ -105,6 +105,50 @@ pub struct MetricsSummary {
     pub followers: Vec<FollowerStats>,
     /// Every platoon, in leader id order.
     pub platoons: Vec<PlatoonStats>,
+    /// What each V2V channel sent, delivered and lost, per receiver (set by the run summary).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub v2v: Option<V2vMetrics>,
+}
+
+/// `metrics.v2v`: both channels, counted per receiver (a broadcast heard by five is five sent).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct V2vMetrics {
+    /// The wifi channel.
+    pub wifi: ChannelMetrics,
+    /// The network channel.
+    pub network: ChannelMetrics,
+}
+
+/// One channel of [`V2vMetrics`].
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ChannelMetrics {
+    /// Receptions attempted (message x receiver in range).
+    pub sent: u64,
+    /// Receptions not lost.
+    pub delivered: u64,
+    /// `sent - delivered`.
+    pub lost: u64,
+    /// Mean delivery delay [ms].
+    pub delay_ms_mean: f64,
+    /// 95th percentile of the delivery delay [ms] (0.5 ms resolution).
+    pub delay_ms_p95: f64,
+    /// Mean age of a message when it reaches the in-box [ms]: out-box wait plus delay.
+    pub age_of_information_ms_mean: f64,
+}
+
+impl V2vMetrics {
+    /// From the V2V systems' counters.
+    pub fn of(stats: &crate::sim::V2vChannelStats) -> V2vMetrics {
+        let channel = |c: &crate::sim::ChannelStats| ChannelMetrics {
+            sent: c.sent,
+            delivered: c.delivered,
+            lost: c.lost(),
+            delay_ms_mean: c.delay_ms_mean(),
+            delay_ms_p95: c.delay_ms_p95(),
+            age_of_information_ms_mean: c.age_of_information_ms_mean(),
+        };
+        V2vMetrics { wifi: channel(&stats.wifi), network: channel(&stats.network) }
+    }
 }
 
 /// The metrics being recorded.
@@ -213,6 +257,7 @@ impl Metrics {
             collisions: self.collisions.clone(),
             followers: self.followers.values().copied().collect(),
             platoons,
+            v2v: None,
         }
     }
 }

@@ -218,7 +218,11 @@ impl RunSummary {
             rate_warnings: sim.rate_warnings(),
             seed: world.get_resource::<SimSeed>().map_or(0, |s| s.0),
             max_distance_to_centre_line,
-            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| m.summary()),
+            metrics: world.get_resource::<super::metrics::Metrics>().map(|m| {
+                let mut summary = m.summary();
+                summary.v2v = world.get_resource::<crate::sim::V2vChannelStats>().map(super::metrics::V2vMetrics::of);
+                summary
+            }),
             lab: LabSummary::of(world),
             commonroad: world.get_resource::<super::scenario::commonroad::GoalMonitor>().map(|m| m.summary()),
             replay: None,
