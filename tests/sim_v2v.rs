@@ -53,7 +53,7 @@ fn network_reaches_everyone_but_the_sender_without_copying_the_payload() {
 #[test]
 fn wifi_range_is_inclusive() {
     let mut b = SimBuilder::new();
-    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0 } });
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, ..Default::default() } });
     parked(&mut b, -1, DVec2::new(0.0, 0.0));
     parked(&mut b, -2, DVec2::new(50.0, 0.0)); // exactly at range
     parked(&mut b, -3, DVec2::new(0.0, -50.0 - 1e-6)); // just outside

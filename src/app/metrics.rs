@@ -120,6 +120,9 @@ pub struct MetricsSummary {
     /// Vehicles that left at their route's end (with `[[traffic]]` only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub throughput: Option<super::traffic::Throughput>,
+    /// What each V2V channel sent, delivered and lost, per receiver (set by the run summary).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub v2v: Option<V2vMetrics>,
 }
 
 /// `metrics.lane_change_summary` of `summary.json`.
@@ -151,6 +154,47 @@ impl LaneChangeSummary {
             missed_exits: log.missed_exits.len(),
             max_wait_s: log.max_wait_s,
         }
+    }
+}
+
+/// `metrics.v2v`: both channels, counted per receiver (a broadcast heard by five is five sent).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct V2vMetrics {
+    /// The wifi channel.
+    pub wifi: ChannelMetrics,
+    /// The network channel.
+    pub network: ChannelMetrics,
+}
+
+/// One channel of [`V2vMetrics`].
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ChannelMetrics {
+    /// Receptions attempted (message x receiver in range).
+    pub sent: u64,
+    /// Receptions not lost.
+    pub delivered: u64,
+    /// `sent - delivered`.
+    pub lost: u64,
+    /// Mean delivery delay [ms].
+    pub delay_ms_mean: f64,
+    /// 95th percentile of the delivery delay [ms] (0.5 ms resolution).
+    pub delay_ms_p95: f64,
+    /// Mean age of a message when it reaches the in-box [ms]: out-box wait plus delay.
+    pub age_of_information_ms_mean: f64,
+}
+
+impl V2vMetrics {
+    /// From the V2V systems' counters.
+    pub fn of(stats: &crate::sim::V2vChannelStats) -> V2vMetrics {
+        let channel = |c: &crate::sim::ChannelStats| ChannelMetrics {
+            sent: c.sent,
+            delivered: c.delivered,
+            lost: c.lost(),
+            delay_ms_mean: c.delay_ms_mean(),
+            delay_ms_p95: c.delay_ms_p95(),
+            age_of_information_ms_mean: c.age_of_information_ms_mean(),
+        };
+        V2vMetrics { wifi: channel(&stats.wifi), network: channel(&stats.network) }
     }
 }
 
@@ -301,6 +345,7 @@ impl Metrics {
             lane_change_summary: None,
             traffic: None,
             throughput: None,
+            v2v: None,
         }
     }
 }

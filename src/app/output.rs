@@ -264,6 +264,7 @@ impl RunSummary {
                     let per_hour = if hours > 0.0 { t.removed as f64 / hours } else { 0.0 };
                     summary.throughput = Some(Throughput { vehicles_out: t.removed, per_hour });
                 }
+                summary.v2v = world.get_resource::<crate::sim::V2vChannelStats>().map(super::metrics::V2vMetrics::of);
                 summary
             }),
             lab: LabSummary::of(world),

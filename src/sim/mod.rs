@@ -12,6 +12,7 @@
 //! student's) imports them downward.
 
 mod builder;
+pub mod channel;
 pub mod controllers;
 pub mod dynamics;
 pub mod grid;
@@ -34,4 +35,4 @@ pub use schedule::{
     Wifi,
 };
 pub use sensors::{SensorsPlugin, in_radar_cone};
-pub use v2v::{V2vConfig, V2vPlugin, V2vStats};
+pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vPlugin, V2vStats};

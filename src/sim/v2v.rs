@@ -4,28 +4,157 @@
 //! never depends on entity layout) into one shared batch, and hands each receiver the batch plus
 //! which entries are for it: the payloads are never copied. Wifi finds senders in range with a
 //! spatial grid (O(N) per round).
+//!
+//! Each channel has a [`ChannelModel`] (loss, bursts, delay; perfect by default). A lossy channel
+//! decides every reception with a seeded draw ([`super::channel`]); a delaying one queues the
+//! reception and [`deliver_delayed`] puts it into the in-box at the first control tick at or
+//! after its due time, links never reordered. A lossy network channel costs O(N²) per round
+//! (every receiver draws for every message); wifi stays O(N · neighbours).
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::{Local, Query, Res, ResMut, Resource};
 
-use super::{Plugin, SimBuilder};
-use crate::world::{Mailbox, Message, VehicleId, VehicleState};
+use super::channel::{ChannelModel, Draw, LinkState};
+use super::{Plugin, SimBuilder, SimClock, SimSeed};
+use crate::world::{Channel, Mailbox, Message, VehicleId, VehicleState, Vehicles};
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::{ControlEpoch, GridEntry, Network, SimSystems, SpatialGrid, Wifi};
+use super::{Control, ControlEpoch, GridEntry, Network, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
 #[derive(Resource, Debug, Clone, Copy, PartialEq)]
 pub struct V2vConfig {
     /// Wifi range [m], inclusive: a receiver exactly this far from a sender still hears it.
     pub wifi_range: f64,
+    /// Loss, bursts and delay of the wifi channel (perfect by default).
+    pub wifi: ChannelModel,
+    /// Loss, bursts and delay of the network channel (perfect by default; its loss "distance"
+    /// model uses the wifi range as its range).
+    pub network: ChannelModel,
 }
 
 impl Default for V2vConfig {
     fn default() -> Self {
-        V2vConfig { wifi_range: 50.0 }
+        V2vConfig { wifi_range: 50.0, wifi: ChannelModel::default(), network: ChannelModel::default() }
+    }
+}
+
+/// Streams of the counter-based draws of each channel (see [`Draw::stream`]).
+const WIFI_STREAM: u64 = 0x5769_6669; // "Wifi"
+const NETWORK_STREAM: u64 = 0x4e65_7477; // "Netw"
+
+/// Delay histogram resolution [µs] and length: 0.5 ms bins up to 5 s (the last bin holds more).
+const DELAY_BIN_US: u64 = 500;
+const DELAY_BINS: usize = 10_000;
+
+/// What one channel did, counted per receiver: a broadcast heard by five is five sent.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ChannelStats {
+    /// Receptions attempted: (message, receiver in range) pairs.
+    pub sent: u64,
+    /// Receptions not lost (delivered, or still in flight when the run ended).
+    pub delivered: u64,
+    /// Sum of the delivery delays [µs].
+    pub delay_sum_us: u64,
+    /// Sum over deliveries of (delivery time - time the message was written) [µs]: the age of
+    /// the information when it arrives (out-box wait + delay).
+    pub age_sum_us: u64,
+    /// Deliveries whose age was counted.
+    pub aged: u64,
+    /// Histogram of delays in 0.5 ms bins (empty for a channel without delay).
+    delay_bins: Vec<u64>,
+}
+
+impl ChannelStats {
+    /// Receptions lost: `sent - delivered`.
+    pub fn lost(&self) -> u64 {
+        self.sent - self.delivered
+    }
+
+    /// Mean delivery delay [ms].
+    pub fn delay_ms_mean(&self) -> f64 {
+        if self.delivered == 0 { 0.0 } else { self.delay_sum_us as f64 / self.delivered as f64 / 1000.0 }
+    }
+
+    /// 95th percentile of the delivery delay [ms] (to the histogram's 0.5 ms bins).
+    pub fn delay_ms_p95(&self) -> f64 {
+        let total: u64 = self.delay_bins.iter().sum();
+        if total == 0 {
+            return 0.0;
+        }
+        let target = (total as f64 * 0.95).ceil() as u64;
+        let mut seen = 0;
+        for (i, n) in self.delay_bins.iter().enumerate() {
+            seen += n;
+            if seen >= target {
+                return (i as u64 * DELAY_BIN_US) as f64 / 1000.0;
+            }
+        }
+        0.0
+    }
+
+    /// Mean age of information at delivery [ms].
+    pub fn age_of_information_ms_mean(&self) -> f64 {
+        if self.aged == 0 { 0.0 } else { self.age_sum_us as f64 / self.aged as f64 / 1000.0 }
+    }
+
+    fn add_delay(&mut self, delay_us: u64) {
+        self.delay_sum_us += delay_us;
+        if self.delay_bins.is_empty() {
+            self.delay_bins = vec![0; DELAY_BINS];
+        }
+        self.delay_bins[((delay_us / DELAY_BIN_US) as usize).min(DELAY_BINS - 1)] += 1;
+    }
+}
+
+/// Per-receiver counts of both channels ([`ChannelStats`]).
+#[derive(Resource, Debug, Clone, PartialEq, Default)]
+pub struct V2vChannelStats {
+    /// The wifi channel.
+    pub wifi: ChannelStats,
+    /// The network channel.
+    pub network: ChannelStats,
+}
+
+/// Per-link channel state (bursts, last due time). A `HashMap` because it is only looked up by
+/// link, never iterated: its order cannot change a result.
+#[derive(Resource, Debug, Default)]
+pub struct V2vLinks {
+    wifi: HashMap<(VehicleId, VehicleId), LinkState>,
+    network: HashMap<(VehicleId, VehicleId), LinkState>,
+}
+
+/// A reception waiting for its due time.
+#[derive(Debug, Clone)]
+struct Pending {
+    due_us: u64,
+    receiver: VehicleId,
+    channel: Channel,
+    round: u64,
+    batch: Arc<[Message]>,
+    index: u32,
+}
+
+/// Receptions of delaying channels not yet due.
+#[derive(Resource, Debug, Default)]
+pub struct DelayedMessages {
+    pending: Vec<Pending>,
+    due: Vec<Pending>,
+    picks: Vec<u32>,
+}
+
+impl DelayedMessages {
+    /// Receptions still in flight.
+    pub fn len(&self) -> usize {
+        self.pending.len()
+    }
+
+    /// Whether none is in flight.
+    pub fn is_empty(&self) -> bool {
+        self.pending.is_empty()
     }
 }
 
@@ -52,28 +181,96 @@ fn into_batch(buffer: &mut Vec<Message>) -> Arc<[Message]> {
     buffer.drain(..).collect()
 }
 
-/// Network round: every mailbox's in-box gets every message but its own.
+/// Network round: every mailbox's in-box gets every message but its own (less what the channel
+/// loses; later when it delays).
+#[allow(clippy::too_many_arguments)]
 pub fn deliver_network(
+    config: Res<V2vConfig>,
+    clock: Res<SimClock>,
+    seed: Option<Res<SimSeed>>,
     epoch: Res<ControlEpoch>,
     mut stats: ResMut<V2vStats>,
-    mut mailboxes: Query<&mut Mailbox>,
+    mut channel: ResMut<V2vChannelStats>,
+    mut links: ResMut<V2vLinks>,
+    mut delayed: ResMut<DelayedMessages>,
+    mut mailboxes: Query<(&VehicleState, &mut Mailbox)>,
     mut buffer: Local<Vec<Message>>,
+    mut picks: Local<Vec<u32>>,
+    mut positions: Local<Vec<(VehicleId, glam::DVec2)>>,
 ) {
     stats.network_rounds += 1;
     let round = stats.network_rounds;
-    for mut mailbox in &mut mailboxes {
+    let now = clock.now;
+    for (_, mut mailbox) in &mut mailboxes {
         if !mailbox.network_out.is_empty() {
             buffer.append(&mut mailbox.network_out);
         }
     }
     let batch = into_batch(&mut buffer);
     stats.network_sent += batch.len() as u64;
+    let age_all: u64 = batch.iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
+    let model = config.network;
     let mut delivered = 0;
-    for mut mailbox in &mut mailboxes {
+    if model.is_perfect() {
+        for (_, mut mailbox) in &mut mailboxes {
+            let owner = mailbox.owner();
+            let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
+            let n = (batch.len() - own.len()) as u64;
+            delivered += n;
+            let own_age: u64 = batch[own].iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
+            channel.network.age_sum_us += age_all - own_age;
+            channel.network.aged += n;
+            mailbox.network_in.deliver_all_but(epoch.0, round, &batch, owner);
+        }
+        channel.network.sent += delivered;
+        channel.network.delivered += delivered;
+        stats.network_delivered += delivered;
+        return;
+    }
+    // Senders' positions for the distance model, sorted by id.
+    positions.clear();
+    positions.extend(mailboxes.iter().map(|(state, m)| (m.owner(), state.position)));
+    positions.sort_by_key(|p| p.0);
+    let seed = seed.map_or(0, |s| s.0);
+    for (state, mut mailbox) in &mut mailboxes {
         let owner = mailbox.owner();
-        let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
-        delivered += (batch.len() - own.len()) as u64;
-        mailbox.network_in.deliver_all_but(epoch.0, round, &batch, owner);
+        picks.clear();
+        let mut index = 0u32;
+        let mut previous = None;
+        for (k, m) in batch.iter().enumerate() {
+            index = if previous == Some(m.sender) { index + 1 } else { 0 };
+            previous = Some(m.sender);
+            if m.sender == owner {
+                continue;
+            }
+            channel.network.sent += 1;
+            let distance = positions
+                .binary_search_by_key(&m.sender, |p| p.0)
+                .map_or(0.0, |i| positions[i].1.distance(state.position));
+            let draw = Draw { seed, stream: NETWORK_STREAM, sender: m.sender.0, receiver: owner.0, round, index };
+            let link = links.network.entry((m.sender, owner)).or_default();
+            let Some(delay) = model.deliver(&draw, now.0, distance, config.wifi_range, link) else { continue };
+            channel.network.delivered += 1;
+            if model.delays() {
+                channel.network.add_delay(delay);
+                delayed.pending.push(Pending {
+                    due_us: now.0 + delay,
+                    receiver: owner,
+                    channel: Channel::Network,
+                    round,
+                    batch: Arc::clone(&batch),
+                    index: k as u32,
+                });
+            } else {
+                channel.network.age_sum_us += now.0.saturating_sub(m.sent_at.0);
+                channel.network.aged += 1;
+                picks.push(k as u32);
+            }
+        }
+        if !model.delays() {
+            delivered += picks.len() as u64;
+            mailbox.network_in.deliver_picks(epoch.0, round, &batch, owner, picks.iter().copied());
+        }
     }
     stats.network_delivered += delivered;
 }
@@ -88,18 +285,29 @@ pub struct WifiScratch {
     starts: Vec<u32>,
     grid: SpatialGrid,
     heard: Vec<u32>,
+    picks: Vec<u32>,
 }
 
-/// Wifi round: each mailbox's in-box gets the messages of the senders within range (inclusive).
+/// Wifi round: each mailbox's in-box gets the messages of the senders within range (inclusive),
+/// less what the channel loses; later when it delays.
+#[allow(clippy::too_many_arguments)]
 pub fn deliver_wifi(
     config: Res<V2vConfig>,
+    clock: Res<SimClock>,
+    seed: Option<Res<SimSeed>>,
     epoch: Res<ControlEpoch>,
     mut stats: ResMut<V2vStats>,
+    mut channel: ResMut<V2vChannelStats>,
+    mut links: ResMut<V2vLinks>,
+    mut delayed: ResMut<DelayedMessages>,
     mut mailboxes: Query<(&VehicleState, &mut Mailbox)>,
     mut scratch: Local<WifiScratch>,
 ) {
     stats.wifi_rounds += 1;
     let round = stats.wifi_rounds;
+    let now = clock.now;
+    let seed = seed.map_or(0, |s| s.0);
+    let model = config.wifi;
     let s = &mut *scratch;
     s.senders.clear();
     for (state, mut mailbox) in &mut mailboxes {
@@ -138,14 +346,119 @@ pub fn deliver_wifi(
         });
         s.heard.sort_unstable();
         let (senders, starts) = (&s.senders, &s.starts);
-        let picks = s.heard.iter().flat_map(|&i| {
-            let start = starts[i as usize];
-            start..start + senders[i as usize].2
-        });
-        delivered += s.heard.iter().map(|&i| senders[i as usize].2 as u64).sum::<u64>();
-        mailbox.wifi_in.deliver_picks(epoch.0, round, &batch, owner, picks);
+        let attempted = s.heard.iter().map(|&i| senders[i as usize].2 as u64).sum::<u64>();
+        channel.wifi.sent += attempted;
+        if model.is_perfect() {
+            let picks = s.heard.iter().flat_map(|&i| {
+                let start = starts[i as usize];
+                start..start + senders[i as usize].2
+            });
+            for &i in &s.heard {
+                let start = starts[i as usize] as usize;
+                for m in &batch[start..start + senders[i as usize].2 as usize] {
+                    channel.wifi.age_sum_us += now.0.saturating_sub(m.sent_at.0);
+                }
+            }
+            channel.wifi.aged += attempted;
+            channel.wifi.delivered += attempted;
+            delivered += attempted;
+            mailbox.wifi_in.deliver_picks(epoch.0, round, &batch, owner, picks);
+            continue;
+        }
+        s.picks.clear();
+        for &i in &s.heard {
+            let (sender, position, count) = senders[i as usize];
+            let distance = position.distance(state.position);
+            let link = links.wifi.entry((sender, owner)).or_default();
+            for index in 0..count {
+                let k = starts[i as usize] + index;
+                let draw = Draw { seed, stream: WIFI_STREAM, sender: sender.0, receiver: owner.0, round, index };
+                let Some(delay) = model.deliver(&draw, now.0, distance, config.wifi_range, link) else { continue };
+                channel.wifi.delivered += 1;
+                if model.delays() {
+                    channel.wifi.add_delay(delay);
+                    delayed.pending.push(Pending {
+                        due_us: now.0 + delay,
+                        receiver: owner,
+                        channel: Channel::Wifi,
+                        round,
+                        batch: Arc::clone(&batch),
+                        index: k,
+                    });
+                } else {
+                    channel.wifi.age_sum_us += now.0.saturating_sub(batch[k as usize].sent_at.0);
+                    channel.wifi.aged += 1;
+                    s.picks.push(k);
+                }
+            }
+        }
+        if !model.delays() {
+            delivered += s.picks.len() as u64;
+            mailbox.wifi_in.deliver_picks(epoch.0, round, &batch, owner, s.picks.iter().copied());
+        }
     }
     stats.wifi_delivered += delivered;
+}
+
+/// Put the delayed receptions that are due into their in-boxes (control phase, before the
+/// controllers): per receiver and round in one delivery, in round order, so a link keeps its order.
+pub fn deliver_delayed(
+    clock: Res<SimClock>,
+    epoch: Res<ControlEpoch>,
+    registry: Res<Vehicles>,
+    mut stats: ResMut<V2vStats>,
+    mut channel: ResMut<V2vChannelStats>,
+    mut delayed: ResMut<DelayedMessages>,
+    mut mailboxes: Query<&mut Mailbox>,
+) {
+    let now = clock.now.0;
+    let d = &mut *delayed;
+    if d.pending.is_empty() {
+        return;
+    }
+    d.due.clear();
+    let mut k = 0;
+    while k < d.pending.len() {
+        if d.pending[k].due_us <= now {
+            d.due.push(d.pending.swap_remove(k));
+        } else {
+            k += 1;
+        }
+    }
+    // swap_remove scrambles the order: sort what is due by (receiver, channel, round, index).
+    d.due.sort_by_key(|p| (p.receiver, p.channel, p.round, p.index));
+    let mut start = 0;
+    while start < d.due.len() {
+        let first = &d.due[start];
+        let end = start
+            + d.due[start..]
+                .iter()
+                .take_while(|p| (p.receiver, p.channel, p.round) == (first.receiver, first.channel, first.round))
+                .count();
+        let group = &d.due[start..end];
+        d.picks.clear();
+        d.picks.extend(group.iter().map(|p| p.index));
+        let stats_of = match first.channel {
+            Channel::Wifi => &mut channel.wifi,
+            Channel::Network => &mut channel.network,
+        };
+        for p in group {
+            stats_of.age_sum_us += now.saturating_sub(p.batch[p.index as usize].sent_at.0);
+            stats_of.aged += 1;
+        }
+        match first.channel {
+            Channel::Wifi => stats.wifi_delivered += group.len() as u64,
+            Channel::Network => stats.network_delivered += group.len() as u64,
+        }
+        if let Some(mut mailbox) = registry.get(first.receiver).and_then(|e| mailboxes.get_mut(e).ok()) {
+            let inbox = match first.channel {
+                Channel::Wifi => &mut mailbox.wifi_in,
+                Channel::Network => &mut mailbox.network_in,
+            };
+            inbox.deliver_picks(epoch.0, first.round, &first.batch, first.receiver, d.picks.iter().copied());
+        }
+        start = end;
+    }
 }
 
 /// Network and wifi V2V in the [`Network`] and [`Wifi`] schedules.
@@ -159,7 +472,13 @@ impl Plugin for V2vPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(self.config);
         sim.insert_resource(V2vStats::default());
+        sim.insert_resource(V2vChannelStats::default());
+        sim.insert_resource(V2vLinks::default());
+        sim.insert_resource(DelayedMessages::default());
         sim.add_systems(Network, deliver_network.in_set(SimSystems::Communicate));
         sim.add_systems(Wifi, deliver_wifi.in_set(SimSystems::Communicate));
+        if self.config.wifi.delays() || self.config.network.delays() {
+            sim.add_systems(Control, deliver_delayed.in_set(SimSystems::Communicate));
+        }
     }
 }

@@ -91,7 +91,10 @@ impl Scenario {
             .set_rate(Dynamics, rates.dynamics);
         b.insert_resource(SimSeed(self.file.seed));
         b.add_plugin(default_plugins);
-        b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: self.file.v2v.wifi_range } });
+        let v2v = &self.file.v2v;
+        b.add_plugin(V2vPlugin {
+            config: V2vConfig { wifi_range: v2v.range(), wifi: v2v.wifi.model(), network: v2v.network.model() },
+        });
         b.add_plugin(PathFollowingPlugin);
         b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default());
         if let Some(map) = &self.map {

@@ -5,7 +5,9 @@ use std::collections::BTreeMap;
 use std::path::Path as FsPath;
 
 use super::ScenarioError;
-use super::file::{BuiltInController, ControllerConfig, ModelConfig, ScenarioFile, VehicleConfig};
+use super::file::{
+    BuiltInController, ControllerConfig, LossConfig, ModelConfig, ScenarioFile, V2vSection, VehicleConfig,
+};
 use crate::sim::ControllerRegistry;
 use crate::sim::params::{MAX_DISTANCE, MAX_GAIN, MAX_SPEED, MAX_TIME, MAX_VEHICLE_SIZE, Range};
 
@@ -43,7 +45,7 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
         // At most 1e6 Hz: one tick per microsecond.
         c.within(format!("rates.{k}"), v, Range::positive(1e6))?;
     }
-    c.within("v2v.wifi_range".into(), file.v2v.wifi_range, Range::non_negative(MAX_DISTANCE))?;
+    check_v2v(&c, &file.v2v)?;
     if let Some(lab) = &file.lab {
         lab.check().map_err(|e| c.invalid(format!("lab.{}", e.key), &e.problem))?;
     }
@@ -116,6 +118,34 @@ fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> R
 }
 
 /// The checks of one `[[vehicles]]` entry (index `i`).
+/// `[v2v]`: one range key, probabilities in [0, 1], delays in [0, 60 s].
+fn check_v2v(c: &Checker, v2v: &V2vSection) -> Result<(), ScenarioError> {
+    if let (Some(_), Some(_)) = (v2v.wifi_range, v2v.wifi.range) {
+        return Err(c.invalid("v2v.wifi_range".into(), "and `v2v.wifi.range` both set the wifi range; keep one"));
+    }
+    if v2v.network.range.is_some() {
+        return Err(c.invalid("v2v.network.range".into(), "does not exist: the network channel reaches every vehicle"));
+    }
+    c.within("v2v.wifi.range".into(), v2v.range(), Range::non_negative(MAX_DISTANCE))?;
+    for (name, ch) in [("wifi", &v2v.wifi), ("network", &v2v.network)] {
+        match ch.loss {
+            LossConfig::Constant(p) => c.within(format!("v2v.{name}.loss"), p, Range::non_negative(1.0))?,
+            LossConfig::Distance { p_at_0, p_at_range } => {
+                c.within(format!("v2v.{name}.loss.p_at_0"), p_at_0, Range::non_negative(1.0))?;
+                c.within(format!("v2v.{name}.loss.p_at_range"), p_at_range, Range::non_negative(1.0))?;
+            }
+        }
+        if let Some(b) = ch.burst {
+            c.within(format!("v2v.{name}.burst.p_enter"), b.p_enter, Range::non_negative(1.0))?;
+            c.within(format!("v2v.{name}.burst.p_leave"), b.p_leave, Range::positive(1.0))?;
+            c.within(format!("v2v.{name}.burst.loss_in_burst"), b.loss_in_burst, Range::non_negative(1.0))?;
+        }
+        c.within(format!("v2v.{name}.delay_ms"), ch.delay_ms, Range::non_negative(60_000.0))?;
+        c.within(format!("v2v.{name}.jitter_ms"), ch.jitter_ms, Range::non_negative(60_000.0))?;
+    }
+    Ok(())
+}
+
 fn check_vehicle(
     c: &Checker<'_>,
     i: usize,

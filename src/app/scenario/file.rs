@@ -6,6 +6,7 @@ use serde::Deserialize;
 
 use super::lab::LabConfig;
 use crate::map::routing::Place;
+use crate::sim::channel::{Burst, ChannelModel, Loss};
 use crate::sim::{BUILT_IN_CONTROLLERS, Rates, V2vConfig};
 use crate::vehicles::{AccSetup, CruiseSetup, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, SmartController};
 use crate::world::{AccelerationUnicycle, KinematicUnicycle, Radar, VehicleClass, Velodyne};
@@ -216,17 +217,120 @@ impl Default for RatesConfig {
     }
 }
 
-/// `[v2v]`.
-#[derive(Debug, Clone, Copy, Deserialize)]
+/// `[v2v]`: `wifi_range` (kept from before) or `[v2v.wifi] range`, and each channel's model.
+#[derive(Debug, Clone, Copy, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct V2vSection {
-    /// Wifi range [m], inclusive.
-    pub wifi_range: f64,
+    /// Wifi range [m], inclusive (the older spelling of `[v2v.wifi] range`).
+    pub wifi_range: Option<f64>,
+    /// `[v2v.wifi]`: range, loss, bursts, delay.
+    pub wifi: ChannelSection,
+    /// `[v2v.network]`: loss, bursts, delay (no range: it reaches everyone).
+    pub network: ChannelSection,
 }
 
-impl Default for V2vSection {
+impl V2vSection {
+    /// The wifi range [m]: `wifi.range`, else `wifi_range`, else the default 50 m.
+    pub fn range(&self) -> f64 {
+        self.wifi.range.or(self.wifi_range).unwrap_or(V2vConfig::default().wifi_range)
+    }
+}
+
+/// `[v2v.wifi]` / `[v2v.network]`: a channel's model ([`crate::sim::channel`]).
+#[derive(Debug, Clone, Copy, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct ChannelSection {
+    /// Range [m] (wifi only).
+    pub range: Option<f64>,
+    /// `loss = 0.1` (per reception) or `loss = { model = "distance", p_at_0, p_at_range }`.
+    pub loss: LossConfig,
+    /// `burst = { p_enter, p_leave, loss_in_burst }`: Gilbert-Elliott, per link.
+    pub burst: Option<BurstConfig>,
+    /// Delivery delay [ms].
+    pub delay_ms: f64,
+    /// Extra delay, uniform in [0, jitter_ms) [ms].
+    pub jitter_ms: f64,
+}
+
+impl ChannelSection {
+    /// The model the V2V systems use.
+    pub fn model(&self) -> ChannelModel {
+        ChannelModel {
+            loss: match self.loss {
+                LossConfig::Constant(p) => Loss::Constant(p),
+                LossConfig::Distance { p_at_0, p_at_range } => Loss::Distance { p_at_0, p_at_range },
+            },
+            burst: self.burst.map(|b| Burst { p_enter: b.p_enter, p_leave: b.p_leave, loss_in_burst: b.loss_in_burst }),
+            delay_ms: self.delay_ms,
+            jitter_ms: self.jitter_ms,
+        }
+    }
+}
+
+/// `burst = { p_enter, p_leave, loss_in_burst }` (probabilities per message).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BurstConfig {
+    /// Good -> bad per message [-].
+    pub p_enter: f64,
+    /// Bad -> good per message [-]; mean burst length 1 / p_leave messages.
+    pub p_leave: f64,
+    /// Loss probability in the bad state [-].
+    #[serde(default = "one")]
+    pub loss_in_burst: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// A channel's loss: a number, or a table naming a model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LossConfig {
+    /// `loss = p`.
+    Constant(f64),
+    /// `loss = { model = "distance", p_at_0 = .., p_at_range = .. }`.
+    Distance {
+        /// Loss next to the sender [-].
+        p_at_0: f64,
+        /// Loss at the range [-].
+        p_at_range: f64,
+    },
+}
+
+impl Default for LossConfig {
     fn default() -> Self {
-        V2vSection { wifi_range: V2vConfig::default().wifi_range }
+        LossConfig::Constant(0.0)
+    }
+}
+
+impl<'de> Deserialize<'de> for LossConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<LossConfig, D::Error> {
+        use serde::de::Error;
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct Model {
+            model: String,
+            #[serde(default)]
+            p_at_0: f64,
+            p_at_range: f64,
+        }
+        let forms = "`loss = 0.1` (probability per reception) or `loss = { model = \"distance\", p_at_0 = 0.01, p_at_range = 0.5 }`";
+        match toml::Value::deserialize(d)? {
+            toml::Value::Float(p) => Ok(LossConfig::Constant(p)),
+            toml::Value::Integer(p) => Ok(LossConfig::Constant(p as f64)),
+            v @ toml::Value::Table(_) => {
+                let m: Model = v.try_into().map_err(|e| D::Error::custom(format!("{e}; expected {forms}")))?;
+                if m.model != "distance" {
+                    return Err(D::Error::custom(format!(
+                        "unknown loss model `{}`; known: distance ({forms})",
+                        m.model
+                    )));
+                }
+                Ok(LossConfig::Distance { p_at_0: m.p_at_0, p_at_range: m.p_at_range })
+            }
+            other => Err(D::Error::custom(format!("got {other}; expected {forms}"))),
+        }
     }
 }
 

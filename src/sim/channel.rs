@@ -1,0 +1,242 @@
+//! V2V channel models: which receptions are lost and how late the others arrive, as a pure,
+//! seeded function of the link, the round and the distance (DESIGN "Lanes, traffic and chance";
+//! REFERENCE "Channels").
+//!
+//! - Bernoulli loss: each reception lost with probability `p` (Plexe's frame error rate).
+//! - Distance loss: `p(d) = p_at_0 + (p_at_range - p_at_0) · (d / range)²`, clamped to [0, 1]: the
+//!   delivery ratio falls off slowly near the sender and fastest at the edge of the range, the
+//!   shape of a log-distance path loss at the ranges V2V uses (a quadratic fit; measured links
+//!   stay above 90 % to 45-70 m).
+//! - Gilbert-Elliott bursts, per link: a two-state Markov chain stepped once per message on the
+//!   link, good -> bad with `p_enter`, bad -> good with `p_leave`; in the bad state a reception is
+//!   lost with `loss_in_burst`. Stationary share in bad `p_enter / (p_enter + p_leave)`, mean
+//!   burst length `1 / p_leave` messages.
+//! - Delay: `delay_ms` plus uniform `[0, jitter_ms)`; a link never reorders (a message is never
+//!   due before the one sent before it on the same link).
+//!
+//! Every draw is [`super::random::uniform`] keyed by (seed, channel stream, link, round, message
+//! index, draw), so results do not depend on threads or system order and a draw allocates nothing.
+
+use super::random::{mix, uniform};
+
+/// Probability that a reception is lost, before bursts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Loss {
+    /// The same probability at every distance [-].
+    Constant(f64),
+    /// Rising with distance: `p_at_0 + (p_at_range - p_at_0) (d / range)²` [-].
+    Distance {
+        /// Loss probability next to the sender [-].
+        p_at_0: f64,
+        /// Loss probability at the channel's range [-].
+        p_at_range: f64,
+    },
+}
+
+impl Default for Loss {
+    fn default() -> Self {
+        Loss::Constant(0.0)
+    }
+}
+
+/// Gilbert-Elliott burst loss, per link.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Burst {
+    /// Probability per message of going from the good to the bad state [-].
+    pub p_enter: f64,
+    /// Probability per message of leaving the bad state [-]; mean burst length is `1 / p_leave`.
+    pub p_leave: f64,
+    /// Loss probability in the bad state [-].
+    pub loss_in_burst: f64,
+}
+
+/// One channel's model.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ChannelModel {
+    /// Loss before bursts.
+    pub loss: Loss,
+    /// Gilbert-Elliott bursts, if any.
+    pub burst: Option<Burst>,
+    /// Fixed delivery delay [ms].
+    pub delay_ms: f64,
+    /// Extra delay, uniform in `[0, jitter_ms)` [ms].
+    pub jitter_ms: f64,
+}
+
+/// Per-link state a channel keeps between messages: the burst state and the latest due time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LinkState {
+    /// In the Gilbert-Elliott bad state.
+    pub bad: bool,
+    /// Due time of the last message delivered on the link [µs], so none overtakes it.
+    pub last_due_us: u64,
+}
+
+/// Which message on which link in which round: the counter every draw is keyed by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Draw {
+    /// The scenario's seed.
+    pub seed: u64,
+    /// Which channel (or sensor) draws: a fixed number per stream.
+    pub stream: u64,
+    /// Sender id.
+    pub sender: i32,
+    /// Receiver id.
+    pub receiver: i32,
+    /// Round number of the channel.
+    pub round: u64,
+    /// Index of the message among the sender's messages of the round.
+    pub index: u32,
+}
+
+impl Draw {
+    /// A uniform number in [0, 1) for draw number `k` of this message.
+    pub fn uniform(&self, k: u64) -> f64 {
+        let link = mix((u64::from(self.sender as u32) << 32) | u64::from(self.receiver as u32));
+        uniform(self.seed, self.stream ^ link, self.round, (u64::from(self.index) << 8) | k)
+    }
+}
+
+impl ChannelModel {
+    /// Whether nothing is ever lost or delayed (the fast path: no draws, no link state).
+    pub fn is_perfect(&self) -> bool {
+        self.loss_free() && self.delay_ms == 0.0 && self.jitter_ms == 0.0
+    }
+
+    /// Whether nothing is ever lost.
+    pub fn loss_free(&self) -> bool {
+        let no_loss = match self.loss {
+            Loss::Constant(p) => p == 0.0,
+            Loss::Distance { p_at_0, p_at_range } => p_at_0 == 0.0 && p_at_range == 0.0,
+        };
+        no_loss && self.burst.is_none_or(|b| b.loss_in_burst == 0.0 || b.p_enter == 0.0)
+    }
+
+    /// Whether messages may be delayed.
+    pub fn delays(&self) -> bool {
+        self.delay_ms > 0.0 || self.jitter_ms > 0.0
+    }
+
+    /// Loss probability before bursts at `distance` [m] for a channel of `range` [m].
+    pub fn loss_at(&self, distance: f64, range: f64) -> f64 {
+        match self.loss {
+            Loss::Constant(p) => p,
+            Loss::Distance { p_at_0, p_at_range } => {
+                let u = if range > 0.0 { (distance / range).min(1.0) } else { 1.0 };
+                (p_at_0 + (p_at_range - p_at_0) * u * u).clamp(0.0, 1.0)
+            }
+        }
+    }
+
+    /// The fate of one reception: `None` when lost, else its delay [µs] (never due before the
+    /// link's previous message: `link.last_due_us` is kept). `now_us` is the round's time,
+    /// `distance` [m] the sender-receiver distance, `range` [m] the channel's range.
+    pub fn deliver(&self, draw: &Draw, now_us: u64, distance: f64, range: f64, link: &mut LinkState) -> Option<u64> {
+        if let Some(b) = self.burst {
+            let flip = draw.uniform(0);
+            link.bad = if link.bad { flip >= b.p_leave } else { flip < b.p_enter };
+            if link.bad && draw.uniform(1) < b.loss_in_burst {
+                return None;
+            }
+        }
+        let p = self.loss_at(distance, range);
+        if p > 0.0 && draw.uniform(2) < p {
+            return None;
+        }
+        let jitter = if self.jitter_ms > 0.0 { draw.uniform(3) * self.jitter_ms } else { 0.0 };
+        let delay_us = ((self.delay_ms + jitter) * 1000.0).round() as u64;
+        let due = (now_us + delay_us).max(link.last_due_us);
+        link.last_due_us = due;
+        Some(due - now_us)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn draw(round: u64) -> Draw {
+        Draw { seed: 7, stream: 1, sender: -1, receiver: -2, round, index: 0 }
+    }
+
+    /// Delivered share over `n` messages on one link.
+    fn delivered(model: &ChannelModel, n: u64) -> (f64, Vec<u64>) {
+        let mut link = LinkState::default();
+        let mut bursts = Vec::new();
+        let mut run = 0;
+        let mut ok = 0;
+        for r in 0..n {
+            match model.deliver(&draw(r), r * 100_000, 10.0, 50.0, &mut link) {
+                Some(_) => {
+                    ok += 1;
+                    if run > 0 {
+                        bursts.push(run);
+                    }
+                    run = 0;
+                }
+                None => run += 1,
+            }
+        }
+        (ok as f64 / n as f64, bursts)
+    }
+
+    #[test]
+    fn bernoulli_loss_delivers_one_minus_p() {
+        for p in [0.0, 0.1, 0.5] {
+            let m = ChannelModel { loss: Loss::Constant(p), ..Default::default() };
+            let (share, _) = delivered(&m, 20_000);
+            assert!((share - (1.0 - p)).abs() < 0.02, "p {p}: delivered {share}");
+        }
+    }
+
+    #[test]
+    fn gilbert_elliott_has_its_stationary_loss_and_burst_length() {
+        let b = Burst { p_enter: 0.01, p_leave: 0.2, loss_in_burst: 1.0 };
+        let m = ChannelModel { burst: Some(b), ..Default::default() };
+        let (share, bursts) = delivered(&m, 200_000);
+        let expected_loss = b.p_enter / (b.p_enter + b.p_leave) * b.loss_in_burst;
+        assert!(((1.0 - share) - expected_loss).abs() < 0.1 * expected_loss, "loss {} vs {expected_loss}", 1.0 - share);
+        let mean = bursts.iter().sum::<u64>() as f64 / bursts.len() as f64;
+        assert!((mean - 1.0 / b.p_leave).abs() < 0.1 / b.p_leave, "mean burst {mean} vs {}", 1.0 / b.p_leave);
+    }
+
+    #[test]
+    fn distance_loss_rises_to_its_value_at_the_range() {
+        let m = ChannelModel { loss: Loss::Distance { p_at_0: 0.01, p_at_range: 0.5 }, ..Default::default() };
+        assert!((m.loss_at(0.0, 50.0) - 0.01).abs() < 1e-12);
+        assert!((m.loss_at(25.0, 50.0) - (0.01 + 0.49 * 0.25)).abs() < 1e-12);
+        assert!((m.loss_at(50.0, 50.0) - 0.5).abs() < 1e-12);
+        assert!(m.loss_at(10.0, 50.0) < m.loss_at(40.0, 50.0));
+    }
+
+    #[test]
+    fn jitter_never_reorders_a_link_and_delay_has_its_mean() {
+        let m = ChannelModel { delay_ms: 10.0, jitter_ms: 5.0, ..Default::default() };
+        let mut link = LinkState::default();
+        let mut last_due = 0;
+        let mut sum = 0.0;
+        let n = 10_000;
+        for r in 0..n {
+            // Messages 1 ms apart: jitter would reorder them without the link rule.
+            let now = r * 1_000;
+            let d = m.deliver(&draw(r), now, 1.0, 50.0, &mut link).expect("no loss configured");
+            assert!(now + d >= last_due, "message {r} overtook the one before");
+            last_due = now + d;
+            sum += d as f64;
+        }
+        let mean_ms = sum / n as f64 / 1000.0;
+        assert!(mean_ms >= 12.5 - 0.2, "mean delay {mean_ms} ms, at least delay + jitter / 2");
+    }
+
+    #[test]
+    fn draws_differ_by_seed_link_and_round() {
+        let a = draw(3);
+        let b = Draw { seed: 8, ..a };
+        let c = Draw { receiver: -3, ..a };
+        let d = Draw { round: 4, ..a };
+        assert_eq!(a.uniform(0), draw(3).uniform(0));
+        for other in [b, c, d] {
+            assert_ne!(a.uniform(0), other.uniform(0));
+        }
+    }
+}

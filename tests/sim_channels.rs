@@ -1,0 +1,124 @@
+//! Channel realism (issue 21): loss, Gilbert-Elliott bursts and delay on the V2V channels,
+//! configured in the scenario (`[v2v.wifi]`, `[v2v.network]`), seeded counter-based draws, and
+//! `metrics.v2v` counted per receiver.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use smlworld::app::metrics::V2vMetrics;
+use smlworld::prelude::*;
+use smlworld::sim::channel::{ChannelModel, Loss};
+use smlworld::sim::{Parallelism, V2vChannelStats};
+
+fn parked(b: &mut SimBuilder, id: i32, p: DVec2) {
+    let mut spec = VehicleSpec::new(VehicleId(id), VehicleState::new(p, 0.0, 0.0));
+    spec.model = VehicleModel::None;
+    b.spawn_vehicle(spec).expect("unique ids");
+}
+
+fn platoon_brake_with(v2v: &str, seed: u64) -> Scenario {
+    let path: PathBuf = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let text = text.replacen("seed = ", &format!("seed = {seed} # was "), 1);
+    Scenario::parse_str(&with_table(&text, v2v), &path).expect("the scenario with channel settings loads")
+}
+
+/// `text` with a TOML `table` put before its first `[[vehicles]]`, after every top-level key.
+fn with_table(text: &str, table: &str) -> String {
+    let at = text.find("\n[[vehicles]]").expect("the scenario has vehicles");
+    format!("{}\n{table}{}", &text[..at], &text[at..])
+}
+
+/// Run a scenario for `seconds` with `threads` and return its V2V metrics and every final state.
+fn run(scenario: &Scenario, seconds: f64, threads: usize) -> (V2vMetrics, Vec<(VehicleId, VehicleState)>) {
+    let mut b = scenario.builder().unwrap();
+    b.insert_resource(Parallelism { threads, min_vehicles: 0 });
+    let mut sim = b.build();
+    sim.run_for(seconds);
+    let metrics = V2vMetrics::of(sim.world().resource::<V2vChannelStats>());
+    (metrics, sim.states())
+}
+
+#[test]
+fn bernoulli_loss_over_ten_thousand_receptions() {
+    let s = platoon_brake_with("[v2v.wifi]\nloss = 0.3\n", 1);
+    let (m, _) = run(&s, 75.0, 1);
+    assert!(m.wifi.sent >= 10_000, "{} receptions", m.wifi.sent);
+    assert_eq!(m.wifi.lost, m.wifi.sent - m.wifi.delivered);
+    let ratio = m.wifi.delivered as f64 / m.wifi.sent as f64;
+    assert!((ratio - 0.7).abs() < 0.02, "delivered/sent {ratio}");
+}
+
+#[test]
+fn burst_loss_matches_the_stationary_share() {
+    let s = platoon_brake_with("[v2v.wifi]\nburst = { p_enter = 0.05, p_leave = 0.2, loss_in_burst = 1.0 }\n", 3);
+    let (m, _) = run(&s, 60.0, 1);
+    let loss = m.wifi.lost as f64 / m.wifi.sent as f64;
+    let expected = 0.05 / (0.05 + 0.2);
+    assert!((loss - expected).abs() < 0.1 * expected, "loss {loss} vs {expected}");
+}
+
+#[test]
+fn delay_shows_in_the_age_of_information_within_one_control_tick() {
+    let (plain, _) = run(&platoon_brake_with("[v2v.wifi]\nloss = 0.0\n", 1), 20.0, 1);
+    let (late, _) = run(&platoon_brake_with("[v2v.wifi]\ndelay_ms = 30.0\n", 1), 20.0, 1);
+    assert!((late.wifi.delay_ms_mean - 30.0).abs() < 1e-9, "{}", late.wifi.delay_ms_mean);
+    assert!((late.wifi.delay_ms_p95 - 30.0).abs() <= 0.5, "{}", late.wifi.delay_ms_p95);
+    let extra = late.wifi.age_of_information_ms_mean - plain.wifi.age_of_information_ms_mean;
+    // Delivered at the first control tick (20 Hz: 50 ms) at or after the due time.
+    assert!((30.0..=30.0 + 50.0).contains(&extra), "the age grew by {extra} ms");
+}
+
+#[test]
+fn a_delayed_message_reaches_the_inbox_at_the_first_control_tick_after_it_is_due() {
+    let model = ChannelModel { delay_ms: 30.0, ..Default::default() };
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model, ..Default::default() } });
+    parked(&mut b, -1, DVec2::ZERO);
+    parked(&mut b, -2, DVec2::new(10.0, 0.0));
+    let mut sim = b.build();
+    let e = sim.entity(VehicleId(-1)).unwrap();
+    let now = sim.now();
+    sim.world_mut().get_mut::<Mailbox>(e).unwrap().send(Channel::Wifi, now, Arc::new(7u32));
+    let inbox = |sim: &Sim| {
+        let e = sim.entity(VehicleId(-2)).unwrap();
+        sim.world().get::<Mailbox>(e).unwrap().wifi_in.len()
+    };
+    sim.run_for(0.049); // wifi round at 0, control tick at 0: not due yet
+    assert_eq!(inbox(&sim), 0, "arrived before its delay");
+    sim.run_for(0.002); // control tick at 50 ms
+    assert_eq!(inbox(&sim), 1, "not delivered at the first control tick after 30 ms");
+}
+
+#[test]
+fn threads_do_not_change_a_lossy_run_and_seeds_do() {
+    let v2v = "[v2v.wifi]\nloss = 0.2\njitter_ms = 20.0\n";
+    let (a, states_a) = run(&platoon_brake_with(v2v, 1), 40.0, 1);
+    let (b, states_b) = run(&platoon_brake_with(v2v, 1), 40.0, 2);
+    assert_eq!(a, b);
+    let bits = |s: &[(VehicleId, VehicleState)]| {
+        s.iter().map(|(id, s)| (id.0, s.position.x.to_bits(), s.position.y.to_bits())).collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&states_a), bits(&states_b), "1 vs 2 threads");
+    let (c, _) = run(&platoon_brake_with(v2v, 2), 40.0, 1);
+    assert_ne!(a.wifi.delivered, c.wifi.delivered, "seeds 1 and 2 lost the same receptions");
+}
+
+#[test]
+fn bad_channel_settings_name_the_key() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    for (table, needle) in [
+        ("[v2v.wifi]\nloss = 1.5\n", "v2v.wifi.loss"),
+        ("[v2v.network]\nrange = 10.0\n", "v2v.network.range"),
+        ("[v2v.wifi]\nloss = { model = \"cosmic\", p_at_range = 0.5 }\n", "cosmic"),
+        ("[v2v.wifi]\nburst = { p_enter = 0.1, p_leave = 0.0 }\n", "v2v.wifi.burst.p_leave"),
+        ("[v2v.wifi]\ndelay_ms = nan\n", "v2v.wifi.delay_ms"),
+    ] {
+        let e = Scenario::parse_str(&with_table(&text, table), &path).expect_err(table).to_string();
+        assert!(e.contains(needle), "{table}: {e}");
+    }
+    let ok = with_table(&text, "[v2v.wifi]\nloss = { model = \"distance\", p_at_0 = 0.01, p_at_range = 0.5 }\n");
+    Scenario::parse_str(&ok, &path).expect("the distance model loads");
+    let _ = Loss::Constant(0.0);
+}
