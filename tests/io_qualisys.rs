@@ -270,6 +270,27 @@ fn tracker_mapping_table_and_scale() {
     assert!((b.position - DVec2::new(20.0, -10.0)).length() < 1e-9);
 }
 
+#[test]
+fn twenty_thousand_bodies_are_found_by_id_without_a_scan() {
+    // Issue 24 item 4: the bridge found each body of a frame by scanning every tracked body
+    // (20,000 bodies: 4e8 steps a frame). `seen_in` looks each one up by its mapped id.
+    let bodies: Vec<[f32; 6]> = (0..20_000).map(|k| [k as f32, 0.0, 0.0, 0.0, 0.0, 0.0]).collect();
+    let mut t = Tracker::new(TrackerConfig::default());
+    let started = Instant::now();
+    for n in 0..10 {
+        let f = frame(i64::from(n) * 10_000, n, &bodies);
+        t.update(&f, Instant::now());
+        let seen: Vec<i32> = t.seen_in(&f).map(|b| b.id).collect();
+        assert_eq!(seen.len(), 20_000);
+        assert_eq!((seen[0], seen[19_999]), (1, 20_000), "bodies in frame order, 1-based");
+    }
+    // Each id once: a duplicate frame is still "seen in" it, an older one is not.
+    let old = frame(0, 0, &bodies[..1]);
+    assert_eq!(t.seen_in(&old).count(), 0, "body 1 was last seen at frame 9, not frame 0");
+    // Generous: the scan took minutes here; the lookup takes well under a second.
+    assert!(started.elapsed() < Duration::from_secs(20), "{:?}", started.elapsed());
+}
+
 // ---------- client against a hand-written server ----------
 
 #[test]
@@ -424,6 +445,40 @@ fn bad_scripts_name_the_line() {
     let p = s.pose(1, 1.0).expect("visible");
     assert!((p[0] - 500.0).abs() < 1e-9);
     assert!((p[5] - 180.0).abs() < 1e-9, "yaw {}", p[5]);
+}
+
+#[test]
+fn the_mock_caps_its_inputs() {
+    use smlworld::io::mock_mocap::{MAX_COMMAND_LEN, MAX_MOCK_BODIES};
+    let start = |rate_hz: f64, script: MocapScript| {
+        MockMocapServer::start(MockMocapConfig { bind: loopback0(), rate_hz, script })
+    };
+    let e = start(100.0, MocapScript::circles(MAX_MOCK_BODIES + 1)).expect_err("too many bodies");
+    assert!(e.to_string().contains("bodies"), "{e}");
+    for rate in [f64::NAN, -1.0, 1e9] {
+        let e = start(rate, MocapScript::circles(1)).expect_err("bad rate");
+        assert!(e.to_string().contains("rate"), "{rate}: {e}");
+    }
+    let e = MocapScript::from_csv(
+        "0,1,0,0,0,0,0,0
+0,4000000000,0,0,0,0,0,0
+",
+        "s.csv",
+    )
+    .expect_err("huge body");
+    assert!(e.to_string().contains("s.csv:2"), "{e}");
+    // A command packet over the cap gets an error and the connection closed, not a 1 MiB buffer.
+    let server = start(100.0, MocapScript::circles(1)).expect("mock");
+    let mut s = TcpStream::connect(server.local_addr()).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let (_, greeting) = read_raw(&mut s).expect("greeting");
+    assert!(String::from_utf8_lossy(&greeting).contains("QTM"));
+    // Only the header (size, type): the mock must refuse it from the size alone.
+    let mut header = ((MAX_COMMAND_LEN + 100) as i32).to_be_bytes().to_vec();
+    header.extend_from_slice(&1i32.to_be_bytes());
+    s.write_all(&header).expect("send");
+    let (kind, _) = read_raw(&mut s).expect("an error packet");
+    assert_eq!(kind, 0, "packet type Error");
 }
 
 #[test]

@@ -94,3 +94,23 @@ fn followers_of_a_leader_braking_from_outside_brake_with_it() {
         assert!(f["min_gap"].as_f64().unwrap() > 1.0, "{f}");
     }
 }
+
+#[test]
+fn inbox_returns_every_message_since_the_last_call() {
+    let mut s = Session::from_scenario(Path::new(PLATOON), None, &[]).unwrap();
+    assert!(s.inbox(-2, "wifi").unwrap().is_empty(), "nothing sent yet");
+    // One message per wifi round (10 Hz) for 5 rounds, read once at the end: a V2V in-box holds
+    // only the rounds since the last control tick, the session keeps all of them.
+    for k in 0..5u8 {
+        s.send(-1, "wifi", vec![k]).unwrap();
+        s.step(0.1).unwrap();
+    }
+    let got = s.inbox(-2, "wifi").unwrap();
+    assert_eq!(got, (0..5u8).map(|k| (-1, vec![k])).collect::<Vec<_>>());
+    assert!(s.inbox(-2, "wifi").unwrap().is_empty(), "read twice");
+    s.send(-1, "wifi", vec![9]).unwrap();
+    s.step(0.1).unwrap();
+    assert_eq!(s.inbox(-2, "wifi").unwrap(), vec![(-1, vec![9])]);
+    assert!(s.inbox(-2, "network").unwrap().is_empty());
+    assert!(s.inbox(-2, "radio").is_err());
+}

@@ -137,7 +137,8 @@ fn shipped_scenarios_without_lane_change_drive_as_before() {
             let last = rows.iter().rev().find(|r| num(&r[1]) as i64 == id).unwrap();
             let (gx, gy) = (num(&last[2]), num(&last[3]));
             assert!(
-                (gx - x).abs() < 2e-6 && (gy - y).abs() < 2e-6,
+                // The CSV holds positions to 1 mm (issue 22 item 13): half a millimetre of rounding.
+                (gx - x).abs() < 5.1e-4 && (gy - y).abs() < 5.1e-4,
                 "{name}: vehicle {id} ends at ({gx}, {gy}), before ({x}, {y})"
             );
         }

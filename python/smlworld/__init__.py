@@ -170,7 +170,10 @@ class Sim:
         self._core.send(int(id), channel, bytes(payload))
 
     def inbox(self, id: int, channel: str) -> List[Tuple[int, bytes]]:
-        """Byte messages in vehicle ``id``'s in-box of ``channel``: ``[(sender, bytes), ...]``."""
+        """Byte messages vehicle ``id`` received on ``channel`` since the last call for it,
+        oldest first: ``[(sender, bytes), ...]``. The first call returns what the in-box holds
+        now; from then on every message is kept until read, at most 10,000 per vehicle and
+        channel (the oldest dropped first, with a warning)."""
         return self._core.inbox(int(id), channel)
 
     def models(self) -> Dict[str, np.ndarray]:

@@ -14,6 +14,9 @@ From a file (TOML: ``scenario`` relative to the file, ``seeds``, a ``[grid]`` ta
 ``duration`` [s]):
 
     python -m smlworld.sweep SWEEP.toml --backend ray --address auto --out results.parquet
+
+Ctrl-C keeps what finished: ``sweep`` raises :class:`SweepInterrupted` whose ``results`` are the
+finished rows, and ``python -m smlworld.sweep`` writes them to ``--out`` and exits with 130.
 """
 
 from __future__ import annotations
@@ -112,30 +115,88 @@ def sweep(
         raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
     bundle = _bundle(scenario)
     jobs = [(p, int(s)) for p in _grid_points(grid) for s in seeds]
-    if backend == "local":
-        from concurrent.futures import ProcessPoolExecutor
-        import multiprocessing as mp
+    rows: Dict[int, dict] = {}  # job index -> row, filled as runs finish
+    try:
+        if backend == "local":
+            _sweep_local(bundle, jobs, duration, max_workers, rows)
+        else:
+            _sweep_ray(bundle, jobs, duration, address, rows)
+    except KeyboardInterrupt:
+        done = pd.DataFrame([rows[i] for i in sorted(rows)])
+        done.attrs["interrupted"] = True
+        print(f"smlworld.sweep: interrupted; {len(rows)} of {len(jobs)} runs finished", file=sys.stderr)
+        raise SweepInterrupted(done, len(jobs)) from None
+    return pd.DataFrame([rows[i] for i in range(len(jobs))])
 
-        with ProcessPoolExecutor(max_workers=max_workers, mp_context=mp.get_context("spawn")) as pool:
-            futures = [pool.submit(run_one, bundle, p, s, duration) for p, s in jobs]
-            rows = [f.result() for f in futures]
-    else:
-        import ray
 
-        if not ray.is_initialized():
-            if address is None:
-                print(
-                    "smlworld.sweep: no address given, starting a local Ray on this machine; to use a "
-                    "cluster, start it (`ray start --head` on one machine, `ray start --address HEAD:6379` "
-                    "on the others) and pass address=\"auto\" (on a cluster machine) or "
-                    "address=\"ray://HEAD:10001\"",
-                    file=sys.stderr,
-                )
-            ray.init(address=address)
-        task = ray.remote(run_one)
-        ref = ray.put(bundle)
-        rows = ray.get([task.remote(ref, p, s, duration) for p, s in jobs])
-    return pd.DataFrame(rows)
+class SweepInterrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGINT) stopped a sweep: ``results`` holds the rows of the runs that finished
+    (a ``pandas.DataFrame``, in grid order, ``results.attrs["interrupted"] = True``); runs still
+    going were stopped and left no row."""
+
+    def __init__(self, results, total: int):
+        super().__init__(f"sweep interrupted: {len(results)} of {total} runs finished")
+        self.results = results
+        self.total = total
+
+
+def _progress(done: int, total: int) -> None:
+    print(f"smlworld.sweep: {done}/{total} runs done", file=sys.stderr, flush=True)
+
+
+def _sweep_local(bundle, jobs, duration, max_workers, rows: Dict[int, dict]) -> None:
+    """A process pool; on Ctrl-C the runs not finished are cancelled and their processes ended."""
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    import multiprocessing as mp
+
+    pool = ProcessPoolExecutor(max_workers=max_workers, mp_context=mp.get_context("spawn"))
+    try:
+        index = {pool.submit(run_one, bundle, p, s, duration): i for i, (p, s) in enumerate(jobs)}
+        pending = set(index)
+        while pending:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for f in finished:
+                rows[index[f]] = f.result()
+            _progress(len(rows), len(jobs))
+    except BaseException:
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def _sweep_ray(bundle, jobs, duration, address, rows: Dict[int, dict]) -> None:
+    """One Ray task per run; on Ctrl-C the finished ones are kept and the others cancelled."""
+    import ray
+
+    if not ray.is_initialized():
+        if address is None:
+            print(
+                "smlworld.sweep: no address given, starting a local Ray on this machine; to use a "
+                "cluster, start it (`ray start --head` on one machine, `ray start --address HEAD:6379` "
+                "on the others) and pass address=\"auto\" (on a cluster machine) or "
+                "address=\"ray://HEAD:10001\"",
+                file=sys.stderr,
+            )
+        ray.init(address=address)
+    task = ray.remote(run_one)
+    ref = ray.put(bundle)
+    index = {task.remote(ref, p, s, duration): i for i, (p, s) in enumerate(jobs)}
+    pending = list(index)
+    try:
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for r in ready:
+                rows[index[r]] = ray.get(r)
+            _progress(len(rows), len(jobs))
+    except KeyboardInterrupt:
+        ready, pending = ray.wait(pending, num_returns=len(pending), timeout=0)
+        for r in ready:
+            rows[index[r]] = ray.get(r)
+        for r in pending:
+            ray.cancel(r, force=True)
+        raise
 
 
 def _load_toml(path: Path) -> dict:
@@ -153,6 +214,7 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", choices=["local", "ray"], default="local")
     ap.add_argument("--address", default=None, help="Ray cluster address (e.g. auto)")
     ap.add_argument("--out", default="results.parquet", help="output table (.parquet or .csv)")
+    ap.add_argument("--workers", type=int, default=None, help="local processes (default: one per core)")
     args = ap.parse_args(argv)
     path = Path(args.file)
     spec = _load_toml(path)
@@ -162,20 +224,42 @@ def main(argv=None) -> int:
         raise SystemExit(f"{path}: unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}")
     if "scenario" not in spec or "grid" not in spec:
         raise SystemExit(f"{path}: needs `scenario` and a `[grid]` table")
-    df = sweep(
-        path.parent / spec["scenario"],
-        spec["grid"],
-        spec.get("seeds", [0]),
-        backend=args.backend,
-        address=args.address,
-        duration=spec.get("duration"),
-    )
-    if args.out.endswith(".csv"):
-        df.to_csv(args.out, index=False)
-    else:
-        df.to_parquet(args.out, index=False)
-    print(f"{len(df)} runs -> {args.out}")
-    return 0
+    code = 0
+    try:
+        df = sweep(
+            path.parent / spec["scenario"],
+            spec["grid"],
+            spec.get("seeds", [0]),
+            backend=args.backend,
+            address=args.address,
+            duration=spec.get("duration"),
+            max_workers=args.workers,
+        )
+    except SweepInterrupted as e:
+        df, code = e.results, 130
+    if code and len(df) == 0:
+        print(f"no run finished; {args.out} left as it was", file=sys.stderr)
+        return code
+    _write_table(df, args.out)
+    print(f"{len(df)} runs -> {args.out}" + (" (interrupted: the finished runs only)" if code else ""))
+    return code
+
+
+def _write_table(df, out: str) -> None:
+    """Write ``df`` to ``out`` (.csv or .parquet) beside it first, then rename it into place: an
+    earlier table there is replaced only by a complete one."""
+    target = Path(out)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        if out.endswith(".csv"):
+            df.to_csv(tmp, index=False)
+        else:
+            df.to_parquet(tmp, index=False)
+        os.replace(tmp, target)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 class _CallableModule(types.ModuleType):

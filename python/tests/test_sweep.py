@@ -94,3 +94,41 @@ def test_readme_sweep_example_runs_as_a_script(root, tmp_path):
     out = subprocess.run([sys.executable, str(script)], cwd=root, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert "time_gap" in out.stdout
+
+
+def test_ctrl_c_keeps_the_finished_rows(root, tmp_path):
+    """Issue 24 item 1: Ctrl-C during `python -m smlworld.sweep` writes the runs that finished
+    and exits 130; the run still going is stopped (its process ended), not waited for."""
+    import os
+    import signal
+
+    import pandas as pd
+
+    text = (root / "scenarios/platoon_brake.toml").read_text()
+    text = text.replace('"../maps/highway_ring.osm"', f'"{root / "maps/highway_ring.osm"}"')
+    text = text.replace("log = 10.0", "log = 0.01")  # the long run must not fill the disk
+    assert "log = 0.01" in text
+    (tmp_path / "platoon.toml").write_text(text)
+    spec = tmp_path / "sweep.toml"
+    # Two short runs, then one that would take minutes; one worker runs them in order.
+    spec.write_text('scenario = "platoon.toml"\nseeds = [1]\n[grid]\nduration = [1.0, 2.0, 1000000.0]\n')
+    out = tmp_path / "results.csv"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "smlworld.sweep", str(spec), "--workers", "1", "--out", str(out)],
+        stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )
+    try:
+        seen = []
+        for line in proc.stderr:
+            seen.append(line)
+            if "2/3 runs done" in line:
+                break
+        assert any("2/3 runs done" in l for l in seen), "".join(seen)
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does: the whole group
+        assert proc.wait(timeout=60) == 130, proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    df = pd.read_csv(out)
+    assert list(df["duration"]) == [1.0, 2.0]
+    assert (df["metrics.collision_count"] == 0).all()

@@ -28,8 +28,8 @@ use crate::render::{FrameRecorder, RecorderOptions};
 use crate::sim::{Control, Sim, SimClock, SimSystems};
 use crate::vehicles::{Longitudinal, LongitudinalSystems};
 use crate::world::{
-    AccelerationUnicycle, Channel, ControlCommand, KinematicUnicycle, Mailbox, SensorReadings, SimTime, VehicleId,
-    VehicleState, Vehicles,
+    AccelerationUnicycle, Channel, ControlCommand, Inbox, KinematicUnicycle, Mailbox, SensorReadings, SimTime,
+    VehicleId, VehicleState, Vehicles,
 };
 
 use super::{RunReport, RunSummary, Scenario, ScenarioError};
@@ -52,6 +52,63 @@ fn arg<T>(message: String) -> Result<T, SessionError> {
 /// The payload type of V2V messages sent through [`Session::send`]: raw bytes.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Bytes(pub Vec<u8>);
+
+/// Most byte messages [`Session::inbox`] keeps per vehicle and channel between two calls; past
+/// it the oldest are dropped first (with one warning per vehicle and channel).
+pub const INBOX_CAPACITY: usize = 10_000;
+
+/// Byte messages received by one vehicle on one channel since [`Session::inbox`] last read them.
+#[derive(Debug, Default)]
+struct ByteQueue {
+    /// Newest V2V round already copied (rounds count from 1 per channel).
+    last_round: u64,
+    messages: std::collections::VecDeque<(i32, Vec<u8>)>,
+    dropped: u64,
+}
+
+impl ByteQueue {
+    /// Copy the byte messages of rounds not copied yet out of `inbox`.
+    fn collect(&mut self, owner: VehicleId, channel: &str, inbox: &Inbox) {
+        for m in inbox.iter_after(self.last_round) {
+            if let Some(b) = m.payload::<Bytes>() {
+                if self.messages.len() == INBOX_CAPACITY {
+                    self.messages.pop_front();
+                    if self.dropped == 0 {
+                        tracing::warn!(
+                            "vehicle {} holds {INBOX_CAPACITY} unread {channel} messages: dropping the oldest; call inbox() more often",
+                            owner.0
+                        );
+                    }
+                    self.dropped += 1;
+                }
+                self.messages.push_back((m.sender.0, b.0.clone()));
+            }
+        }
+        self.last_round = self.last_round.max(inbox.latest_round().unwrap_or(0));
+    }
+}
+
+/// The unread byte messages of a vehicle whose in-box Python reads ([`Session::inbox`]): filled
+/// at every control tick, because a V2V in-box holds only the rounds since the last one.
+#[derive(Component, Debug, Default)]
+struct ByteInbox {
+    wifi: ByteQueue,
+    network: ByteQueue,
+}
+
+impl ByteInbox {
+    fn collect(&mut self, mailbox: &Mailbox) {
+        self.wifi.collect(mailbox.owner(), "wifi", &mailbox.wifi_in);
+        self.network.collect(mailbox.owner(), "network", &mailbox.network_in);
+    }
+}
+
+/// Control-phase system: keep what the read in-boxes received this tick.
+fn collect_byte_inboxes(mut q: Query<(&Mailbox, &mut ByteInbox)>) {
+    for (mailbox, mut queue) in &mut q {
+        queue.collect(mailbox);
+    }
+}
 
 /// Commands set from outside ([`Session::set_commands`]): they replace what the vehicle's own
 /// controller wrote, at every control tick after all controllers ran, until cleared.
@@ -178,6 +235,7 @@ impl Session {
     pub fn new(scenario: Scenario) -> Result<Session, SessionError> {
         let mut b = scenario.builder()?;
         b.add_systems(Control, apply_overrides.after(SimSystems::Control).before(SimSystems::Integrate));
+        b.add_systems(Control, collect_byte_inboxes.after(SimSystems::Control));
         b.add_systems(
             Control,
             report_overridden_accel.after(LongitudinalSystems::Actuate).before(LongitudinalSystems::Report),
@@ -447,14 +505,30 @@ impl Session {
         Ok(())
     }
 
-    /// The byte messages in vehicle `id`'s in-box of `channel` (see [`crate::world::Mailbox`] for
-    /// how long they stay), as `(sender, bytes)`; messages of other payload types are skipped.
-    pub fn inbox(&self, id: i32, channel: &str) -> Result<Vec<(i32, Vec<u8>)>, SessionError> {
+    /// The byte messages vehicle `id` received on `channel` since the last call for it, oldest
+    /// first, as `(sender, bytes)`; messages of other payload types are skipped. The first call
+    /// for a vehicle returns what its in-box holds now (the rounds since the last control tick);
+    /// from then on every message is kept until read, at most [`INBOX_CAPACITY`] per vehicle and
+    /// channel (the oldest dropped first, with a warning).
+    pub fn inbox(&mut self, id: i32, channel: &str) -> Result<Vec<(i32, Vec<u8>)>, SessionError> {
         let channel = Session::channel(channel)?;
         let e = self.entity(id)?;
-        let Some(mb) = self.sim.world().get::<Mailbox>(e) else {
+        let world = self.sim.world_mut();
+        if world.get::<Mailbox>(e).is_none() {
             return arg(format!("vehicle {id} has no mailbox (`mailbox = false` in the scenario)"));
+        }
+        if world.get::<ByteInbox>(e).is_none() {
+            world.entity_mut(e).insert(ByteInbox::default());
+        }
+        let mut query = world.query::<(&Mailbox, &mut ByteInbox)>();
+        let Ok((mailbox, mut queue)) = query.get_mut(world, e) else {
+            return arg(format!("vehicle {id} has no mailbox"));
         };
-        Ok(mb.received::<Bytes>(channel).map(|(sender, _, b)| (sender.0, b.0.clone())).collect())
+        queue.collect(mailbox);
+        let q = match channel {
+            Channel::Wifi => &mut queue.wifi,
+            Channel::Network => &mut queue.network,
+        };
+        Ok(q.messages.drain(..).collect())
     }
 }

@@ -9,21 +9,21 @@ use smlworld::sim::Parallelism;
 #[derive(Debug, clap::Args)]
 pub struct BenchArgs {
     /// Number of vehicles.
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, default_value_t = 1000, value_parser = super::range::count::<usize>(1, super::range::MAX_VEHICLES))]
     pub vehicles: usize,
     /// Sim time to run [s].
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = super::range::positive)]
     pub duration: f64,
     /// Most threads of the per-vehicle systems; above 1 they split at any vehicle count
     /// (default: the machine's cores, at most 4, from 2,000 vehicles on).
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::threads())]
     pub threads: Option<usize>,
     /// Soak test: run for this many seconds of WALL time, sampling the process's memory (RSS),
     /// and report whether it stayed flat after the warm-up (the first minute).
-    #[arg(long, value_name = "SECONDS")]
+    #[arg(long, value_name = "SECONDS", value_parser = super::range::positive)]
     pub soak: Option<f64>,
     /// Memory sample interval of --soak [s of wall time].
-    #[arg(long, default_value_t = 10.0, requires = "soak")]
+    #[arg(long, default_value_t = 10.0, requires = "soak", value_parser = super::range::positive)]
     pub sample_every: f64,
     /// Every vehicle drives the IDM and changes lanes (MOBIL) instead of plain path following.
     #[arg(long)]

@@ -56,7 +56,7 @@ pub struct RouteArgs {
     #[arg(long)]
     pub to_tag: Option<String>,
     /// Resampling density of the path [points per metre].
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, value_parser = super::range::positive)]
     pub points_per_meter: f64,
     /// Print JSON instead of text.
     #[arg(long)]
@@ -66,7 +66,7 @@ pub struct RouteArgs {
     #[arg(long)]
     pub lane_changes: bool,
     /// Cost of one lane change [m of driving] (with --lane-changes).
-    #[arg(long, default_value_t = 50.0, requires = "lane_changes")]
+    #[arg(long, default_value_t = 50.0, requires = "lane_changes", value_parser = super::range::non_negative)]
     pub lane_change_penalty: f64,
 }
 
@@ -82,7 +82,7 @@ pub struct LoopArgs {
     #[arg(long)]
     pub tag: Option<String>,
     /// Resampling density of the path [points per metre].
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, value_parser = super::range::positive)]
     pub points_per_meter: f64,
     /// Print JSON instead of text.
     #[arg(long)]

@@ -43,40 +43,40 @@ pub struct GenerateArgs {
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
     /// Lanes (ring: in total, default 3; intersections and grid: per direction, default 1).
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::count::<usize>(1, 1000))]
     pub lanes: Option<usize>,
     /// Lane width [m] (ring default 4.0; others 3.5).
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub lane_width: Option<f64>,
     /// Largest distance between nodes [m] (ring and grid default 2.0; intersections 1.0).
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub node_spacing: Option<f64>,
     /// Ring only: radius of the innermost road edge [m] (default 50.0).
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub radius: Option<f64>,
     /// Ring only: drive clockwise (default counter-clockwise).
     #[arg(long)]
     pub clockwise: bool,
     /// Intersections only: length of each arm beyond the junction [m] (default 30.0).
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub arm_length: Option<f64>,
     /// Intersections and grid: radius of the road edge in junction corners [m] (default 6.0).
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub corner_radius: Option<f64>,
     /// Grid only: blocks from south to north (default 3).
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::count::<usize>(1, 100_000))]
     pub rows: Option<usize>,
     /// Grid only: blocks from west to east (default 3).
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::count::<usize>(1, 100_000))]
     pub cols: Option<usize>,
     /// Grid only: distance between neighbouring junction centres [m] (default 50.0).
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub block: Option<f64>,
     /// Lane drop only: length of the road [m] (default 500.0).
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub length: Option<f64>,
     /// Lane drop only: where the left lane ends [m from the start] (default 300.0).
-    #[arg(long, value_name = "M")]
+    #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub drop_at: Option<f64>,
 }
 

@@ -16,14 +16,14 @@ pub struct RenderArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Image width [px].
-    #[arg(long, default_value_t = 1920)]
+    #[arg(long, default_value_t = 1920, value_parser = super::range::pixels())]
     pub width: u32,
     /// Image height [px].
-    #[arg(long, default_value_t = 1080)]
+    #[arg(long, default_value_t = 1080, value_parser = super::range::pixels())]
     pub height: u32,
     /// Scale [px/m]. Without it the whole map is fitted into the image; with it and no `--center`
     /// the image is centred on the map's origin, as the 2015 tool did.
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::positive)]
     pub pixels_per_meter: Option<f64>,
     /// World point at the image centre, `X,Y` [m] (needs `--pixels-per-meter`).
     #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "pixels_per_meter")]

@@ -15,10 +15,10 @@ pub struct MockMocapArgs {
     #[arg(long, default_value_t = DEFAULT_QTM_PORT)]
     pub port: u16,
     /// Number of bodies driving around circles on the lab floor (ignored with --script).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 2, value_parser = super::range::count::<u32>(1, u64::from(smlworld::io::mock_mocap::MAX_MOCK_BODIES)))]
     pub bodies: u32,
     /// Capture rate [Hz]: how fast frame numbers advance.
-    #[arg(long, default_value_t = DEFAULT_MOCK_RATE_HZ)]
+    #[arg(long, default_value_t = DEFAULT_MOCK_RATE_HZ, value_parser = super::range::rate_hz)]
     pub rate: f64,
     /// Keyframe script (CSV: t_s,body,x_mm,y_mm,z_mm,roll_deg,pitch_deg,yaw_deg; bodies numbered
     /// from 1, as in QTM) instead of circles.

@@ -6,6 +6,7 @@ mod map_generate;
 mod map_render;
 mod mock_mocap;
 mod plot;
+mod range;
 mod replay;
 mod run;
 mod view;

@@ -26,7 +26,7 @@ pub struct ReplayArgs {
     #[arg(long, value_name = "FORMAT", default_value = "smlworld", value_parser = super::run::parse_stream_format)]
     pub stream_format: smlworld::io::viz::StreamFormat,
     /// Sim seconds per wall second of --stream (2 = twice as fast as recorded).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = super::range::positive)]
     pub speed: f64,
     /// Draw a time stamp and a legend (classes; real vs virtual) on every frame (default: on the GIF only).
     #[arg(long, conflicts_with = "no_overlay")]
@@ -35,13 +35,13 @@ pub struct ReplayArgs {
     #[arg(long)]
     pub no_overlay: bool,
     /// Frames per second of sim time for --frames and --gif [Hz].
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = super::range::positive)]
     pub frame_rate: f64,
     /// Frame width [px] for --frames and --gif.
-    #[arg(long, default_value_t = 1280)]
+    #[arg(long, default_value_t = 1280, value_parser = super::range::pixels())]
     pub width: u32,
     /// Frame height [px] for --frames and --gif.
-    #[arg(long, default_value_t = 720)]
+    #[arg(long, default_value_t = 720, value_parser = super::range::pixels())]
     pub height: u32,
 }
 

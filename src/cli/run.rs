@@ -11,19 +11,19 @@ pub struct RunArgs {
     /// Scenario file (TOML).
     pub scenario: PathBuf,
     /// Sim time to run [s] (default: the scenario's `duration`).
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::positive)]
     pub duration: Option<f64>,
     /// Pace the run to the wall clock instead of running as fast as possible.
     #[arg(long)]
     pub realtime: bool,
     /// Sim seconds per wall second in a real-time run.
-    #[arg(long, default_value_t = 1.0, requires = "realtime")]
+    #[arg(long, default_value_t = 1.0, requires = "realtime", value_parser = super::range::positive)]
     pub speed: f64,
     /// Output folder for trajectories.csv and summary.json (created if missing).
     #[arg(long, default_value = "out")]
     pub out: PathBuf,
     /// Trajectory log rate [Hz] (default: the scenario's `rates.log`).
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::rate_hz)]
     pub log_rate: Option<f64>,
     /// Write numbered PNG frames of the bird's-eye view into this folder.
     #[arg(long, value_name = "DIR")]
@@ -32,13 +32,13 @@ pub struct RunArgs {
     #[arg(long, value_name = "FILE.gif")]
     pub gif: Option<PathBuf>,
     /// Frames per second of sim time for --frames and --gif [Hz]; does not change the results.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = super::range::positive)]
     pub frame_rate: f64,
     /// Frame width [px] for --frames and --gif.
-    #[arg(long, default_value_t = 1280)]
+    #[arg(long, default_value_t = 1280, value_parser = super::range::pixels())]
     pub width: u32,
     /// Frame height [px] for --frames and --gif.
-    #[arg(long, default_value_t = 720)]
+    #[arg(long, default_value_t = 720, value_parser = super::range::pixels())]
     pub height: u32,
     /// Draw radar cones and velodyne circles in the frames.
     #[arg(long)]
@@ -67,7 +67,7 @@ pub struct RunArgs {
     /// Most threads the per-vehicle systems use; above 1 they split at any vehicle count (the
     /// results are the same bits for any N). Default: the machine's cores, at most 4, from
     /// 2,000 vehicles on.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = super::range::threads())]
     pub threads: Option<usize>,
     /// Override a scenario key (repeatable, applied in order): dotted keys, an index or `*` for
     /// the elements of an array, the value as TOML (`--set 'vehicles.*.speed=12.5'`,

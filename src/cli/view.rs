@@ -44,13 +44,13 @@ pub struct ViewArgs {
     #[arg(long)]
     pub map: Option<PathBuf>,
     /// Window (or frame) width [px].
-    #[arg(long, default_value_t = 1280)]
+    #[arg(long, default_value_t = 1280, value_parser = super::range::pixels())]
     pub width: u32,
     /// Window (or frame) height [px].
-    #[arg(long, default_value_t = 720)]
+    #[arg(long, default_value_t = 720, value_parser = super::range::pixels())]
     pub height: u32,
     /// Scale [px/m] (default: fit the map, else 4).
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::positive)]
     pub pixels_per_meter: Option<f64>,
     /// View centre `X,Y` [m] (default: the map's centre, else the origin).
     #[arg(long, value_parser = parse_point)]
@@ -59,11 +59,11 @@ pub struct ViewArgs {
     #[arg(long, value_name = "DIR")]
     pub frames: Option<PathBuf>,
     /// Stop after this many seconds (default: run until closed or stopped with Ctrl-C).
-    #[arg(long)]
+    #[arg(long, value_parser = super::range::positive)]
     pub duration: Option<f64>,
     /// Most frames per wall-clock second written to --frames [Hz]; newer frames in between are
     /// shown but not written (the stream runs at 50 Hz: 1.7 GB of PNGs in 25 s unthrottled).
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = super::range::positive)]
     pub frame_rate: f64,
 }
 

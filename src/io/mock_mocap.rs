@@ -108,8 +108,16 @@ impl MocapScript {
 
     /// Read a keyframe script from a CSV file.
     pub fn load(path: &Path) -> Result<Self, MockMocapError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| MockMocapError::Read { path: path.display().to_string(), source })?;
+        let read = |source| MockMocapError::Read { path: path.display().to_string(), source };
+        let size = std::fs::metadata(path).map_err(read)?.len();
+        if size > MAX_SCRIPT_BYTES {
+            return Err(MockMocapError::Script {
+                path: path.display().to_string(),
+                line: 0,
+                problem: format!("{size} bytes: a script may have at most {MAX_SCRIPT_BYTES} bytes"),
+            });
+        }
+        let text = std::fs::read_to_string(path).map_err(read)?;
         Self::from_csv(&text, &path.display().to_string())
     }
 
@@ -134,8 +142,11 @@ impl MocapScript {
             if !(t_s.is_finite() && t_s >= 0.0) {
                 return Err(err(format!("time {t_s} must be finite and >= 0")));
             }
-            let body: u32 = cols[1].parse().ok().filter(|&b| b >= 1).ok_or_else(|| {
-                err(format!("body {:?} is not a body number >= 1 (QTM numbers its bodies from 1)", cols[1]))
+            let body: u32 = cols[1].parse().ok().filter(|b| (1..=MAX_MOCK_BODIES).contains(b)).ok_or_else(|| {
+                err(format!(
+                    "body {:?} is not a body number in 1..={MAX_MOCK_BODIES} (QTM numbers its bodies from 1)",
+                    cols[1]
+                ))
             })?;
             let mut pose = [0.0; 6];
             for (k, v) in pose.iter_mut().enumerate() {
@@ -196,6 +207,20 @@ impl MocapScript {
     }
 }
 
+/// Most bodies the mock serves: a frame of them (24 bytes each) must fit in one packet
+/// ([`MAX_PACKET_LEN`], 1 MiB) that the client accepts.
+pub const MAX_MOCK_BODIES: u32 = 40_000;
+// A frame of MAX_MOCK_BODIES bodies (24 bytes each, plus headers) fits in one packet.
+const _: () = assert!(MAX_MOCK_BODIES as usize * 24 + 64 <= MAX_PACKET_LEN);
+/// Highest capture rate the mock accepts [Hz] (QTM's cameras reach a few kHz).
+pub const MAX_MOCK_RATE_HZ: f64 = 10_000.0;
+/// Largest keyframe script read [bytes].
+pub const MAX_SCRIPT_BYTES: u64 = 64 << 20;
+/// Largest command packet a client may send [bytes] (QTM commands are a few words).
+pub const MAX_COMMAND_LEN: usize = 64 << 10;
+/// Most clients served at once; more are refused (logged) until one leaves.
+pub const MAX_CLIENTS: usize = 64;
+
 /// Settings of a [`MockMocapServer`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct MockMocapConfig {
@@ -232,8 +257,17 @@ const SERVER_TICK: Duration = Duration::from_millis(10);
 impl MockMocapServer {
     /// Bind and start serving.
     pub fn start(config: MockMocapConfig) -> Result<Self, MockMocapError> {
-        if !(config.rate_hz.is_finite() && config.rate_hz > 0.0) {
-            return Err(MockMocapError::Config(format!("rate {} Hz must be positive", config.rate_hz)));
+        if !(config.rate_hz.is_finite() && config.rate_hz > 0.0 && config.rate_hz <= MAX_MOCK_RATE_HZ) {
+            return Err(MockMocapError::Config(format!(
+                "rate {} Hz must be positive and at most {MAX_MOCK_RATE_HZ} Hz",
+                config.rate_hz
+            )));
+        }
+        if config.script.body_count() > MAX_MOCK_BODIES {
+            return Err(MockMocapError::Config(format!(
+                "{} bodies: at most {MAX_MOCK_BODIES} fit in one frame packet",
+                config.script.body_count()
+            )));
         }
         let io = |what: String| move |source| MockMocapError::Io { what, source };
         let listener = TcpListener::bind(config.bind).map_err(io(format!("bind {}", config.bind)))?;
@@ -296,6 +330,12 @@ fn accept_loop(listener: &TcpListener, world: &Arc<MockWorld>, stop: &Arc<Atomic
     while !stop.load(Ordering::Relaxed) {
         match listener.accept() {
             Ok((stream, peer)) => {
+                clients.retain(|h| !h.is_finished());
+                if clients.len() >= MAX_CLIENTS {
+                    tracing::warn!("mock motion capture: {MAX_CLIENTS} clients already; refusing {peer}");
+                    drop(stream);
+                    continue;
+                }
                 connections.fetch_add(1, Ordering::Relaxed);
                 tracing::info!("mock motion capture: client {peer} connected");
                 let (world, stop) = (world.clone(), stop.clone());
@@ -327,7 +367,7 @@ fn serve_client(mut stream: TcpStream, world: &MockWorld, stop: &AtomicBool) -> 
     stream.set_nodelay(true)?;
     stream.set_read_timeout(Some(SERVER_TICK))?;
     stream.write_all(&encode_text(PacketType::Command, GREETING))?;
-    let mut decoder = PacketDecoder::new(MAX_PACKET_LEN);
+    let mut decoder = PacketDecoder::new(MAX_COMMAND_LEN);
     let mut buf = vec![0u8; 4096];
     while !stop.load(Ordering::Relaxed) {
         match stream.read(&mut buf) {

@@ -75,11 +75,7 @@ pub fn apply_mocap(
     let client = bridge.client.get_mut().unwrap_or_else(|p| p.into_inner());
     while let Some(f) = client.try_next() {
         bridge.tracker.update(&f.frame, f.received_at);
-        for b in &f.frame.bodies {
-            let Some(t) = bridge.tracker.bodies().find(|t| t.body == b.number()) else { continue };
-            if t.timestamp_us != f.frame.timestamp_us {
-                continue;
-            }
+        for t in bridge.tracker.seen_in(&f.frame) {
             let Some(e) = vehicles.get(VehicleId(t.id)) else { continue };
             if let Ok((_, _, mut track)) = tracks.get_mut(e)
                 && track.last_timestamp_us != Some(t.timestamp_us)

@@ -166,4 +166,14 @@ impl Tracker {
     pub fn get(&self, id: i32) -> Option<&TrackedBody> {
         self.bodies.get(&id)
     }
+
+    /// The tracked vehicles whose last sighting is `frame` (after [`Tracker::update`] took it),
+    /// in the frame's body order: each found by its mapped id, so a frame of n bodies costs
+    /// O(n log n), not a scan of every body per body (issue 24: 20,000 bodies without a stall).
+    pub fn seen_in<'a>(&'a self, frame: &'a DataFrame) -> impl Iterator<Item = &'a TrackedBody> + 'a {
+        frame.bodies.iter().filter_map(move |b| {
+            let t = self.bodies.get(&self.config.mapping.id_of(b.number())?)?;
+            (t.timestamp_us == frame.timestamp_us).then_some(t)
+        })
+    }
 }
