@@ -92,7 +92,9 @@ pub fn control_idm(
 ) {
     for (state, size, idm, mut lon) in &mut vehicles {
         let leader = lon.leader.map(|l| {
-            let length = registry.as_ref().and_then(|r| sizes.get(r.get(l.id)?).ok()).map_or(size.length, |s| s.length);
+            let length = lon.leader_length.unwrap_or_else(|| {
+                registry.as_ref().and_then(|r| sizes.get(r.get(l.id)?).ok()).map_or(size.length, |s| s.length)
+            });
             (l.distance - 0.5 * (size.length + length), l.speed)
         });
         lon.accel = idm.params.acceleration(state.speed(), leader);

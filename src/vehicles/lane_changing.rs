@@ -242,6 +242,8 @@ pub struct LaneChanger {
     pub crossing_leaders: [Option<(f64, f64)>; 2],
     wait_since: Option<f64>,
     missed: bool,
+    /// Which lanelets reach the goal (looked up once, shared by every vehicle with this goal).
+    reach: Option<Arc<Vec<bool>>>,
 }
 
 impl LaneChanger {
@@ -260,6 +262,7 @@ impl LaneChanger {
             crossing_leaders: [None; 2],
             wait_since: None,
             missed: false,
+            reach: None,
         }
     }
 }
@@ -379,14 +382,27 @@ impl LaneIndex {
 
     /// Nearest vehicle at or ahead of arc length `s` on lanelet `i` (then its first successors),
     /// other than `me`, within [`SEARCH_HORIZON`].
-    pub fn ahead(&self, lanes: &LaneMap, mut i: u32, s: f64, me: VehicleId) -> Option<Found> {
+    pub fn ahead(&self, lanes: &LaneMap, i: u32, s: f64, me: VehicleId) -> Option<Found> {
+        self.ahead_where(lanes, i, s, me, |_| true)
+    }
+
+    /// [`LaneIndex::ahead`] among the vehicles for which `seen(id)` holds (e.g. those the
+    /// sensors detect).
+    pub fn ahead_where(
+        &self,
+        lanes: &LaneMap,
+        mut i: u32,
+        s: f64,
+        me: VehicleId,
+        seen: impl Fn(VehicleId) -> bool,
+    ) -> Option<Found> {
         // Distance from the asking point to the start of lanelet `i` (after the first one).
         let mut base = 0.0;
         let mut first = true;
         for _ in 0..8 {
             let list = self.on(i);
             let from = if first { list.partition_point(|e| e.s < s) } else { 0 };
-            if let Some(e) = list[from..].iter().find(|e| e.id != me) {
+            if let Some(e) = list[from..].iter().find(|e| e.id != me && seen(e.id)) {
                 let distance = if first { e.s - s } else { base + e.s };
                 return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
             }
@@ -725,7 +741,14 @@ pub fn decide_lane_changes(
         }
 
         // Mandatory need: this lane does not reach the destination.
-        let reach = paths.reach(lanes, &ch.goal);
+        let reach = match &ch.reach {
+            Some(r) => Arc::clone(r),
+            None => {
+                let r = paths.reach(lanes, &ch.goal);
+                ch.reach = Some(Arc::clone(&r));
+                r
+            }
+        };
         let remaining = if route.0.closed { f64::INFINITY } else { (route.0.length - follower.s).max(0.0) };
         let mut mandatory: Option<Side> = None;
         if !reach[i as usize] {
@@ -768,6 +791,9 @@ pub fn decide_lane_changes(
             // vehicles staggered by id: a driver does not reconsider at 20 Hz.
             candidates = [(Side::Right, ChangeKind::Discretionary), (Side::Left, ChangeKind::Discretionary)];
             n = 2;
+        }
+        if n == 0 {
+            continue;
         }
         let leader = index.ahead(lanes, i, pos.s, me);
         let follower_now = index.behind(lanes, i, pos.s, me);

@@ -20,20 +20,24 @@
 //! A controller written this way (demand in `Demand`, never touching `ControlCommand`) works
 //! on both vehicle models and combines with every limiter.
 
-use bevy_ecs::prelude::{Component, Query, Res, Resource};
+use std::collections::BTreeMap;
+
+use bevy_ecs::prelude::{Component, Local, Mut, Query, Res, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
-use crate::map::Path;
+use crate::map::{LaneletId, Path};
 use crate::sim::SimBuilder;
-use crate::sim::{Control, SimClock, SimSystems};
+use crate::sim::parallel::recycle;
+use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{
     AccelerationUnicycle, ControlCommand, Detection, KinematicUnicycle, Route, SensorReadings, VehicleId, VehicleSize,
     VehicleState,
 };
 
 use super::PathFollower;
-use super::lane_changing::{LaneChanger, LaneCrossings};
+use super::lane_changing::{LaneChanger, LaneCrossings, LaneIndex};
+use super::lanes::{LaneMap, LanePosition};
 
 /// The steps of the longitudinal pipeline as system sets of the [`Control`] schedule, chained in
 /// this order inside [`SimSystems::Control`] and after the path follower's steering. A speed
@@ -92,11 +96,21 @@ pub struct Longitudinal {
     pub lane_half_width: f64,
     /// Whether emergency braking overrides the controllers this tick.
     pub emergency: bool,
+    /// The leader's own length [m] where the leader search knew it (the lane index), so a
+    /// controller need not look the vehicle up.
+    pub leader_length: Option<f64>,
 }
 
 impl Default for Longitudinal {
     fn default() -> Self {
-        Longitudinal { accel: f64::NAN, route_speed: 0.0, leader: None, lane_half_width: 1.75, emergency: false }
+        Longitudinal {
+            accel: f64::NAN,
+            route_speed: 0.0,
+            leader: None,
+            lane_half_width: 1.75,
+            emergency: false,
+            leader_length: None,
+        }
     }
 }
 
@@ -139,10 +153,10 @@ pub fn leader_on_path_with(
     }
     for d in detections {
         let r = d.position.distance(position);
-        let p = path.project_near(d.position, s + r, 0.3 * r + 5.0);
-        if p.lateral.abs() > lane_half_width && !(p.lateral.abs() <= 3.0 * lane_half_width && crossing(d.id)) {
-            continue;
-        }
+        // On the path: within half a lane of its centre line, or three half lanes for a vehicle
+        // crossing into or out of it.
+        let reach = if crossing(d.id) { lane_half_width.max(3.0 * lane_half_width) } else { lane_half_width };
+        let Some(p) = path.project_near_within(d.position, s + r, 0.3 * r + 5.0, reach) else { continue };
         let mut ahead = p.s - s;
         if path.closed {
             ahead = ahead.rem_euclid(path.length);
@@ -159,12 +173,32 @@ pub fn leader_on_path_with(
     None
 }
 
-/// Reset the demand and find each vehicle's leader on its route.
+/// One vehicle's part of [`find_leaders`].
+type LeaderItem<'a> = (
+    &'a VehicleId,
+    Option<&'a LanePosition>,
+    &'a VehicleState,
+    &'a VehicleSize,
+    &'a Route,
+    &'a PathFollower,
+    &'a ControlCommand,
+    Option<&'a SensorReadings>,
+    Mut<'a, Longitudinal>,
+    Option<&'a LaneChanger>,
+);
+
+/// Reset the demand and find each vehicle's leader on its route (split over threads; each
+/// vehicle's result depends only on its own components, so any thread count gives the same bits).
 #[allow(clippy::type_complexity)]
 pub fn find_leaders(
     clock: Res<SimClock>,
     crossings: Option<Res<LaneCrossings>>,
+    parallelism: Option<Res<Parallelism>>,
+    index: Option<Res<LaneIndex>>,
+    lane_map: Option<Res<LaneMap>>,
     mut vehicles: Query<(
+        &VehicleId,
+        Option<&LanePosition>,
         &VehicleState,
         &VehicleSize,
         &Route,
@@ -174,46 +208,105 @@ pub fn find_leaders(
         &mut Longitudinal,
         Option<&LaneChanger>,
     )>,
+    mut scratch: Local<Vec<()>>,
+    mut buffer: Local<Vec<LeaderItem<'static>>>,
 ) {
     let crossings = crossings.as_deref().map(|c| &c.0).filter(|c| !c.is_empty());
-    for (state, size, route, follower, command, readings, mut lon, changer) in &mut vehicles {
-        let previous = lon.leader;
-        lon.accel = f64::NAN;
-        lon.emergency = false;
-        lon.route_speed = command.speed;
-        let detections = readings.map_or(&[][..], |r| &r.0[..]);
-        let mut leader = match crossings {
-            None => leader_on_path(&route.0, follower.s, state.position, size.length, detections, lon.lane_half_width),
-            Some(c) => {
-                let lanes = &route.0.lanelets;
-                let crossing = |id: VehicleId| c.get(&id).is_some_and(|(a, b)| lanes.contains(a) || lanes.contains(b));
-                leader_on_path_with(
-                    &route.0,
-                    follower.s,
-                    state.position,
-                    size.length,
-                    detections,
-                    lon.lane_half_width,
-                    crossing,
-                )
-            }
-        };
-        // While changing lanes the vehicle is in both: the nearer leader of the old lane counts too.
-        if let Some(m) = changer.and_then(|c| c.active.as_ref()) {
-            let old =
-                leader_on_path(&m.old_route, m.old_s, state.position, size.length, detections, lon.lane_half_width);
-            if old.is_some_and(|o| leader.is_none_or(|l| o.distance < l.distance)) {
-                leader = old;
+    let dt = clock.dt;
+    let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
+    let mut items: Vec<LeaderItem<'_>> = recycle(std::mem::take(&mut *buffer));
+    items.extend(vehicles.iter_mut());
+    let lanes = index.as_deref().zip(lane_map.as_deref());
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
+        for (id, pos, state, size, route, follower, command, readings, lon, changer) in chunk.iter_mut() {
+            // A lane changer's leader comes from the lane index (the vehicle ahead in its lane,
+            // crossing vehicles in both lanes) among those its sensors detect.
+            let in_lane = match (lanes, *changer, pos.and_then(|p| p.on().map(|i| (i, p.s)))) {
+                (Some((index, map)), Some(_), Some((i, s))) => Some((index, map, i, s)),
+                _ => None,
+            };
+            match in_lane {
+                Some((index, map, i, s)) => {
+                    let detections = readings.map_or(&[][..], |r| &r.0[..]);
+                    let seen = |other: VehicleId| detections.iter().any(|d| d.id == other);
+                    let found = index.ahead_where(map, i, s, **id, seen);
+                    let leader = found.map(|f| {
+                        let d = detections.iter().find(|d| d.id == f.id);
+                        // The speed as sensed: the detection's velocity along its own motion.
+                        let speed = d.map_or(f.speed, |d| d.velocity.length());
+                        LeaderGap {
+                            id: f.id,
+                            distance: f.distance,
+                            gap: f.distance - size.length,
+                            speed,
+                            acceleration: 0.0,
+                        }
+                    });
+                    set_leader(dt, lon, command, leader);
+                    lon.leader_length = found.map(|f| f.length);
+                }
+                None => find_leader(dt, crossings, state, size, route, follower, command, *readings, lon, *changer),
             }
         }
-        if let (Some(l), Some(p)) = (leader.as_mut(), previous)
-            && l.id == p.id
-            && clock.dt > 0.0
-        {
-            l.acceleration = (l.speed - p.speed) / clock.dt;
+    });
+    *buffer = recycle(items);
+}
+
+/// [`find_leaders`] for one vehicle.
+#[allow(clippy::too_many_arguments)]
+fn find_leader(
+    dt: f64,
+    crossings: Option<&BTreeMap<VehicleId, (LaneletId, LaneletId)>>,
+    state: &VehicleState,
+    size: &VehicleSize,
+    route: &Route,
+    follower: &PathFollower,
+    command: &ControlCommand,
+    readings: Option<&SensorReadings>,
+    lon: &mut Longitudinal,
+    changer: Option<&LaneChanger>,
+) {
+    let detections = readings.map_or(&[][..], |r| &r.0[..]);
+    let mut leader = match crossings {
+        None => leader_on_path(&route.0, follower.s, state.position, size.length, detections, lon.lane_half_width),
+        Some(c) => {
+            let lanes = &route.0.lanelets;
+            let crossing = |id: VehicleId| c.get(&id).is_some_and(|(a, b)| lanes.contains(a) || lanes.contains(b));
+            leader_on_path_with(
+                &route.0,
+                follower.s,
+                state.position,
+                size.length,
+                detections,
+                lon.lane_half_width,
+                crossing,
+            )
         }
-        lon.leader = leader;
+    };
+    // While changing lanes the vehicle is in both: the nearer leader of the old lane counts too.
+    if let Some(m) = changer.and_then(|c| c.active.as_ref()) {
+        let old = leader_on_path(&m.old_route, m.old_s, state.position, size.length, detections, lon.lane_half_width);
+        if old.is_some_and(|o| leader.is_none_or(|l| o.distance < l.distance)) {
+            leader = old;
+        }
     }
+    set_leader(dt, lon, command, leader);
+}
+
+/// Reset the demand to "none", the route speed to the path follower's and store `leader`, its
+/// acceleration from the change of its speed since the last tick when it is the same vehicle.
+fn set_leader(dt: f64, lon: &mut Longitudinal, command: &ControlCommand, mut leader: Option<LeaderGap>) {
+    lon.accel = f64::NAN;
+    lon.emergency = false;
+    lon.route_speed = command.speed;
+    lon.leader_length = None;
+    if let (Some(l), Some(p)) = (leader.as_mut(), lon.leader)
+        && l.id == p.id
+        && dt > 0.0
+    {
+        l.acceleration = (l.speed - p.speed) / dt;
+    }
+    lon.leader = leader;
 }
 
 /// Gain [1/s] that brings a vehicle faster than its route's target speed back down to it.
