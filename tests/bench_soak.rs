@@ -19,6 +19,9 @@ fn a_short_soak_samples_memory_and_stays_flat() {
     let sim: Vec<f64> = samples.iter().map(|s| s["sim_s"].as_f64().unwrap()).collect();
     assert!(sim.windows(2).all(|w| w[1] > w[0]), "the simulation advances between samples: {sim:?}");
     assert_eq!(report["vehicles"], 300);
+    // Lane changes and traffic churn: 5 % of the vehicles replaced every 10 s of sim time.
+    let replaced = report["vehicles_replaced"].as_u64().expect("vehicles_replaced");
+    assert!(replaced >= 15 && replaced % 15 == 0, "{replaced} vehicles replaced, in rounds of 15");
     let growth = report["growth"].as_f64().unwrap();
     assert!(growth <= 0.05 && report["flat"] == true, "memory grew {:.1} % after the warm-up: {rss:?}", growth * 100.0);
     assert_eq!(err.lines().filter(|l| l.starts_with("soak ")).count(), samples.len(), "one progress line per sample");

@@ -4,12 +4,21 @@
 
 use std::time::{Duration, Instant};
 
-use crate::sim::Parallelism;
+use crate::sim::{Parallelism, Sim};
+use crate::vehicles::{FollowLaw, IdmController, LaneChangeParams, LaneChanger, LanePosition, PathFollower, RouteGoal};
+use crate::world::{
+    Radar, Route, SensorSet, VehicleId, VehicleSpec, VehicleState, Vehicles, Velodyne, despawn_vehicle,
+};
 
 use super::bench::{BenchError, BenchWorld};
 
 /// Largest growth of resident memory after the warm-up that still counts as flat [-] (5 %).
 pub const FLAT_TOLERANCE: f64 = 0.05;
+
+/// Sim time between two rounds of traffic churn in a soak [s].
+pub const CHURN_PERIOD: f64 = 10.0;
+/// Share of the vehicles that leave and enter in one round of churn [-].
+pub const CHURN_SHARE: f64 = 0.05;
 
 /// The warm-up [s of wall time]: the first minute, or a third of a shorter soak.
 pub fn warm_up(wall_seconds: f64) -> f64 {
@@ -48,6 +57,8 @@ pub struct SoakReport {
     pub flat: bool,
     /// Whether Ctrl-C or SIGTERM ended the soak early.
     pub interrupted: bool,
+    /// Vehicles that left and were replaced by new ones (traffic churn, with lane changes).
+    pub vehicles_replaced: u64,
     /// Every sample, in time order.
     pub samples: Vec<SoakSample>,
 }
@@ -82,7 +93,15 @@ pub fn soak(
         on_sample(&s);
         samples.push(s);
     };
+    let mut next_id = -(world.vehicles as i64) - 1;
+    let mut next_churn = CHURN_PERIOD;
+    let churn_count = ((world.vehicles as f64 * CHURN_SHARE).ceil() as usize).max(1);
+    let mut churned = 0u64;
     loop {
+        if world.lane_change && sim.now().as_secs() >= next_churn {
+            churned += churn(&mut sim, churn_count, &mut next_id) as u64;
+            next_churn += CHURN_PERIOD;
+        }
         let wall = start.elapsed();
         if wall >= next_sample {
             sample(sim.now().as_secs(), wall, &mut samples);
@@ -113,6 +132,54 @@ pub fn soak(
         growth,
         flat: growth <= FLAT_TOLERANCE,
         interrupted,
+        vehicles_replaced: churned,
         samples,
     })
+}
+
+/// One round of churn: the `count` oldest vehicles (ids nearest -1) leave the world (despawned:
+/// entity, mailbox, sensor readings and lane-change state freed) and as many enter where they
+/// were, with new ids (counting down from `next_id`) and fresh IDM and lane-change state, as
+/// `[[traffic]]` removal and insertion do. Returns how many were replaced.
+fn churn(sim: &mut Sim, count: usize, next_id: &mut i64) -> usize {
+    let leaving: Vec<VehicleId> = {
+        let vehicles = sim.world().resource::<Vehicles>();
+        let mut ids: Vec<VehicleId> = vehicles.iter().map(|(id, _)| id).collect();
+        ids.sort_unstable_by_key(|id| std::cmp::Reverse(id.0));
+        ids.truncate(count);
+        ids
+    };
+    let mut replaced = 0;
+    for id in leaving {
+        let Some(e) = sim.entity(id) else { continue };
+        let world = sim.world();
+        let (Some(state), Some(route), Some(follower), Some(idm)) = (
+            world.get::<VehicleState>(e).copied(),
+            world.get::<Route>(e).cloned(),
+            world.get::<PathFollower>(e).copied(),
+            world.get::<IdmController>(e).copied(),
+        ) else {
+            continue;
+        };
+        let Ok(new_id) = i32::try_from(*next_id) else { return replaced };
+        if despawn_vehicle(sim.world_mut(), id).is_err() {
+            continue;
+        }
+        *next_id -= 1;
+        let mut spec = VehicleSpec::new(VehicleId(new_id), state);
+        spec.sensors =
+            SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
+        spec.route = Some(route.0);
+        if let Ok(e) = sim.spawn_vehicle(spec) {
+            let law = FollowLaw::Idm(idm.params);
+            sim.world_mut().entity_mut(e).insert((
+                follower,
+                idm,
+                LanePosition::default(),
+                LaneChanger::new(LaneChangeParams::default(), law, RouteGoal::Loop),
+            ));
+            replaced += 1;
+        }
+    }
+    replaced
 }

@@ -19,7 +19,9 @@ pub struct BenchArgs {
     #[arg(long, value_parser = super::range::threads())]
     pub threads: Option<usize>,
     /// Soak test: run for this many seconds of WALL time, sampling the process's memory (RSS),
-    /// and report whether it stayed flat after the warm-up (the first minute).
+    /// and report whether it stayed flat after the warm-up (the first minute). The soak world
+    /// drives IDM with lane changes and churns traffic: every 10 s of sim time 5 % of the
+    /// vehicles leave and as many new ones enter.
     #[arg(long, value_name = "SECONDS", value_parser = super::range::positive)]
     pub soak: Option<f64>,
     /// Memory sample interval of --soak [s of wall time].
@@ -43,7 +45,10 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         args.duration
     );
     anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
-    let world = BenchWorld { vehicles: args.vehicles, lane_change: args.lane_change, ..Default::default() };
+    // A soak drives the whole stack: IDM, lane changes and traffic churn (vehicles leaving and
+    // entering), whether or not --lane-change is given.
+    let lane_change = args.lane_change || args.soak.is_some();
+    let world = BenchWorld { vehicles: args.vehicles, lane_change, ..Default::default() };
     let parallelism = args.threads.map(Parallelism::split);
     smlworld::app::interrupt::install();
     if let Some(seconds) = args.soak {
