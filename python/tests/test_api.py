@@ -130,3 +130,27 @@ def test_frame_is_an_rgba_picture_of_the_map(sim, tmp_path):
     assert len(colours) > 20
     with pytest.raises(ValueError, match="frame size"):
         sim.frame(width=0, height=10)
+
+
+def test_change_lane_is_carried_out_by_the_plugin_and_refused_where_the_map_forbids(root):
+    # The overtaking car (id -2) is in the right lane of a two-lane ring, the truck 60 m ahead.
+    sim = smlworld.Sim.from_scenario(root / "scenarios/overtaking.toml", duration=20.0)
+    sim.step(0.1)
+    lane_before = int(sim.states()["lanelet"][sim.states()["id"].tolist().index(-2)])
+    assert sim.change_lane(-2, "right") is False  # no lane to the right of the right lane
+    assert sim.change_lane(-2, "left") is True
+    summary = sim.run(12.0)
+    changes = [c for c in summary["metrics"]["lane_changes"] if c["id"] == -2]
+    assert changes and changes[0]["kind"] == "requested" and changes[0]["direction"] == "left", changes
+    assert changes[0]["from"] == lane_before
+    with pytest.raises(ValueError, match="left.*right|side"):
+        sim.change_lane(-2, "up")
+
+
+def test_star_overrides_set_every_element_like_the_cli(root):
+    sim = smlworld.Sim.from_scenario(root / PLATOON, **{"vehicles.*.speed": 7.0})
+    sim.step(0.2)
+    speeds = np.hypot(sim.states()["vx"], sim.states()["vy"])
+    assert np.all(speeds < 7.5), speeds  # every truck starts at 7 m/s instead of 15
+    with pytest.raises(ValueError, match="vehicles"):
+        smlworld.Sim.from_scenario(root / PLATOON, **{"vehicles.*.sped": 7.0})
