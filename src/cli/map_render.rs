@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use glam::DVec2;
 use smlworld::map::LaneletMap;
-use smlworld::render::{BirdseyeView, Environment, PatternSet, Renderer, write_image, write_meta};
+use smlworld::render::{BirdseyeView, Environment, PatternSet, Renderer, write_image_with_meta};
 
 /// `smlworld map render MAP --out FILE [--width W --height H --pixels-per-meter P] [--center X,Y] [--patterns DIR]`.
 #[derive(Debug, clap::Args)]
@@ -60,8 +60,7 @@ pub fn main(args: RenderArgs) -> anyhow::Result<()> {
     tracing::debug!(adapter = %renderer.adapter_name(), "rendering");
     let layer = renderer.environment_layer(&Environment::from_map(&map), &view, &patterns)?;
     let image = renderer.read_environment(&layer)?;
-    write_image(&args.out, &image)?;
-    let meta = write_meta(&args.out, &view)?;
+    let meta = write_image_with_meta(&args.out, &image, &view)?;
     println!(
         "wrote {} ({}x{} px, {} px/m, centre {},{} m) and {}",
         args.out.display(),
