@@ -26,20 +26,12 @@ pub struct RenderArgs {
     #[arg(long, value_parser = super::range::positive)]
     pub pixels_per_meter: Option<f64>,
     /// World point at the image centre, `X,Y` [m] (needs `--pixels-per-meter`).
-    #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "pixels_per_meter")]
+    #[arg(long, value_parser = super::range::point, allow_hyphen_values = true, requires = "pixels_per_meter")]
     pub center: Option<DVec2>,
     /// Directory with your own pattern images (`forest.png`, `road.png`, `mud.png`, `iron.png`,
     /// `parking_lot.png`, `free_space.png`); missing ones use the built-in patterns.
     #[arg(long)]
     pub patterns: Option<PathBuf>,
-}
-
-fn parse_point(s: &str) -> Result<DVec2, String> {
-    let bad = || format!("`{s}` is not a point: write X,Y in metres, e.g. 12.5,-3");
-    let (x, y) = s.split_once(',').ok_or_else(bad)?;
-    let x: f64 = x.trim().parse().map_err(|_| bad())?;
-    let y: f64 = y.trim().parse().map_err(|_| bad())?;
-    if x.is_finite() && y.is_finite() { Ok(DVec2::new(x, y)) } else { Err(bad()) }
 }
 
 /// Run the subcommand.
