@@ -77,7 +77,7 @@ fn errors_are_messages_not_panics() {
             "no route from tag `right_lane_node` to tag `left_lane_node`",
         ),
         (vec!["map", "info", "/nonexistent/map.osm"], "/nonexistent/map.osm"),
-        (vec!["map", "loop", m, "--tag", "right_lane_node", "--points-per-meter", "-1"], "points_per_meter"),
+        (vec!["map", "loop", m, "--tag", "right_lane_node", "--points-per-meter", "-1"], "--points-per-meter"),
     ] {
         let (ok, _, stderr) = smlworld(&args);
         assert!(!ok, "{args:?} must fail");

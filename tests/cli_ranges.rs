@@ -69,3 +69,38 @@ fn nan_negative_and_huge_values_are_refused_naming_the_flag() {
     }
     assert!(failures.is_empty(), "{} accepted or unnamed:\n{}", failures.len(), failures.join("\n"));
 }
+
+/// `--center X,Y` of `map render` and `view` goes through the same range check: each coordinate
+/// finite and at most 1e9 m from the origin (negative coordinates are points like any other).
+#[test]
+fn a_center_out_of_range_is_refused_naming_the_flag() {
+    let commands: [Vec<&str>; 2] = [
+        vec!["map", "render", MAP, "--out", "/tmp/never-written.png", "--pixels-per-meter", "2"],
+        vec!["view", "--duration", "0.01"],
+    ];
+    let mut failures = Vec::new();
+    for before in &commands {
+        for bad in ["nan,0", "0,nan", "1e300,0", "0,-1e300", "inf,0", "0,-inf", "1e10,0", "3", "x,y", "1,2,3"] {
+            let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+                .current_dir(env!("CARGO_MANIFEST_DIR"))
+                .args(before)
+                .arg(format!("--center={bad}"))
+                .output()
+                .expect("run smlworld");
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            if out.status.code() != Some(2) || !stderr.contains("--center") || stderr.contains("panicked") {
+                failures.push(format!("{before:?} --center={bad}: exit {:?}: {}", out.status.code(), stderr.trim()));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{} accepted or unnamed:\n{}", failures.len(), failures.join("\n"));
+    // A point with negative coordinates passes the parser (the map file is what fails here).
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["map", "render", "/nonexistent.osm", "--out", "/tmp/never-written.png"])
+        .args(["--pixels-per-meter", "2", "--center=-12.5,-3"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("nonexistent.osm") && !stderr.contains("--center"), "{stderr}");
+}

@@ -114,3 +114,94 @@ fn gif_and_figures_go_into_folders_that_did_not_exist() {
     assert!(names.contains(&"speed.png".to_string()) && names.contains(&"speed.svg".to_string()), "{names:?}");
     assert!(names.iter().all(|n| !n.contains("partial")), "{names:?}");
 }
+
+/// `map render` writes an image and its `.meta`; when either cannot be written the command fails
+/// and both earlier files stay as they were (neither is replaced alone).
+#[test]
+fn a_failing_map_render_keeps_the_earlier_image_and_meta() {
+    let render = |png: &Path| {
+        smlworld(&["map", "render", MAP, "--out", png.to_str().unwrap(), "--width", "80", "--height", "60"])
+    };
+    // The image cannot be written: its temporary file's name is taken by a folder.
+    let dir = scratch("atomic_render_image");
+    let png = dir.join("i.png");
+    std::fs::write(&png, "earlier image").unwrap();
+    std::fs::write(dir.join("i.meta"), "earlier meta").unwrap();
+    std::fs::create_dir(dir.join(".i.partial.png")).unwrap();
+    let (ok, log) = render(&png);
+    assert!(!ok, "the image cannot be written:\n{log}");
+    assert!(log.contains("i.png"), "the error names the file:\n{log}");
+    assert_eq!(std::fs::read_to_string(&png).unwrap(), "earlier image");
+    assert_eq!(std::fs::read_to_string(dir.join("i.meta")).unwrap(), "earlier meta");
+
+    // The `.meta` cannot be written (a folder has its name): the image is not replaced either.
+    let dir = scratch("atomic_render_meta");
+    let png = dir.join("i.png");
+    std::fs::write(&png, "earlier image").unwrap();
+    std::fs::create_dir(dir.join("i.meta")).unwrap();
+    let (ok, log) = render(&png);
+    assert!(!ok, "the .meta cannot be written:\n{log}");
+    assert!(log.contains("i.meta"), "the error names the file:\n{log}");
+    assert!(std::fs::read(&png).unwrap() == b"earlier image", "the image was replaced alone");
+    assert_eq!(files_in(&dir), ["i.meta", "i.png"], "no temporary file left");
+}
+
+/// A short run to replay (`dir/run`).
+fn run_to_replay(dir: &Path) -> PathBuf {
+    let out = dir.join("run");
+    let (ok, log) = smlworld(&["run", SCENARIO, "--duration", "2", "--out", out.to_str().unwrap()]);
+    assert!(ok, "{log}");
+    out
+}
+
+#[test]
+fn a_replay_failing_after_its_gif_began_keeps_the_earlier_gif() {
+    let dir = scratch("atomic_replay_gif");
+    let run = run_to_replay(&dir);
+    let (gif, frames) = (dir.join("replay.gif"), dir.join("frames"));
+    std::fs::write(&gif, "earlier GIF").unwrap();
+    // The third frame's file name is taken by a folder: the replay fails after its GIF has begun.
+    std::fs::create_dir_all(frames.join("frame_000002.png")).unwrap();
+    let (ok, log) = smlworld(&[
+        "replay",
+        run.to_str().unwrap(),
+        "--gif",
+        gif.to_str().unwrap(),
+        "--frames",
+        frames.to_str().unwrap(),
+        "--width",
+        "64",
+        "--height",
+        "64",
+    ]);
+    assert!(!ok, "the replay should fail on the frame it cannot write:\n{log}");
+    assert!(log.contains("frame_000002.png"), "the error names the file:\n{log}");
+    assert_eq!(std::fs::read_to_string(&gif).unwrap(), "earlier GIF");
+    assert_eq!(files_in(&dir), ["frames", "replay.gif", "run"], "no temporary GIF left");
+}
+
+#[test]
+fn a_replay_failing_on_a_frame_keeps_that_frames_earlier_file() {
+    let dir = scratch("atomic_replay_frames");
+    let run = run_to_replay(&dir);
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    std::fs::write(frames.join("frame_000001.png"), "earlier frame").unwrap();
+    // The second frame's temporary file cannot be created: a folder has its name.
+    std::fs::create_dir(frames.join(".frame_000001.partial.png")).unwrap();
+    let (ok, log) = smlworld(&[
+        "replay",
+        run.to_str().unwrap(),
+        "--frames",
+        frames.to_str().unwrap(),
+        "--width",
+        "64",
+        "--height",
+        "64",
+    ]);
+    assert!(!ok, "the replay should fail on the frame it cannot write:\n{log}");
+    assert!(log.contains("frame_000001.png"), "the error names the file:\n{log}");
+    assert_eq!(std::fs::read_to_string(frames.join("frame_000001.png")).unwrap(), "earlier frame");
+    assert_eq!(files_in(&frames), [".frame_000001.partial.png", "frame_000000.png", "frame_000001.png"]);
+    assert!(std::fs::read(frames.join("frame_000000.png")).unwrap().starts_with(b"\x89PNG"), "frame 0 is whole");
+}

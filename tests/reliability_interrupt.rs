@@ -122,47 +122,99 @@ fn a_second_signal_aborts_at_once_and_keeps_the_earlier_outputs() {
     assert_eq!(std::fs::read_to_string(out.join("summary.json")).unwrap(), "{\"earlier\": true}\n");
 }
 
-#[test]
-fn ctrl_c_stops_bench_with_the_figures_of_what_ran() {
-    let child = bin()
-        .args(["bench", "--vehicles", "200", "--duration", "1000000", "--threads", "1"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(Duration::from_millis(1500));
-    signal(&child, libc::SIGINT);
+/// Start `bench` with `args`, wait `after`, send `sig`; the process must end within 30 s with
+/// exit status `code` and one JSON report on stdout marked `"interrupted": true`.
+fn interrupted_bench(args: &[&str], after: Duration, sig: i32, code: i32) -> serde_json::Value {
+    let child = bin().arg("bench").args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    std::thread::sleep(after);
+    signal(&child, sig);
     let start = Instant::now();
     let out = child.wait_with_output().unwrap();
     assert!(start.elapsed() < Duration::from_secs(30), "bench took {:?} to stop", start.elapsed());
-    assert_eq!(out.status.code(), Some(130), "{}", String::from_utf8_lossy(&out.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(code), "exit status after signal {sig}; stderr:\n{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("one whole JSON report on stdout ({e}): {}", String::from_utf8_lossy(&out.stdout)));
     assert_eq!(report["interrupted"], true, "{report}");
+    report
+}
+
+#[test]
+fn ctrl_c_stops_bench_with_the_figures_of_what_ran() {
+    let args = ["--vehicles", "200", "--duration", "1000000", "--threads", "1"];
+    let report = interrupted_bench(&args, Duration::from_millis(1500), libc::SIGINT, 130);
     let reached = report["sim_seconds"].as_f64().unwrap();
     assert!(reached > 0.0 && reached < 1_000_000.0, "{report}");
     assert!(report["real_time_factor"].as_f64().unwrap().is_finite(), "{report}");
 }
 
 #[test]
-fn ctrl_c_stops_a_replay_and_keeps_the_gif_drawn_so_far() {
-    // A short run to replay, then a replay to a slowly paced stream plus a GIF, stopped early.
-    let dir = scratch("interrupt_replay");
+fn sigterm_stops_bench_with_the_figures_of_what_ran_and_exit_143() {
+    let args = ["--vehicles", "200", "--duration", "1000000", "--threads", "1"];
+    let report = interrupted_bench(&args, Duration::from_millis(1500), libc::SIGTERM, 143);
+    let reached = report["sim_seconds"].as_f64().unwrap();
+    assert!(reached > 0.0 && reached < 1_000_000.0, "{report}");
+    assert!(report["real_time_factor"].as_f64().unwrap().is_finite(), "{report}");
+}
+
+#[test]
+fn ctrl_c_stops_a_soak_with_the_samples_taken_and_exit_130() {
+    let args = ["--soak", "30", "--sample-every", "0.5", "--vehicles", "200", "--threads", "1"];
+    let report = interrupted_bench(&args, Duration::from_millis(2500), libc::SIGINT, 130);
+    let samples = report["samples"].as_array().expect("samples");
+    assert!(samples.len() >= 2, "the samples taken before the signal: {report}");
+    let last_wall = samples.last().unwrap()["wall_s"].as_f64().unwrap();
+    assert!(last_wall < 20.0, "stopped early, not after the 30 s: last sample at {last_wall} s wall");
+    assert!(samples.iter().all(|s| s["rss_mb"].as_f64().unwrap() > 1.0), "{report}");
+}
+
+/// A short run to replay, then a replay to a slowly paced stream plus a GIF, stopped by `sig`
+/// after 2.5 s: the GIF drawn so far is whole and the exit status is `code`.
+fn interrupted_replay(name: &str, sig: i32, code: i32) {
+    let dir = scratch(name);
     let out = dir.join("run");
     let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/highway.toml");
     let ok = bin().args(["run", scenario, "--duration", "20", "--out", out.to_str().unwrap()]).output().unwrap();
     assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
     let gif = dir.join("replay.gif");
+    let frames = dir.join("frames");
     let child = bin()
         .args(["replay", out.to_str().unwrap(), "--gif", gif.to_str().unwrap(), "--width", "64", "--height", "64"])
+        .args(["--frames", frames.to_str().unwrap()])
         .args(["--stream", "127.0.0.1:9", "--speed", "1"])
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     std::thread::sleep(Duration::from_millis(2500));
-    signal(&child, libc::SIGINT);
+    signal(&child, sig);
     let (status, err) = finish(child);
-    assert_eq!(status, Some(130), "{err}");
+    assert_eq!(status, Some(code), "exit status after signal {sig}; stderr:\n{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(err.contains("interrupted"), "it says it was interrupted:\n{err}");
     let bytes = std::fs::read(&gif).unwrap_or_else(|e| panic!("no GIF after the interrupt ({e}):\n{err}"));
     assert!(bytes.starts_with(b"GIF89a") && bytes.ends_with(&[0x3b]), "a whole GIF (header and trailer)");
+    // The frames written so far are whole PNGs, with no temporary file beside them.
+    let names: Vec<String> =
+        std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert!(!names.is_empty() && names.len() < 200, "some frames, not all 20 s of them: {}", names.len());
+    for n in &names {
+        assert!(n.starts_with("frame_") && n.ends_with(".png"), "unexpected file {n}");
+        let png = std::fs::read(frames.join(n)).unwrap();
+        assert!(png.starts_with(b"\x89PNG") && png.ends_with(b"IEND\xaeB`\x82"), "{n} is a whole PNG");
+    }
+    let left: Vec<String> =
+        std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert!(left.iter().all(|n| !n.contains("partial")), "temporary files left: {left:?}");
+}
+
+#[test]
+fn ctrl_c_stops_a_replay_and_keeps_the_gif_drawn_so_far() {
+    interrupted_replay("interrupt_replay", libc::SIGINT, 130);
+}
+
+#[test]
+fn sigterm_stops_a_replay_with_complete_outputs_and_exit_143() {
+    interrupted_replay("interrupt_replay_term", libc::SIGTERM, 143);
 }

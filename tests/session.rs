@@ -114,3 +114,38 @@ fn inbox_returns_every_message_since_the_last_call() {
     assert!(s.inbox(-2, "network").unwrap().is_empty());
     assert!(s.inbox(-2, "radio").is_err());
 }
+
+/// Issue 22 item 12: `inbox()` keeps at most `INBOX_CAPACITY` unread messages per vehicle and
+/// channel; past it the oldest are dropped first, so the newest are the ones returned.
+#[test]
+fn inbox_keeps_the_newest_messages_when_more_than_its_bound_wait() {
+    use smlworld::app::session::INBOX_CAPACITY;
+    let mut s = Session::from_scenario(Path::new(PLATOON), None, &[]).unwrap();
+    assert!(s.inbox(-2, "wifi").unwrap().is_empty(), "from now on every message is kept until read");
+    // 10 over the bound, in three wifi rounds (10 Hz), numbered in the order they were sent.
+    let total = INBOX_CAPACITY as u32 + 10;
+    let rounds = [0..4_000, 4_000..8_000, 8_000..total];
+    for r in rounds {
+        for k in r {
+            s.send(-1, "wifi", k.to_le_bytes().to_vec()).unwrap();
+        }
+        s.step(0.1).unwrap();
+    }
+    let got = s.inbox(-2, "wifi").unwrap();
+    assert_eq!(got.len(), INBOX_CAPACITY, "the bound");
+    let numbers: Vec<u32> = got
+        .iter()
+        .map(|(sender, b)| {
+            assert_eq!(*sender, -1);
+            u32::from_le_bytes(b.as_slice().try_into().unwrap())
+        })
+        .collect();
+    // The 10 oldest dropped, the rest in the order sent (compared in short: 10,000 numbers).
+    assert_eq!((numbers[0], numbers[numbers.len() - 1]), (10, total - 1), "first and last kept");
+    assert!(numbers.windows(2).all(|w| w[1] == w[0] + 1), "in order, none missing");
+    assert!(s.inbox(-2, "wifi").unwrap().is_empty(), "read once");
+    // Below the bound again, nothing is dropped.
+    s.send(-1, "wifi", vec![7]).unwrap();
+    s.step(0.1).unwrap();
+    assert_eq!(s.inbox(-2, "wifi").unwrap(), vec![(-1, vec![7])]);
+}

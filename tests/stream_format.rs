@@ -10,7 +10,7 @@ use glam::DVec2;
 use smlworld::app::Scenario;
 use smlworld::io::lab::VizStreamPlugin;
 use smlworld::io::viz::{REAR_AXLE_FROM_REAR, StreamFormat, VizFrame, VizReceiver, VizVehicle, viewer_body};
-use smlworld::world::VehicleId;
+use smlworld::world::{VehicleClass, VehicleId};
 
 /// The lab scenario's vehicles (real trucks 0 and 1 and virtual ones) without the lab bridges,
 /// streaming in `format` at 1 Hz: returns the frame of t = 0 and the sim at t = 0.
@@ -24,6 +24,7 @@ fn stream(format: StreamFormat) -> (VizFrame, Start) {
     let start = Start {
         states: sim.states().into_iter().collect(),
         lengths: scenario.file.vehicles.iter().map(|v| (v.id, v.length.unwrap_or(4.12))).collect(),
+        classes: scenario.file.vehicles.iter().map(|v| (v.id, v.class)).collect(),
     };
     sim.run_for(0.5);
     let deadline = Instant::now() + Duration::from_secs(5);
@@ -41,6 +42,7 @@ fn stream(format: StreamFormat) -> (VizFrame, Start) {
 struct Start {
     states: std::collections::BTreeMap<VehicleId, smlworld::world::VehicleState>,
     lengths: std::collections::BTreeMap<i32, f64>,
+    classes: std::collections::BTreeMap<i32, VehicleClass>,
 }
 
 fn body_of(start: &Start, id: i32) -> (DVec2, f64, f64) {
@@ -52,9 +54,15 @@ fn body_of(start: &Start, id: i32) -> (DVec2, f64, f64) {
 fn the_2015_format_sends_2015_class_names_and_the_rear_axle_point() {
     let (frame, start) = stream(StreamFormat::Y2015);
     assert!(frame.vehicles.len() >= 4);
+    // lab_mixed: real trucks 0 and 1, virtual cars -1, -2, -4, -5, bus -3, truck -6. The name
+    // follows the class, not whether the vehicle is real.
     for v in &frame.vehicles {
-        let expected = if v.id >= 0 { "SmartVehicle" } else { "DummyVehicle" };
-        assert_eq!(v.class_name, expected, "vehicle {}", v.id);
+        let class = start.classes[&v.id];
+        let expected = match class {
+            VehicleClass::Truck => "SmartVehicle",
+            _ => "DummyVehicle",
+        };
+        assert_eq!(v.class_name, expected, "vehicle {} ({class})", v.id);
         let (centre, yaw, length) = body_of(&start, v.id);
         // The point sits at 0.910 / 4.779 of the body length from its rear bumper.
         let rear = centre - DVec2::from_angle(yaw) * length / 2.0;
@@ -117,4 +125,33 @@ fn a_bad_stream_format_names_the_choices() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(err.contains("--stream-format") && err.contains("2015") && err.contains("smlworld"), "{err}");
+}
+
+/// The table of the README ("Stream formats"): each of our classes has one 2015 name, a name the
+/// 2015 viewer (`sml_world_old/VisualisationModule.py`, `draw_vehicles`) draws; ids <= -100 are
+/// never `DummyVehicle`, which that viewer skips there.
+#[test]
+fn every_class_maps_to_a_name_the_2015_viewer_draws() {
+    let table = [
+        (VehicleClass::Car, "DummyVehicle"),
+        (VehicleClass::Truck, "SmartVehicle"),
+        (VehicleClass::Bus, "DummyVehicle"),
+        (VehicleClass::Motorcycle, "DummyVehicle"),
+        (VehicleClass::Bicycle, "DummyVehicle"),
+        (VehicleClass::Emergency, "SmartVehicle"),
+    ];
+    assert_eq!(table.len(), VehicleClass::ALL.len(), "every class is in the table");
+    for (class, name) in table {
+        for id in [0, 3, -1, -99] {
+            assert_eq!(StreamFormat::Y2015.class_name(id, class), name, "{class} id {id}");
+        }
+        for id in [-100, -101, i32::MIN] {
+            assert_eq!(StreamFormat::Y2015.class_name(id, class), "SmartVehicle", "{class} id {id}");
+        }
+        assert_eq!(StreamFormat::Smlworld.class_name(-1, class), class.name(), "our own names by default");
+    }
+    // What the 2015 viewer draws at the 2015 car's size; our viewer reads every name it sends.
+    for name in ["SmartVehicle", "DummyVehicle"] {
+        assert_eq!(smlworld::io::viz::viewer_footprint(name), (4.779, 2.096));
+    }
 }

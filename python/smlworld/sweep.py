@@ -16,7 +16,8 @@ From a file (TOML: ``scenario`` relative to the file, ``seeds``, a ``[grid]`` ta
     python -m smlworld.sweep SWEEP.toml --backend ray --address auto --out results.parquet
 
 Ctrl-C keeps what finished: ``sweep`` raises :class:`SweepInterrupted` whose ``results`` are the
-finished rows, and ``python -m smlworld.sweep`` writes them to ``--out`` and exits with 130.
+finished rows, and ``python -m smlworld.sweep`` writes them to ``--out`` and exits with 130; on
+SIGTERM (``kill PID``, a batch system ending the job) it does the same and exits with 143.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import argparse
 import itertools
 import os
 import re
+import signal
 import sys
 import tempfile
 import types
@@ -208,6 +210,17 @@ def _load_toml(path: Path) -> dict:
         return tomllib.load(f)
 
 
+_terminated = 0  # SIGTERM once received by `python -m smlworld.sweep`, else 0
+
+
+def _sigterm_as_interrupt(signum, frame):
+    """SIGTERM ends a command-line sweep the way Ctrl-C does (the finished rows are written),
+    with exit status 128 + 15."""
+    global _terminated
+    _terminated = signum
+    raise KeyboardInterrupt
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m smlworld.sweep", description="Run a parameter sweep from a TOML file.")
     ap.add_argument("file", help="sweep file: scenario = PATH, seeds = [...], [grid] KEY = [values], duration = S")
@@ -225,6 +238,7 @@ def main(argv=None) -> int:
     if "scenario" not in spec or "grid" not in spec:
         raise SystemExit(f"{path}: needs `scenario` and a `[grid]` table")
     code = 0
+    previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     try:
         df = sweep(
             path.parent / spec["scenario"],
@@ -236,7 +250,9 @@ def main(argv=None) -> int:
             max_workers=args.workers,
         )
     except SweepInterrupted as e:
-        df, code = e.results, 130
+        df, code = e.results, 128 + (_terminated or signal.SIGINT)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     if code and len(df) == 0:
         print(f"no run finished; {args.out} left as it was", file=sys.stderr)
         return code

@@ -74,6 +74,39 @@ def test_set_commands_brakes_a_vehicle(root):
     assert v1 < v0 - 3.0, (v0, v1)
 
 
+def test_followers_of_a_python_leader_braking_at_6_ms2_brake_with_it(root):
+    """Issue 22 item 5: platoon_brake with its leader driven by a Python controller
+    (``add_controller``) that brakes at 6 m/s² to a stop from 10 s on (before the scenario's
+    own stop at 30 s): the leader's V2V beacons carry the deceleration its commands give, so
+    the CACC followers brake with it: no collision, every follower's minimum gap above 1 m."""
+    sim = smlworld.Sim.from_scenario(root / PLATOON, seed=1)
+    model = sim.models()
+    leader = model["id"] == -1
+    mass, drag = float(model["mass"][leader][0]), float(model["drag"][leader][0])
+    stopped = []
+
+    def brake(obs):
+        v = np.hypot(obs["vx"], obs["vy"])
+        if obs["time"][0] < 10.0:
+            accel = np.clip(0.8 * (15.0 - v), -1.0, 1.0)  # [m/s²] cruise at 15 m/s
+        else:
+            accel = np.where(v > 0.3, -6.0, 0.0)  # [m/s²] brake hard, then stay stopped
+            stopped.append(bool(v[0] < 0.5))
+        throttle = np.where(v > 0.3, mass * accel + drag * v, np.minimum(mass * accel, 0.0))
+        return {"throttle": throttle}
+
+    sim.add_controller([-1], brake, rate=20.0)
+    summary = sim.run(25.0)
+    assert sim.time == pytest.approx(25.0)
+    assert stopped and stopped[-1], "the leader stopped"
+    metrics = summary["metrics"]
+    assert metrics["collision_count"] == 0, metrics["collisions"]
+    followers = metrics["followers"]
+    assert sorted(f["id"] for f in followers) == [-5, -4, -3, -2]
+    for f in followers:
+        assert f["min_gap"] > 1.0, f
+
+
 def test_python_controller_called_once_per_tick_for_the_batch(root):
     sim = smlworld.Sim.from_scenario(root / PLATOON, seed=3)
     calls = []
@@ -154,3 +187,21 @@ def test_star_overrides_set_every_element_like_the_cli(root):
     assert np.all(speeds < 7.5), speeds  # every truck starts at 7 m/s instead of 15
     with pytest.raises(ValueError, match="vehicles"):
         smlworld.Sim.from_scenario(root / PLATOON, **{"vehicles.*.sped": 7.0})
+
+
+def test_quickstart_example_shows_a_sane_platoon(root):
+    """The README quickstart's script and figure (issue 22 item 5): the followers of its
+    Python-driven leader track its speed wave (before the fix they braked at 30 s for the
+    leader's scripted stop while the leader sped up), string stable, without collision."""
+    import runpy
+
+    g = runpy.run_path(str(root / "examples/python_quickstart.py"), run_name="quickstart")
+    times, speeds, ids, metrics = np.array(g["times"]), g["speeds"], list(g["ids"]), g["metrics"]
+    assert (root / "out/python_quickstart.png").exists()
+    assert metrics["collision_count"] == 0, metrics["collisions"]
+    assert metrics["platoons"][0]["string_stable"], metrics["platoons"]
+    lead = speeds[:, ids.index(-1)]
+    late = times > 5.0  # after the start-up
+    for vid in (-2, -3, -4, -5):
+        off = np.abs(speeds[late, ids.index(vid)] - lead[late]).max()
+        assert off < 1.5, f"truck {vid} strays {off:.1f} m/s from the leader's speed"

@@ -1,5 +1,7 @@
 """Sweeps: local process pool and a local Ray cluster give the same table; the CLI form."""
 
+import os
+import signal
 import subprocess
 import sys
 
@@ -68,13 +70,19 @@ def test_sweep_ray_without_address_starts_a_local_ray_and_says_how_to_join(root,
     # Issue 22 item 12, with a stand-in for Ray (the real one is exercised above).
     import types
 
+    class Ref:  # an object ref: hashable, holding the finished task's value
+        def __init__(self, value):
+            self.value = value
+
     calls = []
     fake = types.SimpleNamespace(
         is_initialized=lambda: False,
         init=lambda address=None: calls.append(address),
-        remote=lambda f: types.SimpleNamespace(remote=lambda *a: f(*a)),
+        remote=lambda f: types.SimpleNamespace(remote=lambda *a: Ref(f(*a))),
         put=lambda x: x,
-        get=lambda refs: refs,
+        get=lambda ref: ref.value,
+        wait=lambda refs, num_returns=1, timeout=None: (refs[:num_returns], refs[num_returns:]),
+        cancel=lambda ref, force=False: None,
     )
     monkeypatch.setitem(sys.modules, "ray", fake)
     df = smlworld.sweep(root / "scenarios/platoon_brake.toml", {"duration": [1.0]}, seeds=[1], backend="ray")
@@ -96,12 +104,10 @@ def test_readme_sweep_example_runs_as_a_script(root, tmp_path):
     assert "time_gap" in out.stdout
 
 
-def test_ctrl_c_keeps_the_finished_rows(root, tmp_path):
-    """Issue 24 item 1: Ctrl-C during `python -m smlworld.sweep` writes the runs that finished
-    and exits 130; the run still going is stopped (its process ended), not waited for."""
-    import os
-    import signal
-
+def _interrupted_sweep(root, tmp_path, send, code):
+    """Start `python -m smlworld.sweep` on two short runs and one that would take minutes (one
+    worker runs them in order), call ``send(proc)`` once two runs are done, and check that it
+    exits with ``code`` having written the two finished rows."""
     import pandas as pd
 
     text = (root / "scenarios/platoon_brake.toml").read_text()
@@ -110,12 +116,11 @@ def test_ctrl_c_keeps_the_finished_rows(root, tmp_path):
     assert "log = 0.01" in text
     (tmp_path / "platoon.toml").write_text(text)
     spec = tmp_path / "sweep.toml"
-    # Two short runs, then one that would take minutes; one worker runs them in order.
     spec.write_text('scenario = "platoon.toml"\nseeds = [1]\n[grid]\nduration = [1.0, 2.0, 1000000.0]\n')
     out = tmp_path / "results.csv"
     proc = subprocess.Popen(
         [sys.executable, "-m", "smlworld.sweep", str(spec), "--workers", "1", "--out", str(out)],
-        stderr=subprocess.PIPE, text=True, start_new_session=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
     )
     try:
         seen = []
@@ -124,11 +129,28 @@ def test_ctrl_c_keeps_the_finished_rows(root, tmp_path):
             if "2/3 runs done" in line:
                 break
         assert any("2/3 runs done" in l for l in seen), "".join(seen)
-        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does: the whole group
-        assert proc.wait(timeout=60) == 130, proc.stderr.read()
+        send(proc)
+        status = proc.wait(timeout=60)
     finally:
-        if proc.poll() is None:
+        try:  # whatever is left of its group (workers of a sweep that died), so pipes close
             os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert status == code, proc.stderr.read()
+    assert "interrupted" in proc.stdout.read()
     df = pd.read_csv(out)
     assert list(df["duration"]) == [1.0, 2.0]
     assert (df["metrics.collision_count"] == 0).all()
+
+
+def test_ctrl_c_keeps_the_finished_rows(root, tmp_path):
+    """Issue 24 item 1: Ctrl-C during `python -m smlworld.sweep` writes the runs that finished
+    and exits 130; the run still going is stopped (its process ended), not waited for."""
+    # What Ctrl-C in a terminal does: SIGINT to the whole process group.
+    _interrupted_sweep(root, tmp_path, lambda p: os.killpg(p.pid, signal.SIGINT), 130)
+
+
+def test_sigterm_keeps_the_finished_rows(root, tmp_path):
+    """Issue 24 item 1: SIGTERM (`kill PID`, a batch system ending the job) to
+    `python -m smlworld.sweep` writes the runs that finished and exits 143 (128 + 15)."""
+    _interrupted_sweep(root, tmp_path, lambda p: os.kill(p.pid, signal.SIGTERM), 143)

@@ -376,7 +376,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                             x: p.x,
                             y: p.y,
                             yaw_deg: r.yaw.to_degrees(),
-                            class_name: f.class_name(r.id, v.class.name()).to_string(),
+                            class_name: f.class_name(r.id, v.class).to_string(),
                         });
                     }
                 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use glam::DVec2;
 use smlworld::map::LaneletMap;
-use smlworld::render::{BirdseyeView, Environment, PatternSet, Renderer, write_image, write_meta};
+use smlworld::render::{BirdseyeView, Environment, PatternSet, Renderer, write_image_with_meta};
 
 /// `smlworld map render MAP --out FILE [--width W --height H --pixels-per-meter P] [--center X,Y] [--patterns DIR]`.
 #[derive(Debug, clap::Args)]
@@ -26,20 +26,12 @@ pub struct RenderArgs {
     #[arg(long, value_parser = super::range::positive)]
     pub pixels_per_meter: Option<f64>,
     /// World point at the image centre, `X,Y` [m] (needs `--pixels-per-meter`).
-    #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "pixels_per_meter")]
+    #[arg(long, value_parser = super::range::point, allow_hyphen_values = true, requires = "pixels_per_meter")]
     pub center: Option<DVec2>,
     /// Directory with your own pattern images (`forest.png`, `road.png`, `mud.png`, `iron.png`,
     /// `parking_lot.png`, `free_space.png`); missing ones use the built-in patterns.
     #[arg(long)]
     pub patterns: Option<PathBuf>,
-}
-
-fn parse_point(s: &str) -> Result<DVec2, String> {
-    let bad = || format!("`{s}` is not a point: write X,Y in metres, e.g. 12.5,-3");
-    let (x, y) = s.split_once(',').ok_or_else(bad)?;
-    let x: f64 = x.trim().parse().map_err(|_| bad())?;
-    let y: f64 = y.trim().parse().map_err(|_| bad())?;
-    if x.is_finite() && y.is_finite() { Ok(DVec2::new(x, y)) } else { Err(bad()) }
 }
 
 /// Run the subcommand.
@@ -60,8 +52,7 @@ pub fn main(args: RenderArgs) -> anyhow::Result<()> {
     tracing::debug!(adapter = %renderer.adapter_name(), "rendering");
     let layer = renderer.environment_layer(&Environment::from_map(&map), &view, &patterns)?;
     let image = renderer.read_environment(&layer)?;
-    write_image(&args.out, &image)?;
-    let meta = write_meta(&args.out, &view)?;
+    let meta = write_image_with_meta(&args.out, &image, &view)?;
     println!(
         "wrote {} ({}x{} px, {} px/m, centre {},{} m) and {}",
         args.out.display(),

@@ -4,6 +4,7 @@
 //! most 1e9`) and exit code 2.
 
 use clap::builder::RangedU64ValueParser;
+use glam::DVec2;
 
 /// Largest value a real-valued flag takes (seconds, metres, hertz, pixels per metre ...).
 pub const HUGE: f64 = 1e9;
@@ -34,6 +35,16 @@ pub fn positive(s: &str) -> Result<f64, String> {
 pub fn non_negative(s: &str) -> Result<f64, String> {
     let v = number(s)?;
     within(v, v.is_finite() && (0.0..=HUGE).contains(&v), "a finite number from 0 to 1e9")
+}
+
+/// A point `X,Y` [m] (`--center`): each coordinate finite and within [-[`HUGE`], [`HUGE`]].
+pub fn point(s: &str) -> Result<DVec2, String> {
+    let (x, y) = s.split_once(',').ok_or_else(|| format!("`{s}` is not a point: write X,Y in metres, e.g. 12.5,-3"))?;
+    let coordinate = |c: &str| {
+        let v = number(c)?;
+        within(v, v.is_finite() && v.abs() <= HUGE, "X,Y with each coordinate a finite number from -1e9 to 1e9")
+    };
+    Ok(DVec2::new(coordinate(x)?, coordinate(y)?))
 }
 
 /// A rate in (0, 10,000] Hz.
@@ -71,5 +82,9 @@ mod tests {
         assert!(non_negative("-0.1").is_err());
         assert!(rate_hz("20000").is_err());
         assert_eq!(rate_hz("100"), Ok(100.0));
+        for bad in ["nan,0", "0,inf", "1e300,0", "0,-1e10", "1", "1,2,3", "x,1", ""] {
+            assert!(point(bad).is_err(), "{bad}");
+        }
+        assert_eq!(point(" -12.5, 3 "), Ok(DVec2::new(-12.5, 3.0)));
     }
 }

@@ -53,7 +53,7 @@ pub struct ViewArgs {
     #[arg(long, value_parser = super::range::positive)]
     pub pixels_per_meter: Option<f64>,
     /// View centre `X,Y` [m] (default: the map's centre, else the origin).
-    #[arg(long, value_parser = parse_point)]
+    #[arg(long, value_parser = super::range::point, allow_hyphen_values = true)]
     pub center: Option<DVec2>,
     /// Write every new frame as DIR/frame_NNNNNN.png (and, without a display, only that).
     #[arg(long, value_name = "DIR")]
@@ -65,14 +65,6 @@ pub struct ViewArgs {
     /// shown but not written (the stream runs at 50 Hz: 1.7 GB of PNGs in 25 s unthrottled).
     #[arg(long, default_value_t = 10.0, value_parser = super::range::positive)]
     pub frame_rate: f64,
-}
-
-fn parse_point(s: &str) -> Result<DVec2, String> {
-    let (x, y) = s.split_once(',').ok_or_else(|| format!("{s:?}: expected X,Y in metres, e.g. 10,-5"))?;
-    let num = |v: &str| {
-        v.trim().parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| format!("{v:?} is not a number"))
-    };
-    Ok(DVec2::new(num(x)?, num(y)?))
 }
 
 /// The receiving and drawing half of the viewer (no window).

@@ -36,7 +36,7 @@ use std::path::PathBuf;
 
 pub use environment::{Area, Environment, Line, LineStyle, RoadStrip};
 pub use gpu::{EnvironmentLayer, Renderer};
-pub use output::{GifWriter, frame_path, write_gif, write_image, write_meta};
+pub use output::{GifWriter, frame_path, write_gif, write_image, write_image_with_meta, write_meta};
 pub use overlay::{FONT_TTF, OVERLAY_BACKGROUND, OVERLAY_TEXT_PX, draw_overlay};
 pub use patterns::{PATTERN_SIZE, Pattern, PatternKind, PatternSet};
 pub use recorder::{FrameRecorder, RecorderOptions, check_frame_rate, sprites_from_world};

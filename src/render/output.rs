@@ -18,6 +18,12 @@ pub(super) fn write_error(path: &Path, e: impl std::fmt::Display) -> RenderError
 /// original's bitmap format).
 /// Parent folders are created; the file is replaced only once the new one is complete.
 pub fn write_image(path: &Path, image: &RgbaImage) -> Result<(), RenderError> {
+    image_aside(path, image)?.commit().map_err(|e| write_error(path, e))
+}
+
+/// Write `image` beside `path` under a temporary name (format from the extension, see
+/// [`write_image`]); committing the returned file puts it in place.
+fn image_aside(path: &Path, image: &RgbaImage) -> Result<AtomicFile, RenderError> {
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     let format = match ext.as_deref() {
         Some("png") => image::ImageFormat::Png,
@@ -31,14 +37,37 @@ pub fn write_image(path: &Path, image: &RgbaImage) -> Result<(), RenderError> {
         image.save_with_format(file.path(), format)
     };
     saved.map_err(|e| write_error(path, e))?;
-    file.commit().map_err(|e| write_error(path, e))
+    Ok(file)
+}
+
+/// The `.meta` path beside an image: the image's extension replaced by `meta`.
+fn meta_path(image_path: &Path) -> std::path::PathBuf {
+    image_path.with_extension("meta")
 }
 
 /// Write the original's metadata file beside an image: `FILE.meta` (the image's extension
 /// replaced) containing `image_width=W;image_height=H;pixel_per_meter=P`, no trailing newline.
 pub fn write_meta(image_path: &Path, view: &BirdseyeView) -> Result<std::path::PathBuf, RenderError> {
-    let meta = image_path.with_extension("meta");
+    let meta = meta_path(image_path);
     crate::files::write_atomic(&meta, view.meta().as_bytes()).map_err(|e| write_error(&meta, e))?;
+    Ok(meta)
+}
+
+/// Write an image and its `.meta` ([`write_image`], [`write_meta`]) as a pair: both are written
+/// aside first, so when either cannot be written neither earlier file is replaced (the `.meta`
+/// goes into place first: a `.meta` that cannot be renamed leaves the earlier image too).
+/// Returns the `.meta` path.
+pub fn write_image_with_meta(
+    path: &Path,
+    image: &RgbaImage,
+    view: &BirdseyeView,
+) -> Result<std::path::PathBuf, RenderError> {
+    let image_file = image_aside(path, image)?;
+    let meta = meta_path(path);
+    let meta_file = AtomicFile::new(&meta).map_err(|e| write_error(&meta, e))?;
+    std::fs::write(meta_file.path(), view.meta()).map_err(|e| write_error(&meta, e))?;
+    meta_file.commit().map_err(|e| write_error(&meta, e))?;
+    image_file.commit().map_err(|e| write_error(path, e))?;
     Ok(meta)
 }
 

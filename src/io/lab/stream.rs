@@ -70,7 +70,7 @@ pub fn stream_vehicles(
         v.x = p.x;
         v.y = p.y;
         v.yaw_deg = s.yaw.to_degrees();
-        let name = format.class_name(id.0, class.name());
+        let name = format.class_name(id.0, *class);
         if v.class_name != name {
             v.class_name.clear();
             v.class_name.push_str(name);

@@ -6,10 +6,20 @@
 //!   Python class names (`scripts/sml_world_old/VisualisationModule.py`, `draw_vehicles`:
 //!   `SmartVehicle`, `DummyVehicle`, and the lab bodies `QualisysGoal`, `QualisysBigBox`,
 //!   `QualisysSmallBox`; the later `visualization.py` also `BaseVehicle` and `WifiVehicle`) and
-//!   stop on any other name. Our vehicles map to: a real vehicle (id >= 0) -> `SmartVehicle`
-//!   (2015 drove the real trucks as `SmartVehicle(real_vehicle=True)`); a virtual vehicle ->
-//!   `DummyVehicle` (2015's simulated traffic), except ids <= -100, which the 2015 viewer skips
-//!   for `DummyVehicle` -> `SmartVehicle`. We send no lab bodies. `(x, y)` is the **rear-axle
+//!   stop on any other name. The name is mapped from our [`VehicleClass`] ([`class_name_2015`],
+//!   the table in the README, "The lab"):
+//!
+//!   | our class | 2015 name | why |
+//!   |---|---|---|
+//!   | `truck` | `SmartVehicle` | 2015 drove the lab's trucks, real or simulated, as `SmartVehicle` |
+//!   | `emergency` | `SmartVehicle` | the 2015 emergency vehicle was a `SmartVehicle` (its supervisory module) |
+//!   | `car`, `bus`, `motorcycle`, `bicycle` | `DummyVehicle` | 2015's traffic, drawn as cars coloured by id |
+//!
+//!   except that ids <= -100 are always `SmartVehicle`: the 2015 viewer skips `DummyVehicle`s
+//!   there. `BaseVehicle` and `WifiVehicle` are never sent (the 2015 `VisualisationModule.py`
+//!   stops on them). We have no motion-capture bodies other than vehicles (no goals, no boxes),
+//!   so `QualisysGoal`, `QualisysBigBox` and `QualisysSmallBox` are never sent; our viewer draws
+//!   them when a 2015 sender sends them ([`viewer_footprint`]). `(x, y)` is the **rear-axle
 //!   point**: the 2015 viewer centres its "Offset" sprites on it (`load_smart_car_image`: a
 //!   4.779 m car whose rear axle is 0.910 m ahead of its rear bumper, the sprite twice the
 //!   axle-to-front length), so the body reaches [`REAR_AXLE_FROM_REAR`] of its length behind the
@@ -21,6 +31,7 @@
 use glam::DVec2;
 
 use super::VizVehicle;
+use crate::world::VehicleClass;
 
 /// Rear axle of the 2015 car as a fraction of its length from the rear bumper: 0.910 m of
 /// 4.779 m (`VisualisationModule.py`, `load_smart_car_image`).
@@ -49,12 +60,12 @@ impl std::str::FromStr for StreamFormat {
 }
 
 impl StreamFormat {
-    /// The class name sent for vehicle `id` of class `ours` (our name, e.g. `Truck`).
-    pub fn class_name(self, id: i32, ours: &'static str) -> &'static str {
+    /// The class name sent for vehicle `id` of class `class`: our name (`Truck`, ...) or, in
+    /// the 2015 format, [`class_name_2015`].
+    pub fn class_name(self, id: i32, class: VehicleClass) -> &'static str {
         match self {
-            StreamFormat::Smlworld => ours,
-            StreamFormat::Y2015 if id >= 0 || id <= -100 => "SmartVehicle",
-            StreamFormat::Y2015 => "DummyVehicle",
+            StreamFormat::Smlworld => class.name(),
+            StreamFormat::Y2015 => class_name_2015(id, class),
         }
     }
 
@@ -73,6 +84,17 @@ impl StreamFormat {
             StreamFormat::Smlworld => point,
             StreamFormat::Y2015 => point + DVec2::from_angle(yaw) * (length * (0.5 - REAR_AXLE_FROM_REAR)),
         }
+    }
+}
+
+/// The 2015 viewers' class name for vehicle `id` of our class `class` (the table in the module
+/// docs): trucks and emergency vehicles `SmartVehicle`, other classes `DummyVehicle`, and
+/// `SmartVehicle` for every id <= -100 (the 2015 viewer draws no `DummyVehicle` there).
+pub fn class_name_2015(id: i32, class: VehicleClass) -> &'static str {
+    match class {
+        _ if id <= -100 => "SmartVehicle",
+        VehicleClass::Truck | VehicleClass::Emergency => "SmartVehicle",
+        VehicleClass::Car | VehicleClass::Bus | VehicleClass::Motorcycle | VehicleClass::Bicycle => "DummyVehicle",
     }
 }
 

@@ -45,7 +45,7 @@ pub use codec::{
     MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder, VizError, VizPart,
     VizVehicle, decode_datagram, encode_frame,
 };
-pub use format::{REAR_AXLE_FROM_REAR, StreamFormat, viewer_body, viewer_footprint};
+pub use format::{REAR_AXLE_FROM_REAR, StreamFormat, class_name_2015, viewer_body, viewer_footprint};
 pub use reassembly::{
     MAX_VEHICLES_PER_DATAGRAM, MAX_VEHICLES_PER_FRAME, RESTART_AFTER, VizFrame, VizReassembler, VizStats,
 };
