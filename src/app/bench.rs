@@ -12,8 +12,8 @@ use crate::map::generate::{GenerateError, RingParams, ring_highway, ring_lane_ta
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
 use crate::sim::{Control, Dynamics, Parallelism, Rates, SimClock, SimSystems};
 use crate::vehicles::{
-    FollowLaw, Idm, IdmController, IdmPlugin, LaneChangeParams, LaneChangePlugin, LaneChanger, LanePosition,
-    LanesPlugin, RouteGoal,
+    FollowLaw, Idm, IdmController, IdmPlugin, LaneChangeLog, LaneChangeParams, LaneChangePlugin, LaneChanger,
+    LanePosition, LanesPlugin, RouteGoal,
 };
 use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
 use crate::world::{Channel, Mailbox, Radar, SensorSet, SimTime, VehicleId, VehicleSpec, VehicleState, Velodyne};
@@ -137,6 +137,8 @@ impl BenchWorld {
         if self.lane_change {
             b.add_plugin(LanesPlugin { map }).add_plugin(IdmPlugin);
             b.add_plugin(LaneChangePlugin { points_per_meter: self.points_per_meter });
+            // No summary is written: count the changes, keep no list that grows with them.
+            b.world_mut().resource_mut::<LaneChangeLog>().keep_events = false;
         }
         let params = PathFollowing { speed: self.speed, ..Default::default() };
         let sensors =
@@ -376,6 +378,17 @@ mod tests {
         for key in ["map", "vehicles", "sensors", "rates", "threads", "modules"] {
             assert!(json.get(key).is_some(), "JSON lacks `{key}`");
         }
+    }
+
+    #[test]
+    fn the_lane_change_bench_counts_changes_without_a_list_that_grows() {
+        let mut b = BenchWorld { vehicles: 300, lane_change: true, ..Default::default() }.builder().expect("builds");
+        b.insert_resource(Parallelism::single());
+        let mut sim = b.build();
+        sim.run_for(60.0);
+        let log = sim.world().resource::<LaneChangeLog>();
+        assert!(log.count() > 0, "vehicles of different desired speeds change lanes");
+        assert!(log.events.is_empty(), "{} events kept by a run that writes no summary", log.events.len());
     }
 
     #[test]

@@ -20,7 +20,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
 use crate::sim::{Dynamics, GridEntry, Plugin, SimBuilder, SimClock, SimSystems, SpatialGrid};
-use crate::vehicles::{ChangeKind, LaneChangeEvent, LaneChangeLog, Longitudinal, PathFollower, PlatoonMember};
+use crate::vehicles::{LaneChangeEvent, LaneChangeLog, Longitudinal, PathFollower, PlatoonMember};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 /// One collision: two footprints started to overlap.
@@ -145,12 +145,11 @@ pub struct LaneChangeSummary {
 impl LaneChangeSummary {
     /// Count the changes of `log`.
     pub fn of(log: &LaneChangeLog) -> LaneChangeSummary {
-        let kind = |k: ChangeKind| log.events.iter().filter(|e| e.kind == k).count();
         LaneChangeSummary {
-            count: log.events.len(),
-            discretionary: kind(ChangeKind::Discretionary),
-            mandatory: kind(ChangeKind::Mandatory),
-            aborted: log.events.iter().filter(|e| e.aborted).count(),
+            count: log.count(),
+            discretionary: log.counts[0],
+            mandatory: log.counts[1],
+            aborted: log.aborted,
             missed_exits: log.missed_exits.len(),
             max_wait_s: log.max_wait_s,
         }

@@ -291,14 +291,56 @@ pub struct LaneChangeEvent {
 }
 
 /// What the lane changes of a run did.
-#[derive(Resource, Debug, Clone, Default)]
+#[derive(Resource, Debug, Clone)]
 pub struct LaneChangeLog {
-    /// Every change, in the order they ended.
+    /// Every change, in the order they ended (when `keep_events`).
     pub events: Vec<LaneChangeEvent>,
+    /// Whether every event is kept for the summary (a run's `metrics.lane_changes`); a
+    /// benchmark or soak that writes no summary turns it off, so memory does not grow with the
+    /// number of changes made.
+    pub keep_events: bool,
+    /// Changes ended so far (aborted ones included), by kind: discretionary, mandatory, requested.
+    pub counts: [usize; 3],
+    /// Of which aborted.
+    pub aborted: usize,
     /// Vehicles that reached the end of a lane they had to leave.
     pub missed_exits: std::collections::BTreeSet<VehicleId>,
     /// Longest time a vehicle stood (below 0.5 m/s) waiting for a gap [s].
     pub max_wait_s: f64,
+}
+
+impl Default for LaneChangeLog {
+    fn default() -> Self {
+        LaneChangeLog {
+            events: Vec::new(),
+            keep_events: true,
+            counts: [0; 3],
+            aborted: 0,
+            missed_exits: Default::default(),
+            max_wait_s: 0.0,
+        }
+    }
+}
+
+impl LaneChangeLog {
+    /// Count `event` (and keep it when `keep_events`).
+    pub fn record(&mut self, event: LaneChangeEvent) {
+        let k = match event.kind {
+            ChangeKind::Discretionary => 0,
+            ChangeKind::Mandatory => 1,
+            ChangeKind::Requested => 2,
+        };
+        self.counts[k] += 1;
+        self.aborted += usize::from(event.aborted);
+        if self.keep_events {
+            self.events.push(event);
+        }
+    }
+
+    /// Changes ended so far, aborted ones included.
+    pub fn count(&self) -> usize {
+        self.counts.iter().sum()
+    }
 }
 
 /// Vehicles crossing between two lanes this tick: id -> (from, to). Leader searches count them
@@ -691,7 +733,7 @@ pub fn decide_lane_changes(
             m.peak_lateral_accel = m.peak_lateral_accel.max(v * v * d2);
             m.old_s = m.old_route.project_near(state.position, m.old_s + v * dt, v.abs() * dt + 5.0).s;
             if driven >= m.profile.length {
-                log.events.push(LaneChangeEvent {
+                log.record(LaneChangeEvent {
                     id: me,
                     t_start: m.t_start,
                     t_end: t,
