@@ -248,6 +248,11 @@ pub struct BenchReport {
     pub interrupted: bool,
     /// Wall time of the run, set-up excluded [s].
     pub wall_seconds: f64,
+    /// Processor time of the run, all threads together, set-up excluded [s] (Linux and other
+    /// Unix; `None` elsewhere): on a busy machine a steadier measure than the wall time.
+    pub cpu_seconds: Option<f64>,
+    /// Vehicle dynamics steps per processor second (all threads together).
+    pub vehicle_steps_per_cpu_second: Option<f64>,
     /// Sim seconds per wall second.
     pub real_time_factor: f64,
     /// Vehicle dynamics steps (vehicles x dynamics ticks) per wall second.
@@ -258,6 +263,26 @@ pub struct BenchReport {
     pub modules: Vec<ModuleTime>,
     /// Peak resident memory of the process [MB] (Linux only).
     pub peak_rss_mb: Option<f64>,
+}
+
+/// Processor time this process has used so far, user and system, all threads [s].
+pub fn process_cpu_seconds() -> Option<f64> {
+    #[cfg(unix)]
+    {
+        let mut usage = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+        // SAFETY: getrusage writes a whole `rusage` into the pointer it is given, which points to
+        // one; RUSAGE_SELF is always valid.
+        let ok = unsafe { libc::getrusage(libc::RUSAGE_SELF, usage.as_mut_ptr()) } == 0;
+        if !ok {
+            return None;
+        }
+        // SAFETY: getrusage succeeded, so it initialised the struct.
+        let usage = unsafe { usage.assume_init() };
+        let secs = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+        Some(secs(usage.ru_utime) + secs(usage.ru_stime))
+    }
+    #[cfg(not(unix))]
+    None
 }
 
 /// Peak resident memory of this process [MB] (Linux `VmHWM`), if known.
@@ -280,9 +305,11 @@ impl BenchWorld {
         let rates = Rates::default();
         let mut sim = builder.build();
         sim.scheduler_mut().set_timing(true);
+        let cpu = process_cpu_seconds();
         let wall = std::time::Instant::now();
         let run = super::run_headless(&mut sim, duration, duration, |_| {});
         let wall_seconds = wall.elapsed().as_secs_f64();
+        let cpu_seconds = cpu.zip(process_cpu_seconds()).map(|(a, b)| b - a);
         let duration = run.sim_seconds;
         let steps = sim.scheduler().ticks(Dynamics).unwrap_or(0) as f64 * self.vehicles as f64;
         let modules = sim
@@ -317,6 +344,8 @@ impl BenchWorld {
             sim_seconds: duration,
             interrupted: run.interrupted,
             wall_seconds,
+            cpu_seconds,
+            vehicle_steps_per_cpu_second: cpu_seconds.filter(|&c| c > 0.0).map(|c| steps / c),
             real_time_factor: duration / wall_seconds,
             vehicle_steps_per_second: steps / wall_seconds,
             us_per_vehicle_sim_second: wall_seconds * 1e6 / (self.vehicles as f64 * duration),
@@ -375,7 +404,9 @@ mod tests {
         let shares: f64 = report.modules.iter().map(|m| m.share).sum();
         assert!(shares > 0.5 && shares <= 1.0, "module shares sum to {shares}");
         let json = serde_json::to_value(&report).expect("the report serialises");
-        for key in ["map", "vehicles", "sensors", "rates", "threads", "modules"] {
+        let cpu = report.cpu_seconds.expect("processor time is measured on Linux");
+        assert!(cpu > 0.0 && cpu < 60.0, "{cpu} s of processor time for 1 sim s of 300 vehicles");
+        for key in ["map", "vehicles", "sensors", "rates", "threads", "modules", "vehicle_steps_per_cpu_second"] {
             assert!(json.get(key).is_some(), "JSON lacks `{key}`");
         }
     }
