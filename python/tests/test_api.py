@@ -185,7 +185,8 @@ def test_star_overrides_set_every_element_like_the_cli(root):
     sim.step(0.2)
     speeds = np.hypot(sim.states()["vx"], sim.states()["vy"])
     assert np.all(speeds < 7.5), speeds  # every truck starts at 7 m/s instead of 15
-    with pytest.raises(ValueError, match="vehicles"):
+    # A misspelt key gets the file's error, naming the key and what is allowed.
+    with pytest.raises(ValueError, match="unknown field `sped`, expected one of .*`speed`"):
         smlworld.Sim.from_scenario(root / PLATOON, **{"vehicles.*.sped": 7.0})
 
 
