@@ -22,7 +22,7 @@
 pub mod acc;
 pub mod crossing;
 pub mod cruise;
-pub mod emergency;
+pub mod emergency_braking;
 pub mod idm;
 pub mod lane_change;
 pub mod lane_changing;
@@ -37,7 +37,7 @@ pub use crossing::{
     Crossing, CrossingClaim, CrossingNegotiator, CrossingPlugin, goes_first, stop_before, yield_at_crossings, zone_span,
 };
 pub use cruise::{CruiseControl, CruiseController, CruisePlugin, SpeedDip, control_cruise};
-pub use emergency::{
+pub use emergency_braking::{
     EmergencyBrake, EmergencyBraking, EmergencyBrakingPlugin, brake_for_emergencies, time_to_collision,
 };
 pub use idm::{Idm, IdmController, IdmPlugin, control_idm};
