@@ -1,0 +1,84 @@
+//! The emergency vehicle (issue 20, item 2): `scenarios/emergency_vehicle.toml` run with and
+//! without yielding, the figures the issue asks for, and the `[emergency]` / `yield_to_emergency`
+//! keys parsed strictly.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use serde_json::Value;
+use smlworld::app::Scenario;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Run `smlworld run scenarios/emergency_vehicle.toml` with `--set` overrides; return
+/// summary.json.
+fn run(tag: &str, sets: &[&str]) -> Value {
+    let out = std::env::temp_dir().join(format!("smlworld-ev-{tag}-{}", std::process::id()));
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_smlworld"));
+    cmd.arg("run").arg(root().join("scenarios/emergency_vehicle.toml")).arg("--out").arg(&out);
+    for s in sets {
+        cmd.arg("--set").arg(s);
+    }
+    let output = cmd.current_dir(root()).output().expect("the smlworld binary runs");
+    assert!(output.status.success(), "{tag}: {}", String::from_utf8_lossy(&output.stderr));
+    let summary = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let _ = std::fs::remove_dir_all(&out);
+    summary
+}
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("{v} is not a number"))
+}
+
+#[test]
+fn traffic_that_yields_halves_the_emergency_vehicles_delay_without_collisions() {
+    let with = run("yield", &[]);
+    let without = run("no-yield", &["vehicles.*.yield_to_emergency=false", "traffic.*.yield_to_emergency=false"]);
+    let (m, m0) = (&with["metrics"], &without["metrics"]);
+    let (e, e0) = (&m["emergency"], &m0["emergency"]);
+    eprintln!("with yielding: {e}\nwithout: {e0}");
+    for key in ["id", "travel_time_s", "free_flow_time_s", "delay_s", "min_clearance_m", "vehicles_yielded"] {
+        assert!(!e[key].is_null(), "metrics.emergency.{key} missing: {e}");
+    }
+    assert_eq!(e["id"], -1);
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    assert_eq!(m0["collision_count"], 0, "{}", m0["collisions"]);
+    assert!(m["traffic"]["inserted"].as_u64().unwrap() >= 30, "{}", m["traffic"]);
+    assert!(e["vehicles_yielded"].as_u64().unwrap() >= 5, "{e}");
+    assert_eq!(e0["vehicles_yielded"], 0, "nobody yields when told not to: {e0}");
+    let (delay, delay0) = (f(&e["delay_s"]), f(&e0["delay_s"]));
+    assert!(delay0 > 1.0, "without yielding the traffic must cost a real delay: {e0}");
+    assert!(delay <= 0.5 * delay0, "yielding must at least halve the delay: {delay} s vs {delay0} s");
+    let (travel, free) = (f(&e["travel_time_s"]), f(&e["free_flow_time_s"]));
+    assert!((travel - free - delay).abs() < 1e-6, "{e}");
+    assert!(f(&e["min_clearance_m"]) >= 0.0, "{e}");
+}
+
+fn load(text: &str) -> Result<Scenario, String> {
+    Scenario::parse_str(text, &root().join("scenarios/test.toml")).map_err(|e| e.to_string())
+}
+
+const EMERGENCY: &str = r#"
+map = "../maps/emergency_ring.osm"
+[[vehicles]]
+id = -1
+class = "emergency"
+route = { loop = "left_lane_node" }
+controller = { type = "idm", speed = 30.0 }
+sensors = { radar = { angle_deg = 60.0, range = 150.0 } }
+"#;
+
+#[test]
+fn emergency_keys_are_parsed_strictly_and_checked_naming_the_key() {
+    assert!(load(&format!("{EMERGENCY}[emergency]\nwarning_range = 100.0\n")).is_ok());
+    let bad = load(&format!("{EMERGENCY}[emergency]\nwarning_range = -5.0\n")).unwrap_err();
+    assert!(bad.contains("emergency.warning_range"), "{bad}");
+    let typo = load(&format!("{EMERGENCY}[emergency]\nwarning_rang = 100.0\n")).unwrap_err();
+    assert!(typo.contains("warning_rang"), "{typo}");
+    let car = "[[vehicles]]\nid = -2\nroute = { loop = \"right_lane_node\" }\nyield_to_emergency = 3\n";
+    let wrong = load(&format!("{EMERGENCY}{car}")).unwrap_err();
+    assert!(wrong.contains("yield_to_emergency"), "{wrong}");
+    assert!(load(&format!("{EMERGENCY}{}", car.replace("= 3", "= false"))).is_ok());
+}
