@@ -82,3 +82,34 @@ fn emergency_keys_are_parsed_strictly_and_checked_naming_the_key() {
     assert!(wrong.contains("yield_to_emergency"), "{wrong}");
     assert!(load(&format!("{EMERGENCY}{}", car.replace("= 3", "= false"))).is_ok());
 }
+
+/// The README's GIF is a window of the ring: `run --pixels-per-meter P --center X,Y` draws that
+/// window instead of the whole map, and `--center` alone is refused naming what it needs.
+#[test]
+fn run_frames_show_a_fixed_window_with_pixels_per_meter_and_center() {
+    let frames = |tag: &str, extra: &[&str]| -> Result<Vec<u8>, String> {
+        let dir = std::env::temp_dir().join(format!("smlworld-ev-frames-{tag}-{}", std::process::id()));
+        let output = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+            .args(["run", "scenarios/emergency_vehicle.toml", "--duration", "0.1", "--frame-rate", "10"])
+            .args(["--width", "64", "--height", "36", "--no-overlay", "--frames"])
+            .arg(dir.join("frames"))
+            .arg("--out")
+            .arg(&dir)
+            .args(extra)
+            .current_dir(root())
+            .output()
+            .expect("the smlworld binary runs");
+        let result = if output.status.success() {
+            Ok(std::fs::read(dir.join("frames/frame_000000.png")).expect("a frame"))
+        } else {
+            Err(String::from_utf8_lossy(&output.stderr).into_owned())
+        };
+        let _ = std::fs::remove_dir_all(&dir);
+        result
+    };
+    let whole = frames("whole", &[]).unwrap();
+    let window = frames("window", &["--pixels-per-meter", "4", "--center=-40,245"]).unwrap();
+    assert_ne!(whole, window, "the window must differ from the whole ring");
+    let err = frames("center-only", &["--center=-40,245"]).unwrap_err();
+    assert!(err.contains("--pixels-per-meter"), "{err}");
+}
