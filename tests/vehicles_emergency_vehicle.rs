@@ -15,6 +15,11 @@ fn root() -> PathBuf {
 /// Run `smlworld run scenarios/emergency_vehicle.toml` with `--set` overrides; return
 /// summary.json.
 fn run(tag: &str, sets: &[&str]) -> Value {
+    run_with_rows(tag, sets).0
+}
+
+/// [`run`], plus the trajectory rows (`t,id,x,y,yaw,vx,vy,lanelet,lane_offset`).
+fn run_with_rows(tag: &str, sets: &[&str]) -> (Value, Vec<Vec<String>>) {
     let out = std::env::temp_dir().join(format!("smlworld-ev-{tag}-{}", std::process::id()));
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_smlworld"));
     cmd.arg("run").arg(root().join("scenarios/emergency_vehicle.toml")).arg("--out").arg(&out);
@@ -24,8 +29,10 @@ fn run(tag: &str, sets: &[&str]) -> Value {
     let output = cmd.current_dir(root()).output().expect("the smlworld binary runs");
     assert!(output.status.success(), "{tag}: {}", String::from_utf8_lossy(&output.stderr));
     let summary = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let csv = std::fs::read_to_string(out.join("trajectories.csv")).unwrap();
+    let rows = csv.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect();
     let _ = std::fs::remove_dir_all(&out);
-    summary
+    (summary, rows)
 }
 
 fn f(v: &Value) -> f64 {
@@ -54,6 +61,39 @@ fn traffic_that_yields_halves_the_emergency_vehicles_delay_without_collisions() 
     let (travel, free) = (f(&e["travel_time_s"]), f(&e["free_flow_time_s"]));
     assert!((travel - free - delay).abs() < 1e-6, "{e}");
     assert!(f(&e["min_clearance_m"]) >= 0.0, "{e}");
+    // The yielding is lane changes to the right on request, and the same vehicles change back
+    // to the left once it has passed; without yielding there is no requested change at all.
+    let requested = |m: &Value, dir: &str| -> Vec<(i64, f64)> {
+        let list = m["lane_changes"].as_array().expect("lane_changes");
+        list.iter()
+            .filter(|c| c["kind"] == "requested" && c["direction"] == dir)
+            .map(|c| (c["id"].as_i64().unwrap(), f(&c["t_start"])))
+            .collect()
+    };
+    let (right, left) = (requested(m, "right"), requested(m, "left"));
+    assert!(right.len() >= 5, "{right:?}");
+    let returned = right.iter().filter(|(id, t)| left.iter().any(|(l, tl)| l == id && tl > t)).count();
+    assert!(returned >= 3, "vehicles change back once it has passed: right {right:?}, left {left:?}");
+    assert!(requested(m0, "right").is_empty() && requested(m0, "left").is_empty());
+}
+
+/// In the right-most lane there is no lane to move to: the vehicles ahead of it move aside inside
+/// their lane (the 2015 behaviour) instead.
+#[test]
+fn in_the_right_most_lane_vehicles_move_aside_inside_their_lane() {
+    let sets = ["vehicles.0.route.loop=\"right_lane_node\"", "traffic.*.lane_change=false"];
+    let (summary, rows) = run_with_rows("right-lane", &sets);
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    assert!(m["emergency"]["vehicles_yielded"].as_u64().unwrap() >= 1, "{}", m["emergency"]);
+    // A 4 m lane and a 1.7 m car: 2 - 0.85 - 0.25 = 0.9 m to the right of the centre line.
+    let aside: std::collections::BTreeSet<&str> = rows
+        .iter()
+        .filter(|r| r[1] != "-1" && r[8].parse::<f64>().is_ok_and(|o| o < -0.8))
+        .map(|r| r[1].as_str())
+        .collect();
+    assert!(!aside.is_empty(), "nobody moved aside");
+    assert!(rows.iter().all(|r| r[8].parse::<f64>().map_or(true, |o| o > -1.0)), "nobody leaves the lane");
 }
 
 fn load(text: &str) -> Result<Scenario, String> {

@@ -233,7 +233,8 @@ pub struct EmergencySummary {
     pub free_flow_time_s: f64,
     /// `travel_time_s - free_flow_time_s` [s]: what the traffic cost it.
     pub delay_s: f64,
-    /// Smallest clearance between it and any other vehicle [m] (footprints taken parallel).
+    /// Smallest clearance between it and any other vehicle [m] (footprints taken parallel);
+    /// -1 when no vehicle came within 40 m of it.
     pub min_clearance_m: f64,
     /// Vehicles that made way for it (changed to the right, or moved aside in their lane).
     pub vehicles_yielded: usize,
@@ -366,15 +367,14 @@ pub fn yield_to_emergency_vehicles(
             y.heard = None;
         }
         let changing = changer.as_ref().is_some_and(|c| c.active.is_some());
-        if y.requested {
-            if let Some(m) = changer.as_ref().and_then(|c| c.active.as_ref())
-                && m.direction == Side::Right
-                && m.kind == ChangeKind::Requested
-            {
-                y.yielded = true;
-                log.yielded.insert(*id);
-                y.return_until = Some(f64::INFINITY);
-            }
+        if y.requested
+            && let Some(m) = changer.as_ref().and_then(|c| c.active.as_ref())
+            && m.direction == Side::Right
+            && m.kind == ChangeKind::Requested
+        {
+            y.yielded = true;
+            log.yielded.insert(*id);
+            y.return_until = Some(f64::INFINITY);
         }
         let refused = y.requested && !changing;
         // Where the emergency vehicle is relative to us: ahead of it in the lane it uses, or
