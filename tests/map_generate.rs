@@ -41,7 +41,7 @@ fn assert_same_xml(expected: &str, actual: &str, what: &str) {
 
 #[test]
 fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
-    let cases: [(&str, String); 5] = [
+    let cases: [(&str, String); 6] = [
         ("maps/highway_ring.osm", ring_highway(&RingParams::default()).expect("defaults are valid")),
         (
             "maps/two_lane_ring.osm",
@@ -56,6 +56,10 @@ fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
             intersection(&IntersectionParams { arms: 4, ..IntersectionParams::default() }).expect("valid"),
         ),
         ("maps/grid_3x3.osm", grid_city(&GridParams::default()).expect("defaults are valid")),
+        (
+            "maps/emergency_ring.osm",
+            ring_highway(&RingParams { radius: 250.0, ..RingParams::default() }).expect("valid"),
+        ),
     ];
     for (file, generated) in cases {
         let shipped = std::fs::read_to_string(repo_file(file))

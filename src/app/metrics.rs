@@ -123,6 +123,10 @@ pub struct MetricsSummary {
     /// What each V2V channel sent, delivered and lost, per receiver (set by the run summary).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub v2v: Option<V2vMetrics>,
+    /// The emergency vehicle's travel time, delay against free flow, closest approach and the
+    /// vehicles that made way (with an emergency vehicle only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub emergency: Option<crate::vehicles::EmergencySummary>,
 }
 
 /// `metrics.lane_change_summary` of `summary.json`.
@@ -345,6 +349,7 @@ impl Metrics {
             traffic: None,
             throughput: None,
             v2v: None,
+            emergency: None,
         }
     }
 }

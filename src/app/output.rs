@@ -265,6 +265,9 @@ impl RunSummary {
                     summary.throughput = Some(Throughput { vehicles_out: t.removed, per_hour });
                 }
                 summary.v2v = world.get_resource::<crate::sim::V2vChannelStats>().map(super::metrics::V2vMetrics::of);
+                summary.emergency = world
+                    .get_resource::<crate::vehicles::EmergencyLog>()
+                    .and_then(crate::vehicles::EmergencyLog::summary);
                 summary
             }),
             lab: LabSummary::of(world),

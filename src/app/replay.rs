@@ -308,6 +308,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
             height: options.height,
             sensor_ranges: false,
             overlay: options.overlay,
+            ..RecorderOptions::default()
         };
         Some(FrameRecorder::new(&map, &opts)?)
     } else {

@@ -76,6 +76,10 @@ pub struct RunOptions {
     pub height: u32,
     /// Draw radar cones and velodyne circles in the frames.
     pub sensor_ranges: bool,
+    /// Scale of the frames [px/m]: a fixed window (around `center`) instead of the whole map.
+    pub pixels_per_meter: Option<f64>,
+    /// World point at the centre of the frames [m] (with `pixels_per_meter`; default the origin).
+    pub center: Option<glam::DVec2>,
     /// Time stamp and legend in a corner: `Some(true)` on frames and GIF, `Some(false)` on
     /// none, `None` (default) on the GIF only.
     pub overlay: Option<bool>,
@@ -115,6 +119,8 @@ impl Default for RunOptions {
             width: 1280,
             height: 720,
             sensor_ranges: false,
+            pixels_per_meter: None,
+            center: None,
             overlay: None,
             stream: None,
             stream_format: crate::io::viz::StreamFormat::Smlworld,
@@ -411,6 +417,8 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
         height: options.height,
         sensor_ranges: options.sensor_ranges,
         overlay: options.overlay,
+        pixels_per_meter: options.pixels_per_meter,
+        center: options.center,
     };
     Ok(Some(FrameRecorder::new(map, &opts)?))
 }

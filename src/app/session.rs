@@ -303,6 +303,7 @@ impl Session {
                 height,
                 sensor_ranges: false,
                 overlay: Some(false),
+                ..RecorderOptions::default()
             };
             let rec = FrameRecorder::new(map, &opts).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
             self.renderer = Some((width, height, rec));

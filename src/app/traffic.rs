@@ -14,8 +14,8 @@ use crate::sim::random::uniform;
 use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::vehicles::lane_changing::{LaneChangeSystems, LaneIndex};
 use crate::vehicles::{
-    AccSetup, CruiseSetup, FollowLaw, Idm, LaneChangeParams, LaneChanger, LaneMap, LanePosition, PathFollower,
-    PathFollowing, RouteGoal, SmartController,
+    AccSetup, CruiseSetup, EmergencySettings, FollowLaw, Idm, LaneChangeParams, LaneChanger, LaneMap, LanePosition,
+    PathFollower, PathFollowing, RouteGoal, SmartController, YieldToEmergency,
 };
 use crate::world::{
     Route, SensorSet, VehicleClass, VehicleId, VehicleModel, VehicleSize, VehicleSpec, VehicleState, WorldError,
@@ -77,7 +77,7 @@ pub struct TrafficSource {
     pub model: VehicleModel,
     /// Sensors.
     pub sensors: SensorSet,
-    /// Make way for emergency vehicles (a later issue).
+    /// Make way for emergency vehicles (when the scenario has one).
     pub yield_to_emergency: bool,
     /// Next id to give.
     pub next_id: i32,
@@ -186,6 +186,9 @@ pub fn spawn_traffic_vehicle(
             _ => FollowLaw::Idm(Idm { speed: v0.max(0.1), ..Idm::default() }),
         };
         e.insert(LaneChanger::new(params, law, src.goal.clone()));
+    }
+    if src.yield_to_emergency && e.world().contains_resource::<EmergencySettings>() {
+        e.insert(YieldToEmergency::default());
     }
     Ok(())
 }

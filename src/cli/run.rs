@@ -43,6 +43,13 @@ pub struct RunArgs {
     /// Draw radar cones and velodyne circles in the frames.
     #[arg(long)]
     pub sensor_ranges: bool,
+    /// Scale of --frames and --gif [px/m]: a fixed window instead of the whole map, centred on
+    /// --center (default the map's origin).
+    #[arg(long, value_parser = super::range::positive)]
+    pub pixels_per_meter: Option<f64>,
+    /// World point at the centre of --frames and --gif, `X,Y` [m] (needs --pixels-per-meter).
+    #[arg(long, value_parser = super::range::point, allow_hyphen_values = true, requires = "pixels_per_meter")]
+    pub center: Option<glam::DVec2>,
     /// Stream the vehicles over UDP (2015 visualisation format, 50 Hz) to ADDR (default
     /// 127.0.0.1:38008) for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
@@ -95,6 +102,8 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         width: args.width,
         height: args.height,
         sensor_ranges: args.sensor_ranges,
+        pixels_per_meter: args.pixels_per_meter,
+        center: args.center,
         overlay: overlay(args.overlay, args.no_overlay),
         stream: args.stream,
         stream_format: args.stream_format,

@@ -34,6 +34,11 @@ pub struct RecorderOptions {
     /// Time stamp and legend in the top-left corner ([`super::draw_overlay`]): `Some(true)` on
     /// every output, `Some(false)` on none, `None` (default) on the GIF only.
     pub overlay: Option<bool>,
+    /// Scale [px/m] of a fixed window instead of the whole map (with `center`, default the
+    /// map's origin); `None` fits the whole map.
+    pub pixels_per_meter: Option<f64>,
+    /// World point at the image centre [m] (with `pixels_per_meter`).
+    pub center: Option<glam::DVec2>,
 }
 
 impl Default for RecorderOptions {
@@ -46,6 +51,8 @@ impl Default for RecorderOptions {
             height: 720,
             sensor_ranges: false,
             overlay: None,
+            pixels_per_meter: None,
+            center: None,
         }
     }
 }
@@ -73,14 +80,18 @@ pub fn check_frame_rate(hz: f64) -> Result<(), String> {
 }
 
 impl FrameRecorder {
-    /// A recorder whose view fits the whole map; creates the frame folder and the GIF file.
+    /// A recorder whose view fits the whole map (or shows the window `pixels_per_meter` and
+    /// `center` give); creates the frame folder and the GIF file.
     pub fn new(map: &LaneletMap, opts: &RecorderOptions) -> Result<FrameRecorder, RenderError> {
         if !(opts.frame_rate.is_finite() && opts.frame_rate > 0.0) {
             let what = opts.gif.clone().or_else(|| opts.frames_dir.clone()).unwrap_or_default();
             return Err(write_error(&what, format!("frame rate {} Hz must be finite and > 0", opts.frame_rate)));
         }
         let renderer = Renderer::new()?;
-        let view = BirdseyeView::fit_map(opts.width, opts.height, map)?;
+        let view = match opts.pixels_per_meter {
+            Some(ppm) => BirdseyeView::new(opts.width, opts.height, ppm, opts.center.unwrap_or(glam::DVec2::ZERO))?,
+            None => BirdseyeView::fit_map(opts.width, opts.height, map)?,
+        };
         let layer = renderer.environment_layer(&Environment::from_map(map), &view, &PatternSet::builtin())?;
         if let Some(dir) = &opts.frames_dir {
             std::fs::create_dir_all(dir).map_err(|e| write_error(dir, e))?;

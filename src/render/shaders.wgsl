@@ -246,7 +246,11 @@ fn fs_vehicle(in: VehicleOut) -> @location(0) vec4<f32> {
         // headlights
         c = vec3<f32>(1.0, 0.96, 0.8);
     }
-    if (in.real == 0u) {
+    if ((in.real & 2u) != 0u && d_front > 0.36 * len && d_front < 0.36 * len + max(0.14 * len, 3.0 * px)
+        && side > border) {
+        // light bar of an emergency vehicle: red on its left half, blue on its right
+        c = select(vec3<f32>(0.1, 0.3, 1.0), vec3<f32>(1.0, 0.1, 0.1), in.local.y > 0.0);
+    } else if ((in.real & 1u) == 0u) {
         // virtual vehicles: diagonal hatching and a light outline
         if (fract((in.local.x + in.local.y) / max(0.6, 5.0 * px)) < 0.5) {
             c = mix(c, vec3<f32>(1.0), 0.35);

@@ -79,12 +79,19 @@ pub fn class_color(class: &str) -> [u8; 4] {
         [214, 40, 40, 255]
     } else if is("bicycle") || is("bike") {
         [60, 180, 75, 255]
+    } else if is("emergency") {
+        // White with a red/blue light bar across the roof (drawn by the shader, see `LIGHT_BAR`).
+        [238, 238, 242, 255]
     } else {
         // FNV-1a: stable across runs and platforms.
         let h = class.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3));
         PALETTE[(h % PALETTE.len() as u64) as usize]
     }
 }
+
+/// Flag in [`VehicleInstance::real`]: draw a light bar across the roof (red on the left half,
+/// blue on the right), the mark of an emergency vehicle.
+pub(crate) const LIGHT_BAR: u32 = 2;
 
 /// Overlay fill colours (sRGB with the fill's alpha at the centre; the rim is drawn at 0.7).
 const RADAR_COLOR: [u8; 4] = [255, 70, 60, 72];
@@ -103,7 +110,7 @@ pub(crate) struct VehicleInstance {
     pub size: [f32; 2],
     /// sRGB colour.
     pub color: [u8; 4],
-    /// 1 = real vehicle, 0 = virtual.
+    /// Bit 0: 1 = real vehicle, 0 = virtual; bit 1: [`LIGHT_BAR`].
     pub real: u32,
 }
 
@@ -250,7 +257,7 @@ impl FrameBatches {
                 dir,
                 size: [s.length as f32, s.width as f32],
                 color,
-                real: u32::from(s.id >= 0),
+                real: u32::from(s.id >= 0) | if s.class.eq_ignore_ascii_case("emergency") { LIGHT_BAR } else { 0 },
             });
             // The id, centred above the vehicle's screen footprint.
             let n = format_id(s.id, &mut digits);
@@ -332,6 +339,20 @@ mod tests {
         assert!(g.claim(90.0, 45.0, 120.0, 60.0));
         assert!(g.claim(-30.0, -30.0, -1.0, -1.0));
         assert!(g.claim(0.0, 0.0, 4.0, 4.0) == false, "the first label still holds cell (0, 0)");
+    }
+
+    #[test]
+    fn only_emergency_vehicles_carry_a_light_bar() {
+        let view = BirdseyeView::new(200, 100, 10.0, DVec2::ZERO).unwrap();
+        let sprites = [
+            VehicleSprite::new(-1, DVec2::ZERO, 0.0, 5.5, 2.0, "Emergency"),
+            VehicleSprite::new(2, DVec2::new(8.0, 0.0), 0.0, 4.0, 1.7, "Car"),
+        ];
+        let mut batches = FrameBatches::default();
+        batches.build(&view, &sprites);
+        assert_eq!(batches.vehicles[0].real, LIGHT_BAR, "virtual emergency vehicle: light bar, not real");
+        assert_eq!(batches.vehicles[1].real, 1, "real car: no light bar");
+        assert_ne!(class_color("Emergency"), class_color("Car"));
     }
 
     #[test]

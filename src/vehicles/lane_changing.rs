@@ -240,6 +240,13 @@ pub struct LaneChanger {
     pub lane_end: Option<f64>,
     /// While crossing: the vehicles ahead in both lanes, (gap [m], speed [m/s]) each.
     pub crossing_leaders: [Option<(f64, f64)>; 2],
+    /// A side no discretionary change may go to now, set each tick by a cooperative plugin (a
+    /// vehicle does not move into the lane of an emergency vehicle coming up behind it).
+    pub keep_out: Option<Side>,
+    /// Whether the target lane's vehicles are asked to open a gap for `request` as for a
+    /// mandatory change (cooperative plugins set it, e.g. making way for an emergency vehicle;
+    /// Python's `change_lane` does not).
+    pub signal_request: bool,
     wait_since: Option<f64>,
     missed: bool,
     /// Which lanelets reach the goal (looked up once, shared by every vehicle with this goal).
@@ -260,6 +267,8 @@ impl LaneChanger {
             yield_to: None,
             lane_end: None,
             crossing_leaders: [None; 2],
+            keep_out: None,
+            signal_request: false,
             wait_since: None,
             missed: false,
             reach: None,
@@ -847,7 +856,7 @@ pub fn decide_lane_changes(
                 }
                 continue;
             };
-            if kind == ChangeKind::Discretionary && !reach[j as usize] {
+            if kind == ChangeKind::Discretionary && (!reach[j as usize] || ch.keep_out == Some(side)) {
                 continue;
             }
             let scale = len_i / lanes.length(j).max(1e-9);
@@ -881,7 +890,7 @@ pub fn decide_lane_changes(
                 }
                 _ => {}
             }
-            if kind == ChangeKind::Mandatory {
+            if kind == ChangeKind::Mandatory || (kind == ChangeKind::Requested && ch.signal_request) {
                 signals.0.entry(j).or_default().push((s_j, v, size.length, me));
             }
         }

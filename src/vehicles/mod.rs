@@ -16,13 +16,15 @@
 //! | [`CrossingPlugin`] | [`CrossingNegotiator`] | [`Crossing`] |
 //! | [`IdmPlugin`] | [`IdmController`] | [`Idm`] |
 //! | [`LaneChangePlugin`] | [`LaneChanger`] | [`LaneChangeParams`] |
+//! | [`EmergencyVehiclePlugin`] | [`EmergencyVehicle`], [`YieldToEmergency`] | [`EmergencySettings`] |
 //!
 //! [`smart_vehicles`] adds them all.
 
 pub mod acc;
 pub mod crossing;
 pub mod cruise;
-pub mod emergency;
+pub mod emergency_braking;
+pub mod emergency_vehicle;
 pub mod idm;
 pub mod lane_change;
 pub mod lane_changing;
@@ -37,8 +39,12 @@ pub use crossing::{
     Crossing, CrossingClaim, CrossingNegotiator, CrossingPlugin, goes_first, stop_before, yield_at_crossings, zone_span,
 };
 pub use cruise::{CruiseControl, CruiseController, CruisePlugin, SpeedDip, control_cruise};
-pub use emergency::{
+pub use emergency_braking::{
     EmergencyBrake, EmergencyBraking, EmergencyBrakingPlugin, brake_for_emergencies, time_to_collision,
+};
+pub use emergency_vehicle::{
+    EmergencyBeacon, EmergencyLog, EmergencySettings, EmergencySummary, EmergencyVehicle, EmergencyVehiclePlugin,
+    YieldPlan, YieldToEmergency, yield_plan,
 };
 pub use idm::{Idm, IdmController, IdmPlugin, control_idm};
 pub use lane_changing::{
@@ -49,7 +55,7 @@ pub use lanes::{LaneMap, LanePosition, LanesPlugin};
 pub use longitudinal::{
     LeaderGap, Longitudinal, LongitudinalSystems, SteeringSystems, actuate_longitudinal, find_leaders, leader_on_path,
 };
-pub use path_following::{PathFollower, PathFollowing, PathFollowingPlugin, follow_paths};
+pub use path_following::{LateralShift, PathFollower, PathFollowing, PathFollowingPlugin, follow_paths};
 pub use platoon::{PlatoonBeacon, PlatoonMember, PlatoonPlugin, Platooning, control_platoon, send_platoon_beacons};
 pub use setup::{AccSetup, CruiseSetup, PlatoonRole, PlatoonSetup, SmartController};
 

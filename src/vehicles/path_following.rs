@@ -65,6 +65,12 @@ impl PathFollower {
     }
 }
 
+/// A sideways shift inside the lane [m], positive to the left, that the path follower adds to
+/// its route (and to a lane change's profile): set by cooperative plugins, e.g. moving aside for
+/// an emergency vehicle ([`super::emergency_vehicle`]). 0 follows the route's centre line.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
+pub struct LateralShift(pub f64);
+
 /// One path-following vehicle as the query hands it out.
 type FollowingItem<'a> = (
     &'a VehicleState,
@@ -74,12 +80,14 @@ type FollowingItem<'a> = (
     Option<&'a KinematicUnicycle>,
     Option<&'a AccelerationUnicycle>,
     Option<&'a LaneChanger>,
+    Option<&'a LateralShift>,
 );
 
 /// Steer a contiguous chunk of vehicles; `dt` is the control step [s].
 fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
-    for (state, route, follower, command, kinematic, acceleration, changer) in chunk.iter_mut() {
+    for (state, route, follower, command, kinematic, acceleration, changer, shift) in chunk.iter_mut() {
         let (state, kinematic, acceleration) = (*state, *kinematic, *acceleration);
+        let shift = shift.map_or(0.0, |s| s.0);
         let manoeuvre = changer.and_then(|c| c.active.as_ref());
         let path = &route.0;
         if path.points.len() < 2 {
@@ -98,14 +106,15 @@ fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
         follower.tracking = true;
         follower.s = projection.s;
         // During a lane change the vehicle aims at the profile's offset from the (new) route.
-        let planned = manoeuvre.map_or(0.0, |m| m.offset_at(path, projection.s));
+        let planned = manoeuvre.map_or(0.0, |m| m.offset_at(path, projection.s)) + shift;
         follower.max_offset = follower.max_offset.max((projection.lateral - planned).abs());
 
         let wheelbase = kinematic.map(|m| m.wheelbase).or(acceleration.map(|m| m.wheelbase)).unwrap_or(2.8);
         let lookahead = p.lookahead_min.max(p.lookahead_time * speed.abs());
         let (mut target, heading) = path.sample(projection.s + lookahead);
-        if let Some(m) = manoeuvre {
-            target += DVec2::from_angle(heading).perp() * m.offset_at(path, projection.s + lookahead);
+        let aim = manoeuvre.map_or(0.0, |m| m.offset_at(path, projection.s + lookahead)) + shift;
+        if aim != 0.0 {
+            target += DVec2::from_angle(heading).perp() * aim;
         }
         let relative = target - state.position;
         // Pure pursuit curvature 2 sin(α) / d, with d sin(α) the cross product of heading and
@@ -149,6 +158,7 @@ pub fn follow_paths(
         Option<&KinematicUnicycle>,
         Option<&AccelerationUnicycle>,
         Option<&LaneChanger>,
+        Option<&LateralShift>,
     )>,
     mut scratch: Local<Vec<()>>,
     mut buffer: Local<Vec<FollowingItem<'static>>>,

@@ -21,13 +21,14 @@ use crate::sim::{
 };
 use crate::vehicles::Side;
 use crate::vehicles::lane_changing::LanePaths;
+use crate::vehicles::{EmergencySettings, EmergencyVehicle, EmergencyVehiclePlugin, YieldToEmergency};
 use crate::vehicles::{
     FollowLaw, Idm, LaneChangePlugin, LaneChanger, LaneMap, LanePosition, LanesPlugin, Longitudinal, PathFollower,
     PathFollowing, PathFollowingPlugin, RouteGoal, SmartController, smart_vehicles,
 };
 use crate::world::{
-    AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleId, VehicleModel, VehicleSize, VehicleSpec,
-    VehicleState, Velodyne,
+    AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleClass, VehicleId, VehicleModel, VehicleSize,
+    VehicleSpec, VehicleState, Velodyne,
 };
 
 /// A start pose farther than this from its route's centre line is warned about at load time [m]
@@ -100,6 +101,9 @@ impl Scenario {
         if let Some(map) = &self.map {
             b.add_plugin(LanesPlugin { map: Arc::clone(map) });
             b.add_plugin(LaneChangePlugin { points_per_meter: self.file.points_per_meter });
+            if self.file.vehicles.iter().any(|v| v.class == VehicleClass::Emergency) {
+                b.add_plugin(EmergencyVehiclePlugin { settings: self.file.emergency });
+            }
         }
         let mut routes: BTreeMap<String, Arc<Path>> = BTreeMap::new();
         for (i, v) in self.file.vehicles.iter().enumerate() {
@@ -236,6 +240,17 @@ impl Scenario {
                 _ => RouteGoal::Loop,
             };
             b.world_mut().entity_mut(entity).insert(LaneChanger::new(params, law, goal));
+        }
+        if b.world_mut().contains_resource::<EmergencySettings>() {
+            if v.class == VehicleClass::Emergency {
+                let desired_speed = b
+                    .world_mut()
+                    .get::<PathFollower>(entity)
+                    .map_or(PathFollowing::default().speed, |f| f.params.speed);
+                b.world_mut().entity_mut(entity).insert(EmergencyVehicle { desired_speed });
+            } else if v.yield_to_emergency {
+                b.world_mut().entity_mut(entity).insert(YieldToEmergency::default());
+            }
         }
         Ok(())
     }

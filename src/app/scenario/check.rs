@@ -46,6 +46,7 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
         c.within(format!("rates.{k}"), v, Range::positive(1e6))?;
     }
     check_v2v(&c, &file.v2v)?;
+    file.emergency.check().map_err(|e| c.invalid(format!("emergency.{}", e.key), &e.problem))?;
     if let Some(lab) = &file.lab {
         lab.check().map_err(|e| c.invalid(format!("lab.{}", e.key), &e.problem))?;
     }

@@ -8,7 +8,9 @@ use super::lab::LabConfig;
 use crate::map::routing::Place;
 use crate::sim::channel::{Burst, ChannelModel, Loss};
 use crate::sim::{BUILT_IN_CONTROLLERS, Rates, V2vConfig};
-use crate::vehicles::{AccSetup, CruiseSetup, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, SmartController};
+use crate::vehicles::{
+    AccSetup, CruiseSetup, EmergencySettings, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, SmartController,
+};
 use crate::world::{AccelerationUnicycle, KinematicUnicycle, Radar, VehicleClass, Velodyne};
 
 /// A node of the map: an id (integer) or a node tag value (string).
@@ -85,6 +87,9 @@ pub struct ScenarioFile {
     /// Background traffic (`[[traffic]]`).
     #[serde(default)]
     pub traffic: Vec<TrafficConfig>,
+    /// `[emergency] warning_range`: how vehicles make way for emergency vehicles.
+    #[serde(default)]
+    pub emergency: EmergencySettings,
 }
 
 /// `lanes = "all"` or a list of node tags (one start lane each).
@@ -148,7 +153,7 @@ pub struct TrafficConfig {
     /// Sensors (default: a radar of 60° and 100 m).
     #[serde(default = "default_traffic_sensors")]
     pub sensors: SensorsConfig,
-    /// Whether these vehicles make way for emergency vehicles (used by a later issue).
+    /// Whether these vehicles make way for emergency vehicles (see [`crate::vehicles::emergency_vehicle`]).
     #[serde(default = "yes")]
     pub yield_to_emergency: bool,
     /// First id [-]; ids count up from it (default: 1000, or after the previous table's).
@@ -378,6 +383,9 @@ pub struct VehicleConfig {
     /// (none, as without the key).
     #[serde(default)]
     pub lane_change: LaneChangeSetting,
+    /// Whether it makes way for emergency vehicles (see [`crate::vehicles::emergency_vehicle`]).
+    #[serde(default = "yes")]
+    pub yield_to_emergency: bool,
 }
 
 /// `lane_change = false`, `true` or a table of [`LaneChangeParams`].
