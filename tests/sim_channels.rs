@@ -122,3 +122,28 @@ fn bad_channel_settings_name_the_key() {
     Scenario::parse_str(&ok, &path).expect("the distance model loads");
     let _ = Loss::Constant(0.0);
 }
+
+/// The summary's `metrics` as JSON, as `summary.json` writes it.
+fn metrics_json(sim: &Sim) -> serde_json::Value {
+    serde_json::to_value(sim.world().resource::<smlworld::app::metrics::Metrics>().summary()).unwrap()
+}
+
+#[test]
+fn half_the_beacons_lost_a_platoon_falls_back_to_acc_and_does_not_collide() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
+    let set = [("v2v.wifi.loss".to_string(), toml::Value::Float(0.5))];
+    let scenario = smlworld::app::scenario::load_with_overrides(&path, None, &set, &ControllerRegistry::default())
+        .expect("platoon_brake with --set v2v.wifi.loss=0.5 loads");
+    let mut sim = scenario.builder().unwrap().build();
+    sim.run_for(70.0);
+    let m = metrics_json(&sim);
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    let followers = m["followers"].as_array().unwrap();
+    let degraded: Vec<f64> = followers.iter().map(|f| f["degraded_s"].as_f64().expect("degraded_s")).collect();
+    assert!(degraded.iter().any(|&d| d > 0.0), "no follower fell back: {degraded:?}");
+    for f in followers {
+        let age = f["beacon_age_max_s"].as_f64().expect("beacon_age_max_s");
+        // Half the rounds lost: some beacon is older than the 0.3 s timeout (3 rounds at 10 Hz).
+        assert!(age > 0.3, "{f}");
+    }
+}
