@@ -130,6 +130,10 @@ pub struct MetricsSummary {
     /// What each V2V channel sent, delivered and lost, per receiver (set by the run summary).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub v2v: Option<V2vMetrics>,
+    /// Detections of all sensors and the misses by dropout and by occlusion, summed over
+    /// observers and sensor ticks (`None` without the sensor plugin).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sensors: Option<crate::sim::SensorStats>,
 }
 
 /// `metrics.lane_change_summary` of `summary.json`.
@@ -353,6 +357,7 @@ impl Metrics {
             traffic: None,
             throughput: None,
             v2v: None,
+            sensors: None,
         }
     }
 }

@@ -265,6 +265,7 @@ impl RunSummary {
                     summary.throughput = Some(Throughput { vehicles_out: t.removed, per_hour });
                 }
                 summary.v2v = world.get_resource::<crate::sim::V2vChannelStats>().map(super::metrics::V2vMetrics::of);
+                summary.sensors = world.get_resource::<crate::sim::SensorStats>().copied();
                 summary
             }),
             lab: LabSummary::of(world),

@@ -34,5 +34,5 @@ pub use schedule::{
     Control, ControlEpoch, DuplicateModule, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, SimSystems,
     Wifi, WifiRate,
 };
-pub use sensors::{SensorsPlugin, in_radar_cone};
+pub use sensors::{SensorStats, SensorsPlugin, in_radar_cone};
 pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vPlugin, V2vStats};
