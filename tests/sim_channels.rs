@@ -219,3 +219,33 @@ fn bad_sensor_settings_name_the_key() {
         assert!(e.contains(needle), "{key}: {e}");
     }
 }
+
+#[test]
+fn link_state_of_despawned_vehicles_is_dropped_so_memory_stays_flat_under_churn() {
+    use smlworld::sim::V2vLinks;
+    let model = ChannelModel { loss: Loss::Constant(0.1), ..Default::default() };
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model, network: model } });
+    parked(&mut b, -1, DVec2::ZERO);
+    let mut sim = b.build();
+    let mut most = 0;
+    // 3,000 short-lived vehicles, one at a time beside -1, each talking on both channels.
+    for k in 0..3000 {
+        let id = VehicleId(-2 - k);
+        let mut spec = VehicleSpec::new(id, VehicleState::new(DVec2::new(10.0, 0.0), 0.0, 0.0));
+        spec.model = VehicleModel::None;
+        smlworld::world::spawn_vehicle(sim.world_mut(), spec).unwrap();
+        let now = sim.now();
+        for v in [VehicleId(-1), id] {
+            let e = sim.entity(v).unwrap();
+            let mut mailbox = sim.world_mut().get_mut::<Mailbox>(e).unwrap();
+            mailbox.send(Channel::Wifi, now, Arc::new(1u32));
+            mailbox.send(Channel::Network, now, Arc::new(2u32));
+        }
+        sim.run_for(1.0);
+        smlworld::world::despawn_vehicle(sim.world_mut(), id).unwrap();
+        most = most.max(sim.world().resource::<V2vLinks>().len());
+    }
+    // Two live vehicles hold 4 links (2 per channel); a bounded table may hold some stale ones.
+    assert!(most <= 2048, "the link table grew to {most} entries under churn");
+}

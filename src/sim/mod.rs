@@ -35,4 +35,4 @@ pub use schedule::{
     Wifi, WifiRate,
 };
 pub use sensors::{SensorStats, SensorsPlugin, in_radar_cone};
-pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vPlugin, V2vStats};
+pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vLinks, V2vPlugin, V2vStats};

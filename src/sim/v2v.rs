@@ -120,12 +120,44 @@ pub struct V2vChannelStats {
 }
 
 /// Per-link channel state (bursts, last due time). A `HashMap` because it is only looked up by
-/// link, never iterated: its order cannot change a result.
+/// link and pruned (each entry kept or dropped on its own), never iterated for a result: its
+/// order cannot change one.
 #[derive(Resource, Debug, Default)]
 pub struct V2vLinks {
     wifi: HashMap<(VehicleId, VehicleId), LinkState>,
     network: HashMap<(VehicleId, VehicleId), LinkState>,
+    /// Prune when this many links are held (see [`V2vLinks::prune`]).
+    prune_at: usize,
 }
+
+impl V2vLinks {
+    /// Links held, both channels together.
+    pub fn len(&self) -> usize {
+        self.wifi.len() + self.network.len()
+    }
+
+    /// Whether no link is held.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Drop the links of vehicles that left the registry (despawned background traffic), once
+    /// the table has doubled since the last prune (at least [`MIN_PRUNE`] links): amortised O(1)
+    /// per link, and a table never larger than twice its live links, so memory stays flat
+    /// under churn. Ids are never reused in a run, so a dropped link never comes back.
+    fn prune(&mut self, registry: &Vehicles) {
+        if self.len() < self.prune_at.max(MIN_PRUNE) {
+            return;
+        }
+        let live = |&(a, b): &(VehicleId, VehicleId)| registry.get(a).is_some() && registry.get(b).is_some();
+        self.wifi.retain(|link, _| live(link));
+        self.network.retain(|link, _| live(link));
+        self.prune_at = 2 * self.len();
+    }
+}
+
+/// Fewest links worth a prune of [`V2vLinks`].
+const MIN_PRUNE: usize = 1024;
 
 /// A reception waiting for its due time.
 #[derive(Debug, Clone)]
@@ -192,6 +224,7 @@ pub fn deliver_network(
     mut stats: ResMut<V2vStats>,
     mut channel: ResMut<V2vChannelStats>,
     mut links: ResMut<V2vLinks>,
+    registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
     mut mailboxes: Query<(&VehicleState, &mut Mailbox)>,
     mut buffer: Local<Vec<Message>>,
@@ -210,6 +243,9 @@ pub fn deliver_network(
     stats.network_sent += batch.len() as u64;
     let age_all: u64 = batch.iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
     let model = config.network;
+    if let Some(registry) = &registry {
+        links.prune(registry);
+    }
     let mut delivered = 0;
     if model.is_perfect() {
         for (_, mut mailbox) in &mut mailboxes {
@@ -299,6 +335,7 @@ pub fn deliver_wifi(
     mut stats: ResMut<V2vStats>,
     mut channel: ResMut<V2vChannelStats>,
     mut links: ResMut<V2vLinks>,
+    registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
     mut mailboxes: Query<(&VehicleState, &mut Mailbox)>,
     mut scratch: Local<WifiScratch>,
@@ -308,6 +345,9 @@ pub fn deliver_wifi(
     let now = clock.now;
     let seed = seed.map_or(0, |s| s.0);
     let model = config.wifi;
+    if let Some(registry) = &registry {
+        links.prune(registry);
+    }
     let s = &mut *scratch;
     s.senders.clear();
     for (state, mut mailbox) in &mut mailboxes {
