@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use smlworld::app::metrics::V2vMetrics;
 use smlworld::prelude::*;
-use smlworld::sim::channel::{ChannelModel, Loss};
+use smlworld::sim::channel::{Burst, ChannelModel, Loss};
 use smlworld::sim::{Parallelism, V2vChannelStats};
 
 fn parked(b: &mut SimBuilder, id: i32, p: DVec2) {
@@ -223,7 +223,9 @@ fn bad_sensor_settings_name_the_key() {
 #[test]
 fn link_state_of_despawned_vehicles_is_dropped_so_memory_stays_flat_under_churn() {
     use smlworld::sim::V2vLinks;
-    let model = ChannelModel { loss: Loss::Constant(0.1), ..Default::default() };
+    // Bursts keep state per link (a model without bursts or delay keeps none).
+    let burst = Burst { p_enter: 0.1, p_leave: 0.5, loss_in_burst: 1.0 };
+    let model = ChannelModel { burst: Some(burst), ..Default::default() };
     let mut b = SimBuilder::new();
     b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model, network: model } });
     parked(&mut b, -1, DVec2::ZERO);
@@ -246,6 +248,7 @@ fn link_state_of_despawned_vehicles_is_dropped_so_memory_stays_flat_under_churn(
         smlworld::world::despawn_vehicle(sim.world_mut(), id).unwrap();
         most = most.max(sim.world().resource::<V2vLinks>().len());
     }
+    assert!(most >= 4, "the links were kept at all: {most}");
     // Two live vehicles hold 4 links (2 per channel); a bounded table may hold some stale ones.
     assert!(most <= 2048, "the link table grew to {most} entries under churn");
 }

@@ -265,8 +265,11 @@ pub fn deliver_network(
     }
     // Senders' positions for the distance model, sorted by id.
     positions.clear();
-    positions.extend(mailboxes.iter().map(|(state, m)| (m.owner(), state.position)));
-    positions.sort_by_key(|p| p.0);
+    if model.uses_distance() {
+        positions.extend(mailboxes.iter().map(|(state, m)| (m.owner(), state.position)));
+        positions.sort_by_key(|p| p.0);
+    }
+    let stateful = model.keeps_link_state();
     let seed = seed.map_or(0, |s| s.0);
     for (state, mut mailbox) in &mut mailboxes {
         let owner = mailbox.owner();
@@ -280,11 +283,18 @@ pub fn deliver_network(
                 continue;
             }
             channel.network.sent += 1;
-            let distance = positions
-                .binary_search_by_key(&m.sender, |p| p.0)
-                .map_or(0.0, |i| positions[i].1.distance(state.position));
+            // Every vehicle hears every other: look up the distance and keep link state only
+            // when the model needs them (a broadcast round is N² receptions).
+            let distance = if model.uses_distance() {
+                positions
+                    .binary_search_by_key(&m.sender, |p| p.0)
+                    .map_or(0.0, |i| positions[i].1.distance(state.position))
+            } else {
+                0.0
+            };
             let draw = Draw { seed, stream: NETWORK_STREAM, sender: m.sender.0, receiver: owner.0, round, index };
-            let link = links.network.entry((m.sender, owner)).or_default();
+            let mut fresh = LinkState::default();
+            let link = if stateful { links.network.entry((m.sender, owner)).or_default() } else { &mut fresh };
             let Some(delay) = model.deliver(&draw, now.0, distance, config.wifi_range, link) else { continue };
             channel.network.delivered += 1;
             if model.delays() {
@@ -348,6 +358,7 @@ pub fn deliver_wifi(
     if let Some(registry) = &registry {
         links.prune(registry);
     }
+    let stateful = model.keeps_link_state();
     let s = &mut *scratch;
     s.senders.clear();
     for (state, mut mailbox) in &mut mailboxes {
@@ -409,7 +420,8 @@ pub fn deliver_wifi(
         for &i in &s.heard {
             let (sender, position, count) = senders[i as usize];
             let distance = position.distance(state.position);
-            let link = links.wifi.entry((sender, owner)).or_default();
+            let mut fresh = LinkState::default();
+            let link = if stateful { links.wifi.entry((sender, owner)).or_default() } else { &mut fresh };
             for index in 0..count {
                 let k = starts[i as usize] + index;
                 let draw = Draw { seed, stream: WIFI_STREAM, sender: sender.0, receiver: owner.0, round, index };
