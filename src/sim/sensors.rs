@@ -27,7 +27,7 @@ use crate::world::{
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::recycle;
-use super::random::uniform;
+use super::random::{mix, uniform};
 use super::{GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
 /// Random stream of radar draws ("Rada").
@@ -92,8 +92,12 @@ fn covers(outer: (f64, f64, f64), inner: (f64, f64, f64)) -> bool {
     d + inner.1 >= outer.1 && d + inner.2 <= outer.2
 }
 
-/// A standard normal pair by Box-Muller from two uniforms in [0, 1).
-fn normal_pair(u1: f64, u2: f64) -> (f64, f64) {
+/// A standard normal pair by Box-Muller from the two 32-bit halves of one 64-bit hash (two
+/// uniforms in [0, 1) of 2⁻³² resolution: tails beyond 6.6 sd are cut, which no sensor model
+/// here needs).
+fn normal_pair(bits: u64) -> (f64, f64) {
+    const SCALE: f64 = 1.0 / 4_294_967_296.0;
+    let (u1, u2) = ((bits >> 32) as f64 * SCALE, (bits & 0xffff_ffff) as f64 * SCALE);
     let r = (-2.0 * (1.0 - u1).ln()).sqrt();
     let (s, c) = (TAU * u2).sin_cos();
     (r * c, r * s)
@@ -107,10 +111,18 @@ struct Draws {
 }
 
 impl Draws {
-    /// Draw `k` of sensor `stream` for the pair (observer, target) this tick.
+    /// Draw `k` of sensor `stream` for the pair (observer, target) this tick: uniform in [0, 1).
     fn uniform(&self, stream: u64, observer: VehicleId, target: VehicleId, k: u64) -> f64 {
-        let pair = ((observer.0 as u32 as u64) << 32) | target.0 as u32 as u64;
-        uniform(self.seed, stream, pair, (self.now_us << 3) | k)
+        uniform(self.seed, stream, Self::pair(observer, target), (self.now_us << 3) | k)
+    }
+
+    /// Draw `k` as 64 random bits (the hash [`uniform`] takes its 53 bits from).
+    fn bits(&self, stream: u64, observer: VehicleId, target: VehicleId, k: u64) -> u64 {
+        mix(mix(mix(mix(self.seed) ^ stream) ^ Self::pair(observer, target)) ^ ((self.now_us << 3) | k))
+    }
+
+    fn pair(observer: VehicleId, target: VehicleId) -> u64 {
+        ((observer.0 as u32 as u64) << 32) | target.0 as u32 as u64
     }
 }
 
@@ -311,12 +323,13 @@ fn write_imperfect_readings(
         };
         let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
         if let Some((err, stream)) = noise.filter(|(err, _)| err.is_noisy()) {
-            let draw = |k| draws.uniform(stream, sight.id, e.id, k);
-            let (n_range, n_bearing) = normal_pair(draw(1), draw(2));
-            let (n_vx, n_vy) = normal_pair(draw(3), draw(4));
-            let range = d2.sqrt() + err.range_sd * n_range;
-            let bearing = relative.y.atan2(relative.x) + err.bearing_sd * n_bearing;
-            detection.position = sight.position + DVec2::from_angle(bearing) * range;
+            let (n_range, n_bearing) = normal_pair(draws.bits(stream, sight.id, e.id, 1));
+            let (n_vx, n_vy) = normal_pair(draws.bits(stream, sight.id, e.id, 2));
+            // Range and bearing errors: scale the offset, then rotate it by the bearing error.
+            let d = d2.sqrt();
+            let scale = if d > 0.0 { (d + err.range_sd * n_range) / d } else { 1.0 };
+            let scaled = relative * scale;
+            detection.position = sight.position + DVec2::from_angle(err.bearing_sd * n_bearing).rotate(scaled);
             detection.velocity += DVec2::new(n_vx, n_vy) * err.speed_sd;
         }
         readings.0.push(detection);
