@@ -223,11 +223,11 @@ fn check_vehicle(
             ));
         }
         c.within(key("sensors.radar.range"), r.range, Range::non_negative(MAX_DISTANCE))?;
-        check_sensor_errors(&c, &key("sensors.radar"), &r.noise, r.dropout)?;
+        check_sensor_errors(c, &key("sensors.radar"), &r.noise, r.dropout)?;
     }
     if let Some(r) = v.sensors.velodyne {
         c.within(key("sensors.velodyne.range"), r.range, Range::non_negative(MAX_DISTANCE))?;
-        check_sensor_errors(&c, &key("sensors.velodyne"), &r.noise, r.dropout)?;
+        check_sensor_errors(c, &key("sensors.velodyne"), &r.noise, r.dropout)?;
     }
     if let Some(p) = &v.lane_change.0 {
         p.check().map_err(|e| c.invalid(key(&format!("lane_change.{}", e.key)), &e.problem))?;
