@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use smlworld::app::metrics::V2vMetrics;
 use smlworld::prelude::*;
-use smlworld::sim::channel::{ChannelModel, Loss};
+use smlworld::sim::channel::{Burst, ChannelModel, Loss};
 use smlworld::sim::{Parallelism, V2vChannelStats};
 
 fn parked(b: &mut SimBuilder, id: i32, p: DVec2) {
@@ -121,4 +121,134 @@ fn bad_channel_settings_name_the_key() {
     let ok = with_table(&text, "[v2v.wifi]\nloss = { model = \"distance\", p_at_0 = 0.01, p_at_range = 0.5 }\n");
     Scenario::parse_str(&ok, &path).expect("the distance model loads");
     let _ = Loss::Constant(0.0);
+}
+
+/// The summary's `metrics` as JSON, as `summary.json` writes it.
+fn metrics_json(sim: &Sim) -> serde_json::Value {
+    serde_json::to_value(sim.world().resource::<smlworld::app::metrics::Metrics>().summary()).unwrap()
+}
+
+#[test]
+fn half_the_beacons_lost_a_platoon_falls_back_to_acc_and_does_not_collide() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
+    let set = [("v2v.wifi.loss".to_string(), toml::Value::Float(0.5))];
+    let scenario = smlworld::app::scenario::load_with_overrides(&path, None, &set, &ControllerRegistry::default())
+        .expect("platoon_brake with --set v2v.wifi.loss=0.5 loads");
+    let mut sim = scenario.builder().unwrap().build();
+    sim.run_for(70.0);
+    let m = metrics_json(&sim);
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    let followers = m["followers"].as_array().unwrap();
+    let degraded: Vec<f64> = followers.iter().map(|f| f["degraded_s"].as_f64().expect("degraded_s")).collect();
+    assert!(degraded.iter().any(|&d| d > 0.0), "no follower fell back: {degraded:?}");
+    for f in followers {
+        let age = f["beacon_age_max_s"].as_f64().expect("beacon_age_max_s");
+        // Half the rounds lost: some beacon is older than the 0.3 s timeout (3 rounds at 10 Hz).
+        assert!(age > 0.3, "{f}");
+    }
+}
+
+/// platoon_brake with `seed` and the dotted overrides `set` (as `smlworld run --set`).
+fn platoon_brake_set(seed: u64, set: &[(&str, &str)]) -> Scenario {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
+    let set: Vec<(String, toml::Value)> = set
+        .iter()
+        .map(|(k, v)| (k.to_string(), smlworld::app::scenario::parse_override(&format!("{k}={v}")).unwrap().1))
+        .collect();
+    smlworld::app::scenario::load_with_overrides(&path, Some(seed), &set, &ControllerRegistry::default())
+        .expect("platoon_brake with overrides loads")
+}
+
+#[test]
+fn threads_do_not_change_a_run_with_loss_and_sensor_noise_and_seeds_do() {
+    let set = [
+        ("v2v.wifi.loss", "0.2"),
+        ("vehicles.*.sensors.radar.noise", "{ range_sd = 0.2, bearing_sd_deg = 0.5, speed_sd = 0.1 }"),
+        ("vehicles.*.sensors.radar.dropout", "0.02"),
+        ("vehicles.*.sensors.radar.occlusion", "true"),
+    ];
+    let sensors = |sim: &Sim| *sim.world().resource::<smlworld::sim::SensorStats>();
+    #[allow(clippy::type_complexity)]
+    let go = |seed: u64, threads: usize, set: &[(&str, &str)]| {
+        let mut b = platoon_brake_set(seed, set).builder().unwrap();
+        b.insert_resource(Parallelism { threads, min_vehicles: 0 });
+        let mut sim = b.build();
+        sim.run_for(40.0);
+        let bits: Vec<(i32, u64, u64, u64)> = sim
+            .states()
+            .iter()
+            .map(|(id, s)| (id.0, s.position.x.to_bits(), s.position.y.to_bits(), s.velocity.x.to_bits()))
+            .collect();
+        (bits, sensors(&sim), metrics_json(&sim))
+    };
+    let (a, sa, ma) = go(1, 1, &set);
+    let (b, sb, mb) = go(1, 2, &set);
+    assert_eq!(a, b, "1 vs 2 threads");
+    assert_eq!((sa, &ma["v2v"]), (sb, &mb["v2v"]));
+    assert!(sa.missed_by_dropout > 0, "{sa:?}");
+    // The sensors alone (no wifi loss) make seeds differ.
+    let (c, _, _) = go(1, 1, &set[1..]);
+    let (d, _, _) = go(2, 1, &set[1..]);
+    assert_ne!(c, d, "seeds 1 and 2 drove the same with noisy radars");
+    // Nothing random: every seed gives the same bits.
+    let plain = |seed: u64| {
+        let mut sim = platoon_brake_set(seed, &[]).builder().unwrap().build();
+        sim.run_for(40.0);
+        sim.states().iter().map(|(id, s)| (id.0, s.position.x.to_bits())).collect::<Vec<_>>()
+    };
+    assert_eq!(plain(1), plain(2), "a run with nothing random depends on the seed");
+}
+
+#[test]
+fn bad_sensor_settings_name_the_key() {
+    for (key, value, needle) in [
+        ("vehicles.0.sensors.radar.dropout", "1.5", "sensors.radar.dropout"),
+        ("vehicles.0.sensors.radar.noise.range_sd", "-1.0", "sensors.radar.noise.range_sd"),
+        ("vehicles.0.sensors.radar.noise.bearing", "1.0", "bearing"),
+    ] {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
+        let v = smlworld::app::scenario::parse_override(&format!("{key}={value}")).unwrap().1;
+        let e = smlworld::app::scenario::load_with_overrides(
+            &path,
+            None,
+            &[(key.into(), v)],
+            &ControllerRegistry::default(),
+        )
+        .expect_err(key)
+        .to_string();
+        assert!(e.contains(needle), "{key}: {e}");
+    }
+}
+
+#[test]
+fn link_state_of_despawned_vehicles_is_dropped_so_memory_stays_flat_under_churn() {
+    use smlworld::sim::V2vLinks;
+    // Bursts keep state per link (a model without bursts or delay keeps none).
+    let burst = Burst { p_enter: 0.1, p_leave: 0.5, loss_in_burst: 1.0 };
+    let model = ChannelModel { burst: Some(burst), ..Default::default() };
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model, network: model } });
+    parked(&mut b, -1, DVec2::ZERO);
+    let mut sim = b.build();
+    let mut most = 0;
+    // 3,000 short-lived vehicles, one at a time beside -1, each talking on both channels.
+    for k in 0..3000 {
+        let id = VehicleId(-2 - k);
+        let mut spec = VehicleSpec::new(id, VehicleState::new(DVec2::new(10.0, 0.0), 0.0, 0.0));
+        spec.model = VehicleModel::None;
+        smlworld::world::spawn_vehicle(sim.world_mut(), spec).unwrap();
+        let now = sim.now();
+        for v in [VehicleId(-1), id] {
+            let e = sim.entity(v).unwrap();
+            let mut mailbox = sim.world_mut().get_mut::<Mailbox>(e).unwrap();
+            mailbox.send(Channel::Wifi, now, Arc::new(1u32));
+            mailbox.send(Channel::Network, now, Arc::new(2u32));
+        }
+        sim.run_for(1.0);
+        smlworld::world::despawn_vehicle(sim.world_mut(), id).unwrap();
+        most = most.max(sim.world().resource::<V2vLinks>().len());
+    }
+    assert!(most >= 4, "the links were kept at all: {most}");
+    // Two live vehicles hold 4 links (2 per channel); a bounded table may hold some stale ones.
+    assert!(most <= 2048, "the link table grew to {most} entries under churn");
 }

@@ -2,7 +2,8 @@
 //! spatial grid against a brute-force scan.
 
 use smlworld::prelude::*;
-use smlworld::sim::in_radar_cone;
+use smlworld::sim::{SensorStats, in_radar_cone};
+use smlworld::world::{SensorError, SensorErrors};
 
 /// A sim with sensors only; vehicles have no dynamics so they stay where they are put.
 fn world_of(vehicles: &[(i32, DVec2, f64, SensorSet)]) -> Sim {
@@ -192,4 +193,76 @@ fn assert_matches_brute_force(vehicles: &[(i32, DVec2, f64, SensorSet)]) {
         let expected: Vec<i32> = expected.into_iter().map(|x| x.1).collect();
         assert_eq!(seen(&sim, id), expected, "vehicle {id}");
     }
+}
+
+/// A sim with sensors only, vehicles `(id, position, yaw, size, sensors, errors)`, one sensor tick.
+fn world_with_errors(vehicles: &[(i32, DVec2, f64, VehicleSize, SensorSet, SensorErrors)], seed: u64) -> Sim {
+    let mut b = SimBuilder::new();
+    b.add_plugin(SensorsPlugin);
+    b.insert_resource(SimSeed(seed));
+    for &(id, p, yaw, size, sensors, errors) in vehicles {
+        let mut spec = VehicleSpec::new(VehicleId(id), VehicleState::new(p, yaw, 0.0));
+        spec.model = VehicleModel::None;
+        spec.size = size;
+        spec.sensors = sensors;
+        spec.sensor_errors = errors;
+        b.spawn_vehicle(spec).expect("unique ids");
+    }
+    let mut sim = b.build();
+    sim.run_for(0.01);
+    sim
+}
+
+#[test]
+fn a_car_hidden_behind_a_truck_is_not_seen_by_an_occluding_radar() {
+    let car = VehicleSize { length: 4.12, width: 1.7 };
+    let truck = VehicleSize { length: 12.0, width: 2.5 };
+    let occluding = SensorErrors { radar: SensorError { occlusion: true, ..Default::default() }, ..Default::default() };
+    let scene = |errors| {
+        world_with_errors(
+            &[
+                (-1, DVec2::ZERO, 0.0, car, radar(), errors),
+                (-2, DVec2::new(20.0, 0.0), 0.0, truck, NONE, SensorErrors::default()),
+                // Straight behind the truck: hidden.
+                (-3, DVec2::new(45.0, 0.0), 0.0, car, NONE, SensorErrors::default()),
+                // Beside the truck's shadow, in the next lane: seen.
+                (-4, DVec2::new(45.0, 3.5), 0.0, car, NONE, SensorErrors::default()),
+            ],
+            1,
+        )
+    };
+    assert_eq!(seen(&scene(SensorErrors::default()), -1), vec![-2, -3, -4], "without occlusion all are seen");
+    let sim = scene(occluding);
+    assert_eq!(seen(&sim, -1), vec![-2, -4], "the car behind the truck is hidden");
+    let stats = *sim.world().resource::<SensorStats>();
+    assert_eq!((stats.detections, stats.missed_by_occlusion, stats.missed_by_dropout), (2, 1, 0));
+}
+
+#[test]
+fn dropout_misses_its_share_and_noise_has_its_spread() {
+    let size = VehicleSize::default();
+    let noisy =
+        SensorError { range_sd: 0.2, bearing_sd: 0.5f64.to_radians(), speed_sd: 0.1, dropout: 0.3, occlusion: false };
+    let errors = SensorErrors { velodyne: noisy, ..Default::default() };
+    let velodyne = SensorSet { velodyne: Some(Velodyne { range: 1000.0 }), ..Default::default() };
+    // One observer, 400 targets on a circle of 30 m.
+    let mut vehicles = vec![(-1, DVec2::ZERO, 0.0, size, velodyne, errors)];
+    for k in 0..400 {
+        let a = k as f64 * std::f64::consts::TAU / 400.0;
+        vehicles.push((-2 - k, DVec2::from_angle(a) * 30.0, 0.0, size, NONE, SensorErrors::default()));
+    }
+    let sim = world_with_errors(&vehicles, 7);
+    let e = sim.entity(VehicleId(-1)).unwrap();
+    let readings = &sim.world().get::<SensorReadings>(e).unwrap().0;
+    let stats = *sim.world().resource::<SensorStats>();
+    assert_eq!(stats.detections + stats.missed_by_dropout, 400);
+    assert_eq!(stats.detections, readings.len() as u64);
+    let share = stats.missed_by_dropout as f64 / 400.0;
+    assert!((share - 0.3).abs() < 0.07, "dropout share {share}");
+    let n = readings.len() as f64;
+    let sd = |values: Vec<f64>| (values.iter().map(|v| v * v).sum::<f64>() / n).sqrt();
+    let range_sd = sd(readings.iter().map(|d| d.position.length() - 30.0).collect());
+    let speed_sd = sd(readings.iter().map(|d| d.velocity.x).collect());
+    assert!((range_sd - 0.2).abs() < 0.04, "range sd {range_sd}");
+    assert!((speed_sd - 0.1).abs() < 0.02, "speed sd {speed_sd}");
 }

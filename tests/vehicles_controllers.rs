@@ -108,6 +108,11 @@ fn bad_controller_settings_name_the_key() {
     assert!(e.contains("vehicles[0] (id -1).controller.acc.time_gap") && e.contains("zero or more"), "{e}");
     let e = scenario_error("{ type = \"platoon\", role = \"follower\", platoon = { beacon_timeout = 0.0 } }");
     assert!(e.contains("controller.platoon.beacon_timeout") && e.contains("positive"), "{e}");
+    let e = scenario_error("{ type = \"platoon\", role = \"follower\", fallback = { time_gap = -1.0 } }");
+    assert!(e.contains("controller.fallback.time_gap"), "{e}");
+    let both = "platoon = { beacon_timeout = 0.5 }, fallback = { beacon_timeout = 0.3 }";
+    let e = scenario_error(&format!("{{ type = \"platoon\", role = \"follower\", {both} }}"));
+    assert!(e.contains("controller.platoon.beacon_timeout") && e.contains("fallback.beacon_timeout"), "{e}");
     let e = scenario_error("{ type = \"acc\", acc = { time_gapp = 1.0 } }");
     assert!(e.contains("time_gapp") && e.contains("time_gap"), "unknown key named, allowed ones listed: {e}");
     let e = scenario_error("{ type = \"platoon\", role = \"boss\" }");

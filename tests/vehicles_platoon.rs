@@ -164,3 +164,49 @@ fn a_vehicle_joins_at_the_tail_and_a_member_leaves() {
     assert!(((gap - p.standstill) / v - p.acc_time_gap).abs() < 0.15, "ACC gap after leaving: {gap} m at {v} m/s");
     assert_eq!(summary(&sim).collision_count, 0);
 }
+
+#[test]
+fn a_follower_whose_beacons_stop_falls_back_to_acc_and_returns_when_they_come_back() {
+    use smlworld::sim::channel::Loss;
+    let road = straight(DVec2::ZERO, DVec2::new(5000.0, 0.0));
+    let mut b = builder(0.0);
+    let p = Platooning::default();
+    let speed = 20.0;
+    let spacing = LENGTH + p.standstill + p.time_gap * speed;
+    let leader = (CruiseController::new(CruiseControl::default()), PlatoonMember::leader(p));
+    spawn(&mut b, -1, &road, 400.0, speed, LENGTH, speed, leader);
+    spawn(&mut b, -2, &road, 400.0 - spacing, speed, LENGTH, 25.0, PlatoonMember::follower(p));
+    spawn(&mut b, -3, &road, 400.0 - 2.0 * spacing, speed, LENGTH, 25.0, PlatoonMember::follower(p));
+    let mut sim = b.build();
+    let member = |sim: &Sim, id: i32| *sim.world().get::<PlatoonMember>(sim.entity(VehicleId(id)).unwrap()).unwrap();
+    let time_gap = |sim: &Sim, ahead: i32, behind: i32| {
+        (gap_x(sim, ahead, behind, LENGTH) - p.standstill) / sim.state(VehicleId(behind)).unwrap().speed()
+    };
+    sim.run_for(10.0);
+    assert!(!member(&sim, -2).degraded);
+    assert!((time_gap(&sim, -1, -2) - p.time_gap).abs() < 0.05);
+
+    // Every wifi reception lost from the round at 10 s on: the newest beacon heard was sent at
+    // 9.85 s; the followers fall back once it is older than 3 wifi intervals (0.3 s).
+    sim.world_mut().resource_mut::<V2vConfig>().wifi.loss = Loss::Constant(1.0);
+    sim.run_for(0.11);
+    let m = member(&sim, -2);
+    assert!(!m.degraded && m.beacon_age.unwrap() <= 0.3, "fell back early: beacon age {:?}", m.beacon_age);
+    sim.run_for(0.1);
+    let m = member(&sim, -2);
+    assert!(m.degraded && m.beacon_age.unwrap() > 0.3, "no fallback: beacon age {:?}", m.beacon_age);
+    assert_eq!((m.platoon, m.index), (Some(VehicleId(-1)), 1), "a degraded follower keeps its place");
+    sim.run_for(40.0);
+    assert!(member(&sim, -3).degraded);
+    let fallback = member(&sim, -2).fallback.time_gap;
+    assert!((time_gap(&sim, -1, -2) - fallback).abs() < 0.1, "ACC at the fallback gap: {}", time_gap(&sim, -1, -2));
+
+    sim.world_mut().resource_mut::<V2vConfig>().wifi.loss = Loss::Constant(0.0);
+    sim.run_for(40.0);
+    assert!(!member(&sim, -2).degraded && !member(&sim, -3).degraded, "beacons back, fallback over");
+    assert!((time_gap(&sim, -1, -2) - p.time_gap).abs() < 0.05, "back to the platoon gap");
+    let m = summary(&sim);
+    assert_eq!(m.collision_count, 0);
+    let f = m.followers.iter().find(|f| f.id == VehicleId(-2)).unwrap();
+    assert!((f.degraded_s - 40.2).abs() < 0.15, "{}", f.degraded_s);
+}

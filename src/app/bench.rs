@@ -2,6 +2,9 @@
 //! ([`crate::map::generate::ring_highway`]) whose radius grows with N so the spacing stays at
 //! highway gaps, with every module on (dynamics, radar + velodyne, wifi, network with one beacon
 //! per vehicle per round, path following). Used by `smlworld bench` and the criterion benches.
+//! `degraded` (`smlworld bench --degraded`) puts [`DEGRADED_WIFI`] and [`DEGRADED_NETWORK`] on
+//! the V2V channels and [`degraded_radar`] on every vehicle's radar (issue 21 item 7), to
+//! measure what per-reception and per-detection randomness costs.
 
 use std::sync::Arc;
 
@@ -10,13 +13,17 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 
 use crate::map::generate::{GenerateError, RingParams, ring_highway, ring_lane_tag};
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
-use crate::sim::{Control, Dynamics, Parallelism, Rates, SimClock, SimSystems};
+use crate::sim::channel::{ChannelModel, Loss};
+use crate::sim::{Control, Dynamics, Parallelism, Rates, SimClock, SimSeed, SimSystems, V2vConfig};
 use crate::vehicles::{
     FollowLaw, Idm, IdmController, IdmPlugin, LaneChangeLog, LaneChangeParams, LaneChangePlugin, LaneChanger,
     LanePosition, LanesPlugin, RouteGoal,
 };
 use crate::vehicles::{PathFollower, PathFollowing, PathFollowingPlugin};
-use crate::world::{Channel, Mailbox, Radar, SensorSet, SimTime, VehicleId, VehicleSpec, VehicleState, Velodyne};
+use crate::world::{
+    Channel, Mailbox, Radar, SensorError, SensorErrors, SensorSet, SimTime, VehicleId, VehicleSpec, VehicleState,
+    Velodyne,
+};
 
 use super::{SimBuilder, default_plugins};
 
@@ -55,6 +62,27 @@ pub struct BenchWorld {
     /// Every vehicle drives the IDM (desired speeds spread ±20 % around `speed`) and changes
     /// lanes (MOBIL, the lane-change plugin's defaults), instead of plain path following.
     pub lane_change: bool,
+    /// Loss, delay and jitter on wifi ([`DEGRADED_WIFI`]), loss on the network
+    /// ([`DEGRADED_NETWORK`]), noise and dropout on every radar ([`degraded_radar`]), seed 1.
+    pub degraded: bool,
+}
+
+/// The wifi of a degraded benchmark: 10 % loss, 10 ms delay, 5 ms jitter (issue 21's example).
+pub const DEGRADED_WIFI: ChannelModel =
+    ChannelModel { loss: Loss::Constant(0.1), burst: None, delay_ms: 10.0, jitter_ms: 5.0 };
+
+/// The network of a degraded benchmark: 10 % loss, no delay. Every vehicle's beacon goes to
+/// every vehicle, so a delay would hold one pending reception per (sender, receiver): N² per
+/// round (10⁸ at 10,000 vehicles), which the shared-batch delivery of a perfect round avoids.
+pub const DEGRADED_NETWORK: ChannelModel =
+    ChannelModel { loss: Loss::Constant(0.1), burst: None, delay_ms: 0.0, jitter_ms: 0.0 };
+
+/// The radar errors of a degraded benchmark: issue 21's example noise (0.2 m, 0.5°, 0.1 m/s)
+/// and 2 % dropout; no occlusion.
+pub fn degraded_radar() -> SensorErrors {
+    let radar =
+        SensorError { range_sd: 0.2, bearing_sd: 0.5f64.to_radians(), speed_sd: 0.1, dropout: 0.02, occlusion: false };
+    SensorErrors { radar, ..Default::default() }
 }
 
 impl Default for BenchWorld {
@@ -69,6 +97,7 @@ impl Default for BenchWorld {
             points_per_meter: 0.5,
             chord_error: 0.1,
             lane_change: false,
+            degraded: false,
         }
     }
 }
@@ -126,6 +155,11 @@ impl BenchWorld {
             Control,
             send_beacons.in_set(SimSystems::Control).run_if(move |clock: Res<SimClock>| clock.now.0 % period == 0),
         );
+        if self.degraded {
+            let wifi_range = V2vConfig::default().wifi_range;
+            b.insert_resource(V2vConfig { wifi_range, wifi: DEGRADED_WIFI, network: DEGRADED_NETWORK });
+            b.insert_resource(SimSeed(1));
+        }
         self.spawn(&mut b)?;
         Ok(b)
     }
@@ -152,6 +186,9 @@ impl BenchWorld {
                 let (p, heading) = path.sample(s);
                 let mut spec = VehicleSpec::new(VehicleId(-1 - next as i32), VehicleState::new(p, heading, self.speed));
                 spec.sensors = sensors;
+                if self.degraded {
+                    spec.sensor_errors = degraded_radar();
+                }
                 spec.route = Some(Arc::clone(path));
                 if let Ok(e) = b.spawn_vehicle(spec) {
                     b.world_mut().entity_mut(e).insert(PathFollower::starting_at(params, s));
@@ -234,6 +271,9 @@ pub struct BenchReport {
     pub map: BenchMap,
     /// Number of vehicles.
     pub vehicles: usize,
+    /// Whether channels and radars were degraded (`--degraded`: [`DEGRADED_WIFI`],
+    /// [`DEGRADED_NETWORK`], [`degraded_radar`] on every radar).
+    pub degraded: bool,
     /// Sensors of every vehicle.
     pub sensors: BenchSensors,
     /// Module rates [Hz].
@@ -327,6 +367,7 @@ impl BenchWorld {
                 lane_length_m: lanes[lanes.len() / 2].length,
             },
             vehicles: self.vehicles,
+            degraded: self.degraded,
             sensors: BenchSensors {
                 radar_range_m: radar.range,
                 radar_angle_deg: radar.angle.to_degrees(),

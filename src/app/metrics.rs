@@ -51,6 +51,13 @@ pub struct FollowerStats {
     pub speed_error_rms: f64,
     /// Number of samples.
     pub samples: u64,
+    /// Time it spent in platoon fallback (ACC because the beacons of the member ahead were
+    /// stale, [`PlatoonMember::degraded`]) after the warm-up [s]; 0 for a vehicle that is no
+    /// platoon follower.
+    pub degraded_s: f64,
+    /// Largest age of the newest beacon of the member ahead [s] while a platoon follower, after
+    /// the warm-up; `None` (JSON `null`) for a vehicle that never was one.
+    pub beacon_age_max_s: Option<f64>,
     #[serde(skip)]
     time_gap_sum: f64,
     #[serde(skip)]
@@ -127,6 +134,10 @@ pub struct MetricsSummary {
     /// vehicles that made way (with an emergency vehicle only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub emergency: Option<crate::vehicles::EmergencySummary>,
+    /// Detections of all sensors and the misses by dropout and by occlusion, summed over
+    /// observers and sensor ticks (`None` without the sensor plugin).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sensors: Option<crate::sim::SensorStats>,
 }
 
 /// `metrics.lane_change_summary` of `summary.json`.
@@ -350,6 +361,7 @@ impl Metrics {
             throughput: None,
             v2v: None,
             emergency: None,
+            sensors: None,
         }
     }
 }
@@ -361,7 +373,15 @@ pub fn record_metrics(
     registry: Res<Vehicles>,
     mut metrics: ResMut<Metrics>,
     everyone: Query<(&VehicleId, &VehicleState, &VehicleSize)>,
-    followers: Query<(&VehicleId, &VehicleState, &VehicleSize, &Route, &PathFollower, &Longitudinal)>,
+    followers: Query<(
+        &VehicleId,
+        &VehicleState,
+        &VehicleSize,
+        &Route,
+        &PathFollower,
+        &Longitudinal,
+        Option<&PlatoonMember>,
+    )>,
     members: Query<(&VehicleId, &VehicleState, &PlatoonMember)>,
 ) {
     // The step just integrated ends at now + dt.
@@ -371,7 +391,7 @@ pub fn record_metrics(
     if t < m.warmup {
         return;
     }
-    for (&id, state, size, route, follower, lon) in &followers {
+    for (&id, state, size, route, follower, lon, member) in &followers {
         let Some(l) = lon.leader else { continue };
         let Some((_, leader_state, leader_size)) = registry.get(l.id).and_then(|e| everyone.get(e).ok()) else {
             continue;
@@ -385,7 +405,11 @@ pub fn record_metrics(
         let gap = ahead - 0.5 * (size.length + leader_size.length);
         let v = state.speed();
         let error = leader_state.velocity.dot(DVec2::from_angle(p.heading)) - v;
-        m.followers.entry(id).or_insert_with(|| FollowerStats::new(id, l.id)).sample(l.id, gap, v, error);
+        let stats = m.followers.entry(id).or_insert_with(|| FollowerStats::new(id, l.id));
+        stats.sample(l.id, gap, v, error);
+        if let Some(member) = member {
+            stats.sample_platoon(member, clock.dt);
+        }
     }
     for (&id, state, member) in &members {
         let Some(platoon) = member.platoon else { continue };
@@ -411,6 +435,8 @@ impl FollowerStats {
             mean_time_gap: None,
             speed_error_rms: 0.0,
             samples: 0,
+            degraded_s: 0.0,
+            beacon_age_max_s: None,
             time_gap_sum: 0.0,
             time_gap_samples: 0,
             speed_error_sq: 0.0,
@@ -432,6 +458,18 @@ impl FollowerStats {
         }
         self.speed_error_sq += error * error;
         self.speed_error_rms = (self.speed_error_sq / self.samples as f64).sqrt();
+    }
+}
+
+impl FollowerStats {
+    /// Add the platoon state of one dynamics step of `dt` [s].
+    fn sample_platoon(&mut self, member: &PlatoonMember, dt: f64) {
+        if member.degraded {
+            self.degraded_s += dt;
+        }
+        if let Some(age) = member.beacon_age {
+            self.beacon_age_max_s = Some(self.beacon_age_max_s.map_or(age, |a| a.max(age)));
+        }
     }
 }
 

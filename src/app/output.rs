@@ -268,6 +268,7 @@ impl RunSummary {
                 summary.emergency = world
                     .get_resource::<crate::vehicles::EmergencyLog>()
                     .and_then(crate::vehicles::EmergencyLog::summary);
+                summary.sensors = world.get_resource::<crate::sim::SensorStats>().copied();
                 summary
             }),
             lab: LabSummary::of(world),

@@ -77,6 +77,8 @@ pub struct TrafficSource {
     pub model: VehicleModel,
     /// Sensors.
     pub sensors: SensorSet,
+    /// Noise, dropout and occlusion of its sensors.
+    pub sensor_errors: crate::world::SensorErrors,
     /// Make way for emergency vehicles (when the scenario has one).
     pub yield_to_emergency: bool,
     /// Next id to give.
@@ -158,6 +160,7 @@ pub fn spawn_traffic_vehicle(
     spec.size = class_size(class);
     spec.model = src.model;
     spec.sensors = src.sensors;
+    spec.sensor_errors = src.sensor_errors;
     spec.route = Some(Arc::clone(&lane.path));
     let entity = spawn_vehicle(world, spec)?;
     let smart = match src.controller {

@@ -28,7 +28,7 @@ use super::controllers::{ControllerRegistry, ScenarioController};
 use super::schedule::DuplicateModule;
 use super::{
     Control, ControlEpoch, Dynamics, DynamicsPlugin, Network, Phase, Rates, Scheduler, Sensors, SensorsPlugin,
-    SimClock, V2vPlugin, Wifi,
+    SimClock, V2vPlugin, Wifi, WifiRate,
 };
 use crate::world::{SimTime, VehicleId, VehicleSpec, VehicleState, Vehicles, WorldError, spawn_vehicle};
 
@@ -216,8 +216,12 @@ impl SimBuilder {
         &self.controllers
     }
 
-    /// Finish: the simulation at t = 0.
-    pub fn build(self) -> Sim {
+    /// Finish: the simulation at t = 0 (with the [`WifiRate`] resource when there is a wifi
+    /// module).
+    pub fn build(mut self) -> Sim {
+        if let Some(rate) = self.scheduler.rate(Wifi) {
+            self.world.insert_resource(WifiRate(rate));
+        }
         Sim { world: self.world, scheduler: self.scheduler, rate_warnings: 0 }
     }
 }

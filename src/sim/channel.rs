@@ -117,6 +117,17 @@ impl ChannelModel {
         self.delay_ms > 0.0 || self.jitter_ms > 0.0
     }
 
+    /// Whether a link's state matters: bursts step it, delays order by it. Without either,
+    /// [`ChannelModel::deliver`] may be given a fresh [`LinkState`] and nothing is kept per link.
+    pub fn keeps_link_state(&self) -> bool {
+        self.burst.is_some() || self.delays()
+    }
+
+    /// Whether the loss depends on the distance.
+    pub fn uses_distance(&self) -> bool {
+        matches!(self.loss, Loss::Distance { .. })
+    }
+
     /// Loss probability before bursts at `distance` [m] for a channel of `range` [m].
     pub fn loss_at(&self, distance: f64, range: f64) -> f64 {
         match self.loss {

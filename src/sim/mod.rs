@@ -32,7 +32,7 @@ pub use parallel::Parallelism;
 pub use recorded::{RecordedSample, RecordedTrajectory, recorded_trajectories};
 pub use schedule::{
     Control, ControlEpoch, DuplicateModule, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, SimSystems,
-    Wifi,
+    Wifi, WifiRate,
 };
-pub use sensors::{SensorsPlugin, in_radar_cone};
-pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vPlugin, V2vStats};
+pub use sensors::{SensorStats, SensorsPlugin, in_radar_cone};
+pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vLinks, V2vPlugin, V2vStats};

@@ -86,6 +86,11 @@ impl Default for Rates {
     }
 }
 
+/// The wifi module's rate [Hz] as built ([`crate::sim::SimBuilder::build`] inserts it; rates are
+/// fixed from then on), for controllers whose defaults count wifi rounds.
+#[derive(Resource, Debug, Clone, Copy, PartialEq)]
+pub struct WifiRate(pub f64);
+
 /// The simulation clock, set by the scheduler before it runs a module.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
 pub struct SimClock {

@@ -6,17 +6,125 @@
 //! range, so a few long-range sensors cost only their own wider search, never a coarser grid for
 //! everyone. O(N) for bounded ranges. An [`Omniscient`] vehicle scans everyone (O(N) per such
 //! vehicle).
+//!
+//! Imperfect sensors ([`SensorErrors`], issue 21) cost only their own vehicles: after the
+//! candidates are found as above, occlusion compares each with the nearer ones found (a target
+//! whose angular extent lies inside one nearer target's is hidden), dropout drops a detection
+//! with its probability, and Gaussian noise moves range, bearing and velocity. Every draw is
+//! [`uniform`] keyed by (seed, sensor, observer and target, tick): no allocation, the same bits
+//! for any thread count. [`SensorStats`] counts detections and the misses of each kind.
 
 use bevy_ecs::prelude::{Has, Local, Mut, Query, Res, ResMut, Resource};
 use glam::DVec2;
+use std::f64::consts::{PI, TAU};
 
 use super::{Plugin, SimBuilder};
-use crate::world::{Detection, Omniscient, Radar, SensorReadings, VehicleId, VehicleState, Velodyne};
+use crate::world::{
+    Detection, Omniscient, Radar, SensorError, SensorErrors, SensorReadings, VehicleId, VehicleSize, VehicleState,
+    Velodyne,
+};
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::recycle;
-use super::{GridEntry, Parallelism, Sensors, SimSystems, SpatialGrid};
+use super::random::{mix, uniform};
+use super::{GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
+
+/// Random stream of radar draws ("Rada").
+const RADAR_STREAM: u64 = 0x5261_6461;
+/// Random stream of velodyne draws ("Velo").
+const VELODYNE_STREAM: u64 = 0x5665_6c6f;
+
+/// Detections and misses of all sensors since the start, summed over observers and ticks
+/// (`summary.json` `metrics.sensors`).
+#[derive(Resource, Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct SensorStats {
+    /// Detections written into readings.
+    pub detections: u64,
+    /// Targets within a sensor's reach, not hidden, missed because every sensor that saw them
+    /// dropped them.
+    pub missed_by_dropout: u64,
+    /// Targets within a sensor's reach hidden behind a nearer target from every sensor that
+    /// reached them.
+    pub missed_by_occlusion: u64,
+}
+
+impl SensorStats {
+    fn add(&mut self, other: &SensorStats) {
+        self.detections += other.detections;
+        self.missed_by_dropout += other.missed_by_dropout;
+        self.missed_by_occlusion += other.missed_by_occlusion;
+    }
+}
+
+/// Footprint of a grid entry for occlusion: half length, half width [m] and yaw [rad].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Footprint {
+    half_length: f64,
+    half_width: f64,
+    yaw: f64,
+}
+
+/// Angle wrapped into (−π, π] [rad].
+fn wrap(a: f64) -> f64 {
+    let a = a.rem_euclid(TAU);
+    if a > PI { a - TAU } else { a }
+}
+
+/// The angular extent of footprint `f` centred at `relative` [m] from the sensor: the bearing
+/// of its centre and the lowest and highest bearing of its corners relative to it [rad].
+fn extent(relative: DVec2, f: &Footprint) -> (f64, f64, f64) {
+    let centre = relative.y.atan2(relative.x);
+    let (along, across) = (DVec2::from_angle(f.yaw) * f.half_length, DVec2::from_angle(f.yaw).perp() * f.half_width);
+    let (mut lo, mut hi) = (0.0f64, 0.0f64);
+    for corner in [along + across, along - across, -along + across, -along - across] {
+        let c = relative + corner;
+        let a = wrap(c.y.atan2(c.x) - centre);
+        lo = lo.min(a);
+        hi = hi.max(a);
+    }
+    (centre, lo, hi)
+}
+
+/// Whether extent `inner` lies inside extent `outer` (both as [`extent`] gives them).
+fn covers(outer: (f64, f64, f64), inner: (f64, f64, f64)) -> bool {
+    let d = wrap(inner.0 - outer.0);
+    d + inner.1 >= outer.1 && d + inner.2 <= outer.2
+}
+
+/// A standard normal pair by Box-Muller from the two 32-bit halves of one 64-bit hash (two
+/// uniforms in [0, 1) of 2⁻³² resolution: tails beyond 6.6 sd are cut, which no sensor model
+/// here needs).
+fn normal_pair(bits: u64) -> (f64, f64) {
+    const SCALE: f64 = 1.0 / 4_294_967_296.0;
+    let (u1, u2) = ((bits >> 32) as f64 * SCALE, (bits & 0xffff_ffff) as f64 * SCALE);
+    let r = (-2.0 * (1.0 - u1).ln()).sqrt();
+    let (s, c) = (TAU * u2).sin_cos();
+    (r * c, r * s)
+}
+
+/// What the errors of one sensing vehicle need at one tick: the seed and the tick's time.
+#[derive(Debug, Clone, Copy)]
+struct Draws {
+    seed: u64,
+    now_us: u64,
+}
+
+impl Draws {
+    /// Draw `k` of sensor `stream` for the pair (observer, target) this tick: uniform in [0, 1).
+    fn uniform(&self, stream: u64, observer: VehicleId, target: VehicleId, k: u64) -> f64 {
+        uniform(self.seed, stream, Self::pair(observer, target), (self.now_us << 3) | k)
+    }
+
+    /// Draw `k` as 64 random bits (the hash [`uniform`] takes its 53 bits from).
+    fn bits(&self, stream: u64, observer: VehicleId, target: VehicleId, k: u64) -> u64 {
+        mix(mix(mix(mix(self.seed) ^ stream) ^ Self::pair(observer, target)) ^ ((self.now_us << 3) | k))
+    }
+
+    fn pair(observer: VehicleId, target: VehicleId) -> u64 {
+        ((observer.0 as u32 as u64) << 32) | target.0 as u32 as u64
+    }
+}
 
 /// Whether a target at offset `relative` [m] from the sensor lies inside a radar cone facing
 /// `heading` (a unit vector) with full opening angle `angle` [rad] (edges inclusive).
@@ -68,6 +176,10 @@ pub struct SenseScratch {
     around: Vec<(u32, DVec2, VehicleId)>,
     /// Detections of the current vehicle as sort keys, see [`detection_key`].
     found: Vec<u128>,
+    /// Angular extents of the targets found so far nearer than the current one (occlusion).
+    extents: Vec<(f64, f64, f64)>,
+    /// Counts of this thread's vehicles this tick.
+    stats: SensorStats,
 }
 
 /// Cells each side a vehicle of sensor range `range` [m] must search on a grid of `cell` [m]:
@@ -157,14 +269,99 @@ fn write_readings(found: &mut [u128], grid: &SpatialGrid, readings: &mut SensorR
     }));
 }
 
+/// Sort `found` nearest first and write what the imperfect sensors of `sight` see of it into
+/// `readings`: occlusion, then dropout, then noise (the radar's when the radar sees the target,
+/// else the velodyne's; an omniscient sensor is perfect), counting into `s.stats`.
+#[allow(clippy::too_many_arguments)]
+fn write_imperfect_readings(
+    sight: &Sight,
+    errors: &SensorErrors,
+    draws: Draws,
+    footprints: &[Footprint],
+    grid: &SpatialGrid,
+    found: &mut [u128],
+    extents: &mut Vec<(f64, f64, f64)>,
+    stats: &mut SensorStats,
+    readings: &mut SensorReadings,
+) {
+    found.sort_unstable();
+    readings.0.clear();
+    extents.clear();
+    let occlusion = errors.radar.occlusion || errors.velodyne.occlusion;
+    for &key in found.iter() {
+        let e = grid.get(key as u32);
+        let relative = e.position - sight.position;
+        let d2 = relative.length_squared();
+        let mut hidden = false;
+        if occlusion {
+            let ext = extent(relative, &footprints[e.index as usize]);
+            hidden = extents.iter().any(|&nearer| covers(nearer, ext));
+            extents.push(ext);
+        }
+        let radar_reach = (d2 <= sight.radar_range2) & sight.cone.contains(relative, d2);
+        let velodyne_reach = d2 <= sight.velodyne_range2;
+        let sees = |reach: bool, err: &SensorError, stream: u64| -> (bool, bool) {
+            let visible = reach && !(hidden && err.occlusion);
+            let kept = visible && (err.dropout <= 0.0 || draws.uniform(stream, sight.id, e.id, 0) >= err.dropout);
+            (visible, kept)
+        };
+        let (radar_visible, radar_kept) = sees(radar_reach, &errors.radar, RADAR_STREAM);
+        let (velodyne_visible, velodyne_kept) = sees(velodyne_reach, &errors.velodyne, VELODYNE_STREAM);
+        let noise = if sight.omniscient {
+            None
+        } else if radar_kept {
+            Some((&errors.radar, RADAR_STREAM))
+        } else if velodyne_kept {
+            Some((&errors.velodyne, VELODYNE_STREAM))
+        } else {
+            if radar_visible || velodyne_visible {
+                stats.missed_by_dropout += 1;
+            } else {
+                stats.missed_by_occlusion += 1;
+            }
+            continue;
+        };
+        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
+        if let Some((err, stream)) = noise.filter(|(err, _)| err.is_noisy()) {
+            let (n_range, n_bearing) = normal_pair(draws.bits(stream, sight.id, e.id, 1));
+            let (n_vx, n_vy) = normal_pair(draws.bits(stream, sight.id, e.id, 2));
+            // Range and bearing errors: scale the offset, then rotate it by the bearing error.
+            let d = d2.sqrt();
+            let scale = if d > 0.0 { (d + err.range_sd * n_range) / d } else { 1.0 };
+            let scaled = relative * scale;
+            detection.position = sight.position + DVec2::from_angle(err.bearing_sd * n_bearing).rotate(scaled);
+            detection.velocity += DVec2::new(n_vx, n_vy) * err.speed_sd;
+        }
+        readings.0.push(detection);
+        stats.detections += 1;
+    }
+}
+
 /// One sensing vehicle as the query hands it out.
-type SensingItem<'a> =
-    (&'a VehicleId, &'a VehicleState, Option<&'a Radar>, Option<&'a Velodyne>, bool, Mut<'a, SensorReadings>);
+type SensingItem<'a> = (
+    &'a VehicleId,
+    &'a VehicleState,
+    Option<&'a Radar>,
+    Option<&'a Velodyne>,
+    bool,
+    Option<&'a SensorErrors>,
+    Mut<'a, SensorReadings>,
+);
+
+/// What every chunk reads: the grid, the footprints of its entries (filled only when some
+/// sensor has occlusion on) and the tick's draws.
+#[derive(Clone, Copy)]
+struct SenseInput<'a> {
+    grid: &'a SpatialGrid,
+    footprints: &'a [Footprint],
+    draws: Draws,
+}
 
 /// Fill the readings of a contiguous chunk of sensing vehicles from the (read-only) grid.
-fn sense_chunk(grid: &SpatialGrid, chunk: &mut [SensingItem<'_>], s: &mut SenseScratch) {
+fn sense_chunk(input: SenseInput<'_>, chunk: &mut [SensingItem<'_>], s: &mut SenseScratch) {
+    let grid = input.grid;
     let mut gathered: Option<((i32, i32), i32)> = None;
-    for (id, state, radar, velodyne, omniscient, readings) in chunk.iter_mut() {
+    for (id, state, radar, velodyne, omniscient, errors, readings) in chunk.iter_mut() {
         let sight = Sight::new(**id, state, *radar, *velodyne, *omniscient);
         let mut n = 0;
         if *omniscient {
@@ -188,7 +385,23 @@ fn sense_chunk(grid: &SpatialGrid, chunk: &mut [SensingItem<'_>], s: &mut SenseS
             }
         }
         s.found.truncate(n);
-        write_readings(&mut s.found, grid, readings);
+        match errors {
+            Some(errors) => write_imperfect_readings(
+                &sight,
+                errors,
+                input.draws,
+                input.footprints,
+                grid,
+                &mut s.found,
+                &mut s.extents,
+                &mut s.stats,
+                readings,
+            ),
+            None => {
+                s.stats.detections += n as u64;
+                write_readings(&mut s.found, grid, readings);
+            }
+        }
     }
 }
 
@@ -222,43 +435,65 @@ fn typical_range(ranges: &mut [f64]) -> f64 {
 pub fn sense_vehicles(
     mut grid: ResMut<SensorGrid>,
     parallelism: Res<Parallelism>,
-    everyone: Query<(&VehicleId, &VehicleState)>,
+    clock: Res<SimClock>,
+    seed: Option<Res<SimSeed>>,
+    mut stats: ResMut<SensorStats>,
+    everyone: Query<(&VehicleId, &VehicleState, Option<&VehicleSize>)>,
     mut sensing: Query<(
         &VehicleId,
         &VehicleState,
         Option<&Radar>,
         Option<&Velodyne>,
         Has<Omniscient>,
+        Option<&SensorErrors>,
         &mut SensorReadings,
     )>,
     mut scratch: Local<Vec<SenseScratch>>,
     mut buffer: Local<Vec<SensingItem<'static>>>,
     mut ranges: Local<Vec<f64>>,
+    mut footprints: Local<Vec<Footprint>>,
 ) {
     if sensing.is_empty() {
         return;
     }
     ranges.clear();
+    let mut occlusion = false;
     ranges.extend(
         sensing
             .iter()
-            .map(|(_, _, radar, velodyne, _, _)| sensor_range(radar, velodyne))
+            .inspect(|item| occlusion |= item.5.is_some_and(|e| e.radar.occlusion || e.velodyne.occlusion))
+            .map(|(_, _, radar, velodyne, _, _, _)| sensor_range(radar, velodyne))
             .filter(|&r| r > 0.0 && r.is_finite()),
     );
+    footprints.clear();
+    if occlusion {
+        footprints.extend(everyone.iter().map(|(_, state, size)| {
+            let size = size.copied().unwrap_or_default();
+            Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw: state.yaw }
+        }));
+    }
     grid.0.rebuild(
         typical_range(&mut ranges),
-        everyone.iter().map(|(&id, state)| GridEntry {
+        everyone.iter().enumerate().map(|(i, (&id, state, _))| GridEntry {
             position: state.position,
             velocity: state.velocity,
             id,
-            index: 0,
+            index: i as u32,
         }),
     );
-    let grid = &grid.0;
+    let input = SenseInput {
+        grid: &grid.0,
+        footprints: &footprints,
+        draws: Draws { seed: seed.map_or(0, |s| s.0), now_us: clock.now.0 },
+    };
     let mut items: Vec<SensingItem<'_>> = recycle(std::mem::take(&mut *buffer));
     items.extend(sensing.iter_mut());
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, s| sense_chunk(grid, chunk, s));
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, s| sense_chunk(input, chunk, s));
     *buffer = recycle(items);
+    for s in scratch.iter_mut() {
+        stats.add(&s.stats);
+        s.stats = SensorStats::default();
+    }
 }
 
 /// Radar, velodyne and omniscient sensing in the [`Sensors`] schedule.
@@ -268,6 +503,7 @@ pub struct SensorsPlugin;
 impl Plugin for SensorsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(SensorGrid::default());
+        sim.insert_resource(SensorStats::default());
         sim.world_mut().init_resource::<Parallelism>();
         sim.add_systems(Sensors, sense_vehicles.in_set(SimSystems::Sense));
     }

@@ -120,12 +120,44 @@ pub struct V2vChannelStats {
 }
 
 /// Per-link channel state (bursts, last due time). A `HashMap` because it is only looked up by
-/// link, never iterated: its order cannot change a result.
+/// link and pruned (each entry kept or dropped on its own), never iterated for a result: its
+/// order cannot change one.
 #[derive(Resource, Debug, Default)]
 pub struct V2vLinks {
     wifi: HashMap<(VehicleId, VehicleId), LinkState>,
     network: HashMap<(VehicleId, VehicleId), LinkState>,
+    /// Prune when this many links are held (see [`V2vLinks::prune`]).
+    prune_at: usize,
 }
+
+impl V2vLinks {
+    /// Links held, both channels together.
+    pub fn len(&self) -> usize {
+        self.wifi.len() + self.network.len()
+    }
+
+    /// Whether no link is held.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Drop the links of vehicles that left the registry (despawned background traffic), once
+    /// the table has doubled since the last prune (at least [`MIN_PRUNE`] links): amortised O(1)
+    /// per link, and a table never larger than twice its live links, so memory stays flat
+    /// under churn. Ids are never reused in a run, so a dropped link never comes back.
+    fn prune(&mut self, registry: &Vehicles) {
+        if self.len() < self.prune_at.max(MIN_PRUNE) {
+            return;
+        }
+        let live = |&(a, b): &(VehicleId, VehicleId)| registry.get(a).is_some() && registry.get(b).is_some();
+        self.wifi.retain(|link, _| live(link));
+        self.network.retain(|link, _| live(link));
+        self.prune_at = 2 * self.len();
+    }
+}
+
+/// Fewest links worth a prune of [`V2vLinks`].
+const MIN_PRUNE: usize = 1024;
 
 /// A reception waiting for its due time.
 #[derive(Debug, Clone)]
@@ -192,6 +224,7 @@ pub fn deliver_network(
     mut stats: ResMut<V2vStats>,
     mut channel: ResMut<V2vChannelStats>,
     mut links: ResMut<V2vLinks>,
+    registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
     mut mailboxes: Query<(&VehicleState, &mut Mailbox)>,
     mut buffer: Local<Vec<Message>>,
@@ -210,6 +243,9 @@ pub fn deliver_network(
     stats.network_sent += batch.len() as u64;
     let age_all: u64 = batch.iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
     let model = config.network;
+    if let Some(registry) = &registry {
+        links.prune(registry);
+    }
     let mut delivered = 0;
     if model.is_perfect() {
         for (_, mut mailbox) in &mut mailboxes {
@@ -229,8 +265,11 @@ pub fn deliver_network(
     }
     // Senders' positions for the distance model, sorted by id.
     positions.clear();
-    positions.extend(mailboxes.iter().map(|(state, m)| (m.owner(), state.position)));
-    positions.sort_by_key(|p| p.0);
+    if model.uses_distance() {
+        positions.extend(mailboxes.iter().map(|(state, m)| (m.owner(), state.position)));
+        positions.sort_by_key(|p| p.0);
+    }
+    let stateful = model.keeps_link_state();
     let seed = seed.map_or(0, |s| s.0);
     for (state, mut mailbox) in &mut mailboxes {
         let owner = mailbox.owner();
@@ -244,11 +283,18 @@ pub fn deliver_network(
                 continue;
             }
             channel.network.sent += 1;
-            let distance = positions
-                .binary_search_by_key(&m.sender, |p| p.0)
-                .map_or(0.0, |i| positions[i].1.distance(state.position));
+            // Every vehicle hears every other: look up the distance and keep link state only
+            // when the model needs them (a broadcast round is N² receptions).
+            let distance = if model.uses_distance() {
+                positions
+                    .binary_search_by_key(&m.sender, |p| p.0)
+                    .map_or(0.0, |i| positions[i].1.distance(state.position))
+            } else {
+                0.0
+            };
             let draw = Draw { seed, stream: NETWORK_STREAM, sender: m.sender.0, receiver: owner.0, round, index };
-            let link = links.network.entry((m.sender, owner)).or_default();
+            let mut fresh = LinkState::default();
+            let link = if stateful { links.network.entry((m.sender, owner)).or_default() } else { &mut fresh };
             let Some(delay) = model.deliver(&draw, now.0, distance, config.wifi_range, link) else { continue };
             channel.network.delivered += 1;
             if model.delays() {
@@ -299,6 +345,7 @@ pub fn deliver_wifi(
     mut stats: ResMut<V2vStats>,
     mut channel: ResMut<V2vChannelStats>,
     mut links: ResMut<V2vLinks>,
+    registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
     mut mailboxes: Query<(&VehicleState, &mut Mailbox)>,
     mut scratch: Local<WifiScratch>,
@@ -308,6 +355,10 @@ pub fn deliver_wifi(
     let now = clock.now;
     let seed = seed.map_or(0, |s| s.0);
     let model = config.wifi;
+    if let Some(registry) = &registry {
+        links.prune(registry);
+    }
+    let stateful = model.keeps_link_state();
     let s = &mut *scratch;
     s.senders.clear();
     for (state, mut mailbox) in &mut mailboxes {
@@ -369,7 +420,8 @@ pub fn deliver_wifi(
         for &i in &s.heard {
             let (sender, position, count) = senders[i as usize];
             let distance = position.distance(state.position);
-            let link = links.wifi.entry((sender, owner)).or_default();
+            let mut fresh = LinkState::default();
+            let link = if stateful { links.wifi.entry((sender, owner)).or_default() } else { &mut fresh };
             for index in 0..count {
                 let k = starts[i as usize] + index;
                 let draw = Draw { seed, stream: WIFI_STREAM, sender: sender.0, receiver: owner.0, round, index };

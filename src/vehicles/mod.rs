@@ -56,7 +56,10 @@ pub use longitudinal::{
     LeaderGap, Longitudinal, LongitudinalSystems, SteeringSystems, actuate_longitudinal, find_leaders, leader_on_path,
 };
 pub use path_following::{LateralShift, PathFollower, PathFollowing, PathFollowingPlugin, follow_paths};
-pub use platoon::{PlatoonBeacon, PlatoonMember, PlatoonPlugin, Platooning, control_platoon, send_platoon_beacons};
+pub use platoon::{
+    FALLBACK_WIFI_INTERVALS, Fallback, PlatoonBeacon, PlatoonMember, PlatoonPlugin, Platooning, control_platoon,
+    send_platoon_beacons,
+};
 pub use setup::{AccSetup, CruiseSetup, PlatoonRole, PlatoonSetup, SmartController};
 
 use crate::sim::SimBuilder;

@@ -19,14 +19,23 @@
 //! `feedforward_gain` = 1 and no delay, the gap error obeys the ACC dynamics driven by nothing,
 //! so a disturbance never grows down the platoon; the wifi delay (up to one round) is small
 //! against the time gap.
+//!
+//! Degraded cooperation ([`Fallback`], after Ploeg et al. 2015, "Graceful degradation of
+//! cooperative adaptive cruise control", IEEE T-ITS 16(1)): a follower whose member ahead last
+//! said it is in a platoon, but whose newest beacon is older than `fallback.beacon_timeout`,
+//! stays in the platoon (its place and what it broadcasts do not change, so the vehicles behind
+//! it keep their feed-forward) but drives ACC on its radar with `fallback.time_gap` and no
+//! feed-forward; it returns to the platoon gap as soon as a fresh beacon arrives. A member ahead
+//! that says it left, or a new vehicle ahead, ends membership as before (ACC at `acc_time_gap`).
 
 use std::sync::Arc;
 
 use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
+use serde::{Deserialize, Serialize};
 
 use crate::sim::params::{MAX_GAIN, MAX_TIME, ParamError, Range, check_all};
-use crate::sim::{Control, SimClock};
+use crate::sim::{Control, SimClock, WifiRate};
 use crate::sim::{Plugin, SimBuilder};
 use crate::world::{Channel, Mailbox, SimTime, VehicleId, VehicleState};
 
@@ -55,8 +64,46 @@ pub struct Platooning {
     pub max_acceleration: f64,
     /// Largest braking asked for [m/s²] (positive).
     pub max_deceleration: f64,
-    /// A beacon older than this no longer counts [s].
-    pub beacon_timeout: f64,
+    /// The older spelling of [`Fallback::beacon_timeout`] [s] (`controller.platoon.beacon_timeout`
+    /// in scenario files written before the fallback table): when set, a beacon of the member
+    /// ahead older than this puts the follower in fallback. `None`: the fallback table decides.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub beacon_timeout: Option<f64>,
+}
+
+/// What a platoon follower does when the beacons of the member ahead stop
+/// (`controller.fallback = { beacon_timeout, time_gap }`): ACC on its radar until they return.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Fallback {
+    /// Age [s] of the newest beacon of the member ahead above which the follower falls back;
+    /// `None` (the default) = 3 wifi intervals (0.3 s at the default 10 Hz). Raising it rides
+    /// out longer loss bursts on stale feed-forward.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub beacon_timeout: Option<f64>,
+    /// ACC time gap while in fallback [s] (default 1.2); raising it is safer and slower to
+    /// return to the platoon gap.
+    pub time_gap: f64,
+}
+
+impl Default for Fallback {
+    fn default() -> Self {
+        Fallback { beacon_timeout: None, time_gap: 1.2 }
+    }
+}
+
+/// Wifi intervals in the default [`Fallback::beacon_timeout`].
+pub const FALLBACK_WIFI_INTERVALS: f64 = 3.0;
+
+impl Fallback {
+    /// Check the values (keys relative to this table): beacon timeout (0, 86400] s, time gap
+    /// [0, 86400] s.
+    pub fn check(&self) -> Result<(), ParamError> {
+        if let Some(t) = self.beacon_timeout {
+            Range::positive(MAX_TIME).check("beacon_timeout", t)?;
+        }
+        Range::non_negative(MAX_TIME).check("time_gap", self.time_gap)
+    }
 }
 
 impl Default for Platooning {
@@ -72,7 +119,7 @@ impl Default for Platooning {
             feedforward_gain: 1.0,
             max_acceleration: acc.max_acceleration,
             max_deceleration: acc.max_deceleration,
-            beacon_timeout: 0.5,
+            beacon_timeout: None,
         }
     }
 }
@@ -82,10 +129,12 @@ impl Platooning {
     /// [0, 1e6], beacon timeout (0, 86400] s.
     pub fn check(&self) -> Result<(), ParamError> {
         self.law(self.time_gap).check()?;
+        if let Some(t) = self.beacon_timeout {
+            Range::positive(MAX_TIME).check("beacon_timeout", t)?;
+        }
         check_all([
             ("acc_time_gap", self.acc_time_gap, Range::non_negative(MAX_TIME)),
             ("feedforward_gain", self.feedforward_gain, Range::non_negative(MAX_GAIN)),
-            ("beacon_timeout", self.beacon_timeout, Range::positive(MAX_TIME)),
         ])
     }
 
@@ -136,6 +185,14 @@ pub struct PlatoonMember {
     pub platoon: Option<VehicleId>,
     /// Its place in the platoon (0 = leader).
     pub index: u32,
+    /// What it does when the beacons of the member ahead stop.
+    pub fallback: Fallback,
+    /// Whether it is in fallback now: a follower driving ACC because the beacons of the member
+    /// ahead are older than the timeout.
+    pub degraded: bool,
+    /// Age [s] of the newest beacon of the vehicle ahead at the last control tick, while a
+    /// follower (`None` otherwise).
+    pub beacon_age: Option<f64>,
     /// The latest beacon of the vehicle ahead and when it was sent.
     ahead: Option<(VehicleId, SimTime, PlatoonBeacon)>,
 }
@@ -143,7 +200,18 @@ pub struct PlatoonMember {
 impl PlatoonMember {
     /// A platoon leader (its own id names the platoon).
     pub fn leader(params: Platooning) -> PlatoonMember {
-        PlatoonMember { params, lead: true, leave_at: None, left: false, platoon: None, index: 0, ahead: None }
+        PlatoonMember {
+            params,
+            lead: true,
+            leave_at: None,
+            left: false,
+            platoon: None,
+            index: 0,
+            fallback: Fallback::default(),
+            degraded: false,
+            beacon_age: None,
+            ahead: None,
+        }
     }
 
     /// A vehicle that joins the platoon ahead of it when it hears it.
@@ -156,6 +224,12 @@ impl PlatoonMember {
         self.left = true;
     }
 
+    /// The beacon timeout in force [s]: `fallback.beacon_timeout`, else the older
+    /// `platoon.beacon_timeout`, else 3 intervals of wifi at `wifi_rate` [Hz].
+    pub fn beacon_timeout(&self, wifi_rate: f64) -> f64 {
+        self.fallback.beacon_timeout.or(self.params.beacon_timeout).unwrap_or(FALLBACK_WIFI_INTERVALS / wifi_rate)
+    }
+
     /// Whether it is in a platoon and not its leader.
     pub fn is_follower(&self) -> bool {
         self.platoon.is_some() && !self.lead
@@ -165,9 +239,11 @@ impl PlatoonMember {
 /// Update membership from the beacons heard and, for followers, set the acceleration.
 pub fn control_platoon(
     clock: Res<SimClock>,
+    wifi: Option<Res<WifiRate>>,
     mut vehicles: Query<(&VehicleId, &VehicleState, &Mailbox, &mut PlatoonMember, &mut Longitudinal)>,
 ) {
     let now = clock.now;
+    let wifi_rate = wifi.map_or(crate::sim::Rates::default().wifi, |r| r.0);
     for (&id, state, mailbox, mut member, mut lon) in &mut vehicles {
         if member.leave_at.is_some_and(|t| now >= t) {
             member.left = true;
@@ -181,18 +257,28 @@ pub fn control_platoon(
             }
         }
         let p = member.params;
-        let fresh = member.ahead.filter(|&(sender, sent_at, b)| {
-            Some(sender) == ahead_id && b.platoon.is_some() && now.as_secs() - sent_at.as_secs() <= p.beacon_timeout
-        });
+        let timeout = member.beacon_timeout(wifi_rate);
+        // The newest beacon of the vehicle ahead now, and its age [s].
+        let heard = member.ahead.filter(|&(sender, _, _)| Some(sender) == ahead_id);
+        let age = heard.map(|(_, sent_at, _)| now.0.saturating_sub(sent_at.0) as f64 * 1e-6);
+        let fresh = heard.filter(|&(_, _, b)| b.platoon.is_some() && age.is_some_and(|a| a <= timeout));
+        // Stale beacons of a member ahead that last said it is in our platoon: fall back.
+        let degraded = !member.lead
+            && !member.left
+            && fresh.is_none()
+            && member.platoon.is_some()
+            && heard.is_some_and(|(_, _, b)| b.platoon == member.platoon);
         if member.left {
             member.platoon = None;
         } else if member.lead {
             member.platoon = Some(id);
             member.index = 0;
-        } else {
+        } else if !degraded {
             member.platoon = fresh.and_then(|(_, _, b)| b.platoon);
             member.index = fresh.map_or(0, |(_, _, b)| b.index + 1);
         }
+        member.degraded = degraded;
+        member.beacon_age = age.filter(|_| member.is_follower());
         if member.lead && !member.left {
             continue;
         }
@@ -204,6 +290,9 @@ pub fn control_platoon(
                 lon.leader.as_ref(),
                 p.feedforward_gain * b.acceleration,
             ),
+            None if degraded => {
+                p.law(member.fallback.time_gap).acceleration(v, lon.route_speed, lon.leader.as_ref(), 0.0)
+            }
             None => p.law(p.acc_time_gap).acceleration(v, lon.route_speed, lon.leader.as_ref(), 0.0),
         };
     }
@@ -251,5 +340,21 @@ impl Plugin for PlatoonPlugin {
                 send_platoon_beacons.in_set(LongitudinalSystems::Report),
             ),
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_beacon_timeout_is_the_fallback_table_then_the_older_key_then_three_wifi_intervals() {
+        let mut member = PlatoonMember::follower(Platooning::default());
+        assert!((member.beacon_timeout(10.0) - 0.3).abs() < 1e-12);
+        assert!((member.beacon_timeout(5.0) - 0.6).abs() < 1e-12);
+        member.params.beacon_timeout = Some(0.5);
+        assert_eq!(member.beacon_timeout(10.0), 0.5);
+        member.fallback.beacon_timeout = Some(0.2);
+        assert_eq!(member.beacon_timeout(10.0), 0.2);
     }
 }

@@ -16,7 +16,7 @@ use bevy_ecs::prelude::{Entity, World};
 
 use super::{
     AccController, AdaptiveCruise, Crossing, CrossingNegotiator, CruiseControl, CruiseController, EmergencyBrake,
-    EmergencyBraking, Idm, IdmController, PathFollower, PathFollowing, PlatoonMember, Platooning,
+    EmergencyBraking, Fallback, Idm, IdmController, PathFollower, PathFollowing, PlatoonMember, Platooning,
 };
 use crate::sim::params::{MAX_SPEED, MAX_TIME, ParamError, Range};
 use crate::world::SimTime;
@@ -80,6 +80,9 @@ pub struct PlatoonSetup {
     /// Gap law and feed-forward.
     #[serde(default)]
     pub platoon: Platooning,
+    /// Followers: ACC on radar while the beacons of the member ahead are stale.
+    #[serde(default)]
+    pub fallback: Fallback,
     /// The leader's cruise control (with an optional scripted dip).
     #[serde(default)]
     pub cruise: CruiseControl,
@@ -127,6 +130,13 @@ impl SmartController {
             }
             SmartController::Platoon(c) => {
                 c.platoon.check().map_err(|e| e.within("platoon"))?;
+                c.fallback.check().map_err(|e| e.within("fallback"))?;
+                if c.platoon.beacon_timeout.is_some() && c.fallback.beacon_timeout.is_some() {
+                    return Err(ParamError {
+                        key: "platoon.beacon_timeout".into(),
+                        problem: "is the older spelling of `fallback.beacon_timeout` and both are set; keep one".into(),
+                    });
+                }
                 if c.role == PlatoonRole::Leader {
                     c.cruise.check().map_err(|e| e.within("cruise"))?;
                 }
@@ -189,6 +199,7 @@ impl SmartController {
                     PlatoonRole::Follower => PlatoonMember::follower(c.platoon),
                 };
                 member.leave_at = c.leave_at.map(SimTime::from_secs);
+                member.fallback = c.fallback;
                 e.insert(member);
                 (c.speed, c.emergency, c.crossing)
             }

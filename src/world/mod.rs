@@ -16,6 +16,6 @@ mod vehicle;
 pub use mailbox::{Channel, Inbox, InboxIter, Mailbox, Message, Payload};
 pub use models::{AccelerationUnicycle, KinematicUnicycle, VehicleModel};
 pub use registry::{SensorSet, VehicleSpec, Vehicles, WorldError, despawn_vehicle, spawn_vehicle};
-pub use sensors::{Detection, Omniscient, Radar, SensorReadings, Velodyne};
+pub use sensors::{Detection, Omniscient, Radar, SensorError, SensorErrors, SensorReadings, Velodyne};
 pub use time::SimTime;
 pub use vehicle::{ControlCommand, Route, VehicleClass, VehicleId, VehicleSize, VehicleState};

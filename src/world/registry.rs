@@ -6,8 +6,8 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Entity, Resource, World};
 
 use super::{
-    ControlCommand, Mailbox, Omniscient, Radar, Route, SensorReadings, VehicleClass, VehicleId, VehicleModel,
-    VehicleSize, VehicleState, Velodyne,
+    ControlCommand, Mailbox, Omniscient, Radar, Route, SensorErrors, SensorReadings, VehicleClass, VehicleId,
+    VehicleModel, VehicleSize, VehicleState, Velodyne,
 };
 use crate::map::Path;
 
@@ -83,6 +83,9 @@ pub struct VehicleSpec {
     pub model: VehicleModel,
     /// Sensors (none by default); any sensor adds [`SensorReadings`].
     pub sensors: SensorSet,
+    /// Noise, dropout and occlusion of its radar and velodyne (perfect by default; adds
+    /// [`SensorErrors`] when not perfect).
+    pub sensor_errors: SensorErrors,
     /// Whether the vehicle takes part in V2V (adds a [`Mailbox`]; on by default).
     pub mailbox: bool,
     /// Path to drive, if any (adds a [`Route`]).
@@ -99,6 +102,7 @@ impl VehicleSpec {
             state,
             model: VehicleModel::default(),
             sensors: SensorSet::default(),
+            sensor_errors: SensorErrors::default(),
             mailbox: true,
             route: None,
         }
@@ -135,6 +139,9 @@ pub fn spawn_vehicle(world: &mut World, spec: VehicleSpec) -> Result<Entity, Wor
     }
     if spec.sensors.any() {
         e.insert(SensorReadings::default());
+    }
+    if !spec.sensor_errors.is_perfect() {
+        e.insert(spec.sensor_errors);
     }
     if spec.mailbox {
         e.insert(Mailbox::new(spec.id));

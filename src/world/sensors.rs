@@ -37,7 +37,54 @@ impl Default for Velodyne {
 #[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
 pub struct Omniscient;
 
-/// One detected vehicle: the seed's (id, x, y, ẋ, ẏ), ground truth.
+/// What makes one sensor imperfect (issue 21; all off by default, so a sensor is ground truth).
+/// Random draws are counter-based ([`crate::sim::random`]) keyed by (seed, sensor, observer,
+/// target, tick): the same for any thread count.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SensorError {
+    /// Standard deviation of the Gaussian error of the range to the target's centre [m].
+    pub range_sd: f64,
+    /// Standard deviation of the Gaussian error of the bearing to the target's centre [rad].
+    pub bearing_sd: f64,
+    /// Standard deviation of the Gaussian error of each velocity component (x, y) [m/s].
+    pub speed_sd: f64,
+    /// Probability that a detection is missed [-], drawn per observer, target and tick.
+    pub dropout: f64,
+    /// Whether a target whose angular extent (its footprint seen from the sensor) lies inside
+    /// the extent of one nearer target is not seen.
+    pub occlusion: bool,
+}
+
+impl SensorError {
+    /// Whether it changes nothing (no noise, no dropout, no occlusion).
+    pub fn is_perfect(&self) -> bool {
+        *self == SensorError::default()
+    }
+
+    /// Whether it adds noise to what it sees.
+    pub fn is_noisy(&self) -> bool {
+        self.range_sd > 0.0 || self.bearing_sd > 0.0 || self.speed_sd > 0.0
+    }
+}
+
+/// The errors of a vehicle's radar and velodyne; without this component both are perfect.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
+pub struct SensorErrors {
+    /// Errors of the radar.
+    pub radar: SensorError,
+    /// Errors of the velodyne.
+    pub velodyne: SensorError,
+}
+
+impl SensorErrors {
+    /// Whether both sensors are perfect (then the component is not needed).
+    pub fn is_perfect(&self) -> bool {
+        self.radar.is_perfect() && self.velodyne.is_perfect()
+    }
+}
+
+/// One detected vehicle: the seed's (id, x, y, ẋ, ẏ), ground truth unless [`SensorErrors`] add
+/// noise.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Detection {
     /// Id of the detected vehicle.

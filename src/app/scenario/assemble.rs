@@ -27,8 +27,8 @@ use crate::vehicles::{
     PathFollowing, PathFollowingPlugin, RouteGoal, SmartController, smart_vehicles,
 };
 use crate::world::{
-    AccelerationUnicycle, KinematicUnicycle, Radar, SensorSet, VehicleClass, VehicleId, VehicleModel, VehicleSize,
-    VehicleSpec, VehicleState, Velodyne,
+    AccelerationUnicycle, KinematicUnicycle, Radar, SensorErrors, SensorSet, VehicleClass, VehicleId, VehicleModel,
+    VehicleSize, VehicleSpec, VehicleState, Velodyne,
 };
 
 /// A start pose farther than this from its route's centre line is warned about at load time [m]
@@ -56,6 +56,14 @@ fn sensors_of(s: &SensorsConfig) -> SensorSet {
         radar: s.radar.map(|r| Radar { angle: r.angle_deg.to_radians(), range: r.range }),
         velodyne: s.velodyne.map(|r| Velodyne { range: r.range }),
         omniscient: s.omniscient,
+    }
+}
+
+/// The errors of a `sensors` table's radar and velodyne.
+fn sensor_errors_of(s: &SensorsConfig) -> SensorErrors {
+    SensorErrors {
+        radar: s.radar.map_or_else(Default::default, |r| r.noise.with(r.dropout, r.occlusion)),
+        velodyne: s.velodyne.map_or_else(Default::default, |v| v.noise.with(v.dropout, v.occlusion)),
     }
 }
 
@@ -173,6 +181,7 @@ impl Scenario {
         spec.size = VehicleSize { length: v.length.unwrap_or(d.length), width: v.width.unwrap_or(d.width) };
         spec.model = model_of(v.model);
         spec.sensors = sensors_of(&v.sensors);
+        spec.sensor_errors = sensor_errors_of(&v.sensors);
         spec.mailbox = v.mailbox;
         spec.route = route;
         let entity = b.spawn_vehicle(spec).map_err(|e| self.invalid(key("id"), e.to_string()))?;
@@ -360,6 +369,7 @@ impl Scenario {
                 lane_change: t.lane_change.0,
                 model: model_of(t.model),
                 sensors: sensors_of(&t.sensors),
+                sensor_errors: sensor_errors_of(&t.sensors),
                 yield_to_emergency: t.yield_to_emergency,
                 next_id: first as i32,
                 drawn: 0,

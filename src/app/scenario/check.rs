@@ -92,6 +92,12 @@ fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> R
     if t.classes.values().sum::<f64>() <= 0.0 {
         return Err(c.invalid(key("classes"), "needs a share above 0, e.g. { car = 1.0 }"));
     }
+    if let Some(r) = t.sensors.radar {
+        check_sensor_errors(c, &key("sensors.radar"), &r.noise, r.dropout)?;
+    }
+    if let Some(r) = t.sensors.velodyne {
+        check_sensor_errors(c, &key("sensors.velodyne"), &r.noise, r.dropout)?;
+    }
     if let Some(p) = &t.lane_change.0 {
         p.check().map_err(|e| c.invalid(key(&format!("lane_change.{}", e.key)), &e.problem))?;
     }
@@ -218,9 +224,11 @@ fn check_vehicle(
             ));
         }
         c.within(key("sensors.radar.range"), r.range, Range::non_negative(MAX_DISTANCE))?;
+        check_sensor_errors(c, &key("sensors.radar"), &r.noise, r.dropout)?;
     }
     if let Some(r) = v.sensors.velodyne {
         c.within(key("sensors.velodyne.range"), r.range, Range::non_negative(MAX_DISTANCE))?;
+        check_sensor_errors(c, &key("sensors.velodyne"), &r.noise, r.dropout)?;
     }
     if let Some(p) = &v.lane_change.0 {
         p.check().map_err(|e| c.invalid(key(&format!("lane_change.{}", e.key)), &e.problem))?;
@@ -299,4 +307,18 @@ fn check_controller(
             }
         }
     }
+}
+
+/// A sensor's `noise` standard deviations (range and speed [0, 1e6], bearing [0, 360] degrees)
+/// and `dropout` probability [0, 1]; `at` names the sensor's table.
+fn check_sensor_errors(
+    c: &Checker,
+    at: &str,
+    noise: &super::file::NoiseConfig,
+    dropout: f64,
+) -> Result<(), ScenarioError> {
+    c.within(format!("{at}.noise.range_sd"), noise.range_sd, Range::non_negative(MAX_DISTANCE))?;
+    c.within(format!("{at}.noise.bearing_sd_deg"), noise.bearing_sd_deg, Range::non_negative(360.0))?;
+    c.within(format!("{at}.noise.speed_sd"), noise.speed_sd, Range::non_negative(MAX_DISTANCE))?;
+    c.within(format!("{at}.dropout"), dropout, Range::non_negative(1.0))
 }

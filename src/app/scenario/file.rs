@@ -515,7 +515,7 @@ pub struct SensorsConfig {
     pub omniscient: bool,
 }
 
-/// `radar = { angle_deg, range }`.
+/// `radar = { angle_deg, range, noise, dropout, occlusion }`.
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RadarConfig {
@@ -523,26 +523,75 @@ pub struct RadarConfig {
     pub angle_deg: f64,
     /// Range [m].
     pub range: f64,
+    /// Gaussian measurement noise (none by default).
+    pub noise: NoiseConfig,
+    /// Probability a detection is missed [-] (0 by default).
+    pub dropout: f64,
+    /// Whether a vehicle hidden behind a nearer one is not seen (false by default).
+    pub occlusion: bool,
 }
 
 impl Default for RadarConfig {
     fn default() -> Self {
         let r = Radar::default();
-        RadarConfig { angle_deg: r.angle.to_degrees(), range: r.range }
+        RadarConfig {
+            angle_deg: r.angle.to_degrees(),
+            range: r.range,
+            noise: NoiseConfig::default(),
+            dropout: 0.0,
+            occlusion: false,
+        }
     }
 }
 
-/// `velodyne = { range }`.
+/// `velodyne = { range, noise, dropout, occlusion }`.
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct VelodyneConfig {
     /// Range [m].
     pub range: f64,
+    /// Gaussian measurement noise (none by default).
+    pub noise: NoiseConfig,
+    /// Probability a detection is missed [-] (0 by default).
+    pub dropout: f64,
+    /// Whether a vehicle hidden behind a nearer one is not seen (false by default).
+    pub occlusion: bool,
 }
 
 impl Default for VelodyneConfig {
     fn default() -> Self {
-        VelodyneConfig { range: Velodyne::default().range }
+        VelodyneConfig {
+            range: Velodyne::default().range,
+            noise: NoiseConfig::default(),
+            dropout: 0.0,
+            occlusion: false,
+        }
+    }
+}
+
+/// `noise = { range_sd, bearing_sd_deg, speed_sd }` of a radar or velodyne: standard deviations
+/// of Gaussian errors, 0 by default.
+#[derive(Debug, Clone, Copy, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NoiseConfig {
+    /// Of the range to the target's centre [m].
+    pub range_sd: f64,
+    /// Of the bearing to the target's centre [deg] (converted to radians for the simulation).
+    pub bearing_sd_deg: f64,
+    /// Of each velocity component [m/s].
+    pub speed_sd: f64,
+}
+
+impl NoiseConfig {
+    /// The simulation's errors with this noise, `dropout` and `occlusion`.
+    pub fn with(&self, dropout: f64, occlusion: bool) -> crate::world::SensorError {
+        crate::world::SensorError {
+            range_sd: self.range_sd,
+            bearing_sd: self.bearing_sd_deg.to_radians(),
+            speed_sd: self.speed_sd,
+            dropout,
+            occlusion,
+        }
     }
 }
 
