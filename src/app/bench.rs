@@ -461,6 +461,9 @@ mod tests {
         let log = sim.world().resource::<LaneChangeLog>();
         assert!(log.count() > 0, "vehicles of different desired speeds change lanes");
         assert!(log.events.is_empty(), "{} events kept by a run that writes no summary", log.events.len());
+        // One loop per lane, whatever lanelet the changes happened at (each is a whole lane).
+        let paths = sim.world().resource::<crate::vehicles::lane_changing::LanePaths>();
+        assert!(paths.cached() <= 3, "{} lane paths kept for a 3-lane ring", paths.cached());
     }
 
     #[test]

@@ -498,6 +498,8 @@ pub struct LanePaths {
     pub points_per_meter: f64,
     paths: BTreeMap<(u32, String), Option<Arc<Path>>>,
     reach: BTreeMap<String, Arc<Vec<bool>>>,
+    /// Closed loops, one per lane: a loop through a lanelet serves every lanelet it passes.
+    loops: Vec<Arc<Path>>,
 }
 
 impl LanePaths {
@@ -539,6 +541,30 @@ impl LanePaths {
         let r = Arc::new(r);
         self.reach.insert(key, Arc::clone(&r));
         r
+    }
+
+    /// How many paths are kept (lane loops and routes to places).
+    pub fn cached(&self) -> usize {
+        self.loops.len() + self.paths.values().filter(|p| p.is_some()).count()
+    }
+
+    /// A path through lanelet `i` to `goal`: for a loop, any loop of `i`'s lane (one per lane,
+    /// shared by all its lanelets, so memory does not grow with the lanelets where vehicles
+    /// change lanes: a loop is a whole lane); else [`LanePaths::path`].
+    pub fn path_through(&mut self, lanes: &LaneMap, i: u32, goal: &RouteGoal) -> Option<Arc<Path>> {
+        if *goal != RouteGoal::Loop {
+            return self.path(lanes, i, goal);
+        }
+        let id = lanes.id(i);
+        if let Some(p) = self.loops.iter().find(|p| p.lanelets.contains(&id)) {
+            return Some(Arc::clone(p));
+        }
+        let path = self.path(lanes, i, goal)?;
+        if path.closed {
+            self.loops.push(Arc::clone(&path));
+            self.paths.remove(&(i, goal.key()));
+        }
+        Some(path)
     }
 
     /// The path from the start of lanelet `i` along its lane to `goal` (round the loop; to the
@@ -895,8 +921,10 @@ pub fn decide_lane_changes(
             }
         }
         let Some((_, side, kind, j)) = best else { continue };
-        let Some(path) = paths.path(lanes, j, &ch.goal) else { continue };
-        let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+        let Some(path) = paths.path_through(lanes, j, &ch.goal) else { continue };
+        // A lane's loop may start at another lanelet: where lanelet j starts on it.
+        let start_j = if path.closed { loop_offset(lanes, &path, lanes.id(j)) } else { 0.0 };
+        let s_j = start_j + pos.s * lanes.length(j) / len_i.max(1e-9);
         let q = path.project_near(state.position, s_j, 15.0);
         let cap = v.max(law.desired_speed().min(v + 3.0));
         let profile = LaneChangeProfile::for_speed(-q.lateral, cap, p.max_lateral_accel, MIN_CHANGE_LENGTH);
@@ -944,6 +972,17 @@ pub fn target_gap_closed(
         gap <= 0.0 || law.accel(f.speed, Some((gap, v))) < -safe_deceleration
     });
     front || back
+}
+
+/// Arc length [m] at which lanelet `id` starts on the closed `path` (its centre lines stitched
+/// in order): the centre-line lengths of the lanelets before it.
+fn loop_offset(lanes: &LaneMap, path: &Path, id: LaneletId) -> f64 {
+    path.lanelets
+        .iter()
+        .take_while(|&&l| l != id)
+        .filter_map(|&l| lanes.map.lanelet_index(l))
+        .map(|k| lanes.length(k as u32))
+        .sum()
 }
 
 /// The neighbour on `side` of lanelet `i`, if any.
