@@ -922,10 +922,14 @@ pub fn decide_lane_changes(
         }
         let Some((_, side, kind, j)) = best else { continue };
         let Some(path) = paths.path_through(lanes, j, &ch.goal) else { continue };
-        // A lane's loop may start at another lanelet: where lanelet j starts on it.
-        let start_j = if path.closed { loop_offset(lanes, &path, lanes.id(j)) } else { 0.0 };
-        let s_j = start_j + pos.s * lanes.length(j) / len_i.max(1e-9);
-        let q = path.project_near(state.position, s_j, 15.0);
+        let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+        let q = if path.closed {
+            // A lane's loop may start at any of its lanelets: find the vehicle on the whole loop
+            // (once per change; a lane's loop does not pass within a lane of itself).
+            path.project(state.position)
+        } else {
+            path.project_near(state.position, s_j, 15.0)
+        };
         let cap = v.max(law.desired_speed().min(v + 3.0));
         let profile = LaneChangeProfile::for_speed(-q.lateral, cap, p.max_lateral_accel, MIN_CHANGE_LENGTH);
         let m = Manoeuvre {
@@ -972,17 +976,6 @@ pub fn target_gap_closed(
         gap <= 0.0 || law.accel(f.speed, Some((gap, v))) < -safe_deceleration
     });
     front || back
-}
-
-/// Arc length [m] at which lanelet `id` starts on the closed `path` (its centre lines stitched
-/// in order): the centre-line lengths of the lanelets before it.
-fn loop_offset(lanes: &LaneMap, path: &Path, id: LaneletId) -> f64 {
-    path.lanelets
-        .iter()
-        .take_while(|&&l| l != id)
-        .filter_map(|&l| lanes.map.lanelet_index(l))
-        .map(|k| lanes.length(k as u32))
-        .sum()
 }
 
 /// The neighbour on `side` of lanelet `i`, if any.
