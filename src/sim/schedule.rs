@@ -263,6 +263,11 @@ impl Scheduler {
             m.schedule.run(world);
         }
         m.tick += 1;
+        // bevy keeps a record of every component removed (despawned vehicles' too) until the
+        // trackers are cleared, as a bevy App does once per frame: without this a run with
+        // traffic leaving the world grows by ~360 B per vehicle that left (nothing here reads
+        // the records).
+        world.clear_trackers();
         // Every control-phase module (the built-in `Control` and any of a student's) reads the
         // in-boxes: once each of them has run since the last advance, all have seen what the
         // in-boxes hold and the next V2V round may start them afresh. A slower controller so
