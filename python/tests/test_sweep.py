@@ -154,3 +154,23 @@ def test_sigterm_keeps_the_finished_rows(root, tmp_path):
     """Issue 24 item 1: SIGTERM (`kill PID`, a batch system ending the job) to
     `python -m smlworld.sweep` writes the runs that finished and exits 143 (128 + 15)."""
     _interrupted_sweep(root, tmp_path, lambda p: os.kill(p.pid, signal.SIGTERM), 143)
+
+
+def test_loss_sweep_example_compares_fallback_and_writes_its_figure(root, tmp_path):
+    """python/examples/loss_sweep.py (issue 21 item 6), two seeds: every cell is run with and
+    without fallback, the fallback runs have no collision up to 50 % loss, and the figure is written."""
+    import subprocess
+    import sys
+
+    import pandas as pd
+
+    done = subprocess.run(
+        [sys.executable, str(root / "python/examples/loss_sweep.py"), "--seeds", "2", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=300, cwd=root,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    df = pd.read_csv(tmp_path / "loss_sweep.csv")
+    assert len(df) == 2 * 6 * 2, df  # with/without fallback x 6 losses x 2 seeds
+    assert sorted(df["v2v.wifi.loss"].unique()) == [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
+    assert (df[df["fallback"]]["collisions"] == 0).all(), df
+    assert (tmp_path / "loss_sweep.png").stat().st_size > 10_000
