@@ -199,6 +199,20 @@ def load_map(path) -> Map:
     return _smlworld.load_map(str(path))
 
 
+def _register_envs() -> None:
+    """Register the Gymnasium environments on a plain ``import smlworld`` (by name: their
+    modules load only when ``gymnasium.make`` asks for them). Without gymnasium (the ``envs``
+    extra) there is nothing to register and smlworld works as before."""
+    try:
+        import gymnasium
+    except ImportError:
+        return
+    if "smlworld/PlatoonFollow-v0" not in gymnasium.registry:
+        gymnasium.register(id="smlworld/PlatoonFollow-v0", entry_point="smlworld.envs.platoon:PlatoonFollowEnv")
+
+
+_register_envs()
+
 # `smlworld.sweep(...)` runs a sweep and `python -m smlworld.sweep` reads a sweep file: the
 # module is callable (see smlworld/sweep.py), so both names stay one object.
 from . import sweep  # noqa: E402

@@ -93,3 +93,23 @@ def test_platoon_parallel_observes_predecessor_over_wifi():
         assert not any(term.values())
     assert heard > 50
     assert all(2.0 < info[a]["gap"] < 40.0 for a in info)
+
+
+def test_a_plain_import_registers_the_envs_and_rgb_array_renders_frames():
+    """Issue 20 item 3 (for the existing env): ``gymnasium.make`` after a plain ``import
+    smlworld`` (no ``import smlworld.envs``), and ``render_mode="rgb_array"`` gives HxWx3 frames."""
+    import subprocess
+    import sys
+
+    code = (
+        "import gymnasium, smlworld\n"
+        "env = gymnasium.make('smlworld/PlatoonFollow-v0', render_mode='rgb_array')\n"
+        "env.reset(seed=1)\n"
+        "env.step(env.action_space.sample())\n"
+        "f = env.render()\n"
+        "assert f.shape == (360, 640, 3) and f.dtype.name == 'uint8', (f.shape, f.dtype)\n"
+        "assert f.std() > 1.0, 'a picture, not a blank frame'\n"
+        "print('ok')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]

@@ -41,9 +41,12 @@ def _scenario_path() -> str:
 class PlatoonFollowEnv(gym.Env):
     """Follow a leader that changes its speed every few seconds (see :mod:`smlworld.envs`)."""
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / DT))}
 
-    def __init__(self, dt: float = DT, max_steps: int = MAX_STEPS):
+    def __init__(self, dt: float = DT, max_steps: int = MAX_STEPS, render_mode: Optional[str] = None):
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
         self.dt = float(dt)
         self.max_steps = int(max_steps)
         self.action_space = spaces.Box(A_MIN, A_MAX, shape=(1,), dtype=np.float32)
@@ -51,6 +54,13 @@ class PlatoonFollowEnv(gym.Env):
         self.observation_space = spaces.Box(np.array([0.0, -50.0, -40.0, -10.0], dtype=np.float32), high, dtype=np.float32)
         self._sim: Optional[smlworld.Sim] = None
         self._ids = np.array([LEADER, EGO], dtype=np.int32)
+
+    def render(self):
+        """With ``render_mode="rgb_array"``: the bird's-eye view now, an (H, W, 3) uint8 array
+        (640 x 360) from the off-screen renderer; ``None`` without a render mode."""
+        if self.render_mode != "rgb_array" or self._sim is None:
+            return None
+        return np.ascontiguousarray(self._sim.frame(width=640, height=360)[..., :3])
 
     # -- helpers -----------------------------------------------------------------------------
     def _kinematics(self):
