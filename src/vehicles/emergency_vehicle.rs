@@ -348,14 +348,7 @@ pub fn yield_to_emergency_vehicles(
     let range = settings.warning_range;
     let successor = |i: u32| lanes.successors[i as usize].first().copied();
     let length = |i: u32| lanes.length(i);
-    let neighbour = |i: u32, side: Side| {
-        let n = lanes.neighbours[i as usize];
-        let id = match side {
-            Side::Left => n.left,
-            Side::Right => n.right,
-        }?;
-        lanes.map.lanelet_index(id).map(|j| j as u32)
-    };
+    let neighbour = |i: u32, side: Side| super::lane_changing::neighbour(lanes, i, side);
     for (id, state, size, pos, mailbox, mut y, mut shift, mut changer) in &mut vehicles {
         // The newest beacon received (one emergency vehicle at a time: the newest message).
         if let Some((_, sent, b)) =

@@ -978,8 +978,8 @@ pub fn target_gap_closed(
     front || back
 }
 
-/// The neighbour on `side` of lanelet `i`, if any.
-fn neighbour(lanes: &LaneMap, i: u32, side: Side) -> Option<u32> {
+/// The neighbour on `side` of lanelet `i`, if any (whatever the line between them).
+pub fn neighbour(lanes: &LaneMap, i: u32, side: Side) -> Option<u32> {
     let n = lanes.neighbours[i as usize];
     let id = match side {
         Side::Left => n.left,

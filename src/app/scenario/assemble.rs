@@ -69,12 +69,7 @@ fn sensor_errors_of(s: &SensorsConfig) -> SensorErrors {
 
 /// The neighbour of lanelet `i` on `side` (whatever the line between them).
 fn side_of(lanes: &LaneMap, i: u32, side: Side) -> Option<u32> {
-    let n = lanes.neighbours[i as usize];
-    let id = match side {
-        Side::Left => n.left,
-        Side::Right => n.right,
-    }?;
-    lanes.map.lanelet_index(id).map(|j| j as u32)
+    crate::vehicles::lane_changing::neighbour(lanes, i, side)
 }
 
 impl Scenario {
