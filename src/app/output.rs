@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::io::Write;
 
 use bevy_ecs::prelude::{Query, Res, ResMut, Resource, World};
-use bevy_ecs::schedule::ScheduleLabel;
+use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 
 use crate::io::lab::LabSummary;
 use crate::sim::{Phase, SimClock, V2vStats};
@@ -116,6 +116,7 @@ pub fn log_final_state(sim: &mut Sim) {
     use bevy_ecs::system::RunSystemOnce;
     // The system's parameters are all resources and a query, always valid: the error is
     // unreachable, and a write error is kept in the log for `finish` to report.
+    crate::vehicles::refresh_lane_positions(sim.world_mut());
     let _ = sim.world_mut().run_system_once(log_trajectories);
 }
 
@@ -130,7 +131,8 @@ pub struct TrajectoryLogPlugin {
 impl Plugin for TrajectoryLogPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.add_module("log", Log, Phase::Sense, self.rate);
-        sim.add_systems(Log, log_trajectories);
+        // Lane positions are found where they are read (see `update_lane_positions`).
+        sim.add_systems(Log, (crate::vehicles::lanes::update_lane_positions, log_trajectories).chain());
     }
 }
 

@@ -278,6 +278,8 @@ impl Session {
         }
         let wall = Instant::now();
         self.sim.run_for(dt);
+        // Lane positions are found where they are read; the state arrays read them now.
+        crate::vehicles::refresh_lane_positions(self.sim.world_mut());
         self.wall_seconds += wall.elapsed().as_secs_f64();
         Ok(())
     }

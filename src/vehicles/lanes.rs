@@ -10,13 +10,14 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Component, Local, Mut, Query, Res, Resource};
+use bevy_ecs::prelude::{Component, Local, Mut, Query, Res, ResMut, Resource, World};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
 use crate::map::{LaneletId, LaneletMap, Neighbours, Path};
 use crate::sim::parallel::recycle;
-use crate::sim::{Dynamics, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
+use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
+use crate::world::SimTime;
 use crate::world::VehicleState;
 
 /// Size of a cell of the lanelet grid [m].
@@ -191,7 +192,9 @@ impl LaneMap {
     }
 }
 
-/// Where a vehicle is on the road, updated after every dynamics step ([`LaneSystems`]).
+/// Where a vehicle is on the road, brought up to date before anything reads it: at the start of
+/// every control tick ([`LaneSystems`]), before each trajectory log row and on demand
+/// ([`refresh_lane_positions`]); never more than once per instant.
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct LanePosition {
     /// The lanelet under the reference point (`None` off-road).
@@ -217,26 +220,58 @@ impl LanePosition {
     }
 }
 
-/// The set of the lane-position update in the [`Dynamics`] schedule, after
-/// [`SimSystems::Integrate`].
+/// The set of the lane-position update in the [`Control`] schedule, in [`SimSystems::Sense`]
+/// (before every controller).
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct LaneSystems;
+
+/// When the lane positions were last brought up to date (`None`: never). The dynamics moves the
+/// vehicles at the end of an instant (after sensing and control of that instant), so positions
+/// found at instant `t` hold for everything else that runs at `t`.
+#[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
+pub struct LanePositionsAt(pub Option<SimTime>);
+
+/// Bring every [`LanePosition`] up to date now (for readers outside the schedules: Python's
+/// state arrays, `change_lane`, the final trajectory row). Does nothing without a [`LaneMap`].
+pub fn refresh_lane_positions(world: &mut World) {
+    use bevy_ecs::system::RunSystemOnce;
+    if world.contains_resource::<LaneMap>() {
+        // Every parameter is optional or a query: running it cannot fail.
+        let _ = world.run_system_once(update_lane_positions);
+    }
+}
 
 type LaneItem<'a> = (&'a VehicleState, Mut<'a, LanePosition>);
 
 /// Update every [`LanePosition`] from the vehicle's state (split over threads; each vehicle's
 /// result depends only on itself, so any thread count gives the same bits).
+///
+/// Runs where positions are read (the control tick, the trajectory log, [`refresh_lane_positions`])
+/// rather than after every dynamics step: 20 Hz instead of 50 Hz at the default rates, the
+/// same positions at every instant they are read. A second call at the same instant does nothing.
 pub fn update_lane_positions(
-    clock: Res<SimClock>,
+    clock: Option<Res<SimClock>>,
     lanes: Option<Res<LaneMap>>,
-    parallelism: Res<Parallelism>,
+    at: Option<ResMut<LanePositionsAt>>,
+    parallelism: Option<Res<Parallelism>>,
     mut vehicles: Query<(&VehicleState, &mut LanePosition)>,
     mut scratch: Local<Vec<()>>,
     mut buffer: Local<Vec<LaneItem<'static>>>,
 ) {
     let Some(lanes) = lanes else { return };
     let lanes = &*lanes;
-    let dt = clock.dt;
+    let now = clock.map_or(SimTime::ZERO, |c| c.now);
+    let mut at = at;
+    let last = at.as_deref().and_then(|a| a.0);
+    if last == Some(now) {
+        return;
+    }
+    if let Some(a) = at.as_deref_mut() {
+        a.0 = Some(now);
+    }
+    // Time since the last update: each vehicle moved about its speed times this along its lane.
+    let dt = last.map_or(0.0, |l| now.0.saturating_sub(l.0) as f64 * 1e-6);
+    let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
     let mut items: Vec<LaneItem<'_>> = recycle(std::mem::take(&mut *buffer));
     items.extend(vehicles.iter_mut());
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
@@ -274,7 +309,8 @@ impl Plugin for LanesPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.world_mut().init_resource::<Parallelism>();
         sim.insert_resource(LaneMap::new(Arc::clone(&self.map)));
-        sim.configure_sets(Dynamics, LaneSystems.after(SimSystems::Integrate));
-        sim.add_systems(Dynamics, update_lane_positions.in_set(LaneSystems));
+        sim.world_mut().init_resource::<LanePositionsAt>();
+        sim.configure_sets(Control, LaneSystems.in_set(SimSystems::Sense));
+        sim.add_systems(Control, update_lane_positions.in_set(LaneSystems));
     }
 }

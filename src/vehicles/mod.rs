@@ -51,7 +51,7 @@ pub use lane_changing::{
     ChangeKind, FollowLaw, LaneChangeEvent, LaneChangeLog, LaneChangeParams, LaneChangePlugin, LaneChanger,
     LaneCrossings, RouteGoal, Side,
 };
-pub use lanes::{LaneMap, LanePosition, LanesPlugin};
+pub use lanes::{LaneMap, LanePosition, LanePositionsAt, LanesPlugin, refresh_lane_positions};
 pub use longitudinal::{
     LeaderGap, Longitudinal, LongitudinalSystems, SteeringSystems, actuate_longitudinal, find_leaders, leader_on_path,
 };
