@@ -155,7 +155,8 @@ pub fn spawn_traffic_vehicle(
     class: VehicleClass,
 ) -> Result<(), WorldError> {
     let (p, heading) = lane.path.sample(s);
-    let mut spec = VehicleSpec::new(id, VehicleState::new(p, heading, v));
+    let state = VehicleState::new(p, heading, v);
+    let mut spec = VehicleSpec::new(id, state);
     spec.class = class;
     spec.size = class_size(class);
     spec.model = src.model;
@@ -173,10 +174,7 @@ pub fn spawn_traffic_vehicle(
     smart.attach(world, entity);
     // Through traffic does not brake for the end of its route: it leaves the world there.
     let follow = PathFollowing { speed: v0, stop_deceleration: 50.0, ..PathFollowing::default() };
-    let lane_pos = world.get_resource::<LaneMap>().map(|lanes| match lanes.locate(p, None, 0.0) {
-        Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset },
-        None => LanePosition::default(),
-    });
+    let lane_pos = world.get_resource::<LaneMap>().map(|lanes| LanePosition::of(lanes, &state));
     let mut e = world.entity_mut(entity);
     e.insert((PathFollower::starting_at(follow, s), TrafficVehicle(index)));
     if let Some(l) = lane_pos {

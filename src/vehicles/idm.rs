@@ -5,14 +5,16 @@
 //! `a = a_max [1 − (v/v₀)^δ − (s*/s)²]`, `s* = s₀ + v T + v Δv / (2 √(a_max b))`, with gap `s`
 //! [m] to the leader and approach rate `Δv = v − v_leader` [m/s] (see REFERENCE.md).
 
-use bevy_ecs::prelude::{Component, Query, Res};
+use bevy_ecs::prelude::{Component, Local, Mut, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::sim::Control;
+use crate::sim::parallel::recycle;
 use crate::sim::params::{MAX_ACCEL, MAX_DISTANCE, MAX_SPEED, MAX_TIME, ParamError, Range, check_all};
-use crate::sim::{Plugin, SimBuilder};
+use crate::sim::{Parallelism, Plugin, SimBuilder, SimClock};
 use crate::world::{VehicleSize, VehicleState, Vehicles};
 
+use super::lanes::{LanePosition, LanePositionsAt, forward_speed};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
 /// Largest braking the IDM asks for [m/s²] (its formula is unbounded when the gap closes).
@@ -59,7 +61,9 @@ impl Idm {
     /// or on a free road; never below −[`IDM_MAX_BRAKING`].
     pub fn acceleration(&self, v: f64, leader: Option<(f64, f64)>) -> f64 {
         let v = v.max(0.0);
-        let free = 1.0 - (v / self.speed.max(1e-3)).powf(self.delta);
+        let r = v / self.speed.max(1e-3);
+        // δ = 4 (the default) by multiplication: powf is the IDM's most expensive step.
+        let free = 1.0 - if self.delta == 4.0 { (r * r) * (r * r) } else { r.powf(self.delta) };
         let interaction = match leader {
             Some((gap, vl)) => {
                 let s_star = self.min_gap
@@ -85,21 +89,43 @@ pub struct IdmController {
 /// [`Longitudinal::leader`] (from the sensors). The gap is bumper to bumper with the leader's
 /// own length (a radar measures to the rear of what it sees), not [`super::LeaderGap::gap`]'s
 /// assumption that the leader is as long as we are: a car behind a truck keeps its gap.
+///
+/// Split over threads (each vehicle's demand depends only on its own components and its
+/// leader's length, so any thread count gives the same bits).
+#[allow(clippy::type_complexity)]
 pub fn control_idm(
+    clock: Option<Res<SimClock>>,
     registry: Option<Res<Vehicles>>,
+    parallelism: Option<Res<Parallelism>>,
+    lanes_at: Option<Res<LanePositionsAt>>,
     sizes: Query<&VehicleSize>,
-    mut vehicles: Query<(&VehicleState, &VehicleSize, &IdmController, &mut Longitudinal)>,
+    mut vehicles: Query<(&VehicleState, &VehicleSize, &IdmController, &mut Longitudinal, Option<&LanePosition>)>,
+    mut scratch: Local<Vec<()>>,
+    mut buffer: Local<Vec<IdmItem<'static>>>,
 ) {
-    for (state, size, idm, mut lon) in &mut vehicles {
-        let leader = lon.leader.map(|l| {
-            let length = lon.leader_length.unwrap_or_else(|| {
-                registry.as_ref().and_then(|r| sizes.get(r.get(l.id)?).ok()).map_or(size.length, |s| s.length)
+    let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
+    let registry = registry.as_deref();
+    let sizes = &sizes;
+    let fresh = clock.is_some_and(|c| LanePositionsAt::fresh(lanes_at.as_deref(), c.now));
+    let mut items: Vec<IdmItem<'_>> = recycle(std::mem::take(&mut *buffer));
+    items.extend(vehicles.iter_mut());
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
+        for (state, size, idm, lon, pos) in chunk.iter_mut() {
+            let leader = lon.leader.map(|l| {
+                let length = lon.leader_length.unwrap_or_else(|| {
+                    registry.and_then(|r| sizes.get(r.get(l.id)?).ok()).map_or(size.length, |s| s.length)
+                });
+                (l.distance - 0.5 * (size.length + length), l.speed)
             });
-            (l.distance - 0.5 * (size.length + length), l.speed)
-        });
-        lon.accel = idm.params.acceleration(state.speed(), leader);
-    }
+            lon.accel = idm.params.acceleration(forward_speed(state, *pos, fresh), leader);
+        }
+    });
+    *buffer = recycle(items);
 }
+
+/// One vehicle's part of [`control_idm`].
+type IdmItem<'a> =
+    (&'a VehicleState, &'a VehicleSize, &'a IdmController, Mut<'a, Longitudinal>, Option<&'a LanePosition>);
 
 /// The IDM in the [`Control`] schedule.
 #[derive(Debug, Clone, Copy, Default)]

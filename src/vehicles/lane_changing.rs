@@ -13,18 +13,20 @@
 //!
 //! Each control tick, before the path follower ([`LaneChangeSystems`]): one index of every
 //! vehicle by lanelet and arc length ([`LaneIndex`]) is built (a crossing vehicle is in both
-//! lanes), then every vehicle with a [`LaneChanger`] advances its manoeuvre or decides. The
-//! decisions run one vehicle at a time in query order, so any thread count gives the same run.
+//! lanes), then every vehicle with a [`LaneChanger`] advances its manoeuvre or weighs a change
+//! (split over threads), and the accepted changes start one vehicle at a time in query order, so
+//! any thread count gives the same run.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Component, Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Component, Local, Mut, Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
 use crate::map::{LaneletId, Path, Place, RouteOptions};
-use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
+use crate::sim::parallel::recycle;
+use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
 use super::acc::AdaptiveCruise;
@@ -667,18 +669,70 @@ fn seen_behind(f: Found, me: f64) -> Seen {
     Seen { s: -f.distance + 0.5 * (f.length - me), speed: f.speed }
 }
 
+/// What one vehicle's evaluation (the parallel part of [`decide_lane_changes`]) leaves for the
+/// serial part, which applies it in query order.
+#[derive(Debug, Default)]
+pub struct Decision {
+    /// A change that ended this tick.
+    finished: Option<LaneChangeEvent>,
+    /// Seconds waited at a standstill for a mandatory change, if waiting.
+    waited: Option<f64>,
+    /// The vehicle reached the end of a lane it had to leave (first time).
+    missed: bool,
+    /// Mandatory (or signalled) changes announced to the target lane: (lanelet, s, speed, length).
+    signals: [Option<(u32, f64, f64, f64)>; 2],
+    /// Changes MOBIL accepts, in the order weighed: (gain, side, kind, target lanelet, s there).
+    accepted: [Option<(f64, Side, ChangeKind, u32, f64)>; 2],
+}
+
+/// One lane changer as [`decide_lane_changes`] gathers it.
+type ChangerItem<'a> = (
+    &'a VehicleId,
+    &'a VehicleState,
+    &'a VehicleSize,
+    &'a LanePosition,
+    Mut<'a, Route>,
+    Mut<'a, PathFollower>,
+    Mut<'a, LaneChanger>,
+    Decision,
+);
+
+/// What every vehicle's evaluation reads.
+struct Shared<'a> {
+    lanes: &'a LaneMap,
+    index: &'a LaneIndex,
+    signals: &'a BTreeMap<u32, Vec<(f64, f64, f64, VehicleId)>>,
+    t: f64,
+    dt: f64,
+    tick: i64,
+}
+
+/// The lanelet beside `i` on the side of `pos`'s offset (the one a crossing vehicle is also in).
+fn other_lane(lanes: &LaneMap, pos: &LanePosition, i: u32) -> Option<u32> {
+    let n = lanes.neighbours[i as usize];
+    let id = if pos.offset > 0.0 { n.left } else { n.right }?;
+    lanes.map.lanelet_index(id).map(|j| j as u32)
+}
+
 /// Advance or decide every [`LaneChanger`]'s lane change (see the module documentation).
+///
+/// Three steps: the [`LaneIndex`] is built; every vehicle is evaluated against it on its own
+/// (split over threads: its manoeuvre advanced or aborted, MOBIL weighed for each candidate side);
+/// then, one vehicle at a time in query order, the changes MOBIL accepted start unless an earlier
+/// vehicle claimed the same place this tick, and the log and signals are written. Any thread
+/// count gives the same run.
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub fn decide_lane_changes(
     clock: Res<SimClock>,
     lanes: Option<Res<LaneMap>>,
+    parallelism: Option<Res<Parallelism>>,
     mut paths: ResMut<LanePaths>,
     mut index: ResMut<LaneIndex>,
     mut log: ResMut<LaneChangeLog>,
     mut crossings: ResMut<LaneCrossings>,
     mut signals: ResMut<LaneSignals>,
     mut claims: ResMut<Claims>,
-    all: Query<(&VehicleId, &VehicleState, &VehicleSize, &LanePosition)>,
+    all: Query<(&VehicleId, &VehicleSize, &LanePosition)>,
     mut changers: Query<(
         &VehicleId,
         &VehicleState,
@@ -688,241 +742,89 @@ pub fn decide_lane_changes(
         &mut PathFollower,
         &mut LaneChanger,
     )>,
+    mut entries: Local<Vec<IndexEntry>>,
+    mut scratch: Local<Vec<()>>,
+    mut buffer: Local<Vec<ChangerItem<'static>>>,
 ) {
     let Some(lanes) = lanes else { return };
     let lanes = &*lanes;
+    let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
     let t = clock.now.as_secs();
     let dt = clock.dt;
     let tick = if dt > 0.0 { (t / dt).round() as i64 } else { 0 };
+    // The index: every vehicle on its lanelet (with the speed found with its position at the
+    // start of this control tick: no trigonometry here), a crossing one on the other lane too.
     crossings.0.clear();
-    for (id, _, _, _, _, _, ch) in changers.iter() {
+    entries.clear();
+    for (id, _, size, pos, _, _, ch) in changers.iter() {
         if let Some(m) = &ch.active {
             crossings.0.insert(*id, (m.from, m.to));
+            if let Some(i) = pos.on()
+                && let Some(j) = other_lane(lanes, pos, i)
+            {
+                let s = pos.s * lanes.length(j) / lanes.length(i).max(1e-9);
+                entries.push(IndexEntry { lanelet: j, s, speed: pos.speed, length: size.length, id: *id });
+            }
         }
     }
-    let other_lane = |pos: &LanePosition, i: u32| -> Option<u32> {
-        let n = lanes.neighbours[i as usize];
-        let id = if pos.offset > 0.0 { n.left } else { n.right }?;
-        lanes.map.lanelet_index(id).map(|j| j as u32)
-    };
-    let crossing = &crossings.0;
-    let items = all.iter().filter_map(|(id, state, size, pos)| {
-        let i = pos.on()?;
-        Some(IndexEntry { lanelet: i, s: pos.s, speed: state.speed(), length: size.length, id: *id })
-    });
-    let extra = all.iter().filter_map(|(id, state, size, pos)| {
-        let i = pos.on()?;
-        if !crossing.contains_key(id) {
-            return None;
-        }
-        let j = other_lane(pos, i)?;
-        let s = pos.s * lanes.length(j) / lanes.length(i).max(1e-9);
-        Some(IndexEntry { lanelet: j, s, speed: state.speed(), length: size.length, id: *id })
-    });
-    index.rebuild(lanes.map.lanelets.len(), items.chain(extra));
+    for (id, size, pos) in &all {
+        let Some(i) = pos.on() else { continue };
+        entries.push(IndexEntry { lanelet: i, s: pos.s, speed: pos.speed, length: size.length, id: *id });
+    }
+    index.rebuild(lanes.map.lanelets.len(), entries.iter().copied());
     let last_signals = std::mem::take(&mut signals.0);
     claims.0.clear();
 
-    for (id, state, size, pos, mut route, mut follower, mut ch) in &mut changers {
-        let v = state.speed();
+    let mut items: Vec<ChangerItem<'_>> = recycle(std::mem::take(&mut *buffer));
+    items.extend(changers.iter_mut().map(|(id, state, size, pos, route, follower, mut ch)| {
+        // Which lanelets reach the goal: looked up once per goal, here (the cache is shared).
+        if ch.reach.is_none() && pos.on().is_some() {
+            ch.reach = Some(paths.reach(lanes, &ch.goal));
+        }
+        (id, state, size, pos, route, follower, ch, Decision::default())
+    }));
+    let shared = Shared { lanes, index: &index, signals: &last_signals, t, dt, tick };
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
+        for (id, state, size, pos, route, follower, ch, decision) in chunk.iter_mut() {
+            evaluate(&shared, **id, state, size, pos, route, follower, ch, decision);
+        }
+    });
+
+    for (id, state, size, pos, mut route, mut follower, mut ch, decision) in items.drain(..) {
         let me = *id;
-        ch.virtual_leader = None;
-        ch.yield_to = None;
-        ch.lane_end = None;
-        ch.crossing_leaders = [None; 2];
-        let Some(i) = pos.on() else { continue };
-        let len_i = lanes.length(i);
-        let law = ch.law;
-        let p = ch.params;
-
-        // Cooperation: a neighbour signalling a mandatory change into our gap.
-        if p.cooperative
-            && let Some(list) = last_signals.get(&i)
-        {
-            let leader = index.ahead(lanes, i, pos.s, me).map_or(f64::INFINITY, |f| f.distance);
-            let nearest = list
-                .iter()
-                .filter(|(s, _, _, sid)| *sid != me && *s > pos.s && *s - pos.s < leader.min(150.0))
-                .min_by(|a, b| a.0.total_cmp(&b.0));
-            if let Some(&(s, speed, length, _)) = nearest {
-                // Only when we can fall behind it braking at most b_safe / 2; a neighbour already
-                // alongside is passed instead (it merges behind us), or both would wait for ever.
-                let gap = s - pos.s - 0.5 * (length + size.length);
-                let closing = (v - speed).max(0.0);
-                if gap > 2.0 && closing * closing / (2.0 * (gap - 2.0)) <= 0.5 * p.safe_deceleration {
-                    ch.yield_to = Some((gap, speed));
-                }
-            }
+        if let Some(event) = decision.finished {
+            log.record(event);
         }
-
-        if let Some(mut m) = ch.active.take() {
-            // In both lanes: follow the vehicle ahead in each (from the index, real lengths).
-            let gap_of = |f: Found| (f.distance - 0.5 * (f.length + size.length), f.speed);
-            ch.crossing_leaders[0] = index.ahead(lanes, i, pos.s, me).map(gap_of);
-            if let Some(j) = other_lane(pos, i) {
-                let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
-                ch.crossing_leaders[1] = index.ahead(lanes, j, s_j, me).map(gap_of);
-            }
-            let driven = m.driven(&route.0, follower.s);
-            let d2 = profile_curvature(&m.profile, driven);
-            m.peak_lateral_accel = m.peak_lateral_accel.max(v * v * d2);
-            m.old_s = m.old_route.project_near(state.position, m.old_s + v * dt, v.abs() * dt + 5.0).s;
-            if driven >= m.profile.length {
-                log.record(LaneChangeEvent {
-                    id: me,
-                    t_start: m.t_start,
-                    t_end: t,
-                    from: m.from.0,
-                    to: m.to.0,
-                    direction: m.direction,
-                    kind: m.kind,
-                    aborted: m.aborted,
-                    peak_lateral_accel: m.peak_lateral_accel,
-                });
-                ch.last_change = t;
-                continue;
-            }
-            if !m.aborted && driven < 0.5 * m.profile.length {
-                // Still mostly in the old lane: is the target gap still there?
-                let moving_left = m.direction == Side::Left;
-                let target = if (pos.offset > 0.0) == moving_left { neighbour(lanes, i, m.direction) } else { Some(i) };
-                let closed = target.is_some_and(|j| {
-                    let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
-                    let (ahead, behind) = (index.ahead(lanes, j, s_j, me), index.behind(lanes, j, s_j, me));
-                    target_gap_closed(&law, p.safe_deceleration, v, size.length, ahead, behind)
-                });
-                if closed {
-                    let back = m.old_route.project_near(state.position, m.old_s, 10.0);
-                    let offset = back.lateral;
-                    let profile =
-                        LaneChangeProfile::for_speed(-offset, m.speed_cap, p.max_lateral_accel, MIN_CHANGE_LENGTH);
-                    let old = std::mem::replace(&mut route.0, Arc::clone(&m.old_route));
-                    let aborted = Manoeuvre {
-                        profile,
-                        start_offset: offset,
-                        s_start: back.s,
-                        old_route: old,
-                        old_s: follower.s,
-                        aborted: true,
-                        ..m
-                    };
-                    let (params, max_offset) = (follower.params, follower.max_offset);
-                    *follower = PathFollower::starting_at(params, back.s);
-                    follower.max_offset = max_offset;
-                    ch.active = Some(aborted);
-                    continue;
-                }
-            }
-            ch.active = Some(m);
+        if let Some(w) = decision.waited {
+            log.max_wait_s = log.max_wait_s.max(w);
+        }
+        if decision.missed {
+            log.missed_exits.insert(me);
+        }
+        if decision.accepted == [None; 2] && decision.signals == [None; 2] {
             continue;
         }
-
-        // Mandatory need: this lane does not reach the destination.
-        let reach = match &ch.reach {
-            Some(r) => Arc::clone(r),
-            None => {
-                let r = paths.reach(lanes, &ch.goal);
-                ch.reach = Some(Arc::clone(&r));
-                r
-            }
-        };
-        let remaining = if route.0.closed { f64::INFINITY } else { (route.0.length - follower.s).max(0.0) };
-        let mut mandatory: Option<Side> = None;
-        if !reach[i as usize] {
-            for side in [Side::Right, Side::Left] {
-                if let Some(j) = allowed(lanes, i, side)
-                    && reach[j as usize]
-                {
-                    mandatory = Some(side);
-                    break;
-                }
-            }
-        }
-        let u = if mandatory.is_some() { urgency(remaining, v) } else { 0.0 };
-        if mandatory.is_some() {
-            ch.lane_end = Some(remaining);
-            if v < 0.5 {
-                let since = *ch.wait_since.get_or_insert(t);
-                log.max_wait_s = log.max_wait_s.max(t - since);
-            } else {
-                ch.wait_since = None;
-            }
-            if remaining < 1.0 && !ch.missed {
-                ch.missed = true;
-                log.missed_exits.insert(me);
-            }
-        }
-        let since_last = t - ch.last_change;
-        let mut candidates: [(Side, ChangeKind); 2] = [(Side::Left, ChangeKind::Discretionary); 2];
-        let mut n = 0;
-        if let Some(side) = ch.request {
-            candidates[0] = (side, ChangeKind::Requested);
-            n = 1;
-        } else if let Some(side) = mandatory {
-            if since_last >= p.min_interval || u > 0.5 {
-                candidates[0] = (side, ChangeKind::Mandatory);
-                n = 1;
-            }
-        } else if since_last >= p.min_interval && (tick + i64::from(me.0)).rem_euclid(DISCRETIONARY_EVERY) == 0 {
-            // Discretionary changes are weighed every DISCRETIONARY_EVERY control ticks, the
-            // vehicles staggered by id: a driver does not reconsider at 20 Hz.
-            candidates = [(Side::Right, ChangeKind::Discretionary), (Side::Left, ChangeKind::Discretionary)];
-            n = 2;
-        }
-        if n == 0 {
-            continue;
-        }
-        let leader = index.ahead(lanes, i, pos.s, me);
-        let follower_now = index.behind(lanes, i, pos.s, me);
+        let v = pos.speed;
         let mut best: Option<(f64, Side, ChangeKind, u32)> = None;
-        for &(side, kind) in &candidates[..n] {
-            let Some(j) = allowed(lanes, i, side) else {
-                if kind == ChangeKind::Requested {
-                    ch.request = None;
-                }
-                continue;
-            };
-            if kind == ChangeKind::Discretionary && (!reach[j as usize] || ch.keep_out == Some(side)) {
-                continue;
-            }
-            let scale = len_i / lanes.length(j).max(1e-9);
-            let s_j = pos.s / scale;
-            let unscale = |f: Found| Found { distance: f.distance * scale, ..f };
-            let tl = index.ahead(lanes, j, s_j, me).map(unscale);
-            let tf = index.behind(lanes, j, s_j, me).map(unscale);
-            let claimed = claims.0.iter().any(|&(cj, cs)| cj == j && (cs - s_j).abs() < 2.0 * size.length + v);
-            let around = Surroundings {
-                me: Seen { s: 0.0, speed: v },
-                length: size.length,
-                leader: leader.map(|f| seen_ahead(f, size.length)),
-                follower: follower_now.map(|f| seen_behind(f, size.length)),
-                target_leader: tl.map(|f| seen_ahead(f, size.length)),
-                target_follower: tf.map(|f| seen_behind(f, size.length)),
-            };
-            let mobil = mobil_for(&p, side, kind, u);
-            let decision = mobil_decision(&mobil, &around, |v, l| law.accel(v, l));
-            match decision {
-                MobilDecision::Change(gain) if !claimed => {
+        for (k, accepted) in decision.accepted.iter().enumerate() {
+            if let Some((gain, side, kind, j, s_j)) = *accepted {
+                let claimed = claims.0.iter().any(|&(cj, cs)| cj == j && (cs - s_j).abs() < 2.0 * size.length + v);
+                if !claimed {
                     if best.is_none_or(|b| gain > b.0) {
                         best = Some((gain, side, kind, j));
                     }
+                } else if kind == ChangeKind::Requested {
+                    ch.request = None;
                 }
-                _ if kind == ChangeKind::Requested => ch.request = None,
-                MobilDecision::Occupied | MobilDecision::Unsafe(_) if kind == ChangeKind::Mandatory && u > 0.5 => {
-                    // Fall behind the vehicle beside us in the target lane, then signal.
-                    if let Some(l) = tl.filter(|f| f.distance < size.length + f.length) {
-                        ch.virtual_leader = Some((l.distance - 0.5 * (l.length + size.length), l.speed));
-                    }
-                }
-                _ => {}
             }
-            if kind == ChangeKind::Mandatory || (kind == ChangeKind::Requested && ch.signal_request) {
-                signals.0.entry(j).or_default().push((s_j, v, size.length, me));
+            if let Some((j, s_j, speed, length)) = decision.signals[k] {
+                signals.0.entry(j).or_default().push((s_j, speed, length, me));
             }
         }
         let Some((_, side, kind, j)) = best else { continue };
+        let Some(i) = pos.on() else { continue };
         let Some(path) = paths.path_through(lanes, j, &ch.goal) else { continue };
-        let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+        let s_j = pos.s * lanes.length(j) / lanes.length(i).max(1e-9);
         let q = if path.closed {
             // A lane's loop may start at any of its lanelets: find the vehicle on the whole loop
             // (once per change; a lane's loop does not pass within a lane of itself).
@@ -930,6 +832,7 @@ pub fn decide_lane_changes(
         } else {
             path.project_near(state.position, s_j, 15.0)
         };
+        let (law, p) = (ch.law, ch.params);
         let cap = v.max(law.desired_speed().min(v + 3.0));
         let profile = LaneChangeProfile::for_speed(-q.lateral, cap, p.max_lateral_accel, MIN_CHANGE_LENGTH);
         let m = Manoeuvre {
@@ -956,6 +859,216 @@ pub fn decide_lane_changes(
         ch.request = None;
         ch.wait_since = None;
         ch.active = Some(m);
+    }
+    *buffer = recycle(items);
+}
+
+/// One vehicle's part of [`decide_lane_changes`]: everything that depends only on itself and the
+/// index (so it may run on any thread); what must be applied in order is left in `out`.
+#[allow(clippy::too_many_arguments)]
+fn evaluate(
+    shared: &Shared<'_>,
+    me: VehicleId,
+    state: &VehicleState,
+    size: &VehicleSize,
+    pos: &LanePosition,
+    route: &mut Mut<'_, Route>,
+    follower: &mut Mut<'_, PathFollower>,
+    ch: &mut Mut<'_, LaneChanger>,
+    out: &mut Decision,
+) {
+    let Shared { lanes, index, signals: last_signals, t, dt, tick } = *shared;
+    *out = Decision::default();
+    let v = pos.speed;
+    // Written only when they change, so change detection sees real changes.
+    if ch.virtual_leader.is_some() {
+        ch.virtual_leader = None;
+    }
+    if ch.yield_to.is_some() {
+        ch.yield_to = None;
+    }
+    if ch.lane_end.is_some() {
+        ch.lane_end = None;
+    }
+    if ch.crossing_leaders != [None; 2] {
+        ch.crossing_leaders = [None; 2];
+    }
+    let Some(i) = pos.on() else { return };
+    let len_i = lanes.length(i);
+    let law = ch.law;
+    let p = ch.params;
+
+    // Cooperation: a neighbour signalling a mandatory change into our gap.
+    if p.cooperative
+        && let Some(list) = last_signals.get(&i)
+    {
+        let leader = index.ahead(lanes, i, pos.s, me).map_or(f64::INFINITY, |f| f.distance);
+        let nearest = list
+            .iter()
+            .filter(|(s, _, _, sid)| *sid != me && *s > pos.s && *s - pos.s < leader.min(150.0))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some(&(s, speed, length, _)) = nearest {
+            // Only when we can fall behind it braking at most b_safe / 2; a neighbour already
+            // alongside is passed instead (it merges behind us), or both would wait for ever.
+            let gap = s - pos.s - 0.5 * (length + size.length);
+            let closing = (v - speed).max(0.0);
+            if gap > 2.0 && closing * closing / (2.0 * (gap - 2.0)) <= 0.5 * p.safe_deceleration {
+                ch.yield_to = Some((gap, speed));
+            }
+        }
+    }
+
+    if ch.active.is_some() {
+        let Some(mut m) = ch.active.take() else { return };
+        // In both lanes: follow the vehicle ahead in each (from the index, real lengths).
+        let gap_of = |f: Found| (f.distance - 0.5 * (f.length + size.length), f.speed);
+        ch.crossing_leaders[0] = index.ahead(lanes, i, pos.s, me).map(gap_of);
+        if let Some(j) = other_lane(lanes, pos, i) {
+            let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+            ch.crossing_leaders[1] = index.ahead(lanes, j, s_j, me).map(gap_of);
+        }
+        let driven = m.driven(&route.0, follower.s);
+        let d2 = profile_curvature(&m.profile, driven);
+        m.peak_lateral_accel = m.peak_lateral_accel.max(v * v * d2);
+        m.old_s = m.old_route.project_near(state.position, m.old_s + v * dt, v.abs() * dt + 5.0).s;
+        if driven >= m.profile.length {
+            out.finished = Some(LaneChangeEvent {
+                id: me,
+                t_start: m.t_start,
+                t_end: t,
+                from: m.from.0,
+                to: m.to.0,
+                direction: m.direction,
+                kind: m.kind,
+                aborted: m.aborted,
+                peak_lateral_accel: m.peak_lateral_accel,
+            });
+            ch.last_change = t;
+            return;
+        }
+        if !m.aborted && driven < 0.5 * m.profile.length {
+            // Still mostly in the old lane: is the target gap still there?
+            let moving_left = m.direction == Side::Left;
+            let target = if (pos.offset > 0.0) == moving_left { neighbour(lanes, i, m.direction) } else { Some(i) };
+            let closed = target.is_some_and(|j| {
+                let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+                let (ahead, behind) = (index.ahead(lanes, j, s_j, me), index.behind(lanes, j, s_j, me));
+                target_gap_closed(&law, p.safe_deceleration, v, size.length, ahead, behind)
+            });
+            if closed {
+                let back = m.old_route.project_near(state.position, m.old_s, 10.0);
+                let offset = back.lateral;
+                let profile =
+                    LaneChangeProfile::for_speed(-offset, m.speed_cap, p.max_lateral_accel, MIN_CHANGE_LENGTH);
+                let old = std::mem::replace(&mut route.0, Arc::clone(&m.old_route));
+                let aborted = Manoeuvre {
+                    profile,
+                    start_offset: offset,
+                    s_start: back.s,
+                    old_route: old,
+                    old_s: follower.s,
+                    aborted: true,
+                    ..m
+                };
+                let (params, max_offset) = (follower.params, follower.max_offset);
+                **follower = PathFollower::starting_at(params, back.s);
+                follower.max_offset = max_offset;
+                ch.active = Some(aborted);
+                return;
+            }
+        }
+        ch.active = Some(m);
+        return;
+    }
+
+    // Mandatory need: this lane does not reach the destination. (`reach` is read here once, not
+    // cloned: an Arc's count is an atomic shared by every vehicle with the goal.)
+    let Some(reach) = ch.reach.as_deref() else { return };
+    let reaches = |side: Side| allowed(lanes, i, side).is_some_and(|j| reach[j as usize]);
+    let (reach_here, reach_right, reach_left) = (reach[i as usize], reaches(Side::Right), reaches(Side::Left));
+    let reaches = |side: Side| if side == Side::Right { reach_right } else { reach_left };
+    let remaining = if route.0.closed { f64::INFINITY } else { (route.0.length - follower.s).max(0.0) };
+    let mut mandatory: Option<Side> = None;
+    if !reach_here {
+        mandatory = [Side::Right, Side::Left].into_iter().find(|&side| reaches(side));
+    }
+    let u = if mandatory.is_some() { urgency(remaining, v) } else { 0.0 };
+    if mandatory.is_some() {
+        ch.lane_end = Some(remaining);
+        if v < 0.5 {
+            let since = *ch.wait_since.get_or_insert(t);
+            out.waited = Some(t - since);
+        } else {
+            ch.wait_since = None;
+        }
+        if remaining < 1.0 && !ch.missed {
+            ch.missed = true;
+            out.missed = true;
+        }
+    }
+    let since_last = t - ch.last_change;
+    let mut candidates: [(Side, ChangeKind); 2] = [(Side::Left, ChangeKind::Discretionary); 2];
+    let mut n = 0;
+    if let Some(side) = ch.request {
+        candidates[0] = (side, ChangeKind::Requested);
+        n = 1;
+    } else if let Some(side) = mandatory {
+        if since_last >= p.min_interval || u > 0.5 {
+            candidates[0] = (side, ChangeKind::Mandatory);
+            n = 1;
+        }
+    } else if since_last >= p.min_interval && (tick + i64::from(me.0)).rem_euclid(DISCRETIONARY_EVERY) == 0 {
+        // Discretionary changes are weighed every DISCRETIONARY_EVERY control ticks, the
+        // vehicles staggered by id: a driver does not reconsider at 20 Hz.
+        candidates = [(Side::Right, ChangeKind::Discretionary), (Side::Left, ChangeKind::Discretionary)];
+        n = 2;
+    }
+    if n == 0 {
+        return;
+    }
+    let leader = index.ahead(lanes, i, pos.s, me);
+    let follower_now = index.behind(lanes, i, pos.s, me);
+    for (k, &(side, kind)) in candidates[..n].iter().enumerate() {
+        let Some(j) = allowed(lanes, i, side) else {
+            if kind == ChangeKind::Requested {
+                ch.request = None;
+            }
+            continue;
+        };
+        if kind == ChangeKind::Discretionary && (!reaches(side) || ch.keep_out == Some(side)) {
+            continue;
+        }
+        let scale = len_i / lanes.length(j).max(1e-9);
+        let s_j = pos.s / scale;
+        let unscale = |f: Found| Found { distance: f.distance * scale, ..f };
+        let tl = index.ahead(lanes, j, s_j, me).map(unscale);
+        let tf = index.behind(lanes, j, s_j, me).map(unscale);
+        let around = Surroundings {
+            me: Seen { s: 0.0, speed: v },
+            length: size.length,
+            leader: leader.map(|f| seen_ahead(f, size.length)),
+            follower: follower_now.map(|f| seen_behind(f, size.length)),
+            target_leader: tl.map(|f| seen_ahead(f, size.length)),
+            target_follower: tf.map(|f| seen_behind(f, size.length)),
+        };
+        let mobil = mobil_for(&p, side, kind, u);
+        let decision = mobil_decision(&mobil, &around, |v, l| law.accel(v, l));
+        match decision {
+            // Whether an earlier vehicle claimed the place this tick is known only in query
+            // order: the serial part decides (and drops a claimed request).
+            MobilDecision::Change(gain) => out.accepted[k] = Some((gain, side, kind, j, s_j)),
+            _ if kind == ChangeKind::Requested => ch.request = None,
+            MobilDecision::Occupied | MobilDecision::Unsafe(_) if kind == ChangeKind::Mandatory && u > 0.5 => {
+                // Fall behind the vehicle beside us in the target lane, then signal.
+                if let Some(l) = tl.filter(|f| f.distance < size.length + f.length) {
+                    ch.virtual_leader = Some((l.distance - 0.5 * (l.length + size.length), l.speed));
+                }
+            }
+            _ => {}
+        }
+        if kind == ChangeKind::Mandatory || (kind == ChangeKind::Requested && ch.signal_request) {
+            out.signals[k] = Some((j, s_j, v, size.length));
+        }
     }
 }
 
@@ -1009,6 +1122,10 @@ fn profile_curvature(p: &LaneChangeProfile, s: f64) -> f64 {
 /// `safe_deceleration / 2`), and keep under the speed the manoeuvre was sized for.
 pub fn limit_for_lane_changes(mut vehicles: Query<(&VehicleState, &VehicleSize, &LaneChanger, &mut Longitudinal)>) {
     for (state, size, ch, mut lon) in &mut vehicles {
+        // Most vehicles are doing none of this: no speed (no trigonometry) for them.
+        if ch.lane_end.is_none() && ch.virtual_leader.is_none() && ch.yield_to.is_none() && ch.active.is_none() {
+            continue;
+        }
         let v = state.speed();
         let floor = -0.5 * ch.params.safe_deceleration;
         if let Some(remaining) = ch.lane_end {

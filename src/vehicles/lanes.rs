@@ -205,15 +205,27 @@ pub struct LanePosition {
     pub s: f64,
     /// Signed offset from the centre line [m], positive to the left.
     pub offset: f64,
+    /// Signed forward speed [m/s] ([`VehicleState::speed`]) when the position was found: the
+    /// control tick's readers take it from here instead of each computing it (trigonometry).
+    pub speed: f64,
 }
 
 impl Default for LanePosition {
     fn default() -> Self {
-        LanePosition { lanelet: None, index: u32::MAX, s: 0.0, offset: 0.0 }
+        LanePosition { lanelet: None, index: u32::MAX, s: 0.0, offset: 0.0, speed: 0.0 }
     }
 }
 
 impl LanePosition {
+    /// Where `state` is on `lanes`, found afresh (at spawn; [`update_lane_positions`] keeps it).
+    pub fn of(lanes: &LaneMap, state: &VehicleState) -> LanePosition {
+        let speed = state.speed();
+        match lanes.locate(state.position, None, 0.0) {
+            Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset, speed },
+            None => LanePosition { speed, ..LanePosition::default() },
+        }
+    }
+
     /// Index of the lanelet, if on one.
     pub fn on(&self) -> Option<u32> {
         (self.index != u32::MAX).then_some(self.index)
@@ -230,6 +242,22 @@ pub struct LaneSystems;
 /// found at instant `t` hold for everything else that runs at `t`.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
 pub struct LanePositionsAt(pub Option<SimTime>);
+
+impl LanePositionsAt {
+    /// Whether the lane positions were found at `now` (so [`LanePosition::speed`] is current).
+    pub fn fresh(at: Option<&LanePositionsAt>, now: SimTime) -> bool {
+        at.is_some_and(|a| a.0 == Some(now))
+    }
+}
+
+/// The signed forward speed of `state` [m/s]: [`LanePosition::speed`] when `fresh` (found this
+/// instant, see [`LanePositionsAt::fresh`]), else computed.
+pub fn forward_speed(state: &VehicleState, pos: Option<&LanePosition>, fresh: bool) -> f64 {
+    match pos {
+        Some(p) if fresh => p.speed,
+        _ => state.speed(),
+    }
+}
 
 /// Bring every [`LanePosition`] up to date now (for readers outside the schedules: Python's
 /// state arrays, `change_lane`, the final trajectory row). Does nothing without a [`LaneMap`].
@@ -286,9 +314,10 @@ pub fn update_lane_positions(
             // Moved about its speed times the step along the lane since the last update (the
             // length of the velocity: no trigonometry per vehicle and step).
             let found = lanes.locate(state.position, last, state.velocity.length() * dt);
+            let speed = state.speed();
             let new = match found {
-                Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset },
-                None => LanePosition::default(),
+                Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset, speed },
+                None => LanePosition { speed, ..LanePosition::default() },
             };
             if **pos != new {
                 **pos = new;

@@ -37,7 +37,7 @@ use crate::world::{
 
 use super::PathFollower;
 use super::lane_changing::{LaneChanger, LaneCrossings, LaneIndex};
-use super::lanes::{LaneMap, LanePosition};
+use super::lanes::{LaneMap, LanePosition, LanePositionsAt, forward_speed};
 
 /// The steps of the longitudinal pipeline as system sets of the [`Control`] schedule, chained in
 /// this order inside [`SimSystems::Control`] and after the path follower's steering. A speed
@@ -228,10 +228,18 @@ pub fn find_leaders(
             match in_lane {
                 Some((index, map, i, s)) => {
                     let detections = readings.map_or(&[][..], |r| &r.0[..]);
-                    let seen = |other: VehicleId| detections.iter().any(|d| d.id == other);
+                    // The detection of the vehicle found, kept from the search (one scan).
+                    let matched = std::cell::Cell::new(None);
+                    let seen = |other: VehicleId| match detections.iter().find(|d| d.id == other) {
+                        Some(d) => {
+                            matched.set(Some(d));
+                            true
+                        }
+                        None => false,
+                    };
                     let found = index.ahead_where(map, i, s, **id, seen);
                     let leader = found.map(|f| {
-                        let d = detections.iter().find(|d| d.id == f.id);
+                        let d = matched.get().filter(|d| d.id == f.id);
                         // The speed as sensed: the detection's velocity along its own motion.
                         let speed = d.map_or(f.speed, |d| d.velocity.length());
                         LeaderGap {
@@ -320,32 +328,53 @@ pub const ROUTE_SPEED_GAIN: f64 = 2.0;
 #[allow(clippy::type_complexity)]
 pub fn actuate_longitudinal(
     clock: Res<SimClock>,
+    parallelism: Option<Res<Parallelism>>,
+    lanes_at: Option<Res<LanePositionsAt>>,
     mut vehicles: Query<(
         &VehicleState,
         &Longitudinal,
         &mut ControlCommand,
         Option<&AccelerationUnicycle>,
         Option<&KinematicUnicycle>,
+        Option<&LanePosition>,
     )>,
+    mut scratch: Local<Vec<()>>,
+    mut buffer: Local<Vec<ActuateItem<'static>>>,
 ) {
-    for (state, lon, mut command, acceleration, kinematic) in &mut vehicles {
-        if lon.accel.is_nan() {
-            continue;
+    let dt = clock.dt;
+    let fresh = LanePositionsAt::fresh(lanes_at.as_deref(), clock.now);
+    let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
+    let mut items: Vec<ActuateItem<'_>> = recycle(std::mem::take(&mut *buffer));
+    items.extend(vehicles.iter_mut().filter(|(_, lon, ..)| !lon.accel.is_nan()));
+    // Each vehicle's command depends only on itself: any split gives the same bits.
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
+        for (state, lon, command, acceleration, kinematic, pos) in chunk.iter_mut() {
+            let v = forward_speed(state, *pos, fresh).max(0.0);
+            // Never faster than the route's target speed (it stops at the end of an open route).
+            let accel =
+                if v > lon.route_speed { lon.accel.min(ROUTE_SPEED_GAIN * (lon.route_speed - v)) } else { lon.accel };
+            if let Some(m) = acceleration {
+                command.throttle = m.mass * accel + m.drag * v;
+            }
+            if kinematic.is_some() || acceleration.is_none() {
+                command.speed = (v + accel * dt).max(0.0);
+            } else {
+                command.speed = v;
+            }
         }
-        let v = state.speed().max(0.0);
-        // Never faster than the route's target speed (it stops at the end of an open route).
-        let accel =
-            if v > lon.route_speed { lon.accel.min(ROUTE_SPEED_GAIN * (lon.route_speed - v)) } else { lon.accel };
-        if let Some(m) = acceleration {
-            command.throttle = m.mass * accel + m.drag * v;
-        }
-        if kinematic.is_some() || acceleration.is_none() {
-            command.speed = (v + accel * clock.dt).max(0.0);
-        } else {
-            command.speed = v;
-        }
-    }
+    });
+    *buffer = recycle(items);
 }
+
+/// One vehicle's part of [`actuate_longitudinal`].
+type ActuateItem<'a> = (
+    &'a VehicleState,
+    &'a Longitudinal,
+    Mut<'a, ControlCommand>,
+    Option<&'a AccelerationUnicycle>,
+    Option<&'a KinematicUnicycle>,
+    Option<&'a LanePosition>,
+);
 
 /// Marks that the pipeline's systems are in the [`Control`] schedule (each controller plugin
 /// installs them once).

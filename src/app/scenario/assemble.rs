@@ -225,10 +225,7 @@ impl Scenario {
             None => {}
         }
         if let Some(lanes) = b.world_mut().get_resource::<LaneMap>() {
-            let lane = match lanes.locate(state.position, None, 0.0) {
-                Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset },
-                None => LanePosition::default(),
-            };
+            let lane = LanePosition::of(lanes, &state);
             b.world_mut().entity_mut(entity).insert(lane);
         }
         if let (Some(params), Some(r)) = (v.lane_change.0, &v.route) {
