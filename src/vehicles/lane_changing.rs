@@ -47,7 +47,7 @@ pub const DISCRETIONARY_EVERY: i64 = 10;
 pub const MIN_CHANGE_LENGTH: f64 = 10.0;
 
 /// `lane_change = { politeness, threshold, safe_deceleration, max_lateral_accel, keep_right,
-/// cooperative, min_interval }` (all optional, these defaults).
+/// cooperative, min_interval, manual }` (all optional, these defaults).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LaneChangeParams {
@@ -65,6 +65,10 @@ pub struct LaneChangeParams {
     pub cooperative: bool,
     /// Least time between two changes of one vehicle [s] (no ping-pong).
     pub min_interval: f64,
+    /// Change lanes only when asked from outside (Python's `change_lane`, a learning agent such
+    /// as `smlworld/HighwayMerge-v0`'s): no discretionary or mandatory change of its own. The
+    /// safety check of a requested change still applies.
+    pub manual: bool,
 }
 
 impl Default for LaneChangeParams {
@@ -77,6 +81,7 @@ impl Default for LaneChangeParams {
             keep_right: true,
             cooperative: true,
             min_interval: 4.0,
+            manual: false,
         }
     }
 }
@@ -989,7 +994,7 @@ fn evaluate(
     let reaches = |side: Side| if side == Side::Right { reach_right } else { reach_left };
     let remaining = if route.0.closed { f64::INFINITY } else { (route.0.length - follower.s).max(0.0) };
     let mut mandatory: Option<Side> = None;
-    if !reach_here {
+    if !reach_here && !p.manual {
         mandatory = [Side::Right, Side::Left].into_iter().find(|&side| reaches(side));
     }
     let u = if mandatory.is_some() { urgency(remaining, v) } else { 0.0 };
@@ -1017,7 +1022,8 @@ fn evaluate(
             candidates[0] = (side, ChangeKind::Mandatory);
             n = 1;
         }
-    } else if since_last >= p.min_interval && (tick + i64::from(me.0)).rem_euclid(DISCRETIONARY_EVERY) == 0 {
+    } else if !p.manual && since_last >= p.min_interval && (tick + i64::from(me.0)).rem_euclid(DISCRETIONARY_EVERY) == 0
+    {
         // Discretionary changes are weighed every DISCRETIONARY_EVERY control ticks, the
         // vehicles staggered by id: a driver does not reconsider at 20 Hz.
         candidates = [(Side::Right, ChangeKind::Discretionary), (Side::Left, ChangeKind::Discretionary)];
