@@ -519,10 +519,9 @@ pub fn run_gcdc_protocol(
     for (id, state, size, pos, mailbox, route, lon, mut follower, mut g, mut changer) in &mut vehicles {
         let me = *id;
         let v = state.speed();
-        if !log.participants.contains_key(&me) {
+        if let std::collections::btree_map::Entry::Vacant(e) = log.participants.entry(me) {
             // Where it starts along its route (once; the path follower may not have run yet).
-            let start = route.0.project(state.position).s;
-            log.participants.insert(me, (g.role == Role::Merger, start, f64::NAN));
+            e.insert((g.role == Role::Merger, route.0.project(state.position).s, f64::NAN));
         }
         for (sender, sent, m) in mailbox.received::<GcdcMessage>(Channel::Wifi) {
             let sent = sent.as_secs();
