@@ -41,7 +41,7 @@ fn assert_same_xml(expected: &str, actual: &str, what: &str) {
 
 #[test]
 fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
-    let cases: [(&str, String); 6] = [
+    let cases: [(&str, String); 7] = [
         ("maps/highway_ring.osm", ring_highway(&RingParams::default()).expect("defaults are valid")),
         (
             "maps/two_lane_ring.osm",
@@ -59,6 +59,15 @@ fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
         (
             "maps/emergency_ring.osm",
             ring_highway(&RingParams { radius: 250.0, ..RingParams::default() }).expect("valid"),
+        ),
+        (
+            "maps/gcdc_merge.osm",
+            generate::lane_drop(&generate::LaneDropParams {
+                length: 2000.0,
+                drop_at: 1600.0,
+                ..generate::LaneDropParams::default()
+            })
+            .expect("valid"),
         ),
     ];
     for (file, generated) in cases {

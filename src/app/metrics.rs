@@ -138,6 +138,10 @@ pub struct MetricsSummary {
     /// observers and sensor ticks (`None` without the sensor plugin).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sensors: Option<crate::sim::SensorStats>,
+    /// The GCDC merge: vehicles to merge and merged, pairs, duration, smallest gaps, zipper
+    /// order, aborts (only when a `gcdc` vehicle heard a merge zone).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub merge: Option<crate::vehicles::MergeSummary>,
 }
 
 /// `metrics.lane_change_summary` of `summary.json`.
@@ -361,6 +365,7 @@ impl Metrics {
             throughput: None,
             v2v: None,
             emergency: None,
+            merge: None,
             sensors: None,
         }
     }

@@ -270,6 +270,8 @@ impl RunSummary {
                 summary.emergency = world
                     .get_resource::<crate::vehicles::EmergencyLog>()
                     .and_then(crate::vehicles::EmergencyLog::summary);
+                summary.merge =
+                    world.get_resource::<crate::vehicles::MergeLog>().and_then(crate::vehicles::MergeLog::summary);
                 summary.sensors = world.get_resource::<crate::sim::SensorStats>().copied();
                 summary
             }),

@@ -8,6 +8,10 @@
 //!   leader [m] (centre distance minus the half lengths) and the time gap (gap / own speed) [s];
 //! - `platoon_<leader>`: per platoon, the speed of each member (the string-stability picture);
 //! - `lateral`: each vehicle's distance from the nearest lanelet centre line of the map [m];
+//! - `merge` (runs with `metrics.merge`, the GCDC merge): per participant, the gap along the road
+//!   to the vehicle that is ahead of it after the merge (its predecessor in the zipper order; of
+//!   the other lane until it merged) [m], and its speed [m/s], with the merge instants (the end of
+//!   each merger's lane change) marked as dashed lines;
 //! - `trace`: a bird's-eye trace of every trajectory over the map's lanelets, equal scale, with
 //!   collisions marked.
 //!
@@ -58,6 +62,8 @@ struct Lines {
     x_label: String,
     y_label: String,
     series: Vec<Series>,
+    /// Instants [x units] marked by dashed vertical lines, with the legend label of the marks.
+    marks: Option<(String, Vec<f64>)>,
 }
 
 /// What a figure shows.
@@ -101,6 +107,15 @@ fn draw_lines<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &Lines) -> R
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(err)?;
+    if let Some((label, marks)) = &p.marks {
+        let style = BLACK.stroke_width(2);
+        for (k, &t) in marks.iter().enumerate() {
+            let drawn = chart.draw_series(DashedLineSeries::new([(t, y0), (t, y1)], 12, 8, style)).map_err(err)?;
+            if k == 0 {
+                drawn.label(label.as_str()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 30, y)], style));
+            }
+        }
+    }
     draw_series(&mut chart, &p.series)?;
     Ok(())
 }
@@ -264,6 +279,7 @@ pub fn plot_run(out_dir: &FsPath, dest: &FsPath) -> Result<Vec<PathBuf>, ReplayE
         x_label: "time [s]".into(),
         y_label: y.into(),
         series,
+        marks: None,
     };
     written.push(save(dest, "speed", &Chart::Panels(vec![lines("Speed", "speed [m/s]", speeds)]))?);
 
@@ -309,6 +325,43 @@ pub fn plot_run(out_dir: &FsPath, dest: &FsPath) -> Result<Vec<PathBuf>, ReplayE
             &format!("platoon_{leader}"),
             &Chart::Panels(vec![lines(&title, "speed [m/s]", series)]),
         )?);
+    }
+
+    let merge = &summary["metrics"]["merge"];
+    let order: Vec<i32> =
+        merge["order"].as_array().into_iter().flatten().filter_map(|v| v.as_i64()).map(|v| v as i32).collect();
+    if order.len() >= 2 {
+        let instants: Vec<f64> =
+            merge["merges"].as_array().into_iter().flatten().filter_map(|m| m["t"].as_f64()).collect();
+        let mergers: Vec<i64> =
+            merge["merges"].as_array().into_iter().flatten().filter_map(|m| m["id"].as_i64()).collect();
+        let role = |id: i32| if mergers.contains(&i64::from(id)) { "merger" } else { "gap maker" };
+        let mut gaps = Vec::new();
+        for pair in order.windows(2) {
+            let (lead, me) = (pair[0], pair[1]);
+            let (Some(mr), Some(lr)) = (rows.get(&me), rows.get(&lead)) else { continue };
+            let half = (length.get(&me).copied().unwrap_or(0.0) + length.get(&lead).copied().unwrap_or(0.0)) / 2.0;
+            // Along the road: the offset projected on our own heading (the lanes are side by side).
+            let gap = mr
+                .iter()
+                .zip(lr)
+                .map(|(a, b)| {
+                    let heading = if a.velocity.length() > 0.1 { a.velocity.normalize() } else { DVec2::X };
+                    (a.t, (b.position - a.position).dot(heading) - half)
+                })
+                .collect();
+            gaps.push((format!("{me} ({}) behind {lead}", role(me)), gap));
+        }
+        let speeds = order.iter().map(|&id| (format!("{id} ({})", role(id)), speed(id))).collect();
+        let marks = Some(("merge (lane change ends)".to_string(), instants));
+        let panels = vec![
+            Lines {
+                marks: marks.clone(),
+                ..lines("Gap to the vehicle ahead after the merge, along the road", "gap [m]", gaps)
+            },
+            Lines { marks, ..lines("Speed of the merging platoons", "speed [m/s]", speeds) },
+        ];
+        written.push(save(dest, "merge", &Chart::Panels(panels))?);
     }
 
     let map = match &info.map {

@@ -168,7 +168,7 @@ pub fn spawn_traffic_vehicle(
         Some(SmartController::Idm(p)) => SmartController::Idm(Idm { speed: v0, ..p }),
         Some(SmartController::Acc(a)) => SmartController::Acc(AccSetup { speed: v0, ..a }),
         Some(SmartController::Cruise(c)) => SmartController::Cruise(CruiseSetup { speed: v0, ..c }),
-        Some(other @ SmartController::Platoon(_)) => other,
+        Some(other @ (SmartController::Platoon(_) | SmartController::Gcdc(_))) => other,
         None => SmartController::Idm(Idm { speed: v0, ..Idm::default() }),
     };
     smart.attach(world, entity);

@@ -28,7 +28,7 @@ use bevy_ecs::prelude::EntityWorldMut;
 use serde::de::DeserializeOwned;
 
 /// Names of the controllers the scenario format has built in; a plugin cannot register them.
-pub const BUILT_IN_CONTROLLERS: [&str; 5] = ["path_following", "cruise_control", "acc", "platoon", "idm"];
+pub const BUILT_IN_CONTROLLERS: [&str; 6] = ["path_following", "cruise_control", "acc", "platoon", "idm", "gcdc"];
 
 /// A controller that scenario files can name. Its parameters are the keys of the scenario's
 /// `controller` table other than `type` (deserialised with serde, so `#[serde(default)]` and

@@ -254,6 +254,12 @@ pub struct LaneChanger {
     /// mandatory change (cooperative plugins set it, e.g. making way for an emergency vehicle;
     /// Python's `change_lane` does not).
     pub signal_request: bool,
+    /// Hold the plugin's own changes (mandatory and discretionary): a cooperative plugin that
+    /// decides when to change sets it each tick and asks through `request` (GCDC merging).
+    pub hold: bool,
+    /// Abort the change in progress back to the old lane if it is not halfway yet (set by a
+    /// cooperative plugin, taken once by the plugin).
+    pub abort: bool,
     wait_since: Option<f64>,
     missed: bool,
     /// Which lanelets reach the goal (looked up once, shared by every vehicle with this goal).
@@ -276,6 +282,8 @@ impl LaneChanger {
             crossing_leaders: [None; 2],
             keep_out: None,
             signal_request: false,
+            hold: false,
+            abort: false,
             wait_since: None,
             missed: false,
             reach: None,
@@ -923,6 +931,10 @@ fn evaluate(
         }
     }
 
+    let abort_asked = ch.abort;
+    if abort_asked {
+        ch.abort = false;
+    }
     if ch.active.is_some() {
         let Some(mut m) = ch.active.take() else { return };
         // In both lanes: follow the vehicle ahead in each (from the index, real lengths).
@@ -955,11 +967,12 @@ fn evaluate(
             // Still mostly in the old lane: is the target gap still there?
             let moving_left = m.direction == Side::Left;
             let target = if (pos.offset > 0.0) == moving_left { neighbour(lanes, i, m.direction) } else { Some(i) };
-            let closed = target.is_some_and(|j| {
-                let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
-                let (ahead, behind) = (index.ahead(lanes, j, s_j, me), index.behind(lanes, j, s_j, me));
-                target_gap_closed(&law, p.safe_deceleration, v, size.length, ahead, behind)
-            });
+            let closed = abort_asked
+                || target.is_some_and(|j| {
+                    let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
+                    let (ahead, behind) = (index.ahead(lanes, j, s_j, me), index.behind(lanes, j, s_j, me));
+                    target_gap_closed(&law, p.safe_deceleration, v, size.length, ahead, behind)
+                });
             if closed {
                 let back = m.old_route.project_near(state.position, m.old_s, 10.0);
                 let offset = back.lateral;
@@ -1017,6 +1030,9 @@ fn evaluate(
     if let Some(side) = ch.request {
         candidates[0] = (side, ChangeKind::Requested);
         n = 1;
+    } else if ch.hold {
+        // A cooperative plugin decides this vehicle's changes (it asks through `request`).
+        n = 0;
     } else if let Some(side) = mandatory {
         if since_last >= p.min_interval || u > 0.5 {
             candidates[0] = (side, ChangeKind::Mandatory);

@@ -17,6 +17,7 @@
 //! | [`IdmPlugin`] | [`IdmController`] | [`Idm`] |
 //! | [`LaneChangePlugin`] | [`LaneChanger`] | [`LaneChangeParams`] |
 //! | [`EmergencyVehiclePlugin`] | [`EmergencyVehicle`], [`YieldToEmergency`] | [`EmergencySettings`] |
+//! | [`GcdcPlugin`] | [`GcdcVehicle`] | [`MergeParams`], [`Rsu`] |
 //!
 //! [`smart_vehicles`] adds them all.
 
@@ -25,6 +26,8 @@ pub mod crossing;
 pub mod cruise;
 pub mod emergency_braking;
 pub mod emergency_vehicle;
+pub mod gcdc;
+pub mod gcdc_protocol;
 pub mod idm;
 pub mod lane_change;
 pub mod lane_changing;
@@ -46,6 +49,7 @@ pub use emergency_vehicle::{
     EmergencyBeacon, EmergencyLog, EmergencySettings, EmergencySummary, EmergencyVehicle, EmergencyVehiclePlugin,
     YieldPlan, YieldToEmergency, yield_plan,
 };
+pub use gcdc::{GcdcMessage, GcdcPlugin, GcdcVehicle, MergeLog, MergeParams, MergeSummary, Role, Rsu, RsuKind};
 pub use idm::{Idm, IdmController, IdmPlugin, control_idm};
 pub use lane_changing::{
     ChangeKind, FollowLaw, LaneChangeEvent, LaneChangeLog, LaneChangeParams, LaneChangePlugin, LaneChanger,
@@ -60,7 +64,7 @@ pub use platoon::{
     FALLBACK_WIFI_INTERVALS, Fallback, PlatoonBeacon, PlatoonMember, PlatoonPlugin, Platooning, control_platoon,
     send_platoon_beacons,
 };
-pub use setup::{AccSetup, CruiseSetup, PlatoonRole, PlatoonSetup, SmartController};
+pub use setup::{AccSetup, CruiseSetup, GcdcSetup, PlatoonRole, PlatoonSetup, SmartController};
 
 use crate::sim::SimBuilder;
 

@@ -8,12 +8,14 @@
 //! controller = { type = "platoon", role = "leader", speed = 20.0, cruise = { dip = { at = 30.0, speed = 10.0, deceleration = 6.0 } } }
 //! controller = { type = "platoon", role = "follower", speed = 22.0, platoon = { time_gap = 0.5 } }
 //! controller = { type = "idm", speed = 30.0, time_gap = 1.5, min_gap = 2.0, accel = 1.0, decel = 2.0, delta = 4.0 }
+//! controller = { type = "gcdc", role = "auto", speed = 22.2, platoon = { time_gap = 0.6 }, merge = { safe_gap = 10.0 } }
 //! ```
 //! Every vehicle with one of these also gets the path follower (steering, and its `speed` as
 //! the cruise speed) and emergency braking (`emergency.ttc = 0` turns it off).
 
 use bevy_ecs::prelude::{Entity, World};
 
+use super::gcdc::{GcdcVehicle, MergeParams, Role};
 use super::{
     AccController, AdaptiveCruise, Crossing, CrossingNegotiator, CruiseControl, CruiseController, EmergencyBrake,
     EmergencyBraking, Fallback, Idm, IdmController, PathFollower, PathFollowing, PlatoonMember, Platooning,
@@ -97,6 +99,31 @@ pub struct PlatoonSetup {
     pub crossing: Option<Crossing>,
 }
 
+fn gcdc_platoon() -> Platooning {
+    Platooning { time_gap: 0.6, ..Platooning::default() }
+}
+
+/// `type = "gcdc"`: the GCDC 2016 merge protocol over V2V with CACC (see [`super::gcdc`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GcdcSetup {
+    /// `auto` (the vehicle whose lane ends merges), `gap_maker` or `merger`.
+    #[serde(default)]
+    pub role: Role,
+    /// Cruise speed [m/s] until the merge zone is heard (then `merge.speed` if set).
+    #[serde(default = "default_speed")]
+    pub speed: f64,
+    /// CACC gap law (default time gap 0.6 s).
+    #[serde(default = "gcdc_platoon")]
+    pub platoon: Platooning,
+    /// Safe gaps and the speed in the merge zone.
+    #[serde(default)]
+    pub merge: MergeParams,
+    /// Emergency braking.
+    #[serde(default)]
+    pub emergency: EmergencyBraking,
+}
+
 /// One of the smart controllers of a scenario vehicle.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SmartController {
@@ -108,6 +135,8 @@ pub enum SmartController {
     Platoon(PlatoonSetup),
     /// Treiber's IDM (`controller = { type = "idm", speed, time_gap, min_gap, accel, decel, delta }`).
     Idm(Idm),
+    /// GCDC 2016 merging (`controller = { type = "gcdc", role, speed, platoon, merge }`).
+    Gcdc(GcdcSetup),
 }
 
 impl SmartController {
@@ -149,6 +178,11 @@ impl SmartController {
                 c.check()?;
                 (c.speed, EmergencyBraking::default(), None)
             }
+            SmartController::Gcdc(c) => {
+                c.platoon.check().map_err(|e| e.within("platoon"))?;
+                c.merge.check().map_err(|e| e.within("merge"))?;
+                (c.speed, c.emergency, None)
+            }
         };
         Range::non_negative(MAX_SPEED).check("speed", speed)?;
         emergency.check().map_err(|e| e.within("emergency"))?;
@@ -163,7 +197,7 @@ impl SmartController {
     pub fn needs_sensing_ahead(&self) -> bool {
         match self {
             SmartController::Cruise(_) => false,
-            SmartController::Acc(_) | SmartController::Idm(_) => true,
+            SmartController::Acc(_) | SmartController::Idm(_) | SmartController::Gcdc(_) => true,
             SmartController::Platoon(p) => p.role == PlatoonRole::Follower,
         }
     }
@@ -175,6 +209,7 @@ impl SmartController {
             SmartController::Acc(_) => "acc",
             SmartController::Platoon(_) => "platoon",
             SmartController::Idm(_) => "idm",
+            SmartController::Gcdc(_) => "gcdc",
         }
     }
 
@@ -206,6 +241,10 @@ impl SmartController {
             SmartController::Idm(c) => {
                 e.insert(IdmController { params: c });
                 (c.speed, EmergencyBraking::default(), None)
+            }
+            SmartController::Gcdc(c) => {
+                e.insert(GcdcVehicle::new(c.role, c.platoon, c.merge));
+                (c.speed, c.emergency, None)
             }
         };
         e.insert(PathFollower::new(PathFollowing { speed, ..Default::default() }));

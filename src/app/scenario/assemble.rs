@@ -26,6 +26,7 @@ use crate::vehicles::{
     FollowLaw, Idm, LaneChangePlugin, LaneChanger, LaneMap, LanePosition, LanesPlugin, Longitudinal, PathFollower,
     PathFollowing, PathFollowingPlugin, RouteGoal, SmartController, smart_vehicles,
 };
+use crate::vehicles::{GcdcPlugin, Rsu};
 use crate::world::{
     AccelerationUnicycle, KinematicUnicycle, Radar, SensorErrors, SensorSet, VehicleClass, VehicleId, VehicleModel,
     VehicleSize, VehicleSpec, VehicleState, Velodyne,
@@ -65,6 +66,11 @@ fn sensor_errors_of(s: &SensorsConfig) -> SensorErrors {
         radar: s.radar.map_or_else(Default::default, |r| r.noise.with(r.dropout, r.occlusion)),
         velodyne: s.velodyne.map_or_else(Default::default, |v| v.noise.with(v.dropout, v.occlusion)),
     }
+}
+
+/// Whether vehicle `v` drives the `gcdc` controller.
+fn is_gcdc(v: &VehicleConfig) -> bool {
+    matches!(v.controller.as_ref().and_then(ControllerConfig::smart), Some(SmartController::Gcdc(_)))
 }
 
 /// The neighbour of lanelet `i` on `side` (whatever the line between them).
@@ -107,6 +113,11 @@ impl Scenario {
             if self.file.vehicles.iter().any(|v| v.class == VehicleClass::Emergency) {
                 b.add_plugin(EmergencyVehiclePlugin { settings: self.file.emergency });
             }
+            if self.file.vehicles.iter().any(is_gcdc) || !self.file.rsu.is_empty() {
+                b.add_plugin(GcdcPlugin { rsus: self.rsus(map)? });
+            }
+        } else if !self.file.rsu.is_empty() {
+            return Err(self.invalid("rsu".into(), "needs a `map` in the scenario"));
         }
         let mut routes: BTreeMap<String, Arc<Path>> = BTreeMap::new();
         for (i, v) in self.file.vehicles.iter().enumerate() {
@@ -136,6 +147,31 @@ impl Scenario {
                 .map_err(|e| self.invalid(format!("lab.{}", e.key), e.problem))?;
         }
         Ok(())
+    }
+
+    /// The roadside units of `[[rsu]]`, placed on `map` (ids from `i32::MIN` up: not vehicles).
+    fn rsus(&self, map: &crate::map::LaneletMap) -> Result<Vec<Rsu>, ScenarioError> {
+        let mut rsus = Vec::new();
+        for (k, r) in self.file.rsu.iter().enumerate() {
+            let key = format!("rsu[{k}].at");
+            let position = match (&r.at.node, r.at.x.zip(r.at.y)) {
+                (Some(n), _) => {
+                    let ids = map.place_nodes(&n.place()).map_err(|e| ScenarioError::Route {
+                        path: self.path.clone(),
+                        key: key.clone(),
+                        source: Box::new(e),
+                    })?;
+                    ids.first()
+                        .and_then(|id| map.nodes.get(id))
+                        .map(|n| n.position)
+                        .ok_or_else(|| self.invalid(key.clone(), "names no node of the map"))?
+                }
+                (None, Some((x, y))) => DVec2::new(x, y),
+                (None, None) => return Err(self.invalid(key, "needs either `x` and `y` [m] or `node`")),
+            };
+            rsus.push(Rsu { id: VehicleId(i32::MIN + k as i32), position, range: r.range, message: r.message });
+        }
+        Ok(rsus)
     }
 
     /// The path of route `r`, computed once per distinct route and shared.
@@ -228,12 +264,18 @@ impl Scenario {
             let lane = LanePosition::of(lanes, &state);
             b.world_mut().entity_mut(entity).insert(lane);
         }
-        if let (Some(params), Some(r)) = (v.lane_change.0, &v.route) {
+        // A gcdc vehicle changes lanes through the lane-change plugin: the defaults without a table.
+        let lane_change = v.lane_change.0.or_else(|| is_gcdc(v).then(Default::default));
+        if let (Some(params), Some(r)) = (lane_change, &v.route) {
             let speed =
                 b.world_mut().get::<PathFollower>(entity).map_or(PathFollowing::default().speed, |f| f.params.speed);
             let law = match v.controller.as_ref().and_then(ControllerConfig::smart) {
                 Some(SmartController::Idm(p)) => FollowLaw::Idm(p),
                 Some(SmartController::Acc(a)) => FollowLaw::Acc(a.acc, a.speed),
+                Some(SmartController::Gcdc(_)) => match b.world_mut().get::<crate::vehicles::GcdcVehicle>(entity) {
+                    Some(g) => FollowLaw::Acc(g.law(), g.merge.speed.unwrap_or(speed).max(speed)),
+                    None => FollowLaw::Idm(Idm { speed: speed.max(0.1), ..Idm::default() }),
+                },
                 _ => FollowLaw::Idm(Idm { speed: speed.max(0.1), ..Idm::default() }),
             };
             let goal = match &r.to {

@@ -61,6 +61,22 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
     for (k, t) in file.traffic.iter().enumerate() {
         check_traffic(&c, k, t)?;
     }
+    for (k, r) in file.rsu.iter().enumerate() {
+        c.within(format!("rsu[{k}].range"), r.range, Range::positive(MAX_DISTANCE))?;
+        match (&r.at.node, r.at.x, r.at.y) {
+            (Some(_), None, None) => {}
+            (None, Some(x), Some(y)) => {
+                c.within(format!("rsu[{k}].at.x"), x.abs(), Range::non_negative(MAX_DISTANCE))?;
+                c.within(format!("rsu[{k}].at.y"), y.abs(), Range::non_negative(MAX_DISTANCE))?;
+            }
+            _ => {
+                return Err(c.invalid(
+                    format!("rsu[{k}].at"),
+                    "needs either `x` and `y` [m] or `node` (a node id or tag), e.g. at = { x = 1000.0, y = 5.25 }",
+                ));
+            }
+        }
+    }
     Ok(())
 }
 
@@ -104,7 +120,9 @@ fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> R
     match &t.controller {
         None => {}
         Some(controller) => {
-            let smart = controller.smart().filter(|s| !matches!(s, crate::vehicles::SmartController::Platoon(_)));
+            let smart = controller.smart().filter(|s| {
+                !matches!(s, crate::vehicles::SmartController::Platoon(_) | crate::vehicles::SmartController::Gcdc(_))
+            });
             let Some(smart) = smart else {
                 return Err(
                     c.invalid(key("controller.type"), "traffic drives `idm` (the default), `acc` or `cruise_control`")

@@ -9,7 +9,8 @@ use crate::map::routing::Place;
 use crate::sim::channel::{Burst, ChannelModel, Loss};
 use crate::sim::{BUILT_IN_CONTROLLERS, Rates, V2vConfig};
 use crate::vehicles::{
-    AccSetup, CruiseSetup, EmergencySettings, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, SmartController,
+    AccSetup, CruiseSetup, EmergencySettings, GcdcSetup, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, RsuKind,
+    SmartController,
 };
 use crate::world::{AccelerationUnicycle, KinematicUnicycle, Radar, VehicleClass, Velodyne};
 
@@ -90,6 +91,42 @@ pub struct ScenarioFile {
     /// `[emergency] warning_range`: how vehicles make way for emergency vehicles.
     #[serde(default)]
     pub emergency: EmergencySettings,
+    /// Roadside units (`[[rsu]]`): fixed wifi senders, e.g. the GCDC merge zone.
+    #[serde(default)]
+    pub rsu: Vec<RsuConfig>,
+}
+
+/// One `[[rsu]]`: `at = { x, y }` or `at = { node = NODE }`, `range = 300.0`,
+/// `message = "merge_zone"`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RsuConfig {
+    /// Where it stands.
+    pub at: RsuAt,
+    /// Its wifi range [m], inclusive (default 300).
+    #[serde(default = "default_rsu_range")]
+    pub range: f64,
+    /// What it broadcasts: `"merge_zone"` (the merge zone starts here).
+    pub message: RsuKind,
+}
+
+fn default_rsu_range() -> f64 {
+    300.0
+}
+
+/// `at = { x = .., y = .. }` [m] or `at = { node = NODE }` (a node id or tag value).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RsuAt {
+    /// x [m].
+    #[serde(default)]
+    pub x: Option<f64>,
+    /// y [m].
+    #[serde(default)]
+    pub y: Option<f64>,
+    /// A node of the map.
+    #[serde(default)]
+    pub node: Option<NodeRef>,
 }
 
 /// `lanes = "all"` or a list of node tags (one start lane each).
@@ -638,6 +675,8 @@ pub enum BuiltInController {
     Platoon(PlatoonSetup),
     /// Treiber's IDM on radar along the route.
     Idm(Idm),
+    /// GCDC 2016 merging over V2V with CACC along the route.
+    Gcdc(GcdcSetup),
 }
 
 impl<'de> Deserialize<'de> for ControllerConfig {
@@ -667,6 +706,7 @@ impl ControllerConfig {
             ControllerConfig::BuiltIn(BuiltInController::Acc(c)) => Some(SmartController::Acc(*c)),
             ControllerConfig::BuiltIn(BuiltInController::Platoon(c)) => Some(SmartController::Platoon(*c)),
             ControllerConfig::BuiltIn(BuiltInController::Idm(c)) => Some(SmartController::Idm(*c)),
+            ControllerConfig::BuiltIn(BuiltInController::Gcdc(c)) => Some(SmartController::Gcdc(*c)),
             _ => None,
         }
     }
