@@ -1,5 +1,6 @@
-"""Env-steps per second of smlworld/PlatoonFollow-v0, agent-steps per second of the PettingZoo
-platoon (n agents), and, side by side, highway-env's highway-fast-v0 (installed on demand).
+"""Env-steps per second of smlworld/PlatoonFollow-v0 and smlworld/HighwayMerge-v0, agent-steps
+per second of the PettingZoo platoon (n agents), and, side by side, highway-env's highway-fast-v0
+and merge-v0 (installed on demand), each with random actions.
 
     python python/bench/bench_envs.py [--steps 2000] [--agents 10] [--no-highway-env]
 """
@@ -40,7 +41,23 @@ def bench_parallel(steps, agents):
     return steps * agents / (time.perf_counter() - t)
 
 
-def bench_highway_env(steps):
+def bench_merge(steps):
+    import gymnasium as gym
+
+    import smlworld  # noqa: F401  (registers the environments)
+
+    env = gym.make("smlworld/HighwayMerge-v0")
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    t = time.perf_counter()
+    for _ in range(steps):
+        _, _, term, trunc, _ = env.step(env.action_space.sample())
+        if term or trunc:
+            env.reset()
+    return steps / (time.perf_counter() - t)
+
+
+def bench_highway_env(steps, name="highway-fast-v0"):
     try:
         import highway_env  # noqa: F401
     except ImportError:
@@ -48,8 +65,9 @@ def bench_highway_env(steps):
         import highway_env  # noqa: F401
     import gymnasium as gym
 
-    env = gym.make("highway-fast-v0")
+    env = gym.make(name)
     env.reset(seed=0)
+    env.action_space.seed(0)
     t = time.perf_counter()
     for _ in range(steps):
         _, _, term, trunc, _ = env.step(env.action_space.sample())
@@ -72,6 +90,13 @@ def main():
         he = bench_highway_env(max(50, args.steps // 20))
         print(f"highway-env highway-fast-v0: {he:,.1f} env-steps/s ({max(50, args.steps // 20)} steps)")
         print(f"ratio PlatoonFollow-v0 / highway-fast-v0: {pf / he:,.1f}x")
+    hm = bench_merge(args.steps)
+    print(f"HighwayMerge-v0: {hm:,.0f} env-steps/s ({args.steps} steps)")
+    if not args.no_highway_env:
+        n = max(50, args.steps // 20)
+        mv = bench_highway_env(n, "merge-v0")
+        print(f"highway-env merge-v0: {mv:,.1f} env-steps/s ({n} steps)")
+        print(f"ratio HighwayMerge-v0 / merge-v0: {hm / mv:,.1f}x")
 
 
 if __name__ == "__main__":

@@ -199,6 +199,13 @@ def load_map(path) -> Map:
     return _smlworld.load_map(str(path))
 
 
+#: Every gymnasium environment of smlworld: id -> entry point (registered on import).
+ENVS = {
+    "smlworld/PlatoonFollow-v0": "smlworld.envs.platoon:PlatoonFollowEnv",
+    "smlworld/HighwayMerge-v0": "smlworld.envs.merge:HighwayMergeEnv",
+}
+
+
 def _register_envs() -> None:
     """Register the Gymnasium environments on a plain ``import smlworld`` (by name: their
     modules load only when ``gymnasium.make`` asks for them). Without gymnasium (the ``envs``
@@ -207,8 +214,9 @@ def _register_envs() -> None:
         import gymnasium
     except ImportError:
         return
-    if "smlworld/PlatoonFollow-v0" not in gymnasium.registry:
-        gymnasium.register(id="smlworld/PlatoonFollow-v0", entry_point="smlworld.envs.platoon:PlatoonFollowEnv")
+    for env_id, entry_point in ENVS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=entry_point)
 
 
 _register_envs()

@@ -103,13 +103,94 @@ def test_a_plain_import_registers_the_envs_and_rgb_array_renders_frames():
 
     code = (
         "import gymnasium, smlworld\n"
-        "env = gymnasium.make('smlworld/PlatoonFollow-v0', render_mode='rgb_array')\n"
-        "env.reset(seed=1)\n"
-        "env.step(env.action_space.sample())\n"
-        "f = env.render()\n"
-        "assert f.shape == (360, 640, 3) and f.dtype.name == 'uint8', (f.shape, f.dtype)\n"
-        "assert f.std() > 1.0, 'a picture, not a blank frame'\n"
+        "for name in ('smlworld/PlatoonFollow-v0', 'smlworld/HighwayMerge-v0'):\n"
+        "    env = gymnasium.make(name, render_mode='rgb_array')\n"
+        "    env.reset(seed=1)\n"
+        "    env.step(env.action_space.sample())\n"
+        "    f = env.render()\n"
+        "    assert f.shape == (360, 640, 3) and f.dtype.name == 'uint8', (name, f.shape, f.dtype)\n"
+        "    assert f.std() > 1.0, (name, 'a picture, not a blank frame')\n"
         "print('ok')\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
+
+
+# -- smlworld/HighwayMerge-v0 (issue 20 item 3) -------------------------------------------------
+
+
+def merge_policy(obs, info):
+    """A scripted continuous policy: match the speed of the right lane's gap, centre on it, ask
+    for the change when both gaps are comfortable; once merged, follow the vehicle ahead."""
+    others = obs[1:]
+    pres = others[:, 0] > 0
+    dx, dy, dv = others[:, 1] * 100, others[:, 2] * 7, others[:, 3] * 30
+    if info.get("merged"):
+        same = pres & (np.abs(dy) < 1.5) & (dx > 0)
+        if same.any():
+            k = int(np.argmin(np.where(same, dx, 1e9)))
+            return np.array([0.3 * (dx[k] - 25) + dv[k], 0.0], dtype=np.float32)
+        return np.array([0.5, 0.0], dtype=np.float32)
+    right = pres & (dy < -1.5)
+    ahead, behind = right & (dx > 0), right & (dx <= 0)
+    ga = dx[ahead].min() if ahead.any() else 60.0
+    gb = -dx[behind].max() if behind.any() else 60.0
+    dva = dv[ahead][np.argmin(dx[ahead])] if ahead.any() else 0.0
+    dvb = dv[behind][np.argmax(dx[behind])] if behind.any() else 0.0
+    accel = 0.1 * (ga - gb) + 0.4 * (dva + dvb)
+    change = -1.0 if (ga > 15 and gb > 20 and abs(dva) < 3 and abs(dvb) < 3) else 0.0
+    return np.array([accel, change], dtype=np.float32)
+
+
+def run_episode(env, policy, seed):
+    obs, info = env.reset(seed=seed)
+    rewards, observations = [], [obs]
+    while True:
+        obs, r, term, trunc, info = env.step(policy(obs, info))
+        rewards.append(r)
+        observations.append(obs)
+        if term or trunc:
+            return rewards, observations, info
+
+
+def test_highway_merge_passes_the_env_checker_in_both_action_modes():
+    from gymnasium.utils.env_checker import check_env
+
+    for action in ("discrete", "continuous"):
+        env = gym.make("smlworld/HighwayMerge-v0", action=action)
+        check_env(env.unwrapped, skip_render_check=True)
+    assert gym.make("smlworld/HighwayMerge-v0").action_space.n == 5  # highway-env's DiscreteMetaAction
+    with pytest.raises(ValueError):
+        gym.make("smlworld/HighwayMerge-v0", action="steering")
+
+
+def test_highway_merge_is_reproducible_from_its_seed_and_seeds_differ():
+    env = gym.make("smlworld/HighwayMerge-v0", action="continuous")
+    a = run_episode(env, merge_policy, 4)
+    b = run_episode(env, merge_policy, 4)
+    c = run_episode(env, merge_policy, 5)
+    assert a[0] == b[0]
+    assert all(np.array_equal(x, y) for x, y in zip(a[1], b[1]))
+    assert len(a[1]) != len(c[1]) or any(not np.array_equal(x, y) for x, y in zip(a[1], c[1]))
+
+
+def test_highway_merge_rewards_a_safe_merge_and_ends_when_the_lane_ends():
+    """The scripted policy merges without a collision in most seeds and earns far more than
+    keeping the lane (IDLE), which meets the lane's end: -1 and terminated."""
+    env = gym.make("smlworld/HighwayMerge-v0", action="continuous")
+    merged, returns = 0, []
+    for seed in range(12):
+        rewards, _, info = run_episode(env, merge_policy, seed)
+        assert all(-1.0 <= r <= 1.0 for r in rewards)
+        assert not info["collided"], (seed, info)
+        merged += info["merged"]
+        if info["merged"]:
+            returns.append(sum(rewards))
+    assert merged >= 6, merged
+    idle = gym.make("smlworld/HighwayMerge-v0")
+    rewards, _, info = run_episode(idle, lambda obs, info: 1, 0)
+    assert not info["merged"] and rewards[-1] == -1.0 and info["x"] >= 299.0
+    assert min(returns) > sum(rewards) + 5.0
+    with pytest.raises(ValueError):
+        idle.reset(seed=0)
+        idle.step(7)

@@ -262,12 +262,26 @@ pub fn forward_speed(state: &VehicleState, pos: Option<&LanePosition>, fresh: bo
 /// Bring every [`LanePosition`] up to date now (for readers outside the schedules: Python's
 /// state arrays, `change_lane`, the final trajectory row). Does nothing without a [`LaneMap`].
 pub fn refresh_lane_positions(world: &mut World) {
-    use bevy_ecs::system::RunSystemOnce;
-    if world.contains_resource::<LaneMap>() {
-        // Every parameter is optional or a query: running it cannot fail.
-        let _ = world.run_system_once(update_lane_positions);
+    if !world.contains_resource::<LaneMap>() {
+        return;
     }
+    // The system is registered once and kept (a fresh one per call costs more than the update
+    // on a small world: Python steps call this every step).
+    let id = match world.get_resource::<RefreshSystem>() {
+        Some(r) => r.0,
+        None => {
+            let id = world.register_system(update_lane_positions);
+            world.insert_resource(RefreshSystem(id));
+            id
+        }
+    };
+    // Every parameter is optional or a query: running it cannot fail.
+    let _ = world.run_system(id);
 }
+
+/// The registered [`update_lane_positions`] of [`refresh_lane_positions`].
+#[derive(Resource)]
+struct RefreshSystem(bevy_ecs::system::SystemId);
 
 type LaneItem<'a> = (&'a VehicleState, Mut<'a, LanePosition>);
 

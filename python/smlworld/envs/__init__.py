@@ -10,6 +10,17 @@
   (gap <= 0). 0.1 s per step,
   truncated after 600 steps (60 s). Bit-reproducible from ``reset(seed=...)``.
 
+- ``smlworld/HighwayMerge-v0``: the learning car starts on the lane that ends (the GCDC 2016 lane
+  drop, 300 m) and must merge into IDM traffic on the other lane. Actions: highway-env's
+  DiscreteMetaAction (``0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER, 4 SLOWER``) by default,
+  ``action="continuous"`` for ``[acceleration, lane-change request]``. Observation: a (6, 5)
+  array like highway-env's Kinematics, rows the car then its 5 nearest vehicles, columns
+  ``presence, x, y, vx, vy`` (the others relative to the car), scaled into [-1, 1]. Reward per
+  step in [-1, 1] (:func:`smlworld.envs.merge.step_reward`): progress ``0.6 * v / 30`` plus 0.4
+  once merged, -1 on a collision or when the lane ends under the car (both terminate; so does
+  reaching x = 480 m). 0.5 s per step, truncated after 80 steps (40 s). Bit-reproducible from
+  ``reset(seed=...)``.
+
 ``platoon_parallel_env(n=5)`` is the PettingZoo parallel version: every member behind the
 scripted leader is an agent (see :mod:`smlworld.envs.platoon_parallel`).
 """
@@ -18,10 +29,14 @@ from __future__ import annotations
 
 import gymnasium
 
+from .merge import HighwayMergeEnv
 from .platoon import PlatoonFollowEnv
 from .platoon_parallel import PlatoonParallelEnv, platoon_parallel_env
 
-__all__ = ["PlatoonFollowEnv", "PlatoonParallelEnv", "platoon_parallel_env"]
+__all__ = ["HighwayMergeEnv", "PlatoonFollowEnv", "PlatoonParallelEnv", "platoon_parallel_env"]
 
-if "smlworld/PlatoonFollow-v0" not in gymnasium.registry:
-    gymnasium.register(id="smlworld/PlatoonFollow-v0", entry_point="smlworld.envs.platoon:PlatoonFollowEnv")
+from .. import ENVS
+
+for _id, _entry in ENVS.items():
+    if _id not in gymnasium.registry:
+        gymnasium.register(id=_id, entry_point=_entry)
