@@ -92,10 +92,10 @@ fn a_vehicle_covers_exactly_its_posed_rectangle_with_the_windscreen_in_front() {
             inside += 1;
             inside_changed += usize::from(changed);
         } else if changed && !near_body {
-            // The only other change is the id label, entirely above the body's screen footprint.
+            // The only other change is the id label, entirely right of the body's screen footprint.
             assert!(
-                f64::from(y) < centre_px.y - reach_px,
-                "pixel ({x}, {y}) changed outside the vehicle's rectangle and below its label"
+                f64::from(x) > centre_px.x + reach_px,
+                "pixel ({x}, {y}) changed outside the vehicle's rectangle and left of its label"
             );
         }
     }
