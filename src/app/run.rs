@@ -409,13 +409,19 @@ struct FrameMarks {
 }
 
 impl FrameMarks {
-    fn record(&mut self, rec: &mut FrameRecorder, world: &bevy_ecs::world::World, sensors: bool) -> Result<(), RenderError> {
+    fn record(
+        &mut self,
+        rec: &mut FrameRecorder,
+        world: &bevy_ecs::world::World,
+        sensors: bool,
+    ) -> Result<(), RenderError> {
         crate::render::sprites_from_world(world, sensors, &mut self.sprites);
         let t = world.get_resource::<crate::sim::SimClock>().map_or(0.0, |c| c.now.as_secs());
         if let Some(metrics) = world.get_resource::<super::metrics::Metrics>() {
             for c in metrics.collisions.iter().skip(self.collisions_seen) {
                 // Where the pair is now: at most one frame (1 / frame rate) after they met.
-                let at = |id: i32| self.sprites.binary_search_by_key(&id, |s| s.id).ok().map(|i| self.sprites[i].position);
+                let at =
+                    |id: i32| self.sprites.binary_search_by_key(&id, |s| s.id).ok().map(|i| self.sprites[i].position);
                 if let (Some(a), Some(b)) = (at(c.a.0), at(c.b.0)) {
                     rec.add_collision((a + b) * 0.5, c.t);
                 }

@@ -175,7 +175,15 @@ pub fn main(args: ViewArgs) -> anyhow::Result<()> {
     }
     eprintln!(
         "{why}; writing frames to {} instead",
-        scene.args.frame_output.frames.iter().chain(&scene.args.frame_output.gif).map(|p| p.display().to_string()).collect::<Vec<_>>().join(" and ")
+        scene
+            .args
+            .frame_output
+            .frames
+            .iter()
+            .chain(&scene.args.frame_output.gif)
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" and ")
     );
     run_frames(&mut scene, deadline)
 }

@@ -151,7 +151,9 @@ impl Camera {
             (Some(id), ppm) => {
                 Mode::Follow { id, ppm: ppm.unwrap_or(whole.pixels_per_meter.max(FOLLOW_PPM)), last: whole.center }
             }
-            (None, Some(ppm)) => Mode::Fixed(BirdseyeView::new(width, height, ppm, frames.center.unwrap_or(whole.center))?),
+            (None, Some(ppm)) => {
+                Mode::Fixed(BirdseyeView::new(width, height, ppm, frames.center.unwrap_or(whole.center))?)
+            }
             (None, None) if map_box.is_some() && whole.pixels_per_meter < MIN_AUTO_FIT_PPM => {
                 Mode::FitVehicles { map: whole, fitted: None }
             }

@@ -445,7 +445,13 @@ impl Renderer {
         Ok(())
     }
 
-    fn draw_environment(&self, layer: &mut EnvironmentLayer, env: &Environment, view: &BirdseyeView, patterns: &PatternSet) {
+    fn draw_environment(
+        &self,
+        layer: &mut EnvironmentLayer,
+        env: &Environment,
+        view: &BirdseyeView,
+        patterns: &PatternSet,
+    ) {
         let mut vertices = Vec::new();
         Tessellator { view, out: &mut vertices }.environment(env, patterns);
         self.queue.write_buffer(&layer.globals, 0, bytemuck::bytes_of(&Globals::of(view)));

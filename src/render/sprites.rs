@@ -382,7 +382,9 @@ pub fn overlapping_pairs(sprites: &[VehicleSprite]) -> Vec<(i32, i32, DVec2)> {
         [a.yaw, a.yaw + std::f64::consts::FRAC_PI_2, b.yaw, b.yaw + std::f64::consts::FRAC_PI_2].iter().any(|&ang| {
             let axis = DVec2::from_angle(ang);
             let span = |c: &[DVec2; 4]| {
-                c.iter().map(|p| p.dot(axis)).fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
+                c.iter()
+                    .map(|p| p.dot(axis))
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
             };
             let ((a0, a1), (b0, b1)) = (span(&ca), span(&cb));
             a1 < b0 || b1 < a0
