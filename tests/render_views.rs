@@ -156,16 +156,17 @@ fn every_vehicle_in_view_has_its_label_at_640x360_on_the_platoon() {
     assert_eq!(ids, vec![-5, -4, -3, -2, -1], "a label for each of the five trucks");
     let img = frame(&frames, 19);
     for (id, [x0, y0, x1, y1]) in boxes {
-        // White glyph pixels and their dark outline inside the box.
-        let (mut white, mut dark) = (0, 0);
+        // White glyph pixels and their outline in the vehicle's colour inside the box.
+        let c = smlworld::render::vehicle_color(id);
+        let (mut white, mut outline) = (0, 0);
         for y in y0 as u32..y1 as u32 {
             for x in x0 as u32..x1 as u32 {
-                let [r, g, b, _] = img.get_pixel(x, y).0;
-                white += usize::from(r > 230 && g > 230 && b > 230);
-                dark += usize::from(r < 50 && g < 50 && b < 130);
+                let p = img.get_pixel(x, y).0;
+                white += usize::from(p[0] > 230 && p[1] > 230 && p[2] > 230);
+                outline += usize::from((0..3).all(|k| (i32::from(p[k]) - i32::from(c[k])).abs() < 40));
             }
         }
-        assert!(white >= 8 && dark >= 8, "label {id} at ({x0}, {y0}): {white} white and {dark} dark px");
+        assert!(white >= 8 && outline >= 8, "label {id} at ({x0}, {y0}): {white} white and {outline} outline px");
     }
 }
 
@@ -203,7 +204,8 @@ fn a_replayed_collision_is_a_red_ring_for_two_seconds() {
             .filter(|(x, y, p)| {
                 let d = DVec2::new(f64::from(*x) + 0.5, f64::from(*y) + 0.5).distance(c);
                 let [r, g, b, _] = p.0;
-                d < 40.0 && r > 200 && g < 60 && b < 60
+                // The ring's own red (235, 20, 20), not the red of vehicle 1's label (214, 39, 40).
+                d < 40.0 && r > 225 && g < 32 && b < 32
             })
             .count()
     };

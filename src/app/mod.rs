@@ -49,7 +49,7 @@ pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use output::{
     Log, MessagesDelivered, ReplayInfo, ReplayVehicle, RunSummary, TrajectoryLog, TrajectoryLogPlugin, log_trajectories,
 };
-pub use plot::{FIGURE_SIZE, MAX_LEGEND, plot_run};
+pub use plot::{FIGURE_SIZE, MAX_LEGEND, plot_compare, plot_run};
 pub use replay::{
     ReplayError, ReplayMarks, ReplayOptions, ReplayReport, read_replay_info, read_replay_marks, replay_run,
 };

@@ -42,7 +42,9 @@ pub use output::{GifWriter, frame_path, write_gif, write_image, write_image_with
 pub use overlay::{FONT_TTF, OVERLAY_BACKGROUND, OVERLAY_TEXT_PX, draw_collision_ring, draw_overlay};
 pub use patterns::{PATTERN_SIZE, Pattern, PatternKind, PatternSet};
 pub use recorder::{COLLISION_RING_SECONDS, FrameRecorder, check_frame_rate, sprites_from_world};
-pub use sprites::{Indicator, Overlays, RadarCone, VehicleSprite, class_color, label_boxes, overlapping_pairs};
+pub use sprites::{
+    Indicator, Overlays, RadarCone, VehicleSprite, class_color, label_boxes, overlapping_pairs, vehicle_color,
+};
 pub use triangulate::triangulate;
 pub use view::{BirdseyeView, MAX_IMAGE_SIDE};
 

@@ -100,6 +100,27 @@ pub fn class_color(class: &str) -> [u8; 4] {
     }
 }
 
+/// Colour of vehicle `id` wherever one colour per vehicle is drawn (its id label in the view,
+/// its curves in `smlworld plot`): twelve hues dark enough to read on white and under white
+/// text, so ids `n` and `n + 1` always differ.
+pub fn vehicle_color(id: i32) -> [u8; 4] {
+    const PALETTE: [[u8; 4]; 12] = [
+        [31, 119, 180, 255],
+        [214, 39, 40, 255],
+        [44, 140, 44, 255],
+        [148, 83, 189, 255],
+        [220, 105, 0, 255],
+        [140, 86, 75, 255],
+        [200, 40, 150, 255],
+        [90, 90, 90, 255],
+        [120, 120, 0, 255],
+        [0, 128, 128, 255],
+        [20, 40, 140, 255],
+        [160, 30, 80, 255],
+    ];
+    PALETTE[id.rem_euclid(PALETTE.len() as i32) as usize]
+}
+
 /// Flag in [`VehicleInstance::real`]: draw a light bar across the roof (red on the left half,
 /// blue on the right), the mark of an emergency vehicle.
 pub(crate) const LIGHT_BAR: u32 = 2;
@@ -160,7 +181,7 @@ pub(crate) struct LabelInstance {
     pub glyphs: [u32; 2],
     /// Number of characters (at most 11: `-2147483648`).
     pub count: u32,
-    /// Outline colour around the white glyphs, sRGB with alpha.
+    /// Outline colour around the white glyphs ([`vehicle_color`]), sRGB with alpha.
     pub color: [u8; 4],
     /// Screen pixels per font pixel ([`text_scale`]).
     pub scale: f32,
@@ -317,17 +338,15 @@ impl FrameBatches {
                 glyphs[i / 8] |= g << (4 * (i % 8));
             }
             let (box_w, box_h) = label_size(n, scale);
-            let ppm = view.pixels_per_meter.max(view.pixels_per_meter_y());
-            // Vehicles are drawn at least 4 px long (shaders.wgsl), so never closer than that.
-            let reach = (0.5 * s.length.hypot(s.width) * ppm).max(2.0 * std::f64::consts::SQRT_2) as f32 + LABEL_GAP;
+            // Half the screen extent of the rotated body [px]; vehicles are drawn at least 4 px
+            // long and wide (shaders.wgsl), so never less than 2.
+            let (c, sn) = (s.yaw.cos().abs(), s.yaw.sin().abs());
+            let ex = (0.5 * (s.length * c + s.width * sn) * view.pixels_per_meter).max(2.0) as f32 + LABEL_GAP;
+            let ey = (0.5 * (s.length * sn + s.width * c) * view.pixels_per_meter_y()).max(2.0) as f32 + LABEL_GAP;
             let at = view.world_to_pixel(s.position);
             let (ax, ay) = (at.x.floor() as f32, at.y.floor() as f32);
-            let places = [
-                (reach, -0.5 * box_h),
-                (-reach - box_w, -0.5 * box_h),
-                (-0.5 * box_w, -reach - box_h),
-                (-0.5 * box_w, reach),
-            ];
+            let places =
+                [(ex, -0.5 * box_h), (-ex - box_w, -0.5 * box_h), (-0.5 * box_w, -ey - box_h), (-0.5 * box_w, ey)];
             for (ox, oy) in places {
                 let x0 = (ax + ox).round().clamp(0.0, (w - box_w).max(0.0));
                 let y0 = (ay + oy).round().clamp(0.0, (h - box_h).max(0.0));
@@ -337,7 +356,7 @@ impl FrameBatches {
                         offset: [x0 - ax, y0 - ay],
                         glyphs,
                         count: n as u32,
-                        color: if s.id >= 0 { [16, 16, 20, 235] } else { [30, 30, 110, 235] },
+                        color: vehicle_color(s.id),
                         scale,
                         pad: 0,
                     });
@@ -510,8 +529,8 @@ mod tests {
         // Nearest to the centre is placed first, right beside its vehicle.
         let first = boxes[0];
         assert_eq!(first.0, -4, "x = -1 m is nearest the centre");
-        // x = 318 px, reach max(sqrt(5), 2 sqrt(2)) px + 2 px gap, rounded.
-        assert_eq!(first.1[0], 323.0);
+        // x = 318 px, half its 4 px length + 2 px gap.
+        assert_eq!(first.1[0], 322.0);
     }
 
     #[test]
