@@ -19,6 +19,7 @@ pub mod app;
 pub mod files;
 pub mod io;
 pub mod map;
+pub mod range;
 pub mod render;
 pub mod sim;
 pub mod vehicles;

@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use image::RgbImage;
-use plotters::style::{Color, Palette, Palette99};
 
 fn smlworld(args: &[&str]) {
     let out = Command::new(env!("CARGO_BIN_EXE_smlworld")).args(args).output().expect("runs smlworld");
@@ -53,10 +52,24 @@ fn run_plots_writes_every_figure_and_the_speed_curve_follows_the_data() {
         assert!(svg.contains(text), "speed.svg lacks {text:?}");
     }
 
-    // Halve the first vehicle's (-5's) speed from 10 s on: its curve (the first palette colour)
-    // moves down in the image; the others keep the axes (the leader's 15 m/s stays the maximum).
-    let rgb = Palette99::pick(0).to_rgba().rgb();
-    let colour = [rgb.0, rgb.1, rgb.2];
+    // One colour per vehicle in every figure, its label's colour in the view: vehicle -5's curve
+    // is in speed, platoon, lateral and trace.
+    let c = smlworld::render::vehicle_color(-5);
+    let colour = [c[0], c[1], c[2]];
+    for name in ["speed", "platoon_-1", "lateral", "trace"] {
+        let (_, n) = curve_rows(&image::open(plots.join(format!("{name}.png"))).unwrap().to_rgb8(), colour);
+        assert!(n > 300, "{name}.png: {n} px of vehicle -5's colour");
+    }
+    // Legends sit right of the plot (x > 1300 px of 1600), never over a curve; titles name the
+    // disturbance.
+    for cap in svg.split("<text").skip(1).filter(|t| t.contains(">vehicle ")) {
+        let x: f64 = cap.split("x=\"").nth(1).and_then(|v| v.split('"').next()).unwrap().parse().unwrap();
+        assert!(x > 1300.0, "legend entry at x = {x}: {cap}");
+    }
+    assert!(svg.contains("Speed: "), "the title says what the run shows");
+
+    // Halve the first vehicle's (-5's) speed from 10 s on: its curve moves down in the image;
+    // the others keep the axes (the leader's 15 m/s stays the maximum).
     let before = curve_rows(&image::open(plots.join("speed.png")).unwrap().to_rgb8(), colour);
     let csv = dir.join("trajectories.csv");
     let text = std::fs::read_to_string(&csv).unwrap();
@@ -90,4 +103,45 @@ fn plot_of_a_folder_without_a_run_names_the_missing_file() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("summary.json"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn titles_name_the_disturbance_lanes_are_plotted_and_runs_compare() {
+    let brake = tmp("brake");
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/platoon_brake.toml");
+    smlworld(&["run", scenario, "--duration", "40", "--out", s(&brake), "--plots"]);
+    let svg = std::fs::read_to_string(brake.join("plots/speed.svg")).unwrap();
+    // The leader brakes at 30 s (scenario file): the first to slow down.
+    assert!(
+        svg.contains("vehicle -1 slows from 15.0 to 0.0 m/s at 30."),
+        "speed.svg title: {}",
+        &svg[..svg.len().min(3000)]
+    );
+
+    let lanes = tmp("lanes");
+    let overtaking = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/overtaking.toml");
+    smlworld(&["run", overtaking, "--out", s(&lanes), "--plots"]);
+    let svg = std::fs::read_to_string(lanes.join("plots/lanes.svg")).expect("a run with lane changes plots lanes");
+    for text in ["lanelet id [-]", "lane offset [m]", "time [s]", "lane change"] {
+        assert!(svg.contains(text), "lanes.svg lacks {text:?}");
+    }
+
+    let slow = tmp("brake-slow");
+    smlworld(&["run", scenario, "--duration", "40", "--out", s(&slow), "--set", "vehicles.*.speed=10.0"]);
+    std::fs::write(slow.join("params.json"), r#"{"speed": 10.0}"#).unwrap();
+    let out = tmp("compare");
+    smlworld(&["plot", "--compare", s(&brake), s(&slow), "--out", s(&out)]);
+    let svg = std::fs::read_to_string(out.join("compare_speed.svg")).unwrap();
+    let brake_name = brake.file_name().unwrap().to_str().unwrap();
+    assert!(svg.contains(brake_name) && svg.contains("speed=10.0"), "legend names both runs");
+    let png = image::open(out.join("compare_speed.png")).unwrap().to_rgb8();
+    for c in [[31, 119, 180], [214, 39, 40]] {
+        assert!(curve_rows(&png, c).1 > 300, "a colour per run: {c:?}");
+    }
+    assert!(out.join("compare_gaps.png").exists() && out.join("compare_lateral.png").exists());
+    let one = Command::new(env!("CARGO_BIN_EXE_smlworld")).args(["plot", s(&brake), s(&slow)]).output().unwrap();
+    assert!(!one.status.success() && String::from_utf8_lossy(&one.stderr).contains("--compare"));
+    for d in [brake, lanes, slow, out] {
+        let _ = std::fs::remove_dir_all(d);
+    }
 }

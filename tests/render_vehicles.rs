@@ -76,7 +76,8 @@ fn a_vehicle_covers_exactly_its_posed_rectangle_with_the_windscreen_in_front() {
     let v = VehicleSprite::new(7, DVec2::new(3.0, -2.0), yaw, 10.0, 3.0, "Truck");
     let frame = r.render_frame(&layer, std::slice::from_ref(&v)).unwrap();
     let centre_px = view.world_to_pixel(v.position);
-    let reach_px = 0.5 * v.length.hypot(v.width) * view.pixels_per_meter;
+    // Half the screen width of the rotated body [px]: the label starts right of it.
+    let extent_x = 0.5 * (v.length * yaw.cos().abs() + v.width * yaw.sin().abs()) * view.pixels_per_meter;
     let (mut inside, mut inside_changed) = (0, 0);
     for (x, y, p) in frame.enumerate_pixels() {
         let changed = p != empty.get_pixel(x, y);
@@ -92,10 +93,10 @@ fn a_vehicle_covers_exactly_its_posed_rectangle_with_the_windscreen_in_front() {
             inside += 1;
             inside_changed += usize::from(changed);
         } else if changed && !near_body {
-            // The only other change is the id label, entirely above the body's screen footprint.
+            // The only other change is the id label, entirely right of the body's screen footprint.
             assert!(
-                f64::from(y) < centre_px.y - reach_px,
-                "pixel ({x}, {y}) changed outside the vehicle's rectangle and below its label"
+                f64::from(x) + 1.0 > centre_px.x + extent_x,
+                "pixel ({x}, {y}) changed outside the vehicle's rectangle and left of its label"
             );
         }
     }

@@ -231,9 +231,10 @@ fn overlay_shows_time_and_legend_on_request_and_on_gifs_by_default() {
     for class in ["Car", "Truck", "Bus"] {
         let c = smlworld::render::class_color(class);
         let rgb = [c[0], c[1], c[2]];
-        // A 14 x 14 px swatch (vehicles of the class may also sit in the corner of both frames).
+        // An 8 x 8 px swatch at 640x360 (the legend scales with the image height; vehicles of
+        // the class may also sit in the corner of both frames).
         let (with, without) = (count_color(&marked[0], rgb, 300, 200), count_color(&plain[0], rgb, 300, 200));
-        assert!(with >= without + 150, "{class} swatch missing: {with} vs {without} pixels");
+        assert!(with >= without + 60, "{class} swatch missing: {with} vs {without} pixels");
     }
     // The overlay only covers the corner: the rest of the frame is the plain frame.
     let (w, h) = marked[0].dimensions();

@@ -131,7 +131,7 @@ fn run_frames_show_a_fixed_window_with_pixels_per_meter_and_center() {
         let dir = std::env::temp_dir().join(format!("smlworld-ev-frames-{tag}-{}", std::process::id()));
         let output = Command::new(env!("CARGO_BIN_EXE_smlworld"))
             .args(["run", "scenarios/emergency_vehicle.toml", "--duration", "0.1", "--frame-rate", "10"])
-            .args(["--width", "64", "--height", "36", "--no-overlay", "--frames"])
+            .args(["--width", "64", "--height", "36", "--overlay=none", "--frames"])
             .arg(dir.join("frames"))
             .arg("--out")
             .arg(&dir)

@@ -49,8 +49,10 @@ pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use output::{
     Log, MessagesDelivered, ReplayInfo, ReplayVehicle, RunSummary, TrajectoryLog, TrajectoryLogPlugin, log_trajectories,
 };
-pub use plot::{FIGURE_SIZE, MAX_LEGEND, plot_run};
-pub use replay::{ReplayError, ReplayOptions, ReplayReport, read_replay_info, replay_run};
+pub use plot::{FIGURE_SIZE, MAX_LEGEND, plot_compare, plot_run};
+pub use replay::{
+    ReplayError, ReplayMarks, ReplayOptions, ReplayReport, read_replay_info, read_replay_marks, replay_run,
+};
 pub use run::{RunError, RunOptions, ScenarioSource, run_scenario};
 pub use runner::{RealtimeRunner, RunReport, run_headless};
 pub use scenario::{Scenario, ScenarioError};

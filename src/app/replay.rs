@@ -24,7 +24,7 @@ use glam::DVec2;
 
 use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, StreamFormat, VizSender, VizSenderConfig, VizVehicle};
 use crate::map::LaneletMap;
-use crate::render::{FrameRecorder, RecorderOptions, RenderError, VehicleSprite};
+use crate::render::{FrameOutput, FrameRecorder, Indicator, RenderError, VehicleSprite};
 use crate::world::SimTime;
 
 use super::output::{ReplayInfo, ReplayVehicle};
@@ -32,41 +32,73 @@ use super::output::{ReplayInfo, ReplayVehicle};
 /// What `smlworld replay` writes or sends, and how.
 #[derive(Debug, Clone)]
 pub struct ReplayOptions {
-    /// Write numbered PNG frames into this folder.
-    pub frames: Option<PathBuf>,
-    /// Write an animated GIF.
-    pub gif: Option<PathBuf>,
+    /// Frames and GIF: outputs, size, rate [Hz of sim time], overlay and window (the arguments
+    /// `smlworld replay` shares with `run` and `view`).
+    pub frame_output: FrameOutput,
     /// Send the vehicles over UDP (2015 visualisation format, 50 Hz of sim time) to this address.
     pub stream: Option<SocketAddr>,
     /// Sim seconds per wall second of the stream (2 = twice as fast as recorded).
     pub speed: f64,
     /// Class names and reference point of the stream (see [`StreamFormat`]).
     pub stream_format: StreamFormat,
-    /// Frames per second of sim time for `frames` and `gif` [Hz].
-    pub frame_rate: f64,
-    /// Frame width [px].
-    pub width: u32,
-    /// Frame height [px].
-    pub height: u32,
-    /// Time stamp and legend: `Some(true)` on frames and GIF, `Some(false)` on none, `None` on
-    /// the GIF only.
-    pub overlay: Option<bool>,
 }
 
 impl Default for ReplayOptions {
     fn default() -> Self {
         ReplayOptions {
-            frames: None,
-            gif: None,
+            frame_output: FrameOutput::default(),
             stream: None,
             speed: 1.0,
             stream_format: StreamFormat::Smlworld,
-            frame_rate: 10.0,
-            width: 1280,
-            height: 720,
-            overlay: None,
         }
     }
+}
+
+/// What a run's `summary.json` says beyond the `replay` part that frames mark: collisions (the
+/// pair and the time) and lane changes (who, when, which way).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ReplayMarks {
+    /// Collisions: ids of the pair and sim time [s].
+    pub collisions: Vec<(i32, i32, f64)>,
+    /// Lane changes: id, start and end [s], and the side the indicator shows.
+    pub lane_changes: Vec<(i32, f64, f64, Indicator)>,
+}
+
+/// Read the collisions and lane changes of `OUT_DIR/summary.json` (`metrics.collisions`,
+/// `metrics.lane_changes`; none when the run wrote no metrics).
+pub fn read_replay_marks(out_dir: &FsPath) -> Result<ReplayMarks, ReplayError> {
+    let path = out_dir.join("summary.json");
+    let text = std::fs::read_to_string(&path).map_err(|source| ReplayError::Io { path: path.clone(), source })?;
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| ReplayError::Summary { path: path.clone(), message: format!("not JSON: {e}") })?;
+    let mut marks = ReplayMarks::default();
+    let bad = |what: &str, i: usize| ReplayError::Summary {
+        path: path.clone(),
+        message: format!("`metrics.{what}[{i}]` lacks a field or has one of the wrong type"),
+    };
+    let metrics = &value["metrics"];
+    for (i, c) in metrics["collisions"].as_array().into_iter().flatten().enumerate() {
+        let id = |k: &str| c[k].as_i64().and_then(|v| i32::try_from(v).ok());
+        match (id("a"), id("b"), c["t"].as_f64()) {
+            (Some(a), Some(b), Some(t)) => marks.collisions.push((a, b, t)),
+            _ => return Err(bad("collisions", i)),
+        }
+    }
+    for (i, l) in metrics["lane_changes"].as_array().into_iter().flatten().enumerate() {
+        let id = l["id"].as_i64().and_then(|v| i32::try_from(v).ok());
+        let side = match (l["direction"].as_str(), l["aborted"].as_bool()) {
+            // An aborted change shows its first direction throughout: the summary does not say
+            // when it turned back.
+            (Some("left"), Some(_)) => Indicator::Left,
+            (Some("right"), Some(_)) => Indicator::Right,
+            _ => return Err(bad("lane_changes", i)),
+        };
+        match (id, l["t_start"].as_f64(), l["t_end"].as_f64()) {
+            (Some(id), Some(t0), Some(t1)) => marks.lane_changes.push((id, t0, t1, side)),
+            _ => return Err(bad("lane_changes", i)),
+        }
+    }
+    Ok(marks)
 }
 
 /// What a replay did.
@@ -278,7 +310,8 @@ fn states_at(prev: &Group, next: &Group, t_us: u64, out: &mut Vec<Row>) {
 
 /// Redraw (and/or re-send) the run in `out_dir` from its `trajectories.csv` and `summary.json`.
 pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayReport, ReplayError> {
-    if options.frames.is_none() && options.gif.is_none() && options.stream.is_none() {
+    let frames = &options.frame_output;
+    if !frames.any() && options.stream.is_none() {
         return Err(ReplayError::Option(
             "replay needs at least one of --gif FILE, --frames DIR, --stream [ADDR]".into(),
         ));
@@ -286,11 +319,22 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     if !(options.speed.is_finite() && options.speed > 0.0) {
         return Err(ReplayError::Option(format!("--speed must be a positive factor, got {}", options.speed)));
     }
-    let drawing = options.frames.is_some() || options.gif.is_some();
+    let drawing = frames.any();
     if drawing {
-        crate::render::check_frame_rate(options.frame_rate).map_err(ReplayError::Option)?;
+        frames.check().map_err(ReplayError::Option)?;
     }
     let info = read_replay_info(out_dir)?;
+    if let Some(id) = frames.follow.filter(|_| drawing)
+        && !info.vehicles.iter().any(|v| v.id == id)
+    {
+        return Err(ReplayError::Option(format!(
+            "--follow {id}: the run in {} has no vehicle {id} (its vehicles: {})",
+            out_dir.display(),
+            info.vehicles.iter().map(|v| v.id.to_string()).collect::<Vec<_>>().join(", ")
+        )));
+    }
+    let marks = if drawing { read_replay_marks(out_dir)? } else { ReplayMarks::default() };
+    let mut collisions_due = marks.collisions.iter().peekable();
     let mut recorder = if drawing {
         let Some(map_path) = &info.map else {
             return Err(ReplayError::Option(format!(
@@ -300,17 +344,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         };
         let map = LaneletMap::load(map_path)
             .map_err(|e| ReplayError::Map { path: map_path.clone(), message: e.to_string() })?;
-        let opts = RecorderOptions {
-            frames_dir: options.frames.clone(),
-            gif: options.gif.clone(),
-            frame_rate: options.frame_rate,
-            width: options.width,
-            height: options.height,
-            sensor_ranges: false,
-            overlay: options.overlay,
-            ..RecorderOptions::default()
-        };
-        Some(FrameRecorder::new(&map, &opts)?)
+        Some(FrameRecorder::new(&map, frames)?)
     } else {
         None
     };
@@ -323,7 +357,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     };
     let by_id: std::collections::BTreeMap<i32, &ReplayVehicle> = info.vehicles.iter().map(|v| (v.id, v)).collect();
 
-    let frame_step = SimTime::from_secs(1.0 / options.frame_rate).0.max(1);
+    let frame_step = SimTime::from_secs(1.0 / frames.frame_rate).0.max(1);
     let stream_step = SimTime::from_secs(1.0 / DEFAULT_VIZ_RATE_HZ).0.max(1);
     let mut next_frame = frame_step;
     let mut next_datagram = 0u64;
@@ -350,13 +384,27 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
             if next_frame >= prev.t_us {
                 states_at(&prev, &next, next_frame, &mut states);
                 sprites.clear();
+                let t = SimTime(next_frame).as_secs();
                 for r in &states {
                     let (class, length, width) =
                         by_id.get(&r.id).map_or(("Car", 4.12, 1.7), |v| (v.class.name(), v.length, v.width));
-                    sprites.push(VehicleSprite::new(r.id, r.position, r.yaw, length, width, class));
+                    let mut sprite = VehicleSprite::new(r.id, r.position, r.yaw, length, width, class);
+                    sprite.overlays.indicator = marks
+                        .lane_changes
+                        .iter()
+                        .find(|(id, t0, t1, _)| *id == r.id && (*t0..=*t1).contains(&t))
+                        .map(|l| l.3);
+                    sprites.push(sprite);
                 }
                 if let Some(rec) = recorder.as_mut() {
-                    rec.record_sprites(&sprites, SimTime(next_frame).as_secs())?;
+                    // Each collision once its time has come, where the pair is in this frame.
+                    while let Some((a, b, tc)) = collisions_due.next_if(|c| c.2 <= t + 1e-9) {
+                        let at = |id: i32| states.binary_search_by_key(&id, |r| r.id).ok().map(|i| states[i].position);
+                        if let (Some(pa), Some(pb)) = (at(*a), at(*b)) {
+                            rec.add_collision((pa + pb) * 0.5, *tc);
+                        }
+                    }
+                    rec.record_sprites(&sprites, t)?;
                 }
                 report.frames += 1;
             }

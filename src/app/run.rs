@@ -15,7 +15,7 @@ use std::path::{Path as FsPath, PathBuf};
 
 use crate::io::lab::VizStreamPlugin;
 use crate::io::viz::DEFAULT_VIZ_RATE_HZ;
-use crate::render::{FrameRecorder, RecorderOptions, RenderError};
+use crate::render::{FrameOutput, FrameRecorder, RenderError, VehicleSprite};
 use crate::sim::{Parallelism, Plugin, Sim, SimBuilder};
 
 use super::{RealtimeRunner, RunReport, RunSummary, Scenario, ScenarioError, TrajectoryLog, TrajectoryLogPlugin};
@@ -64,25 +64,11 @@ pub struct RunOptions {
     pub speed: f64,
     /// Trajectory log rate [Hz] (default: the scenario's `rates.log`).
     pub log_rate: Option<f64>,
-    /// Write numbered PNG frames of the bird's-eye view into this folder.
-    pub frames: Option<PathBuf>,
-    /// Write an animated GIF of the run.
-    pub gif: Option<PathBuf>,
-    /// Frames per second of sim time for `frames` and `gif` [Hz]; does not change the results.
-    pub frame_rate: f64,
-    /// Frame width [px].
-    pub width: u32,
-    /// Frame height [px].
-    pub height: u32,
+    /// Frames and GIF of the bird's-eye view: outputs, size, rate, overlay and window (the
+    /// arguments `smlworld run` shares with `replay` and `view`).
+    pub frame_output: FrameOutput,
     /// Draw radar cones and velodyne circles in the frames.
     pub sensor_ranges: bool,
-    /// Scale of the frames [px/m]: a fixed window (around `center`) instead of the whole map.
-    pub pixels_per_meter: Option<f64>,
-    /// World point at the centre of the frames [m] (with `pixels_per_meter`; default the origin).
-    pub center: Option<glam::DVec2>,
-    /// Time stamp and legend in a corner: `Some(true)` on frames and GIF, `Some(false)` on
-    /// none, `None` (default) on the GIF only.
-    pub overlay: Option<bool>,
     /// Stream the vehicles over UDP (2015 visualisation format) to this address.
     pub stream: Option<SocketAddr>,
     /// Class names and reference point of the stream (see [`crate::io::viz::StreamFormat`]).
@@ -113,15 +99,8 @@ impl Default for RunOptions {
             realtime: false,
             speed: 1.0,
             log_rate: None,
-            frames: None,
-            gif: None,
-            frame_rate: 10.0,
-            width: 1280,
-            height: 720,
+            frame_output: FrameOutput::default(),
             sensor_ranges: false,
-            pixels_per_meter: None,
-            center: None,
-            overlay: None,
             stream: None,
             stream_format: crate::io::viz::StreamFormat::Smlworld,
             progress: true,
@@ -257,11 +236,23 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     builder.insert_resource(TrajectoryLog::new(Box::new(std::io::BufWriter::new(csv))));
     builder.add_plugin(TrajectoryLogPlugin { rate: log_rate });
     let mut sim = builder.build();
+    if let Some(id) = options.frame_output.follow.filter(|_| recorder.is_some()) {
+        let vehicles = sim.world().resource::<crate::world::Vehicles>();
+        let ids: Vec<i32> = vehicles.iter().map(|(v, _)| v.0).collect();
+        check_option(ids.contains(&id), || {
+            format!(
+                "--follow {id}: {} has no vehicle {id} at the start (its vehicles: {})",
+                scenario.path.display(),
+                ids.iter().map(i32::to_string).collect::<Vec<_>>().join(", ")
+            )
+        })?;
+    }
 
     let report = drive(&mut sim, &options, duration, realtime, recorder.as_mut())?;
     if let Some(rec) = &recorder {
-        let to: Vec<String> = options.frames.iter().chain(&options.gif).map(|p| p.display().to_string()).collect();
-        tracing::info!("recorded {} frames at {} Hz into {}", rec.frames(), options.frame_rate, to.join(" and "));
+        let f = &options.frame_output;
+        let to: Vec<String> = f.frames.iter().chain(&f.gif).map(|p| p.display().to_string()).collect();
+        tracing::info!("recorded {} frames at {} Hz into {}", rec.frames(), f.frame_rate, to.join(" and "));
     }
     if let Some(rec) = recorder {
         rec.finish()?;
@@ -356,7 +347,8 @@ fn drive(
     mut recorder: Option<&mut FrameRecorder>,
 ) -> Result<RunReport, RunError> {
     let mut record_error = None;
-    let chunk = if recorder.is_some() { 1.0 / options.frame_rate } else { 1.0 };
+    let chunk = if recorder.is_some() { 1.0 / options.frame_output.frame_rate } else { 1.0 };
+    let mut marks = FrameMarks::default();
     let bar = (options.progress && std::io::stderr().is_terminal() && duration >= 30.0).then(|| {
         let bar = indicatif::ProgressBar::new((duration * 1000.0).round() as u64);
         bar.set_style(
@@ -367,7 +359,7 @@ fn drive(
     });
     let progress = |sim: &Sim| {
         if let Some(rec) = recorder.as_mut().filter(|_| record_error.is_none())
-            && let Err(e) = rec.record(sim.world())
+            && let Err(e) = marks.record(rec, sim.world(), options.sensor_ranges)
         {
             record_error = Some(e);
         }
@@ -393,34 +385,62 @@ fn drive(
 
 /// The frame recorder when frames or a GIF are asked for.
 fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRecorder>, RunError> {
-    if options.frames.is_none() && options.gif.is_none() {
+    let frames = &options.frame_output;
+    if !frames.any() {
         return Ok(None);
     }
-    if let Some(gif) = &options.gif {
-        let is_gif = gif.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"));
-        check_option(is_gif, || {
-            format!("--gif writes GIF data: name the file with a .gif extension, got {}", gif.display())
-        })?;
-    }
-    crate::render::check_frame_rate(options.frame_rate).map_err(RunError::Option)?;
+    frames.check().map_err(RunError::Option)?;
     let Some(map) = scenario.map.as_ref() else {
         return Err(RunError::Option(format!(
             "--frames/--gif draw the scenario's map, but {} names no `map`",
             scenario.path.display()
         )));
     };
-    let opts = RecorderOptions {
-        frames_dir: options.frames.clone(),
-        gif: options.gif.clone(),
-        frame_rate: options.frame_rate,
-        width: options.width,
-        height: options.height,
-        sensor_ranges: options.sensor_ranges,
-        overlay: options.overlay,
-        pixels_per_meter: options.pixels_per_meter,
-        center: options.center,
-    };
-    Ok(Some(FrameRecorder::new(map, &opts)?))
+    Ok(Some(FrameRecorder::new(map, frames)?.with_sensor_ranges(options.sensor_ranges)))
+}
+
+/// What a run's frames mark beyond the vehicles: collisions (a red ring where the pair met, for
+/// [`crate::render::COLLISION_RING_SECONDS`]) and lane changes in progress (the indicator).
+#[derive(Default)]
+struct FrameMarks {
+    sprites: Vec<VehicleSprite>,
+    /// Collisions of [`super::Metrics`] already handed to the recorder.
+    collisions_seen: usize,
+}
+
+impl FrameMarks {
+    fn record(
+        &mut self,
+        rec: &mut FrameRecorder,
+        world: &bevy_ecs::world::World,
+        sensors: bool,
+    ) -> Result<(), RenderError> {
+        crate::render::sprites_from_world(world, sensors, &mut self.sprites);
+        let t = world.get_resource::<crate::sim::SimClock>().map_or(0.0, |c| c.now.as_secs());
+        if let Some(metrics) = world.get_resource::<super::metrics::Metrics>() {
+            for c in metrics.collisions.iter().skip(self.collisions_seen) {
+                // Where the pair is now: at most one frame (1 / frame rate) after they met.
+                let at =
+                    |id: i32| self.sprites.binary_search_by_key(&id, |s| s.id).ok().map(|i| self.sprites[i].position);
+                if let (Some(a), Some(b)) = (at(c.a.0), at(c.b.0)) {
+                    rec.add_collision((a + b) * 0.5, c.t);
+                }
+            }
+            self.collisions_seen = metrics.collisions.len();
+        }
+        if let Some(mut q) = world.try_query::<(&crate::world::VehicleId, &crate::vehicles::LaneChanger)>() {
+            for (id, changer) in q.iter(world) {
+                let Some(m) = &changer.active else { continue };
+                if let Ok(i) = self.sprites.binary_search_by_key(&id.0, |s| s.id) {
+                    // An aborted change drives back: the indicator shows the way it goes now.
+                    let left = (m.direction == crate::vehicles::Side::Left) != m.aborted;
+                    self.sprites[i].overlays.indicator =
+                        Some(if left { crate::render::Indicator::Left } else { crate::render::Indicator::Right });
+                }
+            }
+        }
+        rec.record_sprites(&self.sprites, t)
+    }
 }
 
 /// The scenario's map file, absolute when it exists (so `smlworld replay` finds it from anywhere).

@@ -24,7 +24,7 @@ use bevy_ecs::prelude::{Component, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::map::LaneletMap;
-use crate::render::{FrameRecorder, RecorderOptions};
+use crate::render::{FrameOutput, FrameRecorder, Overlay};
 use crate::sim::{Control, Sim, SimClock, SimSystems};
 use crate::vehicles::{Longitudinal, LongitudinalSystems};
 use crate::world::{
@@ -297,16 +297,7 @@ impl Session {
                     self.scenario.path.display()
                 ));
             };
-            let opts = RecorderOptions {
-                frames_dir: None,
-                gif: None,
-                frame_rate: 10.0,
-                width,
-                height,
-                sensor_ranges: false,
-                overlay: Some(false),
-                ..RecorderOptions::default()
-            };
+            let opts = FrameOutput { width, height, overlay: Overlay::None, ..FrameOutput::default() };
             let rec = FrameRecorder::new(map, &opts).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
             self.renderer = Some((width, height, rec));
         }

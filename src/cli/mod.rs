@@ -6,12 +6,12 @@ mod map_generate;
 mod map_render;
 mod mock_mocap;
 mod plot;
-mod range;
 mod replay;
 mod run;
 mod view;
 
 use clap::{Parser, Subcommand};
+use smlworld::range;
 
 /// SML World: simulate autonomous and cooperative vehicles on lanelet maps drawn in JOSM.
 #[derive(Debug, Parser)]

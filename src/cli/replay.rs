@@ -10,12 +10,9 @@ use smlworld::app::{ReplayOptions, replay_run};
 pub struct ReplayArgs {
     /// Output folder of a run (holds trajectories.csv and summary.json).
     pub out_dir: PathBuf,
-    /// Write an animated GIF of the run.
-    #[arg(long, value_name = "FILE.gif")]
-    pub gif: Option<PathBuf>,
-    /// Write numbered PNG frames into this folder.
-    #[arg(long, value_name = "DIR")]
-    pub frames: Option<PathBuf>,
+    /// Frames and GIF of the bird's-eye view.
+    #[command(flatten)]
+    pub frame_output: smlworld::render::FrameOutput,
     /// Send the vehicles over UDP (2015 visualisation format, 50 Hz of sim time) to ADDR
     /// (default 127.0.0.1:38008), paced to the wall clock, for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
@@ -28,35 +25,15 @@ pub struct ReplayArgs {
     /// Sim seconds per wall second of --stream (2 = twice as fast as recorded).
     #[arg(long, default_value_t = 1.0, value_parser = super::range::positive)]
     pub speed: f64,
-    /// Draw a time stamp and a legend (classes; real vs virtual) on every frame (default: on the GIF only).
-    #[arg(long, conflicts_with = "no_overlay")]
-    pub overlay: bool,
-    /// No time stamp and legend, not even on the GIF.
-    #[arg(long)]
-    pub no_overlay: bool,
-    /// Frames per second of sim time for --frames and --gif [Hz].
-    #[arg(long, default_value_t = 10.0, value_parser = super::range::positive)]
-    pub frame_rate: f64,
-    /// Frame width [px] for --frames and --gif.
-    #[arg(long, default_value_t = 1280, value_parser = super::range::pixels())]
-    pub width: u32,
-    /// Frame height [px] for --frames and --gif.
-    #[arg(long, default_value_t = 720, value_parser = super::range::pixels())]
-    pub height: u32,
 }
 
 /// Run the subcommand.
 pub fn main(args: ReplayArgs) -> anyhow::Result<()> {
     let options = ReplayOptions {
-        frames: args.frames,
-        gif: args.gif,
+        frame_output: args.frame_output,
         stream: args.stream,
         stream_format: args.stream_format,
         speed: args.speed,
-        frame_rate: args.frame_rate,
-        width: args.width,
-        height: args.height,
-        overlay: super::run::overlay(args.overlay, args.no_overlay),
     };
     smlworld::app::interrupt::install();
     let report = replay_run(&args.out_dir, &options)?;

@@ -25,31 +25,12 @@ pub struct RunArgs {
     /// Trajectory log rate [Hz] (default: the scenario's `rates.log`).
     #[arg(long, value_parser = super::range::rate_hz)]
     pub log_rate: Option<f64>,
-    /// Write numbered PNG frames of the bird's-eye view into this folder.
-    #[arg(long, value_name = "DIR")]
-    pub frames: Option<PathBuf>,
-    /// Write an animated GIF of the run.
-    #[arg(long, value_name = "FILE.gif")]
-    pub gif: Option<PathBuf>,
-    /// Frames per second of sim time for --frames and --gif [Hz]; does not change the results.
-    #[arg(long, default_value_t = 10.0, value_parser = super::range::positive)]
-    pub frame_rate: f64,
-    /// Frame width [px] for --frames and --gif.
-    #[arg(long, default_value_t = 1280, value_parser = super::range::pixels())]
-    pub width: u32,
-    /// Frame height [px] for --frames and --gif.
-    #[arg(long, default_value_t = 720, value_parser = super::range::pixels())]
-    pub height: u32,
+    /// Frames and GIF of the bird's-eye view.
+    #[command(flatten)]
+    pub frame_output: smlworld::render::FrameOutput,
     /// Draw radar cones and velodyne circles in the frames.
     #[arg(long)]
     pub sensor_ranges: bool,
-    /// Scale of --frames and --gif [px/m]: a fixed window instead of the whole map, centred on
-    /// --center (default the map's origin).
-    #[arg(long, value_parser = super::range::positive)]
-    pub pixels_per_meter: Option<f64>,
-    /// World point at the centre of --frames and --gif, `X,Y` [m] (needs --pixels-per-meter).
-    #[arg(long, value_parser = super::range::point, allow_hyphen_values = true, requires = "pixels_per_meter")]
-    pub center: Option<glam::DVec2>,
     /// Stream the vehicles over UDP (2015 visualisation format, 50 Hz) to ADDR (default
     /// 127.0.0.1:38008) for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
@@ -59,12 +40,6 @@ pub struct RunArgs {
     /// rear-axle point).
     #[arg(long, value_name = "FORMAT", default_value = "smlworld", value_parser = parse_stream_format)]
     pub stream_format: smlworld::io::viz::StreamFormat,
-    /// Draw a time stamp and a legend (classes; real vs virtual) on every frame (default: on the GIF only).
-    #[arg(long, conflicts_with = "no_overlay")]
-    pub overlay: bool,
-    /// No time stamp and legend, not even on the GIF.
-    #[arg(long)]
-    pub no_overlay: bool,
     /// Write figures (speed, gaps, platoons, lateral deviation, trace; PNG + SVG) into OUT/plots.
     #[arg(long)]
     pub plots: bool,
@@ -96,15 +71,8 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         realtime: args.realtime,
         speed: args.speed,
         log_rate: args.log_rate,
-        frames: args.frames,
-        gif: args.gif,
-        frame_rate: args.frame_rate,
-        width: args.width,
-        height: args.height,
+        frame_output: args.frame_output,
         sensor_ranges: args.sensor_ranges,
-        pixels_per_meter: args.pixels_per_meter,
-        center: args.center,
-        overlay: overlay(args.overlay, args.no_overlay),
         stream: args.stream,
         stream_format: args.stream_format,
         progress: true,
@@ -123,13 +91,4 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
 /// `--stream-format smlworld|2015` (see [`smlworld::io::viz::StreamFormat`]).
 pub fn parse_stream_format(text: &str) -> Result<smlworld::io::viz::StreamFormat, String> {
     text.parse()
-}
-
-/// `--overlay` / `--no-overlay` / neither (the default: on the GIF only).
-pub fn overlay(on: bool, off: bool) -> Option<bool> {
-    match (on, off) {
-        (true, _) => Some(true),
-        (_, true) => Some(false),
-        _ => None,
-    }
 }

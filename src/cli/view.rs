@@ -7,6 +7,7 @@
 //! every [`POLL`]. Without a display (no `DISPLAY`, or the window cannot open) it says so and,
 //! with `--frames DIR`, writes every new frame as a PNG instead.
 
+use std::collections::BTreeSet;
 use std::net::SocketAddr;
 use std::num::NonZeroU32;
 use std::path::PathBuf;
@@ -14,13 +15,10 @@ use std::rc::Rc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
-use glam::DVec2;
 use image::RgbaImage;
 use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizReceiver, viewer_body};
 use smlworld::map::LaneletMap;
-use smlworld::render::{
-    BirdseyeView, Environment, EnvironmentLayer, PatternSet, Renderer, VehicleSprite, frame_path, write_image,
-};
+use smlworld::render::{Environment, FrameOutput, FrameRecorder, Overlay, VehicleSprite};
 use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
 use winit::event::WindowEvent;
@@ -43,103 +41,77 @@ pub struct ViewArgs {
     /// Lanelet map drawn as the background (the view then fits the map).
     #[arg(long)]
     pub map: Option<PathBuf>,
-    /// Window (or frame) width [px].
-    #[arg(long, default_value_t = 1280, value_parser = super::range::pixels())]
-    pub width: u32,
-    /// Window (or frame) height [px].
-    #[arg(long, default_value_t = 720, value_parser = super::range::pixels())]
-    pub height: u32,
-    /// Scale [px/m] (default: fit the map, else 4).
-    #[arg(long, value_parser = super::range::positive)]
-    pub pixels_per_meter: Option<f64>,
-    /// View centre `X,Y` [m] (default: the map's centre, else the origin).
-    #[arg(long, value_parser = super::range::point, allow_hyphen_values = true)]
-    pub center: Option<DVec2>,
-    /// Write every new frame as DIR/frame_NNNNNN.png (and, without a display, only that).
-    #[arg(long, value_name = "DIR")]
-    pub frames: Option<PathBuf>,
+    /// Window size, view (--follow, --pixels-per-meter, --center), overlay, and frames written
+    /// to --frames/--gif (at most --frame-rate per wall-clock second: the stream runs at 50 Hz,
+    /// 1.7 GB of PNGs in 25 s unthrottled). Without a map the view is centred on the origin at
+    /// 4 px/m unless --pixels-per-meter says otherwise.
+    #[command(flatten)]
+    pub frame_output: FrameOutput,
     /// Stop after this many seconds (default: run until closed or stopped with Ctrl-C).
     #[arg(long, value_parser = super::range::positive)]
     pub duration: Option<f64>,
-    /// Most frames per wall-clock second written to --frames [Hz]; newer frames in between are
-    /// shown but not written (the stream runs at 50 Hz: 1.7 GB of PNGs in 25 s unthrottled).
-    #[arg(long, default_value_t = 10.0, value_parser = super::range::positive)]
-    pub frame_rate: f64,
 }
 
 /// The receiving and drawing half of the viewer (no window).
 struct Scene {
     receiver: VizReceiver,
-    renderer: Renderer,
-    env: Environment,
-    patterns: PatternSet,
-    map: Option<LaneletMap>,
+    recorder: FrameRecorder,
     args: ViewArgs,
-    layer: EnvironmentLayer,
-    image: RgbaImage,
     sprites: Vec<VehicleSprite>,
+    /// Pairs of vehicles whose footprints overlapped in the last frame (a new pair is a
+    /// collision: a red ring for 2 s).
+    touching: BTreeSet<(i32, i32)>,
     drawn: Option<u64>,
-    written: u64,
-    /// When the next frame may be written to --frames (wall clock).
+    /// Time of the first frame received (frame times count from it).
+    start: Option<Instant>,
+    /// When the next frame may be written to --frames/--gif (wall clock).
     next_write: Instant,
 }
 
 impl Scene {
     fn new(args: ViewArgs) -> anyhow::Result<Scene> {
-        anyhow::ensure!(args.width > 0 && args.height > 0, "--width and --height must be at least 1 px");
-        if let Some(p) = args.pixels_per_meter {
-            anyhow::ensure!(p.is_finite() && p > 0.0, "--pixels-per-meter must be positive, got {p}");
-        }
         if let Some(d) = args.duration {
             anyhow::ensure!(d.is_finite() && d > 0.0, "--duration must be a positive number of seconds, got {d}");
         }
-        smlworld::render::check_frame_rate(args.frame_rate).map_err(anyhow::Error::msg)?;
+        args.frame_output.check().map_err(anyhow::Error::msg)?;
         let map = match &args.map {
             Some(path) => {
                 Some(LaneletMap::load(path).with_context(|| format!("cannot load the map {}", path.display()))?)
             }
             None => None,
         };
-        let env = match &map {
-            Some(m) => Environment::from_map(m),
-            None => Environment {
-                background: smlworld::render::PatternKind::Forest,
-                areas: Vec::new(),
-                roads: Vec::new(),
-                lines: Vec::new(),
-            },
+        let (env, map_box) = match &map {
+            Some(m) if !m.nodes.is_empty() => (Environment::from_map(m), Some(m.bounding_box())),
+            Some(m) => (Environment::from_map(m), None),
+            None => (
+                Environment {
+                    background: smlworld::render::PatternKind::Forest,
+                    areas: Vec::new(),
+                    roads: Vec::new(),
+                    lines: Vec::new(),
+                },
+                None,
+            ),
         };
-        if let Some(dir) = &args.frames {
-            std::fs::create_dir_all(dir)
-                .with_context(|| format!("cannot create the frame folder {}", dir.display()))?;
-        }
         let receiver =
             VizReceiver::bind(args.listen).with_context(|| format!("cannot listen on udp://{}", args.listen))?;
-        let renderer = Renderer::new()?;
-        let patterns = PatternSet::builtin();
-        let view = view_for(&args, map.as_ref(), args.width, args.height)?;
-        let layer = renderer.environment_layer(&env, &view, &patterns)?;
+        let recorder = FrameRecorder::with_environment(env, map_box, &args.frame_output)?;
         tracing::info!("listening for the visualisation stream on udp://{}", receiver.local_addr());
         Ok(Scene {
             receiver,
-            renderer,
-            env,
-            patterns,
-            map,
+            recorder,
             args,
-            layer,
-            image: RgbaImage::new(1, 1),
             sprites: Vec::new(),
+            touching: BTreeSet::new(),
             drawn: None,
-            written: 0,
+            start: None,
             next_write: Instant::now(),
         })
     }
 
-    /// Redraw the environment layer for a new size [px].
+    /// Draw later frames at a new size [px] (a resized window).
     fn resize(&mut self, width: u32, height: u32) -> anyhow::Result<()> {
-        let view = view_for(&self.args, self.map.as_ref(), width, height)?;
-        self.layer = self.renderer.environment_layer(&self.env, &view, &self.patterns)?;
+        self.recorder.resize(width, height)?;
         self.drawn = None;
         Ok(())
     }
@@ -149,47 +121,46 @@ impl Scene {
         self.receiver.latest().filter(|f| self.drawn.is_none_or(|d| f.counter > d))
     }
 
-    /// Render `frame` (or no vehicles) into `self.image`, and write it to `--frames` if asked.
-    fn draw(&mut self, frame: Option<&VizFrame>) -> anyhow::Result<()> {
-        self.sprites.clear();
+    /// Render `frame` (or the last vehicles) and write it to --frames/--gif if one is due;
+    /// returns the image.
+    fn draw(&mut self, frame: Option<&VizFrame>) -> anyhow::Result<&RgbaImage> {
+        let now = Instant::now();
+        let t = self.start.map_or(0.0, |s| now.duration_since(s).as_secs_f64());
         if let Some(f) = frame {
+            self.start.get_or_insert(now);
             let format = self.args.stream_format;
+            self.sprites.clear();
             self.sprites.extend(f.vehicles.iter().map(|v| {
                 let (centre, yaw, length, width) = viewer_body(format, v);
                 VehicleSprite::new(v.id, centre, yaw, length, width, &v.class_name)
             }));
+            self.sprites.sort_by_key(|s| s.id);
+            // The stream carries no collisions: footprints that start to overlap are one.
+            let touching = smlworld::render::overlapping_pairs(&self.sprites);
+            for (a, b, place) in &touching {
+                if !self.touching.contains(&(*a, *b)) {
+                    self.recorder.add_collision(*place, t);
+                }
+            }
+            self.touching = touching.into_iter().map(|(a, b, _)| (a, b)).collect();
             self.drawn = Some(f.counter);
         }
-        self.renderer.render_frame_into(&self.layer, &self.sprites, &mut self.image)?;
-        if let (Some(dir), Some(_)) = (&self.args.frames, frame) {
-            let now = Instant::now();
-            if now >= self.next_write {
-                write_image(&frame_path(dir, self.written), &self.image)?;
-                self.written += 1;
-                self.next_write = now + Duration::from_secs_f64(1.0 / self.args.frame_rate);
-            }
+        self.recorder.draw(&self.sprites, t)?;
+        if frame.is_some() && self.args.frame_output.any() && now >= self.next_write {
+            self.recorder.write_drawn(&self.sprites, t)?;
+            self.next_write = now + Duration::from_secs_f64(1.0 / self.args.frame_output.frame_rate);
         }
-        Ok(())
+        if self.args.frame_output.overlay == Overlay::All {
+            self.recorder.overlay_drawn(&self.sprites, t);
+        }
+        Ok(self.recorder.drawn())
     }
-}
-
-fn view_for(args: &ViewArgs, map: Option<&LaneletMap>, width: u32, height: u32) -> anyhow::Result<BirdseyeView> {
-    let fitted = match map {
-        Some(m) => BirdseyeView::fit_map(width, height, m)?,
-        None => BirdseyeView::centered_on_origin(width, height, 4.0)?,
-    };
-    Ok(BirdseyeView::new(
-        width,
-        height,
-        args.pixels_per_meter.unwrap_or(fitted.pixels_per_meter),
-        args.center.unwrap_or(fitted.center),
-    )?)
 }
 
 /// Run the subcommand.
 pub fn main(args: ViewArgs) -> anyhow::Result<()> {
     let deadline = args.duration.map(|d| Instant::now() + Duration::from_secs_f64(d));
-    let has_frames = args.frames.is_some();
+    let has_frames = args.frame_output.any();
     let mut scene = Scene::new(args)?;
     let why = if std::env::var_os("DISPLAY").is_none() {
         "no display: DISPLAY is not set (the viewer opens an X11 window; XWayland and Xvfb work)".to_string()
@@ -200,11 +171,19 @@ pub fn main(args: ViewArgs) -> anyhow::Result<()> {
         }
     };
     if !has_frames {
-        anyhow::bail!("{why}; give --frames DIR to write PNG frames instead");
+        anyhow::bail!("{why}; give --frames DIR (or --gif FILE.gif) to write frames instead");
     }
     eprintln!(
         "{why}; writing frames to {} instead",
-        scene.args.frames.as_deref().unwrap_or(std::path::Path::new("")).display()
+        scene
+            .args
+            .frame_output
+            .frames
+            .iter()
+            .chain(&scene.args.frame_output.gif)
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" and ")
     );
     run_frames(&mut scene, deadline)
 }
@@ -250,7 +229,7 @@ impl WindowApp<'_> {
     fn open(&mut self, event_loop: &ActiveEventLoop) -> anyhow::Result<()> {
         let attrs = Window::default_attributes()
             .with_title("SML World")
-            .with_inner_size(PhysicalSize::new(self.scene.args.width, self.scene.args.height))
+            .with_inner_size(PhysicalSize::new(self.scene.args.frame_output.width, self.scene.args.frame_output.height))
             .with_position(PhysicalPosition::new(0, 0));
         let window = Rc::new(event_loop.create_window(attrs).context("cannot create a window")?);
         let context =
@@ -268,8 +247,7 @@ impl WindowApp<'_> {
         let (Some(window), Some(surface)) = (&self.window, &mut self.surface) else { return Ok(()) };
         let size = window.inner_size();
         let (Some(w), Some(h)) = (NonZeroU32::new(size.width), NonZeroU32::new(size.height)) else { return Ok(()) };
-        let view = self.scene.layer.view();
-        if (view.width, view.height) != (size.width, size.height) {
+        if self.scene.recorder.camera().size() != (size.width, size.height) {
             self.scene.resize(size.width, size.height)?;
         }
         let frame = self.scene.newer();
@@ -278,7 +256,7 @@ impl WindowApp<'_> {
         }
         surface.resize(w, h).map_err(|e| anyhow::anyhow!("resize the window buffer: {e}"))?;
         let mut buffer = surface.buffer_mut().map_err(|e| anyhow::anyhow!("window buffer: {e}"))?;
-        let image = &self.scene.image;
+        let image = self.scene.recorder.drawn();
         for (dst, px) in buffer.iter_mut().zip(image.pixels()) {
             let [r, g, b, _] = px.0;
             *dst = (u32::from(r) << 16) | (u32::from(g) << 8) | u32::from(b);

@@ -45,6 +45,7 @@ impl Globals {
 pub struct EnvironmentLayer {
     view: BirdseyeView,
     texture: wgpu::Texture,
+    globals: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
 }
 
@@ -404,8 +405,6 @@ impl Renderer {
         view: &BirdseyeView,
         patterns: &PatternSet,
     ) -> Result<EnvironmentLayer, RenderError> {
-        let mut vertices = Vec::new();
-        Tessellator { view, out: &mut vertices }.environment(env, patterns);
         let texture = self.target_texture("environment", view, wgpu::TextureUsages::empty());
         let globals = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("globals"),
@@ -413,7 +412,6 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        self.queue.write_buffer(&globals, 0, bytemuck::bytes_of(&Globals::of(view)));
         let pattern_view = self.pattern_texture(patterns);
         let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("environment"),
@@ -425,9 +423,41 @@ impl Renderer {
                 wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&self.font_view) },
             ],
         });
+        let mut layer = EnvironmentLayer { view: *view, texture, globals, bind_group };
+        self.draw_environment(&mut layer, env, view, patterns);
+        Ok(layer)
+    }
+
+    /// Draw `env` into `layer` again for another view of the same size (a camera that moves);
+    /// the layer's textures and buffers are reused. A view of another size gets a new layer.
+    pub fn redraw_environment(
+        &self,
+        layer: &mut EnvironmentLayer,
+        env: &Environment,
+        view: &BirdseyeView,
+        patterns: &PatternSet,
+    ) -> Result<(), RenderError> {
+        if (layer.view.width, layer.view.height) != (view.width, view.height) {
+            *layer = self.environment_layer(env, view, patterns)?;
+        } else if layer.view != *view {
+            self.draw_environment(layer, env, view, patterns);
+        }
+        Ok(())
+    }
+
+    fn draw_environment(
+        &self,
+        layer: &mut EnvironmentLayer,
+        env: &Environment,
+        view: &BirdseyeView,
+        patterns: &PatternSet,
+    ) {
+        let mut vertices = Vec::new();
+        Tessellator { view, out: &mut vertices }.environment(env, patterns);
+        self.queue.write_buffer(&layer.globals, 0, bytemuck::bytes_of(&Globals::of(view)));
         let mut vbuf = GrowBuffer::new("environment vertices", wgpu::BufferUsages::VERTEX);
         vbuf.upload(&self.device, &self.queue, bytemuck::cast_slice(&vertices));
-        let target = texture.create_view(&Default::default());
+        let target = layer.texture.create_view(&Default::default());
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -447,7 +477,7 @@ impl Renderer {
                 multiview_mask: None,
             });
             pass.set_pipeline(&self.ground);
-            pass.set_bind_group(0, &bind_group, &[]);
+            pass.set_bind_group(0, &layer.bind_group, &[]);
             let bytes = (vertices.len() * std::mem::size_of::<GroundVertex>()) as u64;
             if let Some(slice) = vbuf.slice(bytes) {
                 pass.set_vertex_buffer(0, slice);
@@ -455,7 +485,7 @@ impl Renderer {
             }
         }
         self.queue.submit([encoder.finish()]);
-        Ok(EnvironmentLayer { view: *view, texture, bind_group })
+        layer.view = *view;
     }
 
     /// The environment layer alone, read back.

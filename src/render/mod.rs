@@ -21,6 +21,7 @@
 //! # Ok(()) }
 //! ```
 
+mod camera;
 mod environment;
 mod font;
 mod gpu;
@@ -34,13 +35,16 @@ mod view;
 
 use std::path::PathBuf;
 
+pub use camera::{Camera, FOLLOW_PPM, FrameOutput, MIN_AUTO_FIT_PPM, Overlay};
 pub use environment::{Area, Environment, Line, LineStyle, RoadStrip};
 pub use gpu::{EnvironmentLayer, Renderer};
 pub use output::{GifWriter, frame_path, write_gif, write_image, write_image_with_meta, write_meta};
-pub use overlay::{FONT_TTF, OVERLAY_BACKGROUND, OVERLAY_TEXT_PX, draw_overlay};
+pub use overlay::{FONT_TTF, OVERLAY_BACKGROUND, OVERLAY_TEXT_PX, draw_collision_ring, draw_overlay};
 pub use patterns::{PATTERN_SIZE, Pattern, PatternKind, PatternSet};
-pub use recorder::{FrameRecorder, RecorderOptions, check_frame_rate, sprites_from_world};
-pub use sprites::{Overlays, RadarCone, VehicleSprite, class_color};
+pub use recorder::{COLLISION_RING_SECONDS, FrameRecorder, check_frame_rate, sprites_from_world};
+pub use sprites::{
+    Indicator, Overlays, RadarCone, VehicleSprite, class_color, label_boxes, overlapping_pairs, vehicle_color,
+};
 pub use triangulate::triangulate;
 pub use view::{BirdseyeView, MAX_IMAGE_SIDE};
 

@@ -1,4 +1,5 @@
-//! Recording a running simulation as numbered PNG frames and/or an animated GIF.
+//! Recording a running simulation (or a replay, or the live view's stream) as numbered PNG
+//! frames and/or an animated GIF, through the [`Camera`] that [`FrameOutput`] sets up.
 //!
 //! The recorder only reads the world: `smlworld run --frames DIR --gif FILE.gif` calls
 //! [`FrameRecorder::record`] between chunks of sim time, so the simulation's results do not
@@ -7,7 +8,10 @@
 use std::path::PathBuf;
 
 use bevy_ecs::prelude::{Entity, World};
+use glam::DVec2;
+use image::RgbaImage;
 
+use super::camera::{Camera, FrameOutput, Overlay};
 use super::output::{GifWriter, frame_path, write_error};
 use super::{
     BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, VehicleSprite,
@@ -16,56 +20,25 @@ use crate::map::LaneletMap;
 use crate::sim::SimClock;
 use crate::world::{Radar, VehicleClass, VehicleId, VehicleSize, VehicleState, Velodyne};
 
-/// What to record and how.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RecorderOptions {
-    /// Folder for numbered PNG frames (`frame_000000.png`, ...), created if missing.
-    pub frames_dir: Option<PathBuf>,
-    /// Animated GIF file.
-    pub gif: Option<PathBuf>,
-    /// Frames per second of sim time [Hz]; raising it gives smoother but bigger output.
-    pub frame_rate: f64,
-    /// Image width [px].
-    pub width: u32,
-    /// Image height [px].
-    pub height: u32,
-    /// Draw radar cones and velodyne circles.
-    pub sensor_ranges: bool,
-    /// Time stamp and legend in the top-left corner ([`super::draw_overlay`]): `Some(true)` on
-    /// every output, `Some(false)` on none, `None` (default) on the GIF only.
-    pub overlay: Option<bool>,
-    /// Scale [px/m] of a fixed window instead of the whole map (with `center`, default the
-    /// map's origin); `None` fits the whole map.
-    pub pixels_per_meter: Option<f64>,
-    /// World point at the image centre [m] (with `pixels_per_meter`).
-    pub center: Option<glam::DVec2>,
-}
+/// How long a collision's red ring stays in the frames [s of sim time].
+pub const COLLISION_RING_SECONDS: f64 = 2.0;
 
-impl Default for RecorderOptions {
-    fn default() -> Self {
-        RecorderOptions {
-            frames_dir: None,
-            gif: None,
-            frame_rate: 10.0,
-            width: 1280,
-            height: 720,
-            sensor_ranges: false,
-            overlay: None,
-            pixels_per_meter: None,
-            center: None,
-        }
-    }
-}
-
-/// Renders frames of a running simulation over the map's environment layer.
+/// Renders frames over an environment (a map's, usually) and writes them as PNGs and/or a GIF.
 pub struct FrameRecorder {
     renderer: Renderer,
-    layer: EnvironmentLayer,
+    env: Environment,
+    patterns: PatternSet,
+    camera: Camera,
+    layer: Option<EnvironmentLayer>,
     frames_dir: Option<PathBuf>,
     gif: Option<GifWriter>,
+    gif_size: (u32, u32),
     sensor_ranges: bool,
-    overlay: Option<bool>,
+    overlay: Overlay,
     sprites: Vec<VehicleSprite>,
+    image: RgbaImage,
+    /// Collisions drawn as red rings: place [m] and sim time [s].
+    collisions: Vec<(DVec2, f64)>,
     frames: u64,
 }
 
@@ -80,36 +53,83 @@ pub fn check_frame_rate(hz: f64) -> Result<(), String> {
 }
 
 impl FrameRecorder {
-    /// A recorder whose view fits the whole map (or shows the window `pixels_per_meter` and
-    /// `center` give); creates the frame folder and the GIF file.
-    pub fn new(map: &LaneletMap, opts: &RecorderOptions) -> Result<FrameRecorder, RenderError> {
-        if !(opts.frame_rate.is_finite() && opts.frame_rate > 0.0) {
-            let what = opts.gif.clone().or_else(|| opts.frames_dir.clone()).unwrap_or_default();
-            return Err(write_error(&what, format!("frame rate {} Hz must be finite and > 0", opts.frame_rate)));
+    /// A recorder of `map` with the view, outputs and overlay `frames` asks for (see
+    /// [`FrameOutput`] and [`Camera`]); creates the frame folder and the GIF file.
+    pub fn new(map: &LaneletMap, frames: &FrameOutput) -> Result<FrameRecorder, RenderError> {
+        let map_box = if map.nodes.is_empty() { None } else { Some(map.bounding_box()) };
+        if map_box.is_none() && frames.pixels_per_meter.is_none() {
+            return Err(RenderError::InvalidView(
+                "cannot fit a view to a map without nodes; give --pixels-per-meter and --center".into(),
+            ));
         }
+        FrameRecorder::with_environment(Environment::from_map(map), map_box, frames)
+    }
+
+    /// A recorder of any environment; `map_box` (min, max) [m] is what the whole-map view fits
+    /// (`None`: origin-centred at 4 px/m unless `frames` gives a scale).
+    pub fn with_environment(
+        env: Environment,
+        map_box: Option<(DVec2, DVec2)>,
+        frames: &FrameOutput,
+    ) -> Result<FrameRecorder, RenderError> {
+        let what = || frames.gif.clone().or_else(|| frames.frames.clone()).unwrap_or_default();
+        frames.check().map_err(|e| write_error(&what(), e))?;
+        let camera = Camera::new(frames, map_box)?;
         let renderer = Renderer::new()?;
-        let view = match opts.pixels_per_meter {
-            Some(ppm) => BirdseyeView::new(opts.width, opts.height, ppm, opts.center.unwrap_or(glam::DVec2::ZERO))?,
-            None => BirdseyeView::fit_map(opts.width, opts.height, map)?,
-        };
-        let layer = renderer.environment_layer(&Environment::from_map(map), &view, &PatternSet::builtin())?;
-        if let Some(dir) = &opts.frames_dir {
+        if let Some(dir) = &frames.frames {
             std::fs::create_dir_all(dir).map_err(|e| write_error(dir, e))?;
         }
-        let gif = match &opts.gif {
-            Some(path) => Some(GifWriter::create(path, opts.width, opts.height, opts.frame_rate)?),
+        let gif = match &frames.gif {
+            Some(path) => Some(GifWriter::create(path, frames.width, frames.height, frames.frame_rate)?),
             None => None,
         };
         Ok(FrameRecorder {
             renderer,
-            layer,
-            frames_dir: opts.frames_dir.clone(),
+            env,
+            patterns: PatternSet::builtin(),
+            camera,
+            layer: None,
+            frames_dir: frames.frames.clone(),
             gif,
-            sensor_ranges: opts.sensor_ranges,
-            overlay: opts.overlay,
+            gif_size: (frames.width, frames.height),
+            sensor_ranges: false,
+            overlay: frames.overlay,
             sprites: Vec::new(),
+            image: RgbaImage::new(1, 1),
+            collisions: Vec::new(),
             frames: 0,
         })
+    }
+
+    /// Draw radar cones and velodyne circles of the vehicles [`FrameRecorder::record`] reads.
+    pub fn with_sensor_ranges(mut self, on: bool) -> FrameRecorder {
+        self.sensor_ranges = on;
+        self
+    }
+
+    /// Mark a collision at `place` [m] that happened at sim time `t` [s]: frames from `t` to
+    /// `t` + [`COLLISION_RING_SECONDS`] draw a red ring there.
+    pub fn add_collision(&mut self, place: DVec2, t: f64) {
+        if place.is_finite() && t.is_finite() {
+            self.collisions.push((place, t));
+        }
+    }
+
+    /// The camera (for a window that changes size: [`FrameRecorder::resize`]).
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// Draw later frames at `width` x `height` px (a resized window; the GIF keeps its size
+    /// and skips frames of another size).
+    pub fn resize(&mut self, width: u32, height: u32) -> Result<(), RenderError> {
+        self.camera = self.camera.resized(width, height)?;
+        Ok(())
+    }
+
+    /// The view of the last frame drawn.
+    pub fn view(&self) -> Option<BirdseyeView> {
+        self.layer.as_ref().map(|l| *l.view())
     }
 
     /// Render the world as it is now and append the frame to the outputs.
@@ -123,33 +143,92 @@ impl FrameRecorder {
     }
 
     /// Render `sprites` (sorted by id, as [`sprites_from_world`] gives them) at sim time `t` [s]
-    /// over the map and append the frame to the outputs: `smlworld replay` draws a finished
-    /// run's rows this way.
+    /// and append the frame to the outputs: `smlworld replay` draws a finished run's rows this way.
     pub fn record_sprites(&mut self, sprites: &[VehicleSprite], t: f64) -> Result<(), RenderError> {
-        let mut image = self.renderer.render_frame(&self.layer, sprites)?;
-        let mut overlaid = false;
-        if let Some(dir) = &self.frames_dir {
-            if self.overlay == Some(true) {
-                super::draw_overlay(&mut image, t, sprites);
-                overlaid = true;
+        self.draw(sprites, t)?;
+        self.write_drawn(sprites, t)
+    }
+
+    /// Render `sprites` at sim time `t` [s] (with collision rings, without the overlay) and
+    /// return the image, writing nothing.
+    pub fn draw(&mut self, sprites: &[VehicleSprite], t: f64) -> Result<&RgbaImage, RenderError> {
+        let view = self.camera.view(sprites)?;
+        match &mut self.layer {
+            Some(layer) => self.renderer.redraw_environment(layer, &self.env, &view, &self.patterns)?,
+            None => self.layer = Some(self.renderer.environment_layer(&self.env, &view, &self.patterns)?),
+        }
+        let Some(layer) = &self.layer else { return Err(RenderError::InvalidView("no environment layer".into())) };
+        self.renderer.render_frame_into(layer, sprites, &mut self.image)?;
+        self.collisions.retain(|(_, t0)| t - t0 <= COLLISION_RING_SECONDS);
+        for (place, t0) in &self.collisions {
+            if *t0 <= t + 1e-9 {
+                super::draw_collision_ring(&mut self.image, &view, *place);
             }
+        }
+        Ok(&self.image)
+    }
+
+    /// Append the image [`FrameRecorder::draw`] drew last to the outputs, with the overlay (for
+    /// time `t` [s] and the classes of `sprites`) on the outputs [`FrameOutput::overlay`] names;
+    /// the drawn image itself stays without it.
+    pub fn write_drawn(&mut self, sprites: &[VehicleSprite], t: f64) -> Result<(), RenderError> {
+        let overlaid = |image: &RgbaImage| {
+            let mut image = image.clone();
+            super::draw_overlay(&mut image, t, sprites);
+            image
+        };
+        let mut with_overlay = None;
+        if let Some(dir) = &self.frames_dir {
             let path = frame_path(dir, self.frames);
-            super::write_image(&path, &image)?;
+            if self.overlay == Overlay::All {
+                let image = overlaid(&self.image);
+                super::write_image(&path, &image)?;
+                with_overlay = Some(image);
+            } else {
+                super::write_image(&path, &self.image)?;
+            }
         }
         if let Some(gif) = &mut self.gif {
-            if self.overlay != Some(false) && !overlaid {
-                super::draw_overlay(&mut image, t, sprites);
+            if self.image.dimensions() != self.gif_size {
+                tracing::warn!(
+                    "a {}x{} px frame does not fit the {}x{} px GIF: left out of it",
+                    self.image.width(),
+                    self.image.height(),
+                    self.gif_size.0,
+                    self.gif_size.1
+                );
+            } else {
+                let image = match with_overlay {
+                    Some(image) => image,
+                    None if self.overlay != Overlay::None => overlaid(&self.image),
+                    None => self.image.clone(),
+                };
+                gif.push(image)?;
             }
-            gif.push(image)?;
         }
         self.frames += 1;
         Ok(())
     }
 
+    /// The image [`FrameRecorder::draw`] drew last.
+    pub fn drawn(&self) -> &RgbaImage {
+        &self.image
+    }
+
+    /// Draw the overlay (time `t` [s], the classes of `sprites`) onto the image drawn last (a
+    /// live window showing it).
+    pub fn overlay_drawn(&mut self, sprites: &[VehicleSprite], t: f64) {
+        super::draw_overlay(&mut self.image, t, sprites);
+    }
+
     /// Render the world as it is now and return the frame, without writing it anywhere.
-    pub fn render(&mut self, world: &World) -> Result<image::RgbaImage, RenderError> {
-        sprites_from_world(world, self.sensor_ranges, &mut self.sprites);
-        self.renderer.render_frame(&self.layer, &self.sprites)
+    pub fn render(&mut self, world: &World) -> Result<RgbaImage, RenderError> {
+        let mut sprites = std::mem::take(&mut self.sprites);
+        sprites_from_world(world, self.sensor_ranges, &mut sprites);
+        let t = world.get_resource::<SimClock>().map_or(0.0, |c| c.now.as_secs());
+        let image = self.draw(&sprites, t).cloned();
+        self.sprites = sprites;
+        image
     }
 
     /// Finish the outputs: the GIF is completed and renamed into place (frames are written one by

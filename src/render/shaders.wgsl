@@ -114,6 +114,8 @@ struct Label {
     glyphs: vec2<u32>,
     count: u32,
     color: u32,
+    scale: f32,
+    _pad: u32,
 };
 
 // Per-frame items, read by vertex pulling: item vi / 6, quad corner vi % 6. One plain draw of
@@ -246,6 +248,13 @@ fn fs_vehicle(in: VehicleOut) -> @location(0) vec4<f32> {
         // headlights
         c = vec3<f32>(1.0, 0.96, 0.8);
     }
+    // indicator (a lane change in progress): amber front and rear corners on its side
+    let ind_side = select(select(0.0, -1.0, (in.real & 8u) != 0u), 1.0, (in.real & 4u) != 0u);
+    let corner = max(0.18 * min(len, 2.5 * wid), 2.0 * px);
+    if (ind_side != 0.0 && in.local.y * ind_side > 0.5 * wid - corner
+        && (d_front < corner || 0.5 * len + in.local.x < corner) && edge > 0.0) {
+        return vec4<f32>(vec3<f32>(1.0, 0.62, 0.0) * cover / a, a);
+    }
     if ((in.real & 2u) != 0u && d_front > 0.36 * len && d_front < 0.36 * len + max(0.14 * len, 3.0 * px)
         && side > border) {
         // light bar of an emergency vehicle: red on its left half, blue on its right
@@ -265,7 +274,7 @@ fn fs_vehicle(in: VehicleOut) -> @location(0) vec4<f32> {
     return vec4<f32>(c * cover / a, a);
 }
 
-// ---- id labels: one quad per label, a dark box with up to 11 glyphs from the 5x7 font atlas ----
+// ---- id labels: one quad per label, white glyphs from the 5x7 font atlas with an outline ----
 
 struct LabelOut {
     @builtin(position) clip: vec4<f32>,
@@ -276,9 +285,7 @@ struct LabelOut {
     @location(3) color: vec4<f32>,
 };
 
-// Screen pixels per font pixel; keep in step with TEXT_SCALE in sprites.rs.
-const TEXT_SCALE: f32 = 2.0;
-// Padding around the text [font px]; keep in step with LABEL_PAD in sprites.rs.
+// Padding around the text, where the outline goes [font px]; keep in step with LABEL_PAD in sprites.rs.
 const LABEL_PAD: f32 = 1.0;
 
 @vertex
@@ -293,7 +300,7 @@ fn vs_label(@builtin(vertex_index) vi: u32) -> LabelOut {
     let anchor_px = floor(vec2<f32>(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * g.viewport);
     let cells = vec2<f32>(f32(count) * 6.0 - 1.0, 7.0) + vec2<f32>(2.0 * LABEL_PAD);
     let corner = quad_corner(vi % 6u);
-    let p = anchor_px + offset + corner * cells * TEXT_SCALE;
+    let p = anchor_px + offset + corner * cells * item.scale;
     out.clip = vec4<f32>(p.x / g.viewport.x * 2.0 - 1.0, 1.0 - p.y / g.viewport.y * 2.0, 0.0, 1.0);
     out.cell = corner * cells;
     out.glyphs = item.glyphs;
@@ -302,19 +309,38 @@ fn vs_label(@builtin(vertex_index) vi: u32) -> LabelOut {
     return out;
 }
 
+// Whether the text pixel (x, y) [font px, from the text's top-left] is ink.
+fn label_ink(x: i32, y: i32, glyphs: vec2<u32>, count: u32) -> bool {
+    if (x < 0 || y < 0 || y >= 7) {
+        return false;
+    }
+    let i = x / 6;
+    let col = x - 6 * i;
+    if (i >= i32(count) || col >= 5) {
+        return false;
+    }
+    // glyph indices are packed 4 bits each, 8 per word
+    let word = select(glyphs.x, glyphs.y, i >= 8);
+    let glyph = (word >> (4u * u32(i % 8))) & 15u;
+    return textureLoad(font, vec2<i32>(i32(glyph) * 5 + col, y), 0).r > 0.5;
+}
+
 @fragment
 fn fs_label(in: LabelOut) -> @location(0) vec4<f32> {
-    let t = in.cell - vec2<f32>(LABEL_PAD);
-    let i = i32(floor(t.x / 6.0));
-    let col = i32(floor(t.x)) - 6 * i;
-    let row = i32(floor(t.y));
-    if (t.x >= 0.0 && t.y >= 0.0 && i < i32(in.count) && col < 5 && row < 7) {
-        // glyph indices are packed 4 bits each, 8 per word
-        let word = select(in.glyphs.x, in.glyphs.y, i >= 8);
-        let glyph = (word >> (4u * u32(i % 8))) & 15u;
-        if (textureLoad(font, vec2<i32>(i32(glyph) * 5 + col, row), 0).r > 0.5) {
-            return vec4<f32>(1.0, 1.0, 1.0, 1.0);
+    let t = floor(in.cell - vec2<f32>(LABEL_PAD));
+    let x = i32(t.x);
+    let y = i32(t.y);
+    if (label_ink(x, y, in.glyphs, in.count)) {
+        return vec4<f32>(1.0, 1.0, 1.0, 1.0);
+    }
+    // the outline: any of the 8 neighbours inked
+    for (var dy = -1; dy <= 1; dy++) {
+        for (var dx = -1; dx <= 1; dx++) {
+            if (label_ink(x + dx, y + dy, in.glyphs, in.count)) {
+                return in.color;
+            }
         }
     }
-    return in.color;
+    // a faint backing, so the outline reads on busy ground
+    return vec4<f32>(in.color.rgb, 0.3 * in.color.a);
 }

@@ -28,6 +28,17 @@ pub struct Overlays {
     pub wifi: Option<f64>,
     /// The vehicle's route [m]; shared, so building sprites every frame copies nothing.
     pub route: Option<Arc<[DVec2]>>,
+    /// A lane change in progress: the indicator on that side (amber front and rear corners).
+    pub indicator: Option<Indicator>,
+}
+
+/// The side a vehicle's indicator shows (a lane change in progress).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Indicator {
+    /// Changing to the left.
+    Left,
+    /// Changing to the right.
+    Right,
 }
 
 /// One vehicle as the renderer sees it (plain data, no ECS).
@@ -89,9 +100,35 @@ pub fn class_color(class: &str) -> [u8; 4] {
     }
 }
 
+/// Colour of vehicle `id` wherever one colour per vehicle is drawn (its id label in the view,
+/// its curves in `smlworld plot`): twelve hues dark enough to read on white and under white
+/// text, so ids `n` and `n + 1` always differ.
+pub fn vehicle_color(id: i32) -> [u8; 4] {
+    const PALETTE: [[u8; 4]; 12] = [
+        [31, 119, 180, 255],
+        [214, 39, 40, 255],
+        [44, 140, 44, 255],
+        [148, 83, 189, 255],
+        [220, 105, 0, 255],
+        [140, 86, 75, 255],
+        [200, 40, 150, 255],
+        [90, 90, 90, 255],
+        [120, 120, 0, 255],
+        [0, 128, 128, 255],
+        [20, 40, 140, 255],
+        [160, 30, 80, 255],
+    ];
+    PALETTE[id.rem_euclid(PALETTE.len() as i32) as usize]
+}
+
 /// Flag in [`VehicleInstance::real`]: draw a light bar across the roof (red on the left half,
 /// blue on the right), the mark of an emergency vehicle.
 pub(crate) const LIGHT_BAR: u32 = 2;
+/// Flags in [`VehicleInstance::real`]: amber indicator lights at the front and rear corners of
+/// the left (4) or right (8) side.
+pub(crate) const LEFT_INDICATOR: u32 = 4;
+/// See [`LEFT_INDICATOR`].
+pub(crate) const RIGHT_INDICATOR: u32 = 8;
 
 /// Overlay fill colours (sRGB with the fill's alpha at the centre; the rim is drawn at 0.7).
 const RADAR_COLOR: [u8; 4] = [255, 70, 60, 72];
@@ -110,7 +147,7 @@ pub(crate) struct VehicleInstance {
     pub size: [f32; 2],
     /// sRGB colour.
     pub color: [u8; 4],
-    /// Bit 0: 1 = real vehicle, 0 = virtual; bit 1: [`LIGHT_BAR`].
+    /// Bit 0: 1 = real vehicle, 0 = virtual; bit 1: [`LIGHT_BAR`]; bits 2, 3: indicators.
     pub real: u32,
 }
 
@@ -144,14 +181,24 @@ pub(crate) struct LabelInstance {
     pub glyphs: [u32; 2],
     /// Number of characters (at most 11: `-2147483648`).
     pub count: u32,
-    /// Box colour, sRGB with alpha.
+    /// Outline colour around the white glyphs ([`vehicle_color`]), sRGB with alpha.
     pub color: [u8; 4],
+    /// Screen pixels per font pixel ([`text_scale`]).
+    pub scale: f32,
+    /// Padding to the 8-byte alignment of the shader's struct.
+    pub pad: u32,
 }
 
-/// Screen pixels per font pixel: 5x7 glyphs become 10x14 px (`TEXT_SCALE` in shaders.wgsl).
-pub(crate) const TEXT_SCALE: f32 = 2.0;
-/// Padding around a label's text [font px] (`LABEL_PAD` in shaders.wgsl).
+/// Screen pixels per font pixel for an image of `width` x `height` px: the 5x7 glyphs become
+/// 10x14 px on images 600 px high or more, 5x7 px (with a 1 px outline) on smaller ones, so the
+/// labels of a 640x360 frame stay small beside their vehicles.
+pub(crate) fn text_scale(width: u32, height: u32) -> f32 {
+    if width.min(height) >= 600 { 2.0 } else { 1.0 }
+}
+/// Padding around a label's text, where its outline goes [font px] (`LABEL_PAD` in shaders.wgsl).
 pub(crate) const LABEL_PAD: f32 = 1.0;
+/// Gap between a vehicle's footprint and its label [px].
+const LABEL_GAP: f32 = 2.0;
 
 /// Side of a cell of the label occupancy grid [px].
 const LABEL_CELL: u32 = 8;
@@ -203,22 +250,29 @@ pub(crate) struct FrameBatches {
     pub labels: Vec<LabelInstance>,
     pub routes: Vec<GroundVertex>,
     grid: LabelGrid,
+    /// Vehicles in view: squared distance from the image centre [px²], id, index in the sprites.
+    order: Vec<(f32, i32, usize)>,
+    /// The labels placed: id and box [px].
+    placed: Vec<(i32, [f32; 4])>,
 }
 
 impl FrameBatches {
     /// Fill the lists for `sprites` seen through `view`. Sprites with non-finite poses or sizes are
-    /// skipped (and counted in the return value) rather than drawn somewhere random. An id label
-    /// that would overlap an earlier sprite's label is left out (an unreadable pile of labels
-    /// costs most of a crowded frame), so list the vehicles whose ids matter most first.
+    /// skipped (and counted in the return value) rather than drawn somewhere random. Every
+    /// vehicle in view gets its id beside it (right, left, above or below, the first place
+    /// free, kept inside the image); labels go nearest the image centre (the camera) first, and
+    /// a label is left out only when all its places overlap labels placed before it.
     pub fn build(&mut self, view: &BirdseyeView, sprites: &[VehicleSprite]) -> usize {
         self.vehicles.clear();
         self.sectors.clear();
         self.labels.clear();
         self.routes.clear();
         self.grid.reset(view.width, view.height);
+        self.order.clear();
+        self.placed.clear();
         let mut skipped = 0;
-        let mut digits = [0u32; 12];
-        for s in sprites {
+        let (w, h) = (view.width as f32, view.height as f32);
+        for (k, s) in sprites.iter().enumerate() {
             let finite = [s.position.x, s.position.y, s.yaw, s.length, s.width].iter().all(|v| v.is_finite());
             if !finite || s.length <= 0.0 || s.width <= 0.0 {
                 skipped += 1;
@@ -252,38 +306,126 @@ impl FrameBatches {
                 let half = (0.5 * radar.angle).clamp(0.0, std::f64::consts::PI);
                 sector(Some(radar.range), half, RADAR_COLOR);
             }
+            let indicator = match s.overlays.indicator {
+                Some(Indicator::Left) => LEFT_INDICATOR,
+                Some(Indicator::Right) => RIGHT_INDICATOR,
+                None => 0,
+            };
             self.vehicles.push(VehicleInstance {
                 pos,
                 dir,
                 size: [s.length as f32, s.width as f32],
                 color,
-                real: u32::from(s.id >= 0) | if s.class.eq_ignore_ascii_case("emergency") { LIGHT_BAR } else { 0 },
+                real: u32::from(s.id >= 0)
+                    | if s.class.eq_ignore_ascii_case("emergency") { LIGHT_BAR } else { 0 }
+                    | indicator,
             });
-            // The id, centred above the vehicle's screen footprint.
+            let at = view.world_to_pixel(s.position);
+            let (x, y) = (at.x as f32, at.y as f32);
+            if x >= 0.0 && y >= 0.0 && x < w && y < h {
+                let (dx, dy) = (x - 0.5 * w, y - 0.5 * h);
+                self.order.push((dx * dx + dy * dy, s.id, k));
+            }
+        }
+        self.order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let scale = text_scale(view.width, view.height);
+        let mut digits = [0u32; 12];
+        for &(_, _, k) in &self.order {
+            let s = &sprites[k];
             let n = format_id(s.id, &mut digits);
             let mut glyphs = [0u32; 2];
             for (i, &g) in digits[..n].iter().enumerate() {
                 glyphs[i / 8] |= g << (4 * (i % 8));
             }
-            let box_w = ((n * (font::GLYPH_W as usize + 1)) as f32 - 1.0 + 2.0 * LABEL_PAD) * TEXT_SCALE;
-            let box_h = (font::GLYPH_H as f32 + 2.0 * LABEL_PAD) * TEXT_SCALE;
-            let reach_px =
-                (0.5 * s.length.hypot(s.width) * view.pixels_per_meter.max(view.pixels_per_meter_y())) as f32;
-            let offset = [-(0.5 * box_w).round(), -(reach_px + 3.0 + box_h).round()];
+            let (box_w, box_h) = label_size(n, scale);
+            // Half the screen extent of the rotated body [px]; vehicles are drawn at least 4 px
+            // long and wide (shaders.wgsl), so never less than 2.
+            let (c, sn) = (s.yaw.cos().abs(), s.yaw.sin().abs());
+            let ex = (0.5 * (s.length * c + s.width * sn) * view.pixels_per_meter).max(2.0) as f32 + LABEL_GAP;
+            let ey = (0.5 * (s.length * sn + s.width * c) * view.pixels_per_meter_y()).max(2.0) as f32 + LABEL_GAP;
             let at = view.world_to_pixel(s.position);
-            let (x0, y0) = (at.x.floor() as f32 + offset[0], at.y.floor() as f32 + offset[1]);
-            if self.grid.claim(x0, y0, x0 + box_w, y0 + box_h) {
-                self.labels.push(LabelInstance {
-                    anchor: pos,
-                    offset,
-                    glyphs,
-                    count: n as u32,
-                    color: if s.id >= 0 { [20, 20, 24, 210] } else { [36, 36, 100, 210] },
-                });
+            let (ax, ay) = (at.x.floor() as f32, at.y.floor() as f32);
+            let places =
+                [(ex, -0.5 * box_h), (-ex - box_w, -0.5 * box_h), (-0.5 * box_w, -ey - box_h), (-0.5 * box_w, ey)];
+            for (ox, oy) in places {
+                let x0 = (ax + ox).round().clamp(0.0, (w - box_w).max(0.0));
+                let y0 = (ay + oy).round().clamp(0.0, (h - box_h).max(0.0));
+                if self.grid.claim(x0, y0, x0 + box_w, y0 + box_h) {
+                    self.labels.push(LabelInstance {
+                        anchor: [(s.position.x - view.center.x) as f32, (s.position.y - view.center.y) as f32],
+                        offset: [x0 - ax, y0 - ay],
+                        glyphs,
+                        count: n as u32,
+                        color: vehicle_color(s.id),
+                        scale,
+                        pad: 0,
+                    });
+                    self.placed.push((s.id, [x0, y0, x0 + box_w, y0 + box_h]));
+                    break;
+                }
             }
         }
         skipped
     }
+}
+
+/// Width and height [px] of the label of an `n`-character id at `scale` screen px per font px.
+fn label_size(n: usize, scale: f32) -> (f32, f32) {
+    (
+        ((n * (font::GLYPH_W as usize + 1)) as f32 - 1.0 + 2.0 * LABEL_PAD) * scale,
+        (font::GLYPH_H as f32 + 2.0 * LABEL_PAD) * scale,
+    )
+}
+
+/// Where the id labels of `sprites` go in `view`: (id, [x0, y0, x1, y1] [px]) for every label
+/// drawn, in the order they were placed (see [`FrameBatches::build`]); vehicles out of view
+/// and labels left out for overlapping have none.
+pub fn label_boxes(view: &BirdseyeView, sprites: &[VehicleSprite]) -> Vec<(i32, [f32; 4])> {
+    let mut batches = FrameBatches::default();
+    batches.build(view, sprites);
+    batches.placed
+}
+
+/// The pairs of `sprites` whose footprints (oriented rectangles) overlap: lower id, higher id
+/// and the midpoint of their centres [m], sorted by the ids. For a live view, which gets no
+/// collision events: a pair that starts to overlap has collided. O(n²): meant for the tens to
+/// hundreds of vehicles of a stream.
+pub fn overlapping_pairs(sprites: &[VehicleSprite]) -> Vec<(i32, i32, DVec2)> {
+    let corners = |s: &VehicleSprite| {
+        let (f, l) = (DVec2::from_angle(s.yaw) * 0.5 * s.length, DVec2::from_angle(s.yaw).perp() * 0.5 * s.width);
+        [s.position + f + l, s.position + f - l, s.position - f - l, s.position - f + l]
+    };
+    // Separating axis test on the four edge normals.
+    let separated = |a: &VehicleSprite, b: &VehicleSprite| {
+        let (ca, cb) = (corners(a), corners(b));
+        [a.yaw, a.yaw + std::f64::consts::FRAC_PI_2, b.yaw, b.yaw + std::f64::consts::FRAC_PI_2].iter().any(|&ang| {
+            let axis = DVec2::from_angle(ang);
+            let span = |c: &[DVec2; 4]| {
+                c.iter()
+                    .map(|p| p.dot(axis))
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
+            };
+            let ((a0, a1), (b0, b1)) = (span(&ca), span(&cb));
+            a1 < b0 || b1 < a0
+        })
+    };
+    let ok = |s: &VehicleSprite| {
+        [s.position.x, s.position.y, s.yaw, s.length, s.width].iter().all(|v| v.is_finite())
+            && s.length > 0.0
+            && s.width > 0.0
+    };
+    let mut out = Vec::new();
+    for (i, a) in sprites.iter().enumerate().filter(|(_, s)| ok(s)) {
+        for b in sprites[i + 1..].iter().filter(|s| ok(s)) {
+            let reach = 0.5 * (a.length.hypot(a.width) + b.length.hypot(b.width));
+            if a.position.distance(b.position) <= reach && !separated(a, b) {
+                let (lo, hi) = if a.id < b.id { (a.id, b.id) } else { (b.id, a.id) };
+                out.push((lo, hi, (a.position + b.position) * 0.5));
+            }
+        }
+    }
+    out.sort_by_key(|p| (p.0, p.1));
+    out
 }
 
 /// Writes the glyph indices of `id`'s decimal text into `out`; returns how many.
@@ -353,6 +495,49 @@ mod tests {
         assert_eq!(batches.vehicles[0].real, LIGHT_BAR, "virtual emergency vehicle: light bar, not real");
         assert_eq!(batches.vehicles[1].real, 1, "real car: no light bar");
         assert_ne!(class_color("Emergency"), class_color("Car"));
+    }
+
+    #[test]
+    fn overlapping_footprints_pair_up_and_separate_ones_do_not() {
+        let car = |id, x: f64, y: f64, yaw: f64| VehicleSprite::new(id, DVec2::new(x, y), yaw, 4.0, 2.0, "Car");
+        // Rear bumper of 2 touches the front of 1; 3 is 1 m clear beside it, diagonal boxes
+        // whose circles overlap but whose rectangles do not.
+        let pairs = overlapping_pairs(&[car(1, 0.0, 0.0, 0.0), car(2, 3.9, 0.0, 0.0), car(3, 0.0, 3.0, 0.0)]);
+        assert_eq!(pairs, vec![(1, 2, DVec2::new(1.95, 0.0))]);
+        let d = std::f64::consts::FRAC_PI_4;
+        assert!(overlapping_pairs(&[car(1, 0.0, 0.0, d), car(2, 2.9, -2.9, d)]).is_empty());
+    }
+
+    #[test]
+    fn every_vehicle_in_view_gets_a_label_and_labels_never_overlap() {
+        // A platoon at 640x360 px and 2 px/m: 8 m apart, 16 px, room for every label.
+        let view = BirdseyeView::new(640, 360, 2.0, DVec2::ZERO).unwrap();
+        let sprites: Vec<VehicleSprite> = (0..8)
+            .map(|i| VehicleSprite::new(-i - 1, DVec2::new(8.0 * f64::from(i) - 10.0, 0.0), 0.0, 2.0, 1.0, "Truck"))
+            .chain([VehicleSprite::new(7, DVec2::new(5000.0, 0.0), 0.0, 4.0, 2.0, "Car")])
+            .collect();
+        let boxes = label_boxes(&view, &sprites);
+        let mut ids: Vec<i32> = boxes.iter().map(|b| b.0).collect();
+        ids.sort_unstable();
+        assert_eq!(ids, (-8..=-1).collect::<Vec<_>>(), "all eight in view, not the one far away");
+        for (i, (_, a)) in boxes.iter().enumerate() {
+            assert!(a[0] >= 0.0 && a[1] >= 0.0 && a[2] <= 640.0 && a[3] <= 360.0, "{a:?} inside");
+            for (_, b) in &boxes[i + 1..] {
+                assert!(a[2] <= b[0] || b[2] <= a[0] || a[3] <= b[1] || b[3] <= a[1], "{a:?} overlaps {b:?}");
+            }
+        }
+        // Nearest to the centre is placed first, right beside its vehicle.
+        let first = boxes[0];
+        assert_eq!(first.0, -2, "x = -2 m is nearest the centre");
+        // x = 316 px, half its 4 px length + 2 px gap.
+        assert_eq!(first.1[0], 320.0);
+        // Packed tighter (3 m, 6 px apart) not all fit: those left out are the ones whose every
+        // place overlaps a label nearer the centre, and the one at the centre keeps its own.
+        let tight: Vec<VehicleSprite> = (0..8)
+            .map(|i| VehicleSprite::new(-i - 1, DVec2::new(3.0 * f64::from(i) - 10.0, 0.0), 0.0, 2.0, 1.0, "Truck"))
+            .collect();
+        let boxes = label_boxes(&view, &tight);
+        assert!(boxes.len() >= 3 && boxes[0].0 == -4, "{boxes:?}");
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! One range check for every numeric flag (issue 24 item 4): clap runs these parsers, so NaN,
+//! One range check for every numeric flag of the command line and of the library's clap
+//! argument groups such as [`crate::render::FrameOutput`] (issue 24 item 4): clap runs these parsers, so NaN,
 //! infinities, negative and huge values are refused before any work starts, with the flag named
 //! (`error: invalid value 'nan' for '--speed <SPEED>': must be a finite number above 0 and at
 //! most 1e9`) and exit code 2.

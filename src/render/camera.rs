@@ -1,0 +1,272 @@
+//! What frames show and where they go: [`FrameOutput`] (the frame options of `run`, `replay` and
+//! `view`, one clap argument group flattened into each) and the [`Camera`] that picks each
+//! frame's view from them: a fixed window, the whole map, the vehicles when the map is too big
+//! to read, or a window that follows one vehicle.
+
+use std::path::PathBuf;
+
+use glam::DVec2;
+
+use super::view::BirdseyeView;
+use super::{RenderError, VehicleSprite};
+
+/// Scale below which a whole-map view is unreadable [px/m]: auto-fit frames the vehicles instead.
+pub const MIN_AUTO_FIT_PPM: f64 = 1.0;
+/// Scale of `--follow` without `--pixels-per-meter` [px/m] (or the whole map's, if larger).
+pub const FOLLOW_PPM: f64 = 5.0;
+
+/// Where the time stamp and legend are drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Overlay {
+    /// On the GIF only (the default).
+    #[default]
+    Gif,
+    /// On every output: PNG frames, the GIF and the live window.
+    All,
+    /// On none.
+    None,
+}
+
+/// The frame options shared by `smlworld run`, `replay` and `view` (`#[command(flatten)]` into
+/// each one's arguments; the library's run and replay options hold one too).
+#[derive(Debug, Clone, PartialEq, clap::Args)]
+pub struct FrameOutput {
+    /// Write numbered PNG frames of the bird's-eye view into this folder (created with its parents).
+    #[arg(long, value_name = "DIR")]
+    pub frames: Option<PathBuf>,
+    /// Write an animated GIF (parent folders created).
+    #[arg(long, value_name = "FILE.gif")]
+    pub gif: Option<PathBuf>,
+    /// Frames per second of sim time for --frames and --gif [Hz] (`view`: the most frames per
+    /// wall-clock second written); does not change the results.
+    #[arg(long, default_value_t = 10.0, value_parser = crate::range::positive)]
+    pub frame_rate: f64,
+    /// Frame width [px].
+    #[arg(long, default_value_t = 1280, value_parser = crate::range::pixels())]
+    pub width: u32,
+    /// Frame height [px].
+    #[arg(long, default_value_t = 720, value_parser = crate::range::pixels())]
+    pub height: u32,
+    /// Time stamp and legend (classes; real vs virtual): `gif` (default: on the GIF only),
+    /// `all` (also PNG frames and the window; a bare `--overlay` means this) or `none`.
+    #[arg(long, value_enum, default_value_t = Overlay::Gif, num_args = 0..=1, require_equals = true,
+          default_missing_value = "all", value_name = "WHERE")]
+    pub overlay: Overlay,
+    /// Keep vehicle ID at the centre of every frame (at --pixels-per-meter, default 5 px/m).
+    #[arg(long, value_name = "ID", allow_hyphen_values = true, conflicts_with = "center")]
+    pub follow: Option<i32>,
+    /// Scale [px/m]: a window of this scale instead of the whole map (centred on --center,
+    /// default the map's centre), or the scale of --follow.
+    #[arg(long, value_parser = crate::range::positive)]
+    pub pixels_per_meter: Option<f64>,
+    /// World point at the image centre, `X,Y` [m] (needs --pixels-per-meter).
+    #[arg(long, value_parser = crate::range::point, allow_hyphen_values = true, requires = "pixels_per_meter")]
+    pub center: Option<DVec2>,
+}
+
+impl Default for FrameOutput {
+    fn default() -> Self {
+        FrameOutput {
+            frames: None,
+            gif: None,
+            frame_rate: 10.0,
+            width: 1280,
+            height: 720,
+            overlay: Overlay::Gif,
+            follow: None,
+            pixels_per_meter: None,
+            center: None,
+        }
+    }
+}
+
+impl FrameOutput {
+    /// Whether frames or a GIF are asked for.
+    pub fn any(&self) -> bool {
+        self.frames.is_some() || self.gif.is_some()
+    }
+
+    /// The range checks the library makes for callers that do not go through clap; `Err` names
+    /// the option and what is allowed.
+    pub fn check(&self) -> Result<(), String> {
+        super::check_frame_rate(self.frame_rate)?;
+        let sides = 1..=super::MAX_IMAGE_SIDE;
+        if !sides.contains(&self.width) || !sides.contains(&self.height) {
+            return Err(format!(
+                "--width and --height must be 1..={} px, got {}x{}",
+                super::MAX_IMAGE_SIDE,
+                self.width,
+                self.height
+            ));
+        }
+        if let Some(p) = self.pixels_per_meter
+            && !(p.is_finite() && p > 0.0)
+        {
+            return Err(format!("--pixels-per-meter must be a finite number above 0, got {p}"));
+        }
+        if let Some(c) = self.center
+            && !(c.x.is_finite() && c.y.is_finite())
+        {
+            return Err(format!("--center must be two finite coordinates, got {c}"));
+        }
+        if let Some(gif) = &self.gif
+            && !gif.extension().is_some_and(|e| e.eq_ignore_ascii_case("gif"))
+        {
+            return Err(format!("--gif writes GIF data: name the file with a .gif extension, got {}", gif.display()));
+        }
+        Ok(())
+    }
+}
+
+/// How the camera picks its view.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Mode {
+    /// One view for every frame.
+    Fixed(BirdseyeView),
+    /// The whole map would be below [`MIN_AUTO_FIT_PPM`]: fit the vehicles of the first frame
+    /// that has any, then keep that view (`map` until then).
+    FitVehicles { map: BirdseyeView, fitted: Option<BirdseyeView> },
+    /// Centre every frame on vehicle `id` at `ppm` [px/m]; where it is absent, the last centre.
+    Follow { id: i32, ppm: f64, last: DVec2 },
+}
+
+/// Picks the view of each frame (see [`FrameOutput`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Camera {
+    width: u32,
+    height: u32,
+    mode: Mode,
+}
+
+impl Camera {
+    /// The camera for `frames` over a map whose nodes span `map_box` (min, max) [m]; `None`
+    /// without a map (origin-centred at 4 px/m unless a scale is given).
+    pub fn new(frames: &FrameOutput, map_box: Option<(DVec2, DVec2)>) -> Result<Camera, RenderError> {
+        let (width, height) = (frames.width, frames.height);
+        let whole = match map_box {
+            Some((min, max)) => BirdseyeView::fit(width, height, min, max, 0.05 * (max - min).max_element())?,
+            None => BirdseyeView::centered_on_origin(width, height, 4.0)?,
+        };
+        let mode = match (frames.follow, frames.pixels_per_meter) {
+            (Some(id), ppm) => {
+                Mode::Follow { id, ppm: ppm.unwrap_or(whole.pixels_per_meter.max(FOLLOW_PPM)), last: whole.center }
+            }
+            (None, Some(ppm)) => {
+                Mode::Fixed(BirdseyeView::new(width, height, ppm, frames.center.unwrap_or(whole.center))?)
+            }
+            (None, None) if map_box.is_some() && whole.pixels_per_meter < MIN_AUTO_FIT_PPM => {
+                Mode::FitVehicles { map: whole, fitted: None }
+            }
+            (None, None) => Mode::Fixed(whole),
+        };
+        if let Mode::Follow { ppm, .. } = mode {
+            BirdseyeView::new(width, height, ppm, DVec2::ZERO)?;
+        }
+        Ok(Camera { width, height, mode })
+    }
+
+    /// The same camera for another image size [px] (a resized window); a fixed view keeps its
+    /// scale and centre.
+    pub fn resized(&self, width: u32, height: u32) -> Result<Camera, RenderError> {
+        let resize = |v: &BirdseyeView| BirdseyeView::new(width, height, v.pixels_per_meter, v.center);
+        let mode = match &self.mode {
+            Mode::Fixed(v) => Mode::Fixed(resize(v)?),
+            Mode::FitVehicles { map, fitted } => {
+                Mode::FitVehicles { map: resize(map)?, fitted: fitted.as_ref().map(resize).transpose()? }
+            }
+            Mode::Follow { .. } => self.mode,
+        };
+        Ok(Camera { width, height, mode })
+    }
+
+    /// Image width and height [px].
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// The vehicle the camera follows, if any.
+    pub fn follows(&self) -> Option<i32> {
+        match self.mode {
+            Mode::Follow { id, .. } => Some(id),
+            _ => None,
+        }
+    }
+
+    /// The view of a frame that shows `sprites`.
+    pub fn view(&mut self, sprites: &[VehicleSprite]) -> Result<BirdseyeView, RenderError> {
+        let (width, height) = (self.width, self.height);
+        match &mut self.mode {
+            Mode::Fixed(v) => Ok(*v),
+            Mode::Follow { id, ppm, last } => {
+                // The vehicle's own (logged or interpolated) position: it sits on the centre
+                // pixel exactly, with no lag, and the ground slides under it as smoothly as
+                // the vehicle moves.
+                if let Some(s) = sprites.iter().find(|s| s.id == *id && s.position.is_finite()) {
+                    *last = s.position;
+                }
+                BirdseyeView::new(width, height, *ppm, *last)
+            }
+            Mode::FitVehicles { map, fitted } => {
+                if let Some(v) = fitted {
+                    return Ok(*v);
+                }
+                let mut points = sprites.iter().map(|s| s.position).filter(|p| p.is_finite());
+                let Some(first) = points.next() else { return Ok(*map) };
+                let (min, max) = points.fold((first, first), |(lo, hi), p| (lo.min(p), hi.max(p)));
+                let margin = (0.15 * (max - min).max_element()).max(20.0);
+                let v = BirdseyeView::fit(width, height, min, max, margin)?;
+                tracing::info!(
+                    "the whole map would be drawn at {:.2} px/m (below {MIN_AUTO_FIT_PPM} px/m, unreadable): framing the \
+                     {} vehicles' bounding box instead ({:.2} px/m around ({:.1}, {:.1}) m); give --pixels-per-meter \
+                     and --center, or --follow ID, to choose the window",
+                    map.pixels_per_meter,
+                    sprites.len(),
+                    v.pixels_per_meter,
+                    v.center.x,
+                    v.center.y
+                );
+                *fitted = Some(v);
+                Ok(v)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sprite(id: i32, x: f64, y: f64) -> VehicleSprite {
+        VehicleSprite::new(id, DVec2::new(x, y), 0.0, 4.0, 1.8, "Car")
+    }
+
+    #[test]
+    fn follow_centres_the_vehicle_and_keeps_its_last_place_when_it_is_gone() {
+        let frames = FrameOutput { follow: Some(-3), pixels_per_meter: Some(8.0), ..FrameOutput::default() };
+        let mut cam = Camera::new(&frames, Some((DVec2::ZERO, DVec2::splat(100.0)))).unwrap();
+        let v = cam.view(&[sprite(1, 0.0, 0.0), sprite(-3, 40.0, 12.5)]).unwrap();
+        assert_eq!((v.pixels_per_meter, v.center), (8.0, DVec2::new(40.0, 12.5)));
+        assert_eq!(v.world_to_pixel(DVec2::new(40.0, 12.5)), DVec2::new(640.0, 360.0));
+        let v = cam.view(&[sprite(1, 0.0, 0.0)]).unwrap();
+        assert_eq!(v.center, DVec2::new(40.0, 12.5));
+    }
+
+    #[test]
+    fn a_map_too_big_to_read_frames_the_vehicles() {
+        // 20 km wide in 640 px: 0.03 px/m.
+        let map = Some((DVec2::ZERO, DVec2::new(20_000.0, 100.0)));
+        let frames = FrameOutput { width: 640, height: 360, ..FrameOutput::default() };
+        let mut cam = Camera::new(&frames, map).unwrap();
+        let v = cam.view(&[sprite(1, 5000.0, 50.0), sprite(2, 5100.0, 50.0)]).unwrap();
+        assert!(v.pixels_per_meter >= MIN_AUTO_FIT_PPM, "{v:?}");
+        for x in [5000.0, 5100.0] {
+            let p = v.world_to_pixel(DVec2::new(x, 50.0));
+            assert!(p.x > 0.0 && p.x < 640.0 && p.y > 0.0 && p.y < 360.0, "{p}");
+        }
+        // The view stays put afterwards.
+        assert_eq!(cam.view(&[sprite(1, 9000.0, 50.0)]).unwrap(), v);
+        // A small map is fitted whole as before.
+        let mut small = Camera::new(&frames, Some((DVec2::ZERO, DVec2::splat(100.0)))).unwrap();
+        assert!(small.view(&[sprite(1, 5.0, 5.0)]).unwrap().pixels_per_meter > 3.0);
+    }
+}
