@@ -7,7 +7,8 @@ use std::path::{Path, PathBuf};
 use glam::DVec2;
 
 use smlworld::map::generate::{
-    self, GenerateError, GridParams, IntersectionParams, RingParams, grid_city, intersection, ring_highway,
+    self, GenerateError, GridParams, IntersectionParams, LaneDropParams, RingParams, grid_city, intersection,
+    lane_drop, ring_highway,
 };
 use smlworld::map::generate::{Arm, grid_junction_tag, intersection_end_tag, intersection_start_tag, ring_lane_tag};
 use smlworld::map::osm::parse_osm;
@@ -140,6 +141,10 @@ fn bad_parameters_are_errors_naming_the_parameter() {
     // Junctions reach 3.5 + 6 = 9.5 m from their centre: blocks of 19 m leave no street.
     assert_eq!(name(grid_city(&GridParams { block: 19.0, ..GridParams::default() })), "block");
     assert!(grid_city(&GridParams { block: 19.5, ..GridParams::default() }).is_ok());
+    // A road of a million kilometres at 2 m per node is a typo, refused at once (it used to run
+    // until it had written gigabytes).
+    let huge = LaneDropParams { length: 1e9, drop_at: 1.0, ..LaneDropParams::default() };
+    assert_eq!(name(lane_drop(&huge)), "node_spacing");
 }
 
 #[test]

@@ -58,6 +58,19 @@ pub fn write_lane_drop<W: Write>(params: &LaneDropParams, out: W) -> Result<MapS
     ] {
         check_positive(name, v)?;
     }
+    // As the ring's limit: a line of more nodes than this is a mistake in the numbers, not a
+    // map (it would take minutes and gigabytes to write).
+    let nodes = p.length / p.node_spacing;
+    if nodes > 1e7 {
+        return Err(invalid(
+            "node_spacing",
+            p.node_spacing,
+            &format!(
+                "a spacing that gives at most 10000000 nodes along length = {} [m] (it gives {nodes:.0})",
+                p.length
+            ),
+        ));
+    }
     if p.drop_at >= p.length {
         return Err(invalid("drop_at", p.drop_at, &format!("a distance below length = {} [m]", p.length)));
     }
