@@ -494,22 +494,15 @@ pub fn plot_run(out_dir: &FsPath, dest: &FsPath) -> Result<Vec<PathBuf>, ReplayE
                     (a.t, (b.position - a.position).dot(heading) - half)
                 })
                 .collect();
-            gaps.push((format!("{me} ({}) behind {lead}", role(me)), gap, id_color(me)));
+            gaps.push((format!("{me} behind {lead}"), gap, id_color(me)));
         }
         let speeds = order.iter().map(|&id| (format!("{id} ({})", role(id)), run.speed(id), id_color(id))).collect();
         let panels = vec![
             Lines {
                 marks: instants.clone(),
-                ..time_lines(
-                    &titled("Gap to the vehicle ahead after the merge, along the road (dashed: merges)"),
-                    "gap [m]",
-                    gaps,
-                )
+                ..time_lines("Gap to the vehicle ahead in the merged order (dashed: merges)", "gap [m]", gaps)
             },
-            Lines {
-                marks: instants,
-                ..time_lines(&titled("Speed of the merging platoons (dashed: merges)"), "speed [m/s]", speeds)
-            },
+            Lines { marks: instants, ..time_lines("Speeds of both platoons (dashed: merges)", "speed [m/s]", speeds) },
         ];
         written.push(save(dest, "merge", &Chart::Panels(panels))?);
     }
