@@ -121,6 +121,9 @@ def _interrupted_sweep(root, tmp_path, send, code):
     proc = subprocess.Popen(
         [sys.executable, "-m", "smlworld.sweep", str(spec), "--workers", "1", "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        # As from a terminal: a shell's background job starts with SIGINT ignored, and Python keeps
+        # an ignored SIGINT ignored (so the suite behaves the same however it was launched).
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         seen = []

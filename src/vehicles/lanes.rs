@@ -44,6 +44,8 @@ pub struct LaneMap {
     pub successors: Vec<Vec<u32>>,
     /// Predecessors of every lanelet (indices, routable only).
     pub predecessors: Vec<Vec<u32>>,
+    /// Id of every lanelet (a dense copy: the lanelets themselves are large and far apart).
+    ids: Vec<LaneletId>,
     /// Cell -> (lanelet, arc length [m] where its centre line enters the cell).
     grid: BTreeMap<(i64, i64), Vec<(u32, f64)>>,
 }
@@ -96,7 +98,8 @@ impl LaneMap {
                 }
             }
         }
-        LaneMap { map, neighbours, centres, half_widths, successors, predecessors, grid }
+        let ids = map.lanelets.iter().map(|l| l.id).collect();
+        LaneMap { map, neighbours, centres, half_widths, successors, predecessors, ids, grid }
     }
 
     /// Hint to the processor that lanelet `i`'s centre line around arc length `s` [m] will be
@@ -128,7 +131,7 @@ impl LaneMap {
 
     /// Id of lanelet `i`.
     pub fn id(&self, i: u32) -> LaneletId {
-        self.map.lanelets[i as usize].id
+        self.ids[i as usize]
     }
 
     /// `p` on lanelet `i` near arc length `hint` [m] (whole lanelet when `hint` is NaN): its arc
