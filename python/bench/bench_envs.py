@@ -41,28 +41,8 @@ def bench_parallel(steps, agents):
     return steps * agents / (time.perf_counter() - t)
 
 
-def bench_merge(steps):
-    import gymnasium as gym
-
-    import smlworld  # noqa: F401  (registers the environments)
-
-    env = gym.make("smlworld/HighwayMerge-v0")
-    env.reset(seed=0)
-    env.action_space.seed(0)
-    t = time.perf_counter()
-    for _ in range(steps):
-        _, _, term, trunc, _ = env.step(env.action_space.sample())
-        if term or trunc:
-            env.reset()
-    return steps / (time.perf_counter() - t)
-
-
-def bench_highway_env(steps, name="highway-fast-v0"):
-    try:
-        import highway_env  # noqa: F401
-    except ImportError:
-        subprocess.run([sys.executable, "-m", "pip", "install", "-q", "highway-env"], check=True)
-        import highway_env  # noqa: F401
+def bench_random(name, steps):
+    """Env-steps per second of gymnasium env `name` under random actions (seeded)."""
     import gymnasium as gym
 
     env = gym.make(name)
@@ -74,6 +54,21 @@ def bench_highway_env(steps, name="highway-fast-v0"):
         if term or trunc:
             env.reset()
     return steps / (time.perf_counter() - t)
+
+
+def bench_merge(steps):
+    import smlworld  # noqa: F401  (registers the environments)
+
+    return bench_random("smlworld/HighwayMerge-v0", steps)
+
+
+def bench_highway_env(steps, name="highway-fast-v0"):
+    try:
+        import highway_env  # noqa: F401
+    except ImportError:
+        subprocess.run([sys.executable, "-m", "pip", "install", "-q", "highway-env"], check=True)
+        import highway_env  # noqa: F401
+    return bench_random(name, steps)
 
 
 def main():

@@ -18,6 +18,8 @@ from gymnasium import spaces
 
 import smlworld
 
+from ._frames import rgb_frame
+
 EGO = -1
 LANE_WIDTH = 3.5  # [m]
 RIGHT_LANE_TOP = 3.5  # [m] y of the line between the lanes: the car has merged below it
@@ -90,9 +92,7 @@ class HighwayMergeEnv(gym.Env):
     def render(self):
         """With ``render_mode="rgb_array"``: the bird's-eye view now, an (H, W, 3) uint8 array
         (640 x 360) from the off-screen renderer; ``None`` without a render mode."""
-        if self.render_mode != "rgb_array" or self._sim is None:
-            return None
-        return np.ascontiguousarray(self._sim.frame(width=640, height=360)[..., :3])
+        return rgb_frame(self)
 
     # -- helpers -----------------------------------------------------------------------------
     def _look(self):

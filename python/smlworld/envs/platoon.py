@@ -12,6 +12,8 @@ from gymnasium import spaces
 
 import smlworld
 
+from ._frames import rgb_frame
+
 LEADER, EGO = -1, -2
 CAR_LENGTH = 4.5  # [m], the default car length
 A_MIN, A_MAX = -6.0, 3.0  # [m/s^2]
@@ -58,9 +60,7 @@ class PlatoonFollowEnv(gym.Env):
     def render(self):
         """With ``render_mode="rgb_array"``: the bird's-eye view now, an (H, W, 3) uint8 array
         (640 x 360) from the off-screen renderer; ``None`` without a render mode."""
-        if self.render_mode != "rgb_array" or self._sim is None:
-            return None
-        return np.ascontiguousarray(self._sim.frame(width=640, height=360)[..., :3])
+        return rgb_frame(self)
 
     # -- helpers -----------------------------------------------------------------------------
     def _kinematics(self):
