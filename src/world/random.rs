@@ -1,0 +1,263 @@
+//! Counter-based randomness: every draw is a pure function of (seed, stream, index, draw), a
+//! SplitMix64 hash of the four (Steele, Lea, Flood 2014, "Fast splittable pseudorandom number
+//! generators"), so no global generator exists and nothing depends on thread count or system
+//! order; a draw allocates nothing.
+//!
+//! Besides single draws: [`binomial`] (how many of n independent trials succeed, from one
+//! uniform) and [`OrderedSample`] (which k of n positions, in increasing order, one draw per
+//! position), with which a lossy channel decides a whole round for one receiver in O(1) and
+//! leaves the positions to whoever reads them (see `sim::v2v`). The module sits in `world`
+//! because the V2V in-boxes draw those positions while they are iterated.
+
+/// SplitMix64's finaliser: a bijective mix of 64 bits.
+pub fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// A uniform number in [0, 1) keyed by `(seed, stream, index, draw)`.
+pub fn uniform(seed: u64, stream: u64, index: u64, draw: u64) -> f64 {
+    let h = mix(mix(mix(mix(seed) ^ stream) ^ index) ^ draw);
+    (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// The first three rounds of [`uniform`]'s hash: with [`uniform_at`],
+/// `uniform(seed, stream, index, draw) == uniform_at(key(seed, stream, index), draw)`, so many
+/// draws of one counter cost one mix each.
+pub fn key(seed: u64, stream: u64, index: u64) -> u64 {
+    mix(mix(mix(seed) ^ stream) ^ index)
+}
+
+/// Draw `draw` of the counter `key` ([`key`]): uniform in [0, 1).
+pub fn uniform_at(key: u64, draw: u64) -> f64 {
+    (mix(key ^ draw) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// ln(n!): summed exactly below 30, else Stirling's series to n⁻⁵ (error below 1e-13).
+fn ln_factorial(n: u32) -> f64 {
+    if n < 30 {
+        return (2..=n).map(|k| f64::from(k).ln()).sum();
+    }
+    let x = f64::from(n);
+    let x2 = x * x;
+    x * x.ln() - x
+        + 0.5 * (std::f64::consts::TAU * x).ln()
+        + (1.0 / 12.0 - (1.0 / 360.0 - 1.0 / (1260.0 * x2)) / x2) / x
+}
+
+/// A Binomial(`n`, `p`) number (successes among `n` independent trials of probability `p`)
+/// from one uniform `u` in [0, 1), by inversion from the mode: the mode's probability from
+/// log-factorials, then its neighbours by the pmf's ratios, alternately below and above, until
+/// `u` is used up. Expected O(√(n p (1 − p))) steps, no allocation; exact up to rounding
+/// (a `u` in the last ~1e-12 of the mass that rounding leaves over gives the mode).
+pub fn binomial(n: u32, p: f64, u: f64) -> u32 {
+    if n == 0 || p <= 0.0 {
+        return 0;
+    }
+    if p >= 1.0 {
+        return n;
+    }
+    let q = 1.0 - p;
+    let mode = ((f64::from(n) + 1.0) * p).floor().min(f64::from(n)) as u32;
+    let ln_mode = ln_factorial(n) - ln_factorial(mode) - ln_factorial(n - mode)
+        + f64::from(mode) * p.ln()
+        + f64::from(n - mode) * q.ln();
+    let f_mode = ln_mode.exp();
+    let mut u = u;
+    if u < f_mode {
+        return mode;
+    }
+    u -= f_mode;
+    let (down, up) = (q / p, p / q);
+    let (mut lo, mut hi, mut f_lo, mut f_hi) = (mode, mode, f_mode, f_mode);
+    loop {
+        let mut moved = false;
+        if lo > 0 && f_lo > 0.0 {
+            f_lo *= f64::from(lo) / f64::from(n - lo + 1) * down;
+            lo -= 1;
+            moved = true;
+            if u < f_lo {
+                return lo;
+            }
+            u -= f_lo;
+        }
+        if hi < n && f_hi > 0.0 {
+            f_hi *= f64::from(n - hi) / f64::from(hi + 1) * up;
+            hi += 1;
+            moved = true;
+            if u < f_hi {
+                return hi;
+            }
+            u -= f_hi;
+        }
+        if !moved {
+            return mode;
+        }
+    }
+}
+
+/// A uniformly random `k`-subset of the positions `0..n`, yielded in increasing order by
+/// sequential random sampling (Vitter 1984, "Faster methods for random sampling", Algorithm A):
+/// each position costs one counter-based draw ([`uniform_at`] of `key`, draws 1, 2, ...; draw 0
+/// is left to the caller, e.g. for the [`binomial`] that chose `k`) and O(skip) arithmetic.
+/// Copy it to replay the same positions; it allocates nothing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OrderedSample {
+    key: u64,
+    /// Positions still to yield.
+    left: u32,
+    /// Positions not yet decided, from `at` on.
+    pool: u32,
+    /// First position not yet decided.
+    at: u32,
+    /// Next draw number.
+    draw: u64,
+}
+
+impl OrderedSample {
+    /// `k` of the positions `0..n` (`k <= n`), drawn from counter `key`.
+    pub fn new(key: u64, k: u32, n: u32) -> OrderedSample {
+        OrderedSample { key, left: k.min(n), pool: n, at: 0, draw: 1 }
+    }
+
+    /// Positions still to yield.
+    pub fn remaining(&self) -> u32 {
+        self.left
+    }
+
+    /// An empty sample (yields nothing).
+    pub fn empty() -> OrderedSample {
+        OrderedSample::new(0, 0, 0)
+    }
+}
+
+impl Iterator for OrderedSample {
+    type Item = u32;
+
+    fn next(&mut self) -> Option<u32> {
+        if self.left == 0 {
+            return None;
+        }
+        let v = uniform_at(self.key, self.draw);
+        self.draw += 1;
+        // The skip S before the next chosen position: P(S > s) = Π_{j=0..s} (N - n - j) / (N - j)
+        // for N positions left and n to choose; S is the first s where that falls to v or below.
+        let mut skip = 0u32;
+        let mut top = f64::from(self.pool - self.left);
+        let mut left = f64::from(self.pool);
+        let mut quot = top / left;
+        while quot > v {
+            skip += 1;
+            top -= 1.0;
+            left -= 1.0;
+            quot *= top / left;
+        }
+        let position = self.at + skip;
+        self.at = position + 1;
+        self.pool -= skip + 1;
+        self.left -= 1;
+        Some(position)
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        (self.left as usize, Some(self.left as usize))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn draws_are_reproducible_and_differ_by_every_key() {
+        let a = uniform(1, 2, 3, 4);
+        assert_eq!(a, uniform(1, 2, 3, 4));
+        for other in [uniform(2, 2, 3, 4), uniform(1, 3, 3, 4), uniform(1, 2, 4, 4), uniform(1, 2, 3, 5)] {
+            assert_ne!(a, other);
+        }
+        let mean = (0..10_000).map(|i| uniform(7, 0, i, 0)).sum::<f64>() / 10_000.0;
+        assert!((mean - 0.5).abs() < 0.02, "{mean}");
+        assert!((0..10_000).all(|i| (0.0..1.0).contains(&uniform(7, 1, i, 0))));
+    }
+
+    #[test]
+    fn keyed_draws_are_the_plain_draws() {
+        for (seed, stream, index, draw) in [(1, 2, 3, 4), (0, 0, 0, 0), (u64::MAX, 7, 9, 1 << 40)] {
+            assert_eq!(uniform(seed, stream, index, draw), uniform_at(key(seed, stream, index), draw));
+        }
+    }
+
+    #[test]
+    fn ln_factorial_is_continuous_at_the_switch_to_stirling() {
+        let exact = |n: u32| (2..=n).map(|k| f64::from(k).ln()).sum::<f64>();
+        for n in [30, 31, 100, 1000] {
+            assert!((ln_factorial(n) - exact(n)).abs() < 1e-9 * exact(n), "n {n}");
+        }
+    }
+
+    /// Binomial pmf, directly.
+    fn pmf(n: u32, p: f64, k: u32) -> f64 {
+        let c = (0..k).map(|j| f64::from(n - j) / f64::from(j + 1)).product::<f64>();
+        c * p.powi(k as i32) * (1.0 - p).powi((n - k) as i32)
+    }
+
+    #[test]
+    fn binomial_has_the_binomial_distribution() {
+        // Small n: every value's frequency against its pmf.
+        for (n, p) in [(5, 0.3), (12, 0.1), (40, 0.5), (3, 0.95)] {
+            let draws = 200_000;
+            let mut counts = vec![0u32; n as usize + 1];
+            for i in 0..draws {
+                counts[binomial(n, p, uniform(3, 9, i, 0)) as usize] += 1;
+            }
+            for (k, &c) in counts.iter().enumerate() {
+                let f = f64::from(c) / draws as f64;
+                assert!((f - pmf(n, p, k as u32)).abs() < 0.005, "n {n} p {p} k {k}: {f} vs {}", pmf(n, p, k as u32));
+            }
+        }
+        // Large n: mean and variance.
+        for (n, p) in [(10_000u32, 0.1), (9_999, 0.5), (5_000, 0.001)] {
+            let draws = 20_000;
+            let xs: Vec<f64> = (0..draws).map(|i| f64::from(binomial(n, p, uniform(4, 1, i, 0)))).collect();
+            let mean = xs.iter().sum::<f64>() / draws as f64;
+            let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / draws as f64;
+            let (m, v) = (f64::from(n) * p, f64::from(n) * p * (1.0 - p));
+            assert!((mean - m).abs() < 4.0 * (v / draws as f64).sqrt(), "n {n} p {p}: mean {mean} vs {m}");
+            assert!((var - v).abs() < 0.05 * v, "n {n} p {p}: variance {var} vs {v}");
+        }
+        assert_eq!(binomial(0, 0.5, 0.3), 0);
+        assert_eq!(binomial(10, 0.0, 0.3), 0);
+        assert_eq!(binomial(10, 1.0, 0.3), 10);
+        // The search order is 5, 4, 6, 3, 7, 2, 8, 1, 9, 0, 10: the top 0.1 % of u is the last, 10.
+        assert_eq!(binomial(10, 0.5, 0.9995), 10);
+        assert_eq!(binomial(10, 0.5, 0.9985), 0);
+    }
+
+    #[test]
+    fn ordered_sample_is_a_uniform_subset_in_order() {
+        let (k, n) = (30u32, 100u32);
+        let mut hits = vec![0u32; n as usize];
+        let samples = 20_000;
+        for i in 0..samples {
+            let positions: Vec<u32> = OrderedSample::new(key(5, 6, i), k, n).collect();
+            assert_eq!(positions.len(), k as usize);
+            assert!(positions.windows(2).all(|w| w[0] < w[1]), "{positions:?}");
+            assert!(positions.iter().all(|&p| p < n));
+            for p in positions {
+                hits[p as usize] += 1;
+            }
+        }
+        let expected = f64::from(k) / f64::from(n);
+        for (p, &h) in hits.iter().enumerate() {
+            let f = f64::from(h) / samples as f64;
+            assert!((f - expected).abs() < 0.02, "position {p} chosen {f} of the time, not {expected}");
+        }
+        assert_eq!(OrderedSample::new(1, 5, 5).collect::<Vec<_>>(), vec![0, 1, 2, 3, 4]);
+        assert_eq!(OrderedSample::new(1, 0, 5).count(), 0);
+        let a: Vec<u32> = OrderedSample::new(key(1, 2, 3), 10, 1000).collect();
+        let b: Vec<u32> = OrderedSample::new(key(2, 2, 3), 10, 1000).collect();
+        assert_ne!(a, b, "keys differ, positions do not");
+    }
+}
