@@ -166,6 +166,123 @@ impl Iterator for OrderedSample {
     }
 }
 
+/// A counter-based stream of 64-bit words: word `m` of `key` is a hash of (key, m), so a
+/// consumer that needs a varying number of words (a rejection sampler) stays a pure function
+/// of its key. Two words of state, no allocation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Words {
+    key: u64,
+    next: u64,
+}
+
+impl Words {
+    /// The words of counter `key`, from word 0.
+    pub fn new(key: u64) -> Words {
+        Words { key, next: 0 }
+    }
+
+    /// The next 64 random bits.
+    #[inline]
+    pub fn bits(&mut self) -> u64 {
+        let b = mix(self.key ^ self.next);
+        self.next += 1;
+        b
+    }
+
+    /// The next uniform number in [0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        (self.bits() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// A standard normal number by the ziggurat method ([`normal`]).
+    #[inline]
+    pub fn normal(&mut self) -> f64 {
+        normal(self)
+    }
+}
+
+/// Layers of the ziggurat, its rightmost layer edge `R` and the area `V` of every layer
+/// (Doornik 2005, "An improved ziggurat method to generate normal random samples", ZIGNOR).
+const ZIG_LAYERS: usize = 128;
+const ZIG_R: f64 = 3.442_619_855_899;
+const ZIG_V: f64 = 9.912_563_035_262_17e-3;
+
+/// The ziggurat's layer edges `x` and their ratios `r[i] = x[i + 1] / x[i]`.
+struct Ziggurat {
+    x: [f64; ZIG_LAYERS + 1],
+    r: [f64; ZIG_LAYERS],
+}
+
+/// The tables, computed once per process (no allocation: two arrays in a static).
+fn ziggurat() -> &'static Ziggurat {
+    static TABLES: std::sync::OnceLock<Ziggurat> = std::sync::OnceLock::new();
+    TABLES.get_or_init(|| {
+        let mut x = [0.0; ZIG_LAYERS + 1];
+        let mut f = (-0.5 * ZIG_R * ZIG_R).exp();
+        x[0] = ZIG_V / f;
+        x[1] = ZIG_R;
+        for i in 2..ZIG_LAYERS {
+            x[i] = (-2.0 * (ZIG_V / x[i - 1] + f).ln()).sqrt();
+            f = (-0.5 * x[i] * x[i]).exp();
+        }
+        let mut r = [0.0; ZIG_LAYERS];
+        for i in 0..ZIG_LAYERS {
+            r[i] = x[i + 1] / x[i];
+        }
+        Ziggurat { x, r }
+    })
+}
+
+/// A standard normal number from `words` by the ziggurat method (Marsaglia and Tsang 2000, in
+/// Doornik's 2005 form): one word (a layer from 7 bits, a uniform from 53 others) and a
+/// multiplication in 98.8 % of the draws, no transcendental function; the wedges and the tail
+/// take more words and `exp`/`ln`. Exact in distribution (unlike Box-Muller on 32-bit halves,
+/// it has the full tail) and several times faster than a `ln`, `sqrt` and `sin_cos` per pair.
+#[inline]
+pub fn normal(words: &mut Words) -> f64 {
+    let z = ziggurat();
+    let (u, i) = ziggurat_draw(words);
+    if u.abs() < z.r[i] {
+        return u * z.x[i];
+    }
+    normal_outside(words, z, u, i)
+}
+
+/// One word as the ziggurat's uniform in (-1, 1) and layer.
+#[inline]
+fn ziggurat_draw(words: &mut Words) -> (f64, usize) {
+    let bits = words.bits();
+    (2.0 * ((bits >> 11) as f64 * (1.0 / (1u64 << 53) as f64)) - 1.0, (bits & 0x7f) as usize)
+}
+
+/// [`normal`] when its first draw fell outside its layer's rectangle: the tail, a wedge, or
+/// another try.
+#[cold]
+fn normal_outside(words: &mut Words, z: &Ziggurat, mut u: f64, mut i: usize) -> f64 {
+    loop {
+        if i == 0 {
+            // The tail beyond R (Marsaglia 1964).
+            loop {
+                let x = (1.0 - words.uniform()).ln() / ZIG_R;
+                let y = (1.0 - words.uniform()).ln();
+                if -2.0 * y >= x * x {
+                    return if u < 0.0 { x - ZIG_R } else { ZIG_R - x };
+                }
+            }
+        }
+        let x = u * z.x[i];
+        let f0 = (-0.5 * (z.x[i] * z.x[i] - x * x)).exp();
+        let f1 = (-0.5 * (z.x[i + 1] * z.x[i + 1] - x * x)).exp();
+        if f1 + words.uniform() * (f0 - f1) < 1.0 {
+            return x;
+        }
+        (u, i) = ziggurat_draw(words);
+        if u.abs() < z.r[i] {
+            return u * z.x[i];
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -259,5 +376,37 @@ mod tests {
         let a: Vec<u32> = OrderedSample::new(key(1, 2, 3), 10, 1000).collect();
         let b: Vec<u32> = OrderedSample::new(key(2, 2, 3), 10, 1000).collect();
         assert_ne!(a, b, "keys differ, positions do not");
+    }
+
+    #[test]
+    fn ziggurat_normals_have_the_normal_distribution() {
+        let draws = 1_000_000;
+        let mut below = [0u32; 7];
+        let points = [-3.0, -2.0, -1.0, 0.0, 0.5, 1.5, 3.0];
+        // Φ at those points.
+        let phi = [0.001_349_9, 0.022_750_1, 0.158_655_3, 0.5, 0.691_462_5, 0.933_192_8, 0.998_650_1];
+        let (mut sum, mut sum2, mut beyond_tail) = (0.0, 0.0, 0u32);
+        for i in 0..draws {
+            let mut w = Words::new(key(11, 12, i));
+            let x = w.normal();
+            sum += x;
+            sum2 += x * x;
+            beyond_tail += u32::from(x.abs() > ZIG_R);
+            for (b, &p) in below.iter_mut().zip(&points) {
+                *b += u32::from(x < p);
+            }
+        }
+        let n = draws as f64;
+        assert!((sum / n).abs() < 0.005, "mean {}", sum / n);
+        assert!((sum2 / n - 1.0).abs() < 0.01, "variance {}", sum2 / n);
+        for ((&b, &p), &x) in below.iter().zip(&phi).zip(&points) {
+            let f = f64::from(b) / n;
+            assert!((f - p).abs() < 4.0 * (p * (1.0 - p) / n).sqrt() + 1e-4, "P(X < {x}) {f}, not {p}");
+        }
+        // P(|X| > 3.4426) = 5.76e-4: the tail is drawn, not cut.
+        let tail = f64::from(beyond_tail) / n;
+        assert!((tail - 5.76e-4).abs() < 1e-4, "tail share {tail}");
+        // Pure function of the key.
+        assert_eq!(Words::new(key(1, 2, 3)).normal(), Words::new(key(1, 2, 3)).normal());
     }
 }
