@@ -349,8 +349,8 @@ fn write_imperfect_readings(
         let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
         if let Some((err, stream)) = noise.filter(|(err, _)| err.is_noisy()) {
             let mut normals = draws.words(draws.counter(stream, sight.id, e.id), 1);
-            let (n_range, n_bearing) = (normals.normal(), normals.normal());
-            let (n_vx, n_vy) = (normals.normal(), normals.normal());
+            let (n_range, n_bearing) = normals.normal_pair();
+            let (n_vx, n_vy) = normals.normal_pair();
             // Range and bearing errors: scale the offset, then rotate it by the bearing error.
             let d = d2.sqrt();
             let scale = if d > 0.0 { (d + err.range_sd * n_range) / d } else { 1.0 };
