@@ -8,7 +8,7 @@ use std::sync::Arc;
 use smlworld::app::metrics::V2vMetrics;
 use smlworld::prelude::*;
 use smlworld::sim::channel::{Burst, ChannelModel, Loss};
-use smlworld::sim::{Parallelism, V2vChannelStats};
+use smlworld::sim::{ChannelStats, Parallelism, V2vChannelStats};
 
 fn parked(b: &mut SimBuilder, id: i32, p: DVec2) {
     let mut spec = VehicleSpec::new(VehicleId(id), VehicleState::new(p, 0.0, 0.0));
@@ -251,4 +251,108 @@ fn link_state_of_despawned_vehicles_is_dropped_so_memory_stays_flat_under_churn(
     assert!(most >= 4, "the links were kept at all: {most}");
     // Two live vehicles hold 4 links (2 per channel); a bounded table may hold some stale ones.
     assert!(most <= 2048, "the link table grew to {most} entries under churn");
+}
+
+/// Received network messages (sender, sent_at [µs]) of each of `n` parked vehicles after each
+/// of three network rounds with constant `loss`, and the network's channel stats. Round 1
+/// carries one message per vehicle written at t = 0 (one age); round 2 messages written at
+/// 0.25 s (even ids) and 0.5 s (odd ids, two each), so the ages differ.
+fn lossy_network_rounds(n: i32, loss: f64, seed: u64, threads: usize) -> (Vec<Vec<Vec<(i32, u64)>>>, ChannelStats) {
+    let mut b = SimBuilder::new();
+    let network = ChannelModel { loss: Loss::Constant(loss), ..Default::default() };
+    b.add_plugin(V2vPlugin { config: V2vConfig { network, ..Default::default() } });
+    b.insert_resource(SimSeed(seed));
+    b.insert_resource(Parallelism::split(threads));
+    for i in 0..n {
+        // Far apart: wifi is out of play, the network reaches everyone.
+        parked(&mut b, -1 - i, DVec2::new(f64::from(i) * 1000.0, 0.0));
+    }
+    let mut sim = b.build();
+    let send_from = |sim: &mut Sim, ids: &mut dyn Iterator<Item = i32>| {
+        let now = sim.now();
+        for id in ids {
+            let e = sim.entity(VehicleId(id)).unwrap();
+            sim.world_mut().get_mut::<Mailbox>(e).unwrap().send(Channel::Network, now, Arc::new(id));
+        }
+    };
+    let inboxes = |sim: &Sim| {
+        (0..n)
+            .map(|i| {
+                let e = sim.entity(VehicleId(-1 - i)).unwrap();
+                let inbox = &sim.world().get::<Mailbox>(e).unwrap().network_in;
+                inbox.iter().map(|m| (m.sender.0, m.sent_at.0)).collect::<Vec<_>>()
+            })
+            .collect::<Vec<_>>()
+    };
+    let mut rounds = Vec::new();
+    send_from(&mut sim, &mut (0..n).map(|i| -1 - i));
+    sim.run_for(0.25); // round 1 at t = 0
+    rounds.push(inboxes(&sim));
+    send_from(&mut sim, &mut (0..n).map(|i| -1 - i).filter(|id| id % 2 == 0));
+    sim.run_for(0.25);
+    send_from(&mut sim, &mut (0..n).map(|i| -1 - i).filter(|id| id % 2 != 0));
+    send_from(&mut sim, &mut (0..n).map(|i| -1 - i).filter(|id| id % 2 != 0));
+    sim.run_for(0.75); // round 2 at t = 1 s
+    rounds.push(inboxes(&sim));
+    send_from(&mut sim, &mut (0..n).map(|i| -1 - i));
+    sim.run_for(1.0); // round 3 at t = 2 s
+    rounds.push(inboxes(&sim));
+    (rounds, sim.world().resource::<V2vChannelStats>().network.clone())
+}
+
+#[test]
+fn constant_network_loss_loses_its_share_of_every_round_and_counts_what_the_inboxes_hold() {
+    let n = 120;
+    for loss in [0.1, 0.4] {
+        let (rounds, stats) = lossy_network_rounds(n, loss, 1, 1);
+        // Every message reaches the n - 1 others: n, then n / 2 + 2 (n / 2), then n messages.
+        let messages = n + (n / 2 + n) + n;
+        assert_eq!(stats.sent, (messages * (n - 1)) as u64);
+        assert!(stats.sent >= 10_000);
+        let held: u64 = rounds.iter().flatten().map(|inbox| inbox.len() as u64).sum();
+        assert_eq!(stats.delivered, held, "the stats count what the in-boxes hold");
+        let ratio = stats.delivered as f64 / stats.sent as f64;
+        assert!((ratio - (1.0 - loss)).abs() < 0.02, "loss {loss}: delivered/sent {ratio}");
+        for (r, round) in rounds.iter().enumerate() {
+            for (i, inbox) in round.iter().enumerate() {
+                let me = -1 - i as i32;
+                assert!(inbox.iter().all(|&(s, _)| s != me), "round {r}: {me} heard itself");
+                assert!(inbox.windows(2).all(|w| w[0].0 <= w[1].0), "round {r}: {me}'s in-box is not in sender order");
+            }
+            // No position is favoured: the first and the last sender of the batch lose their share.
+            for sender in [-n, -1] {
+                let messages = if r == 1 && sender % 2 != 0 { 2 } else { 1 };
+                let heard = round.iter().flatten().filter(|&&(s, _)| s == sender).count();
+                let share = heard as f64 / f64::from(messages * (n - 1));
+                assert!((share - (1.0 - loss)).abs() < 0.12, "round {r}: sender {sender}'s messages heard {share}");
+            }
+        }
+        // Ages: round 1 all 0 (written at the round), round 2 written 0.75 s and 0.5 s before,
+        // round 3 again 0; the stats must add exactly the delivered ones.
+        let round_time = [0u64, 1_000_000, 2_000_000];
+        let ages: u64 = rounds
+            .iter()
+            .zip(round_time)
+            .map(|(round, t)| round.iter().flatten().map(|&(_, sent_at)| t - sent_at).sum::<u64>())
+            .sum();
+        assert_eq!(stats.age_sum_us, ages, "age of the delivered messages");
+        assert_eq!(stats.aged, held);
+        assert!(ages > 0);
+    }
+}
+
+#[test]
+fn constant_network_loss_is_the_same_on_any_thread_count_and_differs_by_seed() {
+    let (a, sa) = lossy_network_rounds(60, 0.2, 1, 1);
+    let (b, sb) = lossy_network_rounds(60, 0.2, 1, 2);
+    assert_eq!(a, b, "1 vs 2 threads");
+    assert_eq!(sa, sb);
+    let (c, _) = lossy_network_rounds(60, 0.2, 2, 1);
+    assert_ne!(a, c, "seeds 1 and 2 lost the same receptions");
+    // Receivers and rounds draw apart: two receivers (or two rounds) do not lose the same senders.
+    let lost_of = |inbox: &Vec<(i32, u64)>, me: i32| {
+        (1..=60).map(|k| -k).filter(|&s| s != me && !inbox.iter().any(|&(x, _)| x == s)).collect::<Vec<_>>()
+    };
+    assert_ne!(lost_of(&a[0][0], -1), lost_of(&a[0][1], -2));
+    assert_ne!(lost_of(&a[0][0], -1), lost_of(&a[2][0], -1));
 }

@@ -18,7 +18,8 @@ pub mod dynamics;
 pub mod grid;
 pub mod parallel;
 pub mod params;
-pub mod random;
+/// Counter-based randomness (it lives in `world`, whose in-boxes draw lost receptions lazily).
+pub use crate::world::random;
 pub mod recorded;
 mod schedule;
 pub mod sensors;

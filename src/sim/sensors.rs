@@ -11,8 +11,11 @@
 //! candidates are found as above, occlusion compares each with the nearer ones found (a target
 //! whose angular extent lies inside one nearer target's is hidden), dropout drops a detection
 //! with its probability, and Gaussian noise moves range, bearing and velocity. Every draw is
-//! [`uniform`] keyed by (seed, sensor, observer and target, tick): no allocation, the same bits
-//! for any thread count. [`SensorStats`] counts detections and the misses of each kind.
+//! counter-based ([`super::random`]), keyed by (seed, sensor, observer and target, tick): no
+//! allocation, the same bits for any thread count. The normals come from the ziggurat
+//! ([`super::random::normal`]: one hash and a multiplication each, mostly) and the bearing
+//! error's rotation from a short polynomial, so noise costs no `ln` or `sin_cos` per detection. [`SensorStats`] counts
+//! detections and the misses of each kind.
 
 use bevy_ecs::prelude::{Has, Local, Mut, Query, Res, ResMut, Resource};
 use glam::DVec2;
@@ -27,7 +30,7 @@ use crate::world::{
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::recycle;
-use super::random::{mix, uniform};
+use super::random::{Words, mix, uniform_at};
 use super::{GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
 /// Random stream of radar draws ("Rada").
@@ -92,33 +95,54 @@ fn covers(outer: (f64, f64, f64), inner: (f64, f64, f64)) -> bool {
     d + inner.1 >= outer.1 && d + inner.2 <= outer.2
 }
 
-/// A standard normal pair by Box-Muller from the two 32-bit halves of one 64-bit hash (two
-/// uniforms in [0, 1) of 2⁻³² resolution: tails beyond 6.6 sd are cut, which no sensor model
-/// here needs).
-fn normal_pair(bits: u64) -> (f64, f64) {
-    const SCALE: f64 = 1.0 / 4_294_967_296.0;
-    let (u1, u2) = ((bits >> 32) as f64 * SCALE, (bits & 0xffff_ffff) as f64 * SCALE);
-    let r = (-2.0 * (1.0 - u1).ln()).sqrt();
-    let (s, c) = (TAU * u2).sin_cos();
-    (r * c, r * s)
+/// The rotation by `angle` [rad] as (cos, sin): by Taylor polynomials when the angle is as
+/// small as a bearing error (|angle| <= 0.1 rad: truncation below 3e-15, under a double's
+/// rounding of the angle itself), else by `sin_cos`. A bearing error of 0.5° sd rotates every
+/// noisy detection; `sin_cos` was a fifth of a degraded benchmark's time.
+fn small_rotation(angle: f64) -> DVec2 {
+    if angle.abs() > 0.1 {
+        return DVec2::from_angle(angle);
+    }
+    // Horner's form with the Taylor coefficients (multiplications only: no division).
+    const S: [f64; 4] = [-1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362_880.0];
+    const C: [f64; 5] = [-1.0 / 2.0, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40_320.0, -1.0 / 3_628_800.0];
+    let a2 = angle * angle;
+    let sin = angle * (1.0 + a2 * (S[0] + a2 * (S[1] + a2 * (S[2] + a2 * S[3]))));
+    let cos = 1.0 + a2 * (C[0] + a2 * (C[1] + a2 * (C[2] + a2 * (C[3] + a2 * C[4]))));
+    DVec2::new(cos, sin)
 }
 
-/// What the errors of one sensing vehicle need at one tick: the seed and the tick's time.
+/// What the errors of one sensing vehicle need at one tick: the tick's time and each sensor's
+/// stream key ([`key`] without its last round: `mix(mix(seed) ^ stream)`).
 #[derive(Debug, Clone, Copy)]
 struct Draws {
-    seed: u64,
     now_us: u64,
+    radar: u64,
+    velodyne: u64,
 }
 
 impl Draws {
-    /// Draw `k` of sensor `stream` for the pair (observer, target) this tick: uniform in [0, 1).
-    fn uniform(&self, stream: u64, observer: VehicleId, target: VehicleId, k: u64) -> f64 {
-        uniform(self.seed, stream, Self::pair(observer, target), (self.now_us << 3) | k)
+    fn new(seed: u64, now_us: u64) -> Draws {
+        let stream = |s: u64| mix(mix(seed) ^ s);
+        Draws { now_us, radar: stream(RADAR_STREAM), velodyne: stream(VELODYNE_STREAM) }
     }
 
-    /// Draw `k` as 64 random bits (the hash [`uniform`] takes its 53 bits from).
-    fn bits(&self, stream: u64, observer: VehicleId, target: VehicleId, k: u64) -> u64 {
-        mix(mix(mix(mix(self.seed) ^ stream) ^ Self::pair(observer, target)) ^ ((self.now_us << 3) | k))
+    /// The counter of the sensor with stream key `stream` ([`Draws::radar`] or
+    /// [`Draws::velodyne`]) for the pair (observer, target): `key(seed, stream, pair)`. Its
+    /// draw `k` this tick is [`uniform_at`]`(counter, (now_us << 3) | k)`, the same number as
+    /// [`super::random::uniform`]`(seed, stream, pair, (now_us << 3) | k)` for two mixes, not four.
+    fn counter(&self, stream: u64, observer: VehicleId, target: VehicleId) -> u64 {
+        mix(stream ^ Self::pair(observer, target))
+    }
+
+    /// Draw `k` of a pair's `counter` this tick: uniform in [0, 1).
+    fn uniform(&self, counter: u64, k: u64) -> f64 {
+        uniform_at(counter, (self.now_us << 3) | k)
+    }
+
+    /// The words of draw `k` of a pair's `counter` this tick (for the normals of the noise).
+    fn words(&self, counter: u64, k: u64) -> Words {
+        Words::new(mix(counter ^ ((self.now_us << 3) | k)))
     }
 
     fn pair(observer: VehicleId, target: VehicleId) -> u64 {
@@ -302,17 +326,18 @@ fn write_imperfect_readings(
         let velodyne_reach = d2 <= sight.velodyne_range2;
         let sees = |reach: bool, err: &SensorError, stream: u64| -> (bool, bool) {
             let visible = reach && !(hidden && err.occlusion);
-            let kept = visible && (err.dropout <= 0.0 || draws.uniform(stream, sight.id, e.id, 0) >= err.dropout);
+            let kept = visible
+                && (err.dropout <= 0.0 || draws.uniform(draws.counter(stream, sight.id, e.id), 0) >= err.dropout);
             (visible, kept)
         };
-        let (radar_visible, radar_kept) = sees(radar_reach, &errors.radar, RADAR_STREAM);
-        let (velodyne_visible, velodyne_kept) = sees(velodyne_reach, &errors.velodyne, VELODYNE_STREAM);
+        let (radar_visible, radar_kept) = sees(radar_reach, &errors.radar, draws.radar);
+        let (velodyne_visible, velodyne_kept) = sees(velodyne_reach, &errors.velodyne, draws.velodyne);
         let noise = if sight.omniscient {
             None
         } else if radar_kept {
-            Some((&errors.radar, RADAR_STREAM))
+            Some((&errors.radar, draws.radar))
         } else if velodyne_kept {
-            Some((&errors.velodyne, VELODYNE_STREAM))
+            Some((&errors.velodyne, draws.velodyne))
         } else {
             if radar_visible || velodyne_visible {
                 stats.missed_by_dropout += 1;
@@ -323,13 +348,14 @@ fn write_imperfect_readings(
         };
         let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
         if let Some((err, stream)) = noise.filter(|(err, _)| err.is_noisy()) {
-            let (n_range, n_bearing) = normal_pair(draws.bits(stream, sight.id, e.id, 1));
-            let (n_vx, n_vy) = normal_pair(draws.bits(stream, sight.id, e.id, 2));
+            let mut normals = draws.words(draws.counter(stream, sight.id, e.id), 1);
+            let (n_range, n_bearing) = normals.normal_pair();
+            let (n_vx, n_vy) = normals.normal_pair();
             // Range and bearing errors: scale the offset, then rotate it by the bearing error.
             let d = d2.sqrt();
             let scale = if d > 0.0 { (d + err.range_sd * n_range) / d } else { 1.0 };
             let scaled = relative * scale;
-            detection.position = sight.position + DVec2::from_angle(err.bearing_sd * n_bearing).rotate(scaled);
+            detection.position = sight.position + small_rotation(err.bearing_sd * n_bearing).rotate(scaled);
             detection.velocity += DVec2::new(n_vx, n_vy) * err.speed_sd;
         }
         readings.0.push(detection);
@@ -481,11 +507,8 @@ pub fn sense_vehicles(
             index: i as u32,
         }),
     );
-    let input = SenseInput {
-        grid: &grid.0,
-        footprints: &footprints,
-        draws: Draws { seed: seed.map_or(0, |s| s.0), now_us: clock.now.0 },
-    };
+    let input =
+        SenseInput { grid: &grid.0, footprints: &footprints, draws: Draws::new(seed.map_or(0, |s| s.0), clock.now.0) };
     let mut items: Vec<SensingItem<'_>> = recycle(std::mem::take(&mut *buffer));
     items.extend(sensing.iter_mut());
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, s| sense_chunk(input, chunk, s));
@@ -506,5 +529,31 @@ impl Plugin for SensorsPlugin {
         sim.insert_resource(SensorStats::default());
         sim.world_mut().init_resource::<Parallelism>();
         sim.add_systems(Sensors, sense_vehicles.in_set(SimSystems::Sense));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pair_counter_draws_what_the_plain_draw_draws() {
+        let d = Draws::new(42, 1_500_000);
+        let (a, b) = (VehicleId(-3), VehicleId(7));
+        let pair = Draws::pair(a, b);
+        for (stream, base) in [(RADAR_STREAM, d.radar), (VELODYNE_STREAM, d.velodyne)] {
+            let c = d.counter(base, a, b);
+            assert_eq!(c, crate::world::random::key(42, stream, pair));
+            assert_eq!(d.uniform(c, 0), crate::world::random::uniform(42, stream, pair, 1_500_000 << 3));
+        }
+    }
+
+    #[test]
+    fn small_rotation_is_the_rotation() {
+        for k in -2000..=2000 {
+            let a = f64::from(k) * 1e-4; // -0.2 ..= 0.2 rad, both sides of the switch
+            let (r, exact) = (small_rotation(a), DVec2::from_angle(a));
+            assert!((r - exact).abs().max_element() < 1e-15, "angle {a}: {r} vs {exact}");
+        }
     }
 }

@@ -8,15 +8,28 @@
 //! Each channel has a [`ChannelModel`] (loss, bursts, delay; perfect by default). A lossy channel
 //! decides every reception with a seeded draw ([`super::channel`]); a delaying one queues the
 //! reception and [`deliver_delayed`] puts it into the in-box at the first control tick at or
-//! after its due time, links never reordered. A lossy network channel costs O(N²) per round
-//! (every receiver draws for every message); wifi stays O(N · neighbours).
+//! after its due time, links never reordered. Wifi stays O(N · neighbours).
+//!
+//! The network round with a constant, memoryless loss (a [`Loss::Constant`] probability, no
+//! bursts, no delay: nothing kept per link, nothing depending on distance) costs O(N) per
+//! round, not O(N²): for each receiver it draws how many of the batch's other M messages are
+//! lost (one [`binomial`] draw) and stores that count with a key; which ones are lost is a
+//! uniformly random subset of that size ([`OrderedSample`]), drawn only when the in-box is
+//! read. Given its count, the lost set of independent Bernoulli losses is exactly such a
+//! subset, so every receiver still loses each reception independently with probability p.
+//! The departure from REFERENCE's keying: these draws are keyed by (seed, network stream,
+//! receiver, round, draw number) and not per (sender, receiver, tick, index): one draw no
+//! longer belongs to one reception. They remain counter-based, so threads, system order and
+//! the order of reading change nothing. Every other network model (bursts, distance loss,
+//! delay) decides each reception on its own as before, keyed per reception: O(N²) per round.
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::{Local, Query, Res, ResMut, Resource};
 
-use super::channel::{ChannelModel, Draw, LinkState};
+use super::channel::{ChannelModel, Draw, LinkState, Loss};
+use super::random::{OrderedSample, binomial, key, mix, uniform_at};
 use super::{Plugin, SimBuilder, SimClock, SimSeed};
 use crate::world::{Channel, Mailbox, Message, VehicleId, VehicleState, Vehicles};
 
@@ -45,6 +58,8 @@ impl Default for V2vConfig {
 /// Streams of the counter-based draws of each channel (see [`Draw::stream`]).
 const WIFI_STREAM: u64 = 0x5769_6669; // "Wifi"
 const NETWORK_STREAM: u64 = 0x4e65_7477; // "Netw"
+/// Stream of the per-receiver draws of a network round with constant loss (see the module docs).
+const NETWORK_LOST_STREAM: u64 = 0x4e65_744c; // "NetL"
 
 /// Delay histogram resolution [µs] and length: 0.5 ms bins up to 5 s (the last bin holds more).
 const DELAY_BIN_US: u64 = 500;
@@ -263,6 +278,40 @@ pub fn deliver_network(
         stats.network_delivered += delivered;
         return;
     }
+    let seed = seed.map_or(0, |s| s.0);
+    if let (Loss::Constant(p), false) = (model.loss, model.keeps_link_state()) {
+        // One age for the whole batch (beacons written at the same tick): the delivered age
+        // is that times the count; otherwise the lost ones' ages are taken off one by one.
+        let uniform_age = batch.first().map(|m| m.sent_at).filter(|&t| batch.iter().all(|m| m.sent_at == t));
+        for (_, mut mailbox) in &mut mailboxes {
+            let owner = mailbox.owner();
+            let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
+            let others = (batch.len() - own.len()) as u32;
+            let counter = key(seed, NETWORK_LOST_STREAM ^ mix(u64::from(owner.0 as u32)), round);
+            let lost = OrderedSample::new(counter, binomial(others, p, uniform_at(counter, 0)), others);
+            let kept = u64::from(others - lost.remaining());
+            delivered += kept;
+            channel.network.sent += u64::from(others);
+            channel.network.delivered += kept;
+            channel.network.aged += kept;
+            channel.network.age_sum_us += match uniform_age {
+                Some(t) => kept * now.0.saturating_sub(t.0),
+                None => {
+                    let age = |m: &Message| now.0.saturating_sub(m.sent_at.0);
+                    let own_age: u64 = batch[own.clone()].iter().map(age).sum();
+                    let at = |position: u32| {
+                        let i = position as usize;
+                        if i < own.start { i } else { i + own.len() }
+                    };
+                    let lost_age: u64 = lost.map(|position| age(&batch[at(position)])).sum();
+                    age_all - own_age - lost_age
+                }
+            };
+            mailbox.network_in.deliver_all_but_lost(epoch.0, round, &batch, owner, lost);
+        }
+        stats.network_delivered += delivered;
+        return;
+    }
     // Senders' positions for the distance model, sorted by id.
     positions.clear();
     if model.uses_distance() {
@@ -270,7 +319,6 @@ pub fn deliver_network(
         positions.sort_by_key(|p| p.0);
     }
     let stateful = model.keeps_link_state();
-    let seed = seed.map_or(0, |s| s.0);
     for (state, mut mailbox) in &mut mailboxes {
         let owner = mailbox.owner();
         picks.clear();

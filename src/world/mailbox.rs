@@ -6,6 +6,13 @@
 //! the control phase last ran: a controller faster than V2V sees the same round again (check
 //! [`Inbox::latest_round`]), a slower one sees all rounds it missed. Out-boxes keep what is
 //! written between rounds until the next round of their channel takes it.
+//!
+//! A delivery names its entries in one of three ways: the whole batch but the receiver's own
+//! messages (a perfect network round), a list of batch indices (wifi, delayed receptions,
+//! per-link channel models), or the whole batch but the receiver's own and a random subset of
+//! lost ones (a network round with constant, memoryless loss): that subset is held as an
+//! [`OrderedSample`] (a key and a count, two words) and its positions are drawn while the
+//! in-box is iterated, so a round with N receivers stores O(N), not N² picks.
 
 use std::any::Any;
 use std::ops::Range;
@@ -13,6 +20,7 @@ use std::sync::Arc;
 
 use bevy_ecs::prelude::Component;
 
+use super::random::OrderedSample;
 use super::{SimTime, VehicleId};
 
 /// Any value a vehicle sends; shared, never copied per receiver.
@@ -58,6 +66,22 @@ impl std::fmt::Debug for Message {
     }
 }
 
+/// Which entries of a delivery's batch are for the receiver.
+#[derive(Debug, Clone)]
+enum Selection {
+    /// Every message of the batch but `exclude`'s.
+    AllBut,
+    /// The batch indices in `Inbox::picks[range]`.
+    Picks(Range<usize>),
+    /// Every message but `exclude`'s (the batch sorted by sender, so they are contiguous) less
+    /// the positions `lost` yields, counted among the messages that are not `exclude`'s.
+    AllButLost {
+        lost: OrderedSample,
+        /// Messages delivered (not `exclude`'s, not lost).
+        kept: usize,
+    },
+}
+
 /// One round's delivery into an in-box: a shared batch and which of its entries are for us.
 #[derive(Debug, Clone)]
 struct Delivery {
@@ -65,9 +89,7 @@ struct Delivery {
     batch: Arc<[Message]>,
     /// Messages from this sender are skipped (the receiver's own).
     exclude: VehicleId,
-    /// `None`: every message of the batch (but `exclude`'s); `Some(r)`: the batch indices in
-    /// `Inbox::picks[r]`.
-    picks: Option<Range<usize>>,
+    selection: Selection,
 }
 
 /// Received messages of one channel: every round delivered since the control phase last ran.
@@ -81,23 +103,24 @@ pub struct Inbox {
 impl Inbox {
     /// All received messages, oldest round first, in sender-id order within a round.
     pub fn iter(&self) -> InboxIter<'_> {
-        InboxIter { inbox: self, delivery: 0, k: 0 }
+        InboxIter::at(self, 0)
     }
 
     /// The messages of rounds numbered above `round` only (what a controller that remembers the
     /// last round it read has not seen yet).
     pub fn iter_after(&self, round: u64) -> InboxIter<'_> {
         let delivery = self.deliveries.partition_point(|d| d.round <= round);
-        InboxIter { inbox: self, delivery, k: 0 }
+        InboxIter::at(self, delivery)
     }
 
     /// Number of received messages.
     pub fn len(&self) -> usize {
         self.deliveries
             .iter()
-            .map(|d| match &d.picks {
-                Some(r) => r.len(),
-                None => d.batch.iter().filter(|m| m.sender != d.exclude).count(),
+            .map(|d| match &d.selection {
+                Selection::Picks(r) => r.len(),
+                Selection::AllBut => d.batch.iter().filter(|m| m.sender != d.exclude).count(),
+                Selection::AllButLost { kept, .. } => *kept,
             })
             .sum()
     }
@@ -124,7 +147,29 @@ impl Inbox {
     /// Deliver the whole `batch` except the messages of `exclude` (the network channel).
     pub(crate) fn deliver_all_but(&mut self, epoch: u64, round: u64, batch: &Arc<[Message]>, exclude: VehicleId) {
         self.begin(epoch);
-        self.deliveries.push(Delivery { round, batch: Arc::clone(batch), exclude, picks: None });
+        self.deliveries.push(Delivery { round, batch: Arc::clone(batch), exclude, selection: Selection::AllBut });
+    }
+
+    /// Deliver the whole `batch` (sorted by sender) except the messages of `exclude` and the
+    /// positions `lost` yields, counted among the messages that are not `exclude`'s (the
+    /// network channel with constant loss). `lost` must sample from exactly that many messages.
+    pub(crate) fn deliver_all_but_lost(
+        &mut self,
+        epoch: u64,
+        round: u64,
+        batch: &Arc<[Message]>,
+        exclude: VehicleId,
+        lost: OrderedSample,
+    ) {
+        self.begin(epoch);
+        let own = batch.partition_point(|m| m.sender < exclude)..batch.partition_point(|m| m.sender <= exclude);
+        let kept = batch.len() - own.len() - lost.remaining() as usize;
+        self.deliveries.push(Delivery {
+            round,
+            batch: Arc::clone(batch),
+            exclude,
+            selection: Selection::AllButLost { lost, kept },
+        });
     }
 
     /// Deliver the batch entries whose indices `picks` yields (the wifi channel).
@@ -140,7 +185,7 @@ impl Inbox {
         let start = self.picks.len();
         self.picks.extend(picks);
         let range = start..self.picks.len();
-        self.deliveries.push(Delivery { round, batch: Arc::clone(batch), exclude, picks: Some(range) });
+        self.deliveries.push(Delivery { round, batch: Arc::clone(batch), exclude, selection: Selection::Picks(range) });
     }
 }
 
@@ -158,6 +203,31 @@ pub struct InboxIter<'a> {
     inbox: &'a Inbox,
     delivery: usize,
     k: usize,
+    /// In an `AllButLost` delivery: the lost positions not yet passed, the next of them
+    /// (`u32::MAX` when none is left) and how many of the receiver's others were passed.
+    lost: OrderedSample,
+    next_lost: u32,
+    others: u32,
+}
+
+impl<'a> InboxIter<'a> {
+    fn at(inbox: &'a Inbox, delivery: usize) -> InboxIter<'a> {
+        let mut it = InboxIter { inbox, delivery, k: 0, lost: OrderedSample::empty(), next_lost: u32::MAX, others: 0 };
+        it.enter();
+        it
+    }
+
+    /// Start the delivery `self.delivery` at its first entry.
+    fn enter(&mut self) {
+        self.k = 0;
+        if let Some(Delivery { selection: Selection::AllButLost { lost, .. }, .. }) =
+            self.inbox.deliveries.get(self.delivery)
+        {
+            self.lost = *lost;
+            self.next_lost = self.lost.next().unwrap_or(u32::MAX);
+            self.others = 0;
+        }
+    }
 }
 
 impl<'a> Iterator for InboxIter<'a> {
@@ -165,15 +235,15 @@ impl<'a> Iterator for InboxIter<'a> {
     fn next(&mut self) -> Option<&'a Message> {
         loop {
             let d = self.inbox.deliveries.get(self.delivery)?;
-            match &d.picks {
-                Some(r) => {
+            match &d.selection {
+                Selection::Picks(r) => {
                     if self.k < r.len() {
                         let index = self.inbox.picks[r.start + self.k] as usize;
                         self.k += 1;
                         return Some(&d.batch[index]);
                     }
                 }
-                None => {
+                Selection::AllBut => {
                     while self.k < d.batch.len() {
                         let m = &d.batch[self.k];
                         self.k += 1;
@@ -182,9 +252,25 @@ impl<'a> Iterator for InboxIter<'a> {
                         }
                     }
                 }
+                Selection::AllButLost { .. } => {
+                    while self.k < d.batch.len() {
+                        let m = &d.batch[self.k];
+                        self.k += 1;
+                        if m.sender == d.exclude {
+                            continue;
+                        }
+                        let position = self.others;
+                        self.others += 1;
+                        if position == self.next_lost {
+                            self.next_lost = self.lost.next().unwrap_or(u32::MAX);
+                            continue;
+                        }
+                        return Some(m);
+                    }
+                }
             }
             self.delivery += 1;
-            self.k = 0;
+            self.enter();
         }
     }
 }
@@ -263,5 +349,74 @@ impl Mailbox {
     /// The newest received message of type `T` from `sender` on `channel`, if any.
     pub fn latest_from<T: Any>(&self, channel: Channel, sender: VehicleId) -> Option<(SimTime, &T)> {
         self.received::<T>(channel).filter(|(s, _, _)| *s == sender).map(|(_, t, m)| (t, m)).last()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::random::key;
+
+    fn batch(senders: &[i32]) -> Arc<[Message]> {
+        senders
+            .iter()
+            .enumerate()
+            .map(|(i, &s)| Message {
+                sender: VehicleId(s),
+                sent_at: SimTime(i as u64),
+                channel: Channel::Network,
+                payload: Arc::new(i),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_lossy_delivery_yields_the_batch_less_own_less_lost_in_order() {
+        // Sorted by sender; the receiver -3 has two messages in the middle.
+        let senders = [-9, -7, -7, -5, -3, -3, -2, 1, 4, 4, 6, 8];
+        let b = batch(&senders);
+        let me = VehicleId(-3);
+        let others: Vec<usize> = (0..senders.len()).filter(|&i| senders[i] != me.0).collect();
+        for (k, seed) in [(0u32, 1u64), (3, 2), (3, 3), (10, 4)] {
+            let lost = OrderedSample::new(key(seed, 1, 2), k, others.len() as u32);
+            let lost_positions: Vec<u32> = lost.collect();
+            assert_eq!(lost_positions.len(), k as usize);
+            let expected: Vec<usize> = others
+                .iter()
+                .enumerate()
+                .filter(|(p, _)| !lost_positions.contains(&(*p as u32)))
+                .map(|(_, &i)| i)
+                .collect();
+            let mut inbox = Inbox::default();
+            inbox.deliver_all_but_lost(1, 7, &b, me, lost);
+            let got: Vec<usize> = inbox.iter().map(|m| *m.payload::<usize>().unwrap()).collect();
+            assert_eq!(got, expected, "{k} lost");
+            assert_eq!(inbox.len(), expected.len());
+            assert_eq!(inbox.is_empty(), expected.is_empty());
+        }
+    }
+
+    #[test]
+    fn lossy_deliveries_mix_with_others_and_iter_after_restarts_the_draws() {
+        let b = batch(&[-4, -3, -2, -1, 0, 1, 2, 3]);
+        let me = VehicleId(0);
+        let lost = OrderedSample::new(key(9, 9, 9), 3, 7);
+        let lost_positions: Vec<u32> = lost.collect();
+        let mut inbox = Inbox::default();
+        inbox.deliver_all_but_lost(1, 1, &b, me, lost);
+        inbox.deliver_picks(1, 2, &b, me, [1u32, 6].into_iter());
+        inbox.deliver_all_but_lost(1, 3, &b, me, lost);
+        inbox.deliver_all_but(1, 4, &b, me);
+        let one_round: Vec<usize> =
+            (0..7).filter(|p| !lost_positions.contains(&(*p as u32))).map(|p| if p < 4 { p } else { p + 1 }).collect();
+        let mut expected = one_round.clone();
+        expected.extend([1, 6]);
+        expected.extend(one_round.iter().copied());
+        expected.extend([0, 1, 2, 3, 5, 6, 7]);
+        let got: Vec<usize> = inbox.iter().map(|m| *m.payload::<usize>().unwrap()).collect();
+        assert_eq!(got, expected);
+        assert_eq!(inbox.len(), expected.len());
+        let after: Vec<usize> = inbox.iter_after(2).map(|m| *m.payload::<usize>().unwrap()).collect();
+        assert_eq!(after, expected[one_round.len() + 2..].to_vec());
     }
 }

@@ -8,6 +8,7 @@
 
 mod mailbox;
 mod models;
+pub mod random;
 mod registry;
 mod sensors;
 mod time;
