@@ -120,9 +120,18 @@ pub fn write_lane_drop<W: Write>(params: &LaneDropParams, out: W) -> Result<MapS
             b.lanelet(left_ways[k], middle_ways[k]);
         }
     }
-    b.tag(right_edge[0][0], "destination", LANE_DROP_RIGHT_START.to_string());
-    b.tag(left_edge[0][0], "destination", LANE_DROP_LEFT_START.to_string());
-    b.tag(*left_edge[drop_index - 1].last().unwrap(), "destination", LANE_DROP_LEFT_END.to_string());
-    b.tag(*right_edge[segments - 1].last().unwrap(), "destination", LANE_DROP_END.to_string());
+    // The parameter checks above leave at least one segment before the drop, each with two nodes
+    // or more; should a line still be empty, the error says so instead of a panic.
+    let first = |line: &[Vec<usize>]| line.first().and_then(|n| n.first()).copied();
+    let last = |line: &[Vec<usize>]| line.last().and_then(|n| n.last()).copied();
+    let (Some(right_start), Some(left_start), Some(left_end), Some(road_end)) =
+        (first(&right_edge), first(&left_edge), last(&left_edge), last(&right_edge))
+    else {
+        return Err(invalid("segment", p.segment, "a length that leaves a segment before and after the drop"));
+    };
+    b.tag(right_start, "destination", LANE_DROP_RIGHT_START.to_string());
+    b.tag(left_start, "destination", LANE_DROP_LEFT_START.to_string());
+    b.tag(left_end, "destination", LANE_DROP_LEFT_END.to_string());
+    b.tag(road_end, "destination", LANE_DROP_END.to_string());
     Ok(b.write(out)?)
 }
