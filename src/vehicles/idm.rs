@@ -10,72 +10,13 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::sim::Control;
 use crate::sim::parallel::recycle;
-use crate::sim::params::{MAX_ACCEL, MAX_DISTANCE, MAX_SPEED, MAX_TIME, ParamError, Range, check_all};
 use crate::sim::{Parallelism, Plugin, SimBuilder, SimClock};
 use crate::world::{VehicleSize, VehicleState, Vehicles};
 
 use super::lanes::{LanePosition, LanePositionsAt, forward_speed};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
-/// Largest braking the IDM asks for [m/s²] (its formula is unbounded when the gap closes).
-pub const IDM_MAX_BRAKING: f64 = 9.0;
-
-/// IDM parameters: `controller = { type = "idm", speed, time_gap, min_gap, accel, decel, delta }`.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct Idm {
-    /// Desired speed v₀ [m/s] (also the path follower's cruise speed).
-    pub speed: f64,
-    /// Desired time gap T [s]; raising it follows farther.
-    pub time_gap: f64,
-    /// Standstill gap s₀ [m], bumper to bumper.
-    pub min_gap: f64,
-    /// Maximum acceleration a_max [m/s²].
-    pub accel: f64,
-    /// Comfortable deceleration b [m/s²] (positive).
-    pub decel: f64,
-    /// Acceleration exponent δ [-].
-    pub delta: f64,
-}
-
-impl Default for Idm {
-    fn default() -> Self {
-        Idm { speed: 30.0, time_gap: 1.5, min_gap: 2.0, accel: 1.0, decel: 2.0, delta: 4.0 }
-    }
-}
-
-impl Idm {
-    /// Check the values (keys relative to the `controller` table).
-    pub fn check(&self) -> Result<(), ParamError> {
-        check_all([
-            ("speed", self.speed, Range::positive(MAX_SPEED)),
-            ("time_gap", self.time_gap, Range::non_negative(MAX_TIME)),
-            ("min_gap", self.min_gap, Range::non_negative(MAX_DISTANCE)),
-            ("accel", self.accel, Range::positive(MAX_ACCEL)),
-            ("decel", self.decel, Range::positive(MAX_ACCEL)),
-            ("delta", self.delta, Range::between(0.1, 100.0)),
-        ])
-    }
-
-    /// Acceleration [m/s²] at speed `v` [m/s] behind `leader = (gap [m], leader speed [m/s])`,
-    /// or on a free road; never below −[`IDM_MAX_BRAKING`].
-    pub fn acceleration(&self, v: f64, leader: Option<(f64, f64)>) -> f64 {
-        let v = v.max(0.0);
-        let r = v / self.speed.max(1e-3);
-        // δ = 4 (the default) by multiplication: powf is the IDM's most expensive step.
-        let free = 1.0 - if self.delta == 4.0 { (r * r) * (r * r) } else { r.powf(self.delta) };
-        let interaction = match leader {
-            Some((gap, vl)) => {
-                let s_star = self.min_gap
-                    + (v * self.time_gap + v * (v - vl) / (2.0 * (self.accel * self.decel).sqrt())).max(0.0);
-                let s = gap.max(0.1);
-                (s_star / s) * (s_star / s)
-            }
-            None => 0.0,
-        };
-        (self.accel * (free - interaction)).max(-IDM_MAX_BRAKING)
-    }
-}
+pub use super::follow_laws::{IDM_MAX_BRAKING, Idm};
 
 /// Per-vehicle state of the IDM.
 #[derive(Component, Debug, Clone, Copy, PartialEq)]

@@ -36,7 +36,7 @@ use crate::world::{
 };
 
 use super::PathFollower;
-use super::lane_changing::{LaneChanger, LaneCrossings, LaneIndex};
+use super::lane_state::{LaneChanger, LaneCrossings, LaneIndex};
 use super::lanes::{LaneMap, LanePosition, LanePositionsAt, forward_speed};
 
 /// The steps of the longitudinal pipeline as system sets of the [`Control`] schedule, chained in
@@ -63,23 +63,7 @@ pub enum LongitudinalSystems {
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct SteeringSystems;
 
-/// The vehicle ahead on the same route, as the sensors see it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LeaderGap {
-    /// Its id.
-    pub id: VehicleId,
-    /// Arc length from our centre to its centre along our route [m].
-    pub distance: f64,
-    /// Bumper-to-bumper gap [m]: `distance` minus our own length. Sensors report centres, not
-    /// lengths, so this assumes the leader is as long as we are; raise the standstill distance
-    /// when following longer vehicles.
-    pub gap: f64,
-    /// Its speed along our route [m/s].
-    pub speed: f64,
-    /// Its acceleration along our route [m/s²], from the change of `speed` since the last tick
-    /// (0 when the leader just changed).
-    pub acceleration: f64,
-}
+pub use super::follow_laws::LeaderGap;
 
 /// Per-vehicle longitudinal state: what the controllers of this tick asked for.
 #[derive(Component, Debug, Clone, Copy, PartialEq)]

@@ -10,7 +10,7 @@ use bevy_ecs::prelude::{Component, Local, Mut, Query, Res};
 use crate::sim::{Plugin, SimBuilder};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::lane_changing::LaneChanger;
+use super::lane_state::LaneChanger;
 use super::longitudinal::SteeringSystems;
 use crate::sim::parallel::recycle;
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};

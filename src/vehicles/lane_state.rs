@@ -1,0 +1,404 @@
+//! The state the lane-change plugin shares with the rest of the vehicle pipeline: each vehicle's
+//! [`LaneChanger`] (its parameters, law, goal and the [`Manoeuvre`] in progress) and the per-tick
+//! [`LaneIndex`] and [`LaneCrossings`]. The path follower and the leader search read these, the
+//! plugin ([`super::lane_changing`]) writes them; keeping them here lets both depend on this file
+//! instead of on each other.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Component, Resource};
+
+use crate::map::{LaneletId, Path, Place};
+use crate::world::VehicleId;
+
+use super::follow_laws::{AdaptiveCruise, Idm, LeaderGap};
+use super::lane_change::LaneChangeProfile;
+use super::lanes::LaneMap;
+
+/// How far the leader and follower searches look along the lane [m].
+pub const SEARCH_HORIZON: f64 = 200.0;
+
+/// `lane_change = { politeness, threshold, safe_deceleration, max_lateral_accel, keep_right,
+/// cooperative, min_interval, manual }` (all optional, these defaults).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LaneChangeParams {
+    /// MOBIL politeness p [-]: weight of the followers' acceleration changes.
+    pub politeness: f64,
+    /// MOBIL threshold Δa_th [m/s²]: the net gain a discretionary change must bring.
+    pub threshold: f64,
+    /// Safe deceleration b_safe [m/s²]: the new follower may not have to brake harder.
+    pub safe_deceleration: f64,
+    /// Largest lateral acceleration of the manoeuvre [m/s²] (sets its length).
+    pub max_lateral_accel: f64,
+    /// Asymmetric keep-right rule (European motorways).
+    pub keep_right: bool,
+    /// Open a gap (braking up to `safe_deceleration / 2`) for a neighbour that must change.
+    pub cooperative: bool,
+    /// Least time between two changes of one vehicle [s] (no ping-pong).
+    pub min_interval: f64,
+    /// Change lanes only when asked from outside (Python's `change_lane`, a learning agent such
+    /// as `smlworld/HighwayMerge-v0`'s): no discretionary or mandatory change of its own. The
+    /// safety check of a requested change still applies.
+    pub manual: bool,
+}
+
+impl Default for LaneChangeParams {
+    fn default() -> Self {
+        LaneChangeParams {
+            politeness: 0.2,
+            threshold: 0.1,
+            safe_deceleration: 4.0,
+            max_lateral_accel: 1.5,
+            keep_right: true,
+            cooperative: true,
+            min_interval: 4.0,
+            manual: false,
+        }
+    }
+}
+
+impl LaneChangeParams {
+    /// Check the values (keys relative to `lane_change`).
+    pub fn check(&self) -> Result<(), crate::sim::params::ParamError> {
+        use crate::sim::params::{MAX_ACCEL, MAX_TIME, Range, check_all};
+        check_all([
+            ("politeness", self.politeness, Range::between(0.0, 10.0)),
+            ("threshold", self.threshold, Range::between(-MAX_ACCEL, MAX_ACCEL)),
+            ("safe_deceleration", self.safe_deceleration, Range::positive(MAX_ACCEL)),
+            ("max_lateral_accel", self.max_lateral_accel, Range::positive(MAX_ACCEL)),
+            ("min_interval", self.min_interval, Range::non_negative(MAX_TIME)),
+        ])
+    }
+}
+
+/// The longitudinal law MOBIL evaluates (the vehicle's own).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FollowLaw {
+    /// Treiber's IDM.
+    Idm(Idm),
+    /// Adaptive cruise control at a cruise speed [m/s].
+    Acc(AdaptiveCruise, f64),
+}
+
+impl FollowLaw {
+    /// Acceleration [m/s²] at speed `v` [m/s] behind `leader = (gap [m], speed [m/s])`.
+    pub fn accel(&self, v: f64, leader: Option<(f64, f64)>) -> f64 {
+        match self {
+            FollowLaw::Idm(p) => p.acceleration(v, leader),
+            FollowLaw::Acc(p, cruise) => {
+                let gap = leader.map(|(gap, speed)| LeaderGap {
+                    id: VehicleId(0),
+                    distance: gap,
+                    gap,
+                    speed,
+                    acceleration: 0.0,
+                });
+                p.acceleration(v, *cruise, gap.as_ref(), 0.0)
+            }
+        }
+    }
+
+    /// Desired speed [m/s].
+    pub fn desired_speed(&self) -> f64 {
+        match self {
+            FollowLaw::Idm(p) => p.speed,
+            FollowLaw::Acc(_, cruise) => *cruise,
+        }
+    }
+}
+
+/// Where a vehicle's route goes: round a loop, or to a place.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RouteGoal {
+    /// A closed loop: any lane of the loop will do.
+    Loop,
+    /// An open route to this place: only lanes that reach it will do.
+    To(Place),
+}
+
+impl RouteGoal {
+    pub(super) fn key(&self) -> String {
+        match self {
+            RouteGoal::Loop => String::new(),
+            RouteGoal::To(p) => format!("{p:?}"),
+        }
+    }
+}
+
+/// A side.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Side {
+    /// To the left.
+    Left,
+    /// To the right.
+    Right,
+}
+
+/// Why a change was made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ChangeKind {
+    /// MOBIL found it worth it.
+    Discretionary,
+    /// The lane does not lead to the destination.
+    Mandatory,
+    /// Asked for from outside (Python's `change_lane`).
+    Requested,
+}
+
+/// A lane change in progress.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Manoeuvre {
+    /// Lanelet left (of the change as first intended).
+    pub from: LaneletId,
+    /// Lanelet aimed at (of the change as first intended).
+    pub to: LaneletId,
+    /// Direction as first intended.
+    pub direction: Side,
+    /// Why.
+    pub kind: ChangeKind,
+    /// Lateral profile: the offset from the route goes from `start_offset` to 0.
+    pub profile: LaneChangeProfile,
+    /// Offset from the (new) route at the start [m], positive left.
+    pub start_offset: f64,
+    /// Arc length along the route where it began [m].
+    pub s_start: f64,
+    /// The route driven before (searched for leaders while crossing, and driven back to on an abort).
+    pub old_route: Arc<Path>,
+    /// Arc length along `old_route` [m].
+    pub old_s: f64,
+    /// Start time [s].
+    pub t_start: f64,
+    /// Whether it is being aborted (driving back).
+    pub aborted: bool,
+    /// Largest lateral acceleration of the profile so far, v² |d''(s)| [m/s²].
+    pub peak_lateral_accel: f64,
+    /// Speed cap while changing [m/s] (the profile was sized for it).
+    pub speed_cap: f64,
+}
+
+impl Manoeuvre {
+    /// Distance driven since the start along `route` [m].
+    pub fn driven(&self, route: &Path, s: f64) -> f64 {
+        let d = s - self.s_start;
+        if route.closed { d.rem_euclid(route.length) } else { d }
+    }
+
+    /// Offset from the route [m] (positive left) the path follower aims at, `s` along the route.
+    pub fn offset_at(&self, route: &Path, s: f64) -> f64 {
+        let d = self.driven(route, s);
+        if route.closed && d > 0.5 * route.length {
+            return self.start_offset;
+        }
+        self.start_offset + self.profile.offset_at(d)
+    }
+}
+
+/// Per-vehicle lane-change state (the `lane_change` table of a scenario vehicle).
+#[derive(Component, Debug, Clone, PartialEq)]
+pub struct LaneChanger {
+    /// Parameters.
+    pub params: LaneChangeParams,
+    /// The longitudinal law MOBIL evaluates.
+    pub law: FollowLaw,
+    /// Where the route goes.
+    pub goal: RouteGoal,
+    /// A change asked for from outside, carried out when safe (cleared when done or refused).
+    pub request: Option<Side>,
+    /// The change in progress.
+    pub active: Option<Manoeuvre>,
+    /// End time of the last change [s].
+    pub last_change: f64,
+    /// A slower vehicle in the target lane to fall behind while a mandatory change waits: (gap [m], speed [m/s]).
+    pub virtual_leader: Option<(f64, f64)>,
+    /// A neighbour signalling a mandatory change in our gap: (gap [m], speed [m/s]).
+    pub yield_to: Option<(f64, f64)>,
+    /// Road left [m] to the end of a lane the vehicle must leave (a mandatory change waits).
+    pub lane_end: Option<f64>,
+    /// While crossing: the vehicles ahead in both lanes, (gap [m], speed [m/s]) each.
+    pub crossing_leaders: [Option<(f64, f64)>; 2],
+    /// A side no discretionary change may go to now, set each tick by a cooperative plugin (a
+    /// vehicle does not move into the lane of an emergency vehicle coming up behind it).
+    pub keep_out: Option<Side>,
+    /// Whether the target lane's vehicles are asked to open a gap for `request` as for a
+    /// mandatory change (cooperative plugins set it, e.g. making way for an emergency vehicle;
+    /// Python's `change_lane` does not).
+    pub signal_request: bool,
+    /// Hold the plugin's own changes (mandatory and discretionary): a cooperative plugin that
+    /// decides when to change sets it each tick and asks through `request` (GCDC merging).
+    pub hold: bool,
+    /// Abort the change in progress back to the old lane if it is not halfway yet (set by a
+    /// cooperative plugin, taken once by the plugin).
+    pub abort: bool,
+    pub(super) wait_since: Option<f64>,
+    pub(super) missed: bool,
+    /// Which lanelets reach the goal (looked up once, shared by every vehicle with this goal).
+    pub(super) reach: Option<Arc<Vec<bool>>>,
+}
+
+impl LaneChanger {
+    /// A vehicle that has not changed lanes yet.
+    pub fn new(params: LaneChangeParams, law: FollowLaw, goal: RouteGoal) -> LaneChanger {
+        LaneChanger {
+            params,
+            law,
+            goal,
+            request: None,
+            active: None,
+            last_change: f64::NEG_INFINITY,
+            virtual_leader: None,
+            yield_to: None,
+            lane_end: None,
+            crossing_leaders: [None; 2],
+            keep_out: None,
+            signal_request: false,
+            hold: false,
+            abort: false,
+            wait_since: None,
+            missed: false,
+            reach: None,
+        }
+    }
+}
+
+/// Vehicles crossing between two lanes this tick: id -> (from, to). Leader searches count them
+/// in both lanes.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct LaneCrossings(pub BTreeMap<VehicleId, (LaneletId, LaneletId)>);
+
+/// One vehicle in the [`LaneIndex`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IndexEntry {
+    /// Lanelet index.
+    pub lanelet: u32,
+    /// Arc length along it [m].
+    pub s: f64,
+    /// Speed [m/s].
+    pub speed: f64,
+    /// Length [m].
+    pub length: f64,
+    /// Its id.
+    pub id: VehicleId,
+}
+
+/// Every vehicle by lanelet and arc length, built once per control tick: leader and follower
+/// in any lane in O(log k) for k vehicles on a lanelet.
+#[derive(Resource, Debug, Clone, Default)]
+pub struct LaneIndex {
+    entries: Vec<IndexEntry>,
+    starts: Vec<u32>,
+    counts: Vec<u32>,
+}
+
+/// A vehicle found by the index: distance along the lane [m, centre to centre], speed, length.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Found {
+    /// Distance along the lane from the asking position [m], positive.
+    pub distance: f64,
+    /// Speed [m/s].
+    pub speed: f64,
+    /// Length [m].
+    pub length: f64,
+    /// Id.
+    pub id: VehicleId,
+}
+
+impl LaneIndex {
+    /// Rebuild from `items` (counting sort by lanelet, then by arc length and id): allocation
+    /// free once the buffers have grown.
+    pub fn rebuild(&mut self, lanelets: usize, items: impl Iterator<Item = IndexEntry> + Clone) {
+        self.counts.clear();
+        self.counts.resize(lanelets + 1, 0);
+        for e in items.clone() {
+            self.counts[e.lanelet as usize] += 1;
+        }
+        self.starts.clear();
+        let mut acc = 0;
+        for c in &self.counts {
+            self.starts.push(acc);
+            acc += c;
+        }
+        self.entries.clear();
+        self.entries.resize(acc as usize, IndexEntry { lanelet: 0, s: 0.0, speed: 0.0, length: 0.0, id: VehicleId(0) });
+        let mut fill = self.starts.clone();
+        for e in items {
+            let k = &mut fill[e.lanelet as usize];
+            self.entries[*k as usize] = e;
+            *k += 1;
+        }
+        for i in 0..lanelets {
+            let (a, b) = (self.starts[i] as usize, self.starts[i + 1] as usize);
+            self.entries[a..b].sort_unstable_by(|x, y| x.s.total_cmp(&y.s).then(x.id.cmp(&y.id)));
+        }
+    }
+
+    fn on(&self, i: u32) -> &[IndexEntry] {
+        let i = i as usize;
+        if i + 1 >= self.starts.len() {
+            return &[];
+        }
+        &self.entries[self.starts[i] as usize..self.starts[i + 1] as usize]
+    }
+
+    /// Nearest vehicle at or ahead of arc length `s` on lanelet `i` (then its first successors),
+    /// other than `me`, within [`SEARCH_HORIZON`].
+    pub fn ahead(&self, lanes: &LaneMap, i: u32, s: f64, me: VehicleId) -> Option<Found> {
+        self.ahead_where(lanes, i, s, me, |_| true)
+    }
+
+    /// [`LaneIndex::ahead`] among the vehicles for which `seen(id)` holds (e.g. those the
+    /// sensors detect).
+    pub fn ahead_where(
+        &self,
+        lanes: &LaneMap,
+        mut i: u32,
+        s: f64,
+        me: VehicleId,
+        seen: impl Fn(VehicleId) -> bool,
+    ) -> Option<Found> {
+        // Distance from the asking point to the start of lanelet `i` (after the first one).
+        let mut base = 0.0;
+        let mut first = true;
+        for _ in 0..8 {
+            let list = self.on(i);
+            let from = if first { list.partition_point(|e| e.s < s) } else { 0 };
+            if let Some(e) = list[from..].iter().find(|e| e.id != me && seen(e.id)) {
+                let distance = if first { e.s - s } else { base + e.s };
+                return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
+            }
+            base = if first { lanes.length(i) - s } else { base + lanes.length(i) };
+            first = false;
+            if base > SEARCH_HORIZON {
+                return None;
+            }
+            i = *lanes.successors[i as usize].first()?;
+        }
+        None
+    }
+
+    /// Nearest vehicle behind arc length `s` on lanelet `i` (then its first predecessors),
+    /// other than `me`, within [`SEARCH_HORIZON`].
+    pub fn behind(&self, lanes: &LaneMap, mut i: u32, s: f64, me: VehicleId) -> Option<Found> {
+        // Distance from the asking point back to the end of lanelet `i` (after the first one).
+        let mut base = 0.0;
+        let mut first = true;
+        for _ in 0..8 {
+            let list = self.on(i);
+            let end = if first { list.partition_point(|e| e.s < s) } else { list.len() };
+            if let Some(e) = list[..end].iter().rev().find(|e| e.id != me) {
+                let distance = if first { s - e.s } else { base + lanes.length(i) - e.s };
+                return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
+            }
+            base = if first { s } else { base + lanes.length(i) };
+            first = false;
+            if base > SEARCH_HORIZON {
+                return None;
+            }
+            i = *lanes.predecessors[i as usize].first()?;
+        }
+        None
+    }
+}
