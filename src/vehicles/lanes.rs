@@ -222,8 +222,12 @@ impl Default for LanePosition {
 impl LanePosition {
     /// Where `state` is on `lanes`, found afresh (at spawn; [`update_lane_positions`] keeps it).
     pub fn of(lanes: &LaneMap, state: &VehicleState) -> LanePosition {
-        let speed = state.speed();
-        match lanes.locate(state.position, None, 0.0) {
+        LanePosition::found(lanes, lanes.locate(state.position, None, 0.0), state.speed())
+    }
+
+    /// The position [`LaneMap::locate`] `found` (off-road when `None`), moving at `speed` [m/s].
+    fn found(lanes: &LaneMap, found: Option<(u32, f64, f64)>, speed: f64) -> LanePosition {
+        match found {
             Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset, speed },
             None => LanePosition { speed, ..LanePosition::default() },
         }
@@ -297,7 +301,7 @@ type LaneItem<'a> = (&'a VehicleState, Mut<'a, LanePosition>);
 pub fn update_lane_positions(
     clock: Option<Res<SimClock>>,
     lanes: Option<Res<LaneMap>>,
-    at: Option<ResMut<LanePositionsAt>>,
+    mut at: Option<ResMut<LanePositionsAt>>,
     parallelism: Option<Res<Parallelism>>,
     mut vehicles: Query<(&VehicleState, &mut LanePosition)>,
     mut scratch: Local<Vec<()>>,
@@ -306,7 +310,6 @@ pub fn update_lane_positions(
     let Some(lanes) = lanes else { return };
     let lanes = &*lanes;
     let now = clock.map_or(SimTime::ZERO, |c| c.now);
-    let mut at = at;
     let last = at.as_deref().and_then(|a| a.0);
     if last == Some(now) {
         return;
@@ -331,11 +334,7 @@ pub fn update_lane_positions(
             // Moved about its speed times the step along the lane since the last update (the
             // length of the velocity: no trigonometry per vehicle and step).
             let found = lanes.locate(state.position, last, state.velocity.length() * dt);
-            let speed = state.speed();
-            let new = match found {
-                Some((i, s, offset)) => LanePosition { lanelet: Some(lanes.id(i)), index: i, s, offset, speed },
-                None => LanePosition { speed, ..LanePosition::default() },
-            };
+            let new = LanePosition::found(lanes, found, state.speed());
             if **pos != new {
                 **pos = new;
             }
