@@ -154,6 +154,14 @@ fn run_to_replay(dir: &Path) -> PathBuf {
     out
 }
 
+/// `smlworld replay RUN ARGS... --width 64 --height 64`: small frames, quick to draw.
+fn replay_64(run: &Path, args: &[&str]) -> (bool, String) {
+    let mut all = vec!["replay", run.to_str().unwrap()];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--width", "64", "--height", "64"]);
+    smlworld(&all)
+}
+
 #[test]
 fn a_replay_failing_after_its_gif_began_keeps_the_earlier_gif() {
     let dir = scratch("atomic_replay_gif");
@@ -162,18 +170,7 @@ fn a_replay_failing_after_its_gif_began_keeps_the_earlier_gif() {
     std::fs::write(&gif, "earlier GIF").unwrap();
     // The third frame's file name is taken by a folder: the replay fails after its GIF has begun.
     std::fs::create_dir_all(frames.join("frame_000002.png")).unwrap();
-    let (ok, log) = smlworld(&[
-        "replay",
-        run.to_str().unwrap(),
-        "--gif",
-        gif.to_str().unwrap(),
-        "--frames",
-        frames.to_str().unwrap(),
-        "--width",
-        "64",
-        "--height",
-        "64",
-    ]);
+    let (ok, log) = replay_64(&run, &["--gif", gif.to_str().unwrap(), "--frames", frames.to_str().unwrap()]);
     assert!(!ok, "the replay should fail on the frame it cannot write:\n{log}");
     assert!(log.contains("frame_000002.png"), "the error names the file:\n{log}");
     assert_eq!(std::fs::read_to_string(&gif).unwrap(), "earlier GIF");
@@ -189,16 +186,7 @@ fn a_replay_failing_on_a_frame_keeps_that_frames_earlier_file() {
     std::fs::write(frames.join("frame_000001.png"), "earlier frame").unwrap();
     // The second frame's temporary file cannot be created: a folder has its name.
     std::fs::create_dir(frames.join(".frame_000001.partial.png")).unwrap();
-    let (ok, log) = smlworld(&[
-        "replay",
-        run.to_str().unwrap(),
-        "--frames",
-        frames.to_str().unwrap(),
-        "--width",
-        "64",
-        "--height",
-        "64",
-    ]);
+    let (ok, log) = replay_64(&run, &["--frames", frames.to_str().unwrap()]);
     assert!(!ok, "the replay should fail on the frame it cannot write:\n{log}");
     assert!(log.contains("frame_000001.png"), "the error names the file:\n{log}");
     assert_eq!(std::fs::read_to_string(frames.join("frame_000001.png")).unwrap(), "earlier frame");
