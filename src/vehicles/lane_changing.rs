@@ -311,9 +311,12 @@ pub struct Decision {
     missed: bool,
     /// Mandatory (or signalled) changes announced to the target lane: (lanelet, s, speed, length).
     signals: [Option<(u32, f64, f64, f64)>; 2],
-    /// Changes MOBIL accepts, in the order weighed: (gain, side, kind, target lanelet, s there).
-    accepted: [Option<(f64, Side, ChangeKind, u32, f64)>; 2],
+    /// Changes MOBIL accepts, in the order weighed.
+    accepted: [Option<Accepted>; 2],
 }
+
+/// A change MOBIL accepts: (gain [m/s²], side, kind, target lanelet, arc length there [m]).
+type Accepted = (f64, Side, ChangeKind, u32, f64);
 
 /// One lane changer as [`decide_lane_changes`] gathers it.
 type ChangerItem<'a> = (
