@@ -30,7 +30,9 @@ use crate::world::{
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::recycle;
-use super::random::{Words, mix, uniform_at};
+#[cfg(doc)]
+use super::random::uniform_at;
+use super::random::{Words, mix};
 use super::{GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
 /// Random stream of radar draws ("Rada").
@@ -128,21 +130,19 @@ impl Draws {
     }
 
     /// The counter of the sensor with stream key `stream` ([`Draws::radar`] or
-    /// [`Draws::velodyne`]) for the pair (observer, target): `key(seed, stream, pair)`. Its
-    /// draw `k` this tick is [`uniform_at`]`(counter, (now_us << 3) | k)`, the same number as
-    /// [`super::random::uniform`]`(seed, stream, pair, (now_us << 3) | k)` for two mixes, not four.
+    /// [`Draws::velodyne`]) for the pair (observer, target): `key(seed, stream, pair)`.
     fn counter(&self, stream: u64, observer: VehicleId, target: VehicleId) -> u64 {
         mix(stream ^ Self::pair(observer, target))
     }
 
-    /// Draw `k` of a pair's `counter` this tick: uniform in [0, 1).
-    fn uniform(&self, counter: u64, k: u64) -> f64 {
-        uniform_at(counter, (self.now_us << 3) | k)
-    }
-
-    /// The words of draw `k` of a pair's `counter` this tick (for the normals of the noise).
-    fn words(&self, counter: u64, k: u64) -> Words {
-        Words::new(mix(counter ^ ((self.now_us << 3) | k)))
+    /// The draws of the pair (observer, target) of the sensor with stream key `stream` this
+    /// tick: word `k` is [`uniform_at`]`(counter, (now_us << 16) | k)`, the same number as
+    /// [`super::random::uniform`]`(seed, stream, pair, (now_us << 16) | k)` for one mix each
+    /// after the counter's. Word 0 decides dropout, words 1 and on are the noise's normals (a
+    /// rejection sampler uses a few; 2¹⁶ words a tick would need astronomically many rejections).
+    /// One counter serves both, so a noisy kept detection costs four hashes.
+    fn words(&self, stream: u64, observer: VehicleId, target: VehicleId) -> Words {
+        Words::new(self.counter(stream, observer, target) ^ (self.now_us << 16))
     }
 
     fn pair(observer: VehicleId, target: VehicleId) -> u64 {
@@ -267,18 +267,26 @@ impl Sight {
         }
     }
 
-    /// Write the candidate's key at `found[n]`; returns `n + 1` if it is seen, else `n` (no
-    /// branch on the outcome).
+    /// Write the candidate's key at `found[n]` (with which sensors reach it, see [`REACH`]);
+    /// returns `n + 1` if it is seen, else `n` (no branch on the outcome).
     fn consider(&self, slot: u32, position: DVec2, id: VehicleId, found: &mut [u128], n: usize) -> usize {
         let relative = position - self.position;
         let d2 = relative.length_squared();
-        let seen = self.omniscient
-            | (d2 <= self.velodyne_range2)
-            | ((d2 <= self.radar_range2) & self.cone.contains(relative, d2));
-        found[n] = detection_key(d2, id, slot);
+        let radar = (d2 <= self.radar_range2) & self.cone.contains(relative, d2);
+        let velodyne = d2 <= self.velodyne_range2;
+        let seen = self.omniscient | velodyne | radar;
+        let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
+        found[n] = detection_key(d2, id, slot | flags);
         n + (seen & (id != self.id)) as usize
     }
 }
+
+/// The low word of a detection key: the grid slot in the low 30 bits (grids hold fewer than
+/// 2³⁰ vehicles), bit 31 set when the radar reaches the target, bit 30 when the velodyne does,
+/// so the imperfect sensors need not test range and cone again.
+const REACH: u32 = 0b11 << 30;
+const RADAR_REACH: u32 = 1 << 31;
+const VELODYNE_REACH: u32 = 1 << 30;
 
 /// The cone of a vehicle without a radar (never consulted: its radar range is negative).
 const NO_CONE: Cone = Cone { heading: DVec2::ZERO, cos_half: 1.0, cos_half2: 1.0, everything: false };
@@ -288,7 +296,7 @@ fn write_readings(found: &mut [u128], grid: &SpatialGrid, readings: &mut SensorR
     found.sort_unstable();
     readings.0.clear();
     readings.0.extend(found.iter().map(|&key| {
-        let e = grid.get(key as u32);
+        let e = grid.get(key as u32 & !REACH);
         Detection { id: e.id, position: e.position, velocity: e.velocity }
     }));
 }
@@ -313,31 +321,34 @@ fn write_imperfect_readings(
     extents.clear();
     let occlusion = errors.radar.occlusion || errors.velodyne.occlusion;
     for &key in found.iter() {
-        let e = grid.get(key as u32);
+        let low = key as u32;
+        let e = grid.get(low & !REACH);
         let relative = e.position - sight.position;
-        let d2 = relative.length_squared();
+        let d2 = f64::from_bits((key >> 64) as u64);
         let mut hidden = false;
         if occlusion {
             let ext = extent(relative, &footprints[e.index as usize]);
             hidden = extents.iter().any(|&nearer| covers(nearer, ext));
             extents.push(ext);
         }
-        let radar_reach = (d2 <= sight.radar_range2) & sight.cone.contains(relative, d2);
-        let velodyne_reach = d2 <= sight.velodyne_range2;
-        let sees = |reach: bool, err: &SensorError, stream: u64| -> (bool, bool) {
+        // Each sensor's draws of this pair, made when first needed (dropout, then noise).
+        let (mut radar_words, mut velodyne_words) = (None, None);
+        let sees = |reach: bool, err: &SensorError, stream: u64, words: &mut Option<Words>| -> (bool, bool) {
             let visible = reach && !(hidden && err.occlusion);
             let kept = visible
-                && (err.dropout <= 0.0 || draws.uniform(draws.counter(stream, sight.id, e.id), 0) >= err.dropout);
+                && (err.dropout <= 0.0
+                    || words.get_or_insert_with(|| draws.words(stream, sight.id, e.id)).uniform() >= err.dropout);
             (visible, kept)
         };
-        let (radar_visible, radar_kept) = sees(radar_reach, &errors.radar, draws.radar);
-        let (velodyne_visible, velodyne_kept) = sees(velodyne_reach, &errors.velodyne, draws.velodyne);
+        let (radar_visible, radar_kept) = sees(low & RADAR_REACH != 0, &errors.radar, draws.radar, &mut radar_words);
+        let (velodyne_visible, velodyne_kept) =
+            sees(low & VELODYNE_REACH != 0, &errors.velodyne, draws.velodyne, &mut velodyne_words);
         let noise = if sight.omniscient {
             None
         } else if radar_kept {
-            Some((&errors.radar, draws.radar))
+            Some((&errors.radar, draws.radar, radar_words))
         } else if velodyne_kept {
-            Some((&errors.velodyne, draws.velodyne))
+            Some((&errors.velodyne, draws.velodyne, velodyne_words))
         } else {
             if radar_visible || velodyne_visible {
                 stats.missed_by_dropout += 1;
@@ -347,8 +358,13 @@ fn write_imperfect_readings(
             continue;
         };
         let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
-        if let Some((err, stream)) = noise.filter(|(err, _)| err.is_noisy()) {
-            let mut normals = draws.words(draws.counter(stream, sight.id, e.id), 1);
+        if let Some((err, stream, words)) = noise.filter(|(err, _, _)| err.is_noisy()) {
+            // Words 1 and on (word 0 is the dropout draw, made or not).
+            let mut normals = words.unwrap_or_else(|| {
+                let mut w = draws.words(stream, sight.id, e.id);
+                w.bits();
+                w
+            });
             let (n_range, n_bearing) = normals.normal_pair();
             let (n_vx, n_vy) = normals.normal_pair();
             // Range and bearing errors: scale the offset, then rotate it by the bearing error.
@@ -544,7 +560,10 @@ mod tests {
         for (stream, base) in [(RADAR_STREAM, d.radar), (VELODYNE_STREAM, d.velodyne)] {
             let c = d.counter(base, a, b);
             assert_eq!(c, crate::world::random::key(42, stream, pair));
-            assert_eq!(d.uniform(c, 0), crate::world::random::uniform(42, stream, pair, 1_500_000 << 3));
+            let mut w = d.words(base, a, b);
+            for k in 0..3 {
+                assert_eq!(w.uniform(), crate::world::random::uniform(42, stream, pair, (1_500_000 << 16) | k));
+            }
         }
     }
 
