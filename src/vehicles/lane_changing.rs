@@ -318,8 +318,20 @@ pub struct Decision {
 /// A change MOBIL accepts: (gain [m/s²], side, kind, target lanelet, arc length there [m]).
 type Accepted = (f64, Side, ChangeKind, u32, f64);
 
+impl Decision {
+    /// Nothing to apply (most vehicles, most ticks): the serial part never sees it.
+    fn is_empty(&self) -> bool {
+        self.finished.is_none()
+            && self.waited.is_none()
+            && !self.missed
+            && self.signals == [None; 2]
+            && self.accepted == [None; 2]
+    }
+}
+
 /// One lane changer as [`decide_lane_changes`] gathers it.
 type ChangerItem<'a> = (
+    usize,
     &'a VehicleId,
     &'a VehicleState,
     &'a VehicleSize,
@@ -327,7 +339,6 @@ type ChangerItem<'a> = (
     Mut<'a, Route>,
     Mut<'a, PathFollower>,
     Mut<'a, LaneChanger>,
-    Decision,
 );
 
 /// What every vehicle's evaluation reads.
@@ -376,7 +387,7 @@ pub fn decide_lane_changes(
         &mut LaneChanger,
     )>,
     mut entries: Local<Vec<IndexEntry>>,
-    mut scratch: Local<Vec<()>>,
+    mut scratch: Local<Vec<Vec<(usize, Decision)>>>,
     mut buffer: Local<Vec<ChangerItem<'static>>>,
 ) {
     let Some(lanes) = lanes else { return };
@@ -409,22 +420,30 @@ pub fn decide_lane_changes(
     claims.0.clear();
 
     let mut items: Vec<ChangerItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(changers.iter_mut().map(|(id, state, size, pos, route, follower, mut ch)| {
+    items.extend(changers.iter_mut().enumerate().map(|(n, (id, state, size, pos, route, follower, mut ch))| {
         // Which lanelets reach the goal: looked up once per goal, here (the cache is shared).
         if ch.reach.is_none() && pos.on().is_some() {
             ch.reach = Some(paths.reach(lanes, &ch.goal));
         }
-        (id, state, size, pos, route, follower, ch, Decision::default())
+        (n, id, state, size, pos, route, follower, ch)
     }));
     let shared = Shared { lanes, index: &index, signals: &last_signals, t, dt, tick };
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
-        for (id, state, size, pos, route, follower, ch, decision) in chunk.iter_mut() {
-            evaluate(&shared, **id, state, size, pos, route, follower, ch, decision);
+    // Each chunk keeps the non-empty decisions with their item's place (chunks are in query
+    // order, and so is each list): the serial part visits only those, not every vehicle.
+    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, out| {
+        for (n, id, state, size, pos, route, follower, ch) in chunk.iter_mut() {
+            let mut decision = Decision::default();
+            evaluate(&shared, **id, state, size, pos, route, follower, ch, &mut decision);
+            if !decision.is_empty() {
+                out.push((*n, decision));
+            }
         }
     });
 
-    for (id, state, size, pos, mut route, mut follower, mut ch, decision) in items.drain(..) {
-        let me = *id;
+    for (k, decision) in scratch.iter_mut().flat_map(|list| list.drain(..)) {
+        let (_, id, state, size, pos, route, follower, ch) = &mut items[k];
+        let (state, size, pos) = (*state, *size, *pos);
+        let me = **id;
         if let Some(event) = decision.finished {
             log.record(event);
         }
@@ -486,7 +505,7 @@ pub fn decide_lane_changes(
         let params = follower.params;
         let max_offset = follower.max_offset;
         route.0 = path;
-        *follower = PathFollower::starting_at(params, q.s);
+        **follower = PathFollower::starting_at(params, q.s);
         follower.max_offset = max_offset;
         claims.0.push((j, s_j));
         ch.request = None;
@@ -511,7 +530,6 @@ fn evaluate(
     out: &mut Decision,
 ) {
     let Shared { lanes, index, signals: last_signals, t, dt, tick } = *shared;
-    *out = Decision::default();
     let v = pos.speed;
     // Written only when they change, so change detection sees real changes.
     if ch.virtual_leader.is_some() {

@@ -23,7 +23,7 @@ use crate::world::VehicleState;
 /// Size of a cell of the lanelet grid [m].
 const CELL: f64 = 25.0;
 /// How many vehicles ahead [`update_lane_positions`] asks for the centre line it will read.
-const PREFETCH_AHEAD: usize = 8;
+pub(crate) const PREFETCH_AHEAD: usize = 8;
 /// Half width of the first window a vehicle is looked for in around where it should be [m].
 const NARROW_WINDOW: f64 = 2.0;
 /// How far beyond a lanelet's end a projection may lie and still count as on it [m].
@@ -112,15 +112,7 @@ impl LaneMap {
         }
         let k = ((s / spacing) as usize).min(path.points.len().saturating_sub(1));
         if let Some(p) = path.points.get(k) {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: a prefetch is only a hint; it never faults, whatever the address, and here
-            // the address is a live element of `path.points`.
-            unsafe {
-                use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-                _mm_prefetch::<_MM_HINT_T0>((p as *const DVec2).cast::<i8>());
-            }
-            #[cfg(not(target_arch = "x86_64"))]
-            let _ = p;
+            crate::sim::parallel::prefetch(p);
         }
     }
 

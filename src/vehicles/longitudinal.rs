@@ -28,7 +28,7 @@ use glam::DVec2;
 
 use crate::map::{LaneletId, Path};
 use crate::sim::SimBuilder;
-use crate::sim::parallel::recycle;
+use crate::sim::parallel::{prefetch, recycle};
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{
     AccelerationUnicycle, ControlCommand, Detection, KinematicUnicycle, Route, SensorReadings, VehicleId, VehicleSize,
@@ -37,7 +37,7 @@ use crate::world::{
 
 use super::PathFollower;
 use super::lane_state::{LaneChanger, LaneCrossings, LaneIndex};
-use super::lanes::{LaneMap, LanePosition, LanePositionsAt, forward_speed};
+use super::lanes::{LaneMap, LanePosition, LanePositionsAt, PREFETCH_AHEAD, forward_speed};
 
 /// The steps of the longitudinal pipeline as system sets of the [`Control`] schedule, chained in
 /// this order inside [`SimSystems::Control`] and after the path follower's steering. A speed
@@ -202,7 +202,17 @@ pub fn find_leaders(
     items.extend(vehicles.iter_mut());
     let lanes = index.as_deref().zip(lane_map.as_deref());
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
-        for (id, pos, state, size, route, follower, command, readings, lon, changer) in chunk.iter_mut() {
+        for k in 0..chunk.len() {
+            // The detections a vehicle a few places on will scan: far apart on a big world.
+            // The leader is mostly among the nearest few: the first four cache lines.
+            if let Some(r) = chunk.get(k + PREFETCH_AHEAD).and_then(|item| item.7) {
+                let bytes = r.0.as_ptr().cast::<u8>();
+                let len = std::mem::size_of_val(&r.0[..]);
+                for line in (0..len.min(256)).step_by(64) {
+                    prefetch(bytes.wrapping_add(line));
+                }
+            }
+            let (id, pos, state, size, route, follower, command, readings, lon, changer) = &mut chunk[k];
             // A lane changer's leader comes from the lane index (the vehicle ahead in its lane,
             // crossing vehicles in both lanes) among those its sensors detect.
             let in_lane = match (lanes, *changer, pos.and_then(|p| p.on().map(|i| (i, p.s)))) {
