@@ -284,6 +284,40 @@ pub struct IndexEntry {
     pub id: VehicleId,
 }
 
+/// `list.partition_point(|e| e.s < s)` for a lanelet's entries (sorted by arc length, the
+/// lanelet `length` [m] long): the first entry at or after `s`. Traffic spreads along a lanelet,
+/// so the place in proportion to `s / length` is a few entries off: walk from there (in cache)
+/// instead of a binary search's dependent loads over the whole list; search the rest of the
+/// list when the walk goes far (a queue, an empty stretch).
+pub fn first_at_or_after(list: &[IndexEntry], s: f64, length: f64) -> usize {
+    const WALK: usize = 8;
+    let n = list.len();
+    if n == 0 {
+        return 0;
+    }
+    let guess = if length > 0.0 && s.is_finite() { ((s / length).clamp(0.0, 1.0) * n as f64) as usize } else { 0 };
+    let mut k = guess.min(n);
+    if k < n && list[k].s < s {
+        // Forward: the answer lies after k.
+        for _ in 0..WALK {
+            k += 1;
+            if k == n || list[k].s >= s {
+                return k;
+            }
+        }
+        k + 1 + list[k + 1..].partition_point(|e| e.s < s)
+    } else {
+        // Backward: the answer is at or before k.
+        for _ in 0..WALK {
+            if k == 0 || list[k - 1].s < s {
+                return k;
+            }
+            k -= 1;
+        }
+        list[..k].partition_point(|e| e.s < s)
+    }
+}
+
 /// Every vehicle by lanelet and arc length, built once per control tick: leader and follower
 /// in any lane in O(log k) for k vehicles on a lanelet.
 #[derive(Resource, Debug, Clone, Default)]
@@ -335,7 +369,7 @@ impl LaneIndex {
         }
     }
 
-    fn on(&self, i: u32) -> &[IndexEntry] {
+    pub(crate) fn on(&self, i: u32) -> &[IndexEntry] {
         let i = i as usize;
         if i + 1 >= self.starts.len() {
             return &[];
@@ -364,7 +398,7 @@ impl LaneIndex {
         let mut first = true;
         for _ in 0..8 {
             let list = self.on(i);
-            let from = if first { list.partition_point(|e| e.s < s) } else { 0 };
+            let from = if first { first_at_or_after(list, s, lanes.length(i)) } else { 0 };
             if let Some(e) = list[from..].iter().find(|e| e.id != me && seen(e.id)) {
                 let distance = if first { e.s - s } else { base + e.s };
                 return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
@@ -387,7 +421,7 @@ impl LaneIndex {
         let mut first = true;
         for _ in 0..8 {
             let list = self.on(i);
-            let end = if first { list.partition_point(|e| e.s < s) } else { list.len() };
+            let end = if first { first_at_or_after(list, s, lanes.length(i)) } else { list.len() };
             if let Some(e) = list[..end].iter().rev().find(|e| e.id != me) {
                 let distance = if first { s - e.s } else { base + lanes.length(i) - e.s };
                 return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
@@ -400,5 +434,50 @@ impl LaneIndex {
             i = *lanes.predecessors[i as usize].first()?;
         }
         None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entry(s: f64) -> IndexEntry {
+        IndexEntry { lanelet: 0, s, speed: 0.0, length: 4.0, id: VehicleId(0) }
+    }
+
+    #[test]
+    fn first_at_or_after_is_the_partition_point_for_spread_queued_and_empty_lanes() {
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let length = 500.0;
+        for case in 0..200 {
+            // Spread over the lanelet, queued in one stretch, with repeated positions, or empty.
+            let n = case % 60;
+            let mut list: Vec<IndexEntry> = (0..n)
+                .map(|k| match case % 3 {
+                    0 => entry(next() * length),
+                    1 => entry(400.0 + next() * 20.0),
+                    _ => entry((k / 3) as f64 * 10.0),
+                })
+                .collect();
+            list.sort_by(|a, b| a.s.total_cmp(&b.s));
+            for q in 0..50 {
+                let s = match q % 4 {
+                    0 => next() * length,
+                    1 => list.get(q % list.len().max(1)).map_or(0.0, |e| e.s),
+                    2 => -5.0 + next() * 10.0,
+                    _ => length - 5.0 + next() * 10.0,
+                };
+                let want = list.partition_point(|e| e.s < s);
+                assert_eq!(first_at_or_after(&list, s, length), want, "case {case}, s {s}, n {n}");
+            }
+        }
+        assert_eq!(
+            first_at_or_after(&[entry(1.0)], f64::NAN, length),
+            [entry(1.0)].partition_point(|e| e.s < f64::NAN)
+        );
     }
 }
