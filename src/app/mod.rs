@@ -33,6 +33,7 @@
 //! dynamics step that starts at t.
 
 pub mod bench;
+pub mod bench_map;
 pub mod interrupt;
 pub mod metrics;
 mod output;

@@ -34,6 +34,21 @@ pub struct BenchArgs {
     /// radar (noise 0.2 m, 0.5°, 0.1 m/s; 2 % dropout) degraded, seed 1 (issue 21).
     #[arg(long)]
     pub degraded: bool,
+    /// Routing benchmark instead of the simulation: route --routes random node pairs (drawn with
+    /// --seed among the nodes on a drivable lanelet's right bound) of this map with A*; prints
+    /// `routes_per_second`.
+    #[arg(long, value_name = "MAP", conflicts_with_all = ["soak", "lane_change", "degraded", "map_load"])]
+    pub routing: Option<std::path::PathBuf>,
+    /// Routes of --routing.
+    #[arg(long, default_value_t = 1000, requires = "routing", value_parser = super::range::count::<usize>(1, 10_000_000))]
+    pub routes: usize,
+    /// Seed of the --routing pairs.
+    #[arg(long, default_value_t = 1, requires = "routing")]
+    pub seed: u64,
+    /// Map-loading benchmark instead of the simulation: load this map 3 times; prints
+    /// `mb_per_second` (of the median load).
+    #[arg(long, value_name = "MAP", conflicts_with_all = ["soak", "lane_change", "degraded"])]
+    pub map_load: Option<std::path::PathBuf>,
 }
 
 /// Run the subcommand.
@@ -49,6 +64,16 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         args.duration
     );
     anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
+    if let Some(map) = &args.routing {
+        let report = smlworld::app::bench_map::bench_routing(map, args.routes, args.seed)?;
+        println!("{}", serde_json::to_string(&report)?);
+        return Ok(());
+    }
+    if let Some(map) = &args.map_load {
+        let report = smlworld::app::bench_map::bench_map_load(map, 3)?;
+        println!("{}", serde_json::to_string(&report)?);
+        return Ok(());
+    }
     // A soak drives the whole stack: IDM, lane changes and traffic churn (vehicles leaving and
     // entering), whether or not --lane-change is given.
     let world = BenchWorld {

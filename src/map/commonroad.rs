@@ -649,6 +649,8 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
             bidirectional: false,
             right_nodes: &l.right_nodes,
             left_nodes: &l.left_nodes,
+            length: l.length,
+            centre_ends: (l.centre.first().copied().unwrap_or_default(), l.centre.last().copied().unwrap_or_default()),
         })
         .collect();
     let explicit: Vec<Vec<usize>> =

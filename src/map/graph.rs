@@ -3,6 +3,8 @@
 
 use std::collections::BTreeMap;
 
+use glam::DVec2;
+
 /// Directed lanelets as a graph: state `2 * index + reversed`; reversed states exist only for
 /// `one_way=no` lanelets, and no state exists for lanelets a vehicle may not drive.
 #[derive(Debug, Clone, Default)]
@@ -14,6 +16,11 @@ pub(crate) struct RoutingGraph {
     /// Node id -> states whose left bound (in their driving direction) contains the node: the
     /// fallback for nodes on no right bound (Lanelet2 maps tag the left marking too).
     pub(crate) node_left_states: BTreeMap<i64, Vec<u32>>,
+    /// Centre-line length of every state [m] (indexed like `successors`): the searches read
+    /// these compact arrays, not the lanelets (a cache miss each on a big map).
+    pub(crate) lengths: Vec<f64>,
+    /// Where every state's centre line ends in its driving direction (A*'s heuristic).
+    pub(crate) ends: Vec<DVec2>,
 }
 
 /// What the graph needs of one lanelet (in map order).
@@ -27,6 +34,10 @@ pub(crate) struct GraphLanelet<'a> {
     pub right_nodes: &'a [i64],
     /// Node ids of the left bound, in driving direction.
     pub left_nodes: &'a [i64],
+    /// Centre-line length [m].
+    pub length: f64,
+    /// First and last centre-line point [m].
+    pub centre_ends: (DVec2, DVec2),
 }
 
 impl RoutingGraph {
@@ -77,6 +88,13 @@ impl RoutingGraph {
                 }
             }
         }
+        let lengths: Vec<f64> = (0..2 * n).map(|state| lanelets[state / 2].length).collect();
+        let state_ends: Vec<DVec2> = (0..2 * n)
+            .map(|state| {
+                let (first, last) = lanelets[state / 2].centre_ends;
+                if state % 2 == 1 { first } else { last }
+            })
+            .collect();
         let mut successors = vec![Vec::new(); 2 * n];
         if let Some(explicit) = explicit {
             for (i, next) in explicit.iter().enumerate() {
@@ -84,7 +102,7 @@ impl RoutingGraph {
                     successors[2 * i] = next.iter().filter(|&&j| valid[2 * j]).map(|&j| (2 * j) as u32).collect();
                 }
             }
-            return RoutingGraph { successors, node_states, node_left_states };
+            return RoutingGraph { successors, node_states, node_left_states, lengths, ends: state_ends };
         }
         for (state, ok) in valid.iter().enumerate() {
             if *ok {
@@ -94,6 +112,6 @@ impl RoutingGraph {
                 }
             }
         }
-        RoutingGraph { successors, node_states, node_left_states }
+        RoutingGraph { successors, node_states, node_left_states, lengths, ends: state_ends }
     }
 }

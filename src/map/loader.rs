@@ -130,6 +130,8 @@ fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
             bidirectional: l.bidirectional,
             right_nodes: &l.right_nodes,
             left_nodes: &l.left_nodes,
+            length: l.length,
+            centre_ends: (l.centre.first().copied().unwrap_or_default(), l.centre.last().copied().unwrap_or_default()),
         })
         .collect();
     map.graph = RoutingGraph::new(&graph_lanelets);

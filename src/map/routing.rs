@@ -105,14 +105,12 @@ impl LaneletMap {
     }
 
     fn state_length(&self, state: u32) -> f64 {
-        self.lanelets[state as usize / 2].length
+        self.graph.lengths[state as usize]
     }
 
     /// Where a directed lanelet state ends: the last point of its centre line in its direction.
     fn state_end(&self, state: u32) -> DVec2 {
-        let centre = &self.lanelets[state as usize / 2].centre;
-        let end = if state % 2 == 1 { centre.first() } else { centre.last() };
-        end.copied().unwrap_or(DVec2::ZERO)
+        self.graph.ends[state as usize]
     }
 
     /// Lower bound [mm] on the cost of any route from `p` to the nearest of `targets`, in the
@@ -122,6 +120,12 @@ impl LaneletMap {
     fn distance_bound(p: DVec2, targets: &[DVec2], shrink: f64) -> u64 {
         let d = targets.iter().map(|t| p.distance_squared(*t)).fold(f64::INFINITY, f64::min).sqrt();
         (d * 1000.0 * shrink - 1000.0).max(0.0) as u64
+    }
+
+    /// Ids of the nodes a route may start or end at by the 2015 rule (on the right bound of a
+    /// drivable lanelet), in id order: what `smlworld bench --routing` draws its pairs from.
+    pub fn routable_nodes(&self) -> Vec<i64> {
+        self.graph.node_states.keys().copied().collect()
     }
 
     /// Ids of the nodes carrying a tag with this value.
@@ -259,12 +263,16 @@ impl LaneletMap {
                 *e = *s;
             }
         }
-        let finals_by_state = {
-            let mut m: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
-            for (k, f) in finals.iter().enumerate() {
-                m.entry(f.state).or_default().push(k as u32);
-            }
-            m
+        // End candidates by state, sorted: a few entries, searched for every successor (a tree
+        // map's lookup cost more than the search around it).
+        let finals_by_state: Vec<(u32, u32)> = {
+            let mut v: Vec<(u32, u32)> = finals.iter().enumerate().map(|(k, f)| (f.state, k as u32)).collect();
+            v.sort_unstable();
+            v
+        };
+        let finals_on = |state: u32| {
+            let from = finals_by_state.partition_point(|&(s, _)| s < state);
+            finals_by_state[from..].iter().take_while(move |&&(s, _)| s == state).map(|&(_, k)| k)
         };
         let successors = |step: &Step| -> Vec<(Step, u64)> {
             let mut out = Vec::new();
@@ -275,7 +283,7 @@ impl LaneletMap {
                     }
                     // Start and end on the same lanelet with the end ahead: stay on it.
                     for s in &starts {
-                        for &k in finals_by_state.get(&s.state).map(Vec::as_slice).unwrap_or(&[]) {
+                        for k in finals_on(s.state) {
                             let f = finals[k as usize];
                             if f.along >= s.along {
                                 out.push((Step::Final(k), mm(f.along - s.along)));
@@ -286,7 +294,7 @@ impl LaneletMap {
                 Step::Exit(state) => {
                     for &next in &self.graph.successors[state as usize] {
                         out.push((Step::Exit(next), mm(self.state_length(next))));
-                        for &k in finals_by_state.get(&next).map(Vec::as_slice).unwrap_or(&[]) {
+                        for k in finals_on(next) {
                             out.push((Step::Final(k), mm(finals[k as usize].along)));
                         }
                     }
