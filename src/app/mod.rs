@@ -34,6 +34,7 @@
 
 pub mod bench;
 pub mod bench_map;
+pub mod bench_render;
 pub mod interrupt;
 pub mod metrics;
 mod output;

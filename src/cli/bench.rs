@@ -49,6 +49,11 @@ pub struct BenchArgs {
     /// `mb_per_second` (of the median load).
     #[arg(long, value_name = "MAP", conflicts_with_all = ["soak", "lane_change", "degraded"])]
     pub map_load: Option<std::path::PathBuf>,
+    /// After the simulation bench, draw its world at WIDTHxHEIGHT px (e.g. 1920x1080) 10 times
+    /// with the bird's-eye renderer (whole-map view) and add `render_ms_per_frame` (the median)
+    /// and `render` (every frame's time, the adapter) to the JSON.
+    #[arg(long, value_name = "WxH", conflicts_with = "soak", value_parser = smlworld::app::bench_render::parse_size)]
+    pub render: Option<(u32, u32)>,
 }
 
 /// Run the subcommand.
@@ -101,6 +106,16 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let report = world.run(args.duration, parallelism)?;
-    println!("{}", serde_json::to_string(&report)?);
+    let Some((width, height)) = args.render else {
+        println!("{}", serde_json::to_string(&report)?);
+        return Ok(());
+    };
+    let render = smlworld::app::bench_render::bench_render(&world, width, height, parallelism)?;
+    let mut json = serde_json::to_value(&report)?;
+    if let Some(object) = json.as_object_mut() {
+        object.insert("render_ms_per_frame".into(), serde_json::json!(render.median_ms));
+        object.insert("render".into(), serde_json::to_value(&render)?);
+    }
+    println!("{}", serde_json::to_string(&json)?);
     Ok(())
 }

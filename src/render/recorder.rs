@@ -115,6 +115,11 @@ impl FrameRecorder {
         }
     }
 
+    /// The graphics adapter drawing the frames.
+    pub fn adapter_name(&self) -> String {
+        self.renderer.adapter_name()
+    }
+
     /// The camera (for a window that changes size: [`FrameRecorder::resize`]).
     pub fn camera(&self) -> &Camera {
         &self.camera
