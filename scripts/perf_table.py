@@ -1,0 +1,134 @@
+#!/usr/bin/env python3
+"""Measure the README's performance table and write it there (issue 25: the table is generated,
+not typed).
+
+    python3 scripts/perf_table.py [--runs 3] [--vehicles 10000] [--no-write]
+
+Builds the release binary, then runs each `smlworld bench` configuration RUNS times, the
+simulation configurations taking turns (plain, --lane-change, --degraded, on the default threads
+and on one) so every ratio compares figures of the same minutes. Prints the table (min / median /
+max of the runs, the command of each row, N, the commit, the machine's load) and, unless
+--no-write, replaces the block between the README's `<!-- perf-table:start -->` and
+`<!-- perf-table:end -->` markers with it. The generated grid map for the routing and loading rows
+goes into a temporary folder that is removed at the end.
+"""
+
+import argparse
+import json
+import os
+import pathlib
+import statistics
+import subprocess
+import sys
+import tempfile
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+BINARY = ROOT / "target" / "release" / "smlworld"
+START, END = "<!-- perf-table:start -->", "<!-- perf-table:end -->"
+
+
+def bench(args):
+    """Run `smlworld bench ARGS` and return its JSON."""
+    out = subprocess.run([str(BINARY), "bench", *args], capture_output=True, text=True)
+    if out.returncode != 0:
+        sys.exit(f"perf_table.py: smlworld bench {' '.join(args)} failed:\n{out.stderr}")
+    return json.loads(out.stdout)
+
+
+def spread(xs, digits=2):
+    return " / ".join(f"{x:,.{digits}f}" for x in (min(xs), statistics.median(xs), max(xs)))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=3, help="runs of each configuration (default 3)")
+    ap.add_argument("--vehicles", type=int, default=10000, help="vehicles of the simulation rows (default 10000)")
+    ap.add_argument("--no-write", action="store_true", help="print the table, leave README.md as it is")
+    a = ap.parse_args()
+    if a.runs < 1 or a.vehicles < 1:
+        sys.exit("perf_table.py: --runs and --vehicles must be at least 1")
+
+    subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    load_before = os.getloadavg()[0]
+
+    n = str(a.vehicles)
+    sims = {
+        "plain": ["--vehicles", n, "--duration", "10"],
+        "lane-change": ["--vehicles", n, "--duration", "10", "--lane-change"],
+        "degraded": ["--vehicles", n, "--duration", "10", "--degraded"],
+    }
+    results = {(name, threads): [] for name in sims for threads in ("default", "1")}
+    used = {}
+    for run in range(a.runs):
+        for threads in ("default", "1"):
+            for name, args in sims.items():
+                extra = [] if threads == "default" else ["--threads", "1"]
+                r = bench(args + extra)
+                results[(name, threads)].append(r["vehicle_steps_per_second"] / 1e6)
+                used[threads] = r["threads_used"]
+                print(f"run {run + 1}: {name:11} threads {threads:7} {r['vehicle_steps_per_second'] / 1e6:6.2f} M vehicle-steps/s", file=sys.stderr)
+
+    render = [bench(["--vehicles", n, "--duration", "2", "--render", "1920x1080"]) for _ in range(a.runs)]
+    render_ms = [ms for r in render for ms in r["render"]["frame_ms"]]
+    adapter = render[0]["render"]["adapter"]
+
+    with tempfile.TemporaryDirectory() as tmp:
+        grid = pathlib.Path(tmp) / "grid32.osm"
+        subprocess.run([str(BINARY), "map", "generate", "grid", "--rows", "32", "--cols", "32", "--out", str(grid)],
+                       check=True, capture_output=True)
+        routing = [bench(["--routing", str(grid), "--routes", "1000"]) for _ in range(a.runs)]
+        loading = [bench(["--map-load", str(grid)]) for _ in range(a.runs)]
+    lanelets = routing[0]["lanelets"]
+    mb = loading[0]["bytes"] / 1e6
+    load_after = os.getloadavg()[0]
+
+    def ratio(name, threads):
+        return statistics.median(results[(name, threads)]) / statistics.median(results[("plain", threads)])
+
+    rows = []
+    for threads in ("default", "1"):
+        flag = "" if threads == "default" else " --threads 1"
+        label = f"{used[threads]} threads" if threads == "default" else "1 thread"
+        for name in sims:
+            cmd = f"smlworld bench --vehicles {n} --duration 10" + ("" if name == "plain" else f" --{name}") + flag
+            xs = results[(name, threads)]
+            rtf = f"{statistics.median(xs) * 1e6 / a.vehicles * 0.02:,.1f}x"
+            of_plain = "" if name == "plain" else f"{ratio(name, threads):.0%} of plain"
+            rows.append(f"| `{cmd}` | {label} | {spread(xs)} M vehicle-steps/s | {rtf} | {of_plain} |")
+    rows.append(f"| `smlworld bench --vehicles {n} --duration 2 --render 1920x1080` | {adapter.split(' (')[0]} | "
+                f"{spread(render_ms, 1)} ms per frame ({len(render_ms)} frames) | | |")
+    rows.append(f"| `smlworld bench --routing GRID --routes 1000` | {lanelets} lanelets | "
+                f"{spread([r['routes_per_second'] for r in routing], 0)} routes/s | | |")
+    rows.append(f"| `smlworld bench --map-load GRID` | {mb:.1f} MB | "
+                f"{spread([r['mb_per_second'] for r in loading], 1)} MB/s | | |")
+    table = "\n".join([
+        START,
+        f"Generated by `python3 scripts/perf_table.py --runs {a.runs}` at commit {commit}"
+        + (" (with uncommitted changes)" if dirty else "")
+        + f"; {a.runs} runs of each row (min / median / max), the simulation rows taking turns;"
+        f" load average {load_before:.1f} before, {load_after:.1f} after. GRID: `smlworld map generate grid --rows 32 --cols 32`.",
+        "",
+        "| command | on | figure | real time | ratio |",
+        "|---|---|---|---|---|",
+        *rows,
+        END,
+    ])
+    print(table)
+    if a.no_write:
+        return
+    readme = ROOT / "README.md"
+    text = readme.read_text()
+    if START in text and END in text:
+        head, rest = text.split(START, 1)
+        _, tail = rest.split(END, 1)
+        text = head + table + tail
+    else:
+        sys.exit(f"perf_table.py: README.md has no {START} ... {END} block; add one where the table belongs")
+    readme.write_text(text)
+    print("README.md: performance table written", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
