@@ -1,17 +1,23 @@
 #!/usr/bin/env bash
 # The project's one test command: the Rust tests, then the Python package's tests (pytest) in a
 # virtual environment .venv at the repository root, created on the first run and reused after;
-# packages and the extension are reinstalled only when their inputs changed (stamp files).
+# packages are reinstalled only when python/requirements-test.txt changes (a stamp file).
+#
+# One build serves both halves: `cargo test --workspace` compiles the `smlworld` crate once with
+# the features of everything that uses it (its tests and the Python extension, features unified
+# across the workspace) and builds the extension (target/release/lib_smlworld.so) in the same
+# run; the extension is then copied into python/smlworld/ and the venv imports the package from
+# python/ (a .pth file, as an editable install has; Ray's workers see it too), so no second compilation of the crate (maturin's own cargo run unifies
+# features differently) happens on a change. Users still install the package with
+# `pip install ./python` or `maturin develop` (README, Python).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-
-cargo test --release
 
 VENV=.venv
 if [ ! -x "$VENV/bin/python" ]; then
   python3 -m venv "$VENV"
 fi
-PY="$VENV/bin/python"
+PY="$PWD/$VENV/bin/python"
 
 # Python packages the tests need: reinstalled when python/requirements-test.txt changes.
 req_hash=$(sha256sum python/requirements-test.txt | cut -d' ' -f1)
@@ -20,14 +26,19 @@ if [ "$(cat "$VENV/.requirements.stamp" 2>/dev/null || true)" != "$req_hash" ]; 
   echo "$req_hash" > "$VENV/.requirements.stamp"
 fi
 
-# The extension: rebuilt when the Rust sources, manifests or the Python package change. It builds
-# into the root target/ (cargo workspace), so the smlworld crate is not compiled a second time.
-src_hash=$(cat Cargo.toml Cargo.lock python/Cargo.toml python/pyproject.toml \
-  $(find src python/src python/smlworld -type f \( -name '*.rs' -o -name '*.py' \) | sort) | sha256sum | cut -d' ' -f1)
-if [ "$(cat "$VENV/.extension.stamp" 2>/dev/null || true)" != "$src_hash" ]; then
-  (cd python && VIRTUAL_ENV="$PWD/../$VENV" PATH="$PWD/../$VENV/bin:$PATH" maturin develop --release)
-  echo "$src_hash" > "$VENV/.extension.stamp"
+# PyO3's build script configures the extension for this interpreter.
+export PYO3_PYTHON="$PY"
+cargo test --release --workspace
+
+# The extension the build above made, where the package imports it from.
+so=target/release/lib_smlworld.so
+if [ ! -f "$so" ]; then
+  echo "scripts/test.sh: $so is missing after cargo test --workspace" >&2
+  exit 1
 fi
+cmp -s "$so" python/smlworld/_smlworld.abi3.so || cp "$so" python/smlworld/_smlworld.abi3.so
+site=$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+echo "$PWD/python" > "$site/smlworld-source.pth"
 
 # pytest exits 5 when it collected no test: that fails here as any other failure does.
 "$PY" -m pytest -q python/tests
