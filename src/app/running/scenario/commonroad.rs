@@ -16,7 +16,7 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use crate::app::metrics::Metrics;
+use crate::app::running::metrics::Metrics;
 use crate::map::LaneletMap;
 use crate::map::commonroad::{CommonRoadScenario, GoalState};
 use crate::sim::{

@@ -27,7 +27,7 @@ use crate::map::LaneletMap;
 use crate::render::{FrameOutput, FrameRecorder, Indicator, RenderError, VehicleSprite};
 use crate::world::SimTime;
 
-use super::output::{ReplayInfo, ReplayVehicle};
+use crate::app::running::summary::{ReplayInfo, ReplayVehicle};
 
 /// What `smlworld replay` writes or sends, and how.
 #[derive(Debug, Clone)]
@@ -370,7 +370,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     let wall_start = Instant::now();
     let mut first = true;
     while reader.next_group(&mut next)? {
-        if super::interrupt::requested().is_some() {
+        if crate::app::running::interrupt::requested().is_some() {
             report.interrupted = true;
             break;
         }

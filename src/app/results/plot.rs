@@ -277,7 +277,7 @@ fn label(id: i32) -> String {
 
 /// A finished run as the figures read it.
 struct RunData {
-    info: super::output::ReplayInfo,
+    info: crate::app::running::summary::ReplayInfo,
     rows: BTreeMap<i32, Vec<Row>>,
     summary: serde_json::Value,
     map: Option<LaneletMap>,
