@@ -131,8 +131,7 @@ impl Scenario {
         self.traffic(b, &mut routes)?;
         if let (Some(sc), Some(map)) = (&self.commonroad, &self.map) {
             let obstacles = if self.file.obstacles == Some(ObstaclesMode::Replay) {
-                spawn_obstacles(b, sc).map_err(|e| self.invalid("obstacles".into(), e))?;
-                sc.obstacles.len()
+                spawn_obstacles(b, sc).map_err(|e| self.invalid("obstacles".into(), e))?
             } else {
                 0
             };
