@@ -111,6 +111,31 @@ fn public_2020a_file_static_and_environment_obstacles_are_read_and_in_the_map() 
     assert_eq!(sc.obstacles.iter().map(|o| (o.id, o.states.len())).collect::<Vec<_>>(), vec![(1, 1), (2, 2)]);
 }
 
+#[test]
+fn loading_bay_blocks_keep_their_size_and_place() {
+    // The loading bay's road-boundary blocks are slightly rotated quadrilaterals given as
+    // polygons at a (0, 0) state: each becomes a rectangle along its longest edge with the
+    // polygon's area and centre.
+    let path = root().join("tests/fixtures/commonroad/ZAM_Loading_Bay-1_1_T-1.excerpt.xml");
+    let sc = CommonRoadScenario::load(&path).unwrap();
+    assert_eq!(sc.static_obstacles.len(), 18);
+    for o in &sc.static_obstacles {
+        let ring = &o.outlines[0];
+        let area = 0.5 * (0..ring.len()).map(|i| ring[i].perp_dot(ring[(i + 1) % ring.len()])).sum::<f64>().abs();
+        let mean = ring.iter().copied().sum::<DVec2>() / ring.len() as f64;
+        assert_eq!(ring.len(), 4, "obstacle {}: the closing point is not a corner", o.id);
+        assert!(
+            (o.length * o.width - area).abs() < 0.03 * area,
+            "obstacle {}: {} x {} vs area {area}",
+            o.id,
+            o.length,
+            o.width
+        );
+        assert!(o.position.distance(mean) < 0.5, "obstacle {}: {} vs {mean}", o.id, o.position);
+        assert!(o.length >= o.width && o.length > 20.0, "{o:?}");
+    }
+}
+
 /// `text` with the `<point>` element holding `<x>{x}</x>` replaced by `with`.
 fn replace_point(text: &str, x: &str, with: &str) -> String {
     let at = text.find(&format!("<x>{x}</x>")).unwrap_or_else(|| panic!("no point with x {x}"));
