@@ -425,9 +425,16 @@ impl FrameMarks {
         let t = world.get_resource::<crate::sim::SimClock>().map_or(0.0, |c| c.now.as_secs());
         if let Some(metrics) = world.get_resource::<super::running::metrics::Metrics>() {
             for c in metrics.collisions.iter().skip(self.collisions_seen) {
-                // Where the pair is now: at most one frame (1 / frame rate) after they met.
-                let at =
-                    |id: i32| self.sprites.binary_search_by_key(&id, |s| s.id).ok().map(|i| self.sprites[i].position);
+                // Where the pair is now: at most one frame (1 / frame rate) after they met
+                // (a stationary obstacle has no sprite: its state says where it stands).
+                let at = |id: i32| match self.sprites.binary_search_by_key(&id, |s| s.id) {
+                    Ok(i) => Some(self.sprites[i].position),
+                    Err(_) => world
+                        .get_resource::<crate::world::Vehicles>()
+                        .and_then(|v| v.get(crate::world::VehicleId(id)))
+                        .and_then(|e| world.get::<crate::world::VehicleState>(e))
+                        .map(|s| s.position),
+                };
                 if let (Some(a), Some(b)) = (at(c.a.0), at(c.b.0)) {
                     rec.add_collision((a + b) * 0.5, c.t);
                 }
