@@ -313,6 +313,12 @@ fn static_obstacles_stand_still_are_seen_by_radar_and_collide() {
     assert!(!pairs.contains(&(-302, -301)), "{pairs:?}");
     assert_eq!(summary["commonroad"]["obstacles"].as_u64(), Some(2 + 3), "two dynamic, three static");
 
+    // summary.json tells replays which vehicles are stationary (the map draws those).
+    let replayed = summary["replay"]["vehicles"].as_array().unwrap();
+    let stationary = |id: i64| replayed.iter().find(|v| v["id"].as_i64() == Some(id)).map(|v| v["stationary"].clone());
+    assert_eq!(stationary(-300), Some(serde_json::Value::Bool(true)));
+    assert_eq!(stationary(-1), Some(serde_json::Value::Null), "only stationary vehicles carry the flag");
+
     // The parked car never moves.
     let csv = std::fs::read_to_string(out.join("trajectories.csv")).unwrap();
     let rows: Vec<Vec<f64>> = csv
@@ -323,5 +329,22 @@ fn static_obstacles_stand_still_are_seen_by_radar_and_collide() {
         .collect();
     assert!(rows.len() > 100, "{} rows of -300", rows.len());
     assert!(rows.iter().all(|f| f[2] == 30.0 && f[3] == 1.75), "{:?}", rows.iter().find(|f| f[2] != 30.0));
+
+    // With ACC (scenarios/commonroad_acc.toml) the ego takes the parked car as its leader and
+    // stops behind it.
+    let text = std::fs::read_to_string(root().join("scenarios/commonroad_acc.toml")).unwrap();
+    let text = text.replace("\"../tests/commonroad/two_lanes_2020a.xml\"", &format!("{:?}", map.display().to_string()));
+    let acc_toml = dir.join("parked_acc.toml");
+    std::fs::write(&acc_toml, text).unwrap();
+    let out = dir.join("acc");
+    let o =
+        Command::new(env!("CARGO_BIN_EXE_smlworld")).arg("run").arg(&acc_toml).arg("--out").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let acc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(acc["metrics"]["collision_count"].as_u64(), Some(0), "{acc}");
+    let follower = &acc["metrics"]["followers"][0];
+    assert_eq!((follower["id"].as_i64(), follower["leader"].as_i64()), (Some(-1), Some(-300)), "{follower}");
+    assert!(follower["min_gap"].as_f64().unwrap() > 1.0, "{follower}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -7,7 +7,8 @@
 //!   direction and an optional `<lineMarking>` each; `<predecessor ref>`, `<successor ref>`;
 //!   `<adjacentLeft ref drivingDir>`, `<adjacentRight ref drivingDir>`; `<laneletType>`.
 //!   Lanelet ids are those of the file; successors are the file's successor lists plus the
-//!   reverse of its predecessor lists (never derived from geometry).
+//!   reverse of its predecessor lists (never derived from geometry). A file without lanelets
+//!   loads with a warning when it has obstacles (commonroad-io reads such files too).
 //! - dynamic obstacles: 2020a `<dynamicObstacle>`; 2018b `<obstacle>` with `<role>dynamic</role>`.
 //!   Each has a `<type>`, a `<shape>` (a `<rectangle>`'s length and width; a circle, polygon or
 //!   several shapes count as the rectangle around them, with a warning), an `<initialState>` and
@@ -600,6 +601,13 @@ impl CommonRoadScenario {
                 _ => {}
             }
         }
+        if map.lanelets.is_empty()
+            && obstacles.is_empty()
+            && static_obstacles.is_empty()
+            && environment_obstacles.is_empty()
+        {
+            return Err(cx.err(&root, "the scenario has no <lanelet> and no obstacle; nothing to load".into()));
+        }
         obstacles.sort_by_key(|o| o.id);
         static_obstacles.sort_by_key(|o| o.id);
         environment_obstacles.sort_by_key(|o| o.id);
@@ -789,7 +797,10 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
         raw.push(RawLanelet { el, id, left, right, left_marking, right_marking });
     }
     if raw.is_empty() {
-        return Err(cx.err(root, "the scenario has no <lanelet>; nothing to drive on".into()));
+        warnings.push(MapWarning {
+            at: cx.at(root),
+            message: "the scenario has no <lanelet>: nothing to drive on (obstacles only)".into(),
+        });
     }
     raw.sort_by_key(|r| r.id);
     let index: BTreeMap<LaneletId, usize> = raw.iter().enumerate().map(|(i, r)| (LaneletId(r.id), i)).collect();

@@ -385,7 +385,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                 states_at(&prev, &next, next_frame, &mut states);
                 sprites.clear();
                 let t = SimTime(next_frame).as_secs();
-                for r in &states {
+                for r in states.iter().filter(|r| !by_id.get(&r.id).is_some_and(|v| v.stationary)) {
                     let (class, length, width) =
                         by_id.get(&r.id).map_or(("Car", 4.12, 1.7), |v| (v.class.name(), v.length, v.width));
                     let mut sprite = VehicleSprite::new(r.id, r.position, r.yaw, length, width, class);

@@ -3,12 +3,12 @@
 
 use std::collections::BTreeMap;
 
-use bevy_ecs::prelude::World;
+use bevy_ecs::prelude::{Has, World};
 
 use crate::io::lab::LabSummary;
 use crate::sim::{Sim, SimSeed, V2vStats};
 use crate::vehicles::PathFollower;
-use crate::world::{VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
+use crate::world::{Stationary, VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 use super::runner::RunReport;
 
@@ -83,17 +83,22 @@ pub struct ReplayVehicle {
     pub length: f64,
     /// Body width [m].
     pub width: f64,
+    /// A stationary obstacle (CommonRoad static obstacle): the map draws it, replays draw no
+    /// sprite for it. Absent (false) for every other vehicle.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub stationary: bool,
 }
 
 impl ReplayInfo {
     /// The vehicles of `world` (in the stream's query order), with the run's `map` and `log_rate` [Hz].
     pub fn of(world: &mut World, map: Option<std::path::PathBuf>, log_rate: f64) -> ReplayInfo {
-        let mut query = world.query::<(&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>)>();
+        let mut query =
+            world.query::<(&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>, Has<Stationary>)>();
         let vehicles = query
             .iter(world)
-            .map(|(id, _, class, size)| {
+            .map(|(id, _, class, size, stationary)| {
                 let size = size.copied().unwrap_or_default();
-                ReplayVehicle { id: id.0, class: *class, length: size.length, width: size.width }
+                ReplayVehicle { id: id.0, class: *class, length: size.length, width: size.width, stationary }
             })
             .collect();
         ReplayInfo { map, log_rate, vehicles }
