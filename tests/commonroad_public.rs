@@ -319,6 +319,13 @@ fn static_obstacles_stand_still_are_seen_by_radar_and_collide() {
     assert_eq!(stationary(-300), Some(serde_json::Value::Bool(true)));
     assert_eq!(stationary(-1), Some(serde_json::Value::Null), "only stationary vehicles carry the flag");
 
+    // Plots leave stationary obstacles out (a flat line each), not the collision with one.
+    let o = Command::new(env!("CARGO_BIN_EXE_smlworld")).arg("plot").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let speed = std::fs::read_to_string(out.join("plots/speed.svg")).unwrap();
+    assert!(speed.lines().any(|l| l.trim() == "vehicle -1"), "the ego is in the legend");
+    assert!(!speed.contains("vehicle -300"), "the parked car is not");
+
     // The parked car never moves.
     let csv = std::fs::read_to_string(out.join("trajectories.csv")).unwrap();
     let rows: Vec<Vec<f64>> = csv

@@ -537,7 +537,13 @@ impl Ctx<'_> {
     fn shapes(&self, el: &Element) -> Result<Vec<GoalShape>, MapError> {
         let shape = el.child("shape").ok_or_else(|| self.err(el, format!("<{}> has no <shape>", el.name)))?;
         let shapes = shape.children.iter().map(|s| self.shape(s)).collect::<Result<Vec<_>, _>>()?;
-        if shapes.is_empty() || shapes.iter().any(|s| matches!(s, GoalShape::Lanelets { .. })) {
+        // A <lanelet> or <point> (a circle of radius 0) has no area: not an obstacle's shape.
+        let no_area = |s: &GoalShape| match s {
+            GoalShape::Lanelets { .. } => true,
+            GoalShape::Circle { radius, .. } => *radius <= 0.0,
+            _ => false,
+        };
+        if shapes.is_empty() || shapes.iter().any(no_area) {
             return Err(self.err(shape, "<shape> needs one or more <rectangle>, <circle> or <polygon>".into()));
         }
         Ok(shapes)
