@@ -7,7 +7,7 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Query, Res};
 use bevy_ecs::schedule::ScheduleLabel;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use smlworld::app::bench::{Beacons, BenchWorld, send_beacons};
+use smlworld::app::running::bench::{Beacons, BenchWorld, send_beacons};
 use smlworld::prelude::*;
 
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -10,8 +10,8 @@ fn main() -> std::process::ExitCode {
     cli::init_logging(args.verbose);
     match cli::dispatch(args.command) {
         // A run stopped by Ctrl-C or SIGTERM wrote its outputs and ends as shells expect: 130 / 143.
-        Ok(()) => match smlworld::app::interrupt::requested() {
-            Some(signal) => std::process::ExitCode::from(smlworld::app::interrupt::exit_code(signal) as u8),
+        Ok(()) => match smlworld::app::running::interrupt::requested() {
+            Some(signal) => std::process::ExitCode::from(smlworld::app::running::interrupt::exit_code(signal) as u8),
             None => std::process::ExitCode::SUCCESS,
         },
         Err(e) => {

@@ -55,7 +55,8 @@ fn closed_ways_get_their_pattern_and_untagged_ways_draw_nothing() {
     let mut r = renderer();
     let layer = r.environment_layer(&env, &view, &PatternSet::builtin()).unwrap();
     let img = r.read_environment(&layer).unwrap();
-    let bare = Environment { background: PatternKind::Forest, areas: vec![], roads: vec![], lines: vec![] };
+    let bare =
+        Environment { background: PatternKind::Forest, areas: vec![], roads: vec![], fills: vec![], lines: vec![] };
     let bare_layer = r.environment_layer(&bare, &view, &PatternSet::builtin()).unwrap();
     let bare_img = r.read_environment(&bare_layer).unwrap();
     let centre = |way: i64| {

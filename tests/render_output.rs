@@ -18,7 +18,8 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
 fn a_moving_vehicle_becomes_an_animated_gif_with_one_frame_per_image() {
     let mut r = renderer();
     let view = BirdseyeView::centered_on_origin(160, 120, 4.0).unwrap();
-    let env = Environment { background: PatternKind::FreeSpace, areas: vec![], roads: vec![], lines: vec![] };
+    let env =
+        Environment { background: PatternKind::FreeSpace, areas: vec![], roads: vec![], fills: vec![], lines: vec![] };
     let layer = r.environment_layer(&env, &view, &PatternSet::builtin()).unwrap();
     let frames: Vec<_> = (0..4)
         .map(|k| {

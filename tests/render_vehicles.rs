@@ -21,6 +21,7 @@ fn road_env() -> Environment {
         background: PatternKind::Forest,
         areas: vec![],
         roads: vec![RoadStrip { left: line(3.5), right: line(-3.5) }],
+        fills: vec![],
         lines: vec![
             Line { style: LineStyle::EXTERIOR, points: line(3.5) },
             Line { style: LineStyle::EXTERIOR, points: line(-3.5) },

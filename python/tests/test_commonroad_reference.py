@@ -1,7 +1,8 @@
 """CommonRoad reference test: what `smlworld map info FILE --json` reads from our hand-made
-CommonRoad files (tests/commonroad/, formats 2018b and 2020a) must match what the reference
-reader, the `commonroad-io` package, reads from the same files: the lanelet count, the successor
-pairs, and every dynamic obstacle's position at several time steps (to 1 mm).
+CommonRoad files (tests/commonroad/, formats 2018b and 2020a) and the public files of
+tests/fixtures/commonroad/ must match what the reference reader, the `commonroad-io` package,
+reads from the same files: the lanelet count, the successor pairs, every dynamic obstacle's
+position at several time steps (to 1 mm), and the static and environment obstacle ids.
 
 Optional locally (skipped without commonroad-io); needs the release binary
 (`cargo build --release`; SMLWORLD_BIN overrides its path).
@@ -17,7 +18,9 @@ import pytest
 commonroad_reader = pytest.importorskip("commonroad.common.file_reader")
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
-FILES = sorted((ROOT / "tests" / "commonroad").glob("*.xml"))
+FILES = sorted((ROOT / "tests" / "commonroad").glob("*.xml")) + sorted(
+    (ROOT / "tests" / "fixtures" / "commonroad").glob("*.xml")
+)
 STEPS = [0, 1, 7, 20, 40]
 
 
@@ -83,3 +86,14 @@ def test_obstacle_positions_match_commonroad_io(path):
         init = problems.planning_problem_dict[p["id"]].initial_state
         assert abs(p["initial_state"]["x"] - init.position[0]) < 1e-3
         assert abs(p["initial_state"]["y"] - init.position[1]) < 1e-3
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_static_and_environment_obstacles_match_commonroad_io(path):
+    info = ours(path)
+    scenario, _ = reference(path)
+    assert {o["id"] for o in info["commonroad"]["static_obstacles"]} == {
+        o.obstacle_id for o in scenario.static_obstacles
+    }
+    environment = getattr(scenario, "environment_obstacle", [])
+    assert {o["id"] for o in info["commonroad"]["environment_obstacles"]} == {o.obstacle_id for o in environment}

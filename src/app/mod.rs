@@ -1,4 +1,7 @@
 //! Scenarios, runners and run outputs: everything that wires the layers below into a run.
+//! Two rooms: [`running`] (scenario files, runners, sessions, metrics, traffic, benchmarks and
+//! the run's summary) and [`results`] (the trajectory log, replay and plots, which read what a
+//! run left); [`run_scenario`] sits above both and wires them for `smlworld run`.
 //! [`Plugin`], [`SimBuilder`] and [`Sim`] live in [`crate::sim`] and are re-exported here.
 //!
 //! # Running a scenario from your own program
@@ -32,30 +35,20 @@
 //! controller at time t sees sensor readings and messages of time t, and its command drives the
 //! dynamics step that starts at t.
 
-pub mod bench;
-pub mod bench_map;
-pub mod bench_render;
-pub mod interrupt;
-pub mod metrics;
-mod output;
-mod plot;
-mod replay;
+pub mod results;
 mod run;
-mod runner;
-pub mod scenario;
-pub mod session;
-pub mod soak;
-pub mod traffic;
+pub mod running;
 
+// The old flat paths (`crate::app::session`, `crate::app::metrics`, ...) stay valid.
 pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
-pub use output::{
-    Log, MessagesDelivered, ReplayInfo, ReplayVehicle, RunSummary, TrajectoryLog, TrajectoryLogPlugin, log_trajectories,
-};
-pub use plot::{FIGURE_SIZE, MAX_LEGEND, plot_compare, plot_run};
-pub use replay::{
+pub use results::output::{Log, TrajectoryLog, TrajectoryLogPlugin, log_trajectories};
+pub use results::plot::{FIGURE_SIZE, MAX_LEGEND, plot_compare, plot_run};
+pub use results::replay::{
     ReplayError, ReplayMarks, ReplayOptions, ReplayReport, read_replay_info, read_replay_marks, replay_run,
 };
 pub use run::{RunError, RunOptions, ScenarioSource, run_scenario};
-pub use runner::{RealtimeRunner, RunReport, run_headless};
-pub use scenario::{Scenario, ScenarioError};
-pub use session::{CommandOverride, Session, SessionError, StateColumns};
+pub use running::runner::{RealtimeRunner, RunReport, run_headless};
+pub use running::scenario::{Scenario, ScenarioError};
+pub use running::session::{CommandOverride, Session, SessionError, StateColumns};
+pub use running::summary::{MessagesDelivered, ReplayInfo, ReplayVehicle, RunSummary};
+pub use running::{bench, bench_map, bench_render, interrupt, metrics, scenario, session, soak, traffic};

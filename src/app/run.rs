@@ -18,7 +18,10 @@ use crate::io::viz::DEFAULT_VIZ_RATE_HZ;
 use crate::render::{FrameOutput, FrameRecorder, RenderError, VehicleSprite};
 use crate::sim::{Parallelism, Plugin, Sim, SimBuilder};
 
-use super::{RealtimeRunner, RunReport, RunSummary, Scenario, ScenarioError, TrajectoryLog, TrajectoryLogPlugin};
+use super::results::output::{TrajectoryLog, TrajectoryLogPlugin};
+use super::running::runner::{RealtimeRunner, RunReport};
+use super::running::scenario::{Scenario, ScenarioError};
+use super::running::summary::RunSummary;
 
 /// What to run: a scenario file, or a scenario already loaded.
 pub enum ScenarioSource {
@@ -83,7 +86,7 @@ pub struct RunOptions {
     /// Replaces the scenario's `seed` [-].
     pub seed: Option<u64>,
     /// Dotted-key overrides of the scenario file, applied in order before it is checked (see
-    /// [`super::scenario::overrides`]); needs a scenario file, not a loaded scenario.
+    /// [`super::running::scenario::overrides`]); needs a scenario file, not a loaded scenario.
     pub overrides: Vec<(String, toml::Value)>,
     /// Most threads the per-vehicle systems use; above 1 they split the vehicles at any vehicle
     /// count (default: [`Parallelism::default`], which splits from 2,000 vehicles on). The
@@ -173,9 +176,12 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         plugin.build(&mut builder);
     }
     let scenario = match source.into() {
-        ScenarioSource::File(path) => {
-            super::scenario::load_with_overrides(&path, options.seed, &options.overrides, builder.controllers())?
-        }
+        ScenarioSource::File(path) => super::running::scenario::load_with_overrides(
+            &path,
+            options.seed,
+            &options.overrides,
+            builder.controllers(),
+        )?,
         ScenarioSource::Loaded(s) => {
             check_option(options.overrides.is_empty(), || {
                 format!("overrides (--set) change a scenario file; {} is already loaded", s.path.display())
@@ -257,7 +263,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     if let Some(rec) = recorder {
         rec.finish()?;
     }
-    super::output::log_final_state(&mut sim);
+    super::results::output::log_final_state(&mut sim);
     sim.world_mut()
         .resource_mut::<TrajectoryLog>()
         .finish()
@@ -265,7 +271,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
 
     let mut summary = RunSummary::new(&sim, &report);
     let map_path = scenario_map_path(&scenario);
-    summary.replay = Some(super::ReplayInfo::of(sim.world_mut(), map_path, log_rate));
+    summary.replay = Some(super::running::summary::ReplayInfo::of(sim.world_mut(), map_path, log_rate));
     let summary_path = options.out.join("summary.json");
     let summary_tmp = options.out.join(".summary.json.partial");
     let json = serde_json::to_string_pretty(&summary)
@@ -278,7 +284,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     outputs.keep();
     if options.plots {
         let dir = options.out.join("plots");
-        let written = super::plot_run(&options.out, &dir).map_err(|e| RunError::Plot(e.to_string()))?;
+        let written = super::results::plot::plot_run(&options.out, &dir).map_err(|e| RunError::Plot(e.to_string()))?;
         tracing::info!("wrote {} figures (PNG + SVG) into {}", written.len(), dir.display());
     }
     if summary.interrupted {
@@ -372,7 +378,7 @@ fn drive(
     let report = if realtime {
         RealtimeRunner::new(options.speed).run(sim, duration, chunk, progress)
     } else {
-        super::run_headless(sim, duration, chunk, progress)
+        super::running::runner::run_headless(sim, duration, chunk, progress)
     };
     if let Some(bar) = &bar {
         bar.finish_and_clear();
@@ -404,7 +410,7 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
 #[derive(Default)]
 struct FrameMarks {
     sprites: Vec<VehicleSprite>,
-    /// Collisions of [`super::Metrics`] already handed to the recorder.
+    /// Collisions of [`super::running::metrics::Metrics`] already handed to the recorder.
     collisions_seen: usize,
 }
 
@@ -417,11 +423,18 @@ impl FrameMarks {
     ) -> Result<(), RenderError> {
         crate::render::sprites_from_world(world, sensors, &mut self.sprites);
         let t = world.get_resource::<crate::sim::SimClock>().map_or(0.0, |c| c.now.as_secs());
-        if let Some(metrics) = world.get_resource::<super::metrics::Metrics>() {
+        if let Some(metrics) = world.get_resource::<super::running::metrics::Metrics>() {
             for c in metrics.collisions.iter().skip(self.collisions_seen) {
-                // Where the pair is now: at most one frame (1 / frame rate) after they met.
-                let at =
-                    |id: i32| self.sprites.binary_search_by_key(&id, |s| s.id).ok().map(|i| self.sprites[i].position);
+                // Where the pair is now: at most one frame (1 / frame rate) after they met
+                // (a stationary obstacle has no sprite: its state says where it stands).
+                let at = |id: i32| match self.sprites.binary_search_by_key(&id, |s| s.id) {
+                    Ok(i) => Some(self.sprites[i].position),
+                    Err(_) => world
+                        .get_resource::<crate::world::Vehicles>()
+                        .and_then(|v| v.get(crate::world::VehicleId(id)))
+                        .and_then(|e| world.get::<crate::world::VehicleState>(e))
+                        .map(|s| s.position),
+                };
                 if let (Some(a), Some(b)) = (at(c.a.0), at(c.b.0)) {
                     rec.add_collision((a + b) * 0.5, c.t);
                 }

@@ -1,8 +1,8 @@
 //! `smlworld bench`: the whole simulation with N vehicles, every module on; prints JSON naming
 //! the map, vehicles, sensors, rates, threads and each module's share of the wall time.
 
-use smlworld::app::bench::BenchWorld;
-use smlworld::app::soak::soak;
+use smlworld::app::running::bench::BenchWorld;
+use smlworld::app::running::soak::soak;
 use smlworld::sim::Parallelism;
 
 /// Arguments of `smlworld bench`.
@@ -88,7 +88,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         ..Default::default()
     };
     let parallelism = args.threads.map(Parallelism::split);
-    smlworld::app::interrupt::install();
+    smlworld::app::running::interrupt::install();
     if let Some(seconds) = args.soak {
         anyhow::ensure!(
             seconds.is_finite() && seconds > 0.0 && seconds <= 1e6,

@@ -188,7 +188,8 @@ struct Info<'a> {
     tags: &'a BTreeMap<String, Vec<i64>>,
     lanelet_list: Vec<LaneletInfo<'a>>,
     warnings: Vec<String>,
-    /// CommonRoad files only: obstacles (every recorded state) and planning problems.
+    /// CommonRoad files only: dynamic obstacles (every recorded state), static and environment
+    /// obstacles, and planning problems.
     #[serde(skip_serializing_if = "Option::is_none")]
     commonroad: Option<serde_json::Value>,
 }
@@ -212,6 +213,21 @@ fn commonroad_json(sc: &CommonRoadScenario) -> serde_json::Value {
             })
         })
         .collect();
+    let statics: Vec<_> = sc
+        .static_obstacles
+        .iter()
+        .map(|o| {
+            serde_json::json!({
+                "id": o.id, "type": o.kind, "x": o.position.x, "y": o.position.y,
+                "orientation": o.orientation, "length": o.length, "width": o.width, "shapes": o.outlines.len(),
+            })
+        })
+        .collect();
+    let environment: Vec<_> = sc
+        .environment_obstacles
+        .iter()
+        .map(|o| serde_json::json!({"id": o.id, "type": o.kind, "shapes": o.outlines.len()}))
+        .collect();
     let problems: Vec<_> = sc
         .planning_problems
         .iter()
@@ -227,6 +243,7 @@ fn commonroad_json(sc: &CommonRoadScenario) -> serde_json::Value {
     serde_json::json!({
         "version": sc.version, "time_step_size": sc.time_step_size,
         "obstacles": obstacles, "planning_problems": problems,
+        "static_obstacles": statics, "environment_obstacles": environment,
     })
 }
 
@@ -293,10 +310,13 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
     if let Some(cr) = &info.commonroad {
         let n = |k: &str| cr[k].as_array().map_or(0, Vec::len);
         println!(
-            "commonroad version {}, time step {} s, {} dynamic obstacles, {} planning problems",
+            "commonroad version {}, time step {} s, {} dynamic obstacles, {} static obstacles, {} environment \
+             obstacles, {} planning problems",
             cr["version"],
             cr["time_step_size"],
             n("obstacles"),
+            n("static_obstacles"),
+            n("environment_obstacles"),
             n("planning_problems")
         );
     }

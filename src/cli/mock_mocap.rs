@@ -34,7 +34,7 @@ pub struct MockMocapArgs {
 pub fn main(args: MockMocapArgs) -> anyhow::Result<()> {
     let script = match (&args.script, &args.scenario) {
         (Some(path), _) => MocapScript::load(path)?,
-        (None, Some(path)) => smlworld::app::scenario::scenario_script(&smlworld::app::Scenario::load(path)?)?,
+        (None, Some(path)) => smlworld::app::running::scenario::scenario_script(&smlworld::app::Scenario::load(path)?)?,
         (None, None) => MocapScript::circles(args.bodies),
     };
     let bodies = script.body_count();

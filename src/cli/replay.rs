@@ -35,7 +35,7 @@ pub fn main(args: ReplayArgs) -> anyhow::Result<()> {
         stream_format: args.stream_format,
         speed: args.speed,
     };
-    smlworld::app::interrupt::install();
+    smlworld::app::running::interrupt::install();
     let report = replay_run(&args.out_dir, &options)?;
     let what = if report.interrupted { "interrupted after" } else { "replayed" };
     tracing::info!(

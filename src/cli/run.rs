@@ -58,9 +58,9 @@ pub struct RunArgs {
     pub set: Vec<(String, toml::Value)>,
 }
 
-/// `--set KEY=VALUE` (see [`smlworld::app::scenario::parse_override`]).
+/// `--set KEY=VALUE` (see [`smlworld::app::running::scenario::parse_override`]).
 pub fn parse_set(text: &str) -> Result<(String, toml::Value), String> {
-    smlworld::app::scenario::parse_override(text)
+    smlworld::app::running::scenario::parse_override(text)
 }
 
 /// Run the subcommand.
@@ -83,7 +83,7 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         threads: args.threads,
     };
     // Ctrl-C / SIGTERM: the run stops after its step and writes what it has (exit 130 / 143).
-    smlworld::app::interrupt::install();
+    smlworld::app::running::interrupt::install();
     run_scenario(args.scenario, options)?;
     Ok(())
 }

@@ -88,6 +88,7 @@ impl Scene {
                     background: smlworld::render::PatternKind::Forest,
                     areas: Vec::new(),
                     roads: Vec::new(),
+                    fills: Vec::new(),
                     lines: Vec::new(),
                 },
                 None,

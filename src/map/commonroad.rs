@@ -1,5 +1,5 @@
 //! CommonRoad scenario XML (formats 2018b and 2020a) -> a [`LaneletMap`] plus the scenario's
-//! dynamic obstacles and planning problems.
+//! obstacles and planning problems.
 //!
 //! CommonRoad is Cartesian: points are in metres, there is no projection (the map's projector
 //! sits at lat/lon 0, 0 only so that every [`MapNode`] has some lat/lon). What is read:
@@ -7,12 +7,23 @@
 //!   direction and an optional `<lineMarking>` each; `<predecessor ref>`, `<successor ref>`;
 //!   `<adjacentLeft ref drivingDir>`, `<adjacentRight ref drivingDir>`; `<laneletType>`.
 //!   Lanelet ids are those of the file; successors are the file's successor lists plus the
-//!   reverse of its predecessor lists (never derived from geometry).
-//! - obstacles: 2020a `<dynamicObstacle>`; 2018b `<obstacle>` with `<role>dynamic</role>`
-//!   (static ones are skipped). Each has a `<type>`, a `<shape>` (`<rectangle>` length and width;
-//!   other shapes get a 1 m square with a warning), an `<initialState>` (2020a) and a
-//!   `<trajectory>` of `<state>`s, each with `<position><point>`, `<orientation>`, `<time>` (an
-//!   integer time step) and `<velocity>`; an interval value counts as its middle.
+//!   reverse of its predecessor lists (never derived from geometry). A file without lanelets
+//!   loads with a warning when it has obstacles (commonroad-io reads such files too).
+//! - dynamic obstacles: 2020a `<dynamicObstacle>`; 2018b `<obstacle>` with `<role>dynamic</role>`.
+//!   Each has a `<type>`, a `<shape>` (a `<rectangle>`'s length and width; a circle, polygon or
+//!   several shapes count as the rectangle around them, with a warning), an `<initialState>` and
+//!   a `<trajectory>` of `<state>`s, each with a `<position>`, `<orientation>`, `<time>` (an
+//!   integer time step) and `<velocity>`; an interval value counts as its middle. A position is a
+//!   `<point>` or a shape (`<rectangle>`, `<circle>`, `<polygon>`, or several of them: an
+//!   uncertain position), read at the shape's centre (a polygon's centre is the mean of its
+//!   corners; several shapes: the mean of their centres). A trajectory state at the initial
+//!   state's time step that repeats it is dropped (2018b files do that); `<occupancySet>`s and
+//!   signal states are not read.
+//! - static obstacles: 2020a `<staticObstacle>`; 2018b `<obstacle>` with `<role>static</role>`:
+//!   `<type>`, `<shape>` (one or more rectangles, circles, polygons in the obstacle's frame) and
+//!   `<initialState>` (where that frame is). They never move. See [`StaticObstacle`].
+//! - environment obstacles (2020a `<environmentObstacle>`, e.g. `building`): `<type>` and
+//!   `<shape>` in map coordinates. Phantom obstacles are not read.
 //! - `<planningProblem>`: its `<initialState>` and the position and time of its `<goalState>`s.
 //!
 //! Synthetic ids, so that the OSM-based tools work unchanged: the k-th point of lanelet L's left
@@ -21,7 +32,10 @@
 //! SML maps (`solid`/`broad_solid` as `line_type=exterior`, `dashed`/`broad_dashed` as
 //! `interior`, other markings not drawn). The first right-bound node of lanelet L carries the tag
 //! value `start_L` and the last one `end_L`, so `smlworld map route FILE.xml --from-tag start_1
-//! --to-tag end_5` routes from the start of lanelet 1 to the end of lanelet 5.
+//! --to-tag end_5` routes from the start of lanelet 1 to the end of lanelet 5. The outline of
+//! every static and environment obstacle shape is a closed way tagged `obstacle=<type>`,
+//! `obstacle_role=static|environment` and `obstacle_id=<id>`, so maps draw them; these ways and
+//! their nodes have negative ids (-1, -2, ... in file order).
 
 use std::collections::BTreeMap;
 use std::path::Path as FsPath;
@@ -79,7 +93,40 @@ impl DynamicObstacle {
     }
 }
 
-/// Goal position of a planning problem.
+/// A static obstacle (parked vehicle, road boundary, construction zone, ...): it never moves.
+/// For collisions and sensors it is one oriented rectangle around all its shapes (its length
+/// axis along the state's orientation plus, for a single polygon, the polygon's longest edge,
+/// so a rectangle given as a polygon keeps its size); maps draw each shape's outline.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StaticObstacle {
+    /// Obstacle id as in the file.
+    pub id: i64,
+    /// `<type>` (`parkedVehicle`, `roadBoundary`, `constructionZone`, `building`, ...).
+    pub kind: String,
+    /// Centre of the rectangle around its shapes [m].
+    pub position: DVec2,
+    /// Heading of that rectangle's length axis [rad].
+    pub orientation: f64,
+    /// Length of that rectangle [m].
+    pub length: f64,
+    /// Width of that rectangle [m].
+    pub width: f64,
+    /// Outline of each shape in map coordinates [m] (circles as 24-gons).
+    pub outlines: Vec<Vec<DVec2>>,
+}
+
+/// An environment obstacle (2020a `<environmentObstacle>`: `building`, `pillar`, ...), drawn only.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EnvironmentObstacle {
+    /// Obstacle id as in the file.
+    pub id: i64,
+    /// `<type>`.
+    pub kind: String,
+    /// Outline of each shape in map coordinates [m].
+    pub outlines: Vec<Vec<DVec2>>,
+}
+
+/// Goal position of a planning problem, or one shape of an obstacle or of an uncertain position.
 #[derive(Debug, Clone, PartialEq)]
 pub enum GoalShape {
     /// A rectangle of `length` x `width` [m] around `center`, turned by `orientation` [rad].
@@ -112,7 +159,41 @@ pub enum GoalShape {
     },
 }
 
+/// Sides of the polygon that stands for a circle in outlines.
+const CIRCLE_SIDES: usize = 24;
+
 impl GoalShape {
+    /// The shape's centre [m]: a rectangle's or circle's centre, the mean of a polygon's corners
+    /// (a closing point that repeats the first is not counted twice); `None` for lanelets.
+    pub fn centre(&self) -> Option<DVec2> {
+        match self {
+            GoalShape::Rectangle { center, .. } | GoalShape::Circle { center, .. } => Some(*center),
+            GoalShape::Polygon { points } => {
+                let corners = open_ring(points);
+                (!corners.is_empty()).then(|| corners.iter().copied().sum::<DVec2>() / corners.len() as f64)
+            }
+            GoalShape::Lanelets { .. } => None,
+        }
+    }
+
+    /// The outline [m], counter-clockwise for rectangles and circles (a circle as a
+    /// 24-gon), a polygon's corners as given without a repeated closing point; empty for lanelets.
+    pub fn outline(&self) -> Vec<DVec2> {
+        match self {
+            GoalShape::Rectangle { center, length, width, orientation } => {
+                let (along, across) = (DVec2::from_angle(*orientation), DVec2::from_angle(*orientation).perp());
+                [(1.0, -1.0), (1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0)]
+                    .map(|(a, c)| *center + along * (a * length / 2.0) + across * (c * width / 2.0))
+                    .to_vec()
+            }
+            GoalShape::Circle { center, radius } => (0..CIRCLE_SIDES)
+                .map(|k| *center + DVec2::from_angle(std::f64::consts::TAU * k as f64 / CIRCLE_SIDES as f64) * *radius)
+                .collect(),
+            GoalShape::Polygon { points } => open_ring(points).to_vec(),
+            GoalShape::Lanelets { .. } => Vec::new(),
+        }
+    }
+
     /// Whether `p` [m] lies in the goal shape (lanelets: inside one of their polygons).
     pub fn contains(&self, p: DVec2, map: &LaneletMap) -> bool {
         match self {
@@ -130,6 +211,37 @@ impl GoalShape {
             }
         }
     }
+}
+
+/// `points` without a last point that repeats the first.
+fn open_ring(points: &[DVec2]) -> &[DVec2] {
+    match points {
+        [first, .., last] if points.len() > 1 && first == last => &points[..points.len() - 1],
+        _ => points,
+    }
+}
+
+/// The rectangle around `points` whose length axis has heading `angle` [rad]: its centre [m],
+/// length (along `angle`) and width [m].
+fn box_around(points: &[DVec2], angle: f64) -> (DVec2, f64, f64) {
+    let (along, across) = (DVec2::from_angle(angle), DVec2::from_angle(angle).perp());
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    for p in points {
+        let q = DVec2::new(p.dot(along), p.dot(across));
+        (lo, hi) = (lo.min(q), hi.max(q));
+    }
+    let mid = (lo + hi) / 2.0;
+    (along * mid.x + across * mid.y, hi.x - lo.x, hi.y - lo.y)
+}
+
+/// Heading of the longest edge of a closed outline [rad] (0 for fewer than two points).
+fn longest_edge_heading(outline: &[DVec2]) -> f64 {
+    let n = outline.len();
+    (0..n)
+        .map(|i| outline[(i + 1) % n] - outline[i])
+        .max_by(|a, b| a.length_squared().total_cmp(&b.length_squared()))
+        .filter(|d| d.length_squared() > 0.0)
+        .map_or(0.0, |d| d.y.atan2(d.x))
 }
 
 fn point_in_polygon(p: DVec2, poly: &[DVec2]) -> bool {
@@ -177,6 +289,10 @@ pub struct CommonRoadScenario {
     pub map: LaneletMap,
     /// Dynamic obstacles, sorted by id.
     pub obstacles: Vec<DynamicObstacle>,
+    /// Static obstacles, sorted by id.
+    pub static_obstacles: Vec<StaticObstacle>,
+    /// Environment obstacles (buildings, ...), sorted by id.
+    pub environment_obstacles: Vec<EnvironmentObstacle>,
     /// Planning problems, sorted by id.
     pub planning_problems: Vec<PlanningProblem>,
 }
@@ -351,20 +467,86 @@ impl Ctx<'_> {
 
     fn state(&self, el: &Element) -> Result<CommonRoadState, MapError> {
         let need = |name: &str| el.child(name).ok_or_else(|| self.err(el, format!("<{}> has no <{name}>", el.name)));
-        let pos = need("position")?;
-        let point = pos.child("point").ok_or_else(|| {
-            self.err(pos, "<position> has no <point> (shapes as positions are only read in goal states)".into())
-        })?;
+        let position = self.position(need("position")?)?;
         let time = self.value(need("time")?)?;
         if time.fract() != 0.0 {
             return Err(self.err(el, format!("<time> {time} is not an integer time step")));
         }
         Ok(CommonRoadState {
             time_step: time as i64,
-            position: self.point(point)?,
+            position,
             orientation: el.child("orientation").map(|o| self.value(o)).transpose()?.unwrap_or(0.0),
             velocity: el.child("velocity").map(|v| self.value(v)).transpose()?.unwrap_or(0.0),
         })
+    }
+
+    /// A state's `<position>`: a `<point>`, or the centre of its shape (several shapes: the mean
+    /// of their centres).
+    fn position(&self, pos: &Element) -> Result<DVec2, MapError> {
+        if let Some(p) = pos.child("point") {
+            return self.point(p);
+        }
+        let mut centres = Vec::new();
+        for s in &pos.children {
+            let shape = self.shape(s)?;
+            centres.push(shape.centre().ok_or_else(|| {
+                self.err(s, format!("a <{}> position has no centre; states need a point or a shape", s.name))
+            })?);
+        }
+        if centres.is_empty() {
+            return Err(self.err(pos, "<position> has no <point>, <rectangle>, <circle> or <polygon>".into()));
+        }
+        Ok(centres.iter().copied().sum::<DVec2>() / centres.len() as f64)
+    }
+
+    /// One shape: `<rectangle>` (length, width, optional orientation and centre), `<circle>`
+    /// (radius, optional centre), `<polygon>` (at least 3 points) or `<lanelet ref>`.
+    fn shape(&self, s: &Element) -> Result<GoalShape, MapError> {
+        let center = |s: &Element| s.child("center").map_or(Ok(DVec2::ZERO), |c| self.point(c));
+        let positive = |name: &str| {
+            let v = self.field(s, name)?;
+            if v > 0.0 { Ok(v) } else { Err(self.err(s, format!("<{}> {name} {v} must be positive", s.name))) }
+        };
+        Ok(match s.name.as_str() {
+            "rectangle" => GoalShape::Rectangle {
+                center: center(s)?,
+                length: positive("length")?,
+                width: positive("width")?,
+                orientation: s.child("orientation").map(|o| self.number(o)).transpose()?.unwrap_or(0.0),
+            },
+            "circle" => GoalShape::Circle { center: center(s)?, radius: positive("radius")? },
+            "polygon" => {
+                let points: Vec<DVec2> = s.children("point").map(|p| self.point(p)).collect::<Result<_, _>>()?;
+                if open_ring(&points).len() < 3 {
+                    return Err(
+                        self.err(s, format!("<polygon> has {} points; a polygon needs at least 3", points.len()))
+                    );
+                }
+                GoalShape::Polygon { points }
+            }
+            "lanelet" => GoalShape::Lanelets { ids: vec![self.reference(s)?] },
+            "point" => GoalShape::Circle { center: self.point(s)?, radius: 0.0 },
+            other => {
+                return Err(self
+                    .err(s, format!("unknown shape <{other}> (allowed: rectangle, circle, polygon, lanelet, point)")));
+            }
+        })
+    }
+
+    /// Every shape under `<shape>` of `el`; an error when there is none.
+    fn shapes(&self, el: &Element) -> Result<Vec<GoalShape>, MapError> {
+        let shape = el.child("shape").ok_or_else(|| self.err(el, format!("<{}> has no <shape>", el.name)))?;
+        let shapes = shape.children.iter().map(|s| self.shape(s)).collect::<Result<Vec<_>, _>>()?;
+        // A <lanelet> or <point> (a circle of radius 0) has no area: not an obstacle's shape.
+        let no_area = |s: &GoalShape| match s {
+            GoalShape::Lanelets { .. } => true,
+            GoalShape::Circle { radius, .. } => *radius <= 0.0,
+            _ => false,
+        };
+        if shapes.is_empty() || shapes.iter().any(no_area) {
+            return Err(self.err(shape, "<shape> needs one or more <rectangle>, <circle> or <polygon>".into()));
+        }
+        Ok(shapes)
     }
 
     fn bound(&self, el: &Element) -> Result<(Vec<DVec2>, Option<String>), MapError> {
@@ -402,14 +584,39 @@ impl CommonRoadScenario {
         };
         let mut warnings = Vec::new();
         let map = build_map(&root, &cx, &mut warnings)?;
-        let mut obstacles = Vec::new();
-        for el in root.children.iter().filter(|c| c.name == "dynamicObstacle" || c.name == "obstacle") {
-            if el.name == "obstacle" && el.child("role").map(|r| r.text.trim()) != Some("dynamic") {
-                continue;
+        let (mut obstacles, mut static_obstacles, mut environment_obstacles) = (Vec::new(), Vec::new(), Vec::new());
+        for el in &root.children {
+            let role = el.child("role").map(|r| r.text.trim());
+            match (el.name.as_str(), role) {
+                ("dynamicObstacle", _) | ("obstacle", Some("dynamic")) => {
+                    obstacles.push(obstacle(el, &cx, &mut warnings)?);
+                }
+                ("staticObstacle", _) | ("obstacle", Some("static")) => {
+                    static_obstacles.push(static_obstacle(el, &cx)?)
+                }
+                ("environmentObstacle", _) => environment_obstacles.push(environment_obstacle(el, &cx)?),
+                ("obstacle", role) => {
+                    return Err(cx.err(
+                        el,
+                        format!(
+                            "obstacle {}: <role> {role:?} is neither `dynamic` nor `static`",
+                            el.attr("id").unwrap_or("?")
+                        ),
+                    ));
+                }
+                _ => {}
             }
-            obstacles.push(obstacle(el, &cx, &mut warnings)?);
+        }
+        if map.lanelets.is_empty()
+            && obstacles.is_empty()
+            && static_obstacles.is_empty()
+            && environment_obstacles.is_empty()
+        {
+            return Err(cx.err(&root, "the scenario has no <lanelet> and no obstacle; nothing to load".into()));
         }
         obstacles.sort_by_key(|o| o.id);
+        static_obstacles.sort_by_key(|o| o.id);
+        environment_obstacles.sort_by_key(|o| o.id);
         let mut planning_problems = Vec::new();
         for el in root.children("planningProblem") {
             planning_problems.push(planning_problem(el, &cx)?);
@@ -417,38 +624,126 @@ impl CommonRoadScenario {
         planning_problems.sort_by_key(|p| p.id);
         let mut map = map;
         map.warnings.extend(warnings);
-        Ok(CommonRoadScenario { version, time_step_size, map, obstacles, planning_problems })
+        add_obstacle_ways(&mut map, &static_obstacles, &environment_obstacles);
+        Ok(CommonRoadScenario {
+            version,
+            time_step_size,
+            map,
+            obstacles,
+            static_obstacles,
+            environment_obstacles,
+            planning_problems,
+        })
     }
+}
+
+/// `e` with `what` (an obstacle named by id) in front of its message.
+fn about(e: MapError, what: &str) -> MapError {
+    match e {
+        MapError::CommonRoad { at, message } => MapError::CommonRoad { at, message: format!("{what}: {message}") },
+        other => other,
+    }
+}
+
+fn kind_of(el: &Element) -> String {
+    el.child("type").map(|t| t.text.trim().to_string()).unwrap_or_else(|| "unknown".into())
 }
 
 fn obstacle(el: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result<DynamicObstacle, MapError> {
     let id = cx.id(el)?;
-    let kind = el.child("type").map(|t| t.text.trim().to_string()).unwrap_or_else(|| "unknown".into());
-    let (mut length, mut width) = (1.0, 1.0);
-    match el.child("shape").and_then(|s| s.child("rectangle")) {
-        Some(r) => (length, width) = (cx.field(r, "length")?, cx.field(r, "width")?),
-        None => warnings.push(MapWarning {
-            at: cx.at(el),
-            message: format!("obstacle {id}: no <shape><rectangle>; drawn and checked as a 1 m x 1 m square"),
-        }),
-    }
+    let what = format!("obstacle {id}");
+    let kind = kind_of(el);
+    let shapes = cx.shapes(el).map_err(|e| about(e, &what))?;
+    let (length, width) = match shapes.as_slice() {
+        [GoalShape::Rectangle { length, width, .. }] => (*length, *width),
+        _ => {
+            let outline: Vec<DVec2> = shapes.iter().flat_map(GoalShape::outline).collect();
+            let (_, length, width) = box_around(&outline, 0.0);
+            warnings.push(MapWarning {
+                at: cx.at(el),
+                message: format!(
+                    "{what}: its shape is not one rectangle; drawn and checked as the {length:.2} m x {width:.2} m rectangle around it"
+                ),
+            });
+            (length, width)
+        }
+    };
     let mut states = Vec::new();
     if let Some(s) = el.child("initialState") {
-        states.push(cx.state(s)?);
+        states.push(cx.state(s).map_err(|e| about(e, &what))?);
     }
     if let Some(t) = el.child("trajectory") {
         for s in t.children("state") {
-            states.push(cx.state(s)?);
+            let state = cx.state(s).map_err(|e| about(e, &what))?;
+            // 2018b trajectories may repeat the initial state.
+            if states.first().is_some_and(|first: &CommonRoadState| {
+                first.time_step == state.time_step && first.position == state.position
+            }) {
+                continue;
+            }
+            states.push(state);
         }
     }
     if states.is_empty() {
-        return Err(cx.err(el, format!("obstacle {id} has no <initialState> and no <trajectory> states")));
+        return Err(cx.err(el, format!("{what} has no <initialState> and no <trajectory> states")));
     }
     states.sort_by_key(|s| s.time_step);
     if let Some(w) = states.windows(2).find(|w| w[0].time_step == w[1].time_step) {
-        return Err(cx.err(el, format!("obstacle {id} has two states at time step {}", w[0].time_step)));
+        return Err(cx.err(el, format!("{what} has two different states at time step {}", w[0].time_step)));
     }
     Ok(DynamicObstacle { id, kind, length, width, states })
+}
+
+fn static_obstacle(el: &Element, cx: &Ctx) -> Result<StaticObstacle, MapError> {
+    let id = cx.id(el)?;
+    let what = format!("static obstacle {id}");
+    let shapes = cx.shapes(el).map_err(|e| about(e, &what))?;
+    let initial = el.child("initialState").ok_or_else(|| cx.err(el, format!("{what} has no <initialState>")))?;
+    let state = cx.state(initial).map_err(|e| about(e, &what))?;
+    let frame = |p: DVec2| state.position + DVec2::from_angle(state.orientation).rotate(p);
+    let outlines: Vec<Vec<DVec2>> = shapes.iter().map(|s| s.outline().into_iter().map(frame).collect()).collect();
+    let local = match shapes.as_slice() {
+        [GoalShape::Rectangle { orientation, .. }] => *orientation,
+        [GoalShape::Polygon { points }] => longest_edge_heading(open_ring(points)),
+        _ => 0.0,
+    };
+    let orientation = state.orientation + local;
+    let all: Vec<DVec2> = outlines.iter().flatten().copied().collect();
+    let (position, length, width) = box_around(&all, orientation);
+    Ok(StaticObstacle { id, kind: kind_of(el), position, orientation, length, width, outlines })
+}
+
+fn environment_obstacle(el: &Element, cx: &Ctx) -> Result<EnvironmentObstacle, MapError> {
+    let id = cx.id(el)?;
+    let shapes = cx.shapes(el).map_err(|e| about(e, &format!("environment obstacle {id}")))?;
+    Ok(EnvironmentObstacle { id, kind: kind_of(el), outlines: shapes.iter().map(GoalShape::outline).collect() })
+}
+
+/// Each obstacle shape as a closed way (see the module docs), ids -1, -2, ... in file order.
+fn add_obstacle_ways(map: &mut LaneletMap, statics: &[StaticObstacle], environment: &[EnvironmentObstacle]) {
+    let shapes = statics
+        .iter()
+        .flat_map(|o| o.outlines.iter().map(move |l| (o.id, &o.kind, "static", l)))
+        .chain(environment.iter().flat_map(|o| o.outlines.iter().map(move |l| (o.id, &o.kind, "environment", l))));
+    let (mut next_way, mut next_node) = (-1i64, -1i64);
+    for (id, kind, role, outline) in shapes {
+        let mut points = outline.clone();
+        points.extend(outline.first().copied());
+        let mut nodes: Vec<i64> = Vec::with_capacity(points.len());
+        for &p in outline {
+            let (lat, lon) = map.projector.reverse(p);
+            map.nodes.insert(next_node, MapNode { id: next_node, lat, lon, position: p, tags: Tags::new() });
+            nodes.push(next_node);
+            next_node -= 1;
+        }
+        nodes.extend(nodes.first().copied());
+        let mut tags = Tags::new();
+        tags.insert("obstacle".into(), kind.clone());
+        tags.insert("obstacle_role".into(), role.into());
+        tags.insert("obstacle_id".into(), id.to_string());
+        map.ways.insert(next_way, MapWay { id: next_way, nodes, points, tags });
+        next_way -= 1;
+    }
 }
 
 fn planning_problem(el: &Element, cx: &Ctx) -> Result<PlanningProblem, MapError> {
@@ -468,31 +763,7 @@ fn planning_problem(el: &Element, cx: &Ctx) -> Result<PlanningProblem, MapError>
         let mut shapes = Vec::new();
         if let Some(pos) = g.child("position") {
             for s in &pos.children {
-                shapes.push(match s.name.as_str() {
-                    "rectangle" => GoalShape::Rectangle {
-                        center: cx
-                            .point(s.child("center").ok_or_else(|| cx.err(s, "<rectangle> has no <center>".into()))?)?,
-                        length: cx.field(s, "length")?,
-                        width: cx.field(s, "width")?,
-                        orientation: s.child("orientation").map(|o| cx.number(o)).transpose()?.unwrap_or(0.0),
-                    },
-                    "circle" => GoalShape::Circle {
-                        center: cx
-                            .point(s.child("center").ok_or_else(|| cx.err(s, "<circle> has no <center>".into()))?)?,
-                        radius: cx.field(s, "radius")?,
-                    },
-                    "polygon" => GoalShape::Polygon {
-                        points: s.children("point").map(|p| cx.point(p)).collect::<Result<_, _>>()?,
-                    },
-                    "lanelet" => GoalShape::Lanelets { ids: vec![cx.reference(s)?] },
-                    "point" => GoalShape::Circle { center: cx.point(s)?, radius: 0.0 },
-                    other => {
-                        return Err(cx.err(
-                            s,
-                            format!("goal position <{other}> (allowed: rectangle, circle, polygon, lanelet, point)"),
-                        ));
-                    }
-                });
+                shapes.push(cx.shape(s).map_err(|e| about(e, &format!("planning problem {id}, goal position")))?);
             }
         }
         goals.push(GoalState { shapes, time_start, time_end });
@@ -532,7 +803,10 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
         raw.push(RawLanelet { el, id, left, right, left_marking, right_marking });
     }
     if raw.is_empty() {
-        return Err(cx.err(root, "the scenario has no <lanelet>; nothing to drive on".into()));
+        warnings.push(MapWarning {
+            at: cx.at(root),
+            message: "the scenario has no <lanelet>: nothing to drive on (obstacles only)".into(),
+        });
     }
     raw.sort_by_key(|r| r.id);
     let index: BTreeMap<LaneletId, usize> = raw.iter().enumerate().map(|(i, r)| (LaneletId(r.id), i)).collect();

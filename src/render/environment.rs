@@ -1,4 +1,20 @@
-//! The environment layer's geometry: roads, areas and painted lines in metres, and their tessellation.
+//! The environment layer's geometry: roads, areas, tinted or filled polygons and painted lines in
+//! metres, and their tessellation.
+//!
+//! What a map's tags turn into (see [`Environment::from_map`]):
+//! - SML maps: `line_type=exterior` (yellow edge) and `interior` (white dashes); closed ways
+//!   tagged `mud`, `iron`, `parking_lot`, `free_space` are patterned areas.
+//! - Lanelet2 line strings by `type`/`subtype`: `line_thin`/`line_thick` `solid`, `dashed`,
+//!   `solid_solid`, `solid_dashed` (solid on the left of the way's direction), `dashed_solid`;
+//!   `curbstone` and `road_border` (kerb grey), `stop_line` (broad white), `pedestrian_marking`
+//!   and `bike_marking` (short white dashes), `guard_rail`, `fence`, `wall` (dark grey);
+//!   `virtual` and anything else: not drawn.
+//! - Lanelet subtypes (Lanelet2 `subtype`, CommonRoad `laneletType`): `crosswalk` striped as a
+//!   zebra crossing; `walkway`/`sidewalk`, `bicycle_lane`/`bicycleLane`, `parking`,
+//!   `bus_lane`/`busLane` tinted; roads and highways plain.
+//! - CommonRoad obstacle outlines (closed ways tagged `obstacle`): filled, buildings and other
+//!   environment obstacles in brown-grey, parked vehicles in blue-grey, other static obstacles
+//!   (road boundaries, construction zones) in orange-grey, each with a dark outline.
 
 use glam::DVec2;
 
@@ -43,6 +59,21 @@ impl LineStyle {
     /// `line_type=interior`: between lanes, white and dashed (3 m paint, 3 m gap).
     pub const INTERIOR: LineStyle = LineStyle { color: [242, 242, 236, 255], width: 0.2, dash: Some(6.0) };
 
+    /// A white painted line (Lanelet2 `line_thin`): solid.
+    pub const THIN_SOLID: LineStyle = LineStyle { color: WHITE, width: 0.12, dash: None };
+    /// A white painted line (Lanelet2 `line_thin`): dashed (3 m paint, 3 m gap).
+    pub const THIN_DASHED: LineStyle = LineStyle { color: WHITE, width: 0.12, dash: Some(6.0) };
+    /// A kerb (Lanelet2 `curbstone`, `road_border`): light grey.
+    pub const KERB: LineStyle = LineStyle { color: [200, 198, 190, 255], width: 0.25, dash: None };
+    /// A stop line: broad white.
+    pub const STOP_LINE: LineStyle = LineStyle { color: WHITE, width: 0.4, dash: None };
+    /// Pedestrian and bicycle crossing edges: short white dashes (0.5 m paint, 0.5 m gap).
+    pub const CROSSING_EDGE: LineStyle = LineStyle { color: WHITE, width: 0.12, dash: Some(1.0) };
+    /// A barrier (guard rail, fence, wall): dark grey.
+    pub const BARRIER: LineStyle = LineStyle { color: [80, 80, 80, 255], width: 0.2, dash: None };
+    /// The outline of a filled obstacle: dark grey, thin.
+    pub const OUTLINE: LineStyle = LineStyle { color: [50, 50, 50, 255], width: 0.1, dash: None };
+
     /// The style of a way's `line_type` value; `None` (no line) for anything else.
     pub fn for_line_type(value: &str) -> Option<LineStyle> {
         match value {
@@ -51,6 +82,94 @@ impl LineStyle {
             _ => None,
         }
     }
+
+    /// The same style `factor` times as wide.
+    pub fn widened(self, factor: f64) -> LineStyle {
+        LineStyle { width: self.width * factor, ..self }
+    }
+}
+
+/// White paint.
+const WHITE: [u8; 4] = [242, 242, 236, 255];
+
+/// The lines of a Lanelet2 line string with `type` and `subtype` (see the module docs): each
+/// style with its offset to the left of the way's direction [m]. Empty when nothing is drawn.
+pub fn lanelet2_lines(kind: &str, subtype: Option<&str>) -> Vec<(LineStyle, f64)> {
+    let painted = |thick: bool| {
+        let (solid, dashed) = if thick {
+            (LineStyle::THIN_SOLID.widened(2.0), LineStyle::THIN_DASHED.widened(2.0))
+        } else {
+            (LineStyle::THIN_SOLID, LineStyle::THIN_DASHED)
+        };
+        // Double lines: two lines a line width apart on each side of the way.
+        let d = solid.width;
+        match subtype.unwrap_or("solid") {
+            "dashed" => vec![(dashed, 0.0)],
+            "solid_solid" => vec![(solid, d), (solid, -d)],
+            "solid_dashed" => vec![(solid, d), (dashed, -d)],
+            "dashed_solid" => vec![(dashed, d), (solid, -d)],
+            _ => vec![(solid, 0.0)],
+        }
+    };
+    match kind {
+        "line_thin" => painted(false),
+        "line_thick" => painted(true),
+        "curbstone" | "road_border" => vec![(LineStyle::KERB, 0.0)],
+        "stop_line" => vec![(LineStyle::STOP_LINE, 0.0)],
+        "pedestrian_marking" | "bike_marking" => vec![(LineStyle::CROSSING_EDGE, 0.0)],
+        "guard_rail" | "fence" | "wall" => vec![(LineStyle::BARRIER, 0.0)],
+        _ => Vec::new(),
+    }
+}
+
+/// The tint of a lanelet subtype (Lanelet2 `subtype` or a CommonRoad `laneletType`), drawn over
+/// the road pattern; `None` for roads, highways and unknown subtypes.
+pub fn subtype_tint(subtype: &str) -> Option<[u8; 4]> {
+    match subtype {
+        "walkway" | "sidewalk" => Some([214, 200, 170, 170]),
+        "bicycle_lane" | "bicycleLane" => Some([196, 70, 60, 110]),
+        "parking" => Some([70, 110, 200, 90]),
+        "bus_lane" | "busLane" => Some([200, 150, 50, 100]),
+        _ => None,
+    }
+}
+
+/// Fill colour of a CommonRoad obstacle outline (a way's `obstacle` and `obstacle_role` tags).
+pub fn obstacle_color(kind: &str, role: Option<&str>) -> [u8; 4] {
+    match (kind, role) {
+        ("parkedVehicle", _) => [96, 110, 140, 255],
+        (_, Some("environment")) | ("building", _) => [150, 136, 120, 255],
+        _ => [196, 132, 80, 255],
+    }
+}
+
+/// `points` moved `d` [m] to their left (per segment normal, averaged at the joints).
+fn offset_polyline(points: &[DVec2], d: f64) -> Vec<DVec2> {
+    if d == 0.0 || points.len() < 2 {
+        return points.to_vec();
+    }
+    let normal = |a: DVec2, b: DVec2| (b - a).perp().try_normalize().unwrap_or(DVec2::ZERO);
+    (0..points.len())
+        .map(|i| {
+            let before = (i > 0).then(|| normal(points[i - 1], points[i]));
+            let after = (i + 1 < points.len()).then(|| normal(points[i], points[i + 1]));
+            let n = match (before, after) {
+                (Some(a), Some(b)) => (a + b).try_normalize().unwrap_or(a),
+                (Some(a), None) | (None, Some(a)) => a,
+                (None, None) => DVec2::ZERO,
+            };
+            points[i] + n * d
+        })
+        .collect()
+}
+
+/// A polygon filled with a plain colour (alpha blends it over what is below).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fill {
+    /// sRGB colour with alpha.
+    pub color: [u8; 4],
+    /// Outline [m]; closing point optional; simple, any orientation.
+    pub outline: Vec<DVec2>,
 }
 
 /// A painted polyline.
@@ -71,30 +190,63 @@ pub struct Environment {
     pub areas: Vec<Area>,
     /// Road surfaces, drawn over the areas.
     pub roads: Vec<RoadStrip>,
+    /// Plain-colour polygons over the roads: lanelet tints, then obstacles.
+    pub fills: Vec<Fill>,
     /// Painted lines, drawn last.
     pub lines: Vec<Line>,
 }
 
 impl Environment {
-    /// The environment of a lanelet map, as the 2015 road module drew it: road pattern inside every
-    /// lanelet; patterns inside closed ways tagged (`line_type` or `region`) `mud`/`pile_stuff`,
-    /// `iron`, `parking_lot`, `free_space`; yellow lines on `line_type=exterior` ways and white ones
-    /// on `interior` ways; ways without such tags draw nothing.
+    /// The environment of a lanelet map: road pattern inside every lanelet, as the 2015 road
+    /// module drew it (patterns inside closed ways tagged (`line_type` or `region`)
+    /// `mud`/`pile_stuff`, `iron`, `parking_lot`, `free_space`; yellow lines on
+    /// `line_type=exterior` ways and white ones on `interior` ways, `broad_` CommonRoad markings
+    /// wider), plus Lanelet2 line types, lanelet subtypes and CommonRoad obstacles as the module
+    /// docs list them; other ways draw nothing.
     pub fn from_map(map: &LaneletMap) -> Environment {
         let roads = map.lanelets.iter().map(|l| RoadStrip { left: l.left.clone(), right: l.right.clone() }).collect();
         let mut areas = Vec::new();
+        let mut fills = Vec::new();
         let mut lines = Vec::new();
-        for way in map.ways.values() {
-            let Some(kind) = way.line_type() else { continue };
-            if let Some(style) = way.tags.get("line_type").and_then(|v| LineStyle::for_line_type(v)) {
-                lines.push(Line { style, points: way.points.clone() });
-            } else if way.is_closed()
-                && let Some(pattern) = PatternKind::from_area_tag(kind)
-            {
-                areas.push(Area { pattern, outline: way.points.clone() });
+        for l in &map.lanelets {
+            let subtypes = l.tags.get("subtype").or_else(|| l.tags.get("lanelet_type"));
+            let subtypes: Vec<&str> = subtypes.map(|s| s.split(';').map(str::trim).collect()).unwrap_or_default();
+            if subtypes.contains(&"crosswalk") {
+                // Zebra stripes: a dash pattern as wide as the crossing along its centre line.
+                let width =
+                    l.left.iter().zip(&l.right).map(|(a, b)| a.distance(*b)).sum::<f64>() / l.left.len().max(1) as f64;
+                let style = LineStyle { color: WHITE, width: 0.9 * width, dash: Some(1.0) };
+                lines.push(Line { style, points: l.centre.clone() });
+            } else if let Some(color) = subtypes.iter().find_map(|s| subtype_tint(s)) {
+                fills.push(Fill { color, outline: l.polygon() });
             }
         }
-        Environment { background: PatternKind::Forest, areas, roads, lines }
+        let mut obstacles = Vec::new();
+        for way in map.ways.values() {
+            if let Some(kind) = way.tags.get("obstacle") {
+                let color = obstacle_color(kind, way.tags.get("obstacle_role").map(String::as_str));
+                obstacles.push(Fill { color, outline: way.points.clone() });
+                lines.push(Line { style: LineStyle::OUTLINE, points: way.points.clone() });
+            } else if let Some(kind) = way.line_type() {
+                if let Some(style) = way.tags.get("line_type").and_then(|v| LineStyle::for_line_type(v)) {
+                    let broad = way.tags.get("line_marking").is_some_and(|m| m.starts_with("broad_"));
+                    lines.push(Line {
+                        style: if broad { style.widened(1.5) } else { style },
+                        points: way.points.clone(),
+                    });
+                } else if way.is_closed()
+                    && let Some(pattern) = PatternKind::from_area_tag(kind)
+                {
+                    areas.push(Area { pattern, outline: way.points.clone() });
+                }
+            } else if let Some(kind) = way.tags.get("type") {
+                for (style, d) in lanelet2_lines(kind, way.tags.get("subtype").map(String::as_str)) {
+                    lines.push(Line { style, points: offset_polyline(&way.points, d) });
+                }
+            }
+        }
+        fills.extend(obstacles);
+        Environment { background: PatternKind::Forest, areas, roads, fills, lines }
     }
 }
 
@@ -173,6 +325,21 @@ impl Tessellator<'_> {
         }
     }
 
+    /// A simple polygon filled with a plain colour.
+    pub fn fill(&mut self, fill: &Fill) {
+        let color = rgba(fill.color);
+        let outline = &fill.outline;
+        for [a, b, c] in triangulate(outline) {
+            let t = [outline[a], outline[b], outline[c]].map(|p| GroundVertex {
+                pos: self.rel(p),
+                tex: [0.0, 0.0, -1.0],
+                color,
+                line: [0.0; 4],
+            });
+            self.out.extend_from_slice(&t);
+        }
+    }
+
     /// A polyline with anti-aliased edges, round joins (solid lines) and optional dashes.
     pub fn polyline(&mut self, points: &[DVec2], style: &LineStyle) {
         let ppm = self.view.pixels_per_meter;
@@ -235,6 +402,9 @@ impl Tessellator<'_> {
         }
         for road in &env.roads {
             self.strip(road, PatternKind::Road, patterns);
+        }
+        for fill in &env.fills {
+            self.fill(fill);
         }
         for line in &env.lines {
             self.polyline(&line.points, &line.style);

@@ -36,7 +36,9 @@ mod view;
 use std::path::PathBuf;
 
 pub use camera::{Camera, FOLLOW_PPM, FrameOutput, MIN_AUTO_FIT_PPM, Overlay};
-pub use environment::{Area, Environment, Line, LineStyle, RoadStrip};
+pub use environment::{
+    Area, Environment, Fill, Line, LineStyle, RoadStrip, lanelet2_lines, obstacle_color, subtype_tint,
+};
 pub use gpu::{EnvironmentLayer, Renderer};
 pub use output::{GifWriter, frame_path, write_gif, write_image, write_image_with_meta, write_meta};
 pub use overlay::{FONT_TTF, OVERLAY_BACKGROUND, OVERLAY_TEXT_PX, draw_collision_ring, draw_overlay};

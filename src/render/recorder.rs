@@ -7,7 +7,7 @@
 
 use std::path::PathBuf;
 
-use bevy_ecs::prelude::{Entity, World};
+use bevy_ecs::prelude::{Entity, Without, World};
 use glam::DVec2;
 use image::RgbaImage;
 
@@ -18,7 +18,7 @@ use super::{
 };
 use crate::map::LaneletMap;
 use crate::sim::SimClock;
-use crate::world::{Radar, VehicleClass, VehicleId, VehicleSize, VehicleState, Velodyne};
+use crate::world::{Radar, Stationary, VehicleClass, VehicleId, VehicleSize, VehicleState, Velodyne};
 
 /// How long a collision's red ring stays in the frames [s of sim time].
 pub const COLLISION_RING_SECONDS: f64 = 2.0;
@@ -251,11 +251,14 @@ impl FrameRecorder {
     }
 }
 
-/// The world's vehicles as sprites, sorted by id (so frames do not depend on entity order).
-/// `out` is cleared and reused.
+/// The world's vehicles as sprites, sorted by id (so frames do not depend on entity order);
+/// [`Stationary`] obstacles are left out (the map layer draws their outlines). `out` is cleared
+/// and reused.
 pub fn sprites_from_world(world: &World, sensor_ranges: bool, out: &mut Vec<VehicleSprite>) {
     out.clear();
-    let Some(mut query) = world.try_query::<(Entity, &VehicleId, &VehicleState)>() else { return };
+    let Some(mut query) = world.try_query_filtered::<(Entity, &VehicleId, &VehicleState), Without<Stationary>>() else {
+        return;
+    };
     for (entity, id, state) in query.iter(world) {
         let size = world.get::<VehicleSize>(entity).copied().unwrap_or_default();
         let class = world.get::<VehicleClass>(entity).copied().unwrap_or_default();

@@ -71,6 +71,13 @@ pub struct ControlCommand {
     pub speed: f64,
 }
 
+/// Marks an obstacle that never moves (a CommonRoad static obstacle: parked vehicle, road
+/// boundary, ...). It is a vehicle entity without a model, so sensors see it and the collision
+/// metrics count a vehicle driving into it; two stationary obstacles never collide with each
+/// other, and it is drawn by the map layer (its outline), not as a vehicle sprite.
+#[derive(Component, Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Stationary;
+
 /// Footprint of a vehicle [m].
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct VehicleSize {

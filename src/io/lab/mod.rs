@@ -16,7 +16,7 @@
 //!   them with their sensors and heard them over V2V.
 //!
 //! The scenario's `[lab]` section that configures these bridges is read and wired up by
-//! `crate::app::scenario::lab` (the app layer); this module knows nothing of scenario files.
+//! `crate::app::running::scenario::lab` (the app layer); this module knows nothing of scenario files.
 //! With `mock = true` there, the run starts a [`crate::io::mock_mocap::MockMocapServer`]
 //! in-process whose bodies follow the script of [`ring_script`].
 

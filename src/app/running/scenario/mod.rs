@@ -1,5 +1,5 @@
 //! Scenario files (TOML): map, rates, seed, duration and vehicles; parsed strictly, then built
-//! into a [`SimBuilder`].
+//! into a [`crate::sim::SimBuilder`].
 //!
 //! ```toml
 //! seed = 7

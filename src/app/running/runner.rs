@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use crate::world::SimTime;
 
-use super::Sim;
+use crate::sim::Sim;
 
 /// What a run did.
 #[derive(Debug, Clone, Copy, PartialEq)]

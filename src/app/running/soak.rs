@@ -110,7 +110,7 @@ pub fn soak(
         if wall >= end {
             break;
         }
-        let report = super::run_headless(&mut sim, 0.5, 0.5, |_| {});
+        let report = super::runner::run_headless(&mut sim, 0.5, 0.5, |_| {});
         if report.interrupted {
             interrupted = true;
             sample(sim.now().as_secs(), start.elapsed(), &mut samples);

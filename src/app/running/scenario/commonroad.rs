@@ -1,11 +1,13 @@
-//! CommonRoad scenarios in a run: dynamic obstacles as recorded vehicles (`obstacles =
-//! "replay"`), egos started from a planning problem, and whether they reached its goal.
+//! CommonRoad scenarios in a run: dynamic obstacles as recorded vehicles and static obstacles
+//! standing where the file puts them (`obstacles = "replay"`), egos started from a planning
+//! problem, and whether they reached its goal.
 //!
-//! Obstacle N becomes virtual vehicle -N (class from its `<type>`: car, truck, bus, motorcycle,
-//! bicycle; anything else draws as a car), of its rectangle's size, without a dynamics model,
-//! mailbox or sensors; its state is played from its trajectory at the file's `timeStepSize`
-//! ([`crate::sim::recorded`]). Sensors see it and the collision metrics count it like any
-//! vehicle. An ego's goal counts as reached at the first sensor tick at which its centre lies in
+//! Dynamic obstacle N becomes virtual vehicle -N (class from its `<type>`: car, truck, bus,
+//! motorcycle, bicycle; anything else draws as a car), of its rectangle's size, without a
+//! dynamics model, mailbox or sensors; its state is played from its trajectory at the file's
+//! `timeStepSize` ([`crate::sim::recorded`]). Static obstacle N becomes vehicle -N too, marked
+//! [`Stationary`], as the rectangle around its shapes, at rest for the whole run (the map layer
+//! draws its outline). Sensors see both and the collision metrics count them like any vehicle. An ego's goal counts as reached at the first sensor tick at which its centre lies in
 //! a goal position within the goal's time-step interval (goal orientation and velocity
 //! constraints are not checked), and only if it did not collide before (`collision` in
 //! `summary.json` then says when it did).
@@ -16,13 +18,15 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use crate::app::metrics::Metrics;
+use crate::app::running::metrics::Metrics;
 use crate::map::LaneletMap;
 use crate::map::commonroad::{CommonRoadScenario, GoalState};
 use crate::sim::{
     RecordedSample, RecordedTrajectory, Sensors, SimBuilder, SimClock, SimSystems, recorded_trajectories,
 };
-use crate::world::{VehicleClass, VehicleId, VehicleModel, VehicleSize, VehicleSpec, VehicleState, Vehicles};
+use crate::world::{
+    Stationary, VehicleClass, VehicleId, VehicleModel, VehicleSize, VehicleSpec, VehicleState, Vehicles,
+};
 
 /// The vehicle id of CommonRoad obstacle `id`: its negation (virtual), if it fits an `i32`.
 pub fn obstacle_vehicle_id(id: i64) -> Option<VehicleId> {
@@ -35,12 +39,15 @@ fn class_of(kind: &str) -> VehicleClass {
         "bus" => VehicleClass::Bus,
         "motorcycle" => VehicleClass::Motorcycle,
         "bicycle" => VehicleClass::Bicycle,
+        "parkedVehicle" => VehicleClass::Car,
         _ => VehicleClass::Car,
     }
 }
 
-/// Spawn every dynamic obstacle of `sc` as a recorded vehicle; the error names the obstacle.
-pub(crate) fn spawn_obstacles(b: &mut SimBuilder, sc: &CommonRoadScenario) -> Result<(), String> {
+/// Spawn every dynamic obstacle of `sc` as a recorded vehicle and every static one as a
+/// [`Stationary`] vehicle; returns how many were spawned; the error names the obstacle.
+pub(crate) fn spawn_obstacles(b: &mut SimBuilder, sc: &CommonRoadScenario) -> Result<usize, String> {
+    let mut spawned = 0;
     b.add_plugin(recorded_trajectories);
     for o in &sc.obstacles {
         let id = obstacle_vehicle_id(o.id)
@@ -65,8 +72,27 @@ pub(crate) fn spawn_obstacles(b: &mut SimBuilder, sc: &CommonRoadScenario) -> Re
             .spawn_vehicle(spec)
             .map_err(|e| format!("obstacle {} as vehicle {id}: {e} (scenario vehicle ids must differ)", o.id))?;
         b.world_mut().entity_mut(entity).insert(rec);
+        spawned += 1;
     }
-    Ok(())
+    for o in &sc.static_obstacles {
+        let id = obstacle_vehicle_id(o.id).ok_or_else(|| {
+            format!("static obstacle {} has no vehicle id (ids 1..=2147483647 become -1, -2, ...)", o.id)
+        })?;
+        let mut spec = VehicleSpec::new(
+            id,
+            VehicleState { position: o.position, yaw: o.orientation, velocity: glam::DVec2::ZERO },
+        );
+        spec.class = class_of(&o.kind);
+        spec.size = VehicleSize { length: o.length, width: o.width };
+        spec.model = VehicleModel::None;
+        spec.mailbox = false;
+        let entity = b
+            .spawn_vehicle(spec)
+            .map_err(|e| format!("static obstacle {} as vehicle {id}: {e} (scenario vehicle ids must differ)", o.id))?;
+        b.world_mut().entity_mut(entity).insert(Stationary);
+        spawned += 1;
+    }
+    Ok(spawned)
 }
 
 /// Planning-problem egos and when each reached its goal.
@@ -99,7 +125,7 @@ pub struct GoalResult {
 /// The `commonroad` part of `summary.json`.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct CommonRoadSummary {
-    /// Obstacles driven from their recordings.
+    /// Obstacles spawned: dynamic ones driven from their recordings plus static ones.
     pub obstacles: usize,
     /// Per ego vehicle id (JSON keys are strings): its planning problem's goal.
     pub goals: BTreeMap<i32, GoalResult>,

@@ -1,140 +1,16 @@
-//! Run outputs: the trajectory log (CSV, its own module at the log rate) and the run summary.
+//! What a run reports: `summary.json` ([`RunSummary`]: times, deliveries, metrics, lab and
+//! CommonRoad summaries) and the part of it that `smlworld replay` reads ([`ReplayInfo`]).
 
 use std::collections::BTreeMap;
-use std::io::Write;
 
-use bevy_ecs::prelude::{Query, Res, ResMut, Resource, World};
-use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
+use bevy_ecs::prelude::{Has, World};
 
 use crate::io::lab::LabSummary;
-use crate::sim::{Phase, SimClock, V2vStats};
-use crate::vehicles::{LanePosition, PathFollower};
-use crate::world::{VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
+use crate::sim::{Sim, SimSeed, V2vStats};
+use crate::vehicles::PathFollower;
+use crate::world::{Stationary, VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
 
-use super::{Plugin, RunReport, Sim, SimBuilder, SimSeed};
-
-/// Schedule of the trajectory logger ([`Phase::Sense`]: it sees the state at its tick time).
-#[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct Log;
-
-/// Where trajectory rows go: `t,id,x,y,yaw,vx,vy,lanelet,lane_offset` [s, -, m, m, rad, m/s,
-/// m/s, -, m], vehicles in id order, each number with the precision of its unit (`t` to the
-/// clock's 1 µs; the rest [`Fixed`]: 1 mm, 1e-5 rad, 1 mm/s); `lanelet` is the id of the lanelet
-/// under the reference point and `lane_offset` the signed offset from its centre line (left
-/// positive), both empty off-road or without a map.
-#[derive(Resource)]
-pub struct TrajectoryLog {
-    writer: Box<dyn Write + Send + Sync>,
-    rows: u64,
-    error: Option<std::io::Error>,
-    /// Sim time of the last rows written [s], so the final state is logged exactly once.
-    last_t: Option<f64>,
-}
-
-impl TrajectoryLog {
-    /// Log into `writer` (the header is written at once).
-    pub fn new(mut writer: Box<dyn Write + Send + Sync>) -> TrajectoryLog {
-        let error = writeln!(writer, "t,id,x,y,yaw,vx,vy,lanelet,lane_offset").err();
-        TrajectoryLog { writer, rows: 0, error, last_t: None }
-    }
-
-    /// Rows written so far.
-    pub fn rows(&self) -> u64 {
-        self.rows
-    }
-
-    /// Flush the writer; returns the first write error of the run, if any.
-    pub fn finish(&mut self) -> std::io::Result<()> {
-        if let Some(e) = self.error.take() {
-            return Err(e);
-        }
-        self.writer.flush()
-    }
-}
-
-/// Decimals of lengths [m] and speeds [m/s] in `trajectories.csv`: 1 mm and 1 mm/s.
-pub const LENGTH_DECIMALS: usize = 3;
-/// Decimals of angles [rad] in `trajectories.csv`: 1e-5 rad (0.6 mdeg, 1 mm at 100 m).
-pub const ANGLE_DECIMALS: usize = 5;
-
-/// A number written with at most `.1` decimals, trailing zeros dropped (`12.5`, `0`, `-3.142`),
-/// never `-0`: a CSV carries the precision of its unit, not 17 digits of float noise.
-pub struct Fixed(pub f64, pub usize);
-
-impl std::fmt::Display for Fixed {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let text = format!("{:.*}", self.1, self.0);
-        let text = if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.') } else { &text };
-        // A value that rounds to zero from below prints as `-0`: a sign that is not there.
-        f.write_str(if text == "-0" { "0" } else { text })
-    }
-}
-
-/// Append every vehicle's state at this tick to the [`TrajectoryLog`].
-pub fn log_trajectories(
-    clock: Res<SimClock>,
-    vehicles: Res<Vehicles>,
-    states: Query<(&VehicleState, Option<&LanePosition>)>,
-    log: Option<ResMut<TrajectoryLog>>,
-) {
-    let Some(mut log) = log else { return };
-    if log.error.is_some() {
-        return;
-    }
-    let t = clock.now.as_secs();
-    if log.last_t == Some(t) {
-        return;
-    }
-    log.last_t = Some(t);
-    for (id, e) in vehicles.iter() {
-        if let Ok((s, lane)) = states.get(e) {
-            let r = write!(
-                log.writer,
-                "{t:.6},{id},{},{},{},{},{}",
-                Fixed(s.position.x, LENGTH_DECIMALS),
-                Fixed(s.position.y, LENGTH_DECIMALS),
-                Fixed(s.yaw, ANGLE_DECIMALS),
-                Fixed(s.velocity.x, LENGTH_DECIMALS),
-                Fixed(s.velocity.y, LENGTH_DECIMALS)
-            )
-            .and_then(|()| match lane.and_then(|l| Some((l.lanelet?, l.offset))) {
-                Some((id, offset)) => writeln!(log.writer, ",{},{}", id.0, Fixed(offset, LENGTH_DECIMALS)),
-                None => writeln!(log.writer, ",,"),
-            });
-            if let Err(e) = r {
-                log.error = Some(e);
-                return;
-            }
-            log.rows += 1;
-        }
-    }
-}
-
-/// Log the state at the end of a run (unless the logger's own tick already did): a 600 s run
-/// ends with rows at t = 600, not at the last tick of the log rate.
-pub fn log_final_state(sim: &mut Sim) {
-    use bevy_ecs::system::RunSystemOnce;
-    // The system's parameters are all resources and a query, always valid: the error is
-    // unreachable, and a write error is kept in the log for `finish` to report.
-    crate::vehicles::refresh_lane_positions(sim.world_mut());
-    let _ = sim.world_mut().run_system_once(log_trajectories);
-}
-
-/// The trajectory logger as a module of its own at `rate` [Hz]; insert a [`TrajectoryLog`]
-/// resource to say where the rows go.
-#[derive(Debug, Clone, Copy)]
-pub struct TrajectoryLogPlugin {
-    /// Log rate [Hz].
-    pub rate: f64,
-}
-
-impl Plugin for TrajectoryLogPlugin {
-    fn build(&self, sim: &mut SimBuilder) {
-        sim.add_module("log", Log, Phase::Sense, self.rate);
-        // Lane positions are found where they are read (see `update_lane_positions`).
-        sim.add_systems(Log, (crate::vehicles::lanes::update_lane_positions, log_trajectories).chain());
-    }
-}
+use super::runner::RunReport;
 
 /// Deliveries per V2V channel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -178,7 +54,7 @@ pub struct RunSummary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub commonroad: Option<super::scenario::commonroad::CommonRoadSummary>,
     /// What `smlworld replay` needs to redraw the run from `trajectories.csv` (map, log rate,
-    /// vehicle classes and sizes); set by [`super::run_scenario`].
+    /// vehicle classes and sizes); set by [`crate::app::run_scenario`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub replay: Option<ReplayInfo>,
 }
@@ -207,17 +83,22 @@ pub struct ReplayVehicle {
     pub length: f64,
     /// Body width [m].
     pub width: f64,
+    /// A stationary obstacle (CommonRoad static obstacle): the map draws it, replays draw no
+    /// sprite for it. Absent (false) for every other vehicle.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub stationary: bool,
 }
 
 impl ReplayInfo {
     /// The vehicles of `world` (in the stream's query order), with the run's `map` and `log_rate` [Hz].
     pub fn of(world: &mut World, map: Option<std::path::PathBuf>, log_rate: f64) -> ReplayInfo {
-        let mut query = world.query::<(&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>)>();
+        let mut query =
+            world.query::<(&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>, Has<Stationary>)>();
         let vehicles = query
             .iter(world)
-            .map(|(id, _, class, size)| {
+            .map(|(id, _, class, size, stationary)| {
                 let size = size.copied().unwrap_or_default();
-                ReplayVehicle { id: id.0, class: *class, length: size.length, width: size.width }
+                ReplayVehicle { id: id.0, class: *class, length: size.length, width: size.width, stationary }
             })
             .collect();
         ReplayInfo { map, log_rate, vehicles }

@@ -3,7 +3,8 @@
 //!
 //! - Collisions: footprints are oriented rectangles (length along the heading, centred on the
 //!   vehicle's position) tested by separating axes; pairs come from a spatial grid, so a tick is
-//!   O(N). Each contact is recorded once, when it starts, with both ids and the time.
+//!   O(N). Each contact is recorded once, when it starts, with both ids and the time. Two
+//!   [`Stationary`] obstacles touching each other (adjacent road-boundary blocks) are no collision.
 //! - Followers: every vehicle whose speed controller sees a leader on its route
 //!   ([`Longitudinal::leader`]); its bumper-to-bumper gap is measured from ground truth (both
 //!   real lengths), time gap = gap / speed (above 1 m/s), speed error = leader speed − own speed.
@@ -15,13 +16,13 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use bevy_ecs::prelude::{Query, Res, ResMut, Resource, Without};
+use bevy_ecs::prelude::{Has, Query, Res, ResMut, Resource, Without};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
 use crate::sim::{Dynamics, GridEntry, Plugin, SimBuilder, SimClock, SimSystems, SpatialGrid};
 use crate::vehicles::{LaneChangeEvent, LaneChangeLog, Longitudinal, PathFollower, PlatoonMember};
-use crate::world::{Route, VehicleId, VehicleSize, VehicleState, Vehicles};
+use crate::world::{Route, Stationary, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 /// One collision: two footprints started to overlap.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -272,6 +273,8 @@ pub fn record_route_deviation(
 #[derive(Debug, Clone, Copy)]
 struct Footprint {
     id: VehicleId,
+    /// A [`Stationary`] obstacle (two of them never collide).
+    fixed: bool,
     centre: DVec2,
     axis: DVec2,
     half: DVec2,
@@ -294,12 +297,14 @@ pub fn rectangles_overlap(
 ) -> bool {
     let a = Footprint {
         id: VehicleId(0),
+        fixed: false,
         centre: centre_a,
         axis: DVec2::from_angle(yaw_a),
         half: 0.5 * DVec2::new(size_a.length, size_a.width),
     };
     let b = Footprint {
         id: VehicleId(0),
+        fixed: false,
         centre: centre_b,
         axis: DVec2::from_angle(yaw_b),
         half: 0.5 * DVec2::new(size_b.length, size_b.width),
@@ -377,7 +382,7 @@ pub fn record_metrics(
     clock: Res<SimClock>,
     registry: Res<Vehicles>,
     mut metrics: ResMut<Metrics>,
-    everyone: Query<(&VehicleId, &VehicleState, &VehicleSize)>,
+    everyone: Query<(&VehicleId, &VehicleState, &VehicleSize, Has<Stationary>)>,
     followers: Query<(
         &VehicleId,
         &VehicleState,
@@ -392,13 +397,13 @@ pub fn record_metrics(
     // The step just integrated ends at now + dt.
     let t = clock.now.as_secs() + clock.dt;
     let m = &mut *metrics;
-    m.record_collisions(t, everyone.iter().map(|(&id, state, size)| (id, state, size)));
+    m.record_collisions(t, everyone.iter().map(|(&id, state, size, fixed)| (id, state, size, fixed)));
     if t < m.warmup {
         return;
     }
     for (&id, state, size, route, follower, lon, member) in &followers {
         let Some(l) = lon.leader else { continue };
-        let Some((_, leader_state, leader_size)) = registry.get(l.id).and_then(|e| everyone.get(e).ok()) else {
+        let Some((_, leader_state, leader_size, _)) = registry.get(l.id).and_then(|e| everyone.get(e).ok()) else {
             continue;
         };
         let path = &route.0;
@@ -484,13 +489,14 @@ impl Metrics {
     fn record_collisions<'a>(
         &mut self,
         t: f64,
-        everyone: impl Iterator<Item = (VehicleId, &'a VehicleState, &'a VehicleSize)>,
+        everyone: impl Iterator<Item = (VehicleId, &'a VehicleState, &'a VehicleSize, bool)>,
     ) {
         self.boxes.clear();
         let mut widest: f64 = 0.0;
-        for (id, state, size) in everyone {
+        for (id, state, size, fixed) in everyone {
             let b = Footprint {
                 id,
+                fixed,
                 centre: state.position,
                 axis: DVec2::from_angle(state.yaw),
                 half: 0.5 * DVec2::new(size.length, size.width),
@@ -513,7 +519,7 @@ impl Metrics {
             let touching = &mut self.touching;
             self.grid.for_each_within(a.centre, a.radius() + widest, |_, e, _| {
                 let b = &boxes[e.index as usize];
-                if a.id < b.id && overlap(a, b) {
+                if a.id < b.id && !(a.fixed && b.fixed) && overlap(a, b) {
                     touching.push((a.id, b.id));
                 }
             });

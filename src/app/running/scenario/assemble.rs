@@ -13,8 +13,8 @@ use super::file::{
 };
 use super::lab::add_lab_plugins;
 use super::{Scenario, ScenarioError};
-use crate::app::metrics::MetricsPlugin;
-use crate::app::traffic::{Traffic, TrafficLane, TrafficPlugin, TrafficSource, place};
+use crate::app::running::metrics::MetricsPlugin;
+use crate::app::running::traffic::{Traffic, TrafficLane, TrafficPlugin, TrafficSource, place};
 use crate::map::{Path, RouteOptions};
 use crate::sim::{
     Control, Dynamics, Network, Sensors, SimBuilder, SimSeed, V2vConfig, V2vPlugin, Wifi, default_plugins,
@@ -131,8 +131,7 @@ impl Scenario {
         self.traffic(b, &mut routes)?;
         if let (Some(sc), Some(map)) = (&self.commonroad, &self.map) {
             let obstacles = if self.file.obstacles == Some(ObstaclesMode::Replay) {
-                spawn_obstacles(b, sc).map_err(|e| self.invalid("obstacles".into(), e))?;
-                sc.obstacles.len()
+                spawn_obstacles(b, sc).map_err(|e| self.invalid("obstacles".into(), e))?
             } else {
                 0
             };

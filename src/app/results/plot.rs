@@ -277,7 +277,7 @@ fn label(id: i32) -> String {
 
 /// A finished run as the figures read it.
 struct RunData {
-    info: super::output::ReplayInfo,
+    info: crate::app::running::summary::ReplayInfo,
     rows: BTreeMap<i32, Vec<Row>>,
     summary: serde_json::Value,
     map: Option<LaneletMap>,
@@ -300,6 +300,12 @@ impl RunData {
             None => None,
         };
         Ok(RunData { info, rows, summary, map })
+    }
+
+    /// The rows of every vehicle but stationary obstacles (parked cars, road boundaries: a flat
+    /// line in every figure; collisions with them are still marked).
+    fn moving(&self) -> impl Iterator<Item = (&i32, &Vec<Row>)> {
+        self.rows.iter().filter(|(id, _)| !self.info.vehicles.iter().any(|v| v.id == **id && v.stationary))
     }
 
     fn speed(&self, id: i32) -> Vec<(f64, f64)> {
@@ -335,8 +341,7 @@ impl RunData {
         let map = self.map.as_ref()?;
         let centres: Vec<&[DVec2]> = map.lanelets.iter().filter(|l| l.routable).map(|l| l.centre.as_slice()).collect();
         Some(
-            self.rows
-                .iter()
+            self.moving()
                 .map(|(&id, r)| {
                     let d = r
                         .iter()
@@ -430,7 +435,7 @@ pub fn plot_run(out_dir: &FsPath, dest: &FsPath) -> Result<Vec<PathBuf>, ReplayE
     let titled = |name: &str| format!("{name}: {what}");
     let mut written = Vec::new();
 
-    let speeds: Vec<Series> = run.rows.keys().map(|&id| (label(id), run.speed(id), id_color(id))).collect();
+    let speeds: Vec<Series> = run.moving().map(|(&id, _)| (label(id), run.speed(id), id_color(id))).collect();
     written.push(save(dest, "speed", &Chart::Panels(vec![time_lines(&titled("Speed"), "speed [m/s]", speeds)]))?);
 
     let followers = run.followers();
@@ -528,8 +533,7 @@ pub fn plot_run(out_dir: &FsPath, dest: &FsPath) -> Result<Vec<PathBuf>, ReplayE
 
     let roads = run.map.as_ref().map_or(Vec::new(), |m| m.lanelets.iter().map(|l| l.polygon()).collect());
     let traces = run
-        .rows
-        .iter()
+        .moving()
         .map(|(&id, r)| (label(id), r.iter().map(|r| (r.position.x, r.position.y)).collect(), id_color(id)))
         .collect();
     let collisions = run.summary["metrics"]["collisions"]
@@ -597,7 +601,7 @@ pub fn plot_compare(out_dirs: &[PathBuf], dest: &FsPath) -> Result<Vec<PathBuf>,
         series
     };
     let mut written = Vec::new();
-    let speeds = per_run(&|run| run.rows.keys().map(|&id| run.speed(id)).collect());
+    let speeds = per_run(&|run| run.moving().map(|(&id, _)| run.speed(id)).collect());
     written.push(save(
         dest,
         "compare_speed",

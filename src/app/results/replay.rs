@@ -27,7 +27,7 @@ use crate::map::LaneletMap;
 use crate::render::{FrameOutput, FrameRecorder, Indicator, RenderError, VehicleSprite};
 use crate::world::SimTime;
 
-use super::output::{ReplayInfo, ReplayVehicle};
+use crate::app::running::summary::{ReplayInfo, ReplayVehicle};
 
 /// What `smlworld replay` writes or sends, and how.
 #[derive(Debug, Clone)]
@@ -370,7 +370,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     let wall_start = Instant::now();
     let mut first = true;
     while reader.next_group(&mut next)? {
-        if super::interrupt::requested().is_some() {
+        if crate::app::running::interrupt::requested().is_some() {
             report.interrupted = true;
             break;
         }
@@ -385,7 +385,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                 states_at(&prev, &next, next_frame, &mut states);
                 sprites.clear();
                 let t = SimTime(next_frame).as_secs();
-                for r in &states {
+                for r in states.iter().filter(|r| !by_id.get(&r.id).is_some_and(|v| v.stationary)) {
                     let (class, length, width) =
                         by_id.get(&r.id).map_or(("Car", 4.12, 1.7), |v| (v.class.name(), v.length, v.width));
                     let mut sprite = VehicleSprite::new(r.id, r.position, r.yaw, length, width, class);

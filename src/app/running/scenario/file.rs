@@ -82,7 +82,8 @@ pub struct ScenarioFile {
     /// Bridges to the lab (motion capture, real trucks), see [`crate::io::lab`].
     #[serde(default)]
     pub lab: Option<LabConfig>,
-    /// `obstacles = "replay"`: the dynamic obstacles of a CommonRoad `map` drive as recorded.
+    /// `obstacles = "replay"`: the dynamic obstacles of a CommonRoad `map` drive as recorded and
+    /// its static obstacles stand where the file puts them.
     #[serde(default)]
     pub obstacles: Option<ObstaclesMode>,
     /// Background traffic (`[[traffic]]`).
@@ -211,12 +212,13 @@ fn default_traffic_sensors() -> SensorsConfig {
     SensorsConfig { radar: Some(RadarConfig::default()), velodyne: None, omniscient: false }
 }
 
-/// What to do with a CommonRoad map's dynamic obstacles.
+/// What to do with a CommonRoad map's obstacles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ObstaclesMode {
     /// Each dynamic obstacle N becomes virtual vehicle -N whose state comes from its recorded
-    /// trajectory (no dynamics), seen by sensors and counted in the collision metrics.
+    /// trajectory (no dynamics), each static obstacle N a [`crate::world::Stationary`] vehicle
+    /// -N at rest; both are seen by sensors and counted in the collision metrics.
     Replay,
 }
 

@@ -25,7 +25,7 @@ use crate::world::{
     Velodyne,
 };
 
-use super::{SimBuilder, default_plugins};
+use crate::sim::{SimBuilder, default_plugins};
 
 /// Why the benchmark world could not be built (the generated map did not load: a bug).
 #[derive(Debug, thiserror::Error)]
@@ -347,7 +347,7 @@ impl BenchWorld {
         sim.scheduler_mut().set_timing(true);
         let cpu = process_cpu_seconds();
         let wall = std::time::Instant::now();
-        let run = super::run_headless(&mut sim, duration, duration, |_| {});
+        let run = super::runner::run_headless(&mut sim, duration, duration, |_| {});
         let wall_seconds = wall.elapsed().as_secs_f64();
         let cpu_seconds = cpu.zip(process_cpu_seconds()).map(|(a, b)| b - a);
         let duration = run.sim_seconds;

@@ -6,7 +6,7 @@
 use std::time::Instant;
 
 use super::bench::{BenchError, BenchWorld};
-use super::run_headless;
+use super::runner::run_headless;
 use crate::render::{FrameOutput, FrameRecorder, RenderError, sprites_from_world};
 use crate::sim::{Parallelism, SimClock};
 

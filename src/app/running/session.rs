@@ -32,7 +32,9 @@ use crate::world::{
     VehicleId, VehicleState, Vehicles,
 };
 
-use super::{RunReport, RunSummary, Scenario, ScenarioError};
+use super::runner::RunReport;
+use super::scenario::{Scenario, ScenarioError};
+use super::summary::RunSummary;
 
 /// What a session call can reject (the message names the key, id or argument and what is allowed).
 #[derive(Debug, thiserror::Error)]

@@ -1,0 +1,6 @@
+//! What a run leaves behind and what reads it afterwards: the trajectory log written while it
+//! runs, `smlworld replay` (frames and GIFs from `trajectories.csv`) and `smlworld plot`.
+
+pub mod output;
+pub mod plot;
+pub mod replay;

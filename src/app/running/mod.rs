@@ -1,0 +1,14 @@
+//! Running a scenario: scenario files, the headless and real-time runners, step-by-step
+//! sessions, per-run metrics, background traffic, benchmarks and the run's summary.
+
+pub mod bench;
+pub mod bench_map;
+pub mod bench_render;
+pub mod interrupt;
+pub mod metrics;
+pub mod runner;
+pub mod scenario;
+pub mod session;
+pub mod soak;
+pub mod summary;
+pub mod traffic;
