@@ -168,17 +168,24 @@ impl Core {
     /// file or the map again. Commands, in-boxes and recorded metrics start empty; metrics stay
     /// off after `stop_metrics`.
     fn restart(&self, py: Python<'_>, seed: u64) -> PyResult<()> {
-        let mut session = self.lock();
         if i64::try_from(seed).is_err() {
             return Err(PyValueError::new_err(format!("seed must be < 2^63, got {seed}")));
         }
-        let mut scenario = session.scenario().clone();
+        let mut scenario = self.lock().scenario().clone();
         scenario.file.seed = seed;
-        let mut fresh = py.detach(|| Session::new(scenario)).map_err(session_err)?;
-        if self.metrics_stopped.load(Ordering::Relaxed) {
-            fresh.stop_metrics();
-        }
-        *session = fresh;
+        let stop = self.metrics_stopped.load(Ordering::Relaxed);
+        // Built without the GIL and without holding the lock (a thread waiting for the lock with
+        // the GIL would otherwise keep this one from taking the GIL back).
+        let fresh = py
+            .detach(|| {
+                let mut fresh = Session::new(scenario)?;
+                if stop {
+                    fresh.stop_metrics();
+                }
+                Ok(fresh)
+            })
+            .map_err(session_err)?;
+        *self.lock() = fresh;
         Ok(())
     }
 
