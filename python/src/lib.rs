@@ -214,6 +214,7 @@ impl Core {
     /// (as `set_commands` does), advance `dt` [s], then return `kinematics(id, nearest,
     /// footprint)`.
     #[pyo3(signature = (id, throttle, change, dt, nearest, footprint))]
+    #[allow(clippy::too_many_arguments)] // the Python signature's six, plus self and the GIL token
     fn drive<'py>(
         &self,
         py: Python<'py>,
