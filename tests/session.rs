@@ -149,3 +149,20 @@ fn inbox_keeps_the_newest_messages_when_more_than_its_bound_wait() {
     s.step(0.1).unwrap();
     assert_eq!(s.inbox(-2, "wifi").unwrap(), vec![(-1, vec![7])]);
 }
+
+#[test]
+fn stopping_the_metrics_changes_no_trajectory() {
+    // The merge environment's scenario: IDM traffic with lane changes on the lane-drop map.
+    let path = Path::new("python/smlworld/data/highway_merge.toml");
+    let mut with = Session::from_scenario(path, Some(5), &[]).unwrap();
+    let mut without = Session::from_scenario(path, Some(5), &[]).unwrap();
+    without.stop_metrics();
+    for _ in 0..30 {
+        with.step(0.5).unwrap();
+        without.step(0.5).unwrap();
+        assert_eq!(with.sim().state_hash(), without.sim().state_hash(), "t = {} s", with.time());
+    }
+    let followers = |s: &Session| s.summary().metrics.map_or(0, |m| m.followers.len());
+    assert!(followers(&with) > 0, "the recorded run has follower statistics");
+    assert_eq!(followers(&without), 0, "nothing is recorded after stop_metrics");
+}

@@ -2,10 +2,14 @@
 per second of the PettingZoo platoon (n agents), and, side by side, highway-env's highway-fast-v0
 and merge-v0 (installed on demand), each with random actions.
 
-    python python/bench/bench_envs.py [--steps 2000] [--agents 10] [--no-highway-env]
+    python python/bench/bench_envs.py [--steps 2000] [--agents 10] [--no-highway-env] [--repeat 1]
+
+With ``--repeat N`` every measurement runs N times, ours and highway-env's taking turns (so the
+pairs share the machine's load of the moment), and each line gives min / median / max.
 """
 
 import argparse
+import statistics
 import subprocess
 import sys
 import time
@@ -32,7 +36,9 @@ def bench_platoon_follow(steps):
 def bench_parallel(steps, agents):
     from smlworld.envs import platoon_parallel_env
 
-    env = platoon_parallel_env(n=agents, max_steps=10**9)
+    # no truncation inside the measured steps (the leader's speed targets are drawn up front for
+    # the whole episode: max_steps=10**9 cost a minute per reset)
+    env = platoon_parallel_env(n=agents, max_steps=steps + 1)
     obs, _ = env.reset(seed=0)
     t = time.perf_counter()
     for _ in range(steps):
@@ -71,27 +77,44 @@ def bench_highway_env(steps, name="highway-fast-v0"):
     return bench_random(name, steps)
 
 
+def spread(values, fmt):
+    """``fmt`` of one value, or "min / median / max" of several."""
+    if len(values) == 1:
+        return fmt.format(values[0])
+    return " / ".join(fmt.format(v) for v in (min(values), statistics.median(values), max(values))) + " (min / median / max)"
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--agents", type=int, default=10)
     ap.add_argument("--no-highway-env", action="store_true")
+    ap.add_argument("--repeat", type=int, default=1, help="runs of each measurement (min / median / max)")
     args = ap.parse_args()
-    pf = bench_platoon_follow(args.steps)
-    print(f"PlatoonFollow-v0: {pf:,.0f} env-steps/s ({args.steps} steps)")
-    pp = bench_parallel(args.steps // 4, args.agents)
-    print(f"platoon_parallel_env(n={args.agents}): {pp:,.0f} agent-steps/s ({args.steps // 4} steps)")
+    n = max(50, args.steps // 20)
+    runs = {k: [] for k in ("pf", "pp", "he", "hm", "mv")}
+    for _ in range(max(1, args.repeat)):
+        runs["pf"].append(bench_platoon_follow(args.steps))
+        runs["pp"].append(bench_parallel(args.steps // 4, args.agents))
+        if not args.no_highway_env:
+            runs["he"].append(bench_highway_env(n))
+        runs["hm"].append(bench_merge(args.steps))
+        if not args.no_highway_env:
+            runs["mv"].append(bench_highway_env(n, "merge-v0"))
+
+    def ratio(ours, theirs):
+        """Ours over theirs, run by run (each pair measured one after the other)."""
+        return [x / y for x, y in zip(runs[ours], runs[theirs])]
+
+    print(f"PlatoonFollow-v0: {spread(runs['pf'], '{:,.0f}')} env-steps/s ({args.steps} steps)")
+    print(f"platoon_parallel_env(n={args.agents}): {spread(runs['pp'], '{:,.0f}')} agent-steps/s ({args.steps // 4} steps)")
     if not args.no_highway_env:
-        he = bench_highway_env(max(50, args.steps // 20))
-        print(f"highway-env highway-fast-v0: {he:,.1f} env-steps/s ({max(50, args.steps // 20)} steps)")
-        print(f"ratio PlatoonFollow-v0 / highway-fast-v0: {pf / he:,.1f}x")
-    hm = bench_merge(args.steps)
-    print(f"HighwayMerge-v0: {hm:,.0f} env-steps/s ({args.steps} steps)")
+        print(f"highway-env highway-fast-v0: {spread(runs['he'], '{:,.1f}')} env-steps/s ({n} steps)")
+        print(f"ratio PlatoonFollow-v0 / highway-fast-v0: {spread(ratio('pf', 'he'), '{:,.1f}x')}")
+    print(f"HighwayMerge-v0: {spread(runs['hm'], '{:,.0f}')} env-steps/s ({args.steps} steps)")
     if not args.no_highway_env:
-        n = max(50, args.steps // 20)
-        mv = bench_highway_env(n, "merge-v0")
-        print(f"highway-env merge-v0: {mv:,.1f} env-steps/s ({n} steps)")
-        print(f"ratio HighwayMerge-v0 / merge-v0: {hm / mv:,.1f}x")
+        print(f"highway-env merge-v0: {spread(runs['mv'], '{:,.1f}')} env-steps/s ({n} steps)")
+        print(f"ratio HighwayMerge-v0 / merge-v0: {spread(ratio('hm', 'mv'), '{:,.1f}x')}")
 
 
 if __name__ == "__main__":

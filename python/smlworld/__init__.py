@@ -46,6 +46,51 @@ class Sim:
         created), the same keys as ``smlworld run --set``."""
         return cls(_smlworld.Core.from_scenario(str(path), seed, **overrides))
 
+    def restart(self, seed: Optional[int] = None) -> None:
+        """Start over at time 0 from the scenario as loaded, overrides included, with ``seed``
+        (``None``: the seed of the run now): what ``Sim.from_scenario(path, seed,
+        **overrides)`` gives, without reading the scenario file or the map again (a learning
+        environment's reset). Commands, in-boxes, Python controllers and metrics start empty;
+        metrics stay off after :meth:`stop_metrics`."""
+        seed = self._core.seed if seed is None else int(seed)
+        if seed < 0:
+            raise ValueError(f"seed must be >= 0, got {seed}")
+        self._core.restart(seed)
+        self._controllers = []
+
+    def stop_metrics(self) -> None:
+        """Stop recording the summary's ``metrics`` (collisions, gaps, speeds) from now on, for
+        code that never reads them: about a third of each tick of a small scenario. The
+        trajectories stay the same, bit for bit."""
+        self._core.stop_metrics()
+
+    def kinematics(self, id: int, nearest: int = 5, footprint: Tuple[float, float] = (0.0, 0.0)):
+        """Vehicle ``id`` and its ``nearest`` nearest vehicles, highway-env's ``Kinematics``
+        unscaled: a (1 + nearest, 5) float array, row 0 ``[1, x, y, vx, vy]`` of the vehicle
+        [-, m, m, m/s, m/s], then ``[1, dx, dy, dvx, dvy]`` of each other vehicle relative to it
+        (world axes), nearest first (equal distances in id order), rows of zeros when there are
+        fewer. Returns ``(rows, speed [m/s], collided)``, ``collided`` when another vehicle's
+        centre lies strictly inside the box ``footprint = (length along x, width along y)`` [m]
+        around it."""
+        return self._core.kinematics(int(id), int(nearest), (float(footprint[0]), float(footprint[1])))
+
+    def drive(
+        self,
+        id: int,
+        throttle: float,
+        change: Optional[str],
+        dt: float,
+        nearest: int = 5,
+        footprint: Tuple[float, float] = (0.0, 0.0),
+    ):
+        """One learning step in one call: ask vehicle ``id`` to change lanes to ``change``
+        (``"left"``, ``"right"`` or ``None``; a refusal is silent, as :meth:`change_lane`'s
+        False), set its ``throttle`` [N] as :meth:`set_commands` does, advance ``dt`` [s], and
+        return :meth:`kinematics` of ``id``. Python controllers do not run (use :meth:`step`)."""
+        if self._controllers:
+            raise RuntimeError("drive() does not run Python controllers; use set_commands() and step()")
+        return self._core.drive(id, throttle, change, dt, nearest, footprint)
+
     @property
     def time(self) -> float:
         """Sim time [s]."""

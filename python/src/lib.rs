@@ -4,6 +4,7 @@
 //! exception carrying its message (file, line, key or id).
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1};
@@ -14,6 +15,8 @@ use pyo3::types::{PyBytes, PyDict, PyList};
 use smlworld::app::session::{SessionError, load_scenario_with_overrides};
 use smlworld::app::{RunError, RunOptions, ScenarioError, Session, StateColumns, run_scenario};
 use smlworld::map::{LaneletMap, MapError, Place, RouteOptions};
+
+mod kinematics;
 
 fn scenario_err(e: ScenarioError) -> PyErr {
     match &e {
@@ -90,11 +93,33 @@ fn column<'py>(py: Python<'py>, v: &[f64]) -> Bound<'py, PyArray1<f64>> {
 struct Core {
     session: Mutex<Session>,
     states: Mutex<StateColumns>,
+    /// `stop_metrics` was called: a restarted session records none either.
+    metrics_stopped: AtomicBool,
 }
 
 impl Core {
     fn lock(&self) -> std::sync::MutexGuard<'_, Session> {
         self.session.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// A kinematics observation as Python gets it: the (1 + nearest, 5) rows, the speed [m/s] of the
+/// observed vehicle and whether another vehicle's centre lies inside its footprint.
+type Observation<'py> = (Bound<'py, PyArray2<f64>>, f64, bool);
+
+fn observation<'py>(py: Python<'py>, k: kinematics::Kinematics) -> PyResult<Observation<'py>> {
+    let n = k.rows.len();
+    let flat: Vec<f64> = k.rows.into_iter().flatten().collect();
+    Ok((PyArray1::from_vec(py, flat).reshape([n, 5])?, k.speed, k.collided))
+}
+
+/// A lane-change side as the session names it: checked before the GIL is released.
+fn side_name(side: Option<&str>) -> PyResult<Option<&'static str>> {
+    match side {
+        None => Ok(None),
+        Some("left") => Ok(Some("left")),
+        Some("right") => Ok(Some("right")),
+        Some(other) => Err(PyValueError::new_err(format!("side must be \"left\" or \"right\", got {other:?}"))),
     }
 }
 
@@ -120,12 +145,107 @@ impl Core {
     ) -> PyResult<Core> {
         let ov = overrides(kwargs)?;
         let session = py.detach(|| Session::from_scenario(&path, seed, &ov)).map_err(session_err)?;
-        Ok(Core { session: Mutex::new(session), states: Mutex::new(StateColumns::default()) })
+        Ok(Core {
+            session: Mutex::new(session),
+            states: Mutex::new(StateColumns::default()),
+            metrics_stopped: AtomicBool::new(false),
+        })
     }
 
     #[getter]
     fn time(&self) -> f64 {
         self.lock().time()
+    }
+
+    /// The seed of the run [-].
+    #[getter]
+    fn seed(&self) -> u64 {
+        self.lock().scenario().file.seed
+    }
+
+    /// Start over at time 0 from the scenario as loaded (its overrides included) with `seed`:
+    /// the session `from_scenario(path, seed, **overrides)` gives, without reading the scenario
+    /// file or the map again. Commands, in-boxes and recorded metrics start empty; metrics stay
+    /// off after `stop_metrics`.
+    fn restart(&self, py: Python<'_>, seed: u64) -> PyResult<()> {
+        if i64::try_from(seed).is_err() {
+            return Err(PyValueError::new_err(format!("seed must be < 2^63, got {seed}")));
+        }
+        let mut scenario = self.lock().scenario().clone();
+        scenario.file.seed = seed;
+        let stop = self.metrics_stopped.load(Ordering::Relaxed);
+        // Built without the GIL and without holding the lock (a thread waiting for the lock with
+        // the GIL would otherwise keep this one from taking the GIL back).
+        let fresh = py
+            .detach(|| {
+                let mut fresh = Session::new(scenario)?;
+                if stop {
+                    fresh.stop_metrics();
+                }
+                Ok(fresh)
+            })
+            .map_err(session_err)?;
+        *self.lock() = fresh;
+        Ok(())
+    }
+
+    /// Stop recording the summary's metrics (see `Session::stop_metrics`).
+    fn stop_metrics(&self) {
+        self.lock().stop_metrics();
+        self.metrics_stopped.store(true, Ordering::Relaxed);
+    }
+
+    /// Kinematics of vehicle `id` and of its `nearest` nearest vehicles (see
+    /// `kinematics::Kinematics`), with the collision check of a `footprint` = (length, width) [m]
+    /// box around it.
+    fn kinematics<'py>(
+        &self,
+        py: Python<'py>,
+        id: i32,
+        nearest: usize,
+        footprint: (f64, f64),
+    ) -> PyResult<Observation<'py>> {
+        let k = kinematics::observe(&self.lock(), id, nearest, footprint).map_err(session_err)?;
+        observation(py, k)
+    }
+
+    /// One environment step in one call: ask vehicle `id` for a lane change to `change`
+    /// ("left", "right" or None; refused quietly as `change_lane` is), set its throttle [N]
+    /// (as `set_commands` does), advance `dt` [s], then return `kinematics(id, nearest,
+    /// footprint)`.
+    #[pyo3(signature = (id, throttle, change, dt, nearest, footprint))]
+    #[allow(clippy::too_many_arguments)] // the Python signature's six, plus self and the GIL token
+    fn drive<'py>(
+        &self,
+        py: Python<'py>,
+        id: i32,
+        throttle: f64,
+        change: Option<&str>,
+        dt: f64,
+        nearest: usize,
+        footprint: (f64, f64),
+    ) -> PyResult<Observation<'py>> {
+        let change = side_name(change)?;
+        // Checked before anything changes (set_commands and step would check them after the
+        // lane-change request).
+        if !throttle.is_finite() {
+            return Err(PyValueError::new_err(format!("throttle is {throttle}; commands must be finite")));
+        }
+        if !(dt.is_finite() && dt >= 0.0) {
+            return Err(PyValueError::new_err(format!("dt must be a finite number of seconds >= 0, got {dt}")));
+        }
+        let k = py
+            .detach(|| {
+                let mut s = self.lock();
+                if let Some(side) = change {
+                    s.change_lane(id, side)?;
+                }
+                s.set_commands(&[id], Some(&[throttle]), None, None)?;
+                s.step(dt)?;
+                kinematics::observe(&s, id, nearest, footprint)
+            })
+            .map_err(session_err)?;
+        observation(py, k)
     }
 
     fn step(&self, py: Python<'_>, dt: f64) -> PyResult<()> {

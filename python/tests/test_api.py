@@ -206,3 +206,108 @@ def test_quickstart_example_shows_a_sane_platoon(root):
     for vid in (-2, -3, -4, -5):
         off = np.abs(speeds[late, ids.index(vid)] - lead[late]).max()
         assert off < 1.5, f"truck {vid} strays {off:.1f} m/s from the leader's speed"
+
+
+# -- what learning environments step with (issue 20 item 3's speed) ------------------------------
+
+MERGE = "python/smlworld/data/highway_merge.toml"
+
+
+def _merge_sim(root, seed, **overrides):
+    return smlworld.Sim.from_scenario(root / MERGE, seed=seed, **overrides)
+
+
+def _same_states(a, b):
+    sa, sb = a.states(), b.states()
+    return sa.keys() == sb.keys() and all(np.array_equal(sa[k], sb[k], equal_nan=True) for k in sa)
+
+
+def test_restart_is_a_fresh_load_with_the_new_seed_and_keeps_the_overrides(root):
+    sim = _merge_sim(root, 3, **{"traffic.0.count": 5})
+    sim.step(2.0)
+    sim.restart(8)
+    assert sim.time == 0.0 and sim._core.seed == 8
+    fresh = _merge_sim(root, 8, **{"traffic.0.count": 5})
+    for _ in range(20):
+        assert _same_states(sim, fresh)
+        sim.step(0.5)
+        fresh.step(0.5)
+    assert len(sim.states()["id"]) == len(fresh.states()["id"])
+    sim.restart()  # the seed of the run now: 8 again
+    other = _merge_sim(root, 9, **{"traffic.0.count": 5})
+    sim.step(5.0)
+    other.step(5.0)
+    fresh = _merge_sim(root, 8, **{"traffic.0.count": 5})
+    fresh.step(5.0)
+    assert _same_states(sim, fresh) and not _same_states(sim, other)
+    with pytest.raises(ValueError, match="seed"):
+        sim.restart(-1)
+
+
+def test_stopping_the_metrics_keeps_every_trajectory_and_records_nothing_more(root):
+    a, b = _merge_sim(root, 5), _merge_sim(root, 5)
+    b.stop_metrics()
+    for _ in range(30):
+        a.step(0.5)
+        b.step(0.5)
+        assert _same_states(a, b)
+    assert a.summary()["metrics"]["followers"] and not b.summary()["metrics"]["followers"]
+    b.restart(5)  # a restarted session records none either
+    b.step(10.0)
+    assert not b.summary()["metrics"]["followers"]
+
+
+def _kinematics_reference(states, ego, nearest, length, width):
+    """The observation HighwayMerge-v0 built in numpy before it moved to Rust."""
+    ids = states["id"]
+    k = int(np.searchsorted(ids, ego))
+    x, y, vx, vy = states["x"], states["y"], states["vx"], states["vy"]
+    dx, dy = x - x[k], y - y[k]
+    others = np.flatnonzero(ids != ego)
+    collided = bool(np.any((np.abs(dx[others]) < length) & (np.abs(dy[others]) < width)))
+    near = others[np.argsort(np.hypot(dx[others], dy[others]), kind="stable")[:nearest]]
+    rows = np.zeros((nearest + 1, 5))
+    rows[0] = [1.0, x[k], y[k], vx[k], vy[k]]
+    rows[1 : 1 + len(near)] = np.stack(
+        [np.ones(len(near)), dx[near], dy[near], vx[near] - vx[k], vy[near] - vy[k]], axis=1
+    )
+    return rows, float(np.hypot(vx[k], vy[k])), collided
+
+
+def test_kinematics_equals_the_numpy_observation_it_replaces(root):
+    sim = _merge_sim(root, 2)
+    checked_collision = False
+    for step in range(40):
+        for nearest, footprint in ((5, (4.5, 1.8)), (20, (4.5, 1.8)), (3, (60.0, 4.0))):
+            rows, speed, collided = sim.kinematics(-1, nearest, footprint)
+            ref_rows, ref_speed, ref_collided = _kinematics_reference(sim.states(), -1, nearest, *footprint)
+            assert rows.shape == (nearest + 1, 5)
+            assert np.array_equal(rows, ref_rows), (step, nearest, rows, ref_rows)
+            assert speed == ref_speed and collided == ref_collided
+            checked_collision |= collided
+        sim.step(0.5)
+    assert checked_collision  # the 60 m box catches a neighbour at some point
+    assert np.all(sim.kinematics(-1, 20)[0][-1] == 0.0)  # fewer vehicles than rows: zero rows
+    with pytest.raises(ValueError, match="unknown vehicle id 42"):
+        sim.kinematics(42)
+
+
+def test_drive_is_change_lane_set_commands_step_and_kinematics_in_one_call(root):
+    a, b = _merge_sim(root, 6), _merge_sim(root, 6)
+    for k in range(30):
+        change = (None, "right", "left")[k % 3]
+        throttle = 800.0 * math.sin(k)
+        got = a.drive(-1, throttle, change, 0.5, 5, (4.5, 1.8))
+        if change is not None:
+            b.change_lane(-1, change)
+        b.set_commands([-1], throttle=[throttle])
+        b.step(0.5)
+        want = b.kinematics(-1, 5, (4.5, 1.8))
+        assert np.array_equal(got[0], want[0]) and got[1:] == want[1:]
+        assert _same_states(a, b)
+    with pytest.raises(ValueError, match="side"):
+        a.drive(-1, 0.0, "up", 0.5)
+    with pytest.raises(ValueError, match="dt"):
+        a.drive(-1, 0.0, None, -1.0)
+    with pytest.raises(ValueError, match="finite"):
+        a.drive(-1, float("nan"), None, 0.5)

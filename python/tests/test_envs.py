@@ -194,3 +194,36 @@ def test_highway_merge_rewards_a_safe_merge_and_ends_when_the_lane_ends():
     with pytest.raises(ValueError):
         idle.reset(seed=0)
         idle.step(7)
+
+
+
+@pytest.mark.parametrize("name", ["smlworld/HighwayMerge-v0", "smlworld/PlatoonFollow-v0"])
+def test_reset_loads_the_scenario_once_and_records_no_metrics(monkeypatch, name):
+    """Speed (issue 20 item 3): a reset starts the loaded scenario over with the new seed instead
+    of reading the file and the map again, and the env's session records no summary metrics
+    (a third of a tick; the envs check collisions themselves)."""
+    import smlworld
+
+    loads = []
+    real = smlworld.Sim.from_scenario.__func__
+
+    def counting(cls, *args, **kwargs):
+        loads.append(args)
+        return real(cls, *args, **kwargs)
+
+    monkeypatch.setattr(smlworld.Sim, "from_scenario", classmethod(counting))
+    env = gym.make(name)
+    first, _ = env.reset(seed=3)
+    for _ in range(5):
+        env.step(env.action_space.sample())
+    again, _ = env.reset(seed=3)
+    env.reset(seed=4)
+    assert len(loads) == 1 and np.array_equal(first, again)
+    if name == "smlworld/PlatoonFollow-v0":
+        # full throttle into the leader: the env sees the collision, the summary records none
+        while not env.step(np.array([3.0], dtype=np.float32))[2]:
+            pass
+        assert env.unwrapped._sim.summary()["metrics"]["collision_count"] == 0
+    else:
+        env.unwrapped._sim.step(8.0)  # the traffic's follower gaps are not recorded
+        assert not env.unwrapped._sim.summary()["metrics"]["followers"]

@@ -35,6 +35,9 @@ MAX_STEPS = 80  # 40 s
 NEAREST = 5  # vehicles in the observation besides the car
 FEATURES = ("presence", "x", "y", "vx", "vy")
 SCALE = np.array([1.0, 100.0, 2.0 * LANE_WIDTH, V_MAX, V_MAX])
+#: Divides the kinematics rows: the car's own row by its absolute scales, the others by SCALE.
+OBS_SCALE = np.vstack([[1.0, LANE_END_X, 2.0 * LANE_WIDTH, V_MAX, V_MAX], np.tile(SCALE, (NEAREST, 1))])
+FOOTPRINT = (CAR_LENGTH, CAR_WIDTH)
 
 ACTIONS = {0: "LANE_LEFT", 1: "IDLE", 2: "LANE_RIGHT", 3: "FASTER", 4: "SLOWER"}
 
@@ -95,37 +98,31 @@ class HighwayMergeEnv(gym.Env):
         return rgb_frame(self)
 
     # -- helpers -----------------------------------------------------------------------------
-    def _look(self):
-        """Observation, the car's speed, whether it collided and whether it has merged."""
-        st = self._sim.states()
-        ids = st["id"]
-        k = int(np.searchsorted(ids, EGO))
-        x, y, vx, vy = st["x"], st["y"], st["vx"], st["vy"]
-        ex, ey, evx, evy = x[k], y[k], vx[k], vy[k]
-        dx, dy = x - ex, y - ey
-        others = np.flatnonzero(ids != EGO)
-        # The road runs along +x: the car's frame is the world's, shifted (no rotation needed).
-        collided = bool(np.any((np.abs(dx[others]) < CAR_LENGTH) & (np.abs(dy[others]) < CAR_WIDTH)))
-        near = others[np.argsort(np.hypot(dx[others], dy[others]), kind="stable")[:NEAREST]]
-        obs = np.zeros((NEAREST + 1, len(FEATURES)), dtype=np.float64)
-        obs[0] = [1.0, ex / LANE_END_X, ey / (2.0 * LANE_WIDTH), evx / V_MAX, evy / V_MAX]
-        rows = np.stack([np.ones(len(near)), dx[near], dy[near], vx[near] - evx, vy[near] - evy], axis=1)
-        obs[1 : 1 + len(near)] = rows / SCALE
-        obs = np.clip(obs, -1.0, 1.0).astype(np.float32)
-        speed = float(np.hypot(evx, evy))
-        return obs, speed, collided, bool(ey < RIGHT_LANE_TOP), float(ex)
+    def _look(self, rows, speed, collided):
+        """Observation, the car's speed, whether it collided, whether it has merged and its x,
+        from :meth:`smlworld.Sim.kinematics` rows (the car, then its 5 nearest vehicles; the
+        road runs along +x, so the car's frame is the world's, shifted: no rotation needed)."""
+        obs = np.clip(rows / OBS_SCALE, -1.0, 1.0).astype(np.float32)
+        x, y = rows[0, 1], rows[0, 2]
+        return obs, speed, collided, bool(y < RIGHT_LANE_TOP), float(x)
 
     # -- gymnasium API -----------------------------------------------------------------------
     def reset(self, *, seed: Optional[int] = None, options=None):
         super().reset(seed=seed)
         sim_seed = int(self.np_random.integers(0, 2**31 - 1))
-        self._sim = smlworld.Sim.from_scenario(_scenario_path(), seed=sim_seed)
-        m = self._sim.models()
-        k = int(np.searchsorted(m["id"], EGO))
-        self._mass, self._drag = float(m["mass"][k]), float(m["drag"][k])
+        if self._sim is None:
+            # Loaded once: later resets start the same scenario over with a new seed, without
+            # reading the scenario file or the map again. The summary's metrics are never read.
+            self._sim = smlworld.Sim.from_scenario(_scenario_path(), seed=sim_seed)
+            self._sim.stop_metrics()
+            m = self._sim.models()
+            k = int(np.searchsorted(m["id"], EGO))
+            self._mass, self._drag = float(m["mass"][k]), float(m["drag"][k])
+        else:
+            self._sim.restart(sim_seed)
         self._target = 2  # index into TARGET_SPEEDS: 20 m/s
         self._steps = 0
-        obs, self._speed, _, _, _ = self._look()
+        obs, self._speed, _, _, _ = self._look(*self._sim.kinematics(EGO, NEAREST, FOOTPRINT))
         return obs, {}
 
     def step(self, action):
@@ -134,7 +131,7 @@ class HighwayMergeEnv(gym.Env):
         v = self._speed
         change = None
         if self.action_type == "discrete":
-            a_idx = int(np.asarray(action).reshape(-1)[0])
+            a_idx = int(action) if isinstance(action, (int, np.integer)) else int(np.asarray(action).reshape(-1)[0])
             if not 0 <= a_idx < len(ACTIONS):
                 raise ValueError(f"action must be one of {sorted(ACTIONS)}, got {action!r}")
             name = ACTIONS[a_idx]
@@ -146,19 +143,18 @@ class HighwayMergeEnv(gym.Env):
                 change = "left"
             elif name == "LANE_RIGHT":
                 change = "right"
-            accel = float(np.clip(SPEED_GAIN * (TARGET_SPEEDS[self._target] - v), A_MIN, A_MAX))
+            accel = min(max(SPEED_GAIN * (TARGET_SPEEDS[self._target] - v), A_MIN), A_MAX)
         else:
             a = np.asarray(action, dtype=np.float64).reshape(-1)
             if a.shape != (2,) or not np.all(np.isfinite(a)):
                 raise ValueError(f"action must be 2 finite numbers [accel, lane change], got {action!r}")
-            accel = float(np.clip(a[0], A_MIN, A_MAX))
+            accel = min(max(float(a[0]), A_MIN), A_MAX)
             change = "right" if a[1] < -0.5 else "left" if a[1] > 0.5 else None
-        if change is not None:
-            self._sim.change_lane(EGO, change)  # False when refused (no lane, solid line, unsafe)
-        self._sim.set_commands(self._ego, throttle=np.array([self._mass * accel + self._drag * v]))
-        self._sim.step(self.dt)
+        # One call: the lane change (refused quietly when there is no lane, a solid line or no
+        # gap), the throttle, the step, and the kinematics after it.
+        kin = self._sim.drive(EGO, self._mass * accel + self._drag * v, change, self.dt, NEAREST, FOOTPRINT)
         self._steps += 1
-        obs, speed, collided, merged, x = self._look()
+        obs, speed, collided, merged, x = self._look(*kin)
         self._speed = speed
         lane_ended = (not merged) and x >= LANE_END_X - 1.0
         terminated = collided or lane_ended or x >= ROAD_END_X

@@ -64,10 +64,13 @@ class PlatoonFollowEnv(gym.Env):
 
     # -- helpers -----------------------------------------------------------------------------
     def _kinematics(self):
+        """The leader's speed, the car's speed [m/s] and the gap [m] now: kept until the next
+        step, which reads them before it moves anything."""
         st = self._sim.states()  # sorted by id: [-2, -1]
         v = np.hypot(st["vx"], st["vy"])
         centre = float(np.hypot(st["x"][1] - st["x"][0], st["y"][1] - st["y"][0]))
-        return float(v[1]), float(v[0]), centre - CAR_LENGTH
+        self._now = float(v[1]), float(v[0]), centre - CAR_LENGTH
+        return self._now
 
     def _obs(self):
         v_lead, v_ego, gap = self._kinematics()
@@ -85,9 +88,15 @@ class PlatoonFollowEnv(gym.Env):
     def reset(self, *, seed: Optional[int] = None, options=None):
         super().reset(seed=seed)
         sim_seed = int(self.np_random.integers(0, 2**31 - 1))
-        self._sim = smlworld.Sim.from_scenario(_scenario_path(), seed=sim_seed)
-        m = self._sim.models()
-        self._mass, self._drag = m["mass"][::-1].copy(), m["drag"][::-1].copy()  # leader, ego
+        if self._sim is None:
+            # Loaded once: later resets start the same scenario over with a new seed, without
+            # reading the scenario file or the map again. The summary's metrics are never read.
+            self._sim = smlworld.Sim.from_scenario(_scenario_path(), seed=sim_seed)
+            self._sim.stop_metrics()
+            m = self._sim.models()
+            self._mass, self._drag = m["mass"][::-1].copy(), m["drag"][::-1].copy()  # leader, ego
+        else:
+            self._sim.restart(sim_seed)
         # the leader's speed profile: a new target every 4-10 s, 8-22 m/s
         self._targets = []
         t = 0.0
@@ -105,14 +114,14 @@ class PlatoonFollowEnv(gym.Env):
     def step(self, action):
         if self._sim is None:
             raise RuntimeError("call reset() before step()")
-        a = float(np.clip(np.asarray(action, dtype=np.float64).reshape(-1)[0], A_MIN, A_MAX))
+        a = min(max(float(np.asarray(action, dtype=np.float64).reshape(-1)[0]), A_MIN), A_MAX)  # NaN stays NaN
         if not np.isfinite(a):
             raise ValueError(f"action must be finite, got {action!r}")
         t = self._sim.time
         while self._targets and self._targets[0][0] <= t:
             self._target = self._targets.pop(0)[1]
-        v_lead, v_ego, _ = self._kinematics()
-        self._a_lead = float(np.clip(0.5 * (self._target - v_lead), -3.0, 1.5))
+        v_lead, v_ego, _ = self._now  # as the last reset() or step() left them
+        self._a_lead = min(max(0.5 * (self._target - v_lead), -3.0), 1.5)
         accel = np.array([self._a_lead, a])
         v = np.array([v_lead, v_ego])
         self._sim.set_commands(self._ids, throttle=self._mass * accel + self._drag * v)

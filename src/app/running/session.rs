@@ -257,6 +257,34 @@ impl Session {
         &mut self.sim
     }
 
+    /// Stop recording the summary's metrics (collisions, follower gaps, platoon speeds, route
+    /// deviation) from now on, for callers that never read them: a learning environment checks
+    /// its own collisions, and the metrics take about a third of each tick of a small scenario.
+    /// The metrics only read the states, so every trajectory stays the same, bit for bit;
+    /// [`Session::summary`] reports what was recorded before the call.
+    pub fn stop_metrics(&mut self) {
+        use super::metrics::{record_metrics, record_route_deviation};
+        use bevy_ecs::schedule::ScheduleCleanupPolicy;
+        // The schedule needs the world while both are borrowed from the Sim: lend it a
+        // placeholder for the moment.
+        let mut world = std::mem::take(self.sim.world_mut());
+        if let Some(schedule) = self.sim.scheduler_mut().schedule_mut(crate::sim::Dynamics) {
+            for result in [
+                schedule.remove_systems_in_set(record_metrics, &mut world, ScheduleCleanupPolicy::RemoveSystemsOnly),
+                schedule.remove_systems_in_set(
+                    record_route_deviation,
+                    &mut world,
+                    ScheduleCleanupPolicy::RemoveSystemsOnly,
+                ),
+            ] {
+                if let Err(e) = result {
+                    tracing::warn!("stop_metrics: {e}");
+                }
+            }
+        }
+        *self.sim.world_mut() = world;
+    }
+
     /// The scenario.
     pub fn scenario(&self) -> &Scenario {
         &self.scenario
