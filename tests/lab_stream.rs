@@ -73,3 +73,54 @@ fn motion_capture_scenarios_refuse_another_speed_than_real_time() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--speed must be 1 with motion capture"), "{err}");
 }
+
+/// Every datagram a non-realtime `smlworld run ARGS --stream` sends, as text, until it ends.
+fn stream_of(args: &[&str]) -> Vec<String> {
+    let socket = UdpSocket::bind((Ipv4Addr::LOCALHOST, 0)).expect("bind");
+    socket.set_read_timeout(Some(Duration::from_millis(200))).expect("timeout");
+    let addr = socket.local_addr().expect("address").to_string();
+    let out_dir = std::env::temp_dir().join(format!("smlworld_lab_stream_{}_{}", args.len(), std::process::id()));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["run"])
+        .args(args)
+        .args(["--stream", &addr, "--out"])
+        .arg(&out_dir)
+        .spawn()
+        .expect("start smlworld run");
+    let mut texts = Vec::new();
+    let mut buf = [0u8; 65536];
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while Instant::now() < deadline {
+        match socket.recv_from(&mut buf) {
+            Ok((n, _)) => texts.push(String::from_utf8_lossy(&buf[..n]).into_owned()),
+            Err(_) => {
+                if child.try_wait().expect("wait").is_some() {
+                    break;
+                }
+            }
+        }
+    }
+    assert!(child.wait().expect("run ends").success());
+    let _ = std::fs::remove_dir_all(&out_dir);
+    texts
+}
+
+#[test]
+fn the_stream_carries_the_indicator_of_a_lane_change_in_progress() {
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/overtaking.toml");
+    let texts = stream_of(&[scenario, "--duration", "40"]);
+    assert!(!texts.is_empty(), "no datagram arrived");
+    // The overtaking car signals left to pass, then right to return (keep right); the first
+    // signal seen is left, and both appear.
+    let sides: Vec<&str> = texts
+        .iter()
+        .flat_map(|t| t.split('!'))
+        .filter_map(|r| r.split(';').find_map(|kv| kv.strip_prefix("indicator=")))
+        .collect();
+    assert_eq!(sides.first(), Some(&"left"), "{sides:?}");
+    assert!(sides.contains(&"right"), "never signals right on the way back: {sides:?}");
+    assert!(sides.iter().all(|s| *s == "left" || *s == "right"), "{sides:?}");
+    // The 2015 format never carries it (its viewers know no such key).
+    let old = stream_of(&[scenario, "--duration", "40", "--stream-format", "2015"]);
+    assert!(!old.is_empty() && old.iter().all(|t| !t.contains("indicator")));
+}

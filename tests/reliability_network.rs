@@ -7,7 +7,14 @@ use smlworld::io::viz::{
 
 fn vehicles(n: usize) -> Vec<VizVehicle> {
     (0..n)
-        .map(|i| VizVehicle { id: -(i as i32) - 1, x: i as f64, y: 0.0, yaw_deg: 0.0, class_name: "Car".into() })
+        .map(|i| VizVehicle {
+            id: -(i as i32) - 1,
+            x: i as f64,
+            y: 0.0,
+            yaw_deg: 0.0,
+            class_name: "Car".into(),
+            indicator: None,
+        })
         .collect()
 }
 

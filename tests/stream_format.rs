@@ -104,7 +104,7 @@ fn the_default_format_sends_our_names_and_the_body_centre() {
 fn our_viewer_draws_a_2015_vehicle_where_the_2015_viewer_does() {
     let p = DVec2::new(10.0, -4.0);
     let yaw_deg = 30.0_f64;
-    let v = VizVehicle { id: -3, x: p.x, y: p.y, yaw_deg, class_name: "SmartVehicle".into() };
+    let v = VizVehicle { id: -3, x: p.x, y: p.y, yaw_deg, class_name: "SmartVehicle".into(), indicator: None };
     let (centre, yaw, length, width) = viewer_body(StreamFormat::Y2015, &v);
     let h = DVec2::from_angle(yaw_deg.to_radians());
     assert!((yaw - yaw_deg.to_radians()).abs() < 1e-12);

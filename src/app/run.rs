@@ -17,6 +17,7 @@ use crate::io::lab::VizStreamPlugin;
 use crate::io::viz::DEFAULT_VIZ_RATE_HZ;
 use crate::render::{FrameOutput, FrameRecorder, RenderError, VehicleSprite};
 use crate::sim::{Parallelism, Plugin, Sim, SimBuilder};
+use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::results::output::{TrajectoryLog, TrajectoryLogPlugin};
 use super::running::runner::{RealtimeRunner, RunReport};
@@ -232,6 +233,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
             .map_err(|e| RunError::Stream(e.to_string()))?
             .with_format(options.stream_format);
         builder.add_plugin(plugin);
+        builder.add_systems(crate::io::lab::Stream, signal_lane_changes.before(crate::io::lab::stream_vehicles));
         tracing::info!(
             "streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)"
         );
@@ -453,6 +455,30 @@ impl FrameMarks {
             }
         }
         rec.record_sprites(&self.sprites, t)
+    }
+}
+
+/// The turn signal ([`crate::world::TurnSignal`]) of every lane changer, for the visualisation
+/// stream: on the side of a change in progress (an aborted change drives back: the side it goes
+/// now, as the frames' indicator), off otherwise. Written only when it changes.
+fn signal_lane_changes(
+    mut commands: bevy_ecs::system::Commands,
+    changers: bevy_ecs::system::Query<(
+        bevy_ecs::entity::Entity,
+        &crate::vehicles::LaneChanger,
+        Option<&crate::world::TurnSignal>,
+    )>,
+) {
+    use crate::world::TurnSignal;
+    for (entity, changer, signal) in &changers {
+        let now = match &changer.active {
+            None => TurnSignal::Off,
+            Some(m) if (m.direction == crate::vehicles::Side::Left) != m.aborted => TurnSignal::Left,
+            Some(_) => TurnSignal::Right,
+        };
+        if signal.copied().unwrap_or_default() != now {
+            commands.entity(entity).insert(now);
+        }
     }
 }
 

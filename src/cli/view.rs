@@ -16,9 +16,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use image::RgbaImage;
-use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizReceiver, viewer_body};
+use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizIndicator, VizReceiver, viewer_body};
 use smlworld::map::LaneletMap;
-use smlworld::render::{Environment, FrameOutput, FrameRecorder, Overlay, VehicleSprite};
+use smlworld::render::{Environment, FrameOutput, FrameRecorder, Indicator, Overlay, VehicleSprite};
 use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
 use winit::event::WindowEvent;
@@ -133,7 +133,13 @@ impl Scene {
             self.sprites.clear();
             self.sprites.extend(f.vehicles.iter().map(|v| {
                 let (centre, yaw, length, width) = viewer_body(format, v);
-                VehicleSprite::new(v.id, centre, yaw, length, width, &v.class_name)
+                let mut sprite = VehicleSprite::new(v.id, centre, yaw, length, width, &v.class_name);
+                // A lane change in progress (our stream format sends it).
+                sprite.overlays.indicator = v.indicator.map(|i| match i {
+                    VizIndicator::Left => Indicator::Left,
+                    VizIndicator::Right => Indicator::Right,
+                });
+                sprite
             }));
             self.sprites.sort_by_key(|s| s.id);
             // The stream carries no collisions: footprints that start to overlap are one.

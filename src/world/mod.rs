@@ -19,4 +19,4 @@ pub use models::{AccelerationUnicycle, KinematicUnicycle, VehicleModel};
 pub use registry::{SensorSet, VehicleSpec, Vehicles, WorldError, despawn_vehicle, spawn_vehicle};
 pub use sensors::{Detection, Omniscient, Radar, SensorError, SensorErrors, SensorReadings, Velodyne};
 pub use time::SimTime;
-pub use vehicle::{ControlCommand, Route, Stationary, VehicleClass, VehicleId, VehicleSize, VehicleState};
+pub use vehicle::{ControlCommand, Route, Stationary, TurnSignal, VehicleClass, VehicleId, VehicleSize, VehicleState};

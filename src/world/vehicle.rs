@@ -78,6 +78,20 @@ pub struct ControlCommand {
 #[derive(Component, Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Stationary;
 
+/// A vehicle's turn signal: on while it changes lanes, on the side it moves to. The lane-change
+/// plugin does not write it (it keeps its own state); whoever shows signals to the outside
+/// copies it (the app, for the visualisation stream), and readers such as the stream send it.
+#[derive(Component, Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TurnSignal {
+    /// Off.
+    #[default]
+    Off,
+    /// Left.
+    Left,
+    /// Right.
+    Right,
+}
+
 /// Footprint of a vehicle [m].
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct VehicleSize {

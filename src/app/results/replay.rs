@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 
 use glam::DVec2;
 
-use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, StreamFormat, VizSender, VizSenderConfig, VizVehicle};
+use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, StreamFormat, VizIndicator, VizSender, VizSenderConfig, VizVehicle};
 use crate::map::LaneletMap;
 use crate::render::{FrameOutput, FrameRecorder, Indicator, RenderError, VehicleSprite};
 use crate::world::SimTime;
@@ -415,17 +415,29 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                 states_at(&prev, &next, next_datagram, &mut states);
                 viz.clear();
                 // In the run's stream order (summary.json lists the vehicles that way).
-                for v in &info.vehicles {
+                let t = SimTime(next_datagram).as_secs();
+                for v in info.vehicles.iter().filter(|v| !v.stationary) {
                     if let Ok(i) = states.binary_search_by_key(&v.id, |r| r.id) {
                         let r = states[i];
                         let f = options.stream_format;
                         let p = f.point_from_centre(r.position, r.yaw, v.length);
+                        // The indicator of a lane change in progress, in our format only.
+                        let indicator = marks
+                            .lane_changes
+                            .iter()
+                            .find(|(id, t0, t1, _)| *id == r.id && (*t0..=*t1).contains(&t))
+                            .filter(|_| f == StreamFormat::Smlworld)
+                            .map(|l| match l.3 {
+                                Indicator::Left => VizIndicator::Left,
+                                Indicator::Right => VizIndicator::Right,
+                            });
                         viz.push(VizVehicle {
                             id: r.id,
                             x: p.x,
                             y: p.y,
                             yaw_deg: r.yaw.to_degrees(),
                             class_name: f.class_name(r.id, v.class).to_string(),
+                            indicator,
                         });
                     }
                 }

@@ -4,16 +4,16 @@ use std::net::SocketAddr;
 use std::sync::Mutex;
 use std::time::Duration;
 
-use bevy_ecs::prelude::{Query, ResMut, Resource};
+use bevy_ecs::prelude::{Query, ResMut, Resource, Without};
 use bevy_ecs::schedule::ScheduleLabel;
 
 use crate::io::viz::{
-    DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, StreamFormat, VizError, VizSender, VizSenderConfig, VizVehicle,
+    DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, StreamFormat, VizError, VizIndicator, VizSender, VizSenderConfig, VizVehicle,
 };
 use crate::io::{WarnLimiter, lock};
 use crate::sim::Phase;
 use crate::sim::{Plugin, SimBuilder};
-use crate::world::{VehicleClass, VehicleId, VehicleSize, VehicleState};
+use crate::world::{Stationary, TurnSignal, VehicleClass, VehicleId, VehicleSize, VehicleState};
 
 /// Schedule of the visualisation stream ([`Phase::Sense`]: it sends the state at its tick time).
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -49,19 +49,30 @@ impl VizStream {
     }
 }
 
-/// Each [`Stream`] tick: send every vehicle (id order is not needed by receivers; entity order)
+/// Each [`Stream`] tick: send every vehicle but [`Stationary`] obstacles (a viewer draws their
+/// outlines from the map), with its [`TurnSignal`] in our format (id order is not needed by receivers; entity order)
 /// in the stream's [`StreamFormat`]. The frame buffer and its class-name strings are reused, so
 /// steady state does not allocate.
 pub fn stream_vehicles(
     mut stream: ResMut<VizStream>,
-    vehicles: Query<(&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>)>,
+    vehicles: Query<
+        (&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>, Option<&TurnSignal>),
+        Without<Stationary>,
+    >,
 ) {
     let stream = &mut *stream;
     let format = stream.format;
     let mut n = 0;
-    for (id, s, class, size) in &vehicles {
+    for (id, s, class, size, signal) in &vehicles {
         if n == stream.frame.len() {
-            stream.frame.push(VizVehicle { id: 0, x: 0.0, y: 0.0, yaw_deg: 0.0, class_name: String::new() });
+            stream.frame.push(VizVehicle {
+                id: 0,
+                x: 0.0,
+                y: 0.0,
+                yaw_deg: 0.0,
+                class_name: String::new(),
+                indicator: None,
+            });
         }
         let v = &mut stream.frame[n];
         v.id = id.0;
@@ -75,6 +86,12 @@ pub fn stream_vehicles(
             v.class_name.clear();
             v.class_name.push_str(name);
         }
+        // The 2015 viewers know no indicator: only our format carries it.
+        v.indicator = match (format, signal.copied().unwrap_or_default()) {
+            (StreamFormat::Y2015, _) | (_, TurnSignal::Off) => None,
+            (_, TurnSignal::Left) => Some(VizIndicator::Left),
+            (_, TurnSignal::Right) => Some(VizIndicator::Right),
+        };
         n += 1;
     }
     stream.frame.truncate(n);

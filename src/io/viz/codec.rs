@@ -29,6 +29,29 @@ pub struct VizVehicle {
     pub yaw_deg: f64,
     /// Vehicle class shown by the viewer (e.g. `Truck`, `Car`).
     pub class_name: String,
+    /// A lane change in progress: the side its indicator shows (key `indicator=left|right`,
+    /// sent only when on and only in our stream format; the 2015 viewers never see it).
+    pub indicator: Option<VizIndicator>,
+}
+
+/// The side of a vehicle's indicator in the stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VizIndicator {
+    /// `indicator=left`.
+    Left,
+    /// `indicator=right`.
+    Right,
+}
+
+impl std::str::FromStr for VizIndicator {
+    type Err = ();
+    fn from_str(s: &str) -> Result<VizIndicator, ()> {
+        match s {
+            "left" => Ok(VizIndicator::Left),
+            "right" => Ok(VizIndicator::Right),
+            _ => Err(()),
+        }
+    }
 }
 
 /// Which part of a split frame a datagram holds (the split extension).
@@ -257,6 +280,11 @@ fn write_record(out: &mut String, v: &VizVehicle) {
         let ok = c.is_ascii_graphic() && !matches!(c, '#' | '!' | ';' | '=');
         out.push(if ok { c } else { '_' });
     }
+    match v.indicator {
+        Some(VizIndicator::Left) => out.push_str(";indicator=left"),
+        Some(VizIndicator::Right) => out.push_str(";indicator=right"),
+        None => {}
+    }
 }
 
 /// Encode one frame into freshly allocated datagrams (convenience over [`VizEncoder`]).
@@ -293,6 +321,7 @@ fn decode_record(record: usize, rec: &str) -> Result<(VizVehicle, Option<VizPart
     let mut y = None;
     let mut yaw = None;
     let mut class_name = None;
+    let mut indicator = None;
     let mut index = None;
     let mut count = None;
     for field in rec.split(';') {
@@ -309,6 +338,7 @@ fn decode_record(record: usize, rec: &str) -> Result<(VizVehicle, Option<VizPart
             "y" => set_once(&mut y, parse_value(record, "y", value, "number")?, dup)?,
             "yaw" => set_once(&mut yaw, parse_value(record, "yaw", value, "number")?, dup)?,
             "class_name" => set_once(&mut class_name, value.to_string(), dup)?,
+            "indicator" => set_once(&mut indicator, parse_value(record, "indicator", value, "left or right")?, dup)?,
             PART_KEY => set_once(&mut index, parse_value(record, PART_KEY, value, "part index")?, dup)?,
             PARTS_KEY => set_once(&mut count, parse_value(record, PARTS_KEY, value, "part count")?, dup)?,
             _ => {}
@@ -326,6 +356,7 @@ fn decode_record(record: usize, rec: &str) -> Result<(VizVehicle, Option<VizPart
         y: y.ok_or_else(|| missing("y"))?,
         yaw_deg: yaw.ok_or_else(|| missing("yaw"))?,
         class_name: class_name.ok_or_else(|| missing("class_name"))?,
+        indicator,
     };
     Ok((vehicle, part))
 }

@@ -42,8 +42,8 @@ pub mod reassembly;
 pub mod sockets;
 
 pub use codec::{
-    MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder, VizError, VizPart,
-    VizVehicle, decode_datagram, encode_frame,
+    MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder, VizError,
+    VizIndicator, VizPart, VizVehicle, decode_datagram, encode_frame,
 };
 pub use format::{REAR_AXLE_FROM_REAR, StreamFormat, class_name_2015, viewer_body, viewer_footprint};
 pub use reassembly::{
