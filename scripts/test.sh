@@ -3,10 +3,10 @@
 # virtual environment .venv at the repository root, created on the first run and reused after;
 # packages are reinstalled only when python/requirements-test.txt changes (a stamp file).
 #
-# One build serves both halves: `cargo test --workspace` compiles the `smlworld` crate once with
-# the features of everything that uses it (its tests and the Python extension, features unified
-# across the workspace) and builds the extension (target/release/lib_smlworld.so) in the same
-# run; the extension is then copied into python/smlworld/ and the venv imports the package from
+# One build serves both halves: `cargo build --workspace --lib --bins --tests` compiles the
+# `smlworld` crate once with the features of everything that uses it (its tests and the Python
+# extension, features unified across the workspace) and builds the extension
+# (target/release/lib_smlworld.so) in the same run; the extension is then copied into python/smlworld/ and the venv imports the package from
 # python/ (a .pth file, as an editable install has; Ray's workers see it too), so no second compilation of the crate (maturin's own cargo run unifies
 # features differently) happens on a change. Users still install the package with
 # `pip install ./python` or `maturin develop` (README, Python).
@@ -26,8 +26,12 @@ if [ "$(cat "$VENV/.requirements.stamp" 2>/dev/null || true)" != "$req_hash" ]; 
   echo "$req_hash" > "$VENV/.requirements.stamp"
 fi
 
-# PyO3's build script configures the extension for this interpreter.
+# PyO3's build script configures the extension for this interpreter. The first command builds
+# every library (the extension's cdylib too: `cargo test` alone skips a library without tests)
+# and every test with one feature resolution (dev-dependencies on), so the second finds it all
+# built and only runs the tests.
 export PYO3_PYTHON="$PY"
+cargo build --release --workspace --lib --bins --tests
 cargo test --release --workspace
 
 # The extension the build above made, where the package imports it from.
