@@ -32,7 +32,15 @@ fi
 # built and only runs the tests.
 export PYO3_PYTHON="$PY"
 cargo build --release --workspace --lib --bins --tests
-cargo test --release --workspace
+if cargo nextest --version >/dev/null 2>&1; then
+  # cargo-nextest (on machines of this kind) runs the test binaries side by side, not one after
+  # another: the suite is mostly waiting (real-time runs, sockets, child processes). It does not
+  # run doc-tests; cargo test does those.
+  cargo nextest run --release --workspace --no-fail-fast
+  cargo test --release --workspace --doc
+else
+  cargo test --release --workspace
+fi
 
 # The extension the build above made, where the package imports it from.
 so=target/release/lib_smlworld.so
