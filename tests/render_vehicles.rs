@@ -146,3 +146,20 @@ fn bad_sprites_are_skipped_not_drawn_or_panicking() {
     assert_eq!(skipped, 2);
     assert_eq!(img, empty);
 }
+
+#[test]
+fn a_vehicle_under_two_pixels_is_drawn_as_a_point_not_lost_between_pixels() {
+    let mut r = renderer();
+    // 0.05 px/m: a 4.5 m car is a fifth of a pixel. At the origin it sits on the corner of four
+    // pixels, covering none of their centres: drawn at its size it would leave no trace. The
+    // vehicle shader draws every vehicle at least 4 px wide (issue 25: "vehicles under 2 px
+    // drawn as points"), so a whole ring of thousands stays visible.
+    let view = BirdseyeView::centered_on_origin(200, 200, 0.05).unwrap();
+    let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
+    let empty = r.render_frame(&layer, &[]).unwrap();
+    let car = VehicleSprite::new(-3, DVec2::ZERO, 0.3, 4.5, 1.8, "Car");
+    let img = r.render_frame(&layer, &[car]).unwrap();
+    for (x, y) in [(99, 99), (100, 99), (99, 100), (100, 100)] {
+        assert_ne!(img.get_pixel(x, y), empty.get_pixel(x, y), "pixel ({x}, {y}) of the point is not drawn");
+    }
+}
