@@ -1,5 +1,7 @@
 //! Criterion benches of each simulation module alone on the benchmark world (1,000 and 10,000
-//! vehicles on a generated ring highway): dynamics, sensors, network, wifi, path following.
+//! vehicles on a generated ring highway): dynamics, sensors (perfect, and with noise and
+//! dropout), network, wifi (perfect, and with loss, delay and jitter), path following, and the
+//! lane-change control stack (lane positions, index and MOBIL decisions, leaders, IDM).
 //! Run with `cargo bench --bench sim`; `smlworld bench` measures everything together.
 
 use std::sync::Arc;
@@ -7,7 +9,7 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Query, Res};
 use bevy_ecs::schedule::ScheduleLabel;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use smlworld::app::running::bench::{Beacons, BenchWorld, send_beacons};
+use smlworld::app::running::bench::{Beacons, BenchWorld, DEGRADED_WIFI, degraded_radar, send_beacons};
 use smlworld::prelude::*;
 
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -22,7 +24,12 @@ fn send_wifi_beacons(clock: Res<SimClock>, mut vehicles: Query<(&VehicleState, &
 
 /// A sim of `n` bench vehicles with only the modules `plugin` adds.
 fn sim_with(n: usize, plugin: impl Plugin) -> Sim {
-    let world = BenchWorld { vehicles: n, ..Default::default() };
+    sim_of(BenchWorld { vehicles: n, ..Default::default() }, plugin)
+}
+
+/// A sim of `world`'s vehicles with only the modules `plugin` adds (and those `world` adds:
+/// `lane_change` brings lane positions, the IDM and lane changes).
+fn sim_of(world: BenchWorld, plugin: impl Plugin) -> Sim {
     let mut b = SimBuilder::new();
     b.add_plugin(plugin);
     world.spawn(&mut b).expect("the bench world builds");
@@ -41,6 +48,19 @@ fn long_range_radars(mut sim: Sim) -> Sim {
         }
     }
     sim.run_for(1.0); // warm the buffers of the long-range searches
+    sim
+}
+
+/// Every vehicle's radar noisy and dropping detections, as `smlworld bench --degraded` has it.
+fn noisy_radars(mut sim: Sim) -> Sim {
+    let world = sim.world_mut();
+    world.insert_resource(SimSeed(1));
+    let mut vehicles = world.query::<bevy_ecs::entity::Entity>();
+    let all: Vec<_> = vehicles.iter(world).collect();
+    for e in all {
+        world.entity_mut(e).insert(degraded_radar());
+    }
+    sim.run_for(1.0);
     sim
 }
 
@@ -75,7 +95,30 @@ fn modules(c: &mut Criterion) {
                     })
                 }),
             ),
+            ("sensors 20 Hz, radar noise and dropout", Box::new(move || noisy_radars(sim_with(n, SensorsPlugin)))),
+            (
+                "wifi 10 Hz, 10 % loss, 10 ms delay, 5 ms jitter",
+                Box::new(move || {
+                    sim_with(n, |b: &mut SimBuilder| {
+                        let range = V2vConfig::default().wifi_range;
+                        b.add_plugin(V2vPlugin::default());
+                        b.insert_resource(V2vConfig { wifi_range: range, wifi: DEGRADED_WIFI, ..V2vConfig::default() });
+                        b.insert_resource(SimSeed(1));
+                        b.add_module("wifi beacons", WifiBeacons, Phase::Control, 10.0);
+                        b.add_systems(WifiBeacons, send_wifi_beacons);
+                    })
+                }),
+            ),
             ("path following 20 Hz", Box::new(move || sim_with(n, PathFollowingPlugin))),
+            (
+                "lane changes 20 Hz: lane positions, MOBIL, leaders, IDM (with sensors, dynamics)",
+                Box::new(move || {
+                    let world = BenchWorld { vehicles: n, lane_change: true, ..Default::default() };
+                    sim_of(world, |b: &mut SimBuilder| {
+                        b.add_plugin(SensorsPlugin).add_plugin(DynamicsPlugin).add_plugin(PathFollowingPlugin);
+                    })
+                }),
+            ),
         ];
         for (name, make) in cases {
             let mut sim = make();
