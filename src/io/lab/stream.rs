@@ -49,17 +49,20 @@ impl VizStream {
     }
 }
 
+/// What [`stream_vehicles`] reads of a vehicle.
+type StreamedVehicle = (
+    &'static VehicleId,
+    &'static VehicleState,
+    &'static VehicleClass,
+    Option<&'static VehicleSize>,
+    Option<&'static TurnSignal>,
+);
+
 /// Each [`Stream`] tick: send every vehicle but [`Stationary`] obstacles (a viewer draws their
 /// outlines from the map), with its [`TurnSignal`] in our format (id order is not needed by receivers; entity order)
 /// in the stream's [`StreamFormat`]. The frame buffer and its class-name strings are reused, so
 /// steady state does not allocate.
-pub fn stream_vehicles(
-    mut stream: ResMut<VizStream>,
-    vehicles: Query<
-        (&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>, Option<&TurnSignal>),
-        Without<Stationary>,
-    >,
-) {
+pub fn stream_vehicles(mut stream: ResMut<VizStream>, vehicles: Query<StreamedVehicle, Without<Stationary>>) {
     let stream = &mut *stream;
     let format = stream.format;
     let mut n = 0;
