@@ -445,12 +445,13 @@ impl FrameMarks {
         }
         if let Some(mut q) = world.try_query::<(&crate::world::VehicleId, &crate::vehicles::LaneChanger)>() {
             for (id, changer) in q.iter(world) {
-                let Some(m) = &changer.active else { continue };
+                let indicator = match changer.signal() {
+                    crate::world::TurnSignal::Off => continue,
+                    crate::world::TurnSignal::Left => crate::render::Indicator::Left,
+                    crate::world::TurnSignal::Right => crate::render::Indicator::Right,
+                };
                 if let Ok(i) = self.sprites.binary_search_by_key(&id.0, |s| s.id) {
-                    // An aborted change drives back: the indicator shows the way it goes now.
-                    let left = (m.direction == crate::vehicles::Side::Left) != m.aborted;
-                    self.sprites[i].overlays.indicator =
-                        Some(if left { crate::render::Indicator::Left } else { crate::render::Indicator::Right });
+                    self.sprites[i].overlays.indicator = Some(indicator);
                 }
             }
         }
@@ -458,9 +459,8 @@ impl FrameMarks {
     }
 }
 
-/// The turn signal ([`crate::world::TurnSignal`]) of every lane changer, for the visualisation
-/// stream: on the side of a change in progress (an aborted change drives back: the side it goes
-/// now, as the frames' indicator), off otherwise. Written only when it changes.
+/// The turn signal ([`crate::vehicles::LaneChanger::signal`]) of every lane changer as a
+/// component, for the visualisation stream. Written only when it changes.
 fn signal_lane_changes(
     mut commands: bevy_ecs::system::Commands,
     changers: bevy_ecs::system::Query<(
@@ -469,13 +469,8 @@ fn signal_lane_changes(
         Option<&crate::world::TurnSignal>,
     )>,
 ) {
-    use crate::world::TurnSignal;
     for (entity, changer, signal) in &changers {
-        let now = match &changer.active {
-            None => TurnSignal::Off,
-            Some(m) if (m.direction == crate::vehicles::Side::Left) != m.aborted => TurnSignal::Left,
-            Some(_) => TurnSignal::Right,
-        };
+        let now = changer.signal();
         if signal.copied().unwrap_or_default() != now {
             commands.entity(entity).insert(now);
         }

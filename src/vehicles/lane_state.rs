@@ -10,7 +10,7 @@ use std::sync::Arc;
 use bevy_ecs::prelude::{Component, Resource};
 
 use crate::map::{LaneletId, Path, Place};
-use crate::world::VehicleId;
+use crate::world::{TurnSignal, VehicleId};
 
 use super::follow_laws::{AdaptiveCruise, Idm, LeaderGap};
 use super::lane_change::LaneChangeProfile;
@@ -240,6 +240,16 @@ pub struct LaneChanger {
 }
 
 impl LaneChanger {
+    /// The turn signal others see: on the side of the change in progress (an aborted change
+    /// drives back, so the side it goes now), off without one.
+    pub fn signal(&self) -> TurnSignal {
+        match &self.active {
+            None => TurnSignal::Off,
+            Some(m) if (m.direction == Side::Left) != m.aborted => TurnSignal::Left,
+            Some(_) => TurnSignal::Right,
+        }
+    }
+
     /// A vehicle that has not changed lanes yet.
     pub fn new(params: LaneChangeParams, law: FollowLaw, goal: RouteGoal) -> LaneChanger {
         LaneChanger {
