@@ -44,6 +44,28 @@ fn class_of(kind: &str) -> VehicleClass {
     }
 }
 
+/// Spawn obstacle `what` (for errors) as vehicle `id`: no dynamics model, no mailbox, its class
+/// from the CommonRoad `kind`, with `extra` (its recorded trajectory, or [`Stationary`]).
+fn spawn_obstacle(
+    b: &mut SimBuilder,
+    id: VehicleId,
+    state: VehicleState,
+    kind: &str,
+    size: VehicleSize,
+    what: &str,
+    extra: impl bevy_ecs::bundle::Bundle,
+) -> Result<(), String> {
+    let mut spec = VehicleSpec::new(id, state);
+    spec.class = class_of(kind);
+    spec.size = size;
+    spec.model = VehicleModel::None;
+    spec.mailbox = false;
+    let entity =
+        b.spawn_vehicle(spec).map_err(|e| format!("{what} as vehicle {id}: {e} (scenario vehicle ids must differ)"))?;
+    b.world_mut().entity_mut(entity).insert(extra);
+    Ok(())
+}
+
 /// Spawn every dynamic obstacle of `sc` as a recorded vehicle and every static one as a
 /// [`Stationary`] vehicle; returns how many were spawned; the error names the obstacle.
 pub(crate) fn spawn_obstacles(b: &mut SimBuilder, sc: &CommonRoadScenario) -> Result<usize, String> {
@@ -63,33 +85,18 @@ pub(crate) fn spawn_obstacles(b: &mut SimBuilder, sc: &CommonRoadScenario) -> Re
             })
             .collect();
         let Some(mut rec) = RecordedTrajectory::new(samples) else { continue };
-        let mut spec = VehicleSpec::new(id, rec.state_at(0.0));
-        spec.class = class_of(&o.kind);
-        spec.size = VehicleSize { length: o.length, width: o.width };
-        spec.model = VehicleModel::None;
-        spec.mailbox = false;
-        let entity = b
-            .spawn_vehicle(spec)
-            .map_err(|e| format!("obstacle {} as vehicle {id}: {e} (scenario vehicle ids must differ)", o.id))?;
-        b.world_mut().entity_mut(entity).insert(rec);
+        let state = rec.state_at(0.0);
+        let what = format!("obstacle {}", o.id);
+        spawn_obstacle(b, id, state, &o.kind, VehicleSize { length: o.length, width: o.width }, &what, rec)?;
         spawned += 1;
     }
     for o in &sc.static_obstacles {
         let id = obstacle_vehicle_id(o.id).ok_or_else(|| {
             format!("static obstacle {} has no vehicle id (ids 1..=2147483647 become -1, -2, ...)", o.id)
         })?;
-        let mut spec = VehicleSpec::new(
-            id,
-            VehicleState { position: o.position, yaw: o.orientation, velocity: glam::DVec2::ZERO },
-        );
-        spec.class = class_of(&o.kind);
-        spec.size = VehicleSize { length: o.length, width: o.width };
-        spec.model = VehicleModel::None;
-        spec.mailbox = false;
-        let entity = b
-            .spawn_vehicle(spec)
-            .map_err(|e| format!("static obstacle {} as vehicle {id}: {e} (scenario vehicle ids must differ)", o.id))?;
-        b.world_mut().entity_mut(entity).insert(Stationary);
+        let state = VehicleState { position: o.position, yaw: o.orientation, velocity: glam::DVec2::ZERO };
+        let what = format!("static obstacle {}", o.id);
+        spawn_obstacle(b, id, state, &o.kind, VehicleSize { length: o.length, width: o.width }, &what, Stationary)?;
         spawned += 1;
     }
     Ok(spawned)
