@@ -916,17 +916,7 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
             tags,
         });
     }
-    let graph_lanelets: Vec<GraphLanelet<'_>> = lanelets
-        .iter()
-        .map(|l| GraphLanelet {
-            routable: l.routable,
-            bidirectional: false,
-            right_nodes: &l.right_nodes,
-            left_nodes: &l.left_nodes,
-            length: l.length,
-            centre_ends: (l.centre.first().copied().unwrap_or_default(), l.centre.last().copied().unwrap_or_default()),
-        })
-        .collect();
+    let graph_lanelets: Vec<GraphLanelet<'_>> = lanelets.iter().map(Lanelet::graph_view).collect();
     let explicit: Vec<Vec<usize>> =
         lanelets.iter().map(|l| l.successors.iter().filter_map(|s| index.get(s).copied()).collect()).collect();
     let graph = RoutingGraph::with_successors(&graph_lanelets, &explicit);

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use glam::DVec2;
 
 use super::error::MapWarning;
-use super::graph::RoutingGraph;
+use super::graph::{GraphLanelet, RoutingGraph};
 use super::projection::Projector;
 
 /// Id of a lanelet: the id of its `type=lanelet` relation in the OSM file.
@@ -101,6 +101,21 @@ pub struct Lanelet {
 }
 
 impl Lanelet {
+    /// What the routing graph needs of this lanelet.
+    pub(crate) fn graph_view(&self) -> GraphLanelet<'_> {
+        GraphLanelet {
+            routable: self.routable,
+            bidirectional: self.bidirectional,
+            right_nodes: &self.right_nodes,
+            left_nodes: &self.left_nodes,
+            length: self.length,
+            centre_ends: (
+                self.centre.first().copied().unwrap_or_default(),
+                self.centre.last().copied().unwrap_or_default(),
+            ),
+        }
+    }
+
     /// Polygon of the lanelet: left bound followed by the reversed right bound.
     pub fn polygon(&self) -> Vec<DVec2> {
         self.left.iter().chain(self.right.iter().rev()).copied().collect()

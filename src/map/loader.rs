@@ -122,18 +122,7 @@ fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
         index,
         graph: Default::default(),
     };
-    let graph_lanelets: Vec<GraphLanelet<'_>> = map
-        .lanelets
-        .iter()
-        .map(|l| GraphLanelet {
-            routable: l.routable,
-            bidirectional: l.bidirectional,
-            right_nodes: &l.right_nodes,
-            left_nodes: &l.left_nodes,
-            length: l.length,
-            centre_ends: (l.centre.first().copied().unwrap_or_default(), l.centre.last().copied().unwrap_or_default()),
-        })
-        .collect();
+    let graph_lanelets: Vec<GraphLanelet<'_>> = map.lanelets.iter().map(Lanelet::graph_view).collect();
     map.graph = RoutingGraph::new(&graph_lanelets);
     Ok(map)
 }

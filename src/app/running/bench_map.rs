@@ -113,9 +113,7 @@ pub fn bench_map_load(path: &FsPath, runs: usize) -> Result<MapLoadReport, MapEr
         seconds.push(started.elapsed().as_secs_f64());
         lanelets = map.lanelets.len();
     }
-    let mut sorted = seconds.clone();
-    sorted.sort_by(f64::total_cmp);
-    let median = sorted[sorted.len() / 2];
+    let median = upper_median(&seconds);
     Ok(MapLoadReport {
         map: path.to_path_buf(),
         bytes,
@@ -124,4 +122,11 @@ pub fn bench_map_load(path: &FsPath, runs: usize) -> Result<MapLoadReport, MapEr
         seconds,
         mb_per_second: if median > 0.0 { bytes as f64 / 1e6 / median } else { f64::INFINITY },
     })
+}
+
+/// The median of `xs` (the upper one of an even count; 0 when empty), the order left as it is.
+pub fn upper_median(xs: &[f64]) -> f64 {
+    let mut sorted = xs.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted.get(sorted.len() / 2).copied().unwrap_or(0.0)
 }

@@ -6,6 +6,7 @@
 use std::time::Instant;
 
 use super::bench::{BenchError, BenchWorld};
+use super::bench_map::upper_median;
 use super::runner::run_headless;
 use crate::render::{FrameOutput, FrameRecorder, RenderError, sprites_from_world};
 use crate::sim::{Parallelism, SimClock};
@@ -77,15 +78,13 @@ pub fn bench_render(
         run_headless(&mut sim, FRAME_GAP_S, FRAME_GAP_S, |_| {});
         frame_ms.push(frame(&sim)?);
     }
-    let mut sorted = frame_ms.clone();
-    sorted.sort_by(f64::total_cmp);
     Ok(RenderBench {
         width,
         height,
         vehicles: world.vehicles,
         frames: frame_ms.len(),
         first_frame_ms,
-        median_ms: sorted[sorted.len() / 2],
+        median_ms: upper_median(&frame_ms),
         frame_ms,
         adapter,
     })
