@@ -17,7 +17,7 @@
 //! Every draw is [`super::random::uniform`] keyed by (seed, channel stream, link, round, message
 //! index, draw), so results do not depend on threads or system order and a draw allocates nothing.
 
-use super::random::{mix, uniform};
+use super::random::{key, mix, uniform, uniform_at};
 
 /// Probability that a reception is lost, before bursts.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -95,6 +95,14 @@ impl Draw {
         let link = mix((u64::from(self.sender as u32) << 32) | u64::from(self.receiver as u32));
         uniform(self.seed, self.stream ^ link, self.round, (u64::from(self.index) << 8) | k)
     }
+
+    /// The counter of this link's round, shared by every message of it:
+    /// `uniform_at(draw.key(), (index << 8) | k) == draw.uniform(k)`, so a link's draws of one
+    /// round cost one hash each after the key's four.
+    pub fn key(&self) -> u64 {
+        let link = mix((u64::from(self.sender as u32) << 32) | u64::from(self.receiver as u32));
+        key(self.seed, self.stream ^ link, self.round)
+    }
 }
 
 impl ChannelModel {
@@ -123,6 +131,13 @@ impl ChannelModel {
         self.burst.is_some() || self.delays()
     }
 
+    /// The widest spread of the delays [µs]: the largest delay [`ChannelModel::deliver`] gives
+    /// less the smallest. Rounds further apart than this cannot overtake one another.
+    pub fn delay_spread_us(&self) -> u64 {
+        let us = |ms: f64| (ms * 1000.0).round() as u64;
+        us(self.delay_ms + self.jitter_ms.max(0.0)).saturating_sub(us(self.delay_ms))
+    }
+
     /// Whether the loss depends on the distance.
     pub fn uses_distance(&self) -> bool {
         matches!(self.loss, Loss::Distance { .. })
@@ -143,18 +158,33 @@ impl ChannelModel {
     /// link's previous message: `link.last_due_us` is kept). `now_us` is the round's time,
     /// `distance` [m] the sender-receiver distance, `range` [m] the channel's range.
     pub fn deliver(&self, draw: &Draw, now_us: u64, distance: f64, range: f64, link: &mut LinkState) -> Option<u64> {
+        self.deliver_keyed(draw.key(), draw.index, now_us, distance, range, link)
+    }
+
+    /// [`ChannelModel::deliver`] of message `index` of the link round whose counter is
+    /// `key` ([`Draw::key`]): the same fate, for one hash per draw.
+    pub fn deliver_keyed(
+        &self,
+        key: u64,
+        index: u32,
+        now_us: u64,
+        distance: f64,
+        range: f64,
+        link: &mut LinkState,
+    ) -> Option<u64> {
+        let draw = |k: u64| uniform_at(key, (u64::from(index) << 8) | k);
         if let Some(b) = self.burst {
-            let flip = draw.uniform(0);
+            let flip = draw(0);
             link.bad = if link.bad { flip >= b.p_leave } else { flip < b.p_enter };
-            if link.bad && draw.uniform(1) < b.loss_in_burst {
+            if link.bad && draw(1) < b.loss_in_burst {
                 return None;
             }
         }
         let p = self.loss_at(distance, range);
-        if p > 0.0 && draw.uniform(2) < p {
+        if p > 0.0 && draw(2) < p {
             return None;
         }
-        let jitter = if self.jitter_ms > 0.0 { draw.uniform(3) * self.jitter_ms } else { 0.0 };
+        let jitter = if self.jitter_ms > 0.0 { draw(3) * self.jitter_ms } else { 0.0 };
         let delay_us = ((self.delay_ms + jitter) * 1000.0).round() as u64;
         let due = (now_us + delay_us).max(link.last_due_us);
         link.last_due_us = due;
@@ -237,6 +267,23 @@ mod tests {
         }
         let mean_ms = sum / n as f64 / 1000.0;
         assert!(mean_ms >= 12.5 - 0.2, "mean delay {mean_ms} ms, at least delay + jitter / 2");
+    }
+
+    #[test]
+    fn a_link_rounds_key_draws_what_each_draw_draws() {
+        for r in 0..200 {
+            let d = Draw { index: (r % 5) as u32, sender: r as i32 - 100, ..draw(r / 3) };
+            for k in 0..4 {
+                assert_eq!(uniform_at(d.key(), (u64::from(d.index) << 8) | k), d.uniform(k), "draw {r}, {k}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_delay_spread_is_the_jitter_in_microseconds() {
+        let m = ChannelModel { delay_ms: 10.0, jitter_ms: 5.0, ..Default::default() };
+        assert_eq!(m.delay_spread_us(), 5000);
+        assert_eq!(ChannelModel { jitter_ms: 0.0, ..m }.delay_spread_us(), 0);
     }
 
     #[test]

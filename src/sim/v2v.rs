@@ -26,7 +26,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Local, Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Entity, Local, Mut, Query, Res, ResMut, Resource};
 
 use super::channel::{ChannelModel, Draw, LinkState, Loss};
 use super::random::{OrderedSample, binomial, key, mix, uniform_at};
@@ -35,7 +35,8 @@ use crate::world::{Channel, Mailbox, Message, VehicleId, VehicleState, Vehicles}
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::{Control, ControlEpoch, GridEntry, Network, SimSystems, SpatialGrid, Wifi};
+use super::parallel::recycle;
+use super::{Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
 #[derive(Resource, Debug, Clone, Copy, PartialEq)]
@@ -116,12 +117,35 @@ impl ChannelStats {
         if self.aged == 0 { 0.0 } else { self.age_sum_us as f64 / self.aged as f64 / 1000.0 }
     }
 
-    fn add_delay(&mut self, delay_us: u64) {
+    /// Count one delivery delay [µs]; returns its histogram bin.
+    fn add_delay(&mut self, delay_us: u64) -> usize {
         self.delay_sum_us += delay_us;
         if self.delay_bins.is_empty() {
             self.delay_bins = vec![0; DELAY_BINS];
         }
-        self.delay_bins[((delay_us / DELAY_BIN_US) as usize).min(DELAY_BINS - 1)] += 1;
+        let bin = ((delay_us / DELAY_BIN_US) as usize).min(DELAY_BINS - 1);
+        self.delay_bins[bin] += 1;
+        bin
+    }
+
+    /// Add `other`'s counts to these and zero them; `bins` (lowest, highest) covers every
+    /// histogram bin `other` counted in (lowest > highest: none).
+    fn absorb(&mut self, other: &mut ChannelStats, bins: (usize, usize)) {
+        self.sent += std::mem::take(&mut other.sent);
+        self.delivered += std::mem::take(&mut other.delivered);
+        self.delay_sum_us += std::mem::take(&mut other.delay_sum_us);
+        self.age_sum_us += std::mem::take(&mut other.age_sum_us);
+        self.aged += std::mem::take(&mut other.aged);
+        if bins.0 <= bins.1 && !other.delay_bins.is_empty() {
+            if self.delay_bins.is_empty() {
+                self.delay_bins = vec![0; DELAY_BINS];
+            }
+            for (mine, theirs) in
+                self.delay_bins[bins.0..=bins.1].iter_mut().zip(&mut other.delay_bins[bins.0..=bins.1])
+            {
+                *mine += std::mem::take(theirs);
+            }
+        }
     }
 }
 
@@ -174,34 +198,102 @@ impl V2vLinks {
 /// Fewest links worth a prune of [`V2vLinks`].
 const MIN_PRUNE: usize = 1024;
 
-/// A reception waiting for its due time.
-#[derive(Debug, Clone)]
-struct Pending {
+/// A reception waiting for its due time: 16 bytes, no reference count (the round holds the
+/// batch once).
+#[derive(Debug, Clone, Copy)]
+struct Reception {
     due_us: u64,
-    receiver: VehicleId,
-    channel: Channel,
-    round: u64,
-    batch: Arc<[Message]>,
+    receiver: Entity,
     index: u32,
 }
 
-/// Receptions of delaying channels not yet due.
+/// One round's receptions of a delaying channel not yet delivered, in the order the round made
+/// them: grouped by receiver, each receiver's in batch order.
+#[derive(Debug)]
+struct DelayedRound {
+    channel: Channel,
+    round: u64,
+    batch: Arc<[Message]>,
+    receptions: Vec<Reception>,
+    /// Earliest and latest due time of `receptions` [µs].
+    first_due_us: u64,
+    last_due_us: u64,
+}
+
+/// Receptions of delaying channels not yet due: one record per round (its batch shared once,
+/// its receptions in a reused buffer), so a delayed reception costs a 16-byte push and its
+/// delivery a look-up per (receiver, round), not a reference count, a sort or a search each.
 #[derive(Resource, Debug, Default)]
 pub struct DelayedMessages {
-    pending: Vec<Pending>,
-    due: Vec<Pending>,
+    /// Rounds in the order they ran (each channel's in round order).
+    rounds: std::collections::VecDeque<DelayedRound>,
+    /// Emptied reception buffers, reused by later rounds.
+    spare: Vec<Vec<Reception>>,
     picks: Vec<u32>,
+    /// Time of each channel's previous delaying round [µs], indexed by `Channel as usize`, for
+    /// [`DelayedMessages::needs_link_order`].
+    previous_round_us: [Option<u64>; 2],
 }
 
 impl DelayedMessages {
     /// Receptions still in flight.
     pub fn len(&self) -> usize {
-        self.pending.len()
+        self.rounds.iter().map(|r| r.receptions.len()).sum()
     }
 
     /// Whether none is in flight.
     pub fn is_empty(&self) -> bool {
-        self.pending.is_empty()
+        self.rounds.iter().all(|r| r.receptions.is_empty())
+    }
+
+    /// A record for `round`'s receptions on `channel` (filled with [`DelayedRound::push`], kept
+    /// with [`DelayedMessages::keep`]).
+    fn open(&mut self, channel: Channel, round: u64, batch: &Arc<[Message]>) -> DelayedRound {
+        let mut receptions = self.spare.pop().unwrap_or_default();
+        receptions.clear();
+        DelayedRound { channel, round, batch: Arc::clone(batch), receptions, first_due_us: u64::MAX, last_due_us: 0 }
+    }
+
+    /// Keep `round` until its receptions are due (or recycle its buffer when it has none).
+    fn keep(&mut self, round: DelayedRound) {
+        if round.receptions.is_empty() {
+            self.spare.push(round.receptions);
+        } else {
+            self.rounds.push_back(round);
+        }
+    }
+
+    /// Whether this round of `channel` at `now_us` must order its links by their last due time
+    /// ([`LinkState::last_due_us`]), and note the round's time. A link's messages of one round
+    /// are ordered within the round (see [`LinkOrder`]); across rounds nothing can overtake
+    /// when the rounds lie further apart than the delay's spread, since then every message of
+    /// this round is due after every one of the previous round; so with a fixed rate and a
+    /// jitter below its period no per-link state is kept for delays. The first round has no
+    /// earlier message to overtake.
+    fn needs_link_order(&mut self, channel: Channel, now_us: u64, model: &ChannelModel) -> bool {
+        let slot = &mut self.previous_round_us[channel as usize];
+        let previous = slot.replace(now_us);
+        previous.is_some_and(|p| now_us.saturating_sub(p) < model.delay_spread_us())
+    }
+}
+
+impl DelayedRound {
+    fn push(&mut self, receiver: Entity, index: u32, due_us: u64) {
+        self.first_due_us = self.first_due_us.min(due_us);
+        self.last_due_us = self.last_due_us.max(due_us);
+        self.receptions.push(Reception { due_us, receiver, index });
+    }
+}
+
+/// The due times of one link's messages within one round, never decreasing (a link keeps its
+/// order, as [`ChannelModel::deliver`] does with a kept [`LinkState`]).
+#[derive(Debug, Default, Clone, Copy)]
+struct LinkOrder(u64);
+
+impl LinkOrder {
+    fn due(&mut self, due_us: u64) -> u64 {
+        self.0 = self.0.max(due_us);
+        self.0
     }
 }
 
@@ -241,7 +333,7 @@ pub fn deliver_network(
     mut links: ResMut<V2vLinks>,
     registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
-    mut mailboxes: Query<(&VehicleState, &mut Mailbox)>,
+    mut mailboxes: Query<(Entity, &VehicleState, &mut Mailbox)>,
     mut buffer: Local<Vec<Message>>,
     mut picks: Local<Vec<u32>>,
     mut positions: Local<Vec<(VehicleId, glam::DVec2)>>,
@@ -249,7 +341,7 @@ pub fn deliver_network(
     stats.network_rounds += 1;
     let round = stats.network_rounds;
     let now = clock.now;
-    for (_, mut mailbox) in &mut mailboxes {
+    for (_, _, mut mailbox) in &mut mailboxes {
         if !mailbox.network_out.is_empty() {
             buffer.append(&mut mailbox.network_out);
         }
@@ -263,7 +355,7 @@ pub fn deliver_network(
     }
     let mut delivered = 0;
     if model.is_perfect() {
-        for (_, mut mailbox) in &mut mailboxes {
+        for (_, _, mut mailbox) in &mut mailboxes {
             let owner = mailbox.owner();
             let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
             let n = (batch.len() - own.len()) as u64;
@@ -283,7 +375,7 @@ pub fn deliver_network(
         // One age for the whole batch (beacons written at the same tick): the delivered age
         // is that times the count; otherwise the lost ones' ages are taken off one by one.
         let uniform_age = batch.first().map(|m| m.sent_at).filter(|&t| batch.iter().all(|m| m.sent_at == t));
-        for (_, mut mailbox) in &mut mailboxes {
+        for (_, _, mut mailbox) in &mut mailboxes {
             let owner = mailbox.owner();
             let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
             let others = (batch.len() - own.len()) as u32;
@@ -315,17 +407,28 @@ pub fn deliver_network(
     // Senders' positions for the distance model, sorted by id.
     positions.clear();
     if model.uses_distance() {
-        positions.extend(mailboxes.iter().map(|(state, m)| (m.owner(), state.position)));
+        positions.extend(mailboxes.iter().map(|(_, state, m)| (m.owner(), state.position)));
         positions.sort_by_key(|p| p.0);
     }
-    let stateful = model.keeps_link_state();
-    for (state, mut mailbox) in &mut mailboxes {
+    let ordered = model.delays() && delayed.needs_link_order(Channel::Network, now.0, &model);
+    let stateful = model.burst.is_some() || ordered;
+    let mut record = model.delays().then(|| delayed.open(Channel::Network, round, &batch));
+    for (entity, state, mut mailbox) in &mut mailboxes {
         let owner = mailbox.owner();
         picks.clear();
         let mut index = 0u32;
         let mut previous = None;
+        let mut order = LinkOrder::default();
+        let mut link_key = 0;
         for (k, m) in batch.iter().enumerate() {
-            index = if previous == Some(m.sender) { index + 1 } else { 0 };
+            if previous == Some(m.sender) {
+                index += 1;
+            } else {
+                index = 0;
+                order = LinkOrder::default();
+                link_key =
+                    Draw { seed, stream: NETWORK_STREAM, sender: m.sender.0, receiver: owner.0, round, index }.key();
+            }
             previous = Some(m.sender);
             if m.sender == owner {
                 continue;
@@ -340,21 +443,16 @@ pub fn deliver_network(
             } else {
                 0.0
             };
-            let draw = Draw { seed, stream: NETWORK_STREAM, sender: m.sender.0, receiver: owner.0, round, index };
             let mut fresh = LinkState::default();
             let link = if stateful { links.network.entry((m.sender, owner)).or_default() } else { &mut fresh };
-            let Some(delay) = model.deliver(&draw, now.0, distance, config.wifi_range, link) else { continue };
+            let Some(delay) = model.deliver_keyed(link_key, index, now.0, distance, config.wifi_range, link) else {
+                continue;
+            };
             channel.network.delivered += 1;
-            if model.delays() {
-                channel.network.add_delay(delay);
-                delayed.pending.push(Pending {
-                    due_us: now.0 + delay,
-                    receiver: owner,
-                    channel: Channel::Network,
-                    round,
-                    batch: Arc::clone(&batch),
-                    index: k as u32,
-                });
+            if let Some(record) = &mut record {
+                let due = order.due(now.0 + delay);
+                channel.network.add_delay(due - now.0);
+                record.push(entity, k as u32, due);
             } else {
                 channel.network.age_sum_us += now.0.saturating_sub(m.sent_at.0);
                 channel.network.aged += 1;
@@ -365,6 +463,9 @@ pub fn deliver_network(
             delivered += picks.len() as u64;
             mailbox.network_in.deliver_picks(epoch.0, round, &batch, owner, picks.iter().copied());
         }
+    }
+    if let Some(record) = record {
+        delayed.keep(record);
     }
     stats.network_delivered += delivered;
 }
@@ -378,24 +479,149 @@ pub struct WifiScratch {
     /// First batch index of each sender's messages.
     starts: Vec<u32>,
     grid: SpatialGrid,
+    /// The receivers of this round (the query's items, gathered to be cut into chunks).
+    items: Vec<WifiItem<'static>>,
+    /// One per thread.
+    threads: Vec<WifiThread>,
+}
+
+/// One receiver as the wifi round's query hands it out.
+type WifiItem<'a> = (Entity, &'a VehicleState, Mut<'a, Mailbox>);
+
+/// What one thread of the wifi round keeps and counts for its contiguous chunk of receivers.
+#[derive(Default)]
+struct WifiThread {
     heard: Vec<u32>,
     picks: Vec<u32>,
+    /// This round's counts of the chunk's receivers, added to the channel's after the round.
+    stats: ChannelStats,
+    /// Lowest and highest delay bin this round touched in `stats` (empty: lo > hi).
+    bins: (usize, usize),
+    /// Deliveries made now (a channel without delay).
+    delivered: u64,
+    /// Delayed receptions of the chunk's receivers, in receiver order.
+    receptions: Vec<Reception>,
+}
+
+/// What every chunk of a wifi round reads.
+struct WifiRound<'a> {
+    model: ChannelModel,
+    range: f64,
+    seed: u64,
+    round: u64,
+    now_us: u64,
+    epoch: u64,
+    batch: &'a Arc<[Message]>,
+    senders: &'a [(VehicleId, glam::DVec2, u32)],
+    starts: &'a [u32],
+    grid: &'a SpatialGrid,
+}
+
+impl WifiRound<'_> {
+    /// Hand each receiver of `chunk` the messages of the senders within range, less what the
+    /// channel loses (delayed ones into `t.receptions`); `links` is the per-link state when the
+    /// model keeps one (then the whole round runs as one chunk).
+    fn receive(
+        &self,
+        chunk: &mut [WifiItem<'_>],
+        t: &mut WifiThread,
+        mut links: Option<&mut HashMap<(VehicleId, VehicleId), LinkState>>,
+    ) {
+        let (model, now) = (&self.model, self.now_us);
+        let (senders, starts, batch) = (self.senders, self.starts, self.batch);
+        for (entity, state, mailbox) in chunk.iter_mut() {
+            let owner = mailbox.owner();
+            t.heard.clear();
+            let heard = &mut t.heard;
+            self.grid.for_each_within(state.position, self.range, |_, e, _| {
+                if e.id != owner {
+                    heard.push(e.index);
+                }
+            });
+            t.heard.sort_unstable();
+            let attempted = t.heard.iter().map(|&i| senders[i as usize].2 as u64).sum::<u64>();
+            t.stats.sent += attempted;
+            if model.is_perfect() {
+                let picks = t.heard.iter().flat_map(|&i| {
+                    let start = starts[i as usize];
+                    start..start + senders[i as usize].2
+                });
+                for &i in &t.heard {
+                    let start = starts[i as usize] as usize;
+                    for m in &batch[start..start + senders[i as usize].2 as usize] {
+                        t.stats.age_sum_us += now.saturating_sub(m.sent_at.0);
+                    }
+                }
+                t.stats.aged += attempted;
+                t.stats.delivered += attempted;
+                t.delivered += attempted;
+                mailbox.wifi_in.deliver_picks(self.epoch, self.round, batch, owner, picks);
+                continue;
+            }
+            t.picks.clear();
+            for &i in &t.heard {
+                let (sender, position, count) = senders[i as usize];
+                let distance = if model.uses_distance() { position.distance(state.position) } else { 0.0 };
+                let mut fresh = LinkState::default();
+                let link = match links.as_deref_mut() {
+                    Some(links) => links.entry((sender, owner)).or_default(),
+                    None => &mut fresh,
+                };
+                let draw = Draw {
+                    seed: self.seed,
+                    stream: WIFI_STREAM,
+                    sender: sender.0,
+                    receiver: owner.0,
+                    round: self.round,
+                    index: 0,
+                };
+                let key = draw.key();
+                let mut order = LinkOrder::default();
+                for index in 0..count {
+                    let k = starts[i as usize] + index;
+                    let Some(delay) = model.deliver_keyed(key, index, now, distance, self.range, link) else {
+                        continue;
+                    };
+                    t.stats.delivered += 1;
+                    if model.delays() {
+                        let due = order.due(now + delay);
+                        let bin = t.stats.add_delay(due - now);
+                        t.bins = (t.bins.0.min(bin), t.bins.1.max(bin));
+                        t.receptions.push(Reception { due_us: due, receiver: *entity, index: k });
+                    } else {
+                        t.stats.age_sum_us += now.saturating_sub(batch[k as usize].sent_at.0);
+                        t.stats.aged += 1;
+                        t.picks.push(k);
+                    }
+                }
+            }
+            if !model.delays() {
+                t.delivered += t.picks.len() as u64;
+                mailbox.wifi_in.deliver_picks(self.epoch, self.round, batch, owner, t.picks.iter().copied());
+            }
+        }
+    }
 }
 
 /// Wifi round: each mailbox's in-box gets the messages of the senders within range (inclusive),
-/// less what the channel loses; later when it delays.
+/// less what the channel loses; later when it delays. The receivers are cut into contiguous
+/// chunks over [`Parallelism::threads`] threads (each reads the shared batch and grid and
+/// writes only its own in-box and its thread's counts and delayed receptions, which are joined
+/// in chunk order: the same bits for any thread count), unless the model keeps per-link state
+/// (bursts, or a jitter wider than the rounds' spacing), which runs on one thread.
 #[allow(clippy::too_many_arguments)]
 pub fn deliver_wifi(
     config: Res<V2vConfig>,
     clock: Res<SimClock>,
     seed: Option<Res<SimSeed>>,
     epoch: Res<ControlEpoch>,
+    parallelism: Option<Res<Parallelism>>,
     mut stats: ResMut<V2vStats>,
     mut channel: ResMut<V2vChannelStats>,
     mut links: ResMut<V2vLinks>,
     registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
-    mut mailboxes: Query<(&VehicleState, &mut Mailbox)>,
+    mut mailboxes: Query<(Entity, &VehicleState, &mut Mailbox)>,
     mut scratch: Local<WifiScratch>,
 ) {
     stats.wifi_rounds += 1;
@@ -406,10 +632,11 @@ pub fn deliver_wifi(
     if let Some(registry) = &registry {
         links.prune(registry);
     }
-    let stateful = model.keeps_link_state();
+    let ordered = model.delays() && delayed.needs_link_order(Channel::Wifi, now.0, &model);
+    let stateful = model.burst.is_some() || ordered;
     let s = &mut *scratch;
     s.senders.clear();
-    for (state, mut mailbox) in &mut mailboxes {
+    for (_, state, mut mailbox) in &mut mailboxes {
         if !mailbox.wifi_out.is_empty() {
             s.senders.push((mailbox.owner(), state.position, mailbox.wifi_out.len() as u32));
             s.buffer.append(&mut mailbox.wifi_out);
@@ -433,79 +660,54 @@ pub fn deliver_wifi(
             index: i as u32,
         }),
     );
+    let input = WifiRound {
+        model,
+        range: config.wifi_range,
+        seed,
+        round,
+        now_us: now.0,
+        epoch: epoch.0,
+        batch: &batch,
+        senders: &s.senders,
+        starts: &s.starts,
+        grid: &s.grid,
+    };
+    let mut items: Vec<WifiItem<'_>> = recycle(std::mem::take(&mut s.items));
+    items.extend(mailboxes.iter_mut());
+    if stateful {
+        if s.threads.is_empty() {
+            s.threads.push(WifiThread::default());
+        }
+        input.receive(&mut items, &mut s.threads[0], Some(&mut links.wifi));
+    } else {
+        let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
+        parallelism.for_each_chunk(&mut items, &mut s.threads, |chunk, t| input.receive(chunk, t, None));
+    }
+    s.items = recycle(items);
+    let mut record = model.delays().then(|| delayed.open(Channel::Wifi, round, &batch));
     let mut delivered = 0;
-    for (state, mut mailbox) in &mut mailboxes {
-        let owner = mailbox.owner();
-        s.heard.clear();
-        let heard = &mut s.heard;
-        s.grid.for_each_within(state.position, config.wifi_range, |_, e, _| {
-            if e.id != owner {
-                heard.push(e.index);
-            }
-        });
-        s.heard.sort_unstable();
-        let (senders, starts) = (&s.senders, &s.starts);
-        let attempted = s.heard.iter().map(|&i| senders[i as usize].2 as u64).sum::<u64>();
-        channel.wifi.sent += attempted;
-        if model.is_perfect() {
-            let picks = s.heard.iter().flat_map(|&i| {
-                let start = starts[i as usize];
-                start..start + senders[i as usize].2
-            });
-            for &i in &s.heard {
-                let start = starts[i as usize] as usize;
-                for m in &batch[start..start + senders[i as usize].2 as usize] {
-                    channel.wifi.age_sum_us += now.0.saturating_sub(m.sent_at.0);
-                }
-            }
-            channel.wifi.aged += attempted;
-            channel.wifi.delivered += attempted;
-            delivered += attempted;
-            mailbox.wifi_in.deliver_picks(epoch.0, round, &batch, owner, picks);
-            continue;
-        }
-        s.picks.clear();
-        for &i in &s.heard {
-            let (sender, position, count) = senders[i as usize];
-            let distance = position.distance(state.position);
-            let mut fresh = LinkState::default();
-            let link = if stateful { links.wifi.entry((sender, owner)).or_default() } else { &mut fresh };
-            for index in 0..count {
-                let k = starts[i as usize] + index;
-                let draw = Draw { seed, stream: WIFI_STREAM, sender: sender.0, receiver: owner.0, round, index };
-                let Some(delay) = model.deliver(&draw, now.0, distance, config.wifi_range, link) else { continue };
-                channel.wifi.delivered += 1;
-                if model.delays() {
-                    channel.wifi.add_delay(delay);
-                    delayed.pending.push(Pending {
-                        due_us: now.0 + delay,
-                        receiver: owner,
-                        channel: Channel::Wifi,
-                        round,
-                        batch: Arc::clone(&batch),
-                        index: k,
-                    });
-                } else {
-                    channel.wifi.age_sum_us += now.0.saturating_sub(batch[k as usize].sent_at.0);
-                    channel.wifi.aged += 1;
-                    s.picks.push(k);
-                }
+    for t in &mut s.threads {
+        delivered += std::mem::take(&mut t.delivered);
+        channel.wifi.absorb(&mut t.stats, t.bins);
+        t.bins = (usize::MAX, 0);
+        if let Some(record) = &mut record {
+            for r in t.receptions.drain(..) {
+                record.push(r.receiver, r.index, r.due_us);
             }
         }
-        if !model.delays() {
-            delivered += s.picks.len() as u64;
-            mailbox.wifi_in.deliver_picks(epoch.0, round, &batch, owner, s.picks.iter().copied());
-        }
+    }
+    if let Some(record) = record {
+        delayed.keep(record);
     }
     stats.wifi_delivered += delivered;
 }
 
 /// Put the delayed receptions that are due into their in-boxes (control phase, before the
-/// controllers): per receiver and round in one delivery, in round order, so a link keeps its order.
+/// controllers): per receiver and round in one delivery, rounds in the order they ran, so a
+/// receiver's in-box holds its rounds in order and a link keeps its order.
 pub fn deliver_delayed(
     clock: Res<SimClock>,
     epoch: Res<ControlEpoch>,
-    registry: Res<Vehicles>,
     mut stats: ResMut<V2vStats>,
     mut channel: ResMut<V2vChannelStats>,
     mut delayed: ResMut<DelayedMessages>,
@@ -513,51 +715,63 @@ pub fn deliver_delayed(
 ) {
     let now = clock.now.0;
     let d = &mut *delayed;
-    if d.pending.is_empty() {
-        return;
-    }
-    d.due.clear();
     let mut k = 0;
-    while k < d.pending.len() {
-        if d.pending[k].due_us <= now {
-            d.due.push(d.pending.swap_remove(k));
-        } else {
+    while k < d.rounds.len() {
+        let r = &mut d.rounds[k];
+        if r.first_due_us > now {
             k += 1;
+            continue;
         }
-    }
-    // swap_remove scrambles the order: sort what is due by (receiver, channel, round, index).
-    d.due.sort_by_key(|p| (p.receiver, p.channel, p.round, p.index));
-    let mut start = 0;
-    while start < d.due.len() {
-        let first = &d.due[start];
-        let end = start
-            + d.due[start..]
-                .iter()
-                .take_while(|p| (p.receiver, p.channel, p.round) == (first.receiver, first.channel, first.round))
-                .count();
-        let group = &d.due[start..end];
-        d.picks.clear();
-        d.picks.extend(group.iter().map(|p| p.index));
-        let stats_of = match first.channel {
+        let stats_of = match r.channel {
             Channel::Wifi => &mut channel.wifi,
             Channel::Network => &mut channel.network,
         };
-        for p in group {
-            stats_of.age_sum_us += now.saturating_sub(p.batch[p.index as usize].sent_at.0);
-            stats_of.aged += 1;
+        // Deliver what is due, receiver by receiver (their receptions are consecutive), and
+        // keep the rest in order at the front of the buffer.
+        let (mut i, mut kept, mut delivered) = (0, 0, 0u64);
+        let (mut first_due, mut last_due) = (u64::MAX, 0);
+        while i < r.receptions.len() {
+            let receiver = r.receptions[i].receiver;
+            d.picks.clear();
+            while i < r.receptions.len() && r.receptions[i].receiver == receiver {
+                let reception = r.receptions[i];
+                if reception.due_us <= now {
+                    d.picks.push(reception.index);
+                    stats_of.age_sum_us += now.saturating_sub(r.batch[reception.index as usize].sent_at.0);
+                } else {
+                    (first_due, last_due) = (first_due.min(reception.due_us), last_due.max(reception.due_us));
+                    r.receptions[kept] = reception;
+                    kept += 1;
+                }
+                i += 1;
+            }
+            if d.picks.is_empty() {
+                continue;
+            }
+            delivered += d.picks.len() as u64;
+            if let Ok(mut mailbox) = mailboxes.get_mut(receiver) {
+                let owner = mailbox.owner();
+                let inbox = match r.channel {
+                    Channel::Wifi => &mut mailbox.wifi_in,
+                    Channel::Network => &mut mailbox.network_in,
+                };
+                inbox.deliver_picks(epoch.0, r.round, &r.batch, owner, d.picks.iter().copied());
+            }
         }
-        match first.channel {
-            Channel::Wifi => stats.wifi_delivered += group.len() as u64,
-            Channel::Network => stats.network_delivered += group.len() as u64,
+        stats_of.aged += delivered;
+        match r.channel {
+            Channel::Wifi => stats.wifi_delivered += delivered,
+            Channel::Network => stats.network_delivered += delivered,
         }
-        if let Some(mut mailbox) = registry.get(first.receiver).and_then(|e| mailboxes.get_mut(e).ok()) {
-            let inbox = match first.channel {
-                Channel::Wifi => &mut mailbox.wifi_in,
-                Channel::Network => &mut mailbox.network_in,
-            };
-            inbox.deliver_picks(epoch.0, first.round, &first.batch, first.receiver, d.picks.iter().copied());
+        r.receptions.truncate(kept);
+        (r.first_due_us, r.last_due_us) = (first_due, last_due);
+        if kept == 0 {
+            if let Some(done) = d.rounds.remove(k) {
+                d.spare.push(done.receptions);
+            }
+        } else {
+            k += 1;
         }
-        start = end;
     }
 }
 

@@ -1,7 +1,7 @@
 //! The benchmark world: N vehicles on a generated three-lane ring highway
 //! ([`crate::map::generate::ring_highway`]) whose radius grows with N so the spacing stays at
-//! highway gaps, with every module on (dynamics, radar + velodyne, wifi, network with one beacon
-//! per vehicle per round, path following). Used by `smlworld bench` and the criterion benches.
+//! highway gaps, with every module on (dynamics, radar + velodyne, wifi and network with one
+//! beacon per vehicle per round, path following). Used by `smlworld bench` and the criterion benches.
 //! `degraded` (`smlworld bench --degraded`) puts [`DEGRADED_WIFI`] and [`DEGRADED_NETWORK`] on
 //! the V2V channels and [`degraded_radar`] on every vehicle's radar (issue 21 item 7), to
 //! measure what per-reception and per-detection randomness costs.
@@ -113,6 +113,15 @@ pub fn send_beacons(clock: Res<SimClock>, mut vehicles: Query<(&VehicleState, &m
     }
 }
 
+/// Queue one small wifi message (the vehicle's speed [m/s]) per vehicle: the cooperative
+/// awareness beacon every CACC vehicle sends each wifi round, so the wifi fan-out (and, when
+/// degraded, its per-reception loss and delay) is inside the benchmark's figures.
+pub fn send_wifi_beacons(clock: Res<SimClock>, mut vehicles: Query<(&VehicleState, &mut Mailbox)>) {
+    for (state, mut mailbox) in &mut vehicles {
+        mailbox.send(Channel::Wifi, clock.now, Arc::new(state.speed()));
+    }
+}
+
 impl BenchWorld {
     /// The generated ring: inner edge radius [m] large enough for every vehicle to have about
     /// `spacing` metres of lane, and the node spacing [m] that keeps the chord error.
@@ -154,6 +163,13 @@ impl BenchWorld {
         b.add_systems(
             Control,
             send_beacons.in_set(SimSystems::Control).run_if(move |clock: Res<SimClock>| clock.now.0 % period == 0),
+        );
+        let wifi_period = SimTime::from_secs(1.0 / rates.wifi).0.max(1);
+        b.add_systems(
+            Control,
+            send_wifi_beacons
+                .in_set(SimSystems::Control)
+                .run_if(move |clock: Res<SimClock>| clock.now.0 % wifi_period == 0),
         );
         if self.degraded {
             let wifi_range = V2vConfig::default().wifi_range;
