@@ -356,3 +356,55 @@ fn constant_network_loss_is_the_same_on_any_thread_count_and_differs_by_seed() {
     assert_ne!(lost_of(&a[0][0], -1), lost_of(&a[0][1], -2));
     assert_ne!(lost_of(&a[0][0], -1), lost_of(&a[2][0], -1));
 }
+
+/// The wifi messages (send time [µs], payload) vehicle -2 received from -1, in the order its
+/// in-box held them, over 400 wifi rounds with -1 sending two messages each round; `threads` split the
+/// wifi round.
+fn wifi_arrivals(model: ChannelModel, threads: usize) -> Vec<(u64, u32)> {
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model, ..Default::default() } });
+    b.insert_resource(Parallelism::split(threads));
+    parked(&mut b, -1, DVec2::ZERO);
+    parked(&mut b, -2, DVec2::new(10.0, 0.0));
+    parked(&mut b, -3, DVec2::new(20.0, 0.0));
+    let mut sim = b.build();
+    let (mut arrivals, mut seen) = (Vec::new(), std::collections::HashSet::new());
+    for step in 0..800 {
+        // Control ticks every 50 ms, wifi rounds every 100 ms: send before every other tick.
+        if step % 2 == 0 {
+            let (e, now) = (sim.entity(VehicleId(-1)).unwrap(), sim.now());
+            let mut mailbox = sim.world_mut().get_mut::<Mailbox>(e).unwrap();
+            mailbox.send(Channel::Wifi, now, Arc::new(1u32));
+            mailbox.send(Channel::Wifi, now, Arc::new(2u32));
+        }
+        sim.run_for(0.05);
+        let e = sim.entity(VehicleId(-2)).unwrap();
+        // An in-box holds its rounds until the next delivery: take each message once.
+        let inbox = &sim.world().get::<Mailbox>(e).unwrap().wifi_in;
+        for m in inbox.iter().filter(|m| m.sender == VehicleId(-1)) {
+            let message = (m.sent_at.0, *m.payload::<u32>().unwrap());
+            if seen.insert(message) {
+                arrivals.push(message);
+            }
+        }
+    }
+    arrivals
+}
+
+#[test]
+fn a_link_keeps_its_order_whether_the_jitter_is_narrower_or_wider_than_the_rounds() {
+    // 10 Hz wifi: 40 ms of jitter fits between two rounds (no state kept per link), 350 ms
+    // spans four rounds (the link's last due time is kept).
+    for jitter_ms in [40.0, 350.0] {
+        let model = ChannelModel { delay_ms: 5.0, jitter_ms, ..Default::default() };
+        let arrivals = wifi_arrivals(model, 1);
+        assert!(arrivals.len() >= 790, "jitter {jitter_ms}: {} of 800 arrived", arrivals.len());
+        let bad = arrivals.windows(2).position(|w| w[0] > w[1]);
+        assert!(
+            arrivals.is_sorted(),
+            "jitter {jitter_ms}: at {bad:?} {:?}: a message overtook an earlier one on its link",
+            bad.map(|i| &arrivals[i.saturating_sub(4)..(i + 4).min(arrivals.len())])
+        );
+        assert_eq!(arrivals, wifi_arrivals(model, 2), "jitter {jitter_ms}: threads changed the arrivals");
+    }
+}

@@ -268,12 +268,13 @@ impl DelayedMessages {
     /// are ordered within the round (see [`LinkOrder`]); across rounds nothing can overtake
     /// when the rounds lie further apart than the delay's spread, since then every message of
     /// this round is due after every one of the previous round; so with a fixed rate and a
-    /// jitter below its period no per-link state is kept for delays. The first round has no
-    /// earlier message to overtake.
+    /// jitter below its period no per-link state is kept for delays after the first round
+    /// (which keeps it: the spacing is not known yet, and the second round may need it). A
+    /// channel's rounds run at its fixed rate, so the spacing does not change within a run.
     fn needs_link_order(&mut self, channel: Channel, now_us: u64, model: &ChannelModel) -> bool {
         let slot = &mut self.previous_round_us[channel as usize];
         let previous = slot.replace(now_us);
-        previous.is_some_and(|p| now_us.saturating_sub(p) < model.delay_spread_us())
+        previous.is_none_or(|p| now_us.saturating_sub(p) < model.delay_spread_us())
     }
 }
 
