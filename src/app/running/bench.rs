@@ -14,7 +14,10 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 use crate::map::generate::{GenerateError, RingParams, ring_highway, ring_lane_tag};
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
 use crate::sim::channel::{ChannelModel, Loss};
-use crate::sim::{Control, Dynamics, Parallelism, Rates, SimClock, SimSeed, SimSystems, V2vConfig};
+use crate::sim::{
+    ChannelStats, Control, Dynamics, Parallelism, Rates, SensorStats, SimClock, SimSeed, SimSystems, V2vChannelStats,
+    V2vConfig,
+};
 use crate::vehicles::{
     FollowLaw, Idm, IdmController, IdmPlugin, LaneChangeLog, LaneChangeParams, LaneChangePlugin, LaneChanger,
     LanePosition, LanesPlugin, RouteGoal,
@@ -319,6 +322,38 @@ pub struct BenchReport {
     pub modules: Vec<ModuleTime>,
     /// Peak resident memory of the process [MB] (Linux only).
     pub peak_rss_mb: Option<f64>,
+    /// What the V2V channels carried, counted per receiver (as `summary.json`'s
+    /// `metrics.v2v`): the evidence that the wifi fan-out, and a degraded run's loss and delay,
+    /// are inside the figures.
+    pub v2v: BenchV2v,
+    /// What the sensors detected and missed (as `summary.json`'s `metrics.sensors`).
+    pub sensor_stats: SensorStats,
+}
+
+/// One channel's receptions in a benchmark run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct BenchChannel {
+    /// Receptions attempted (message, receiver in range).
+    pub sent: u64,
+    /// Receptions not lost.
+    pub delivered: u64,
+    /// Mean delivery delay [ms].
+    pub delay_ms_mean: f64,
+}
+
+impl From<&ChannelStats> for BenchChannel {
+    fn from(c: &ChannelStats) -> Self {
+        BenchChannel { sent: c.sent, delivered: c.delivered, delay_ms_mean: c.delay_ms_mean() }
+    }
+}
+
+/// Both channels' receptions in a benchmark run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct BenchV2v {
+    /// The wifi channel (one beacon per vehicle per round).
+    pub wifi: BenchChannel,
+    /// The network channel (one beacon per vehicle per round).
+    pub network: BenchChannel,
 }
 
 /// Processor time this process has used so far, user and system, all threads [s].
@@ -408,6 +443,11 @@ impl BenchWorld {
             us_per_vehicle_sim_second: wall_seconds * 1e6 / (self.vehicles as f64 * duration),
             modules,
             peak_rss_mb: peak_rss_mb(),
+            v2v: {
+                let c = sim.world().resource::<V2vChannelStats>();
+                BenchV2v { wifi: (&c.wifi).into(), network: (&c.network).into() }
+            },
+            sensor_stats: *sim.world().resource::<SensorStats>(),
         })
     }
 }
@@ -466,6 +506,27 @@ mod tests {
         for key in ["map", "vehicles", "sensors", "rates", "threads", "modules", "vehicle_steps_per_cpu_second"] {
             assert!(json.get(key).is_some(), "JSON lacks `{key}`");
         }
+    }
+
+    #[test]
+    fn the_bench_sends_wifi_beacons_that_a_degraded_run_loses_and_delays() {
+        let plain = BenchWorld { vehicles: 300, ..Default::default() };
+        let degraded = BenchWorld { degraded: true, ..plain };
+        let (p, d) = (plain.run(2.0, None).expect("runs"), degraded.run(2.0, None).expect("runs"));
+        // 300 vehicles 40 m apart on three lanes each hear a few others within 50 m, 20 rounds.
+        for r in [&p, &d] {
+            assert!(r.v2v.wifi.sent > 300 * 20 * 2, "wifi receptions {}", r.v2v.wifi.sent);
+            assert!(r.v2v.network.sent >= 300 * 299, "network receptions {}", r.v2v.network.sent);
+        }
+        assert_eq!(p.v2v.wifi.delivered, p.v2v.wifi.sent);
+        assert_eq!(p.v2v.wifi.delay_ms_mean, 0.0);
+        assert_eq!(p.sensor_stats.missed_by_dropout, 0);
+        let share = d.v2v.wifi.delivered as f64 / d.v2v.wifi.sent as f64;
+        assert!((share - 0.9).abs() < 0.02, "degraded wifi delivered {share} (10 % loss)");
+        // 10 ms delay plus uniform [0, 5) ms of jitter.
+        assert!((d.v2v.wifi.delay_ms_mean - 12.5).abs() < 0.2, "mean delay {}", d.v2v.wifi.delay_ms_mean);
+        let dropped = d.sensor_stats.missed_by_dropout as f64 / (d.sensor_stats.detections as f64);
+        assert!(dropped > 0.001 && dropped < 0.02, "radar dropout share {dropped}");
     }
 
     #[test]
