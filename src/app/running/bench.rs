@@ -388,7 +388,12 @@ impl BenchWorld {
     /// Build the world, run it for `duration` sim seconds with `parallelism` (the default when
     /// `None`) and the scheduler's per-module timing on, and say what was measured.
     pub fn run(&self, duration: f64, parallelism: Option<Parallelism>) -> Result<BenchReport, BenchError> {
-        let lanes = self.lanes()?;
+        // The middle lane's length, its map dropped before the world builds its own (two copies
+        // of a 100,000-vehicle ring's lanes would double the setup's memory peak).
+        let lane_length_m = {
+            let lanes = self.lanes()?;
+            lanes[lanes.len() / 2].length
+        };
         let ring = self.ring();
         let mut builder = self.builder()?;
         let parallelism = parallelism.unwrap_or_default();
@@ -415,7 +420,7 @@ impl BenchWorld {
                 lanes: ring.lanes,
                 radius_m: ring.radius,
                 lane_width_m: ring.lane_width,
-                lane_length_m: lanes[lanes.len() / 2].length,
+                lane_length_m,
             },
             vehicles: self.vehicles,
             degraded: self.degraded,
