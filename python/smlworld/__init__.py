@@ -248,6 +248,13 @@ ENVS = {
     "smlworld/HighwayMerge-v0": "smlworld.envs.merge:HighwayMergeEnv",
 }
 
+#: Their vector envs stepped in Rust (``smlworld.envs.make_vec``): what ``gymnasium.make_vec``
+#: builds for them unless told ``vectorization_mode="sync"`` or ``"async"``.
+VECTOR_ENVS = {
+    "smlworld/PlatoonFollow-v0": "smlworld.envs.vector:platoon_follow_vec",
+    "smlworld/HighwayMerge-v0": "smlworld.envs.vector:highway_merge_vec",
+}
+
 
 def _register_envs() -> None:
     """Register the Gymnasium environments on a plain ``import smlworld`` (by name: their
@@ -259,7 +266,7 @@ def _register_envs() -> None:
         return
     for env_id, entry_point in ENVS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry_point)
+            gymnasium.register(id=env_id, entry_point=entry_point, vector_entry_point=VECTOR_ENVS[env_id])
 
 
 _register_envs()

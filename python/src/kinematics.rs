@@ -63,3 +63,19 @@ pub fn command(session: &mut Session, id: i32, throttle: f64, change: Option<&st
     }
     session.set_commands(&[id], Some(&[throttle]), None, None)
 }
+
+/// One learning step in one call (`Sim.drive`): [`command`], advance `dt` [s], then
+/// [`observe`].
+pub fn drive(
+    session: &mut Session,
+    id: i32,
+    throttle: f64,
+    change: Option<&str>,
+    dt: f64,
+    nearest: usize,
+    footprint: (f64, f64),
+) -> Result<Kinematics, SessionError> {
+    command(session, id, throttle, change)?;
+    session.step(dt)?;
+    observe(session, id, nearest, footprint)
+}

@@ -18,6 +18,7 @@ use smlworld::map::{LaneletMap, MapError, Place, RouteOptions};
 
 mod controllers;
 mod kinematics;
+mod vec;
 
 fn scenario_err(e: ScenarioError) -> PyErr {
     match &e {
@@ -529,6 +530,7 @@ fn load_map(py: Python<'_>, path: PathBuf) -> PyResult<Map> {
 fn _smlworld(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Core>()?;
     m.add_class::<Map>()?;
+    m.add_class::<vec::VecCore>()?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(load_map, m)?)?;
     Ok(())
