@@ -23,6 +23,11 @@ use smlworld::sim::{Control, SimClock, SimSystems};
 use smlworld::vehicles::{LongitudinalSystems, SteeringSystems};
 use smlworld::world::{ControlCommand, SimTime, VehicleId, VehicleState, Vehicles};
 
+/// What the Python side of a controller returns: throttle [N], steering [rad] and speed [m/s]
+/// columns, each one value per vehicle or None.
+type Commands<'py> =
+    (Option<PyReadonlyArray1<'py, f64>>, Option<PyReadonlyArray1<'py, f64>>, Option<PyReadonlyArray1<'py, f64>>);
+
 /// One Python controller: a callable for a batch of vehicles at a rate.
 struct PyController {
     /// The vehicles it drives, in the order of its arrays.
@@ -77,11 +82,7 @@ impl PyController {
     fn run(&self, py: Python<'_>, world: &mut World, now: SimTime) -> PyResult<()> {
         let obs = self.observation(py, world, now)?;
         let out = self.call.bind(py).call1((obs,))?;
-        let (throttle, steering, speed): (
-            Option<PyReadonlyArray1<'_, f64>>,
-            Option<PyReadonlyArray1<'_, f64>>,
-            Option<PyReadonlyArray1<'_, f64>>,
-        ) = out.extract()?;
+        let (throttle, steering, speed): Commands<'_> = out.extract()?;
         let mut columns: [Option<Vec<f64>>; 3] = [None, None, None];
         for ((name, col), slot) in
             [("throttle", &throttle), ("steering", &steering), ("speed", &speed)].into_iter().zip(&mut columns)

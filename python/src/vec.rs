@@ -3,9 +3,9 @@
 //!
 //! The design is EnvPool's and gymnasium's `SyncVectorEnv` in one object: actions come in as one
 //! numpy array, every environment steps on the crate's persistent thread pool with the GIL
-//! released (the threads of [`Parallelism::for_each_chunk`] taking environments one by one, see
-//! [`run`]; each environment depends on itself only, so the results do not depend on the thread
-//! count), and observations, rewards and flags are written into numpy arrays the Python side
+//! released (the threads of [`Parallelism::for_each_chunk`], each with its share of the
+//! environments and helping the others when done, see [`run`]; each environment depends on
+//! itself only, so the results do not depend on the thread count), and observations, rewards and flags are written into numpy arrays the Python side
 //! allocated once. Episodes end and start again inside the call
 //! with gymnasium 1.x's default next-step autoreset (`AutoresetMode.NEXT_STEP`): the step that
 //! ends an episode returns its last observation; the next step ignores that environment's
@@ -300,24 +300,39 @@ impl Slot {
 }
 
 /// Call `f` on every slot on the shared pool, `threads` threads at most (the calling thread is
-/// one of them). The threads take environments one at a time from a shared counter, so a thread
-/// that the machine slows down (another process on its core, an environment resetting) takes
-/// fewer: static halves would wait for the slower one. Every environment's result depends on
-/// itself only, so any assignment gives the same bits.
+/// one of them). Thread `w` owns the `w`-th contiguous share of the environments and takes them
+/// in order, so an environment's world stays in the cache of the core that stepped it last;
+/// a thread done with its share takes the next untaken environments of the others', so a thread
+/// that the machine slows down (another process on its core, an environment resetting) does not
+/// hold the step up. Every environment's result depends on itself only, so any assignment gives
+/// the same bits.
 pub fn run(slots: &mut [Slot], threads: usize, f: impl Fn(&mut Slot) + Sync) {
-    let threads = threads.clamp(1, slots.len().max(1));
+    let n = slots.len();
+    let threads = threads.clamp(1, n.max(1));
     if threads == 1 {
         slots.iter_mut().for_each(f);
         return;
     }
+    let share = n.div_ceil(threads);
     // One lock per slot, never contended: each index is handed out once.
     let cells: Vec<Mutex<&mut Slot>> = slots.iter_mut().map(Mutex::new).collect();
-    let next = AtomicUsize::new(0);
-    let mut workers = vec![(); threads];
+    // The next untaken environment of each share (past its end: none left).
+    let next: Vec<AtomicUsize> = (0..threads).map(|w| AtomicUsize::new(w * share)).collect();
+    let mut workers: Vec<usize> = (0..threads).collect();
     let parallelism = Parallelism { threads, min_vehicles: 2 };
-    parallelism.for_each_chunk(&mut workers, &mut Vec::<()>::new(), |_, _| {
-        while let Some(cell) = cells.get(next.fetch_add(1, Ordering::Relaxed)) {
-            f(&mut cell.lock().unwrap_or_else(PoisonError::into_inner));
+    parallelism.for_each_chunk(&mut workers, &mut Vec::<()>::new(), |chunk, _| {
+        for &mut w in chunk {
+            for k in 0..threads {
+                let v = (w + k) % threads;
+                let end = ((v + 1) * share).min(n);
+                loop {
+                    let i = next[v].fetch_add(1, Ordering::Relaxed);
+                    if i >= end {
+                        break;
+                    }
+                    f(&mut cells[i].lock().unwrap_or_else(PoisonError::into_inner));
+                }
+            }
         }
     });
 }
