@@ -3,9 +3,15 @@ per second of the PettingZoo platoon (n agents), and, side by side, highway-env'
 and merge-v0 (installed on demand), each with random actions.
 
     python python/bench/bench_envs.py [--steps 2000] [--agents 10] [--no-highway-env] [--repeat 1]
+    python python/bench/bench_envs.py --vec 64 [--steps 2000] [--threads 2] [--repeat 3]
 
 With ``--repeat N`` every measurement runs N times, ours and highway-env's taking turns (so the
 pairs share the machine's load of the moment), and each line gives min / median / max.
+
+``--vec N`` measures the vector envs instead (``smlworld.envs.make_vec(env_id, num_envs=N)``,
+stepped in Rust in one call per step): env-steps per second = ``--steps`` vector steps x N envs
+over the wall time of the steps, autoresets included (PlatoonFollow-v0 under the vectorised
+follower policy, HighwayMerge-v0 under random discrete actions).
 """
 
 import argparse
@@ -77,6 +83,45 @@ def bench_highway_env(steps, name="highway-fast-v0"):
     return bench_random(name, steps)
 
 
+def bench_vec(name, num_envs, steps, threads):
+    """Env-steps per second of ``make_vec(name, num_envs)`` (see the module documentation)."""
+    from smlworld.envs import make_vec
+
+    envs = make_vec(name, num_envs=num_envs, seed=0, threads=threads)
+    obs, _ = envs.reset(seed=0)
+    rng = np.random.default_rng(0)
+    if name.endswith("PlatoonFollow-v0"):
+
+        def policy(obs):
+            v, gap, dv = obs[:, 0], obs[:, 1], obs[:, 2]
+            return (0.5 * (gap - (5 + v)) + dv).reshape(-1, 1)
+
+    else:
+
+        def policy(obs):
+            return rng.integers(0, 5, size=num_envs)
+
+    for _ in range(10):  # warm up: every episode started, the pool's threads running
+        obs, *_ = envs.step(policy(obs))
+    t = time.perf_counter()
+    for _ in range(steps):
+        obs, *_ = envs.step(policy(obs))
+    return steps * num_envs / (time.perf_counter() - t), envs.threads
+
+
+def main_vec(args):
+    """``--vec N``: the vector envs' figures."""
+    for name in ("smlworld/PlatoonFollow-v0", "smlworld/HighwayMerge-v0"):
+        runs = []
+        for _ in range(max(1, args.repeat)):
+            rate, threads = bench_vec(name, args.vec, args.steps, args.threads)
+            runs.append(rate)
+        print(
+            f"{name.split('/')[1]} make_vec(num_envs={args.vec}): {spread(runs, '{:,.0f}')} env-steps/s "
+            f"({args.steps} steps x {args.vec} envs, {threads} threads)"
+        )
+
+
 def spread(values, fmt):
     """``fmt`` of one value, or "min / median / max" of several."""
     if len(values) == 1:
@@ -90,7 +135,12 @@ def main():
     ap.add_argument("--agents", type=int, default=10)
     ap.add_argument("--no-highway-env", action="store_true")
     ap.add_argument("--repeat", type=int, default=1, help="runs of each measurement (min / median / max)")
+    ap.add_argument("--vec", type=int, default=0, metavar="N", help="measure the vector envs with N envs instead")
+    ap.add_argument("--threads", type=int, default=None, help="--vec: threads per step (default: the machine's, at most 4)")
     args = ap.parse_args()
+    if args.vec:
+        main_vec(args)
+        return
     n = max(50, args.steps // 20)
     runs = {k: [] for k in ("pf", "pp", "he", "hm", "mv")}
     for _ in range(max(1, args.repeat)):

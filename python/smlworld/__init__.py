@@ -29,12 +29,12 @@ class Sim:
     """A scenario's simulation, advanced by the caller.
 
     Build it with :meth:`Sim.from_scenario`. Python controllers added with
-    :meth:`add_controller` run at their rate between chunks of Rust stepping.
+    :meth:`add_controller` run inside the Control phase of the ticks they are due, as Rust
+    controllers do.
     """
 
     def __init__(self, core: "_smlworld.Core"):
         self._core = core
-        self._controllers: List[Tuple[np.ndarray, Callable, float, int]] = []
 
     @classmethod
     def from_scenario(cls, path, seed: Optional[int] = None, **overrides) -> "Sim":
@@ -56,7 +56,6 @@ class Sim:
         if seed < 0:
             raise ValueError(f"seed must be >= 0, got {seed}")
         self._core.restart(seed)
-        self._controllers = []
 
     def stop_metrics(self) -> None:
         """Stop recording the summary's ``metrics`` (collisions, gaps, speeds) from now on, for
@@ -86,9 +85,7 @@ class Sim:
         """One learning step in one call: ask vehicle ``id`` to change lanes to ``change``
         (``"left"``, ``"right"`` or ``None``; a refusal is silent, as :meth:`change_lane`'s
         False), set its ``throttle`` [N] as :meth:`set_commands` does, advance ``dt`` [s], and
-        return :meth:`kinematics` of ``id``. Python controllers do not run (use :meth:`step`)."""
-        if self._controllers:
-            raise RuntimeError("drive() does not run Python controllers; use set_commands() and step()")
+        return :meth:`kinematics` of ``id``. Python controllers run on the way, as in :meth:`step`."""
         return self._core.drive(id, throttle, change, dt, nearest, footprint)
 
     @property
@@ -103,35 +100,11 @@ class Sim:
 
     def step(self, dt: float) -> None:
         """Advance sim time by ``dt`` [s] through the normal multi-rate schedule; Python
-        controllers run at their ticks on the way."""
+        controllers run inside the control ticks on the way (see :meth:`add_controller`)."""
         dt = float(dt)
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"dt must be a finite number of seconds >= 0, got {dt}")
-        if not self._controllers:
-            self._core.step(dt)
-            return
-        end = self.time + dt
-        while True:
-            now = self.time
-            due = [(k, c) for k, c in enumerate(self._controllers) if c[3] / c[2] <= now + 1e-9]
-            for k, (ids, fn, rate, tick) in due:
-                self._call(ids, fn)
-                self._controllers[k] = (ids, fn, rate, tick + 1)
-            nxt = min(c[3] / c[2] for c in self._controllers)
-            if nxt >= end - 1e-9:
-                self._core.step(max(0.0, end - now))
-                return
-            self._core.step(nxt - now)
-
-    def _call(self, ids: np.ndarray, fn: Callable) -> None:
-        obs = self.observe(ids)
-        act = fn(obs)
-        if not isinstance(act, dict):
-            raise TypeError(f"a controller must return a dict of arrays, got {type(act).__name__}")
-        unknown = set(act) - {"throttle", "steering", "speed"}
-        if unknown:
-            raise ValueError(f"controller returned unknown keys {sorted(unknown)}; allowed: throttle, steering, speed")
-        self.set_commands(ids, **act)
+        self._core.step(dt)
 
     def observe(self, ids) -> Dict[str, np.ndarray]:
         """The observation a Python controller gets: ``id, x, y, yaw, vx, vy`` for ``ids``
@@ -193,16 +166,41 @@ class Sim:
         self._core.clear_commands(np.ascontiguousarray(ids, dtype=np.int32).reshape(-1))
 
     def add_controller(self, ids, fn: Callable[[dict], dict], rate: float = 20.0) -> None:
-        """Call ``fn(obs) -> dict`` every ``1/rate`` s of sim time for the whole batch ``ids``
-        (one call per tick). ``obs`` is :meth:`observe` of ``ids``; the result holds arrays
-        ``throttle`` [N], ``steering`` [rad] and/or ``speed`` [m/s], one value per id."""
+        """Call ``fn(obs) -> dict`` for the whole batch ``ids`` (one call per tick) at ``rate``
+        [Hz], at most the scenario's control rate. Each call runs inside the Control phase of
+        the control tick it is due, where a Rust controller runs: after that instant's sensor
+        and V2V rounds, and the commands it returns drive the dynamics step that starts at that
+        tick, so a Python controller at the control rate behaves like a Rust one, whatever
+        chunks :meth:`step` is called with. (A rate that does not divide the control rate runs
+        at the first control tick at or after each of its due times ``k / rate``.)
+
+        ``obs`` is :meth:`observe` of ``ids`` at the tick; the result is a dict of arrays
+        ``throttle`` [N], ``steering`` [rad] and/or ``speed`` [m/s], one finite value per id,
+        which act like :meth:`set_commands` (they stay until replaced or cleared). An exception
+        in ``fn``, or a bad result, stops :meth:`step` at that tick (``time`` is the tick's) and
+        is raised from it. Inside ``fn`` this Sim cannot be called (it is stepping): read what
+        the observation lacks, or send messages, between steps."""
         rate = float(rate)
-        if not math.isfinite(rate) or rate <= 0:
-            raise ValueError(f"rate must be a positive number of Hz, got {rate}")
         ids = np.ascontiguousarray(ids, dtype=np.int32).reshape(-1)
-        self.observe(ids)  # unknown ids fail here, not at the first tick
-        tick = math.ceil(self.time * rate - 1e-9)
-        self._controllers.append((ids, fn, rate, tick))
+        name = getattr(fn, "__qualname__", None) or repr(fn)
+
+        def call(obs):
+            act = fn(obs)
+            if not isinstance(act, dict):
+                raise TypeError(f"controller {name} must return a dict of arrays, got {type(act).__name__}")
+            unknown = set(act) - {"throttle", "steering", "speed"}
+            if unknown:
+                raise ValueError(
+                    f"controller {name} returned unknown keys {sorted(unknown)}; allowed: throttle, steering, speed"
+                )
+
+            def col(key):
+                a = act.get(key)
+                return None if a is None else np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+
+            return col("throttle"), col("steering"), col("speed")
+
+        self._core.add_controller(ids.tolist(), call, rate, name)
 
     def frame(self, width: int = 640, height: int = 480) -> np.ndarray:
         """The bird's-eye view of the map with the vehicles now: an (height, width, 4) uint8 RGBA
@@ -250,6 +248,13 @@ ENVS = {
     "smlworld/HighwayMerge-v0": "smlworld.envs.merge:HighwayMergeEnv",
 }
 
+#: Their vector envs stepped in Rust (``smlworld.envs.make_vec``): what ``gymnasium.make_vec``
+#: builds for them unless told ``vectorization_mode="sync"`` or ``"async"``.
+VECTOR_ENVS = {
+    "smlworld/PlatoonFollow-v0": "smlworld.envs.vector:platoon_follow_vec",
+    "smlworld/HighwayMerge-v0": "smlworld.envs.vector:highway_merge_vec",
+}
+
 
 def _register_envs() -> None:
     """Register the Gymnasium environments on a plain ``import smlworld`` (by name: their
@@ -261,7 +266,7 @@ def _register_envs() -> None:
         return
     for env_id, entry_point in ENVS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry_point)
+            gymnasium.register(id=env_id, entry_point=entry_point, vector_entry_point=VECTOR_ENVS[env_id])
 
 
 _register_envs()

@@ -53,3 +53,29 @@ pub fn observe(
     rows.resize(nearest + 1, [0.0; 5]);
     Ok(Kinematics { rows, speed: v.x.hypot(v.y), collided })
 }
+
+/// The commands of one learning step of vehicle `id`: ask for a lane change to `change`
+/// (`"left"`, `"right"` or none; refused quietly as [`Session::change_lane`] refuses) and set its
+/// throttle [N] as [`Session::set_commands`] does.
+pub fn command(session: &mut Session, id: i32, throttle: f64, change: Option<&str>) -> Result<(), SessionError> {
+    if let Some(side) = change {
+        session.change_lane(id, side)?;
+    }
+    session.set_commands(&[id], Some(&[throttle]), None, None)
+}
+
+/// One learning step in one call (`Sim.drive`): [`command`], advance `dt` [s], then
+/// [`observe`].
+pub fn drive(
+    session: &mut Session,
+    id: i32,
+    throttle: f64,
+    change: Option<&str>,
+    dt: f64,
+    nearest: usize,
+    footprint: (f64, f64),
+) -> Result<Kinematics, SessionError> {
+    command(session, id, throttle, change)?;
+    session.step(dt)?;
+    observe(session, id, nearest, footprint)
+}

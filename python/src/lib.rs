@@ -16,7 +16,9 @@ use smlworld::app::session::{SessionError, load_scenario_with_overrides};
 use smlworld::app::{RunError, RunOptions, ScenarioError, Session, StateColumns, run_scenario};
 use smlworld::map::{LaneletMap, MapError, Place, RouteOptions};
 
+mod controllers;
 mod kinematics;
+mod vec;
 
 fn scenario_err(e: ScenarioError) -> PyErr {
     match &e {
@@ -101,6 +103,38 @@ impl Core {
     fn lock(&self) -> std::sync::MutexGuard<'_, Session> {
         self.session.lock().unwrap_or_else(|p| p.into_inner())
     }
+
+    fn address(&self) -> usize {
+        &self.session as *const Mutex<Session> as usize
+    }
+
+    /// The session, for a call from Python: an error inside one of its own controller callbacks
+    /// (the step holds the lock), and waiting for a step on another thread without the GIL
+    /// (that step's callbacks need it).
+    fn session(&self, py: Python<'_>) -> PyResult<std::sync::MutexGuard<'_, Session>> {
+        if controllers::Stepping::active(self.address()) {
+            return Err(PyRuntimeError::new_err(
+                "this Sim is stepping: a controller callback cannot call its own Sim (it gets its observation \
+                 and returns commands; read or send anything else between steps)",
+            ));
+        }
+        loop {
+            match self.session.try_lock() {
+                Ok(s) => return Ok(s),
+                Err(std::sync::TryLockError::Poisoned(p)) => return Ok(p.into_inner()),
+                Err(std::sync::TryLockError::WouldBlock) => py.detach(|| drop(self.lock())),
+            }
+        }
+    }
+
+    /// Step with the Python controllers inside the Control phase (see `controllers`).
+    fn step_session(&self, py: Python<'_>, session: &mut Session, dt: f64) -> PyResult<()> {
+        let _stepping = controllers::Stepping::enter(self.address());
+        py.detach(|| controllers::step(session, dt)).map_err(|e| match e {
+            controllers::StepError::Session(e) => session_err(e),
+            controllers::StepError::Python(e) => e,
+        })
+    }
 }
 
 /// A kinematics observation as Python gets it: the (1 + nearest, 5) rows, the speed [m/s] of the
@@ -153,14 +187,14 @@ impl Core {
     }
 
     #[getter]
-    fn time(&self) -> f64 {
-        self.lock().time()
+    fn time(&self, py: Python<'_>) -> PyResult<f64> {
+        Ok(self.session(py)?.time())
     }
 
     /// The seed of the run [-].
     #[getter]
-    fn seed(&self) -> u64 {
-        self.lock().scenario().file.seed
+    fn seed(&self, py: Python<'_>) -> PyResult<u64> {
+        Ok(self.session(py)?.scenario().file.seed)
     }
 
     /// Start over at time 0 from the scenario as loaded (its overrides included) with `seed`:
@@ -171,7 +205,7 @@ impl Core {
         if i64::try_from(seed).is_err() {
             return Err(PyValueError::new_err(format!("seed must be < 2^63, got {seed}")));
         }
-        let mut scenario = self.lock().scenario().clone();
+        let mut scenario = self.session(py)?.scenario().clone();
         scenario.file.seed = seed;
         let stop = self.metrics_stopped.load(Ordering::Relaxed);
         // Built without the GIL and without holding the lock (a thread waiting for the lock with
@@ -185,14 +219,15 @@ impl Core {
                 Ok(fresh)
             })
             .map_err(session_err)?;
-        *self.lock() = fresh;
+        *self.session(py)? = fresh;
         Ok(())
     }
 
     /// Stop recording the summary's metrics (see `Session::stop_metrics`).
-    fn stop_metrics(&self) {
-        self.lock().stop_metrics();
+    fn stop_metrics(&self, py: Python<'_>) -> PyResult<()> {
+        self.session(py)?.stop_metrics();
         self.metrics_stopped.store(true, Ordering::Relaxed);
+        Ok(())
     }
 
     /// Kinematics of vehicle `id` and of its `nearest` nearest vehicles (see
@@ -205,7 +240,7 @@ impl Core {
         nearest: usize,
         footprint: (f64, f64),
     ) -> PyResult<Observation<'py>> {
-        let k = kinematics::observe(&self.lock(), id, nearest, footprint).map_err(session_err)?;
+        let k = kinematics::observe(&*self.session(py)?, id, nearest, footprint).map_err(session_err)?;
         observation(py, k)
     }
 
@@ -234,38 +269,35 @@ impl Core {
         if !(dt.is_finite() && dt >= 0.0) {
             return Err(PyValueError::new_err(format!("dt must be a finite number of seconds >= 0, got {dt}")));
         }
-        let k = py
-            .detach(|| {
-                let mut s = self.lock();
-                if let Some(side) = change {
-                    s.change_lane(id, side)?;
-                }
-                s.set_commands(&[id], Some(&[throttle]), None, None)?;
-                s.step(dt)?;
-                kinematics::observe(&s, id, nearest, footprint)
-            })
-            .map_err(session_err)?;
+        let mut s = self.session(py)?;
+        kinematics::command(&mut s, id, throttle, change).map_err(session_err)?;
+        self.step_session(py, &mut s, dt)?;
+        let k = kinematics::observe(&s, id, nearest, footprint).map_err(session_err)?;
         observation(py, k)
     }
 
+    /// Advance `dt` [s]; Python controllers run inside the control ticks on the way.
     fn step(&self, py: Python<'_>, dt: f64) -> PyResult<()> {
-        py.detach(|| self.lock().step(dt)).map_err(session_err)
+        let mut s = self.session(py)?;
+        self.step_session(py, &mut s, dt)
     }
 
     fn run<'py>(&self, py: Python<'py>, duration: f64) -> PyResult<Bound<'py, PyAny>> {
-        let summary = py.detach(|| self.lock().run(duration)).map_err(session_err)?;
+        let mut s = self.session(py)?;
+        self.step_session(py, &mut s, duration)?;
+        let summary = s.summary();
         let text = serde_json_string(&summary)?;
         json_to_py(py, &text)
     }
 
     fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let summary = py.detach(|| self.lock().summary());
+        let summary = self.session(py)?.summary();
         json_to_py(py, &serde_json_string(&summary)?)
     }
 
     fn states<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let mut cols = self.states.lock().unwrap_or_else(|p| p.into_inner());
-        self.lock().states_into(&mut cols);
+        self.session(py)?.states_into(&mut cols);
         let d = PyDict::new(py);
         d.set_item("id", PyArray1::from_slice(py, &cols.id))?;
         d.set_item("x", column(py, &cols.x))?;
@@ -280,12 +312,12 @@ impl Core {
 
     /// Ask vehicle `id` to change lanes, `side` = "left" or "right": False when the map or the
     /// gap forbids it now (see `Session::change_lane`).
-    fn change_lane(&self, id: i32, side: &str) -> PyResult<bool> {
-        self.lock().change_lane(id, side).map_err(session_err)
+    fn change_lane(&self, py: Python<'_>, id: i32, side: &str) -> PyResult<bool> {
+        self.session(py)?.change_lane(id, side).map_err(session_err)
     }
 
     fn readings<'py>(&self, py: Python<'py>, id: i32) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let rows = self.lock().readings(id).map_err(session_err)?;
+        let rows = self.session(py)?.readings(id).map_err(session_err)?;
         let flat: Vec<f64> = rows.iter().flatten().copied().collect();
         let a = PyArray1::from_vec(py, flat);
         Ok(a.reshape([rows.len(), 5])?)
@@ -294,6 +326,7 @@ impl Core {
     #[pyo3(signature = (ids, throttle=None, steering=None, speed=None))]
     fn set_commands(
         &self,
+        py: Python<'_>,
         ids: PyReadonlyArray1<'_, i32>,
         throttle: Option<PyReadonlyArray1<'_, f64>>,
         steering: Option<PyReadonlyArray1<'_, f64>>,
@@ -301,33 +334,35 @@ impl Core {
     ) -> PyResult<()> {
         let ids = ids.as_slice().map_err(|_| PyValueError::new_err("ids must be a contiguous 1-d int array"))?;
         let (t, s, v) = (slice(&throttle, "throttle")?, slice(&steering, "steering")?, slice(&speed, "speed")?);
-        self.lock().set_commands(ids, t, s, v).map_err(session_err)
+        self.session(py)?.set_commands(ids, t, s, v).map_err(session_err)
     }
 
     #[pyo3(signature = (width=640, height=480))]
     fn frame<'py>(&self, py: Python<'py>, width: u32, height: u32) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
-        let pixels = py.detach(|| self.lock().frame(width, height)).map_err(session_err)?;
+        let mut guard = self.session(py)?;
+        let s: &mut Session = &mut guard;
+        let pixels = py.detach(|| s.frame(width, height)).map_err(session_err)?;
         Ok(PyArray1::from_vec(py, pixels).reshape([height as usize, width as usize, 4])?)
     }
 
-    fn clear_commands(&self, ids: PyReadonlyArray1<'_, i32>) -> PyResult<()> {
+    fn clear_commands(&self, py: Python<'_>, ids: PyReadonlyArray1<'_, i32>) -> PyResult<()> {
         let ids = ids.as_slice().map_err(|_| PyValueError::new_err("ids must be a contiguous 1-d int array"))?;
-        self.lock().clear_commands(ids).map_err(session_err)
+        self.session(py)?.clear_commands(ids).map_err(session_err)
     }
 
-    fn send(&self, id: i32, channel: &str, payload: &[u8]) -> PyResult<()> {
-        self.lock().send(id, channel, payload.to_vec()).map_err(session_err)
+    fn send(&self, py: Python<'_>, id: i32, channel: &str, payload: &[u8]) -> PyResult<()> {
+        self.session(py)?.send(id, channel, payload.to_vec()).map_err(session_err)
     }
 
     fn inbox<'py>(&self, py: Python<'py>, id: i32, channel: &str) -> PyResult<Vec<(i32, Bound<'py, PyBytes>)>> {
-        let msgs = self.lock().inbox(id, channel).map_err(session_err)?;
+        let msgs = self.session(py)?.inbox(id, channel).map_err(session_err)?;
         Ok(msgs.into_iter().map(|(s, b)| (s, PyBytes::new(py, &b))).collect())
     }
 
     /// Per vehicle (sorted by id): mass [kg] and drag [N s/m] of acceleration models, NaN for
     /// kinematic ones.
     fn models<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let s = self.lock();
+        let s = self.session(py)?;
         let mut ids = Vec::new();
         let mut mass = Vec::new();
         let mut drag = Vec::new();
@@ -355,13 +390,26 @@ impl Core {
 
     /// The control rate of the scenario [Hz].
     #[getter]
-    fn control_rate(&self) -> f64 {
-        self.lock().scenario().file.rates.control
+    fn control_rate(&self, py: Python<'_>) -> PyResult<f64> {
+        Ok(self.session(py)?.scenario().file.rates.control)
     }
 
     /// The scenario's map, if any.
-    fn map(&self) -> Option<Map> {
-        self.lock().map().cloned().map(|m| Map { map: m })
+    fn map(&self, py: Python<'_>) -> PyResult<Option<Map>> {
+        Ok(self.session(py)?.map().cloned().map(|m| Map { map: m }))
+    }
+
+    /// Call `call(obs)` for vehicles `ids` at `rate` [Hz] inside the Control phase of each tick
+    /// it is due (see `controllers`); `call` returns `(throttle, steering, speed)`, each a
+    /// float64 array with one value per id or None. `name` names it in error messages.
+    fn add_controller(&self, py: Python<'_>, ids: Vec<i32>, call: Py<PyAny>, rate: f64, name: String) -> PyResult<()> {
+        controllers::add(&mut *self.session(py)?, ids, call, name, rate)
+    }
+
+    /// Whether Python controllers are added.
+    #[getter]
+    fn has_controllers(&self, py: Python<'_>) -> PyResult<bool> {
+        Ok(controllers::any(&*self.session(py)?))
     }
 }
 
@@ -482,6 +530,7 @@ fn load_map(py: Python<'_>, path: PathBuf) -> PyResult<Map> {
 fn _smlworld(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Core>()?;
     m.add_class::<Map>()?;
+    m.add_class::<vec::VecCore>()?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(load_map, m)?)?;
     Ok(())

@@ -66,7 +66,7 @@ def test_set_commands_brakes_a_vehicle(root):
     ids = np.array([-1])
     # a Python controller that brakes the leader hard at every control tick overrides nothing
     # of the followers and stops the leader
-    sim.add_controller(ids, lambda obs: {"throttle": np.full(len(obs["id"]), -60000.0)}, rate=50.0)
+    sim.add_controller(ids, lambda obs: {"throttle": np.full(len(obs["id"]), -60000.0)}, rate=20.0)
     v0 = float(np.hypot(*[sim.states()[k][sim.states()["id"] == -1][0] for k in ("vx", "vy")]))
     sim.step(1.0)
     st = sim.states()

@@ -20,3 +20,17 @@ def test_bench_envs_repeats_and_reports_min_median_max(root):
         assert m, lines[name]
         lo, mid, hi = (float(g.replace(",", "")) for g in m.groups())
         assert 0 < lo <= mid <= hi
+
+
+def test_bench_envs_vec_mode_reports_both_vector_envs(root):
+    done = subprocess.run(
+        [sys.executable, str(root / "python/bench/bench_envs.py"), "--vec", "4", "--steps", "20", "--repeat", "3"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    for name in ("PlatoonFollow-v0", "HighwayMerge-v0"):
+        line = next(x for x in done.stdout.splitlines() if x.startswith(f"{name} make_vec(num_envs=4)"))
+        m = re.search(r": ([\d,]+) / ([\d,]+) / ([\d,]+) \(min / median / max\) env-steps/s \(20 steps x 4 envs", line)
+        assert m, line

@@ -23,6 +23,10 @@
 
 ``platoon_parallel_env(n=5)`` is the PettingZoo parallel version: every member behind the
 scripted leader is an agent (see :mod:`smlworld.envs.platoon_parallel`).
+
+``make_vec(env_id, num_envs=64, seed=0)`` gives either env as a ``gymnasium.vector.VectorEnv``
+whose ``num_envs`` copies step together in Rust, in one call per step (see
+:mod:`smlworld.envs.vector`); ``gymnasium.make_vec(env_id, num_envs)`` builds the same.
 """
 
 from __future__ import annotations
@@ -32,11 +36,19 @@ import gymnasium
 from .merge import HighwayMergeEnv
 from .platoon import PlatoonFollowEnv
 from .platoon_parallel import PlatoonParallelEnv, platoon_parallel_env
+from .vector import SmlworldVectorEnv, make_vec
 
-__all__ = ["HighwayMergeEnv", "PlatoonFollowEnv", "PlatoonParallelEnv", "platoon_parallel_env"]
+__all__ = [
+    "HighwayMergeEnv",
+    "PlatoonFollowEnv",
+    "PlatoonParallelEnv",
+    "SmlworldVectorEnv",
+    "make_vec",
+    "platoon_parallel_env",
+]
 
-from .. import ENVS
+from .. import ENVS, VECTOR_ENVS
 
 for _id, _entry in ENVS.items():
     if _id not in gymnasium.registry:
-        gymnasium.register(id=_id, entry_point=_entry)
+        gymnasium.register(id=_id, entry_point=_entry, vector_entry_point=VECTOR_ENVS[_id])

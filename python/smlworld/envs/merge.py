@@ -50,6 +50,12 @@ def step_reward(speed: float, merged: bool, collided: bool, lane_ended: bool) ->
     return float(0.6 * min(1.0, max(0.0, speed) / V_MAX) + (0.4 if merged else 0.0))
 
 
+def draw_episode(np_random: np.random.Generator) -> int:
+    """The random draw of one episode from the env's generator: the seed of its simulation (the
+    vector env draws with this same function)."""
+    return int(np_random.integers(0, 2**31 - 1))
+
+
 def _scenario_path() -> str:
     return str(resources.files("smlworld") / "data" / "highway_merge.toml")
 
@@ -109,7 +115,7 @@ class HighwayMergeEnv(gym.Env):
     # -- gymnasium API -----------------------------------------------------------------------
     def reset(self, *, seed: Optional[int] = None, options=None):
         super().reset(seed=seed)
-        sim_seed = int(self.np_random.integers(0, 2**31 - 1))
+        sim_seed = draw_episode(self.np_random)
         if self._sim is None:
             # Loaded once: later resets start the same scenario over with a new seed, without
             # reading the scenario file or the map again. The summary's metrics are never read.

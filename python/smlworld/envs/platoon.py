@@ -28,12 +28,29 @@ def step_reward(gap: float, gap_ref: float, accel: float, accel_change: float) -
     to a good one's (an unbounded quadratic gave -177,000 over 1,000 random steps)."""
     if gap <= 0.0:
         return -1.0
-    tracking = min(1.0, ((gap - gap_ref) / gap_ref) ** 2)
-    comfort = min(1.0, (accel / -A_MIN) ** 2)
-    smooth = min(1.0, (accel_change / (A_MAX - A_MIN)) ** 2)
+    # Squares as products (not ``** 2``, which is libm's pow): the vector env's Rust port
+    # (python/src/vec.rs) computes the same bits.
+    e, c, s = (gap - gap_ref) / gap_ref, accel / -A_MIN, accel_change / (A_MAX - A_MIN)
+    tracking = min(1.0, e * e)
+    comfort = min(1.0, c * c)
+    smooth = min(1.0, s * s)
     return float(1.0 - 2.0 * (0.8 * tracking + 0.1 * comfort + 0.1 * smooth))
 DT = 0.1  # [s] per step
 MAX_STEPS = 600
+
+
+def draw_episode(np_random: np.random.Generator, max_steps: int, dt: float):
+    """The random draws of one episode from the env's generator, in this order: the seed of its
+    simulation, then the leader's speed profile (a new target every 4-10 s, 8-22 m/s) as a list
+    of ``(from time [s], speed [m/s])`` covering the episode and 10 s more. The vector env draws
+    with this same function, so its episodes are the single env's."""
+    sim_seed = int(np_random.integers(0, 2**31 - 1))
+    targets = []
+    t = 0.0
+    while t < max_steps * dt + 10:
+        t += float(np_random.uniform(4.0, 10.0))
+        targets.append((t, float(np_random.uniform(8.0, 22.0))))
+    return sim_seed, targets
 
 
 def _scenario_path() -> str:
@@ -87,7 +104,7 @@ class PlatoonFollowEnv(gym.Env):
     # -- gymnasium API -----------------------------------------------------------------------
     def reset(self, *, seed: Optional[int] = None, options=None):
         super().reset(seed=seed)
-        sim_seed = int(self.np_random.integers(0, 2**31 - 1))
+        sim_seed, self._targets = draw_episode(self.np_random, self.max_steps, self.dt)
         if self._sim is None:
             # Loaded once: later resets start the same scenario over with a new seed, without
             # reading the scenario file or the map again. The summary's metrics are never read.
@@ -97,12 +114,6 @@ class PlatoonFollowEnv(gym.Env):
             self._mass, self._drag = m["mass"][::-1].copy(), m["drag"][::-1].copy()  # leader, ego
         else:
             self._sim.restart(sim_seed)
-        # the leader's speed profile: a new target every 4-10 s, 8-22 m/s
-        self._targets = []
-        t = 0.0
-        while t < self.max_steps * self.dt + 10:
-            t += float(self.np_random.uniform(4.0, 10.0))
-            self._targets.append((t, float(self.np_random.uniform(8.0, 22.0))))
         self._target = 15.0
         self._steps = 0
         self._last_a = 0.0

@@ -20,7 +20,7 @@ use std::path::Path as FsPath;
 use std::sync::Arc;
 use std::time::Instant;
 
-use bevy_ecs::prelude::{Component, Query, Res};
+use bevy_ecs::prelude::{Component, Query, Res, World};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::map::LaneletMap;
@@ -314,6 +314,31 @@ impl Session {
         Ok(())
     }
 
+    /// [`Session::step`] that stops early, right after the first module tick after which
+    /// `stop(world)` holds (the Python package stops at a controller callback that raised):
+    /// `Ok(true)` then, with the clock at that tick.
+    pub fn step_until(&mut self, dt: f64, mut stop: impl FnMut(&World) -> bool) -> Result<bool, SessionError> {
+        if !(dt.is_finite() && dt >= 0.0) {
+            return arg(format!("dt must be a finite number of seconds >= 0, got {dt}"));
+        }
+        let wall = Instant::now();
+        let end = SimTime(self.sim.now().0 + SimTime::from_secs(dt).0);
+        let mut stopped = false;
+        while self.sim.scheduler().peek().is_some_and(|(_, due, _, _)| due < end) {
+            self.sim.step();
+            if stop(self.sim.world()) {
+                stopped = true;
+                break;
+            }
+        }
+        if !stopped {
+            self.sim.run_until(end);
+        }
+        crate::vehicles::refresh_lane_positions(self.sim.world_mut());
+        self.wall_seconds += wall.elapsed().as_secs_f64();
+        Ok(stopped)
+    }
+
     /// The bird's-eye view of the whole map with the vehicles as they are now, `width` x `height`
     /// RGBA pixels (row-major, 4 bytes per pixel), from the off-screen renderer.
     pub fn frame(&mut self, width: u32, height: u32) -> Result<Vec<u8>, SessionError> {
@@ -494,7 +519,14 @@ impl Session {
             if let Some(mut c) = entity.get_mut::<ControlCommand>() {
                 o.apply(&mut c);
             }
-            entity.insert(o);
+            // Overwritten in place once it exists (an insert goes through bevy's bundle
+            // machinery: a learning env sets commands at every step).
+            match entity.get_mut::<CommandOverride>() {
+                Some(mut existing) => *existing = o,
+                None => {
+                    entity.insert(o);
+                }
+            }
         }
         Ok(())
     }
@@ -544,8 +576,10 @@ impl Session {
         if world.get::<ByteInbox>(e).is_none() {
             world.entity_mut(e).insert(ByteInbox::default());
         }
-        let mut query = world.query::<(&Mailbox, &mut ByteInbox)>();
-        let Ok((mailbox, mut queue)) = query.get_mut(world, e) else {
+        // The entity's own components, not `world.query`: building a query state at every call
+        // was a twentieth of a learning environment's step.
+        let mut entity = world.entity_mut(e);
+        let Ok((mailbox, mut queue)) = entity.get_components_mut::<(&Mailbox, &mut ByteInbox)>() else {
             return arg(format!("vehicle {id} has no mailbox"));
         };
         queue.collect(mailbox);
