@@ -5,7 +5,7 @@
 //! `a = a_max [1 − (v/v₀)^δ − (s*/s)²]`, `s* = s₀ + v T + v Δv / (2 √(a_max b))`, with gap `s`
 //! [m] to the leader and approach rate `Δv = v − v_leader` [m/s] (see REFERENCE.md).
 
-use bevy_ecs::prelude::{Component, Local, Mut, Query, Res};
+use bevy_ecs::prelude::{Component, Local, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::sim::Control;
@@ -49,7 +49,7 @@ pub fn control_idm(
     let sizes = &sizes;
     let fresh = clock.is_some_and(|c| LanePositionsAt::fresh(lanes_at.as_deref(), c.now));
     let mut items: Vec<IdmItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(vehicles.iter_mut());
+    items.extend(vehicles.iter_mut().map(|(state, size, idm, lon, pos)| (state, size, idm, lon.into_inner(), pos)));
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
         for (state, size, idm, lon, pos) in chunk.iter_mut() {
             let leader = lon.leader.map(|l| {
@@ -66,7 +66,7 @@ pub fn control_idm(
 
 /// One vehicle's part of [`control_idm`].
 type IdmItem<'a> =
-    (&'a VehicleState, &'a VehicleSize, &'a IdmController, Mut<'a, Longitudinal>, Option<&'a LanePosition>);
+    (&'a VehicleState, &'a VehicleSize, &'a IdmController, &'a mut Longitudinal, Option<&'a LanePosition>);
 
 /// The IDM in the [`Control`] schedule.
 #[derive(Debug, Clone, Copy, Default)]

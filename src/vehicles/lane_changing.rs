@@ -20,7 +20,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Local, Mut, Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Local, Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
@@ -336,9 +336,9 @@ type ChangerItem<'a> = (
     &'a VehicleState,
     &'a VehicleSize,
     &'a LanePosition,
-    Mut<'a, Route>,
-    Mut<'a, PathFollower>,
-    Mut<'a, LaneChanger>,
+    &'a mut Route,
+    &'a mut PathFollower,
+    &'a mut LaneChanger,
 );
 
 /// What every vehicle's evaluation reads.
@@ -420,12 +420,15 @@ pub fn decide_lane_changes(
     claims.0.clear();
 
     let mut items: Vec<ChangerItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(changers.iter_mut().enumerate().map(|(n, (id, state, size, pos, route, follower, mut ch))| {
+    // Plain references, not `Mut`s (smaller items for the serial gathering; nothing reads
+    // change ticks).
+    items.extend(changers.iter_mut().enumerate().map(|(n, (id, state, size, pos, route, follower, ch))| {
+        let ch = ch.into_inner();
         // Which lanelets reach the goal: looked up once per goal, here (the cache is shared).
         if ch.reach.is_none() && pos.on().is_some() {
             ch.reach = Some(paths.reach(lanes, &ch.goal));
         }
-        (n, id, state, size, pos, route, follower, ch)
+        (n, id, state, size, pos, route.into_inner(), follower.into_inner(), ch)
     }));
     let shared = Shared { lanes, index: &index, signals: &last_signals, t, dt, tick };
     // Each chunk keeps the non-empty decisions with their item's place (chunks are in query
@@ -524,9 +527,9 @@ fn evaluate(
     state: &VehicleState,
     size: &VehicleSize,
     pos: &LanePosition,
-    route: &mut Mut<'_, Route>,
-    follower: &mut Mut<'_, PathFollower>,
-    ch: &mut Mut<'_, LaneChanger>,
+    route: &mut &mut Route,
+    follower: &mut &mut PathFollower,
+    ch: &mut &mut LaneChanger,
     out: &mut Decision,
 ) {
     let Shared { lanes, index, signals: last_signals, t, dt, tick } = *shared;

@@ -10,7 +10,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Component, Local, Mut, Query, Res, ResMut, Resource, World};
+use bevy_ecs::prelude::{Component, Local, Query, Res, ResMut, Resource, World};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
@@ -282,7 +282,7 @@ pub fn refresh_lane_positions(world: &mut World) {
 #[derive(Resource)]
 struct RefreshSystem(bevy_ecs::system::SystemId);
 
-type LaneItem<'a> = (&'a VehicleState, Mut<'a, LanePosition>);
+type LaneItem<'a> = (&'a VehicleState, &'a mut LanePosition);
 
 /// Update every [`LanePosition`] from the vehicle's state (split over threads; each vehicle's
 /// result depends only on itself, so any thread count gives the same bits).
@@ -313,7 +313,9 @@ pub fn update_lane_positions(
     let dt = last.map_or(0.0, |l| now.0.saturating_sub(l.0) as f64 * 1e-6);
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
     let mut items: Vec<LaneItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(vehicles.iter_mut());
+    // Plain references, not `Mut`s (a third of the size: the serial gathering writes less);
+    // nothing reads change ticks.
+    items.extend(vehicles.iter_mut().map(|(state, pos)| (state, pos.into_inner())));
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
         for k in 0..chunk.len() {
             // The centre-line points a vehicle a few places on will read are far apart in memory

@@ -22,7 +22,7 @@
 
 use std::collections::BTreeMap;
 
-use bevy_ecs::prelude::{Component, Local, Mut, Query, Res, Resource};
+use bevy_ecs::prelude::{Component, Local, Query, Res, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
@@ -167,7 +167,7 @@ type LeaderItem<'a> = (
     &'a PathFollower,
     &'a ControlCommand,
     Option<&'a SensorReadings>,
-    Mut<'a, Longitudinal>,
+    &'a mut Longitudinal,
     Option<&'a LaneChanger>,
 );
 
@@ -199,7 +199,13 @@ pub fn find_leaders(
     let dt = clock.dt;
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
     let mut items: Vec<LeaderItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(vehicles.iter_mut());
+    // Plain references, not `Mut`s (smaller items for the serial gathering; nothing reads
+    // change ticks).
+    items.extend(vehicles.iter_mut().map(
+        |(id, pos, state, size, route, follower, command, readings, lon, changer)| {
+            (id, pos, state, size, route, follower, command, readings, lon.into_inner(), changer)
+        },
+    ));
     let lanes = index.as_deref().zip(lane_map.as_deref());
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
         for k in 0..chunk.len() {
@@ -339,7 +345,12 @@ pub fn actuate_longitudinal(
     let fresh = LanePositionsAt::fresh(lanes_at.as_deref(), clock.now);
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
     let mut items: Vec<ActuateItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(vehicles.iter_mut().filter(|(_, lon, ..)| !lon.accel.is_nan()));
+    items.extend(
+        vehicles
+            .iter_mut()
+            .filter(|(_, lon, ..)| !lon.accel.is_nan())
+            .map(|(state, lon, command, a, k, pos)| (state, lon, command.into_inner(), a, k, pos)),
+    );
     // Each vehicle's command depends only on itself: any split gives the same bits.
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
         for (state, lon, command, acceleration, kinematic, pos) in chunk.iter_mut() {
@@ -364,7 +375,7 @@ pub fn actuate_longitudinal(
 type ActuateItem<'a> = (
     &'a VehicleState,
     &'a Longitudinal,
-    Mut<'a, ControlCommand>,
+    &'a mut ControlCommand,
     Option<&'a AccelerationUnicycle>,
     Option<&'a KinematicUnicycle>,
     Option<&'a LanePosition>,
