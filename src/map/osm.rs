@@ -444,7 +444,8 @@ fn parse_objects_split(text: &str, source: &FsPath, parallel_bytes: usize) -> Re
     }
     let second = match second {
         Ok(part) => part,
-        Err(PartError { objects, order, error }) => {
+        Err(e) => {
+            let PartError { objects, order, error } = *e;
             return Err(repeat_across(&first.objects, &objects, &order, source).unwrap_or(error));
         }
     };
@@ -523,8 +524,8 @@ struct PartError {
     error: MapError,
 }
 
-impl From<PartError> for MapError {
-    fn from(e: PartError) -> MapError {
+impl From<Box<PartError>> for MapError {
+    fn from(e: Box<PartError>) -> MapError {
         e.error
     }
 }
@@ -586,7 +587,12 @@ fn finish_objects(part: Part, source: &FsPath) -> Result<OsmObjects, MapError> {
 
 /// Read `text` (from its start, its lines counted by `lines`) to its end, or up to `stop_at`
 /// when the reader gets there between objects directly inside `<osm>`.
-fn read_part(text: &str, source: &FsPath, mut lines: LineCounter, stop_at: Option<usize>) -> Result<Part, PartError> {
+fn read_part(
+    text: &str,
+    source: &FsPath,
+    mut lines: LineCounter,
+    stop_at: Option<usize>,
+) -> Result<Part, Box<PartError>> {
     // Room for the nodes of a typical file (100 bytes or more each): no copies while they come.
     let mut objects = Objects {
         nodes: Collected::with_capacity(stop_at.unwrap_or(text.len()) / 80),
@@ -596,7 +602,7 @@ fn read_part(text: &str, source: &FsPath, mut lines: LineCounter, stop_at: Optio
     let mut order = Vec::new();
     match read_events(text, source, &mut lines, stop_at, &mut objects, &mut order) {
         Ok((saw_osm, stopped)) => Ok(Part { objects, order, saw_osm, stopped }),
-        Err(error) => Err(PartError { objects, order, error }),
+        Err(error) => Err(Box::new(PartError { objects, order, error })),
     }
 }
 
@@ -765,8 +771,7 @@ fn read_attributes<'e, const N: usize>(
     // Keys seen so far: on the stack for the few an OSM element has.
     let mut seen: [&str; 8] = [""; 8];
     let mut more_seen: Vec<&str> = Vec::new();
-    let mut count = 0;
-    for a in e.attributes().with_checks(false) {
+    for (count, a) in e.attributes().with_checks(false).enumerate() {
         let a = a.map_err(|err| MapError::Xml { at: at.location(), message: err.to_string() })?;
         let key = a.key.into_inner();
         if seen[..count.min(seen.len())].contains(&key) || more_seen.contains(&key) {
@@ -783,7 +788,6 @@ fn read_attributes<'e, const N: usize>(
             Some(slot) => *slot = key,
             None => more_seen.push(key),
         }
-        count += 1;
         if let Some(k) = names.iter().position(|&n| n == key) {
             found[k] = Some(a);
         }
