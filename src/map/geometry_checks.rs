@@ -7,7 +7,6 @@
 use glam::DVec2;
 
 use super::lanelet::MapWay;
-use super::polyline::polyline_length;
 
 /// Shorter than this a bound is "all its nodes at one place" [m].
 const DEGENERATE_LENGTH: f64 = 0.01;
@@ -18,16 +17,17 @@ const MISMATCH_RATIO: f64 = 3.0;
 /// example has 126 m beside 24 m); a misplaced coordinate is off by kilometres.
 const MISMATCH_MIN_DIFFERENCE: f64 = 500.0;
 
-/// Why a lanelet cannot be driven at all (the loader skips it), if so.
-pub(crate) fn unusable(lanelet: i64, left: &MapWay, right: &MapWay) -> Option<String> {
-    if left.id == right.id {
+/// Why a lanelet cannot be driven at all (the loader skips it), if so. Each bound comes with
+/// the length of its polyline [m] (the loader computes it once per way).
+pub(crate) fn unusable(lanelet: i64, left: (&MapWay, f64), right: (&MapWay, f64)) -> Option<String> {
+    if left.0.id == right.0.id {
         return Some(format!(
             "lanelet {lanelet}: its left and right bounds are the same way {}; skipped (a lane needs two bounds)",
-            left.id
+            left.0.id
         ));
     }
-    for way in [left, right] {
-        if polyline_length(&way.points) < DEGENERATE_LENGTH {
+    for (way, length) in [left, right] {
+        if length < DEGENERATE_LENGTH {
             return Some(format!(
                 "lanelet {lanelet}: bound way {} has zero length (all its nodes at one place); skipped",
                 way.id
@@ -63,9 +63,9 @@ pub(crate) fn way_problems(way: &MapWay) -> Vec<String> {
 }
 
 /// A bound far longer than the other: names the node of the longer bound farthest from the
-/// shorter one (the misplaced one, e.g. a latitude typo).
-pub(crate) fn length_mismatch(lanelet: i64, left: &MapWay, right: &MapWay) -> Option<String> {
-    let (l, r) = (polyline_length(&left.points), polyline_length(&right.points));
+/// shorter one (the misplaced one, e.g. a latitude typo). Each bound comes with its length [m].
+pub(crate) fn length_mismatch(lanelet: i64, left: (&MapWay, f64), right: (&MapWay, f64)) -> Option<String> {
+    let ((left, l), (right, r)) = (left, right);
     let (long, short, long_len, short_len) = if l >= r { (left, right, l, r) } else { (right, left, r, l) };
     if long_len < MISMATCH_RATIO * short_len || long_len - short_len < MISMATCH_MIN_DIFFERENCE {
         return None;
@@ -98,11 +98,19 @@ fn distance_to_polyline(p: DVec2, line: &[DVec2]) -> f64 {
 
 /// The first node at which `way` crosses one of its own earlier segments (segments that share
 /// an end, including a closed way's first and last, do not count). O(n²) with a bounding-box
-/// test; bounds have tens to hundreds of nodes.
+/// test; bounds have tens to hundreds of nodes. A way whose x or y only rises or only falls
+/// (a straight street, a quarter circle: most bounds) is answered at once: the bounding boxes
+/// of its segments that share no end lie apart, so the test below would reject every pair.
 fn self_crossing(way: &MapWay) -> Option<i64> {
     let p = &way.points;
     let n = p.len();
     if n < 4 {
+        return None;
+    }
+    let monotone = |coord: fn(&DVec2) -> f64| {
+        p.windows(2).all(|w| coord(&w[0]) < coord(&w[1])) || p.windows(2).all(|w| coord(&w[0]) > coord(&w[1]))
+    };
+    if monotone(|q| q.x) || monotone(|q| q.y) {
         return None;
     }
     let closed = way.nodes.first() == way.nodes.last();
@@ -137,6 +145,7 @@ fn segments_cross(a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::map::polyline::polyline_length;
 
     fn way(id: i64, pts: &[(f64, f64)]) -> MapWay {
         MapWay {
@@ -158,12 +167,28 @@ mod tests {
     }
 
     #[test]
+    fn a_way_rising_in_x_or_y_never_crosses_itself() {
+        // Rising x, wildly zigzagging y: the shortcut answers, and the pairwise test agrees.
+        let zigzag: Vec<(f64, f64)> = (0..40).map(|i| (i as f64, if i % 2 == 0 { 0.0 } else { 100.0 })).collect();
+        assert_eq!(self_crossing(&way(4, &zigzag)), None);
+        // Rising y, x going back and forth so far that segments overlap in x: still no crossing.
+        let spiral: Vec<(f64, f64)> = (0..40).map(|i| (if i % 2 == 0 { -50.0 } else { 50.0 }, i as f64)).collect();
+        assert_eq!(self_crossing(&way(5, &spiral)), None);
+        // A loop that rises in neither crosses itself and is found.
+        let knot = way(6, &[(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (5.0, -5.0)]);
+        assert_eq!(self_crossing(&knot), Some(3));
+    }
+
+    #[test]
     fn a_misplaced_node_is_named_and_a_curve_is_not() {
         let left = way(10, &[(0.0, 3.5), (50.0, 3.5), (100.0, 3.5)]);
         let mut right = way(11, &[(0.0, 0.0), (50.0, 0.0), (100.0, 0.0)]);
-        assert_eq!(length_mismatch(7, &left, &right), None);
+        let with_length = |w: &MapWay| (w.clone(), polyline_length(&w.points));
+        let ((left, l), (r, rl)) = (with_length(&left), with_length(&right));
+        assert_eq!(length_mismatch(7, (&left, l), (&r, rl)), None);
         right.points[1] = DVec2::new(50.0, 99_000.0);
-        let m = length_mismatch(7, &left, &right).expect("reported");
+        let (right, rl) = with_length(&right);
+        let m = length_mismatch(7, (&left, l), (&right, rl)).expect("reported");
         assert!(m.contains("lanelet 7") && m.contains("way 11") && m.contains("node 2"), "{m}");
     }
 }

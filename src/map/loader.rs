@@ -5,12 +5,13 @@ use std::collections::BTreeMap;
 use std::path::Path as FsPath;
 
 use glam::DVec2;
+use rayon::prelude::*;
 
-use super::error::{MapError, MapWarning};
+use super::error::{Location, MapError, MapWarning};
 use super::geometry_checks;
 use super::graph::{GraphLanelet, RoutingGraph};
 use super::lanelet::{KNOWN_LINE_TYPES, Lanelet, LaneletId, LaneletMap, MapNode, MapWay, Tags};
-use super::osm::{MemberType, OsmDocument, OsmRelation};
+use super::osm::{IdIndex, MemberType, OsmDocument, OsmNode, OsmObjects, OsmRelation, OsmWay, parse_objects};
 use super::polyline::{polyline_length, resample_count};
 use super::projection::Projector;
 
@@ -22,19 +23,19 @@ impl LaneletMap {
         if super::commonroad::is_commonroad(&text) {
             return Ok(super::commonroad::CommonRoadScenario::parse_str(&text, path)?.map);
         }
-        let doc = super::osm::parse_osm(&text, path)?;
-        LaneletMap::from_osm(&doc)
+        let objects = parse_objects(&text, path)?;
+        drop(text);
+        build(objects)
     }
 
     /// Parse OSM XML text; `name` stands for the file in messages.
     pub fn parse_str(text: &str, name: &FsPath) -> Result<LaneletMap, MapError> {
-        let doc = super::osm::parse_osm(text, name)?;
-        LaneletMap::from_osm(&doc)
+        build(parse_objects(text, name)?)
     }
 
     /// Build the lanelet map from a raw OSM document.
     pub fn from_osm(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
-        build(doc)
+        build(OsmObjects::from_document(doc))
     }
 }
 
@@ -44,87 +45,133 @@ const UNINDEXED_NODE_KEYS: [&str; 6] = ["origin", "ele", "x", "y", "local_x", "l
 /// Lanelet `subtype`s that Lanelet2's vehicle traffic rules do not let a vehicle drive.
 const NON_VEHICLE_SUBTYPES: [&str; 4] = ["crosswalk", "walkway", "bicycle_lane", "stairs"];
 
-/// The loading stages in order (projection and origin, nodes and their tag index, ways,
-/// lanelets, successors, routing graph); one function of about 85 lines because each stage
-/// reads the previous one's locals and the order is the point.
-fn build(doc: &OsmDocument) -> Result<LaneletMap, MapError> {
+/// A way with what the lanelet stage needs beside it.
+struct WayEntry {
+    way: MapWay,
+    /// Line of the way in the file.
+    line: usize,
+    /// Length of its polyline [m], computed once for all the lanelets that share the way.
+    length: f64,
+    /// Whether its repeats and self-crossings have been reported.
+    checked: bool,
+}
+
+/// The loading stages in order: projection and origin, then two halves that need nothing of
+/// each other side by side on the thread pool (the nodes with their tag index; the ways, the
+/// lanelets built on them, successors and the routing graph). Every stage is deterministic
+/// and the halves write nothing shared, so the map is the same on any number of threads. The
+/// objects are consumed: tags and node lists move into the map instead of being copied.
+fn build(doc: OsmObjects) -> Result<LaneletMap, MapError> {
     let mut warnings = Vec::new();
-    let warn = |warnings: &mut Vec<MapWarning>, line: usize, message: String| {
-        warnings.push(MapWarning { at: doc.at(line).to_string(), message });
-    };
+    check_coordinates(&doc)?;
+    let (projector, origin_node) = origin(&doc, &mut warnings)?;
 
-    check_coordinates(doc)?;
-    let (projector, origin_node) = origin(doc, &mut warnings)?;
+    // Every node projected once, each on its own (so in parallel); the ways read the positions
+    // by index, not through the node map.
+    let positions: Vec<DVec2> =
+        doc.nodes.par_iter().with_min_len(1 << 12).map(|n| projector.forward(n.lat, n.lon)).collect();
+    let OsmObjects { source, nodes: osm_nodes, ways, relations, node_index } = doc;
+    let ((nodes, tag_index), network) =
+        rayon::join(|| node_map(osm_nodes, &positions), || network(&source, ways, relations, &positions, &node_index));
+    let Network { ways, lanelets, index, graph, warnings: network_warnings } = network?;
+    warnings.extend(network_warnings);
+    Ok(LaneletMap { projector, origin_node, nodes, ways, lanelets, tag_index, warnings, index, graph })
+}
 
-    let mut nodes = BTreeMap::new();
+/// The node map (tags moved in) and the index of node tag values.
+fn node_map(osm_nodes: Vec<OsmNode>, positions: &[DVec2]) -> (BTreeMap<i64, MapNode>, BTreeMap<String, Vec<i64>>) {
     let mut tag_index: BTreeMap<String, Vec<i64>> = BTreeMap::new();
-    for n in doc.nodes.values() {
+    for n in &osm_nodes {
         for (k, v) in &n.tags {
             if !UNINDEXED_NODE_KEYS.contains(&k.as_str()) {
                 tag_index.entry(v.clone()).or_default().push(n.id);
             }
         }
-        let position = projector.forward(n.lat, n.lon);
-        nodes.insert(n.id, MapNode { id: n.id, lat: n.lat, lon: n.lon, position, tags: n.tags.clone() });
     }
+    let nodes = osm_nodes
+        .into_iter()
+        .zip(positions)
+        .map(|(n, &position)| (n.id, MapNode { id: n.id, lat: n.lat, lon: n.lon, position, tags: n.tags }))
+        .collect();
+    (nodes, tag_index)
+}
 
-    let mut ways = BTreeMap::new();
-    for w in doc.ways.values() {
-        // osm::parse_osm has already checked that every node exists.
-        let points = w.nodes.iter().map(|id| nodes[id].position).collect();
+/// What [`network`] builds.
+struct Network {
+    ways: BTreeMap<i64, MapWay>,
+    lanelets: Vec<Lanelet>,
+    index: BTreeMap<LaneletId, usize>,
+    graph: RoutingGraph,
+    warnings: Vec<MapWarning>,
+}
+
+/// Ways (in metres), lanelets, successors and the routing graph, with their warnings in order.
+fn network(
+    source: &FsPath,
+    osm_ways: Vec<OsmWay>,
+    relations: Vec<OsmRelation>,
+    positions: &[DVec2],
+    node_index: &IdIndex,
+) -> Result<Network, MapError> {
+    let mut warnings = Vec::new();
+    let at = |line: usize| Location { file: source.to_path_buf(), line };
+    let mut ways = Vec::with_capacity(osm_ways.len());
+    for w in osm_ways {
+        // osm::parse_objects has already checked that every node exists.
+        let points: Vec<DVec2> = w
+            .nodes
+            .iter()
+            .map(|&id| positions[node_index.get(id).expect("osm::parse_objects checked every way node")])
+            .collect();
         if let Some(t) = w.tags.get("line_type").filter(|t| !KNOWN_LINE_TYPES.contains(&t.as_str())) {
-            warn(
-                &mut warnings,
-                w.line,
-                format!(
+            warnings.push(MapWarning {
+                at: at(w.line).to_string(),
+                message: format!(
                     "way {}: unknown line_type `{t}` (known: {}); drawn as an untagged way",
                     w.id,
                     KNOWN_LINE_TYPES.join(", ")
                 ),
-            );
+            });
         }
-        ways.insert(w.id, MapWay { id: w.id, nodes: w.nodes.clone(), points, tags: w.tags.clone() });
+        let length = polyline_length(&points);
+        ways.push(WayEntry {
+            way: MapWay { id: w.id, nodes: w.nodes, points, tags: w.tags },
+            line: w.line,
+            length,
+            checked: false,
+        });
     }
 
+    let way_index = IdIndex::new(ways.iter().map(|w| w.way.id));
     let mut lanelets = Vec::new();
-    let mut checked_ways = std::collections::BTreeSet::new();
-    for r in doc.relations.values() {
+    for r in relations {
         match r.tags.get("type").map(String::as_str) {
             Some("lanelet") => {
-                if let Some(l) = lanelet(doc, r, &ways, &mut checked_ways, &mut warnings)? {
+                if let Some(l) = lanelet(&at, r, &mut ways, &way_index, &mut warnings)? {
                     lanelets.push(l);
                 }
             }
             Some(_) => {}
-            None if r.members.is_empty() => {
-                warn(&mut warnings, r.line, format!("relation {} has no members and no type tag; skipped", r.id))
-            }
-            None => warn(
-                &mut warnings,
-                r.line,
-                format!(
+            None if r.members.is_empty() => warnings.push(MapWarning {
+                at: at(r.line).to_string(),
+                message: format!("relation {} has no members and no type tag; skipped", r.id),
+            }),
+            None => warnings.push(MapWarning {
+                at: at(r.line).to_string(),
+                message: format!(
                     "relation {} has no `type` tag; kept in the file but not used (tag it type=lanelet to drive on it)",
                     r.id
                 ),
-            ),
+            }),
         }
     }
     link_successors(&mut lanelets);
     let index = lanelets.iter().enumerate().map(|(i, l)| (l.id, i)).collect();
-    let mut map = LaneletMap {
-        projector,
-        origin_node,
-        nodes,
-        ways,
-        lanelets,
-        tag_index,
-        warnings,
-        index,
-        graph: Default::default(),
-    };
-    let graph_lanelets: Vec<GraphLanelet<'_>> = map.lanelets.iter().map(Lanelet::graph_view).collect();
-    map.graph = RoutingGraph::new(&graph_lanelets);
-    Ok(map)
+    let (ways, graph) = rayon::join(
+        || ways.into_iter().map(|w| (w.way.id, w.way)).collect(),
+        || RoutingGraph::new(&lanelets.iter().map(Lanelet::graph_view).collect::<Vec<GraphLanelet<'_>>>()),
+    );
+    Ok(Network { ways, lanelets, index, graph, warnings })
 }
 
 /// Southern and northern limits of UTM [deg]: beyond them the projection is not defined (polar
@@ -133,10 +180,9 @@ const UTM_LATITUDES: (f64, f64) = (-80.0, 84.0);
 
 /// Every node within UTM's latitudes, and the map not spread over the antimeridian (a map with
 /// nodes at +179.9 and -179.9 degrees would be projected 40,000 km wide).
-fn check_coordinates(doc: &OsmDocument) -> Result<(), MapError> {
-    let bad =
-        |n: &super::osm::OsmNode, message: String| MapError::Coordinates { at: doc.at(n.line), node: n.id, message };
-    if let Some(n) = doc.nodes.values().find(|n| n.lat < UTM_LATITUDES.0 || n.lat > UTM_LATITUDES.1) {
+fn check_coordinates(doc: &OsmObjects) -> Result<(), MapError> {
+    let bad = |n: &OsmNode, message: String| MapError::Coordinates { at: doc.at(n.line), node: n.id, message };
+    if let Some(n) = doc.nodes.iter().find(|n| n.lat < UTM_LATITUDES.0 || n.lat > UTM_LATITUDES.1) {
         return Err(bad(
             n,
             format!(
@@ -145,8 +191,8 @@ fn check_coordinates(doc: &OsmDocument) -> Result<(), MapError> {
             ),
         ));
     }
-    let west = doc.nodes.values().min_by(|a, b| a.lon.total_cmp(&b.lon));
-    let east = doc.nodes.values().max_by(|a, b| a.lon.total_cmp(&b.lon));
+    let west = doc.nodes.iter().min_by(|a, b| a.lon.total_cmp(&b.lon));
+    let east = doc.nodes.iter().max_by(|a, b| a.lon.total_cmp(&b.lon));
     if let (Some(w), Some(e)) = (west, east)
         && e.lon - w.lon > 180.0
     {
@@ -162,9 +208,9 @@ fn check_coordinates(doc: &OsmDocument) -> Result<(), MapError> {
 }
 
 /// The origin: the node tagged `origin=true`, else the mean of all nodes.
-fn origin(doc: &OsmDocument, warnings: &mut Vec<MapWarning>) -> Result<(Projector, Option<i64>), MapError> {
+fn origin(doc: &OsmObjects, warnings: &mut Vec<MapWarning>) -> Result<(Projector, Option<i64>), MapError> {
     let mut tagged: Vec<_> =
-        doc.nodes.values().filter(|n| n.tags.get("origin").map(String::as_str) == Some("true")).collect();
+        doc.nodes.iter().filter(|n| n.tags.get("origin").map(String::as_str) == Some("true")).collect();
     tagged.sort_by_key(|n| n.line);
     if let Some(first) = tagged.first() {
         if tagged.len() > 1 {
@@ -184,19 +230,20 @@ fn origin(doc: &OsmDocument, warnings: &mut Vec<MapWarning>) -> Result<(Projecto
         return Err(MapError::Empty(doc.source.clone()));
     }
     let n = doc.nodes.len() as f64;
-    let lat = doc.nodes.values().map(|n| n.lat).sum::<f64>() / n;
-    let lon = doc.nodes.values().map(|n| n.lon).sum::<f64>() / n;
+    let lat = doc.nodes.iter().map(|n| n.lat).sum::<f64>() / n;
+    let lon = doc.nodes.iter().map(|n| n.lon).sum::<f64>() / n;
     Ok((Projector::new(lat, lon), None))
 }
 
-/// The left and right bound ways of lanelet relation `r` (either role convention), or `None`
-/// (with a warning) when it has no members or lacks a usable bound.
-fn bound_ways<'a>(
-    doc: &OsmDocument,
+/// The left and right bound ways of lanelet relation `r` (either role convention), as
+/// positions in `ways`, or `None` (with a warning) when it has no members or lacks a usable bound.
+fn bound_ways(
+    at: &dyn Fn(usize) -> Location,
     r: &OsmRelation,
-    ways: &'a BTreeMap<i64, MapWay>,
+    ways: &[WayEntry],
+    way_index: &IdIndex,
     warn: &mut dyn FnMut(String),
-) -> Result<Option<(&'a MapWay, &'a MapWay)>, MapError> {
+) -> Result<Option<(usize, usize)>, MapError> {
     if r.members.is_empty() {
         warn(format!("lanelet {} has no members; skipped", r.id));
         return Ok(None);
@@ -213,8 +260,8 @@ fn bound_ways<'a>(
             warn(format!("lanelet {}: member {} with role `{}` is not a way; ignored", r.id, m.reference, m.role));
             continue;
         }
-        let way = ways.get(&m.reference).ok_or_else(|| MapError::MissingWay {
-            at: doc.at(r.line),
+        let way = way_index.get(m.reference).ok_or_else(|| MapError::MissingWay {
+            at: at(r.line),
             lanelet: r.id,
             way: m.reference,
             role: m.role.clone(),
@@ -234,8 +281,8 @@ fn bound_ways<'a>(
         return Ok(None);
     };
     for b in [left, right] {
-        if b.nodes.len() < 2 {
-            warn(format!("lanelet {}: bound way {} has fewer than 2 nodes; lanelet skipped", r.id, b.id));
+        if ways[b].way.nodes.len() < 2 {
+            warn(format!("lanelet {}: bound way {} has fewer than 2 nodes; lanelet skipped", r.id, ways[b].way.id));
             return Ok(None);
         }
     }
@@ -243,35 +290,46 @@ fn bound_ways<'a>(
     Ok(Some((left, right)))
 }
 
-/// One lanelet from its relation, or `None` (with a warning) when it cannot be used.
-/// `checked_ways` holds the bound ways already checked for repeats and self-crossings (each is
-/// reported once, on its own line, however many lanelets share it).
+/// One lanelet from its relation, or `None` (with a warning) when it cannot be used. A bound
+/// way's repeats and self-crossings are reported once, on its own line, however many lanelets
+/// share it.
 fn lanelet(
-    doc: &OsmDocument,
-    r: &OsmRelation,
-    ways: &BTreeMap<i64, MapWay>,
-    checked_ways: &mut std::collections::BTreeSet<i64>,
+    at: &dyn Fn(usize) -> Location,
+    r: OsmRelation,
+    ways: &mut [WayEntry],
+    way_index: &IdIndex,
     warnings: &mut Vec<MapWarning>,
 ) -> Result<Option<Lanelet>, MapError> {
-    let at = doc.at(r.line).to_string();
-    let mut warn = |message: String| warnings.push(MapWarning { at: at.clone(), message });
-    let Some((left, right)) = bound_ways(doc, r, ways, &mut warn)? else { return Ok(None) };
-    for way in [left, right] {
-        if checked_ways.insert(way.id) {
-            let way_at = doc.ways.get(&way.id).map_or_else(|| at.clone(), |w| doc.at(w.line).to_string());
-            for message in geometry_checks::way_problems(way) {
-                warnings.push(MapWarning { at: way_at.clone(), message });
+    // The relation's place, formatted only when there is something to say.
+    let mut relation_at: Option<String> = None;
+    let mut warn = |warnings: &mut Vec<MapWarning>, message: String| {
+        let at = relation_at.get_or_insert_with(|| at(r.line).to_string()).clone();
+        warnings.push(MapWarning { at, message });
+    };
+    let Some((li, ri)) = bound_ways(at, &r, ways, way_index, &mut |m| warn(warnings, m))? else {
+        return Ok(None);
+    };
+    for k in [li, ri] {
+        let entry = &mut ways[k];
+        if !entry.checked {
+            entry.checked = true;
+            let problems = geometry_checks::way_problems(&entry.way);
+            if !problems.is_empty() {
+                let way_at = at(entry.line).to_string();
+                warnings.extend(problems.into_iter().map(|message| MapWarning { at: way_at.clone(), message }));
             }
         }
     }
-    let mut warn = |message: String| warnings.push(MapWarning { at: at.clone(), message });
-    if let Some(message) = geometry_checks::unusable(r.id, left, right) {
-        warn(message);
+    let (left, right) = (&ways[li], &ways[ri]);
+    if let Some(message) = geometry_checks::unusable(r.id, (&left.way, left.length), (&right.way, right.length)) {
+        warn(warnings, message);
         return Ok(None);
     }
-    if let Some(message) = geometry_checks::length_mismatch(r.id, left, right) {
-        warn(message);
+    if let Some(message) = geometry_checks::length_mismatch(r.id, (&left.way, left.length), (&right.way, right.length))
+    {
+        warn(warnings, message);
     }
+    let (left, right) = (&left.way, &right.way);
 
     let mut right_nodes = right.nodes.clone();
     let mut right_pts = right.points.clone();
@@ -298,7 +356,7 @@ fn lanelet(
     }
     let centre: Vec<DVec2> = left_pts.iter().zip(&right_pts).map(|(l, r)| (*l + *r) * 0.5).collect();
     let length = polyline_length(&centre);
-    let tags: Tags = r.tags.clone();
+    let tags: Tags = r.tags;
     Ok(Some(Lanelet {
         id: LaneletId(r.id),
         left_way: left.id,
@@ -317,13 +375,14 @@ fn lanelet(
 }
 
 /// Shoelace area of the polygon left bound + reversed right bound: negative when the left bound
-/// really is on the left of the driving direction.
+/// really is on the left of the driving direction. Walks the ring in place (no copy of it).
 fn signed_area(left: &[DVec2], right: &[DVec2]) -> f64 {
-    let ring: Vec<DVec2> = left.iter().chain(right.iter().rev()).copied().collect();
+    let n = left.len() + right.len();
+    let ring = |i: usize| if i < left.len() { left[i] } else { right[right.len() - 1 - (i - left.len())] };
     let mut area = 0.0;
-    for i in 0..ring.len() {
-        let a = ring[i];
-        let b = ring[(i + 1) % ring.len()];
+    for i in 0..n {
+        let a = ring(i);
+        let b = ring((i + 1) % n);
         area += a.x * b.y - b.x * a.y;
     }
     area * 0.5
@@ -341,16 +400,16 @@ fn vehicle_may_drive(tags: &Tags) -> bool {
 }
 
 /// j follows i when j's bounds start where i's bounds end (right and left), as the 2015 code and
-/// Lanelet2 both decide it.
+/// Lanelet2 both decide it. The starts are one sorted list (lanelets come in id order, so each
+/// start's lanelets stay in id order), not a map of lists.
 fn link_successors(lanelets: &mut [Lanelet]) {
-    let mut by_start: BTreeMap<(i64, i64), Vec<LaneletId>> = BTreeMap::new();
-    for l in lanelets.iter() {
-        by_start.entry((l.right_nodes[0], l.left_nodes[0])).or_default().push(l.id);
-    }
+    let mut by_start: Vec<((i64, i64), LaneletId)> =
+        lanelets.iter().map(|l| ((l.right_nodes[0], l.left_nodes[0]), l.id)).collect();
+    by_start.sort_unstable();
     for l in lanelets.iter_mut() {
         let end = (l.right_nodes[l.right_nodes.len() - 1], l.left_nodes[l.left_nodes.len() - 1]);
-        if let Some(next) = by_start.get(&end) {
-            l.successors = next.iter().copied().filter(|&id| id != l.id).collect();
-        }
+        let from = by_start.partition_point(|(start, _)| *start < end);
+        let next = by_start[from..].iter().take_while(|(start, _)| *start == end);
+        l.successors = next.map(|&(_, id)| id).filter(|&id| id != l.id).collect();
     }
 }

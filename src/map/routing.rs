@@ -125,7 +125,7 @@ impl LaneletMap {
     /// Ids of the nodes a route may start or end at by the 2015 rule (on the right bound of a
     /// drivable lanelet), in id order: what `smlworld bench --routing` draws its pairs from.
     pub fn routable_nodes(&self) -> Vec<i64> {
-        self.graph.node_states.keys().copied().collect()
+        self.graph.node_states.nodes().to_vec()
     }
 
     /// Ids of the nodes carrying a tag with this value.
@@ -140,12 +140,9 @@ impl LaneletMap {
         let mut out = Vec::new();
         for &id in nodes {
             let node = self.nodes.get(&id).ok_or(MapError::UnknownNode(id))?;
-            let right = self.graph.node_states.get(&id).map(Vec::as_slice).unwrap_or(&[]);
-            let (states, left) = if right.is_empty() {
-                (self.graph.node_left_states.get(&id).map(Vec::as_slice).unwrap_or(&[]), true)
-            } else {
-                (right, false)
-            };
+            let right = self.graph.node_states.get(id);
+            let (states, left) =
+                if right.is_empty() { (self.graph.node_left_states.get(id), true) } else { (right, false) };
             for &state in states {
                 let (along, _) = project_polyline(&self.state_centre(state), node.position);
                 out.push(End { state, along, node: id, left });
