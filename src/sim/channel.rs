@@ -17,7 +17,7 @@
 //! Every draw is [`super::random::uniform`] keyed by (seed, channel stream, link, round, message
 //! index, draw), so results do not depend on threads or system order and a draw allocates nothing.
 
-use super::random::{key, mix, uniform, uniform_at};
+use super::random::{key, mix, uniform_at};
 
 /// Probability that a reception is lost, before bursts.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -92,17 +92,36 @@ pub struct Draw {
 impl Draw {
     /// A uniform number in [0, 1) for draw number `k` of this message.
     pub fn uniform(&self, k: u64) -> f64 {
-        let link = mix((u64::from(self.sender as u32) << 32) | u64::from(self.receiver as u32));
-        uniform(self.seed, self.stream ^ link, self.round, (u64::from(self.index) << 8) | k)
+        uniform_at(self.key(), (u64::from(self.index) << 8) | k)
     }
 
     /// The counter of this link's round, shared by every message of it:
-    /// `uniform_at(draw.key(), (index << 8) | k) == draw.uniform(k)`, so a link's draws of one
-    /// round cost one hash each after the key's four.
+    /// `uniform_at(draw.key(), (index << 8) | k) == draw.uniform(k)`. It is
+    /// [`link_key`]`(`[`round_key`]`(seed, stream, round), sender, receiver)`: a round's key once,
+    /// then two hashes per link, one per draw.
     pub fn key(&self) -> u64 {
-        let link = mix((u64::from(self.sender as u32) << 32) | u64::from(self.receiver as u32));
-        key(self.seed, self.stream ^ link, self.round)
+        link_key(round_key(self.seed, self.stream, self.round), self.sender, self.receiver)
     }
+}
+
+/// The key of one round of a channel's stream, shared by all its links ([`Draw::key`]).
+pub fn round_key(seed: u64, stream: u64, round: u64) -> u64 {
+    key(seed, stream, round)
+}
+
+/// The key of the link (sender, receiver) in the round whose key is `round` ([`round_key`]).
+#[inline]
+pub fn link_key(round: u64, sender: i32, receiver: i32) -> u64 {
+    mix(mix((u64::from(sender as u32) << 32) | u64::from(receiver as u32)) ^ round)
+}
+
+/// `x.round() as u64` for the delays (non-negative; a NaN or negative gives 0 as there) without
+/// a library call: the processors this is built for have no rounding instruction in the
+/// baseline instruction set, and `round` was a per-reception call.
+#[inline]
+fn round_us(x: f64) -> u64 {
+    let t = x as u64;
+    t + u64::from(x - t as f64 >= 0.5)
 }
 
 impl ChannelModel {
@@ -134,7 +153,7 @@ impl ChannelModel {
     /// The widest spread of the delays [µs]: the largest delay [`ChannelModel::deliver`] gives
     /// less the smallest. Rounds further apart than this cannot overtake one another.
     pub fn delay_spread_us(&self) -> u64 {
-        let us = |ms: f64| (ms * 1000.0).round() as u64;
+        let us = |ms: f64| round_us(ms * 1000.0);
         us(self.delay_ms + self.jitter_ms.max(0.0)).saturating_sub(us(self.delay_ms))
     }
 
@@ -185,7 +204,7 @@ impl ChannelModel {
             return None;
         }
         let jitter = if self.jitter_ms > 0.0 { draw(3) * self.jitter_ms } else { 0.0 };
-        let delay_us = ((self.delay_ms + jitter) * 1000.0).round() as u64;
+        let delay_us = round_us((self.delay_ms + jitter) * 1000.0);
         let due = (now_us + delay_us).max(link.last_due_us);
         link.last_due_us = due;
         Some(due - now_us)
@@ -276,6 +295,17 @@ mod tests {
             for k in 0..4 {
                 assert_eq!(uniform_at(d.key(), (u64::from(d.index) << 8) | k), d.uniform(k), "draw {r}, {k}");
             }
+        }
+    }
+
+    #[test]
+    fn round_us_rounds_like_round() {
+        for x in [0.0, 0.4999999999999999, 0.5, 1.5, 2.5, 12_499.5, 12_500.49, 1e15 + 0.5, -3.0, f64::NAN] {
+            assert_eq!(round_us(x), x.round() as u64, "{x}");
+        }
+        for k in 0..100_000u64 {
+            let x = k as f64 * 0.137;
+            assert_eq!(round_us(x), x.round() as u64, "{x}");
         }
     }
 

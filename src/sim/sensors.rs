@@ -365,14 +365,81 @@ fn write_imperfect_readings(
                 w.bits();
                 w
             });
-            let (n_range, n_bearing) = normals.normal_pair();
-            let (n_vx, n_vy) = normals.normal_pair();
-            // Range and bearing errors: scale the offset, then rotate it by the bearing error.
-            let d = d2.sqrt();
-            let scale = if d > 0.0 { (d + err.range_sd * n_range) / d } else { 1.0 };
-            let scaled = relative * scale;
-            detection.position = sight.position + small_rotation(err.bearing_sd * n_bearing).rotate(scaled);
-            detection.velocity += DVec2::new(n_vx, n_vy) * err.speed_sd;
+            add_noise(&mut detection, sight.position, relative, d2, err, &mut normals);
+        }
+        readings.0.push(detection);
+        stats.detections += 1;
+    }
+}
+
+/// Move `detection` (of a target at `relative` [m], squared distance `d2`, from a sensor at
+/// `position`) by the range, bearing and velocity errors of `err`, with the normals of
+/// `normals` (words 1 and on of the pair's draws).
+#[inline]
+fn add_noise(
+    detection: &mut Detection,
+    position: DVec2,
+    relative: DVec2,
+    d2: f64,
+    err: &SensorError,
+    normals: &mut Words,
+) {
+    let (n_range, n_bearing) = normals.normal_pair();
+    let (n_vx, n_vy) = normals.normal_pair();
+    // Range and bearing errors: scale the offset, then rotate it by the bearing error.
+    let d = d2.sqrt();
+    let scale = if d > 0.0 { (d + err.range_sd * n_range) / d } else { 1.0 };
+    let scaled = relative * scale;
+    detection.position = position + small_rotation(err.bearing_sd * n_bearing).rotate(scaled);
+    detection.velocity += DVec2::new(n_vx, n_vy) * err.speed_sd;
+}
+
+/// Whether [`write_radar_error_readings`] gives what [`write_imperfect_readings`] gives: no
+/// occlusion, and a perfect velodyne (errors on the radar only, the common case).
+fn radar_errors_only(errors: &SensorErrors) -> bool {
+    let v = &errors.velodyne;
+    !errors.radar.occlusion && !v.occlusion && v.dropout <= 0.0 && !v.is_noisy()
+}
+
+/// [`write_imperfect_readings`] when only the radar has errors ([`radar_errors_only`]): the
+/// same readings and counts, the same draws, in one straight loop (no occlusion extents, no
+/// per-sensor choice of draws to carry).
+#[allow(clippy::too_many_arguments)]
+fn write_radar_error_readings(
+    sight: &Sight,
+    err: &SensorError,
+    draws: Draws,
+    grid: &SpatialGrid,
+    found: &mut [u128],
+    stats: &mut SensorStats,
+    readings: &mut SensorReadings,
+) {
+    found.sort_unstable();
+    readings.0.clear();
+    let (dropout, noisy) = (err.dropout > 0.0, err.is_noisy());
+    for &key in found.iter() {
+        let low = key as u32;
+        let e = grid.get(low & !REACH);
+        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
+        if !sight.omniscient && low & RADAR_REACH != 0 && (dropout || noisy) {
+            // Word 0 decides dropout (drawn or skipped), words 1 and on are the noise's.
+            let mut words = draws.words(draws.radar, sight.id, e.id);
+            let kept = if dropout {
+                words.uniform() >= err.dropout
+            } else {
+                words.bits();
+                true
+            };
+            if kept {
+                if noisy {
+                    let relative = e.position - sight.position;
+                    let d2 = f64::from_bits((key >> 64) as u64);
+                    add_noise(&mut detection, sight.position, relative, d2, err, &mut words);
+                }
+            } else if low & VELODYNE_REACH == 0 {
+                stats.missed_by_dropout += 1;
+                continue;
+            }
         }
         readings.0.push(detection);
         stats.detections += 1;
@@ -428,6 +495,15 @@ fn sense_chunk(input: SenseInput<'_>, chunk: &mut [SensingItem<'_>], s: &mut Sen
         }
         s.found.truncate(n);
         match errors {
+            Some(errors) if radar_errors_only(errors) => write_radar_error_readings(
+                &sight,
+                &errors.radar,
+                input.draws,
+                grid,
+                &mut s.found,
+                &mut s.stats,
+                readings,
+            ),
             Some(errors) => write_imperfect_readings(
                 &sight,
                 errors,
@@ -563,6 +639,73 @@ mod tests {
             let mut w = d.words(base, a, b);
             for k in 0..3 {
                 assert_eq!(w.uniform(), crate::world::random::uniform(42, stream, pair, (1_500_000 << 16) | k));
+            }
+        }
+    }
+
+    /// A grid of `n` vehicles scattered around the origin and a sensing vehicle at the origin
+    /// facing +x with a radar and a velodyne: its candidates as `Sight::consider` keys.
+    fn scene(n: u32) -> (SpatialGrid, Sight, Vec<u128>) {
+        let mut grid = SpatialGrid::default();
+        let entries = (0..n).map(|k| {
+            let a = f64::from(k) * 2.399_963; // golden angle: spread in every direction
+            let r = 3.0 + f64::from(k % 37) * 3.1;
+            GridEntry {
+                position: DVec2::new(r * a.cos(), r * a.sin()),
+                velocity: DVec2::new(f64::from(k % 5), -1.0),
+                id: VehicleId(k as i32 + 1),
+                index: k,
+            }
+        });
+        grid.rebuild(100.0, entries);
+        let state = VehicleState::new(DVec2::ZERO, 0.0, 10.0);
+        let sight = Sight::new(VehicleId(-1), &state, Some(&Radar::default()), Some(&Velodyne::default()), false);
+        let mut found = vec![0; grid.len()];
+        let mut seen = 0;
+        for slot in 0..grid.len() as u32 {
+            let e = *grid.get(slot);
+            seen = sight.consider(slot, e.position, e.id, &mut found, seen);
+        }
+        found.truncate(seen);
+        (grid, sight, found)
+    }
+
+    #[test]
+    fn the_radar_only_loop_reads_what_the_general_one_reads() {
+        let (grid, sight, found) = scene(400);
+        assert!(found.len() > 50, "{} candidates seen", found.len());
+        for (dropout, range_sd) in [(0.3, 0.5), (0.0, 0.5), (0.3, 0.0), (0.0, 0.0)] {
+            let radar = SensorError { range_sd, bearing_sd: 0.02, speed_sd: 0.3, dropout, occlusion: false };
+            let errors = SensorErrors { radar, ..Default::default() };
+            assert!(radar_errors_only(&errors));
+            for tick in [0, 50_000, 1_000_000] {
+                let draws = Draws::new(7, tick);
+                let (mut general, mut fast) = (SensorReadings::default(), SensorReadings::default());
+                let (mut general_stats, mut fast_stats) = (SensorStats::default(), SensorStats::default());
+                let mut extents = Vec::new();
+                let (mut a, mut b) = (found.clone(), found.clone());
+                write_imperfect_readings(
+                    &sight,
+                    &errors,
+                    draws,
+                    &[],
+                    &grid,
+                    &mut a,
+                    &mut extents,
+                    &mut general_stats,
+                    &mut general,
+                );
+                write_radar_error_readings(&sight, &errors.radar, draws, &grid, &mut b, &mut fast_stats, &mut fast);
+                let bits = |r: &SensorReadings| -> Vec<(i32, [u64; 4])> {
+                    r.0.iter()
+                        .map(|d| (d.id.0, [d.position.x, d.position.y, d.velocity.x, d.velocity.y].map(f64::to_bits)))
+                        .collect()
+                };
+                assert_eq!(bits(&general), bits(&fast), "dropout {dropout}, range sd {range_sd}, tick {tick}");
+                assert_eq!(general_stats, fast_stats);
+                if dropout > 0.0 {
+                    assert!(fast_stats.missed_by_dropout > 0, "dropout {dropout} missed nothing");
+                }
             }
         }
     }

@@ -28,7 +28,7 @@ use std::sync::Arc;
 
 use bevy_ecs::prelude::{Entity, Local, Mut, Query, Res, ResMut, Resource};
 
-use super::channel::{ChannelModel, Draw, LinkState, Loss};
+use super::channel::{ChannelModel, LinkState, Loss, link_key, round_key};
 use super::random::{OrderedSample, binomial, key, mix, uniform_at};
 use super::{Plugin, SimBuilder, SimClock, SimSeed};
 use crate::world::{Channel, Mailbox, Message, VehicleId, VehicleState, Vehicles};
@@ -414,21 +414,21 @@ pub fn deliver_network(
     let ordered = model.delays() && delayed.needs_link_order(Channel::Network, now.0, &model);
     let stateful = model.burst.is_some() || ordered;
     let mut record = model.delays().then(|| delayed.open(Channel::Network, round, &batch));
+    let network_round = round_key(seed, NETWORK_STREAM, round);
     for (entity, state, mut mailbox) in &mut mailboxes {
         let owner = mailbox.owner();
         picks.clear();
         let mut index = 0u32;
         let mut previous = None;
         let mut order = LinkOrder::default();
-        let mut link_key = 0;
+        let mut sender_key = 0;
         for (k, m) in batch.iter().enumerate() {
             if previous == Some(m.sender) {
                 index += 1;
             } else {
                 index = 0;
                 order = LinkOrder::default();
-                link_key =
-                    Draw { seed, stream: NETWORK_STREAM, sender: m.sender.0, receiver: owner.0, round, index }.key();
+                sender_key = link_key(network_round, m.sender.0, owner.0);
             }
             previous = Some(m.sender);
             if m.sender == owner {
@@ -446,7 +446,7 @@ pub fn deliver_network(
             };
             let mut fresh = LinkState::default();
             let link = if stateful { links.network.entry((m.sender, owner)).or_default() } else { &mut fresh };
-            let Some(delay) = model.deliver_keyed(link_key, index, now.0, distance, config.wifi_range, link) else {
+            let Some(delay) = model.deliver_keyed(sender_key, index, now.0, distance, config.wifi_range, link) else {
                 continue;
             };
             channel.network.delivered += 1;
@@ -508,7 +508,8 @@ struct WifiThread {
 struct WifiRound<'a> {
     model: ChannelModel,
     range: f64,
-    seed: u64,
+    /// [`round_key`] of this round of the wifi stream.
+    round_key: u64,
     round: u64,
     now_us: u64,
     epoch: u64,
@@ -568,15 +569,7 @@ impl WifiRound<'_> {
                     Some(links) => links.entry((sender, owner)).or_default(),
                     None => &mut fresh,
                 };
-                let draw = Draw {
-                    seed: self.seed,
-                    stream: WIFI_STREAM,
-                    sender: sender.0,
-                    receiver: owner.0,
-                    round: self.round,
-                    index: 0,
-                };
-                let key = draw.key();
+                let key = link_key(self.round_key, sender.0, owner.0);
                 let mut order = LinkOrder::default();
                 for index in 0..count {
                     let k = starts[i as usize] + index;
@@ -664,7 +657,7 @@ pub fn deliver_wifi(
     let input = WifiRound {
         model,
         range: config.wifi_range,
-        seed,
+        round_key: round_key(seed, WIFI_STREAM, round),
         round,
         now_us: now.0,
         epoch: epoch.0,
