@@ -120,8 +120,9 @@ pub fn link_key(round: u64, sender: i32, receiver: i32) -> u64 {
 /// baseline instruction set, and `round` was a per-reception call.
 #[inline]
 fn round_us(x: f64) -> u64 {
-    let t = x as u64;
-    t + u64::from(x - t as f64 >= 0.5)
+    // Through i64, whose conversions are single instructions (u64's are branchy sequences).
+    let t = x as i64;
+    (t + i64::from(x - t as f64 >= 0.5)).max(0) as u64
 }
 
 impl ChannelModel {
@@ -300,7 +301,7 @@ mod tests {
 
     #[test]
     fn round_us_rounds_like_round() {
-        for x in [0.0, 0.4999999999999999, 0.5, 1.5, 2.5, 12_499.5, 12_500.49, 1e15 + 0.5, -3.0, f64::NAN] {
+        for x in [0.0, 0.4999999999999999, 0.5, 1.5, 2.5, 12_499.5, 12_500.49, 1e15 + 0.5, -3.0, -0.5, f64::NAN] {
             assert_eq!(round_us(x), x.round() as u64, "{x}");
         }
         for k in 0..100_000u64 {
