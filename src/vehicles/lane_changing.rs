@@ -20,7 +20,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Local, Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Entity, Local, Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
@@ -329,6 +329,26 @@ impl Decision {
     }
 }
 
+/// What one thread of [`decide_lane_changes`] hands to its serial part: the non-empty
+/// decisions and the vehicles that may need [`limit_for_lane_changes`], each with its item's
+/// place, in query order.
+#[derive(Default)]
+pub struct ChunkOut {
+    decisions: Vec<(usize, Decision)>,
+    limited: Vec<usize>,
+}
+
+/// The vehicles [`limit_for_lane_changes`] visits this control tick, in query order: those
+/// [`decide_lane_changes`] left with a limit to apply (most vehicles have none, and scanning
+/// every vehicle's [`LaneChanger`] for the few was a serial pass over all of them).
+#[derive(Resource, Debug, Default)]
+pub struct LaneChangeLimits(pub Vec<Entity>);
+
+/// Whether `ch` asks [`limit_for_lane_changes`] to lower the demand.
+fn needs_limit(ch: &LaneChanger) -> bool {
+    ch.lane_end.is_some() || ch.virtual_leader.is_some() || ch.yield_to.is_some() || ch.active.is_some()
+}
+
 /// One lane changer as [`decide_lane_changes`] gathers it.
 type ChangerItem<'a> = (
     usize,
@@ -376,8 +396,10 @@ pub fn decide_lane_changes(
     mut crossings: ResMut<LaneCrossings>,
     mut signals: ResMut<LaneSignals>,
     mut claims: ResMut<Claims>,
+    mut limits: ResMut<LaneChangeLimits>,
     all: Query<(&VehicleId, &VehicleSize, &LanePosition)>,
     mut changers: Query<(
+        Entity,
         &VehicleId,
         &VehicleState,
         &VehicleSize,
@@ -387,9 +409,11 @@ pub fn decide_lane_changes(
         &mut LaneChanger,
     )>,
     mut entries: Local<Vec<IndexEntry>>,
-    mut scratch: Local<Vec<Vec<(usize, Decision)>>>,
+    mut scratch: Local<Vec<ChunkOut>>,
     mut buffer: Local<Vec<ChangerItem<'static>>>,
+    mut entities: Local<Vec<Entity>>,
 ) {
+    limits.0.clear();
     let Some(lanes) = lanes else { return };
     let lanes = &*lanes;
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
@@ -400,7 +424,7 @@ pub fn decide_lane_changes(
     // start of this control tick: no trigonometry here), a crossing one on the other lane too.
     crossings.0.clear();
     entries.clear();
-    for (id, _, size, pos, _, _, ch) in changers.iter() {
+    for (_, id, _, size, pos, _, _, ch) in changers.iter() {
         if let Some(m) = &ch.active {
             crossings.0.insert(*id, (m.from, m.to));
             if let Some(i) = pos.on()
@@ -422,7 +446,9 @@ pub fn decide_lane_changes(
     let mut items: Vec<ChangerItem<'_>> = recycle(std::mem::take(&mut *buffer));
     // Plain references, not `Mut`s (smaller items for the serial gathering; nothing reads
     // change ticks).
-    items.extend(changers.iter_mut().enumerate().map(|(n, (id, state, size, pos, route, follower, ch))| {
+    entities.clear();
+    items.extend(changers.iter_mut().enumerate().map(|(n, (entity, id, state, size, pos, route, follower, ch))| {
+        entities.push(entity);
         let ch = ch.into_inner();
         // Which lanelets reach the goal: looked up once per goal, here (the cache is shared).
         if ch.reach.is_none() && pos.on().is_some() {
@@ -433,17 +459,22 @@ pub fn decide_lane_changes(
     let shared = Shared { lanes, index: &index, signals: &last_signals, t, dt, tick };
     // Each chunk keeps the non-empty decisions with their item's place (chunks are in query
     // order, and so is each list): the serial part visits only those, not every vehicle.
+    // They also note the vehicles [`limit_for_lane_changes`] may have to slow: those with a
+    // limit set by the evaluation, or a decision the serial part may turn into a manoeuvre.
     parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, out| {
         for (n, id, state, size, pos, route, follower, ch) in chunk.iter_mut() {
             let mut decision = Decision::default();
             evaluate(&shared, **id, state, size, pos, route, follower, ch, &mut decision);
             if !decision.is_empty() {
-                out.push((*n, decision));
+                out.decisions.push((*n, decision));
+                out.limited.push(*n);
+            } else if needs_limit(ch) {
+                out.limited.push(*n);
             }
         }
     });
 
-    for (k, decision) in scratch.iter_mut().flat_map(|list| list.drain(..)) {
+    for (k, decision) in scratch.iter_mut().flat_map(|out| out.decisions.drain(..)) {
         let (_, id, state, size, pos, route, follower, ch) = &mut items[k];
         let (state, size, pos) = (*state, *size, *pos);
         let me = **id;
@@ -514,6 +545,11 @@ pub fn decide_lane_changes(
         ch.request = None;
         ch.wait_since = None;
         ch.active = Some(m);
+    }
+    for k in scratch.iter_mut().flat_map(|out| out.limited.drain(..)) {
+        if needs_limit(items[k].7) {
+            limits.0.push(entities[k]);
+        }
     }
     *buffer = recycle(items);
 }
@@ -783,10 +819,14 @@ fn profile_curvature(p: &LaneChangeProfile, s: f64) -> f64 {
 /// Lower the demand for lane changes: fall behind a vehicle in the target lane while a mandatory
 /// change waits, open a gap for a neighbour that must change in (braking at most
 /// `safe_deceleration / 2`), and keep under the speed the manoeuvre was sized for.
-pub fn limit_for_lane_changes(mut vehicles: Query<(&VehicleState, &VehicleSize, &LaneChanger, &mut Longitudinal)>) {
-    for (state, size, ch, mut lon) in &mut vehicles {
-        // Most vehicles are doing none of this: no speed (no trigonometry) for them.
-        if ch.lane_end.is_none() && ch.virtual_leader.is_none() && ch.yield_to.is_none() && ch.active.is_none() {
+pub fn limit_for_lane_changes(
+    limits: Res<LaneChangeLimits>,
+    mut vehicles: Query<(&VehicleState, &VehicleSize, &LaneChanger, &mut Longitudinal)>,
+) {
+    // Most vehicles are doing none of this: only those the decisions listed are visited.
+    for &e in &limits.0 {
+        let Ok((state, size, ch, mut lon)) = vehicles.get_mut(e) else { continue };
+        if !needs_limit(ch) {
             continue;
         }
         let v = state.speed();
@@ -827,6 +867,7 @@ impl Plugin for LaneChangePlugin {
         sim.world_mut().init_resource::<LaneCrossings>();
         sim.world_mut().init_resource::<LaneSignals>();
         sim.world_mut().init_resource::<Claims>();
+        sim.world_mut().init_resource::<LaneChangeLimits>();
         sim.configure_sets(Control, LaneChangeSystems.in_set(SimSystems::Control).before(SteeringSystems));
         sim.add_systems(Control, decide_lane_changes.in_set(LaneChangeSystems));
         sim.add_systems(Control, limit_for_lane_changes.in_set(LongitudinalSystems::Limit));
