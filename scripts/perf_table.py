@@ -70,6 +70,7 @@ def main():
                 used[threads] = r["threads_used"]
                 print(f"run {run + 1}: {name:11} threads {threads:7} {r['vehicle_steps_per_second'] / 1e6:6.2f} M vehicle-steps/s", file=sys.stderr)
 
+    big = [bench(["--vehicles", "100000", "--duration", "2"]) for _ in range(a.runs)]
     render = [bench(["--vehicles", n, "--duration", "2", "--render", "1920x1080"]) for _ in range(a.runs)]
     render_ms = [ms for r in render for ms in r["render"]["frame_ms"]]
     adapter = render[0]["render"]["adapter"]
@@ -97,6 +98,11 @@ def main():
             rtf = f"{statistics.median(xs) * 1e6 / a.vehicles * 0.02:,.1f}x"
             of_plain = "" if name == "plain" else f"{ratio(name, threads):.0%} of plain"
             rows.append(f"| `{cmd}` | {label} | {spread(xs)} M vehicle-steps/s | {rtf} | {of_plain} |")
+    big_rtf = [r["real_time_factor"] for r in big]
+    big_mb = max(r["peak_rss_mb"] or 0.0 for r in big)
+    rows.append(f"| `smlworld bench --vehicles 100000 --duration 2` | {big[0]['threads_used']} threads | "
+                f"{spread([r['vehicle_steps_per_second'] / 1e6 for r in big])} M vehicle-steps/s, peak {big_mb:,.0f} MB | "
+                f"{statistics.median(big_rtf):,.2f}x | |")
     rows.append(f"| `smlworld bench --vehicles {n} --duration 2 --render 1920x1080` | {adapter.split(' (')[0]} | "
                 f"{spread(render_ms, 1)} ms per frame ({len(render_ms)} frames) | | |")
     rows.append(f"| `smlworld bench --routing GRID --routes 1000` | {lanelets} lanelets | "
