@@ -413,7 +413,10 @@ pub fn decide_lane_changes(
     mut buffer: Local<Vec<ChangerItem<'static>>>,
     mut entities: Local<Vec<Entity>>,
 ) {
-    limits.0.clear();
+    // Last tick's list holds every vehicle with a manoeuvre under way (only this system starts
+    // or ends one, and it lists each it leaves running): the crossing ones are found among
+    // those, not by a serial pass over every LaneChanger.
+    let mut previous = std::mem::take(&mut limits.0);
     let Some(lanes) = lanes else { return };
     let lanes = &*lanes;
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
@@ -424,7 +427,8 @@ pub fn decide_lane_changes(
     // start of this control tick: no trigonometry here), a crossing one on the other lane too.
     crossings.0.clear();
     entries.clear();
-    for (_, id, _, size, pos, _, _, ch) in changers.iter() {
+    for &e in &previous {
+        let Ok((_, id, _, size, pos, _, _, ch)) = changers.get(e) else { continue };
         if let Some(m) = &ch.active {
             crossings.0.insert(*id, (m.from, m.to));
             if let Some(i) = pos.on()
@@ -440,6 +444,8 @@ pub fn decide_lane_changes(
         entries.push(IndexEntry { lanelet: i, s: pos.s, speed: pos.speed, length: size.length, id: *id });
     }
     index.rebuild(lanes.map.lanelets.len(), entries.iter().copied());
+    previous.clear();
+    limits.0 = previous;
     let last_signals = std::mem::take(&mut signals.0);
     claims.0.clear();
 
