@@ -165,14 +165,16 @@ impl BenchWorld {
         let period = SimTime::from_secs(1.0 / rates.network).0.max(1);
         b.add_systems(
             Control,
-            send_beacons.in_set(SimSystems::Control).run_if(move |clock: Res<SimClock>| clock.now.0 % period == 0),
+            send_beacons
+                .in_set(SimSystems::Control)
+                .run_if(move |clock: Res<SimClock>| clock.now.0.is_multiple_of(period)),
         );
         let wifi_period = SimTime::from_secs(1.0 / rates.wifi).0.max(1);
         b.add_systems(
             Control,
             send_wifi_beacons
                 .in_set(SimSystems::Control)
-                .run_if(move |clock: Res<SimClock>| clock.now.0 % wifi_period == 0),
+                .run_if(move |clock: Res<SimClock>| clock.now.0.is_multiple_of(wifi_period)),
         );
         if self.degraded {
             let wifi_range = V2vConfig::default().wifi_range;
