@@ -4,23 +4,15 @@
 //! lane-change control stack (lane positions, index and MOBIL decisions, leaders, IDM).
 //! Run with `cargo bench --bench sim`; `smlworld bench` measures everything together.
 
-use std::sync::Arc;
-
-use bevy_ecs::prelude::{Query, Res};
 use bevy_ecs::schedule::ScheduleLabel;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use smlworld::app::running::bench::{Beacons, BenchWorld, DEGRADED_WIFI, degraded_radar, send_beacons};
+use smlworld::app::running::bench::{
+    Beacons, BenchWorld, DEGRADED_WIFI, degraded_radar, send_beacons, send_wifi_beacons,
+};
 use smlworld::prelude::*;
 
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 struct WifiBeacons;
-
-/// One wifi message per vehicle per wifi round.
-fn send_wifi_beacons(clock: Res<SimClock>, mut vehicles: Query<(&VehicleState, &mut Mailbox)>) {
-    for (state, mut mailbox) in &mut vehicles {
-        mailbox.send(Channel::Wifi, clock.now, Arc::new(state.speed()));
-    }
-}
 
 /// A sim of `n` bench vehicles with only the modules `plugin` adds.
 fn sim_with(n: usize, plugin: impl Plugin) -> Sim {

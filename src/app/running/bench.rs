@@ -116,6 +116,12 @@ pub fn send_beacons(clock: Res<SimClock>, mut vehicles: Query<(&VehicleState, &m
     }
 }
 
+/// Run condition: true at the ticks that are multiples of `1 / rate` [Hz] (from t = 0).
+fn at_rate(rate: f64) -> impl FnMut(Res<SimClock>) -> bool + Clone {
+    let period = SimTime::from_secs(1.0 / rate).0.max(1);
+    move |clock: Res<SimClock>| clock.now.0.is_multiple_of(period)
+}
+
 /// Queue one small wifi message (the vehicle's speed [m/s]) per vehicle: the cooperative
 /// awareness beacon every CACC vehicle sends each wifi round, so the wifi fan-out (and, when
 /// degraded, its per-reception loss and delay) is inside the benchmark's figures.
@@ -160,22 +166,10 @@ impl BenchWorld {
         let rates = Rates::default();
         let mut b = SimBuilder::with_rates(rates);
         b.add_plugin(default_plugins).add_plugin(PathFollowingPlugin);
-        // Beacons go out from the controllers' own schedule at the network rate: a module of
-        // their own in the control phase would hold the V2V in-boxes until it ran.
-        let period = SimTime::from_secs(1.0 / rates.network).0.max(1);
-        b.add_systems(
-            Control,
-            send_beacons
-                .in_set(SimSystems::Control)
-                .run_if(move |clock: Res<SimClock>| clock.now.0.is_multiple_of(period)),
-        );
-        let wifi_period = SimTime::from_secs(1.0 / rates.wifi).0.max(1);
-        b.add_systems(
-            Control,
-            send_wifi_beacons
-                .in_set(SimSystems::Control)
-                .run_if(move |clock: Res<SimClock>| clock.now.0.is_multiple_of(wifi_period)),
-        );
+        // Beacons go out from the controllers' own schedule at their channel's rate: a module
+        // of their own in the control phase would hold the V2V in-boxes until it ran.
+        b.add_systems(Control, send_beacons.in_set(SimSystems::Control).run_if(at_rate(rates.network)));
+        b.add_systems(Control, send_wifi_beacons.in_set(SimSystems::Control).run_if(at_rate(rates.wifi)));
         if self.degraded {
             let wifi_range = V2vConfig::default().wifi_range;
             b.insert_resource(V2vConfig { wifi_range, wifi: DEGRADED_WIFI, network: DEGRADED_NETWORK });
