@@ -133,15 +133,7 @@ impl PyController {
                 o.speed = Some(v[i]);
             }
             if let Some(mut c) = entity.get_mut::<ControlCommand>() {
-                if let Some(t) = o.throttle {
-                    c.throttle = t;
-                }
-                if let Some(s) = o.steering {
-                    c.steering = s;
-                }
-                if let Some(v) = o.speed {
-                    c.speed = v;
-                }
+                o.apply(&mut c);
             }
             entity.insert(o);
         }

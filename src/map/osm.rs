@@ -1074,25 +1074,26 @@ mod tests {
         assert!(same_either_way(&file(3000, "  <bounds minlat='1'/><!-- a comment --> text", 2000)).starts_with("Ok("));
     }
 
+    /// `text` with `open` and `close` put around the lines within 70 kB either side of its
+    /// balanced middle (at line ends).
+    fn around_middle(mut text: String, open: &str, close: &str) -> String {
+        let mid = balanced_middle(&text);
+        let from = text[..mid - 70_000].rfind('\n').expect("lines before the middle");
+        let to = text[mid + 70_000..].find('\n').expect("lines after the middle") + mid + 70_000;
+        text.insert_str(to, close);
+        text.insert_str(from, open);
+        text
+    }
+
     #[test]
     fn a_middle_inside_a_comment_or_an_element_is_read_by_one_reader() {
         // The middle object lines are inside a comment: the second reader's objects are not
         // in the file.
-        let mut commented = file(3000, "", 0);
-        let mid = balanced_middle(&commented);
-        let from = commented[..mid - 70_000].rfind("\n").unwrap();
-        let to = commented[mid + 70_000..].find("\n").unwrap() + mid + 70_000;
-        commented.insert_str(to, " -->");
-        commented.insert_str(from, "\n<!-- ");
+        let commented = around_middle(file(3000, "", 0), "\n<!-- ", " -->");
         assert!(!joins(&commented));
         same_either_way(&commented);
         // Objects inside an unknown element spanning the middle.
-        let mut wrapped = file(3000, "", 0);
-        let mid = balanced_middle(&wrapped);
-        let from = wrapped[..mid - 70_000].rfind("\n").unwrap();
-        let to = wrapped[mid + 70_000..].find("\n").unwrap() + mid + 70_000;
-        wrapped.insert_str(to, "\n</group>");
-        wrapped.insert_str(from, "\n<group>");
+        let wrapped = around_middle(file(3000, "", 0), "\n<group>", "\n</group>");
         assert!(!joins(&wrapped));
         assert!(same_either_way(&wrapped).starts_with("Ok("));
         // An object that is not closed before the middle: the nesting error of one reader.

@@ -125,7 +125,8 @@ pub struct CommandOverride {
 }
 
 impl CommandOverride {
-    fn apply(&self, c: &mut ControlCommand) {
+    /// Write the set fields over `c`'s.
+    pub fn apply(&self, c: &mut ControlCommand) {
         if let Some(t) = self.throttle {
             c.throttle = t;
         }
