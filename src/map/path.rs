@@ -9,6 +9,22 @@ use super::polyline::{polyline_length, resample};
 /// Segments per block of a projection's bounding test.
 const BLOCK: usize = 8;
 
+/// `x.floor() as isize` without a call to libm's `floor` (the baseline x86-64 target has no
+/// rounding instruction, and a projection's two calls were a tenth of a lane position's time):
+/// the same value for every finite `x` in `isize`'s range, saturating like `as` beyond it.
+#[inline]
+fn floor_index(x: f64) -> isize {
+    let t = x as isize;
+    if (t as f64) > x { t.saturating_sub(1) } else { t }
+}
+
+/// `x.ceil() as isize`, as [`floor_index`].
+#[inline]
+fn ceil_index(x: f64) -> isize {
+    let t = x as isize;
+    if (t as f64) < x { t.saturating_add(1) } else { t }
+}
+
 /// A drivable path: the stitched centre lines of a lanelet sequence, resampled at equal spacing.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Path {
@@ -26,6 +42,10 @@ pub struct Path {
     /// so projections can skip blocks that cannot hold the nearest point.
     #[serde(skip)]
     max_segment: f64,
+    /// [`Path::spacing`], computed once: every projection needs it, and a division per call
+    /// was a measurable share of the lane systems' per-vehicle work (issue 19 item 8).
+    #[serde(skip)]
+    spacing: f64,
 }
 
 fn serialize_points<S: serde::Serializer>(points: &[DVec2], s: S) -> Result<S::Ok, S::Error> {
@@ -63,7 +83,11 @@ impl Path {
         if closed && points.len() > 1 {
             max_segment = max_segment.max(points[points.len() - 1].distance(points[0]));
         }
-        Path { lanelets, points, length, closed, max_segment }
+        let mut path = Path { lanelets, points, length, closed, max_segment, spacing: 0.0 };
+        if let n @ 1.. = path.segment_count() {
+            path.spacing = length / n as f64;
+        }
+        path
     }
 
     /// An open path along `points` (at least two distinct ones), resampled every `spacing` [m]
@@ -95,10 +119,7 @@ impl Path {
 
     /// Mean segment length [m] (all segments are equal up to rounding after resampling).
     pub fn spacing(&self) -> f64 {
-        match self.segment_count() {
-            0 => 0.0,
-            n => self.length / n as f64,
-        }
+        self.spacing
     }
 
     /// Point and heading [rad] at arc length `s` [m]; wraps around a loop, clamps an open path.
@@ -218,29 +239,51 @@ impl Path {
         if n == 0 || spacing <= 0.0 || !hint.is_finite() {
             return None;
         }
-        let steps = (window / spacing).ceil() as isize;
-        let wrap = |i: isize| if self.closed { Some(i.rem_euclid(n)) } else { (0..n).contains(&i).then_some(i) };
-        let start = (hint / spacing).floor() as isize;
+        let steps = ceil_index(window / spacing);
+        // Walks stay within a few segments of [0, n): wrap by comparison, not by an integer
+        // division per segment (a third of a lane position's time on a big map).
+        let wrap = |i: isize| {
+            if (0..n).contains(&i) {
+                Some(i)
+            } else if self.closed {
+                Some(i.rem_euclid(n))
+            } else {
+                None
+            }
+        };
+        let start = floor_index(hint / spacing);
         let start = if self.closed { start } else { start.clamp(0, n - 1) };
         let mut best = self.to_segment(p, wrap(start)?);
-        for dir in [1, -1] {
-            let mut k = start;
-            let mut moved = false;
-            loop {
-                k += dir;
-                if (k - start).abs() > steps {
-                    return None;
-                }
-                let Some(i) = wrap(k) else { break };
-                let c = self.to_segment(p, i);
-                if c.3 < best.3 {
-                    best = c;
-                    moved = true;
-                } else {
-                    break;
-                }
+        if steps < 1 {
+            return None;
+        }
+        // Both neighbours at once: three independent projections instead of a chain of
+        // dependent ones (each waits on a division), the same choice as walking forward first.
+        let next = wrap(start + 1).map(|i| self.to_segment(p, i));
+        let previous = wrap(start - 1).map(|i| self.to_segment(p, i));
+        let dir = match (next, previous) {
+            (Some(c), _) if c.3 < best.3 => {
+                best = c;
+                1
             }
-            if moved {
+            (_, Some(c)) if c.3 < best.3 => {
+                best = c;
+                -1
+            }
+            _ => return Some(best),
+        };
+        // Walk on while the segments come nearer.
+        let mut k = start + dir;
+        loop {
+            k += dir;
+            if (k - start).abs() > steps {
+                return None;
+            }
+            let Some(i) = wrap(k) else { break };
+            let c = self.to_segment(p, i);
+            if c.3 < best.3 {
+                best = c;
+            } else {
                 break;
             }
         }
@@ -276,8 +319,8 @@ impl Path {
         if self.segment_count() == 0 || spacing <= 0.0 {
             return all;
         }
-        let half = (window / spacing).ceil() as isize + 1;
-        let centre = (hint / spacing).floor() as isize;
+        let half = ceil_index(window / spacing) + 1;
+        let centre = floor_index(hint / spacing);
         let count = (2 * half + 1) as usize;
         if count >= self.segment_count() { all } else { (centre - half, count) }
     }
@@ -299,5 +342,90 @@ impl Path {
         }
         let (from, count) = self.window(hint, window);
         self.project_segments(p, from, count)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn index_rounding_matches_floor_and_ceil() {
+        let mut xs = vec![0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.999_999, -2.999_999, 1e-300, -1e-300, 1e300, -1e300];
+        xs.extend([f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 9.3e18, -9.3e18, 4_503_599_627_370_495.5]);
+        xs.extend((0..2000).map(|k| (k as f64 - 1000.0) * 0.37));
+        for x in xs {
+            assert_eq!(floor_index(x), x.floor() as isize, "floor of {x}");
+            assert_eq!(ceil_index(x), x.ceil() as isize, "ceil of {x}");
+        }
+    }
+
+    /// The walk as it was before it projected on both neighbours at once: forward first, then
+    /// backward, one dependent projection after another.
+    fn walk_one_by_one(path: &Path, p: DVec2, hint: f64, window: f64) -> Option<(isize, f64, DVec2, f64)> {
+        let n = path.segment_count() as isize;
+        let spacing = path.spacing();
+        if n == 0 || spacing <= 0.0 || !hint.is_finite() {
+            return None;
+        }
+        let steps = (window / spacing).ceil() as isize;
+        let wrap = |i: isize| if path.closed { Some(i.rem_euclid(n)) } else { (0..n).contains(&i).then_some(i) };
+        let start = (hint / spacing).floor() as isize;
+        let start = if path.closed { start } else { start.clamp(0, n - 1) };
+        let mut best = path.to_segment(p, wrap(start)?);
+        for dir in [1, -1] {
+            let mut k = start;
+            let mut moved = false;
+            loop {
+                k += dir;
+                if (k - start).abs() > steps {
+                    return None;
+                }
+                let Some(i) = wrap(k) else { break };
+                let c = path.to_segment(p, i);
+                if c.3 < best.3 {
+                    best = c;
+                    moved = true;
+                } else {
+                    break;
+                }
+            }
+            if moved {
+                break;
+            }
+        }
+        Some(best)
+    }
+
+    #[test]
+    fn the_walk_finds_what_the_one_by_one_walk_found() {
+        // A wavy open path and a closed circle, points off them at every side, hints off by up
+        // to a few segments, windows narrower and wider than the offset.
+        let wavy: Vec<DVec2> = (0..200).map(|k| DVec2::new(k as f64 * 0.7, (k as f64 * 0.2).sin() * 3.0)).collect();
+        let circle: Vec<DVec2> =
+            (0..150).map(|k| DVec2::from_angle(k as f64 * std::f64::consts::TAU / 150.0) * 20.0).collect();
+        let paths = [Path::from_points(Vec::new(), wavy, false), Path::from_points(Vec::new(), circle, true)];
+        let mut compared = 0;
+        for path in &paths {
+            for k in 0..3000 {
+                let s = (k as f64 * 0.618_033_988_7).fract() * path.length * 1.1 - 0.05 * path.length;
+                let (q, heading) = path.sample(s);
+                let side = ((k % 7) as f64 - 3.0) * 0.8;
+                let p = q + DVec2::from_angle(heading + std::f64::consts::FRAC_PI_2) * side;
+                let hint = s + ((k % 11) as f64 - 5.0) * 0.6;
+                for window in [0.0, 0.5, 2.0, 6.0] {
+                    let want = walk_one_by_one(path, p, hint, window);
+                    let got = path.walk(p, hint, window);
+                    assert_eq!(
+                        got.map(|g| (g.0, g.1.to_bits(), g.3.to_bits())),
+                        want.map(|w| (w.0, w.1.to_bits(), w.3.to_bits())),
+                        "s {s}, hint {hint}, window {window}, closed {}",
+                        path.closed
+                    );
+                    compared += usize::from(want.is_some());
+                }
+            }
+        }
+        assert!(compared > 10_000, "only {compared} walks found a segment");
     }
 }

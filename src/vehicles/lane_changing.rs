@@ -20,7 +20,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Entity, Local, Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Added, Entity, Local, ParamSet, Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
@@ -451,16 +451,12 @@ pub fn decide_lane_changes(
 
     let mut items: Vec<ChangerItem<'_>> = recycle(std::mem::take(&mut *buffer));
     // Plain references, not `Mut`s (smaller items for the serial gathering; nothing reads
-    // change ticks).
+    // change ticks). Which lanelets reach each goal was looked up by [`find_reach`]: the
+    // gathering reads no component, it only takes their addresses.
     entities.clear();
     items.extend(changers.iter_mut().enumerate().map(|(n, (entity, id, state, size, pos, route, follower, ch))| {
         entities.push(entity);
-        let ch = ch.into_inner();
-        // Which lanelets reach the goal: looked up once per goal, here (the cache is shared).
-        if ch.reach.is_none() && pos.on().is_some() {
-            ch.reach = Some(paths.reach(lanes, &ch.goal));
-        }
-        (n, id, state, size, pos, route.into_inner(), follower.into_inner(), ch)
+        (n, id, state, size, pos, route.into_inner(), follower.into_inner(), ch.into_inner())
     }));
     let shared = Shared { lanes, index: &index, signals: &last_signals, t, dt, tick };
     // Each chunk keeps the non-empty decisions with their item's place (chunks are in query
@@ -558,6 +554,34 @@ pub fn decide_lane_changes(
         }
     }
     *buffer = recycle(items);
+}
+
+/// Look up which lanelets reach the goal ([`LanePaths::reach`], cached per goal) for every
+/// [`LaneChanger`] added since the last control tick, or added before and off the road until
+/// now (kept in `waiting`), before [`decide_lane_changes`] reads it. A [`LaneChanger`] is
+/// inserted once, when its vehicle spawns. Doing this in the serial gathering of
+/// `decide_lane_changes` read every vehicle's `LaneChanger` every tick for the few new ones: a
+/// cache miss per vehicle, a third of the lane-change decisions' serial time (issue 19 item 8).
+pub fn find_reach(
+    lanes: Option<Res<LaneMap>>,
+    mut paths: ResMut<LanePaths>,
+    mut queries: ParamSet<(Query<Entity, Added<LaneChanger>>, Query<(&LanePosition, &mut LaneChanger)>)>,
+    mut waiting: Local<Vec<Entity>>,
+) {
+    let Some(lanes) = lanes else { return };
+    waiting.extend(queries.p0().iter());
+    let mut changers = queries.p1();
+    waiting.retain(|&e| {
+        let Ok((pos, mut ch)) = changers.get_mut(e) else { return false };
+        if ch.reach.is_some() {
+            return false;
+        }
+        if pos.on().is_none() {
+            return true;
+        }
+        ch.reach = Some(paths.reach(&lanes, &ch.goal));
+        false
+    });
 }
 
 /// One vehicle's part of [`decide_lane_changes`]: everything that depends only on itself and the
@@ -875,7 +899,7 @@ impl Plugin for LaneChangePlugin {
         sim.world_mut().init_resource::<Claims>();
         sim.world_mut().init_resource::<LaneChangeLimits>();
         sim.configure_sets(Control, LaneChangeSystems.in_set(SimSystems::Control).before(SteeringSystems));
-        sim.add_systems(Control, decide_lane_changes.in_set(LaneChangeSystems));
+        sim.add_systems(Control, (find_reach, decide_lane_changes).chain().in_set(LaneChangeSystems));
         sim.add_systems(Control, limit_for_lane_changes.in_set(LongitudinalSystems::Limit));
     }
 }
