@@ -328,6 +328,33 @@ pub fn first_at_or_after(list: &[IndexEntry], s: f64, length: f64) -> usize {
     }
 }
 
+/// The order of the [`LaneIndex`]: arc length, then id.
+fn entry_order(x: &IndexEntry, y: &IndexEntry) -> std::cmp::Ordering {
+    x.s.total_cmp(&y.s).then(x.id.cmp(&y.id))
+}
+
+/// Sort a lanelet's entries by [`entry_order`]. Vehicles come in spawn order, which along a lane
+/// is mostly the order they drive in (a few overtake per tick): an insertion sort then costs a
+/// comparison or two per entry instead of a full sort's log n. Past a budget of moves (input far
+/// from sorted: traffic inserted at a route's start comes in reverse) the rest is sorted fully,
+/// so the worst case stays O(n log n).
+fn sort_nearly_sorted(list: &mut [IndexEntry]) {
+    let budget = 4 * list.len() + 16;
+    let mut moves = 0;
+    for k in 1..list.len() {
+        let mut j = k;
+        while j > 0 && entry_order(&list[j - 1], &list[j]).is_gt() {
+            list.swap(j - 1, j);
+            j -= 1;
+        }
+        moves += k - j;
+        if moves > budget {
+            list.sort_unstable_by(entry_order);
+            return;
+        }
+    }
+}
+
 /// Every vehicle by lanelet and arc length, built once per control tick: leader and follower
 /// in any lane in O(log k) for k vehicles on a lanelet.
 #[derive(Resource, Debug, Clone, Default)]
@@ -375,7 +402,7 @@ impl LaneIndex {
         }
         for i in 0..lanelets {
             let (a, b) = (self.starts[i] as usize, self.starts[i + 1] as usize);
-            self.entries[a..b].sort_unstable_by(|x, y| x.s.total_cmp(&y.s).then(x.id.cmp(&y.id)));
+            sort_nearly_sorted(&mut self.entries[a..b]);
         }
     }
 
@@ -453,6 +480,32 @@ mod tests {
 
     fn entry(s: f64) -> IndexEntry {
         IndexEntry { lanelet: 0, s, speed: 0.0, length: 4.0, id: VehicleId(0) }
+    }
+
+    #[test]
+    fn nearly_sorted_lists_sort_like_a_full_sort() {
+        // Sorted, a few swapped neighbours, reversed, shuffled, equal arc lengths (ids decide).
+        let make = |s: &[f64]| -> Vec<IndexEntry> {
+            s.iter()
+                .enumerate()
+                .map(|(k, &s)| IndexEntry { lanelet: 0, s, speed: 0.0, length: 4.0, id: VehicleId(-(k as i32) % 7) })
+                .collect()
+        };
+        let sorted: Vec<f64> = (0..500).map(|k| k as f64 * 0.5).collect();
+        let mut swapped = sorted.clone();
+        for k in (3..490).step_by(17) {
+            swapped.swap(k, k + 2);
+        }
+        let reversed: Vec<f64> = sorted.iter().rev().copied().collect();
+        let shuffled: Vec<f64> = (0..500).map(|k| ((k * 7919) % 500) as f64 * 0.25).collect();
+        let ties = vec![3.0; 40];
+        for case in [sorted, swapped, reversed, shuffled, ties, Vec::new(), vec![1.0]] {
+            let mut got = make(&case);
+            let mut want = got.clone();
+            want.sort_unstable_by(entry_order);
+            sort_nearly_sorted(&mut got);
+            assert_eq!(got, want, "{case:?}");
+        }
     }
 
     #[test]
