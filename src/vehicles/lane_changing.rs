@@ -373,9 +373,7 @@ struct Shared<'a> {
 
 /// The lanelet beside `i` on the side of `pos`'s offset (the one a crossing vehicle is also in).
 fn other_lane(lanes: &LaneMap, pos: &LanePosition, i: u32) -> Option<u32> {
-    let n = lanes.neighbours[i as usize];
-    let id = if pos.offset > 0.0 { n.left } else { n.right }?;
-    lanes.map.lanelet_index(id).map(|j| j as u32)
+    lanes.beside(i, pos.offset > 0.0)
 }
 
 /// Advance or decide every [`LaneChanger`]'s lane change (see the module documentation).
@@ -822,12 +820,7 @@ pub fn target_gap_closed(
 
 /// The neighbour on `side` of lanelet `i`, if any (whatever the line between them).
 pub fn neighbour(lanes: &LaneMap, i: u32, side: Side) -> Option<u32> {
-    let n = lanes.neighbours[i as usize];
-    let id = match side {
-        Side::Left => n.left,
-        Side::Right => n.right,
-    }?;
-    lanes.map.lanelet_index(id).map(|j| j as u32)
+    lanes.beside(i, side == Side::Left)
 }
 
 /// The neighbour on `side` of lanelet `i` when the line between them may be crossed that way.

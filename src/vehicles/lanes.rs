@@ -46,6 +46,9 @@ pub struct LaneMap {
     pub predecessors: Vec<Vec<u32>>,
     /// Id of every lanelet (a dense copy: the lanelets themselves are large and far apart).
     ids: Vec<LaneletId>,
+    /// Index of the left and right neighbour of every lanelet (from [`LaneMap::neighbours`]),
+    /// so the per-vehicle lane systems look them up in an array, not in the map's id tree.
+    beside: Vec<[Option<u32>; 2]>,
     /// Cell -> (lanelet, arc length [m] where its centre line enters the cell).
     grid: BTreeMap<(i64, i64), Vec<(u32, f64)>>,
 }
@@ -99,7 +102,9 @@ impl LaneMap {
             }
         }
         let ids = map.lanelets.iter().map(|l| l.id).collect();
-        LaneMap { map, neighbours, centres, half_widths, successors, predecessors, ids, grid }
+        let index_of = |id: Option<LaneletId>| id.and_then(|id| map.lanelet_index(id)).map(|j| j as u32);
+        let beside = neighbours.iter().map(|n| [index_of(n.left), index_of(n.right)]).collect();
+        LaneMap { map, neighbours, centres, half_widths, successors, predecessors, ids, beside, grid }
     }
 
     /// Hint to the processor that lanelet `i`'s centre line around arc length `s` [m] will be
@@ -124,6 +129,11 @@ impl LaneMap {
     /// Id of lanelet `i`.
     pub fn id(&self, i: u32) -> LaneletId {
         self.ids[i as usize]
+    }
+
+    /// Index of the lanelet beside lanelet `i` on its left (`left`) or right, if any.
+    pub fn beside(&self, i: u32, left: bool) -> Option<u32> {
+        self.beside[i as usize][usize::from(!left)]
     }
 
     /// `p` on lanelet `i` near arc length `hint` [m] (whole lanelet when `hint` is NaN): its arc
@@ -163,13 +173,9 @@ impl LaneMap {
             for &j in &self.successors[i as usize] {
                 best = better(best, self.on(j, p, hint - len, 6.0).map(|(s, o)| (j, s, o)));
             }
-            let n = self.neighbours[i as usize];
-            for id in [n.left, n.right].into_iter().flatten() {
-                if let Some(j) = self.map.lanelet_index(id) {
-                    let j = j as u32;
-                    let h = hint * self.length(j) / len.max(1e-9);
-                    best = better(best, self.on(j, p, h, 6.0).map(|(s, o)| (j, s, o)));
-                }
+            for j in self.beside[i as usize].into_iter().flatten() {
+                let h = hint * self.length(j) / len.max(1e-9);
+                best = better(best, self.on(j, p, h, 6.0).map(|(s, o)| (j, s, o)));
             }
             for &j in &self.predecessors[i as usize] {
                 best = better(best, self.on(j, p, hint + self.length(j), 6.0).map(|(s, o)| (j, s, o)));
