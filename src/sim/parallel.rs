@@ -1,39 +1,187 @@
-//! Splitting per-vehicle work over a few threads of a persistent rayon pool.
+//! Splitting per-vehicle work over a few persistent threads.
 //!
-//! The heavy per-vehicle systems (sensors, path following, dynamics) compute each vehicle's
-//! outputs from read-only shared data and that vehicle's own components only, so cutting the
-//! vehicles into contiguous chunks and running the chunks on different threads gives the same
-//! bits for any thread count. The pool's threads are started once per thread count and kept
-//! for the life of the process (no thread is spawned per tick); small worlds stay on the calling
-//! thread, where handing work to the pool costs more than it saves. This is not bevy's
+//! The heavy per-vehicle systems (sensors, path following, dynamics, the lane systems) compute
+//! each vehicle's outputs from read-only shared data and that vehicle's own components only, so
+//! cutting the vehicles into contiguous chunks and running the chunks on different threads gives
+//! the same bits for any thread count. The helper threads are started once per thread count and
+//! kept for the life of the process (no thread is spawned per tick); small worlds stay on the
+//! calling thread, where handing work over costs more than it saves. This is not bevy's
 //! multi-threaded executor (see DESIGN.md): the schedules still run one system at a time.
+//!
+//! A tick runs a dozen such sections a few tens of microseconds apart (the serial gathering of
+//! the next system in between). A rayon pool's idle workers sleep almost at once, and waking a
+//! sleeping thread costs 50-90 µs on the virtual machines we run on (measured: a section with a
+//! 33 µs serial gap before it took 55 µs longer than its work), so a 10,000-vehicle tick lost a
+//! section's worth of time to every hand-over. The [`Team`] here keeps its helpers spinning for
+//! [`SPIN`] after each section (a tick's sections reach them within a microsecond), then parks
+//! them until the next one: the same fork-join, without the wake-up on the hot path.
 //!
 //! The systems gather their query items into a vector each tick; [`recycle`] keeps that
 //! vector's allocation between ticks, so the steady state allocates nothing.
 
 use std::collections::BTreeMap;
-use std::sync::{Mutex, OnceLock};
+use std::panic::{AssertUnwindSafe, catch_unwind, resume_unwind};
+use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex, OnceLock, TryLockError};
+use std::time::{Duration, Instant};
 
 use bevy_ecs::prelude::Resource;
 
-/// The persistent pool with `threads` threads (started on first use, then shared), or `None`
-/// when the system refuses to start threads (the work then runs on the calling thread).
-fn pool(threads: usize) -> Option<&'static rayon::ThreadPool> {
-    static POOLS: OnceLock<Mutex<BTreeMap<usize, Option<&'static rayon::ThreadPool>>>> = OnceLock::new();
-    let mut pools = POOLS.get_or_init(|| Mutex::new(BTreeMap::new())).lock().unwrap_or_else(|e| e.into_inner());
-    *pools.entry(threads).or_insert_with(|| {
-        match rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .thread_name(|i| format!("smlworld-worker-{i}"))
-            .build()
-        {
-            Ok(p) => Some(&*Box::leak(Box::new(p))),
-            Err(e) => {
-                tracing::warn!("cannot start {threads} worker threads ({e}); running on one thread");
-                None
+/// How long a helper keeps looking for the next section before it parks.
+const SPIN: Duration = Duration::from_micros(200);
+
+/// How long the calling thread spins for its helpers to finish before it yields between looks
+/// (a helper may have been descheduled on a busy machine).
+const WAIT_SPIN: Duration = Duration::from_micros(100);
+
+/// One section's work as the helpers see it: call `run(data, chunk)` for their chunk.
+struct Job {
+    data: *const (),
+    run: unsafe fn(*const (), usize),
+}
+
+/// What a [`Team`]'s caller and helpers share.
+struct Shared {
+    /// Bumped by the caller for each section (helpers run each epoch once); `u64::MAX`: stop.
+    epoch: AtomicU64,
+    /// The current section's [`Job`], valid while `pending` > 0.
+    job: AtomicPtr<Job>,
+    /// Helpers that have not finished the current section.
+    pending: AtomicUsize,
+    /// Some helper's chunk panicked in the current section.
+    panicked: AtomicBool,
+    /// Helpers parked (or about to park) on `wake`.
+    sleepers: AtomicUsize,
+    lock: Mutex<()>,
+    wake: Condvar,
+}
+
+/// `helpers` persistent threads that run chunks 1..=helpers of each section while the caller
+/// runs chunk 0 ([`Team::run`]). One section at a time: a second caller (another thread, or a
+/// chunk that itself splits its work) finds the team busy and runs its chunks itself.
+pub struct Team {
+    shared: Arc<Shared>,
+    helpers: usize,
+    busy: Mutex<()>,
+}
+
+impl Team {
+    /// Start `helpers` threads, or `None` when the system refuses to start one.
+    fn start(helpers: usize) -> Option<Team> {
+        let shared = Arc::new(Shared {
+            epoch: AtomicU64::new(0),
+            job: AtomicPtr::new(std::ptr::null_mut()),
+            pending: AtomicUsize::new(0),
+            panicked: AtomicBool::new(false),
+            sleepers: AtomicUsize::new(0),
+            lock: Mutex::new(()),
+            wake: Condvar::new(),
+        });
+        for k in 0..helpers {
+            let shared = Arc::clone(&shared);
+            let started =
+                std::thread::Builder::new().name(format!("smlworld-worker-{k}")).spawn(move || help(&shared, k + 1));
+            if let Err(e) = started {
+                tracing::warn!("cannot start worker threads ({e}); running on one thread");
+                return None;
             }
         }
-    })
+        Some(Team { shared, helpers, busy: Mutex::new(()) })
+    }
+
+    /// Call `f(k)` for every chunk `k` in `0..=helpers`: chunk 0 on this thread, the others on
+    /// the helpers; returns when all are done (a helper's panic is raised here). When the team
+    /// is running another section, every chunk runs here, in order.
+    fn run<F: Fn(usize) + Sync>(&self, f: &F) {
+        let _guard = match self.busy.try_lock() {
+            Ok(guard) => guard,
+            Err(TryLockError::Poisoned(e)) => e.into_inner(),
+            Err(TryLockError::WouldBlock) => {
+                (0..=self.helpers).for_each(f);
+                return;
+            }
+        };
+        /// Calls the `F` behind `data` (a `&F` made below, alive until every helper is done).
+        unsafe fn call<F: Fn(usize)>(data: *const (), chunk: usize) {
+            // SAFETY: `data` is the `&F` of the section being run, which outlives it.
+            unsafe { (*data.cast::<F>())(chunk) }
+        }
+        let job = Job { data: (f as *const F).cast(), run: call::<F> };
+        let s = &*self.shared;
+        s.panicked.store(false, Ordering::Relaxed);
+        s.job.store((&job as *const Job).cast_mut(), Ordering::Relaxed);
+        s.pending.store(self.helpers, Ordering::Relaxed);
+        // SeqCst pairs with the helpers' parking (sleepers, then epoch): either a helper sees
+        // the new epoch before it parks, or this sees it parking and wakes it.
+        s.epoch.fetch_add(1, Ordering::SeqCst);
+        if s.sleepers.load(Ordering::SeqCst) > 0 {
+            let _lock = s.lock.lock().unwrap_or_else(|e| e.into_inner());
+            s.wake.notify_all();
+        }
+        // Our own chunk; its panic waits for the helpers (they still read `job` and `f`).
+        let own = catch_unwind(AssertUnwindSafe(|| f(0)));
+        let started = Instant::now();
+        while s.pending.load(Ordering::Acquire) != 0 {
+            if started.elapsed() < WAIT_SPIN {
+                std::hint::spin_loop();
+            } else {
+                std::thread::yield_now();
+            }
+        }
+        if let Err(payload) = own {
+            resume_unwind(payload);
+        }
+        if s.panicked.load(Ordering::Relaxed) {
+            panic!("a worker thread panicked in a per-vehicle system");
+        }
+    }
+}
+
+/// A helper's loop: wait for the next epoch (spinning for [`SPIN`], then parked), run its
+/// chunk of that section, report done.
+fn help(s: &Shared, chunk: usize) {
+    let mut seen = 0u64;
+    loop {
+        let mut since = None;
+        let epoch = loop {
+            let e = s.epoch.load(Ordering::Acquire);
+            if e != seen {
+                break e;
+            }
+            let spinning = since.get_or_insert_with(Instant::now);
+            if spinning.elapsed() < SPIN {
+                for _ in 0..32 {
+                    std::hint::spin_loop();
+                }
+                continue;
+            }
+            let mut lock = s.lock.lock().unwrap_or_else(|e| e.into_inner());
+            s.sleepers.fetch_add(1, Ordering::SeqCst);
+            while s.epoch.load(Ordering::SeqCst) == seen {
+                lock = s.wake.wait(lock).unwrap_or_else(|e| e.into_inner());
+            }
+            s.sleepers.fetch_sub(1, Ordering::SeqCst);
+            since = None;
+        };
+        seen = epoch;
+        // SAFETY: the caller published `job` before bumping the epoch (Acquire above) and keeps
+        // it and what it points to alive until `pending` reaches 0, which this has not done.
+        let job = unsafe { &*s.job.load(Ordering::Relaxed) };
+        // SAFETY: as above: `job.data` is the section's `&F`, `job.run` its matching caller.
+        let result = catch_unwind(AssertUnwindSafe(|| unsafe { (job.run)(job.data, chunk) }));
+        if result.is_err() {
+            s.panicked.store(true, Ordering::Relaxed);
+        }
+        s.pending.fetch_sub(1, Ordering::Release);
+    }
+}
+
+/// The persistent team with `helpers` helper threads (started on first use, then shared), or
+/// `None` when the system refuses to start threads (the work then runs on the calling thread).
+fn team(helpers: usize) -> Option<&'static Team> {
+    static TEAMS: OnceLock<Mutex<BTreeMap<usize, Option<&'static Team>>>> = OnceLock::new();
+    let mut teams = TEAMS.get_or_init(|| Mutex::new(BTreeMap::new())).lock().unwrap_or_else(|e| e.into_inner());
+    *teams.entry(helpers).or_insert_with(|| Team::start(helpers).map(|t| &*Box::leak(Box::new(t))))
 }
 
 /// Empty `v` and reuse its allocation for a vector of another item type of the same layout:
@@ -112,24 +260,52 @@ impl Parallelism {
             f(items, &mut scratch[0]);
             return;
         }
-        // The calling thread works the first chunk itself; the pool's threads - 1 workers take
-        // the others.
-        let Some(pool) = pool(threads - 1) else {
+        // The calling thread works the first chunk itself, the team's threads - 1 helpers the
+        // others.
+        let Some(team) = team(threads - 1) else {
             f(items, &mut scratch[0]);
             return;
         };
         let size = items.len().div_ceil(threads);
-        pool.in_place_scope(|scope| {
-            let f = &f;
-            let mut chunks = items.chunks_mut(size).zip(scratch.iter_mut());
-            let first = chunks.next();
-            for (chunk, s) in chunks {
-                scope.spawn(move |_| f(chunk, s));
-            }
-            if let Some((chunk, s)) = first {
+        let parts = Parts { items: items.as_mut_ptr(), len: items.len(), scratch: scratch.as_mut_ptr(), size };
+        team.run(&|k: usize| {
+            // SAFETY: the team calls every chunk number in 0..threads once, `scratch` has at
+            // least `threads` values (grown above), and the chunks are disjoint ranges of
+            // `items`, both borrowed mutably for this whole call.
+            if let Some((chunk, s)) = unsafe { parts.take(k) } {
                 f(chunk, s);
             }
         });
+    }
+}
+
+/// The items and scratch values of one [`Parallelism::for_each_chunk`] call, cut into chunks
+/// of `size` items without an allocation per call.
+struct Parts<T, S> {
+    items: *mut T,
+    len: usize,
+    scratch: *mut S,
+    size: usize,
+}
+
+// SAFETY: `Parts` only hands out the disjoint chunk `k` to whoever runs chunk `k` (see
+// `Parts::take`); the items and scratch values are `Send`.
+unsafe impl<T: Send, S: Send> Sync for Parts<T, S> {}
+
+impl<T, S> Parts<T, S> {
+    /// Chunk `k`'s items and scratch value (`None` past the items' end).
+    ///
+    /// # Safety
+    /// Each `k` must be taken at most once while the borrowed slices live, and `scratch` must
+    /// hold more than `k` values.
+    unsafe fn take<'a>(&self, k: usize) -> Option<(&'a mut [T], &'a mut S)> {
+        let start = k.checked_mul(self.size)?;
+        if start >= self.len {
+            return None;
+        }
+        let len = self.size.min(self.len - start);
+        // SAFETY: `start + len <= self.len`, and chunk `k` is taken once (the caller's promise).
+        unsafe { Some((std::slice::from_raw_parts_mut(self.items.add(start), len), &mut *self.scratch.add(k))) }
     }
 }
 
@@ -164,5 +340,53 @@ mod tests {
             assert_eq!(items, (1..1002).collect::<Vec<u32>>(), "{threads} threads");
             assert_eq!(scratch.iter().sum::<u64>(), 1001);
         }
+    }
+
+    #[test]
+    fn a_chunk_that_splits_again_or_a_second_caller_runs_on_its_own_thread() {
+        let p = Parallelism { threads: 2, min_vehicles: 0 };
+        // Nested: each chunk splits its items again (the team is busy: they run in place).
+        let mut outer: Vec<Vec<u32>> = (0..4).map(|k| (0..100).map(|x| x + k * 100).collect()).collect();
+        p.for_each_chunk(&mut outer, &mut Vec::<()>::new(), |chunk, _| {
+            for inner in chunk.iter_mut() {
+                p.for_each_chunk(inner, &mut Vec::<()>::new(), |c, _| c.iter_mut().for_each(|x| *x *= 2));
+            }
+        });
+        assert_eq!(outer.concat(), (0..400).map(|x| x * 2).collect::<Vec<u32>>());
+        // Two threads splitting at once, many times: every item once, no deadlock.
+        std::thread::scope(|scope| {
+            for t in 0..2u64 {
+                scope.spawn(move || {
+                    for round in 0..300u64 {
+                        let mut items: Vec<u64> = (0..64).collect();
+                        let mut scratch: Vec<u64> = Vec::new();
+                        p.for_each_chunk(&mut items, &mut scratch, |c, s| {
+                            for x in c.iter_mut() {
+                                *x += t + round;
+                                *s += 1;
+                            }
+                        });
+                        assert_eq!(items, (0..64).map(|x| x + t + round).collect::<Vec<u64>>());
+                        assert_eq!(scratch.iter().sum::<u64>(), 64);
+                    }
+                });
+            }
+        });
+    }
+
+    #[test]
+    fn a_panic_in_a_helper_chunk_reaches_the_caller_and_the_team_goes_on() {
+        let p = Parallelism { threads: 2, min_vehicles: 0 };
+        let mut items: Vec<u32> = (0..10).collect();
+        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            p.for_each_chunk(&mut items, &mut Vec::<()>::new(), |c, _| {
+                // The second chunk (items 5..10) runs on the helper.
+                assert!(c[0] < 5, "chunk from {} refuses", c[0]);
+            });
+        }));
+        assert!(caught.is_err(), "the helper's panic was lost");
+        let mut items: Vec<u32> = (0..10).collect();
+        p.for_each_chunk(&mut items, &mut Vec::<()>::new(), |c, _| c.iter_mut().for_each(|x| *x += 1));
+        assert_eq!(items, (1..11).collect::<Vec<u32>>());
     }
 }
