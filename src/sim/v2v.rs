@@ -707,6 +707,9 @@ pub fn deliver_delayed(
     mut delayed: ResMut<DelayedMessages>,
     mut mailboxes: Query<&mut Mailbox>,
 ) {
+    if delayed.rounds.is_empty() {
+        return;
+    }
     let now = clock.now.0;
     let d = &mut *delayed;
     let mut k = 0;
@@ -785,8 +788,10 @@ impl Plugin for V2vPlugin {
         sim.insert_resource(DelayedMessages::default());
         sim.add_systems(Network, deliver_network.in_set(SimSystems::Communicate));
         sim.add_systems(Wifi, deliver_wifi.in_set(SimSystems::Communicate));
-        if self.config.wifi.delays() || self.config.network.delays() {
-            sim.add_systems(Control, deliver_delayed.in_set(SimSystems::Communicate));
-        }
+        // Always, not only when `self.config` delays: the config may be replaced after the
+        // plugin is built (the degraded bench inserts a delaying one after `default_plugins`),
+        // and then the delayed receptions were queued and never delivered. With nothing queued
+        // it looks at an empty queue and returns.
+        sim.add_systems(Control, deliver_delayed.in_set(SimSystems::Communicate));
     }
 }
