@@ -284,6 +284,24 @@ impl DelayedRound {
         self.last_due_us = self.last_due_us.max(due_us);
         self.receptions.push(Reception { due_us, receiver, index });
     }
+
+    /// Move a thread's `receptions` (due from `due.0` to `due.1` [µs]) to the end of this
+    /// round's, leaving `receptions` empty: the first non-empty one by swapping buffers (no
+    /// copy: one thread's round is never copied), the others by one copy of the slice, rather
+    /// than a push per reception on the round's one thread.
+    fn append(&mut self, receptions: &mut Vec<Reception>, due: (u64, u64)) {
+        if receptions.is_empty() {
+            return;
+        }
+        self.first_due_us = self.first_due_us.min(due.0);
+        self.last_due_us = self.last_due_us.max(due.1);
+        if self.receptions.is_empty() {
+            std::mem::swap(&mut self.receptions, receptions);
+        } else {
+            self.receptions.extend_from_slice(receptions);
+            receptions.clear();
+        }
+    }
 }
 
 /// The due times of one link's messages within one round, never decreasing (a link keeps its
@@ -490,7 +508,6 @@ pub struct WifiScratch {
 type WifiItem<'a> = (Entity, &'a VehicleState, Mut<'a, Mailbox>);
 
 /// What one thread of the wifi round keeps and counts for its contiguous chunk of receivers.
-#[derive(Default)]
 struct WifiThread {
     heard: Vec<u32>,
     picks: Vec<u32>,
@@ -502,6 +519,22 @@ struct WifiThread {
     delivered: u64,
     /// Delayed receptions of the chunk's receivers, in receiver order.
     receptions: Vec<Reception>,
+    /// Earliest and latest due time of `receptions` [µs] (none: `u64::MAX`, 0).
+    due: (u64, u64),
+}
+
+impl Default for WifiThread {
+    fn default() -> Self {
+        WifiThread {
+            heard: Vec::new(),
+            picks: Vec::new(),
+            stats: ChannelStats::default(),
+            bins: (usize::MAX, 0),
+            delivered: 0,
+            receptions: Vec::new(),
+            due: (u64::MAX, 0),
+        }
+    }
 }
 
 /// What every chunk of a wifi round reads.
@@ -581,6 +614,7 @@ impl WifiRound<'_> {
                         let due = order.due(now + delay);
                         let bin = t.stats.add_delay(due - now);
                         t.bins = (t.bins.0.min(bin), t.bins.1.max(bin));
+                        t.due = (t.due.0.min(due), t.due.1.max(due));
                         t.receptions.push(Reception { due_us: due, receiver: *entity, index: k });
                     } else {
                         t.stats.age_sum_us += now.saturating_sub(batch[k as usize].sent_at.0);
@@ -685,9 +719,7 @@ pub fn deliver_wifi(
         channel.wifi.absorb(&mut t.stats, t.bins);
         t.bins = (usize::MAX, 0);
         if let Some(record) = &mut record {
-            for r in t.receptions.drain(..) {
-                record.push(r.receiver, r.index, r.due_us);
-            }
+            record.append(&mut t.receptions, std::mem::replace(&mut t.due, (u64::MAX, 0)));
         }
     }
     if let Some(record) = record {
