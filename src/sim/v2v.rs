@@ -616,6 +616,7 @@ impl WifiRound<'_> {
                     let fate = match (memoryless, link.as_deref_mut()) {
                         (Some(p), _) => model.fate(key, index, p),
                         (None, Some(link)) => model.deliver_keyed(key, index, now, distance, self.range, link),
+                        // Not reached: without `memoryless` the link is always there.
                         (None, None) => None,
                     };
                     let Some(delay) = fate else {

@@ -253,7 +253,7 @@ fn half_draw(h: u32) -> (f64, usize) {
 /// falls outside its layer's rectangle (a mispredicted branch, often an `exp`) about half as
 /// often, 1.5 % of the draws rather than 2.8 %, for 4 KiB of tables.
 const ZIG_LAYERS: usize = 256;
-const ZIG_R: f64 = 3.654_152_885_361_008_8;
+const ZIG_R: f64 = 3.654_152_885_361_009;
 const ZIG_V: f64 = 4.928_673_233_99e-3;
 
 /// The ziggurat's layer edges `x` and their ratios `r[i] = x[i + 1] / x[i]`.
