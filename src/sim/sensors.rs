@@ -104,12 +104,16 @@ fn small_rotation(angle: f64) -> DVec2 {
     if angle.abs() > 0.1 {
         return DVec2::from_angle(angle);
     }
-    // Horner's form with the Taylor coefficients (multiplications only: no division).
+    // Estrin's form of the Taylor polynomials (multiplications only: no division): the terms
+    // pair up on a² and a⁴ rather than Horner's chain of one multiply-add per term, so the
+    // rotation waits for about half as many dependent operations (it is on the longest path of
+    // a noisy detection: hash, normal, rotation, position).
     const S: [f64; 4] = [-1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362_880.0];
     const C: [f64; 5] = [-1.0 / 2.0, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40_320.0, -1.0 / 3_628_800.0];
     let a2 = angle * angle;
-    let sin = angle * (1.0 + a2 * (S[0] + a2 * (S[1] + a2 * (S[2] + a2 * S[3]))));
-    let cos = 1.0 + a2 * (C[0] + a2 * (C[1] + a2 * (C[2] + a2 * (C[3] + a2 * C[4]))));
+    let a4 = a2 * a2;
+    let sin = angle * ((1.0 + a2 * S[0]) + a4 * ((S[1] + a2 * S[2]) + a4 * S[3]));
+    let cos = (1.0 + a2 * C[0]) + a4 * ((C[1] + a2 * C[2]) + a4 * (C[3] + a2 * C[4]));
     DVec2::new(cos, sin)
 }
 
@@ -450,6 +454,7 @@ fn write_radar_error_readings(
 ) {
     found.sort_unstable();
     readings.0.clear();
+    readings.0.reserve(found.len());
     let (dropout, noisy) = (err.dropout > 0.0, err.is_noisy());
     for &key in found.iter() {
         let low = key as u32;

@@ -218,6 +218,9 @@ struct DelayedRound {
     /// Earliest and latest due time of `receptions` [µs].
     first_due_us: u64,
     last_due_us: u64,
+    /// When every message of `batch` was written at the same time (beacons of one tick): that
+    /// time [µs], so a delivery's age sum is its count times one age, not a read per message.
+    sent_at_us: Option<u64>,
 }
 
 /// Receptions of delaying channels not yet due: one record per round (its batch shared once,
@@ -251,7 +254,16 @@ impl DelayedMessages {
     fn open(&mut self, channel: Channel, round: u64, batch: &Arc<[Message]>) -> DelayedRound {
         let mut receptions = self.spare.pop().unwrap_or_default();
         receptions.clear();
-        DelayedRound { channel, round, batch: Arc::clone(batch), receptions, first_due_us: u64::MAX, last_due_us: 0 }
+        let sent_at_us = batch.first().map(|m| m.sent_at.0).filter(|&t| batch.iter().all(|m| m.sent_at.0 == t));
+        DelayedRound {
+            channel,
+            round,
+            batch: Arc::clone(batch),
+            receptions,
+            first_due_us: u64::MAX,
+            last_due_us: 0,
+            sent_at_us,
+        }
     }
 
     /// Keep `round` until its receptions are due (or recycle its buffer when it has none).
@@ -779,7 +791,9 @@ pub fn deliver_delayed(
                 let reception = r.receptions[i];
                 if reception.due_us <= now {
                     d.picks.push(reception.index);
-                    stats_of.age_sum_us += now.saturating_sub(r.batch[reception.index as usize].sent_at.0);
+                    if r.sent_at_us.is_none() {
+                        stats_of.age_sum_us += now.saturating_sub(r.batch[reception.index as usize].sent_at.0);
+                    }
                 } else {
                     (first_due, last_due) = (first_due.min(reception.due_us), last_due.max(reception.due_us));
                     r.receptions[kept] = reception;
@@ -789,6 +803,9 @@ pub fn deliver_delayed(
             }
             if d.picks.is_empty() {
                 continue;
+            }
+            if let Some(t) = r.sent_at_us {
+                stats_of.age_sum_us += d.picks.len() as u64 * now.saturating_sub(t);
             }
             delivered += d.picks.len() as u64;
             if let Ok(mut mailbox) = mailboxes.get_mut(receiver) {
