@@ -98,7 +98,7 @@ impl Draw {
     /// The counter of this link's round, shared by every message of it:
     /// `uniform_at(draw.key(), (index << 8) | k) == draw.uniform(k)`. It is
     /// [`link_key`]`(`[`round_key`]`(seed, stream, round), sender, receiver)`: a round's key once,
-    /// then two hashes per link, one per draw.
+    /// then one hash per link, one per draw.
     pub fn key(&self) -> u64 {
         link_key(round_key(self.seed, self.stream, self.round), self.sender, self.receiver)
     }
@@ -109,10 +109,14 @@ pub fn round_key(seed: u64, stream: u64, round: u64) -> u64 {
     key(seed, stream, round)
 }
 
-/// The key of the link (sender, receiver) in the round whose key is `round` ([`round_key`]).
+/// The key of the link (sender, receiver) in the round whose key is `round` ([`round_key`]):
+/// one hash of the pair's 64 bits xored with the round's key. The round's key is itself a hash
+/// of (seed, stream, round), so distinct links of a round hash distinct inputs and no pair of
+/// rounds lines up (REFERENCE "Channels": keyed by seed, stream, sender, receiver and round).
+/// One hash rather than two: a lossy wifi round makes one link key per reception.
 #[inline]
 pub fn link_key(round: u64, sender: i32, receiver: i32) -> u64 {
-    mix(mix((u64::from(sender as u32) << 32) | u64::from(receiver as u32)) ^ round)
+    mix(((u64::from(sender as u32) << 32) | u64::from(receiver as u32)) ^ round)
 }
 
 /// `x.round() as u64` for the delays (non-negative; a NaN or negative gives 0 as there) without
@@ -182,7 +186,12 @@ impl ChannelModel {
     }
 
     /// [`ChannelModel::deliver`] of message `index` of the link round whose counter is
-    /// `key` ([`Draw::key`]): the same fate, for one hash per draw.
+    /// `key` ([`Draw::key`]): the same fate, for one hash per draw. Loss and jitter share one
+    /// draw, `mix(key ^ ((index << 8) | 2))` ([`uniform_at`]'s hash): its high 32 bits decide the
+    /// loss, its low 32 bits the jitter (each a uniform of 2⁻³² resolution, finer than a
+    /// microsecond of jitter), so a lossy, jittered reception costs one hash after its link's
+    /// ([`ChannelModel::fate`]).
+    #[inline]
     pub fn deliver_keyed(
         &self,
         key: u64,
@@ -200,15 +209,28 @@ impl ChannelModel {
                 return None;
             }
         }
-        let p = self.loss_at(distance, range);
-        if p > 0.0 && draw(2) < p {
-            return None;
-        }
-        let jitter = if self.jitter_ms > 0.0 { draw(3) * self.jitter_ms } else { 0.0 };
-        let delay_us = round_us((self.delay_ms + jitter) * 1000.0);
+        let delay_us = self.fate(key, index, self.loss_at(distance, range))?;
         let due = (now_us + delay_us).max(link.last_due_us);
         link.last_due_us = due;
         Some(due - now_us)
+    }
+
+    /// The loss and delay of message `index` of the link round `key` after its burst state:
+    /// `None` when lost with probability `p` ([`ChannelModel::loss_at`]), else its delay [µs]
+    /// before the link's ordering. What [`ChannelModel::deliver_keyed`] gives for a model
+    /// without bursts and a fresh link, so a round of such a model (nothing kept per link) calls
+    /// this directly: one hash and a few operations per reception, inlined.
+    #[inline]
+    pub fn fate(&self, key: u64, index: u32, p: f64) -> Option<u64> {
+        let (lossy, jittered) = (p > 0.0, self.jitter_ms > 0.0);
+        let bits = if lossy || jittered { mix(key ^ ((u64::from(index) << 8) | 2)) } else { 0 };
+        const HALF: f64 = 1.0 / 4_294_967_296.0;
+        // Through u32: its conversion to f64 is one instruction, a u64's a branchy sequence.
+        if lossy && f64::from((bits >> 32) as u32) * HALF < p {
+            return None;
+        }
+        let jitter = if jittered { f64::from(bits as u32) * HALF * self.jitter_ms } else { 0.0 };
+        Some(round_us((self.delay_ms + jitter) * 1000.0))
     }
 }
 
@@ -287,6 +309,44 @@ mod tests {
         }
         let mean_ms = sum / n as f64 / 1000.0;
         assert!(mean_ms >= 12.5 - 0.2, "mean delay {mean_ms} ms, at least delay + jitter / 2");
+    }
+
+    #[test]
+    fn loss_and_jitter_from_one_draw_are_independent() {
+        // Fresh links (no ordering), many of them: the loss share, and the jitter of the
+        // delivered ones uniform over [0, jitter) whatever the loss took.
+        let m = ChannelModel { loss: Loss::Constant(0.3), delay_ms: 10.0, jitter_ms: 5.0, burst: None };
+        let n = 100_000;
+        let delays: Vec<u64> = (0..n)
+            .filter_map(|r| {
+                let d = Draw { sender: (r % 1000) as i32, receiver: -1 - (r / 1000) as i32, ..draw(r / 7) };
+                m.deliver(&d, 1_000_000, 0.0, 50.0, &mut LinkState::default())
+            })
+            .collect();
+        let share = delays.len() as f64 / n as f64;
+        assert!((share - 0.7).abs() < 4.0 * (0.21 / n as f64).sqrt(), "delivered {share}");
+        assert!(delays.iter().all(|&d| (10_000..=15_000).contains(&d)), "a delay outside 10-15 ms");
+        let k = delays.len() as f64;
+        for quarter in 1..4 {
+            let below = delays.iter().filter(|&&d| d < 10_000 + 1250 * quarter).count() as f64 / k;
+            let q = 0.25 * quarter as f64;
+            assert!((below - q).abs() < 0.01, "{below} of the jitters below {q} of the range");
+        }
+    }
+
+    #[test]
+    fn the_fate_is_delivers_on_a_fresh_link_without_bursts() {
+        for model in [
+            ChannelModel { loss: Loss::Constant(0.3), delay_ms: 10.0, jitter_ms: 5.0, burst: None },
+            ChannelModel { loss: Loss::Constant(0.0), delay_ms: 0.0, jitter_ms: 2.0, burst: None },
+            ChannelModel { loss: Loss::Constant(0.5), ..Default::default() },
+        ] {
+            for r in 0..2000 {
+                let d = Draw { index: (r % 3) as u32, ..draw(r) };
+                let fresh = model.deliver(&d, 5_000, 0.0, 50.0, &mut LinkState::default());
+                assert_eq!(fresh, model.fate(d.key(), d.index, model.loss_at(0.0, 50.0)), "{model:?} draw {r}");
+            }
+        }
     }
 
     #[test]

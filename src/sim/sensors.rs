@@ -12,8 +12,9 @@
 //! whose angular extent lies inside one nearer target's is hidden), dropout drops a detection
 //! with its probability, and Gaussian noise moves range, bearing and velocity. Every draw is
 //! counter-based ([`super::random`]), keyed by (seed, sensor, observer and target, tick): no
-//! allocation, the same bits for any thread count. The normals come from the ziggurat
-//! ([`super::random::normal`]: one hash and a multiplication each, mostly) and the bearing
+//! allocation, the same bits for any thread count; three hashes per noisy detection
+//! ([`SensorKeys`]). The normals come from the ziggurat on 32-bit halves
+//! ([`super::random::normal_half`]: half a hash and a multiplication each, mostly) and the bearing
 //! error's rotation from a short polynomial, so noise costs no `ln` or `sin_cos` per detection. [`SensorStats`] counts
 //! detections and the misses of each kind.
 
@@ -30,9 +31,7 @@ use crate::world::{
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::recycle;
-#[cfg(doc)]
-use super::random::uniform_at;
-use super::random::{Words, mix};
+use super::random::{key, mix, normal_half};
 use super::{GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
 /// Random stream of radar draws ("Rada").
@@ -105,48 +104,98 @@ fn small_rotation(angle: f64) -> DVec2 {
     if angle.abs() > 0.1 {
         return DVec2::from_angle(angle);
     }
-    // Horner's form with the Taylor coefficients (multiplications only: no division).
+    // Estrin's form of the Taylor polynomials (multiplications only: no division): the terms
+    // pair up on a² and a⁴ rather than Horner's chain of one multiply-add per term, so the
+    // rotation waits for about half as many dependent operations (it is on the longest path of
+    // a noisy detection: hash, normal, rotation, position).
     const S: [f64; 4] = [-1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362_880.0];
     const C: [f64; 5] = [-1.0 / 2.0, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40_320.0, -1.0 / 3_628_800.0];
     let a2 = angle * angle;
-    let sin = angle * (1.0 + a2 * (S[0] + a2 * (S[1] + a2 * (S[2] + a2 * S[3]))));
-    let cos = 1.0 + a2 * (C[0] + a2 * (C[1] + a2 * (C[2] + a2 * (C[3] + a2 * C[4]))));
+    let a4 = a2 * a2;
+    let sin = angle * ((1.0 + a2 * S[0]) + a4 * ((S[1] + a2 * S[2]) + a4 * S[3]));
+    let cos = (1.0 + a2 * C[0]) + a4 * ((C[1] + a2 * C[2]) + a4 * (C[3] + a2 * C[4]));
     DVec2::new(cos, sin)
 }
 
-/// What the errors of one sensing vehicle need at one tick: the tick's time and each sensor's
-/// stream key ([`key`] without its last round: `mix(mix(seed) ^ stream)`).
+/// What the errors of all sensing vehicles need at one tick: each sensor's tick keys
+/// ([`SensorKeys`]), made once per tick.
 #[derive(Debug, Clone, Copy)]
 struct Draws {
-    now_us: u64,
-    radar: u64,
-    velodyne: u64,
+    radar: SensorKeys,
+    velodyne: SensorKeys,
 }
 
 impl Draws {
     fn new(seed: u64, now_us: u64) -> Draws {
-        let stream = |s: u64| mix(mix(seed) ^ s);
-        Draws { now_us, radar: stream(RADAR_STREAM), velodyne: stream(VELODYNE_STREAM) }
-    }
-
-    /// The counter of the sensor with stream key `stream` ([`Draws::radar`] or
-    /// [`Draws::velodyne`]) for the pair (observer, target): `key(seed, stream, pair)`.
-    fn counter(&self, stream: u64, observer: VehicleId, target: VehicleId) -> u64 {
-        mix(stream ^ Self::pair(observer, target))
-    }
-
-    /// The draws of the pair (observer, target) of the sensor with stream key `stream` this
-    /// tick: word `k` is [`uniform_at`]`(counter, (now_us << 16) | k)`, the same number as
-    /// [`super::random::uniform`]`(seed, stream, pair, (now_us << 16) | k)` for one mix each
-    /// after the counter's. Word 0 decides dropout, words 1 and on are the noise's normals (a
-    /// rejection sampler uses a few; 2¹⁶ words a tick would need astronomically many rejections).
-    /// One counter serves both, so a noisy kept detection costs four hashes.
-    fn words(&self, stream: u64, observer: VehicleId, target: VehicleId) -> Words {
-        Words::new(self.counter(stream, observer, target) ^ (self.now_us << 16))
+        Draws {
+            radar: SensorKeys::new(seed, RADAR_STREAM, now_us),
+            velodyne: SensorKeys::new(seed, VELODYNE_STREAM, now_us),
+        }
     }
 
     fn pair(observer: VehicleId, target: VehicleId) -> u64 {
         ((observer.0 as u32 as u64) << 32) | target.0 as u32 as u64
+    }
+}
+
+/// The keys of one sensor's draws at one tick: `word[k] = mix(key(seed, stream, now_us) ^ k)`
+/// for the three words of a pair and the key of its rare further words. Word `k` of the pair
+/// (observer, target) is `mix(word[k] ^ pair)`: one hash each, none waiting for another, so
+/// the draws stay a pure function of (seed, sensor, observer, target, tick), counter-based as
+/// REFERENCE "Channels" asks (nothing depends on threads or order), at three hashes per noisy
+/// kept detection instead of a per-pair counter hash and a hash per word after it.
+#[derive(Debug, Clone, Copy)]
+struct SensorKeys {
+    word: [u64; 4],
+}
+
+impl SensorKeys {
+    fn new(seed: u64, stream: u64, now_us: u64) -> SensorKeys {
+        let tick = key(seed, stream, now_us);
+        SensorKeys { word: std::array::from_fn(|k| mix(tick ^ k as u64)) }
+    }
+
+    /// The draws of the pair (observer, target) this tick ([`PairDraws`]).
+    #[inline]
+    fn pair(&self, observer: VehicleId, target: VehicleId) -> PairDraws<'_> {
+        let pair = Draws::pair(observer, target);
+        PairDraws { keys: self, pair, first: mix(self.word[0] ^ pair) }
+    }
+}
+
+/// One pair's draws of one sensor at one tick. Word 0 ([`PairDraws::first`]) decides dropout
+/// from its high 32 bits and gives the range error's normal from its low 32; word 1 gives the
+/// bearing's and the x velocity's, word 2's high half the y velocity's ([`normal_half`], each
+/// half its own part of the rare continuation, keyed by word 3's key and the pair). So a
+/// dropped detection costs one hash and a kept noisy one three.
+#[derive(Debug, Clone, Copy)]
+struct PairDraws<'a> {
+    keys: &'a SensorKeys,
+    pair: u64,
+    first: u64,
+}
+
+impl PairDraws<'_> {
+    /// Whether the detection survives a dropout of probability `dropout`: the high half of
+    /// word 0 as a uniform of 2⁻³² resolution at or above it.
+    #[inline]
+    fn kept(&self, dropout: f64) -> bool {
+        // Through u32: its conversion to f64 is one instruction, a u64's a branchy sequence.
+        f64::from((self.first >> 32) as u32) >= dropout * 4_294_967_296.0
+    }
+
+    /// The four standard normals of the noise: range, bearing, x and y velocity. Always
+    /// inlined: returned through memory, the four were read back before their stores retired.
+    #[inline(always)]
+    fn normals(&self) -> [f64; 4] {
+        let (w1, w2) = (mix(self.keys.word[1] ^ self.pair), mix(self.keys.word[2] ^ self.pair));
+        let more = self.keys.word[3] ^ self.pair;
+        [
+            normal_half(self.first as u32, more, 0),
+            normal_half((w1 >> 32) as u32, more, 1),
+            normal_half(w1 as u32, more, 2),
+            normal_half((w2 >> 32) as u32, more, 3),
+        ]
     }
 }
 
@@ -331,24 +380,20 @@ fn write_imperfect_readings(
             hidden = extents.iter().any(|&nearer| covers(nearer, ext));
             extents.push(ext);
         }
-        // Each sensor's draws of this pair, made when first needed (dropout, then noise).
-        let (mut radar_words, mut velodyne_words) = (None, None);
-        let sees = |reach: bool, err: &SensorError, stream: u64, words: &mut Option<Words>| -> (bool, bool) {
+        // Each sensor's draws of this pair: word 0 for dropout, the others for noise.
+        let sees = |reach: bool, err: &SensorError, keys: &SensorKeys| -> (bool, bool) {
             let visible = reach && !(hidden && err.occlusion);
-            let kept = visible
-                && (err.dropout <= 0.0
-                    || words.get_or_insert_with(|| draws.words(stream, sight.id, e.id)).uniform() >= err.dropout);
+            let kept = visible && (err.dropout <= 0.0 || keys.pair(sight.id, e.id).kept(err.dropout));
             (visible, kept)
         };
-        let (radar_visible, radar_kept) = sees(low & RADAR_REACH != 0, &errors.radar, draws.radar, &mut radar_words);
-        let (velodyne_visible, velodyne_kept) =
-            sees(low & VELODYNE_REACH != 0, &errors.velodyne, draws.velodyne, &mut velodyne_words);
+        let (radar_visible, radar_kept) = sees(low & RADAR_REACH != 0, &errors.radar, &draws.radar);
+        let (velodyne_visible, velodyne_kept) = sees(low & VELODYNE_REACH != 0, &errors.velodyne, &draws.velodyne);
         let noise = if sight.omniscient {
             None
         } else if radar_kept {
-            Some((&errors.radar, draws.radar, radar_words))
+            Some((&errors.radar, &draws.radar))
         } else if velodyne_kept {
-            Some((&errors.velodyne, draws.velodyne, velodyne_words))
+            Some((&errors.velodyne, &draws.velodyne))
         } else {
             if radar_visible || velodyne_visible {
                 stats.missed_by_dropout += 1;
@@ -358,14 +403,8 @@ fn write_imperfect_readings(
             continue;
         };
         let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
-        if let Some((err, stream, words)) = noise.filter(|(err, _, _)| err.is_noisy()) {
-            // Words 1 and on (word 0 is the dropout draw, made or not).
-            let mut normals = words.unwrap_or_else(|| {
-                let mut w = draws.words(stream, sight.id, e.id);
-                w.bits();
-                w
-            });
-            add_noise(&mut detection, sight.position, relative, d2, err, &mut normals);
+        if let Some((err, keys)) = noise.filter(|(err, _)| err.is_noisy()) {
+            add_noise(&mut detection, sight.position, relative, d2, err, keys.pair(sight.id, e.id).normals());
         }
         readings.0.push(detection);
         stats.detections += 1;
@@ -373,8 +412,8 @@ fn write_imperfect_readings(
 }
 
 /// Move `detection` (of a target at `relative` [m], squared distance `d2`, from a sensor at
-/// `position`) by the range, bearing and velocity errors of `err`, with the normals of
-/// `normals` (words 1 and on of the pair's draws).
+/// `position`) by the range, bearing and velocity errors of `err`, with the standard normals
+/// `normals` (range, bearing, x and y velocity: [`PairDraws::normals`]).
 #[inline]
 fn add_noise(
     detection: &mut Detection,
@@ -382,10 +421,9 @@ fn add_noise(
     relative: DVec2,
     d2: f64,
     err: &SensorError,
-    normals: &mut Words,
+    normals: [f64; 4],
 ) {
-    let (n_range, n_bearing) = normals.normal_pair();
-    let (n_vx, n_vy) = normals.normal_pair();
+    let [n_range, n_bearing, n_vx, n_vy] = normals;
     // Range and bearing errors: scale the offset, then rotate it by the bearing error.
     let d = d2.sqrt();
     let scale = if d > 0.0 { (d + err.range_sd * n_range) / d } else { 1.0 };
@@ -416,25 +454,19 @@ fn write_radar_error_readings(
 ) {
     found.sort_unstable();
     readings.0.clear();
+    readings.0.reserve(found.len());
     let (dropout, noisy) = (err.dropout > 0.0, err.is_noisy());
     for &key in found.iter() {
         let low = key as u32;
         let e = grid.get(low & !REACH);
         let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
         if !sight.omniscient && low & RADAR_REACH != 0 && (dropout || noisy) {
-            // Word 0 decides dropout (drawn or skipped), words 1 and on are the noise's.
-            let mut words = draws.words(draws.radar, sight.id, e.id);
-            let kept = if dropout {
-                words.uniform() >= err.dropout
-            } else {
-                words.bits();
-                true
-            };
-            if kept {
+            let pair = draws.radar.pair(sight.id, e.id);
+            if !dropout || pair.kept(err.dropout) {
                 if noisy {
                     let relative = e.position - sight.position;
                     let d2 = f64::from_bits((key >> 64) as u64);
-                    add_noise(&mut detection, sight.position, relative, d2, err, &mut words);
+                    add_noise(&mut detection, sight.position, relative, d2, err, pair.normals());
                 }
             } else if low & VELODYNE_REACH == 0 {
                 stats.missed_by_dropout += 1;
@@ -629,16 +661,59 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_pair_counter_draws_what_the_plain_draw_draws() {
-        let d = Draws::new(42, 1_500_000);
+    fn pair_draws_are_keyed_by_seed_sensor_pair_and_tick() {
         let (a, b) = (VehicleId(-3), VehicleId(7));
-        let pair = Draws::pair(a, b);
-        for (stream, base) in [(RADAR_STREAM, d.radar), (VELODYNE_STREAM, d.velodyne)] {
-            let c = d.counter(base, a, b);
-            assert_eq!(c, crate::world::random::key(42, stream, pair));
-            let mut w = d.words(base, a, b);
-            for k in 0..3 {
-                assert_eq!(w.uniform(), crate::world::random::uniform(42, stream, pair, (1_500_000 << 16) | k));
+        let first =
+            |seed, stream, now, observer, target| SensorKeys::new(seed, stream, now).pair(observer, target).first;
+        let base = first(42, RADAR_STREAM, 1_500_000, a, b);
+        assert_eq!(base, first(42, RADAR_STREAM, 1_500_000, a, b));
+        for other in [
+            first(43, RADAR_STREAM, 1_500_000, a, b),
+            first(42, VELODYNE_STREAM, 1_500_000, a, b),
+            first(42, RADAR_STREAM, 1_550_000, a, b),
+            first(42, RADAR_STREAM, 1_500_000, b, a),
+            first(42, RADAR_STREAM, 1_500_000, a, VehicleId(8)),
+        ] {
+            assert_ne!(base, other);
+        }
+        let d = Draws::new(42, 1_500_000);
+        assert_eq!(d.radar.pair(a, b).first, base);
+        assert_eq!(d.velodyne.pair(a, b).first, first(42, VELODYNE_STREAM, 1_500_000, a, b));
+    }
+
+    #[test]
+    fn pair_draws_drop_their_share_and_give_independent_standard_normals() {
+        // Many (observer, target) pairs over a few ticks, as a bench run draws them.
+        let (dropout, mut dropped, mut n) = (0.02, 0u32, 0u32);
+        let mut normals: Vec<[f64; 4]> = Vec::new();
+        for tick in 0..20u64 {
+            let keys = SensorKeys::new(1, RADAR_STREAM, tick * 50_000);
+            for observer in 0..100 {
+                for target in 0..100 {
+                    let pair = keys.pair(VehicleId(-1 - observer), VehicleId(-1 - target));
+                    n += 1;
+                    if pair.kept(dropout) {
+                        normals.push(pair.normals());
+                    } else {
+                        dropped += 1;
+                    }
+                }
+            }
+        }
+        let share = f64::from(dropped) / f64::from(n);
+        let sd = (dropout * (1.0 - dropout) / f64::from(n)).sqrt();
+        assert!((share - dropout).abs() < 4.0 * sd, "dropout share {share} of {n}");
+        let m = normals.len() as f64;
+        for k in 0..4 {
+            let mean = normals.iter().map(|x| x[k]).sum::<f64>() / m;
+            let var = normals.iter().map(|x| x[k] * x[k]).sum::<f64>() / m;
+            assert!(mean.abs() < 4.0 / m.sqrt(), "normal {k}: mean {mean}");
+            assert!((var - 1.0).abs() < 0.02, "normal {k}: variance {var}");
+            let beyond = normals.iter().filter(|x| x[k].abs() > 2.0).count() as f64 / m;
+            assert!((beyond - 0.0455).abs() < 0.003, "normal {k}: P(|X| > 2) {beyond}");
+            for j in 0..k {
+                let c = normals.iter().map(|x| x[j] * x[k]).sum::<f64>() / m;
+                assert!(c.abs() < 4.0 / m.sqrt(), "normals {j} and {k} correlate: {c}");
             }
         }
     }

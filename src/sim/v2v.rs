@@ -218,6 +218,9 @@ struct DelayedRound {
     /// Earliest and latest due time of `receptions` [µs].
     first_due_us: u64,
     last_due_us: u64,
+    /// When every message of `batch` was written at the same time (beacons of one tick): that
+    /// time [µs], so a delivery's age sum is its count times one age, not a read per message.
+    sent_at_us: Option<u64>,
 }
 
 /// Receptions of delaying channels not yet due: one record per round (its batch shared once,
@@ -251,7 +254,16 @@ impl DelayedMessages {
     fn open(&mut self, channel: Channel, round: u64, batch: &Arc<[Message]>) -> DelayedRound {
         let mut receptions = self.spare.pop().unwrap_or_default();
         receptions.clear();
-        DelayedRound { channel, round, batch: Arc::clone(batch), receptions, first_due_us: u64::MAX, last_due_us: 0 }
+        let sent_at_us = batch.first().map(|m| m.sent_at.0).filter(|&t| batch.iter().all(|m| m.sent_at.0 == t));
+        DelayedRound {
+            channel,
+            round,
+            batch: Arc::clone(batch),
+            receptions,
+            first_due_us: u64::MAX,
+            last_due_us: 0,
+            sent_at_us,
+        }
     }
 
     /// Keep `round` until its receptions are due (or recycle its buffer when it has none).
@@ -283,6 +295,24 @@ impl DelayedRound {
         self.first_due_us = self.first_due_us.min(due_us);
         self.last_due_us = self.last_due_us.max(due_us);
         self.receptions.push(Reception { due_us, receiver, index });
+    }
+
+    /// Move a thread's `receptions` (due from `due.0` to `due.1` [µs]) to the end of this
+    /// round's, leaving `receptions` empty: the first non-empty one by swapping buffers (no
+    /// copy: one thread's round is never copied), the others by one copy of the slice, rather
+    /// than a push per reception on the round's one thread.
+    fn append(&mut self, receptions: &mut Vec<Reception>, due: (u64, u64)) {
+        if receptions.is_empty() {
+            return;
+        }
+        self.first_due_us = self.first_due_us.min(due.0);
+        self.last_due_us = self.last_due_us.max(due.1);
+        if self.receptions.is_empty() {
+            std::mem::swap(&mut self.receptions, receptions);
+        } else {
+            self.receptions.extend_from_slice(receptions);
+            receptions.clear();
+        }
     }
 }
 
@@ -490,7 +520,6 @@ pub struct WifiScratch {
 type WifiItem<'a> = (Entity, &'a VehicleState, Mut<'a, Mailbox>);
 
 /// What one thread of the wifi round keeps and counts for its contiguous chunk of receivers.
-#[derive(Default)]
 struct WifiThread {
     heard: Vec<u32>,
     picks: Vec<u32>,
@@ -502,6 +531,22 @@ struct WifiThread {
     delivered: u64,
     /// Delayed receptions of the chunk's receivers, in receiver order.
     receptions: Vec<Reception>,
+    /// Earliest and latest due time of `receptions` [µs] (none: `u64::MAX`, 0).
+    due: (u64, u64),
+}
+
+impl Default for WifiThread {
+    fn default() -> Self {
+        WifiThread {
+            heard: Vec::new(),
+            picks: Vec::new(),
+            stats: ChannelStats::default(),
+            bins: (usize::MAX, 0),
+            delivered: 0,
+            receptions: Vec::new(),
+            due: (u64::MAX, 0),
+        }
+    }
 }
 
 /// What every chunk of a wifi round reads.
@@ -561,19 +606,32 @@ impl WifiRound<'_> {
                 continue;
             }
             t.picks.clear();
+            // Without per-link state or distance (a constant loss, no bursts) every reception's
+            // fate is `ChannelModel::fate` with one loss probability: no link to look up.
+            let memoryless = match (model.loss, model.burst, links.is_some()) {
+                (Loss::Constant(p), None, false) => Some(p),
+                _ => None,
+            };
             for &i in &t.heard {
                 let (sender, position, count) = senders[i as usize];
                 let distance = if model.uses_distance() { position.distance(state.position) } else { 0.0 };
                 let mut fresh = LinkState::default();
-                let link = match links.as_deref_mut() {
-                    Some(links) => links.entry((sender, owner)).or_default(),
-                    None => &mut fresh,
+                let mut link = match (memoryless, links.as_deref_mut()) {
+                    (Some(_), _) => None,
+                    (None, Some(links)) => Some(links.entry((sender, owner)).or_default()),
+                    (None, None) => Some(&mut fresh),
                 };
                 let key = link_key(self.round_key, sender.0, owner.0);
                 let mut order = LinkOrder::default();
                 for index in 0..count {
                     let k = starts[i as usize] + index;
-                    let Some(delay) = model.deliver_keyed(key, index, now, distance, self.range, link) else {
+                    let fate = match (memoryless, link.as_deref_mut()) {
+                        (Some(p), _) => model.fate(key, index, p),
+                        (None, Some(link)) => model.deliver_keyed(key, index, now, distance, self.range, link),
+                        // Not reached: without `memoryless` the link is always there.
+                        (None, None) => None,
+                    };
+                    let Some(delay) = fate else {
                         continue;
                     };
                     t.stats.delivered += 1;
@@ -581,6 +639,7 @@ impl WifiRound<'_> {
                         let due = order.due(now + delay);
                         let bin = t.stats.add_delay(due - now);
                         t.bins = (t.bins.0.min(bin), t.bins.1.max(bin));
+                        t.due = (t.due.0.min(due), t.due.1.max(due));
                         t.receptions.push(Reception { due_us: due, receiver: *entity, index: k });
                     } else {
                         t.stats.age_sum_us += now.saturating_sub(batch[k as usize].sent_at.0);
@@ -685,9 +744,7 @@ pub fn deliver_wifi(
         channel.wifi.absorb(&mut t.stats, t.bins);
         t.bins = (usize::MAX, 0);
         if let Some(record) = &mut record {
-            for r in t.receptions.drain(..) {
-                record.push(r.receiver, r.index, r.due_us);
-            }
+            record.append(&mut t.receptions, std::mem::replace(&mut t.due, (u64::MAX, 0)));
         }
     }
     if let Some(record) = record {
@@ -707,6 +764,9 @@ pub fn deliver_delayed(
     mut delayed: ResMut<DelayedMessages>,
     mut mailboxes: Query<&mut Mailbox>,
 ) {
+    if delayed.rounds.is_empty() {
+        return;
+    }
     let now = clock.now.0;
     let d = &mut *delayed;
     let mut k = 0;
@@ -731,7 +791,9 @@ pub fn deliver_delayed(
                 let reception = r.receptions[i];
                 if reception.due_us <= now {
                     d.picks.push(reception.index);
-                    stats_of.age_sum_us += now.saturating_sub(r.batch[reception.index as usize].sent_at.0);
+                    if r.sent_at_us.is_none() {
+                        stats_of.age_sum_us += now.saturating_sub(r.batch[reception.index as usize].sent_at.0);
+                    }
                 } else {
                     (first_due, last_due) = (first_due.min(reception.due_us), last_due.max(reception.due_us));
                     r.receptions[kept] = reception;
@@ -741,6 +803,9 @@ pub fn deliver_delayed(
             }
             if d.picks.is_empty() {
                 continue;
+            }
+            if let Some(t) = r.sent_at_us {
+                stats_of.age_sum_us += d.picks.len() as u64 * now.saturating_sub(t);
             }
             delivered += d.picks.len() as u64;
             if let Ok(mut mailbox) = mailboxes.get_mut(receiver) {
@@ -785,8 +850,10 @@ impl Plugin for V2vPlugin {
         sim.insert_resource(DelayedMessages::default());
         sim.add_systems(Network, deliver_network.in_set(SimSystems::Communicate));
         sim.add_systems(Wifi, deliver_wifi.in_set(SimSystems::Communicate));
-        if self.config.wifi.delays() || self.config.network.delays() {
-            sim.add_systems(Control, deliver_delayed.in_set(SimSystems::Communicate));
-        }
+        // Always, not only when `self.config` delays: the config may be replaced after the
+        // plugin is built (the degraded bench inserts a delaying one after `default_plugins`),
+        // and then the delayed receptions were queued and never delivered. With nothing queued
+        // it looks at an empty queue and returns.
+        sim.add_systems(Control, deliver_delayed.in_set(SimSystems::Communicate));
     }
 }

@@ -458,7 +458,7 @@ mod tests {
     use bevy_ecs::prelude::With;
 
     use super::*;
-    use crate::sim::Parallelism;
+    use crate::sim::{DelayedMessages, Parallelism, V2vStats};
     use crate::vehicles::PathFollower;
     use crate::world::{ControlCommand, SensorReadings};
 
@@ -528,6 +528,27 @@ mod tests {
         assert!((d.v2v.wifi.delay_ms_mean - 12.5).abs() < 0.2, "mean delay {}", d.v2v.wifi.delay_ms_mean);
         let dropped = d.sensor_stats.missed_by_dropout as f64 / (d.sensor_stats.detections as f64);
         assert!(dropped > 0.001 && dropped < 0.02, "radar dropout share {dropped}");
+    }
+
+    #[test]
+    fn a_degraded_run_delivers_its_delayed_wifi_and_keeps_no_backlog() {
+        // The degraded V2vConfig is inserted after default_plugins built the V2V plugin with a
+        // perfect one: the delayed receptions must still reach the in-boxes when due.
+        let mut b = BenchWorld { vehicles: 300, degraded: true, ..Default::default() }.builder().expect("builds");
+        b.insert_resource(Parallelism::single());
+        let mut sim = b.build();
+        sim.run_for(3.0);
+        let world = sim.world();
+        let (stats, channel) = (world.resource::<V2vStats>(), world.resource::<V2vChannelStats>());
+        let in_flight = world.resource::<DelayedMessages>().len() as u64;
+        assert!(channel.wifi.delivered > 0, "nothing delivered");
+        assert_eq!(
+            stats.wifi_delivered + in_flight,
+            channel.wifi.delivered,
+            "delivered into in-boxes plus in flight is every reception not lost"
+        );
+        // 10-15 ms of delay: at most the last round's receptions are still in flight.
+        assert!(in_flight * 10 < channel.wifi.delivered, "{in_flight} receptions in flight");
     }
 
     #[test]
