@@ -150,9 +150,12 @@ fn help(s: &Shared, chunk: usize) {
             }
             let spinning = since.get_or_insert_with(Instant::now);
             if spinning.elapsed() < SPIN {
+                // Between looks, a short spin, then the core to any other runnable thread (on a
+                // busy machine a spinning helper would take a core from the work itself).
                 for _ in 0..32 {
                     std::hint::spin_loop();
                 }
+                std::thread::yield_now();
                 continue;
             }
             let mut lock = s.lock.lock().unwrap_or_else(|e| e.into_inner());
