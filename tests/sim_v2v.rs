@@ -87,6 +87,21 @@ fn rounds_follow_the_rates_over_ten_seconds() {
     }
 }
 
+#[test]
+fn a_second_v2v_plugin_replaces_the_channels_without_running_each_round_twice() {
+    // A scenario adds its channels after `default_plugins` added perfect ones.
+    let mut b = SimBuilder::with_rates(Rates { wifi: 10.0, network: 1.0, ..Default::default() });
+    b.add_plugin(V2vPlugin::default());
+    let config = V2vConfig { wifi_range: 80.0, ..V2vConfig::default() };
+    b.add_plugin(V2vPlugin { config });
+    parked(&mut b, -1, DVec2::ZERO);
+    let mut sim = b.build();
+    sim.run_for(10.0);
+    let stats = *sim.world().resource::<V2vStats>();
+    assert_eq!((stats.wifi_rounds, stats.network_rounds), (100, 10), "each round once");
+    assert_eq!(sim.world().resource::<V2vConfig>().wifi_range, 80.0, "the second plugin's channels");
+}
+
 /// Every message a receiver has seen: (sender, sequence number).
 #[derive(Resource, Default)]
 struct Received {

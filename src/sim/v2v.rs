@@ -841,9 +841,20 @@ pub struct V2vPlugin {
     pub config: V2vConfig,
 }
 
+/// Marks that [`V2vPlugin`]'s systems are in the schedules.
+#[derive(Resource, Debug, Clone, Copy)]
+struct V2vInstalled;
+
 impl Plugin for V2vPlugin {
+    /// Adds the V2V systems once: a second `V2vPlugin` (a scenario's channels after
+    /// `default_plugins`' perfect ones) only replaces the [`V2vConfig`]. Added twice, every round
+    /// ran twice (the second over empty out-boxes, counting a round of its own).
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(self.config);
+        if sim.world_mut().contains_resource::<V2vInstalled>() {
+            return;
+        }
+        sim.insert_resource(V2vInstalled);
         sim.insert_resource(V2vStats::default());
         sim.insert_resource(V2vChannelStats::default());
         sim.insert_resource(V2vLinks::default());
