@@ -560,6 +560,7 @@ pub fn decide_lane_changes(
 /// inserted once, when its vehicle spawns. Doing this in the serial gathering of
 /// `decide_lane_changes` read every vehicle's `LaneChanger` every tick for the few new ones: a
 /// cache miss per vehicle, a third of the lane-change decisions' serial time (issue 19 item 8).
+#[allow(clippy::type_complexity)]
 pub fn find_reach(
     lanes: Option<Res<LaneMap>>,
     mut paths: ResMut<LanePaths>,
