@@ -187,10 +187,6 @@ fn team(helpers: usize) -> Option<&'static Team> {
     *teams.entry(helpers).or_insert_with(|| Team::start(helpers).map(|t| &*Box::leak(Box::new(t))))
 }
 
-/// Empty `v` and reuse its allocation for a vector of another item type of the same layout:
-/// a system keeps `Local<Vec<Item<'static>>>` between ticks and turns it into this tick's
-/// `Vec<Item<'w>>` and back, so gathering query items allocates only while the world grows.
-/// (It relies on the standard library collecting `Vec::into_iter().map(..)` in place.)
 /// Hint to the processor that the memory at `p` will be read soon (no effect off x86-64): the
 /// per-vehicle loops ask for what a vehicle a few places on will read (its centre line, its
 /// detections), so those loads, far apart in memory on a big world, overlap this vehicle's work.
@@ -206,6 +202,10 @@ pub fn prefetch<T>(p: *const T) {
     let _ = p;
 }
 
+/// Empty `v` and reuse its allocation for a vector of another item type of the same layout:
+/// a system keeps `Local<Vec<Item<'static>>>` between ticks and turns it into this tick's
+/// `Vec<Item<'w>>` and back, so gathering query items allocates only while the world grows.
+/// (It relies on the standard library collecting `Vec::into_iter().map(..)` in place.)
 pub fn recycle<T, U>(mut v: Vec<T>) -> Vec<U> {
     v.clear();
     v.into_iter().map(|_| -> U { unreachable!("the vector was emptied") }).collect()
