@@ -462,11 +462,16 @@ mod tests {
     use crate::vehicles::PathFollower;
     use crate::world::{ControlCommand, SensorReadings};
 
+    /// `world` built on `parallelism`'s threads (not yet run).
+    fn sim_of(world: BenchWorld, parallelism: Parallelism) -> crate::sim::Sim {
+        let mut b = world.builder().expect("the bench world builds");
+        b.insert_resource(parallelism);
+        b.build()
+    }
+
     /// Everything the heavy systems write, per vehicle, in id order, as exact bits.
     fn fingerprint(parallelism: Parallelism) -> Vec<(i32, Vec<u64>)> {
-        let mut b = BenchWorld { vehicles: 600, ..Default::default() }.builder().expect("the bench world builds");
-        b.insert_resource(parallelism);
-        let mut sim = b.build();
+        let mut sim = sim_of(BenchWorld { vehicles: 600, ..Default::default() }, parallelism);
         sim.run_for(2.0);
         let world = sim.world_mut();
         let mut query = world.query_filtered::<(&VehicleId, &VehicleState, &ControlCommand, &SensorReadings, &PathFollower), With<Mailbox>>();
@@ -534,9 +539,7 @@ mod tests {
     fn a_degraded_run_delivers_its_delayed_wifi_and_keeps_no_backlog() {
         // The degraded V2vConfig is inserted after default_plugins built the V2V plugin with a
         // perfect one: the delayed receptions must still reach the in-boxes when due.
-        let mut b = BenchWorld { vehicles: 300, degraded: true, ..Default::default() }.builder().expect("builds");
-        b.insert_resource(Parallelism::single());
-        let mut sim = b.build();
+        let mut sim = sim_of(BenchWorld { vehicles: 300, degraded: true, ..Default::default() }, Parallelism::single());
         sim.run_for(3.0);
         let world = sim.world();
         let (stats, channel) = (world.resource::<V2vStats>(), world.resource::<V2vChannelStats>());
@@ -553,9 +556,8 @@ mod tests {
 
     #[test]
     fn the_lane_change_bench_counts_changes_without_a_list_that_grows() {
-        let mut b = BenchWorld { vehicles: 300, lane_change: true, ..Default::default() }.builder().expect("builds");
-        b.insert_resource(Parallelism::single());
-        let mut sim = b.build();
+        let mut sim =
+            sim_of(BenchWorld { vehicles: 300, lane_change: true, ..Default::default() }, Parallelism::single());
         sim.run_for(60.0);
         let log = sim.world().resource::<LaneChangeLog>();
         assert!(log.count() > 0, "vehicles of different desired speeds change lanes");
