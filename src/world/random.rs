@@ -199,20 +199,6 @@ impl Words {
     pub fn normal(&mut self) -> f64 {
         normal(self)
     }
-
-    /// Two independent standard normal numbers from one word when both fall inside their
-    /// layers' rectangles (97 %): the ziggurat of [`normal`] on each 32-bit half
-    /// ([`normal_half`]'s layout), so a normal costs half a hash. A half that falls outside goes
-    /// on with full words of this stream ([`normal`]'s tail and wedges).
-    #[inline]
-    pub fn normal_pair(&mut self) -> (f64, f64) {
-        let z = ziggurat();
-        let bits = self.bits();
-        let ((u0, i0), (u1, i1)) = (half_draw((bits >> 32) as u32), half_draw(bits as u32));
-        let first = if u0.abs() < z.r[i0] { u0 * z.x[i0] } else { normal_outside(self, z, u0, i0) };
-        let second = if u1.abs() < z.r[i1] { u1 * z.x[i1] } else { normal_outside(self, z, u1, i1) };
-        (first, second)
-    }
 }
 
 /// A standard normal number from the 32 random bits `h` by the ziggurat of [`normal`]: the
@@ -452,11 +438,6 @@ mod tests {
         let draws = 1_000_000;
         let single: Vec<f64> = (0..draws).map(|i| Words::new(key(11, 12, i)).normal()).collect();
         assert_standard_normal(&single, "normal");
-        let pairs: Vec<(f64, f64)> = (0..draws).map(|i| Words::new(key(13, 12, i)).normal_pair()).collect();
-        assert_standard_normal(&pairs.iter().map(|p| p.0).collect::<Vec<_>>(), "first of a pair");
-        assert_standard_normal(&pairs.iter().map(|p| p.1).collect::<Vec<_>>(), "second of a pair");
-        let correlation = pairs.iter().map(|(a, b)| a * b).sum::<f64>() / draws as f64;
-        assert!(correlation.abs() < 0.005, "the two of a pair correlate: {correlation}");
         // Each 32-bit half on its own, continuing (1.5 % of the draws) from its own key and part.
         let halves: Vec<f64> = (0..draws)
             .flat_map(|i| {
@@ -465,6 +446,8 @@ mod tests {
             })
             .collect();
         assert_standard_normal(&halves, "halves");
+        let correlation = halves.chunks(2).map(|p| p[0] * p[1]).sum::<f64>() / draws as f64;
+        assert!(correlation.abs() < 0.005, "the two halves of a word correlate: {correlation}");
         // A half in the base layer outside its rectangle: drawn from the tail, by continuation.
         let tail = (0..1u32 << 16).find(|&h| {
             let (u, i) = half_draw(h);
@@ -475,6 +458,5 @@ mod tests {
         // Pure functions of the key.
         assert_eq!(normal_half(h, 5, 0), normal_half(h, 5, 0));
         assert_eq!(Words::new(key(1, 2, 3)).normal(), Words::new(key(1, 2, 3)).normal());
-        assert_eq!(Words::new(key(1, 2, 3)).normal_pair(), Words::new(key(1, 2, 3)).normal_pair());
     }
 }
