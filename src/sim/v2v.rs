@@ -576,6 +576,12 @@ impl WifiRound<'_> {
     ) {
         let (model, now) = (&self.model, self.now_us);
         let (senders, starts, batch) = (self.senders, self.starts, self.batch);
+        // Without per-link state or distance (a constant loss, no bursts) every reception's fate
+        // is `ChannelModel::fate` with one loss probability: no link to look up.
+        let memoryless = match (model.loss, model.burst, links.is_some()) {
+            (Loss::Constant(p), None, false) => Some(p),
+            _ => None,
+        };
         for (entity, state, mailbox) in chunk.iter_mut() {
             let owner = mailbox.owner();
             t.heard.clear();
@@ -606,30 +612,21 @@ impl WifiRound<'_> {
                 continue;
             }
             t.picks.clear();
-            // Without per-link state or distance (a constant loss, no bursts) every reception's
-            // fate is `ChannelModel::fate` with one loss probability: no link to look up.
-            let memoryless = match (model.loss, model.burst, links.is_some()) {
-                (Loss::Constant(p), None, false) => Some(p),
-                _ => None,
-            };
             for &i in &t.heard {
                 let (sender, position, count) = senders[i as usize];
                 let distance = if model.uses_distance() { position.distance(state.position) } else { 0.0 };
                 let mut fresh = LinkState::default();
-                let mut link = match (memoryless, links.as_deref_mut()) {
-                    (Some(_), _) => None,
-                    (None, Some(links)) => Some(links.entry((sender, owner)).or_default()),
-                    (None, None) => Some(&mut fresh),
+                let link = match links.as_deref_mut() {
+                    Some(links) => links.entry((sender, owner)).or_default(),
+                    None => &mut fresh,
                 };
                 let key = link_key(self.round_key, sender.0, owner.0);
                 let mut order = LinkOrder::default();
                 for index in 0..count {
                     let k = starts[i as usize] + index;
-                    let fate = match (memoryless, link.as_deref_mut()) {
-                        (Some(p), _) => model.fate(key, index, p),
-                        (None, Some(link)) => model.deliver_keyed(key, index, now, distance, self.range, link),
-                        // Not reached: without `memoryless` the link is always there.
-                        (None, None) => None,
+                    let fate = match memoryless {
+                        Some(p) => model.fate(key, index, p),
+                        None => model.deliver_keyed(key, index, now, distance, self.range, link),
                     };
                     let Some(delay) = fate else {
                         continue;
