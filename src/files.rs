@@ -88,9 +88,13 @@ mod tests {
     fn a_commit_replaces_the_target_and_creates_its_folder() {
         let dir = scratch("commit");
         let target = dir.join("a/b/out.png");
-        write_atomic(&target, b"new").unwrap();
-        assert_eq!(std::fs::read(&target).unwrap(), b"new");
-        assert_eq!(std::fs::read_dir(target.parent().unwrap()).unwrap().count(), 1, "no temporary file left");
+        write_atomic(&target, b"new").expect("writes");
+        assert_eq!(std::fs::read(&target).expect("the target reads"), b"new");
+        assert_eq!(
+            std::fs::read_dir(target.parent().expect("the target is in a folder")).expect("the folder lists").count(),
+            1,
+            "no temporary file left"
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 
@@ -98,13 +102,13 @@ mod tests {
     fn a_file_dropped_before_its_commit_leaves_the_old_target() {
         let dir = scratch("drop");
         let target = dir.join("summary.json");
-        write_atomic(&target, b"old").unwrap();
+        write_atomic(&target, b"old").expect("writes");
         {
-            let file = AtomicFile::new(&target).unwrap();
+            let file = AtomicFile::new(&target).expect("a temporary file beside the target");
             assert_eq!(file.path(), dir.join(".summary.partial.json"));
-            std::fs::write(file.path(), b"half").unwrap();
+            std::fs::write(file.path(), b"half").expect("the temporary file writes");
         }
-        assert_eq!(std::fs::read(&target).unwrap(), b"old");
+        assert_eq!(std::fs::read(&target).expect("the target reads"), b"old");
         assert!(!dir.join(".summary.partial.json").exists());
         let _ = std::fs::remove_dir_all(&dir);
     }

@@ -5,7 +5,7 @@
 //! ```no_run
 //! use smlworld::prelude::*;
 //!
-//! let summary = run_scenario("scenarios/highway.toml", RunOptions::default().out("out/highway")).unwrap();
+//! let summary = run_scenario("scenarios/highway.toml", RunOptions::default().out("out/highway")).expect("the shipped scenario runs");
 //! println!("{} vehicles, {:.1}x real time", summary.vehicles, summary.real_time_factor);
 //! ```
 

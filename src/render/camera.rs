@@ -243,11 +243,12 @@ mod tests {
     #[test]
     fn follow_centres_the_vehicle_and_keeps_its_last_place_when_it_is_gone() {
         let frames = FrameOutput { follow: Some(-3), pixels_per_meter: Some(8.0), ..FrameOutput::default() };
-        let mut cam = Camera::new(&frames, Some((DVec2::ZERO, DVec2::splat(100.0)))).unwrap();
-        let v = cam.view(&[sprite(1, 0.0, 0.0), sprite(-3, 40.0, 12.5)]).unwrap();
+        let mut cam =
+            Camera::new(&frames, Some((DVec2::ZERO, DVec2::splat(100.0)))).expect("a camera over a 100 m map");
+        let v = cam.view(&[sprite(1, 0.0, 0.0), sprite(-3, 40.0, 12.5)]).expect("a view of the sprites");
         assert_eq!((v.pixels_per_meter, v.center), (8.0, DVec2::new(40.0, 12.5)));
         assert_eq!(v.world_to_pixel(DVec2::new(40.0, 12.5)), DVec2::new(640.0, 360.0));
-        let v = cam.view(&[sprite(1, 0.0, 0.0)]).unwrap();
+        let v = cam.view(&[sprite(1, 0.0, 0.0)]).expect("a view of the sprites");
         assert_eq!(v.center, DVec2::new(40.0, 12.5));
     }
 
@@ -256,17 +257,18 @@ mod tests {
         // 20 km wide in 640 px: 0.03 px/m.
         let map = Some((DVec2::ZERO, DVec2::new(20_000.0, 100.0)));
         let frames = FrameOutput { width: 640, height: 360, ..FrameOutput::default() };
-        let mut cam = Camera::new(&frames, map).unwrap();
-        let v = cam.view(&[sprite(1, 5000.0, 50.0), sprite(2, 5100.0, 50.0)]).unwrap();
+        let mut cam = Camera::new(&frames, map).expect("a camera over the map");
+        let v = cam.view(&[sprite(1, 5000.0, 50.0), sprite(2, 5100.0, 50.0)]).expect("a view of the sprites");
         assert!(v.pixels_per_meter >= MIN_AUTO_FIT_PPM, "{v:?}");
         for x in [5000.0, 5100.0] {
             let p = v.world_to_pixel(DVec2::new(x, 50.0));
             assert!(p.x > 0.0 && p.x < 640.0 && p.y > 0.0 && p.y < 360.0, "{p}");
         }
         // The view stays put afterwards.
-        assert_eq!(cam.view(&[sprite(1, 9000.0, 50.0)]).unwrap(), v);
+        assert_eq!(cam.view(&[sprite(1, 9000.0, 50.0)]).expect("a view of the sprites"), v);
         // A small map is fitted whole as before.
-        let mut small = Camera::new(&frames, Some((DVec2::ZERO, DVec2::splat(100.0)))).unwrap();
-        assert!(small.view(&[sprite(1, 5.0, 5.0)]).unwrap().pixels_per_meter > 3.0);
+        let mut small =
+            Camera::new(&frames, Some((DVec2::ZERO, DVec2::splat(100.0)))).expect("a camera over a 100 m map");
+        assert!(small.view(&[sprite(1, 5.0, 5.0)]).expect("a view of the sprites").pixels_per_meter > 3.0);
     }
 }

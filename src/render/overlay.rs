@@ -152,7 +152,7 @@ mod tests {
 
     #[test]
     fn a_collision_ring_is_red_on_its_circle_and_leaves_the_centre() {
-        let view = super::super::BirdseyeView::new(200, 100, 5.0, glam::DVec2::ZERO).unwrap();
+        let view = super::super::BirdseyeView::new(200, 100, 5.0, glam::DVec2::ZERO).expect("a valid view");
         let mut img = RgbaImage::from_pixel(200, 100, image::Rgba([90, 90, 90, 255]));
         draw_collision_ring(&mut img, &view, glam::DVec2::new(2.0, 0.0));
         // Centre pixel (110, 50); radius 15 px.

@@ -485,7 +485,7 @@ mod tests {
 
     #[test]
     fn only_emergency_vehicles_carry_a_light_bar() {
-        let view = BirdseyeView::new(200, 100, 10.0, DVec2::ZERO).unwrap();
+        let view = BirdseyeView::new(200, 100, 10.0, DVec2::ZERO).expect("a valid view");
         let sprites = [
             VehicleSprite::new(-1, DVec2::ZERO, 0.0, 5.5, 2.0, "Emergency"),
             VehicleSprite::new(2, DVec2::new(8.0, 0.0), 0.0, 4.0, 1.7, "Car"),
@@ -511,7 +511,7 @@ mod tests {
     #[test]
     fn every_vehicle_in_view_gets_a_label_and_labels_never_overlap() {
         // A platoon at 640x360 px and 2 px/m: 8 m apart, 16 px, room for every label.
-        let view = BirdseyeView::new(640, 360, 2.0, DVec2::ZERO).unwrap();
+        let view = BirdseyeView::new(640, 360, 2.0, DVec2::ZERO).expect("a valid view");
         let sprites: Vec<VehicleSprite> = (0..8)
             .map(|i| VehicleSprite::new(-i - 1, DVec2::new(8.0 * f64::from(i) - 10.0, 0.0), 0.0, 2.0, 1.0, "Truck"))
             .chain([VehicleSprite::new(7, DVec2::new(5000.0, 0.0), 0.0, 4.0, 2.0, "Car")])

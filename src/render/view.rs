@@ -165,7 +165,7 @@ mod tests {
 
     #[test]
     fn origin_view_matches_the_2015_convention() {
-        let v = BirdseyeView::centered_on_origin(1920, 1080, 5.0).unwrap();
+        let v = BirdseyeView::centered_on_origin(1920, 1080, 5.0).expect("a valid view");
         // x = 960 + 10·5, y = 540 - (-4)·5
         assert_eq!(v.world_to_pixel(DVec2::new(10.0, -4.0)), DVec2::new(1010.0, 560.0));
         assert_eq!(v.pixel_to_world(DVec2::new(1010.0, 560.0)), DVec2::new(10.0, -4.0));
@@ -173,13 +173,14 @@ mod tests {
 
     #[test]
     fn meta_matches_the_original_file_format() {
-        let v = BirdseyeView::centered_on_origin(1920, 1080, 5.0).unwrap();
+        let v = BirdseyeView::centered_on_origin(1920, 1080, 5.0).expect("a valid view");
         assert_eq!(v.meta(), "image_width=1920.0;image_height=1080.0;pixel_per_meter=5.0");
     }
 
     #[test]
     fn fit_keeps_the_whole_box_inside() {
-        let v = BirdseyeView::fit(800, 600, DVec2::new(-100.0, -20.0), DVec2::new(300.0, 80.0), 0.0).unwrap();
+        let v =
+            BirdseyeView::fit(800, 600, DVec2::new(-100.0, -20.0), DVec2::new(300.0, 80.0), 0.0).expect("a valid view");
         // Width limits: 800 px / 400 m = 2 px/m; the box spans 400x100 m -> 800x200 px.
         assert_eq!(v.pixels_per_meter, 2.0);
         assert_eq!(v.world_to_pixel(DVec2::new(-100.0, 80.0)), DVec2::new(0.0, 200.0));
@@ -188,7 +189,7 @@ mod tests {
 
     #[test]
     fn projector_rectangle_fills_the_image() {
-        let v = BirdseyeView::projector(1920, 1080, -3.0, 4.0, -2.0, 2.0).unwrap();
+        let v = BirdseyeView::projector(1920, 1080, -3.0, 4.0, -2.0, 2.0).expect("a valid view");
         assert_eq!(v.world_to_pixel(DVec2::new(-3.0, 2.0)), DVec2::new(0.0, 0.0));
         let br = v.world_to_pixel(DVec2::new(4.0, -2.0));
         assert!((br - DVec2::new(1920.0, 1080.0)).length() < 1e-9, "{br}");

@@ -13,10 +13,10 @@
 //!     .spawn_vehicle(VehicleSpec::new(VehicleId(-1), VehicleState::new(DVec2::ZERO, 0.0, 0.0)))
 //!     .expect("fresh id");
 //! let mut sim = builder.build();
-//! let entity = sim.entity(VehicleId(-1)).unwrap();
-//! sim.world_mut().get_mut::<ControlCommand>(entity).unwrap().speed = 10.0;
+//! let entity = sim.entity(VehicleId(-1)).expect("vehicle -1 was spawned");
+//! sim.world_mut().get_mut::<ControlCommand>(entity).expect("every vehicle has a command").speed = 10.0;
 //! sim.run_for(2.0);
-//! let state = sim.state(VehicleId(-1)).unwrap();
+//! let state = sim.state(VehicleId(-1)).expect("vehicle -1 has a state");
 //! assert!((state.position.x - 20.0).abs() < 1e-9);
 //! ```
 

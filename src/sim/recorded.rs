@@ -90,7 +90,8 @@ mod tests {
     #[test]
     fn samples_are_exact_and_between_them_interpolated() {
         let sample = |t: f64, x: f64| RecordedSample { t, position: DVec2::new(x, 0.0), yaw: 0.0, speed: 10.0 };
-        let mut rec = RecordedTrajectory::new(vec![sample(0.0, 0.0), sample(0.1, 1.0), sample(0.2, 2.5)]).unwrap();
+        let mut rec = RecordedTrajectory::new(vec![sample(0.0, 0.0), sample(0.1, 1.0), sample(0.2, 2.5)])
+            .expect("three increasing samples make a trajectory");
         assert_eq!(rec.state_at(0.1).position, DVec2::new(1.0, 0.0));
         assert!((rec.state_at(0.15).position.x - 1.75).abs() < 1e-12);
         assert_eq!(rec.state_at(0.2).speed(), 10.0);

@@ -537,7 +537,7 @@ mod tests {
             },
         );
         log.yielded.extend([VehicleId(1), VehicleId(2)]);
-        let s = log.summary().unwrap();
+        let s = log.summary().expect("the log has a summary");
         assert_eq!((s.travel_time_s, s.free_flow_time_s, s.delay_s), (60.0, 50.0, 10.0));
         assert_eq!((s.min_clearance_m, s.vehicles_yielded), (3.0, 2));
     }

@@ -796,13 +796,13 @@ mod tests {
         for (id, t) in [(-1, 12.0), (-2, 20.0)] {
             log.merges.push(MergeEvent { id: VehicleId(id), t, forward_pair: None, backward_pair: None });
         }
-        let s = log.summary().unwrap();
+        let s = log.summary().expect("the log has a summary");
         assert_eq!((s.vehicles_to_merge, s.vehicles_merged, s.pairs_formed), (2, 2, 3));
         assert_eq!(s.duration_s, 15.0);
         assert!(s.zipper_order, "{:?}", s.order);
         // One merger did not merge: no zipper.
         log.merges.pop();
-        assert!(!log.summary().unwrap().zipper_order);
+        assert!(!log.summary().expect("the log has a summary").zipper_order);
         assert!(MergeLog::default().summary().is_none(), "nobody heard the zone");
     }
 }

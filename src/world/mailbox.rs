@@ -389,7 +389,8 @@ mod tests {
                 .collect();
             let mut inbox = Inbox::default();
             inbox.deliver_all_but_lost(1, 7, &b, me, lost);
-            let got: Vec<usize> = inbox.iter().map(|m| *m.payload::<usize>().unwrap()).collect();
+            let got: Vec<usize> =
+                inbox.iter().map(|m| *m.payload::<usize>().expect("every test message carries a usize")).collect();
             assert_eq!(got, expected, "{k} lost");
             assert_eq!(inbox.len(), expected.len());
             assert_eq!(inbox.is_empty(), expected.is_empty());
@@ -413,10 +414,12 @@ mod tests {
         expected.extend([1, 6]);
         expected.extend(one_round.iter().copied());
         expected.extend([0, 1, 2, 3, 5, 6, 7]);
-        let got: Vec<usize> = inbox.iter().map(|m| *m.payload::<usize>().unwrap()).collect();
+        let got: Vec<usize> =
+            inbox.iter().map(|m| *m.payload::<usize>().expect("every test message carries a usize")).collect();
         assert_eq!(got, expected);
         assert_eq!(inbox.len(), expected.len());
-        let after: Vec<usize> = inbox.iter_after(2).map(|m| *m.payload::<usize>().unwrap()).collect();
+        let after: Vec<usize> =
+            inbox.iter_after(2).map(|m| *m.payload::<usize>().expect("every test message carries a usize")).collect();
         assert_eq!(after, expected[one_round.len() + 2..].to_vec());
     }
 }

@@ -581,7 +581,7 @@ mod tests {
         let s = platoon(&[(15.0, 15.0 + 6.6e-14), (15.0, 15.0 + 1.6e-1)]).summary();
         assert_eq!(s.platoons[0].amplification, None);
         assert_eq!(s.platoons[0].note, Some("no disturbance"));
-        let json = serde_json::to_value(&s.platoons[0]).unwrap();
+        let json = serde_json::to_value(&s.platoons[0]).expect("a platoon summary serialises");
         assert!(json["amplification"].is_null() && json["note"] == "no disturbance", "{json}");
         let s = platoon(&[(10.0, 15.0), (11.0, 14.0)]).summary();
         assert_eq!(s.platoons[0].amplification, Some(3.0 / 5.0));

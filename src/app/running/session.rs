@@ -6,7 +6,7 @@
 //! ```no_run
 //! use smlworld::app::Session;
 //!
-//! let mut s = Session::from_scenario("scenarios/platoon_brake.toml".as_ref(), Some(3), &[]).unwrap();
+//! let mut s = Session::from_scenario("scenarios/platoon_brake.toml".as_ref(), Some(3), &[]).expect("the shipped scenario loads");
 //! s.step(1.0);
 //! let mut states = Default::default();
 //! s.states_into(&mut states);
