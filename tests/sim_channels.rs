@@ -90,6 +90,60 @@ fn a_delayed_message_reaches_the_inbox_at_the_first_control_tick_after_it_is_due
     assert_eq!(inbox(&sim), 1, "not delivered at the first control tick after 30 ms");
 }
 
+/// Delayed wifi while vehicles come and go between the round and the delivery: what each of
+/// `receivers` holds at 51 ms (sender, payload), and the wifi's (sent, delivered).
+fn delayed_wifi_under_churn(threads: usize) -> (Vec<(i32, Vec<(i32, u32)>)>, (u64, u64)) {
+    let model = ChannelModel { delay_ms: 30.0, ..Default::default() };
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model, ..Default::default() } });
+    b.insert_resource(Parallelism { threads, min_vehicles: 0 });
+    for k in 1..=6 {
+        parked(&mut b, -k, DVec2::new(5.0 * k as f64, 0.0));
+    }
+    let mut sim = b.build();
+    let now = sim.now();
+    for k in [1, 4] {
+        let e = sim.entity(VehicleId(-k)).unwrap();
+        sim.world_mut().get_mut::<Mailbox>(e).unwrap().send(Channel::Wifi, now, Arc::new(100 + k as u32));
+    }
+    sim.run_for(0.01); // the round at 0 queued every reception for 30 ms
+    // -2 leaves, -7 comes, -3 leaves: the query's order is not the round's any more.
+    smlworld::world::despawn_vehicle(sim.world_mut(), VehicleId(-2)).unwrap();
+    let mut spec = VehicleSpec::new(VehicleId(-7), VehicleState::new(DVec2::new(1.0, 0.0), 0.0, 0.0));
+    spec.model = VehicleModel::None;
+    smlworld::world::spawn_vehicle(sim.world_mut(), spec).unwrap();
+    smlworld::world::despawn_vehicle(sim.world_mut(), VehicleId(-3)).unwrap();
+    sim.run_for(0.041); // control tick at 50 ms delivers
+    let held = [-1, -4, -5, -6, -7]
+        .into_iter()
+        .map(|id| {
+            let e = sim.entity(VehicleId(id)).unwrap();
+            let inbox = &sim.world().get::<Mailbox>(e).unwrap().wifi_in;
+            (id, inbox.iter().map(|m| (m.sender.0, *m.payload.downcast_ref::<u32>().unwrap())).collect())
+        })
+        .collect();
+    let wifi = &sim.world().resource::<V2vChannelStats>().wifi;
+    (held, (wifi.sent, wifi.delivered))
+}
+
+#[test]
+fn delayed_messages_reach_the_right_inboxes_when_vehicles_come_and_go_before_they_are_due() {
+    for threads in [1, 2] {
+        let (held, (sent, delivered)) = delayed_wifi_under_churn(threads);
+        let expected: Vec<(i32, Vec<(i32, u32)>)> = vec![
+            (-1, vec![(-4, 104)]),
+            (-4, vec![(-1, 101)]),
+            (-5, vec![(-4, 104), (-1, 101)]),
+            (-6, vec![(-4, 104), (-1, 101)]),
+            (-7, vec![]), // came after the round
+        ];
+        assert_eq!(held, expected, "{threads} threads");
+        // Each of the 2 senders reached the 5 others; the receptions of -2 and -3 count as
+        // delivered though nobody was left to read them.
+        assert_eq!((sent, delivered), (10, 10), "{threads} threads");
+    }
+}
+
 #[test]
 fn threads_do_not_change_a_lossy_run_and_seeds_do() {
     let v2v = "[v2v.wifi]\nloss = 0.2\njitter_ms = 20.0\n";

@@ -255,18 +255,29 @@ impl Parallelism {
         scratch: &mut Vec<S>,
         f: impl Fn(&mut [T], &mut S) + Sync,
     ) {
+        self.for_each_chunk_at(items, scratch, |_, chunk, s| f(chunk, s));
+    }
+
+    /// [`Parallelism::for_each_chunk`] that also tells `f` where its chunk starts in `items`:
+    /// `f(start, chunk, scratch)`, for work whose records name items by their position.
+    pub fn for_each_chunk_at<T: Send, S: Send + Default>(
+        &self,
+        items: &mut [T],
+        scratch: &mut Vec<S>,
+        f: impl Fn(usize, &mut [T], &mut S) + Sync,
+    ) {
         let threads = self.threads_for(items.len());
         if scratch.len() < threads {
             scratch.resize_with(threads, S::default);
         }
         if threads <= 1 {
-            f(items, &mut scratch[0]);
+            f(0, items, &mut scratch[0]);
             return;
         }
         // The calling thread works the first chunk itself, the team's threads - 1 helpers the
         // others.
         let Some(team) = team(threads - 1) else {
-            f(items, &mut scratch[0]);
+            f(0, items, &mut scratch[0]);
             return;
         };
         let size = items.len().div_ceil(threads);
@@ -276,7 +287,7 @@ impl Parallelism {
             // least `threads` values (grown above), and the chunks are disjoint ranges of
             // `items`, both borrowed mutably for this whole call.
             if let Some((chunk, s)) = unsafe { parts.take(k) } {
-                f(chunk, s);
+                f(k * size, chunk, s);
             }
         });
     }
@@ -342,6 +353,21 @@ mod tests {
             });
             assert_eq!(items, (1..1002).collect::<Vec<u32>>(), "{threads} threads");
             assert_eq!(scratch.iter().sum::<u64>(), 1001);
+        }
+    }
+
+    #[test]
+    fn each_chunk_is_told_where_it_starts() {
+        for threads in [1, 2, 3, 4] {
+            let p = Parallelism { threads, min_vehicles: 1 };
+            let mut items: Vec<(usize, usize)> = (0..1001).map(|i| (i, usize::MAX)).collect();
+            let mut scratch: Vec<u64> = Vec::new();
+            p.for_each_chunk_at(&mut items, &mut scratch, |start, chunk, _| {
+                for (k, x) in chunk.iter_mut().enumerate() {
+                    x.1 = start + k;
+                }
+            });
+            assert!(items.iter().all(|&(i, at)| i == at), "{threads} threads");
         }
     }
 

@@ -199,21 +199,30 @@ impl V2vLinks {
 const MIN_PRUNE: usize = 1024;
 
 /// A reception waiting for its due time: 16 bytes, no reference count (the round holds the
-/// batch once).
+/// batch once). `slot` is the receiver's place in the round's [`DelayedRound::receivers`]
+/// ([`GONE`] once it left the world).
 #[derive(Debug, Clone, Copy)]
 struct Reception {
     due_us: u64,
-    receiver: Entity,
+    slot: u32,
     index: u32,
 }
 
+/// The slot of a reception whose receiver left the world before it was due.
+const GONE: u32 = u32::MAX;
+
 /// One round's receptions of a delaying channel not yet delivered, in the order the round made
-/// them: grouped by receiver, each receiver's in batch order.
+/// them: grouped by receiver, receivers in query order (their slots never decrease), each
+/// receiver's in batch order.
 #[derive(Debug)]
 struct DelayedRound {
     channel: Channel,
     round: u64,
     batch: Arc<[Message]>,
+    /// Every mailbox's entity in the query order of the round: slot k is `receivers[k]`. While
+    /// the world keeps that order (no vehicle came or went), the delivery walks the in-boxes in
+    /// the same order, in parallel chunks, without looking one up.
+    receivers: Vec<Entity>,
     receptions: Vec<Reception>,
     /// Earliest and latest due time of `receptions` [µs].
     first_due_us: u64,
@@ -230,9 +239,8 @@ struct DelayedRound {
 pub struct DelayedMessages {
     /// Rounds in the order they ran (each channel's in round order).
     rounds: std::collections::VecDeque<DelayedRound>,
-    /// Emptied reception buffers, reused by later rounds.
-    spare: Vec<Vec<Reception>>,
-    picks: Vec<u32>,
+    /// Emptied reception and receiver buffers, reused by later rounds.
+    spare: Vec<(Vec<Reception>, Vec<Entity>)>,
     /// Time of each channel's previous delaying round [µs], indexed by `Channel as usize`, for
     /// [`DelayedMessages::needs_link_order`].
     previous_round_us: [Option<u64>; 2],
@@ -249,16 +257,25 @@ impl DelayedMessages {
         self.rounds.iter().all(|r| r.receptions.is_empty())
     }
 
-    /// A record for `round`'s receptions on `channel` (filled with [`DelayedRound::push`], kept
-    /// with [`DelayedMessages::keep`]).
-    fn open(&mut self, channel: Channel, round: u64, batch: &Arc<[Message]>) -> DelayedRound {
-        let mut receptions = self.spare.pop().unwrap_or_default();
+    /// A record for `round`'s receptions on `channel` to the mailboxes `receivers` (in query
+    /// order; filled with [`DelayedRound::push`], kept with [`DelayedMessages::keep`]).
+    fn open(
+        &mut self,
+        channel: Channel,
+        round: u64,
+        batch: &Arc<[Message]>,
+        receivers: impl Iterator<Item = Entity>,
+    ) -> DelayedRound {
+        let (mut receptions, mut entities) = self.spare.pop().unwrap_or_default();
         receptions.clear();
+        entities.clear();
+        entities.extend(receivers);
         let sent_at_us = batch.first().map(|m| m.sent_at.0).filter(|&t| batch.iter().all(|m| m.sent_at.0 == t));
         DelayedRound {
             channel,
             round,
             batch: Arc::clone(batch),
+            receivers: entities,
             receptions,
             first_due_us: u64::MAX,
             last_due_us: 0,
@@ -269,7 +286,7 @@ impl DelayedMessages {
     /// Keep `round` until its receptions are due (or recycle its buffer when it has none).
     fn keep(&mut self, round: DelayedRound) {
         if round.receptions.is_empty() {
-            self.spare.push(round.receptions);
+            self.spare.push((round.receptions, round.receivers));
         } else {
             self.rounds.push_back(round);
         }
@@ -291,10 +308,10 @@ impl DelayedMessages {
 }
 
 impl DelayedRound {
-    fn push(&mut self, receiver: Entity, index: u32, due_us: u64) {
+    fn push(&mut self, slot: u32, index: u32, due_us: u64) {
         self.first_due_us = self.first_due_us.min(due_us);
         self.last_due_us = self.last_due_us.max(due_us);
-        self.receptions.push(Reception { due_us, receiver, index });
+        self.receptions.push(Reception { due_us, slot, index });
     }
 
     /// Move a thread's `receptions` (due from `due.0` to `due.1` [µs]) to the end of this
@@ -443,9 +460,10 @@ pub fn deliver_network(
     }
     let ordered = model.delays() && delayed.needs_link_order(Channel::Network, now.0, &model);
     let stateful = model.burst.is_some() || ordered;
-    let mut record = model.delays().then(|| delayed.open(Channel::Network, round, &batch));
+    let mut record =
+        model.delays().then(|| delayed.open(Channel::Network, round, &batch, mailboxes.iter().map(|(e, _, _)| e)));
     let network_round = round_key(seed, NETWORK_STREAM, round);
-    for (entity, state, mut mailbox) in &mut mailboxes {
+    for (slot, (_, state, mut mailbox)) in mailboxes.iter_mut().enumerate() {
         let owner = mailbox.owner();
         picks.clear();
         let mut index = 0u32;
@@ -483,7 +501,7 @@ pub fn deliver_network(
             if let Some(record) = &mut record {
                 let due = order.due(now.0 + delay);
                 channel.network.add_delay(due - now.0);
-                record.push(entity, k as u32, due);
+                record.push(slot as u32, k as u32, due);
             } else {
                 channel.network.age_sum_us += now.0.saturating_sub(m.sent_at.0);
                 channel.network.aged += 1;
@@ -565,11 +583,13 @@ struct WifiRound<'a> {
 }
 
 impl WifiRound<'_> {
-    /// Hand each receiver of `chunk` the messages of the senders within range, less what the
-    /// channel loses (delayed ones into `t.receptions`); `links` is the per-link state when the
-    /// model keeps one (then the whole round runs as one chunk).
+    /// Hand each receiver of `chunk` (the round's receivers from slot `start` on) the messages
+    /// of the senders within range, less what the channel loses (delayed ones into
+    /// `t.receptions`); `links` is the per-link state when the model keeps one (then the whole
+    /// round runs as one chunk).
     fn receive(
         &self,
+        start: usize,
         chunk: &mut [WifiItem<'_>],
         t: &mut WifiThread,
         mut links: Option<&mut HashMap<(VehicleId, VehicleId), LinkState>>,
@@ -582,7 +602,8 @@ impl WifiRound<'_> {
             (Loss::Constant(p), None, false) => Some(p),
             _ => None,
         };
-        for (entity, state, mailbox) in chunk.iter_mut() {
+        for (k, (_, state, mailbox)) in chunk.iter_mut().enumerate() {
+            let slot = (start + k) as u32;
             let owner = mailbox.owner();
             t.heard.clear();
             let heard = &mut t.heard;
@@ -637,7 +658,7 @@ impl WifiRound<'_> {
                         let bin = t.stats.add_delay(due - now);
                         t.bins = (t.bins.0.min(bin), t.bins.1.max(bin));
                         t.due = (t.due.0.min(due), t.due.1.max(due));
-                        t.receptions.push(Reception { due_us: due, receiver: *entity, index: k });
+                        t.receptions.push(Reception { due_us: due, slot, index: k });
                     } else {
                         t.stats.age_sum_us += now.saturating_sub(batch[k as usize].sent_at.0);
                         t.stats.aged += 1;
@@ -728,13 +749,15 @@ pub fn deliver_wifi(
         if s.threads.is_empty() {
             s.threads.push(WifiThread::default());
         }
-        input.receive(&mut items, &mut s.threads[0], Some(&mut links.wifi));
+        input.receive(0, &mut items, &mut s.threads[0], Some(&mut links.wifi));
     } else {
         let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
-        parallelism.for_each_chunk(&mut items, &mut s.threads, |chunk, t| input.receive(chunk, t, None));
+        parallelism
+            .for_each_chunk_at(&mut items, &mut s.threads, |start, chunk, t| input.receive(start, chunk, t, None));
     }
+    let mut record =
+        model.delays().then(|| delayed.open(Channel::Wifi, round, &batch, items.iter().map(|(e, _, _)| *e)));
     s.items = recycle(items);
-    let mut record = model.delays().then(|| delayed.open(Channel::Wifi, round, &batch));
     let mut delivered = 0;
     for t in &mut s.threads {
         delivered += std::mem::take(&mut t.delivered);
@@ -750,22 +773,149 @@ pub fn deliver_wifi(
     stats.wifi_delivered += delivered;
 }
 
+/// One mailbox as [`deliver_delayed`]'s query hands it out.
+type DelayItem<'a> = (Entity, Mut<'a, Mailbox>);
+
+/// Scratch buffers of [`deliver_delayed`], kept between ticks.
+#[derive(Default)]
+pub struct DelayScratch {
+    /// The mailboxes in query order (the query's items, gathered to be cut into chunks).
+    items: Vec<DelayItem<'static>>,
+    /// One per thread.
+    threads: Vec<DueThread>,
+    /// Position in `items` of each entity (by entity index), filled when a round's receivers no
+    /// longer match the query's order.
+    position_of: Vec<u32>,
+    /// The receptions a delivery keeps, gathered (then swapped with the round's).
+    merged: Vec<Reception>,
+}
+
+/// What one thread of a delivery keeps and counts for its chunk of in-boxes.
+struct DueThread {
+    picks: Vec<u32>,
+    /// Receptions of the chunk not due yet, in order.
+    kept: Vec<Reception>,
+    /// Earliest and latest due time of `kept` [µs] (none: `u64::MAX`, 0).
+    due: (u64, u64),
+    delivered: u64,
+    age_sum_us: u64,
+}
+
+impl Default for DueThread {
+    fn default() -> Self {
+        DueThread { picks: Vec::new(), kept: Vec::new(), due: (u64::MAX, 0), delivered: 0, age_sum_us: 0 }
+    }
+}
+
+/// One due round as every chunk of its delivery reads it.
+struct DueRound<'a> {
+    now: u64,
+    epoch: u64,
+    round: &'a DelayedRound,
+}
+
+impl DueRound<'_> {
+    /// Put the due receptions of the in-boxes `chunk` (slots `start..start + chunk.len()`) into
+    /// them, one delivery per in-box, and keep the others in `t.kept`.
+    fn deliver(&self, start: usize, chunk: &mut [DelayItem<'_>], t: &mut DueThread) {
+        let (r, now) = (self.round, self.now);
+        let receptions = &r.receptions;
+        let end = start + chunk.len();
+        let mut i = receptions.partition_point(|x| (x.slot as usize) < start);
+        while i < receptions.len() && (receptions[i].slot as usize) < end {
+            let slot = receptions[i].slot;
+            t.picks.clear();
+            while i < receptions.len() && receptions[i].slot == slot {
+                let reception = receptions[i];
+                if reception.due_us <= now {
+                    t.picks.push(reception.index);
+                    if r.sent_at_us.is_none() {
+                        t.age_sum_us += now.saturating_sub(r.batch[reception.index as usize].sent_at.0);
+                    }
+                } else {
+                    t.due = (t.due.0.min(reception.due_us), t.due.1.max(reception.due_us));
+                    t.kept.push(reception);
+                }
+                i += 1;
+            }
+            if t.picks.is_empty() {
+                continue;
+            }
+            if let Some(sent) = r.sent_at_us {
+                t.age_sum_us += t.picks.len() as u64 * now.saturating_sub(sent);
+            }
+            t.delivered += t.picks.len() as u64;
+            let (_, mailbox) = &mut chunk[slot as usize - start];
+            let owner = mailbox.owner();
+            let inbox = match r.channel {
+                Channel::Wifi => &mut mailbox.wifi_in,
+                Channel::Network => &mut mailbox.network_in,
+            };
+            inbox.deliver_picks(self.epoch, r.round, &r.batch, owner, t.picks.iter().copied());
+        }
+    }
+}
+
+impl DelayedRound {
+    /// Whether the slots of this round are the places of `items` (no vehicle came or went).
+    fn matches(&self, items: &[DelayItem<'_>]) -> bool {
+        self.receivers.len() == items.len() && self.receivers.iter().zip(items).all(|(a, (b, _))| a == b)
+    }
+
+    /// Renumber the receptions by the receivers' places in `items` (the query's order now),
+    /// those of receivers that left the world [`GONE`], keeping each receiver's order.
+    fn realign(&mut self, items: &[DelayItem<'_>], position_of: &mut Vec<u32>) {
+        position_of.clear();
+        for (k, (entity, _)) in items.iter().enumerate() {
+            let at = entity.index().index() as usize;
+            if position_of.len() <= at {
+                position_of.resize(at + 1, GONE);
+            }
+            position_of[at] = k as u32;
+        }
+        for reception in &mut self.receptions {
+            let Some(&entity) = self.receivers.get(reception.slot as usize) else {
+                reception.slot = GONE;
+                continue;
+            };
+            let at = position_of.get(entity.index().index() as usize).copied().unwrap_or(GONE);
+            let here = items.get(at as usize).is_some_and(|(e, _)| *e == entity);
+            reception.slot = if here { at } else { GONE };
+        }
+        // Stable: each receiver's receptions stay in order.
+        self.receptions.sort_by_key(|x| x.slot);
+        self.receivers.clear();
+        self.receivers.extend(items.iter().map(|(e, _)| *e));
+    }
+}
+
 /// Put the delayed receptions that are due into their in-boxes (control phase, before the
 /// controllers): per receiver and round in one delivery, rounds in the order they ran, so a
-/// receiver's in-box holds its rounds in order and a link keeps its order.
+/// receiver's in-box holds its rounds in order and a link keeps its order. A round's in-boxes
+/// are cut into contiguous chunks over [`Parallelism::threads`] threads (each writes only its
+/// in-boxes and its thread's counts and kept receptions, joined in chunk order: the same bits
+/// for any thread count). A reception whose receiver left the world counts as delivered when
+/// due, as it did reach the air.
+#[allow(clippy::too_many_arguments)]
 pub fn deliver_delayed(
     clock: Res<SimClock>,
     epoch: Res<ControlEpoch>,
+    parallelism: Option<Res<Parallelism>>,
     mut stats: ResMut<V2vStats>,
     mut channel: ResMut<V2vChannelStats>,
     mut delayed: ResMut<DelayedMessages>,
-    mut mailboxes: Query<&mut Mailbox>,
+    mut mailboxes: Query<(Entity, &mut Mailbox)>,
+    mut scratch: Local<DelayScratch>,
 ) {
-    if delayed.rounds.is_empty() {
+    let now = clock.now.0;
+    if delayed.rounds.iter().all(|r| r.first_due_us > now) {
         return;
     }
-    let now = clock.now.0;
+    let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
     let d = &mut *delayed;
+    let s = &mut *scratch;
+    let mut items: Vec<DelayItem<'_>> = recycle(std::mem::take(&mut s.items));
+    items.extend(mailboxes.iter_mut());
     let mut k = 0;
     while k < d.rounds.len() {
         let r = &mut d.rounds[k];
@@ -773,62 +923,61 @@ pub fn deliver_delayed(
             k += 1;
             continue;
         }
+        if !r.matches(&items) {
+            r.realign(&items, &mut s.position_of);
+        }
+        let due = DueRound { now, epoch: epoch.0, round: r };
+        parallelism.for_each_chunk_at(&mut items, &mut s.threads, |start, chunk, t| due.deliver(start, chunk, t));
         let stats_of = match r.channel {
             Channel::Wifi => &mut channel.wifi,
             Channel::Network => &mut channel.network,
         };
-        // Deliver what is due, receiver by receiver (their receptions are consecutive), and
-        // keep the rest in order at the front of the buffer.
-        let (mut i, mut kept, mut delivered) = (0, 0, 0u64);
-        let (mut first_due, mut last_due) = (u64::MAX, 0);
-        while i < r.receptions.len() {
-            let receiver = r.receptions[i].receiver;
-            d.picks.clear();
-            while i < r.receptions.len() && r.receptions[i].receiver == receiver {
-                let reception = r.receptions[i];
-                if reception.due_us <= now {
-                    d.picks.push(reception.index);
-                    if r.sent_at_us.is_none() {
-                        stats_of.age_sum_us += now.saturating_sub(r.batch[reception.index as usize].sent_at.0);
-                    }
-                } else {
-                    (first_due, last_due) = (first_due.min(reception.due_us), last_due.max(reception.due_us));
-                    r.receptions[kept] = reception;
-                    kept += 1;
-                }
-                i += 1;
+        let (mut delivered, mut first_due, mut last_due) = (0, u64::MAX, 0);
+        // Receivers that left (at the end: their slot is the largest): the due ones count as
+        // delivered, the others wait there.
+        let gone = r.receptions.partition_point(|x| x.slot != GONE);
+        let mut waiting = gone;
+        for i in gone..r.receptions.len() {
+            let x = r.receptions[i];
+            if x.due_us <= now {
+                delivered += 1;
+                stats_of.age_sum_us += now.saturating_sub(r.batch[x.index as usize].sent_at.0);
+            } else {
+                (first_due, last_due) = (first_due.min(x.due_us), last_due.max(x.due_us));
+                r.receptions[waiting] = x;
+                waiting += 1;
             }
-            if d.picks.is_empty() {
-                continue;
-            }
-            if let Some(t) = r.sent_at_us {
-                stats_of.age_sum_us += d.picks.len() as u64 * now.saturating_sub(t);
-            }
-            delivered += d.picks.len() as u64;
-            if let Ok(mut mailbox) = mailboxes.get_mut(receiver) {
-                let owner = mailbox.owner();
-                let inbox = match r.channel {
-                    Channel::Wifi => &mut mailbox.wifi_in,
-                    Channel::Network => &mut mailbox.network_in,
-                };
-                inbox.deliver_picks(epoch.0, r.round, &r.batch, owner, d.picks.iter().copied());
-            }
+        }
+        // The kept receptions of the chunks, in chunk order, then the waiting ones of receivers
+        // that left: the slots still never decrease.
+        s.merged.clear();
+        for t in &s.threads {
+            s.merged.extend_from_slice(&t.kept);
+        }
+        s.merged.extend_from_slice(&r.receptions[gone..waiting]);
+        std::mem::swap(&mut r.receptions, &mut s.merged);
+        for t in &mut s.threads {
+            delivered += std::mem::take(&mut t.delivered);
+            stats_of.age_sum_us += std::mem::take(&mut t.age_sum_us);
+            let (a, b) = std::mem::replace(&mut t.due, (u64::MAX, 0));
+            (first_due, last_due) = (first_due.min(a), last_due.max(b));
+            t.kept.clear();
         }
         stats_of.aged += delivered;
         match r.channel {
             Channel::Wifi => stats.wifi_delivered += delivered,
             Channel::Network => stats.network_delivered += delivered,
         }
-        r.receptions.truncate(kept);
         (r.first_due_us, r.last_due_us) = (first_due, last_due);
-        if kept == 0 {
+        if r.receptions.is_empty() {
             if let Some(done) = d.rounds.remove(k) {
-                d.spare.push(done.receptions);
+                d.spare.push((done.receptions, done.receivers));
             }
         } else {
             k += 1;
         }
     }
+    s.items = recycle(items);
 }
 
 /// Network and wifi V2V in the [`Network`] and [`Wifi`] schedules.
