@@ -31,7 +31,7 @@ use bevy_ecs::prelude::{Entity, Local, Mut, Query, Res, ResMut, Resource};
 use super::channel::{ChannelModel, LinkState, Loss, link_key, round_key};
 use super::random::{OrderedSample, binomial, key, mix, uniform_at};
 use super::{Plugin, SimBuilder, SimClock, SimSeed};
-use crate::world::{Channel, Mailbox, Message, VehicleId, VehicleState, Vehicles};
+use crate::world::{Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, Vehicles};
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
@@ -368,6 +368,63 @@ fn into_batch(buffer: &mut Vec<Message>) -> Arc<[Message]> {
     buffer.drain(..).collect()
 }
 
+/// One in-box as the lossy network round's query hands it out.
+type NetworkItem<'a> = Mut<'a, Mailbox>;
+
+/// Scratch buffers of the network round with constant loss, kept between rounds.
+#[derive(Default)]
+pub struct LossyScratch {
+    items: Vec<NetworkItem<'static>>,
+    /// Per thread: receptions attempted, delivered, and the delivered ones' age sum [µs].
+    threads: Vec<(u64, u64, u64)>,
+}
+
+/// What every chunk of a network round with constant loss reads (see the module docs).
+struct LossyRound<'a> {
+    seed: u64,
+    round: u64,
+    p: f64,
+    now_us: u64,
+    epoch: u64,
+    /// Sum of every message's age [µs].
+    age_all: u64,
+    /// The one time every message was written, if they were all written at once.
+    uniform_age: Option<SimTime>,
+    batch: &'a Arc<[Message]>,
+}
+
+impl LossyRound<'_> {
+    /// Draw how many of the others' messages each in-box of `chunk` loses and deliver the rest,
+    /// counting (attempted, delivered, age sum) into `t`.
+    fn deliver(&self, chunk: &mut [NetworkItem<'_>], t: &mut (u64, u64, u64)) {
+        let (batch, now) = (self.batch, self.now_us);
+        for mailbox in chunk.iter_mut() {
+            let owner = mailbox.owner();
+            let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
+            let others = (batch.len() - own.len()) as u32;
+            let counter = key(self.seed, NETWORK_LOST_STREAM ^ mix(u64::from(owner.0 as u32)), self.round);
+            let lost = OrderedSample::new(counter, binomial(others, self.p, uniform_at(counter, 0)), others);
+            let kept = u64::from(others - lost.remaining());
+            t.0 += u64::from(others);
+            t.1 += kept;
+            t.2 += match self.uniform_age {
+                Some(sent) => kept * now.saturating_sub(sent.0),
+                None => {
+                    let age = |m: &Message| now.saturating_sub(m.sent_at.0);
+                    let own_age: u64 = batch[own.clone()].iter().map(age).sum();
+                    let at = |position: u32| {
+                        let i = position as usize;
+                        if i < own.start { i } else { i + own.len() }
+                    };
+                    let lost_age: u64 = lost.map(|position| age(&batch[at(position)])).sum();
+                    self.age_all - own_age - lost_age
+                }
+            };
+            mailbox.network_in.deliver_all_but_lost(self.epoch, self.round, batch, owner, lost);
+        }
+    }
+}
+
 /// Network round: every mailbox's in-box gets every message but its own (less what the channel
 /// loses; later when it delays).
 #[allow(clippy::too_many_arguments)]
@@ -382,9 +439,11 @@ pub fn deliver_network(
     registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
     mut mailboxes: Query<(Entity, &VehicleState, &mut Mailbox)>,
+    parallelism: Option<Res<Parallelism>>,
     mut buffer: Local<Vec<Message>>,
     mut picks: Local<Vec<u32>>,
     mut positions: Local<Vec<(VehicleId, glam::DVec2)>>,
+    mut lossy: Local<LossyScratch>,
 ) {
     stats.network_rounds += 1;
     let round = stats.network_rounds;
@@ -423,31 +482,20 @@ pub fn deliver_network(
         // One age for the whole batch (beacons written at the same tick): the delivered age
         // is that times the count; otherwise the lost ones' ages are taken off one by one.
         let uniform_age = batch.first().map(|m| m.sent_at).filter(|&t| batch.iter().all(|m| m.sent_at == t));
-        for (_, _, mut mailbox) in &mut mailboxes {
-            let owner = mailbox.owner();
-            let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
-            let others = (batch.len() - own.len()) as u32;
-            let counter = key(seed, NETWORK_LOST_STREAM ^ mix(u64::from(owner.0 as u32)), round);
-            let lost = OrderedSample::new(counter, binomial(others, p, uniform_at(counter, 0)), others);
-            let kept = u64::from(others - lost.remaining());
+        let input = LossyRound { seed, round, p, now_us: now.0, epoch: epoch.0, age_all, uniform_age, batch: &batch };
+        let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
+        let l = &mut *lossy;
+        let mut items: Vec<NetworkItem<'_>> = recycle(std::mem::take(&mut l.items));
+        items.extend(mailboxes.iter_mut().map(|(_, _, m)| m));
+        parallelism.for_each_chunk(&mut items, &mut l.threads, |chunk, t| input.deliver(chunk, t));
+        l.items = recycle(items);
+        for t in &mut l.threads {
+            let (sent, kept, age_sum_us) = std::mem::take(t);
             delivered += kept;
-            channel.network.sent += u64::from(others);
+            channel.network.sent += sent;
             channel.network.delivered += kept;
             channel.network.aged += kept;
-            channel.network.age_sum_us += match uniform_age {
-                Some(t) => kept * now.0.saturating_sub(t.0),
-                None => {
-                    let age = |m: &Message| now.0.saturating_sub(m.sent_at.0);
-                    let own_age: u64 = batch[own.clone()].iter().map(age).sum();
-                    let at = |position: u32| {
-                        let i = position as usize;
-                        if i < own.start { i } else { i + own.len() }
-                    };
-                    let lost_age: u64 = lost.map(|position| age(&batch[at(position)])).sum();
-                    age_all - own_age - lost_age
-                }
-            };
-            mailbox.network_in.deliver_all_but_lost(epoch.0, round, &batch, owner, lost);
+            channel.network.age_sum_us += age_sum_us;
         }
         stats.network_delivered += delivered;
         return;
