@@ -187,10 +187,12 @@ impl ChannelModel {
 
     /// [`ChannelModel::deliver`] of message `index` of the link round whose counter is
     /// `key` ([`Draw::key`]): the same fate, for one hash per draw. Loss and jitter share one
-    /// draw, `mix(key ^ ((index << 8) | 2))` ([`uniform_at`]'s hash): its high 32 bits decide the
-    /// loss, its low 32 bits the jitter (each a uniform of 2⁻³² resolution, finer than a
-    /// microsecond of jitter), so a lossy, jittered reception costs one hash after its link's
-    /// ([`ChannelModel::fate`]).
+    /// draw, `mix(key ^ ((index << 8) | 2))` ([`uniform_at`]'s hash), or for the link's first
+    /// message of the round (index 0, the common one: a beacon a round) `key` itself, already a
+    /// hash of (seed, stream, round, sender, receiver) that nothing else draws from: its high 32
+    /// bits decide the loss, its low 32 bits the jitter (each a uniform of 2⁻³² resolution,
+    /// finer than a microsecond of jitter), so a lossy, jittered beacon costs its link's hash
+    /// and nothing more ([`ChannelModel::fate`]).
     #[inline]
     pub fn deliver_keyed(
         &self,
@@ -223,7 +225,11 @@ impl ChannelModel {
     #[inline]
     pub fn fate(&self, key: u64, index: u32, p: f64) -> Option<u64> {
         let (lossy, jittered) = (p > 0.0, self.jitter_ms > 0.0);
-        let bits = if lossy || jittered { mix(key ^ ((u64::from(index) << 8) | 2)) } else { 0 };
+        let bits = match (lossy || jittered, index) {
+            (false, _) => 0,
+            (true, 0) => key,
+            (true, _) => mix(key ^ ((u64::from(index) << 8) | 2)),
+        };
         const HALF: f64 = 1.0 / 4_294_967_296.0;
         // Through u32: its conversion to f64 is one instruction, a u64's a branchy sequence.
         if lossy && f64::from((bits >> 32) as u32) * HALF < p {

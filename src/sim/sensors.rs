@@ -12,11 +12,11 @@
 //! whose angular extent lies inside one nearer target's is hidden), dropout drops a detection
 //! with its probability, and Gaussian noise moves range, bearing and velocity. Every draw is
 //! counter-based ([`super::random`]), keyed by (seed, sensor, observer and target, tick): no
-//! allocation, the same bits for any thread count; three hashes per noisy detection
-//! ([`SensorKeys`]). The normals come from the ziggurat on 32-bit halves
-//! ([`super::random::normal_half`]: half a hash and a multiplication each, mostly) and the bearing
-//! error's rotation from a short polynomial, so noise costs no `ln` or `sin_cos` per detection. [`SensorStats`] counts
-//! detections and the misses of each kind.
+//! allocation, the same bits for any thread count; two hashes per noisy detection
+//! ([`SensorKeys`]). The normals come from the ziggurat on 24 or 32 bits of a hash each
+//! ([`super::random::normal_half`]: a multiplication each, mostly) and the bearing error's
+//! rotation from a short polynomial, so noise costs no `ln` or `sin_cos` per detection.
+//! [`SensorStats`] counts detections and the misses of each kind.
 
 use bevy_ecs::prelude::{Has, Local, Mut, Query, Res, ResMut, Resource};
 use glam::DVec2;
@@ -139,14 +139,14 @@ impl Draws {
 }
 
 /// The keys of one sensor's draws at one tick: `word[k] = mix(key(seed, stream, now_us) ^ k)`
-/// for the three words of a pair and the key of its rare further words. Word `k` of the pair
-/// (observer, target) is `mix(word[k] ^ pair)`: one hash each, none waiting for another, so
-/// the draws stay a pure function of (seed, sensor, observer, target, tick), counter-based as
-/// REFERENCE "Channels" asks (nothing depends on threads or order), at three hashes per noisy
+/// for the two words of a pair and the key of its rare further words. Word `k` of the pair
+/// (observer, target) is `mix(word[k] ^ pair)`: one hash each, neither waiting for the other,
+/// so the draws stay a pure function of (seed, sensor, observer, target, tick), counter-based
+/// as REFERENCE "Channels" asks (nothing depends on threads or order), at two hashes per noisy
 /// kept detection instead of a per-pair counter hash and a hash per word after it.
 #[derive(Debug, Clone, Copy)]
 struct SensorKeys {
-    word: [u64; 4],
+    word: [u64; 3],
 }
 
 impl SensorKeys {
@@ -163,11 +163,13 @@ impl SensorKeys {
     }
 }
 
-/// One pair's draws of one sensor at one tick. Word 0 ([`PairDraws::first`]) decides dropout
-/// from its high 32 bits and gives the range error's normal from its low 32; word 1 gives the
-/// bearing's and the x velocity's, word 2's high half the y velocity's ([`normal_half`], each
-/// half its own part of the rare continuation, keyed by word 3's key and the pair). So a
-/// dropped detection costs one hash and a kept noisy one three.
+/// One pair's draws of one sensor at one tick: 128 bits in two words. Word 0
+/// ([`PairDraws::first`]) decides dropout from its high 16 bits (a probability of 2⁻¹⁶
+/// resolution) and gives the range and bearing errors' normals from 24 bits each (a 16-bit
+/// uniform within the ziggurat's layer: steps below 10⁻⁴ of the layer's width, far under any
+/// sensor's resolution); word 1's halves give the x and y velocity's ([`normal_half`], each its
+/// own part of the rare continuation, keyed by word 2's key and the pair). So a dropped
+/// detection costs one hash and a kept noisy one two.
 #[derive(Debug, Clone, Copy)]
 struct PairDraws<'a> {
     keys: &'a SensorKeys,
@@ -176,25 +178,27 @@ struct PairDraws<'a> {
 }
 
 impl PairDraws<'_> {
-    /// Whether the detection survives a dropout of probability `dropout`: the high half of
-    /// word 0 as a uniform of 2⁻³² resolution at or above it.
+    /// Whether the detection survives a dropout of probability `dropout`: the high 16 bits of
+    /// word 0 as a uniform of 2⁻¹⁶ resolution at or above it.
     #[inline]
     fn kept(&self, dropout: f64) -> bool {
         // Through u32: its conversion to f64 is one instruction, a u64's a branchy sequence.
-        f64::from((self.first >> 32) as u32) >= dropout * 4_294_967_296.0
+        f64::from((self.first >> 48) as u32) >= dropout * 65_536.0
     }
 
     /// The four standard normals of the noise: range, bearing, x and y velocity. Always
     /// inlined: returned through memory, the four were read back before their stores retired.
     #[inline(always)]
     fn normals(&self) -> [f64; 4] {
-        let (w1, w2) = (mix(self.keys.word[1] ^ self.pair), mix(self.keys.word[2] ^ self.pair));
-        let more = self.keys.word[3] ^ self.pair;
+        let w1 = mix(self.keys.word[1] ^ self.pair);
+        let more = self.keys.word[2] ^ self.pair;
+        // 24 bits as `normal_half`'s 32: the high 16 as its uniform's top, the low 8 its layer.
+        let widen = |b: u64| (((b as u32) & 0x00ff_ff00) << 8) | ((b as u32) & 0xff);
         [
-            normal_half(self.first as u32, more, 0),
-            normal_half((w1 >> 32) as u32, more, 1),
-            normal_half(w1 as u32, more, 2),
-            normal_half((w2 >> 32) as u32, more, 3),
+            normal_half(widen(self.first >> 24), more, 0),
+            normal_half(widen(self.first), more, 1),
+            normal_half((w1 >> 32) as u32, more, 2),
+            normal_half(w1 as u32, more, 3),
         ]
     }
 }

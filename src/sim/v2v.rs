@@ -893,6 +893,14 @@ impl DueRound<'_> {
                 t.age_sum_us += t.picks.len() as u64 * now.saturating_sub(sent);
             }
             t.delivered += t.picks.len() as u64;
+            // The in-box two places on: its buffers arrive while this one is written.
+            if let Some((_, next)) = chunk.get(slot as usize + 2 - start) {
+                let inbox = match r.channel {
+                    Channel::Wifi => &next.wifi_in,
+                    Channel::Network => &next.network_in,
+                };
+                inbox.prefetch(self.epoch);
+            }
             let (_, mailbox) = &mut chunk[slot as usize - start];
             let owner = mailbox.owner();
             let inbox = match r.channel {

@@ -135,6 +135,15 @@ impl Inbox {
         self.deliveries.last().map(|d| d.round)
     }
 
+    /// Ask the processor for the memory a delivery at `epoch` will write (the next delivery and
+    /// pick slots), for a loop that delivers to many in-boxes one after the other: their
+    /// buffers lie far apart in memory, and a delivery is too short to hide a miss.
+    pub(crate) fn prefetch(&self, epoch: u64) {
+        let at = |len: usize| if self.epoch == epoch { len } else { 0 };
+        crate::sim::parallel::prefetch(self.deliveries.as_ptr().wrapping_add(at(self.deliveries.len())));
+        crate::sim::parallel::prefetch(self.picks.as_ptr().wrapping_add(at(self.picks.len())));
+    }
+
     /// Drop old rounds if the control phase has run since the last delivery (`epoch` differs).
     fn begin(&mut self, epoch: u64) {
         if self.epoch != epoch {
