@@ -428,9 +428,11 @@ fn add_noise(
     normals: [f64; 4],
 ) {
     let [n_range, n_bearing, n_vx, n_vy] = normals;
-    // Range and bearing errors: scale the offset, then rotate it by the bearing error.
-    let d = d2.sqrt();
-    let scale = if d > 0.0 { (d + err.range_sd * n_range) / d } else { 1.0 };
+    // Range and bearing errors: scale the offset, then rotate it by the bearing error. The
+    // scale is 1 + error / d with 1 / d = d / d²: the square root and the division start
+    // together rather than one after the other (they were the longest wait of a detection).
+    let (d, inv_d2) = (d2.sqrt(), 1.0 / d2);
+    let scale = if d2 > 0.0 { 1.0 + err.range_sd * n_range * (d * inv_d2) } else { 1.0 };
     let scaled = relative * scale;
     detection.position = position + small_rotation(err.bearing_sd * n_bearing).rotate(scaled);
     detection.velocity += DVec2::new(n_vx, n_vy) * err.speed_sd;
