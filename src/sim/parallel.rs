@@ -187,20 +187,7 @@ fn team(helpers: usize) -> Option<&'static Team> {
     *teams.entry(helpers).or_insert_with(|| Team::start(helpers).map(|t| &*Box::leak(Box::new(t))))
 }
 
-/// Hint to the processor that the memory at `p` will be read soon (no effect off x86-64): the
-/// per-vehicle loops ask for what a vehicle a few places on will read (its centre line, its
-/// detections), so those loads, far apart in memory on a big world, overlap this vehicle's work.
-#[inline]
-pub fn prefetch<T>(p: *const T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch is only a hint; it never faults, whatever the address.
-    unsafe {
-        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        _mm_prefetch::<_MM_HINT_T0>(p.cast::<i8>());
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
-}
+pub use crate::world::prefetch;
 
 /// Empty `v` and reuse its allocation for a vector of another item type of the same layout:
 /// a system keeps `Local<Vec<Item<'static>>>` between ticks and turns it into this tick's

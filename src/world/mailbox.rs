@@ -140,8 +140,8 @@ impl Inbox {
     /// buffers lie far apart in memory, and a delivery is too short to hide a miss.
     pub(crate) fn prefetch(&self, epoch: u64) {
         let at = |len: usize| if self.epoch == epoch { len } else { 0 };
-        crate::sim::parallel::prefetch(self.deliveries.as_ptr().wrapping_add(at(self.deliveries.len())));
-        crate::sim::parallel::prefetch(self.picks.as_ptr().wrapping_add(at(self.picks.len())));
+        super::prefetch(self.deliveries.as_ptr().wrapping_add(at(self.deliveries.len())));
+        super::prefetch(self.picks.as_ptr().wrapping_add(at(self.picks.len())));
     }
 
     /// Drop old rounds if the control phase has run since the last delivery (`epoch` differs).
