@@ -170,7 +170,7 @@ fn ctrl_c_stops_a_soak_with_the_samples_taken_and_exit_130() {
 }
 
 /// A short run to replay, then a replay to a slowly paced stream plus a GIF, stopped by `sig`
-/// after 2.5 s: the GIF drawn so far is whole and the exit status is `code`.
+/// once it has drawn a frame: the GIF drawn so far is whole and the exit status is `code`.
 fn interrupted_replay(name: &str, sig: i32, code: i32) {
     let dir = scratch(name);
     let out = dir.join("run");
@@ -187,7 +187,14 @@ fn interrupted_replay(name: &str, sig: i32, code: i32) {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(2500));
+    // Signalled once it has drawn a frame (its start, the renderer's, may take seconds on a
+    // loaded machine: a fixed 2.5 s sometimes caught it before the first frame), plus 1 s.
+    let started = std::time::Instant::now();
+    let drawn = || std::fs::read_dir(&frames).is_ok_and(|mut d| d.next().is_some());
+    while !drawn() && started.elapsed() < Duration::from_secs(60) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_millis(1000));
     signal(&child, sig);
     let (status, err) = finish(child);
     assert_eq!(status, Some(code), "exit status after signal {sig}; stderr:\n{err}");
