@@ -233,8 +233,9 @@ struct DelayedRound {
 }
 
 /// Receptions of delaying channels not yet due: one record per round (its batch shared once,
-/// its receptions in a reused buffer), so a delayed reception costs a 16-byte push and its
-/// delivery a look-up per (receiver, round), not a reference count, a sort or a search each.
+/// its receptions and receivers in reused buffers), so a delayed reception costs a 16-byte push
+/// and its delivery a step through the in-boxes in query order, not a reference count, a sort
+/// or a search each.
 #[derive(Resource, Debug, Default)]
 pub struct DelayedMessages {
     /// Rounds in the order they ran (each channel's in round order).
