@@ -939,8 +939,10 @@ impl DelayedRound {
             let here = items.get(at as usize).is_some_and(|(e, _)| *e == entity);
             reception.slot = if here { at } else { GONE };
         }
-        // Stable: each receiver's receptions stay in order.
-        self.receptions.sort_by_key(|x| x.slot);
+        // Each receiver's receptions stay in order: within a receiver they are in batch order
+        // (the rounds push them so), so sorting by (slot, batch index) keeps it, in place (a
+        // stable sort would allocate a buffer each time vehicles came or went).
+        self.receptions.sort_unstable_by_key(|x| (x.slot, x.index));
         self.receivers.clear();
         self.receivers.extend(items.iter().map(|(e, _)| *e));
     }
