@@ -153,10 +153,20 @@ impl Inbox {
         }
     }
 
+    /// Keep `delivery`, growing the list from one place by doubling rather than from the
+    /// standard four: an in-box mostly holds one round between two control ticks, and four
+    /// places of a delivery were 24 MB of every 32 MB the in-boxes of 100,000 vehicles held.
+    fn push(&mut self, delivery: Delivery) {
+        if self.deliveries.len() == self.deliveries.capacity() {
+            self.deliveries.reserve_exact(self.deliveries.capacity().max(1));
+        }
+        self.deliveries.push(delivery);
+    }
+
     /// Deliver the whole `batch` except the messages of `exclude` (the network channel).
     pub(crate) fn deliver_all_but(&mut self, epoch: u64, round: u64, batch: &Arc<[Message]>, exclude: VehicleId) {
         self.begin(epoch);
-        self.deliveries.push(Delivery { round, batch: Arc::clone(batch), exclude, selection: Selection::AllBut });
+        self.push(Delivery { round, batch: Arc::clone(batch), exclude, selection: Selection::AllBut });
     }
 
     /// Deliver the whole `batch` (sorted by sender) except the messages of `exclude` and the
@@ -173,7 +183,7 @@ impl Inbox {
         self.begin(epoch);
         let own = batch.partition_point(|m| m.sender < exclude)..batch.partition_point(|m| m.sender <= exclude);
         let kept = batch.len() - own.len() - lost.remaining() as usize;
-        self.deliveries.push(Delivery {
+        self.push(Delivery {
             round,
             batch: Arc::clone(batch),
             exclude,
@@ -194,7 +204,7 @@ impl Inbox {
         let start = self.picks.len();
         self.picks.extend(picks);
         let range = start..self.picks.len();
-        self.deliveries.push(Delivery { round, batch: Arc::clone(batch), exclude, selection: Selection::Picks(range) });
+        self.push(Delivery { round, batch: Arc::clone(batch), exclude, selection: Selection::Picks(range) });
     }
 }
 
@@ -377,6 +387,21 @@ mod tests {
                 payload: Arc::new(i),
             })
             .collect()
+    }
+
+    #[test]
+    fn an_inbox_keeps_room_for_the_rounds_it_held_not_four() {
+        let b = batch(&[-2, -1, 3]);
+        let mut inbox = Inbox::default();
+        inbox.deliver_all_but(1, 1, &b, VehicleId(-1));
+        assert_eq!(inbox.deliveries.capacity(), 1, "one round: one place");
+        inbox.deliver_all_but(2, 2, &b, VehicleId(-1)); // a new epoch: the old round goes
+        assert_eq!(inbox.deliveries.capacity(), 1);
+        for round in 3..6 {
+            inbox.deliver_picks(2, round, &b, VehicleId(-1), [0, 2].into_iter());
+        }
+        assert_eq!(inbox.deliveries.capacity(), 4, "doubling: 1, 2, 4");
+        assert_eq!(inbox.len(), 2 + 3 * 2, "every round of the epoch is held");
     }
 
     #[test]
