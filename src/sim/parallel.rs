@@ -280,7 +280,7 @@ impl Parallelism {
     }
 }
 
-/// The items and scratch values of one [`Parallelism::for_each_chunk`] call, cut into chunks
+/// The items and scratch values of one [`Parallelism::for_each_chunk_at`] call, cut into chunks
 /// of `size` items without an allocation per call.
 struct Parts<T, S> {
     items: *mut T,

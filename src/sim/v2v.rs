@@ -271,7 +271,7 @@ impl DelayedMessages {
         receptions.clear();
         entities.clear();
         entities.extend(receivers);
-        let sent_at_us = batch.first().map(|m| m.sent_at.0).filter(|&t| batch.iter().all(|m| m.sent_at.0 == t));
+        let sent_at_us = common_sent_at(batch).map(|t| t.0);
         DelayedRound {
             channel,
             round,
@@ -367,6 +367,12 @@ pub struct V2vStats {
 fn into_batch(buffer: &mut Vec<Message>) -> Arc<[Message]> {
     buffer.sort_by_key(|m| m.sender);
     buffer.drain(..).collect()
+}
+
+/// The time every message of `batch` was written, when they were all written at once (beacons
+/// of one tick): a delivery's age sum is then its count times one age, not a read per message.
+fn common_sent_at(batch: &[Message]) -> Option<SimTime> {
+    batch.first().map(|m| m.sent_at).filter(|&t| batch.iter().all(|m| m.sent_at == t))
 }
 
 /// One in-box as the lossy network round's query hands it out.
@@ -482,7 +488,7 @@ pub fn deliver_network(
     if let (Loss::Constant(p), false) = (model.loss, model.keeps_link_state()) {
         // One age for the whole batch (beacons written at the same tick): the delivered age
         // is that times the count; otherwise the lost ones' ages are taken off one by one.
-        let uniform_age = batch.first().map(|m| m.sent_at).filter(|&t| batch.iter().all(|m| m.sent_at == t));
+        let uniform_age = common_sent_at(&batch);
         let input = LossyRound { seed, round, p, now_us: now.0, epoch: epoch.0, age_all, uniform_age, batch: &batch };
         let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
         let l = &mut *lossy;
@@ -896,18 +902,11 @@ impl DueRound<'_> {
             t.delivered += t.picks.len() as u64;
             // The in-box two places on: its buffers arrive while this one is written.
             if let Some((_, next)) = chunk.get(slot as usize + 2 - start) {
-                let inbox = match r.channel {
-                    Channel::Wifi => &next.wifi_in,
-                    Channel::Network => &next.network_in,
-                };
-                inbox.prefetch(self.epoch);
+                next.inbox(r.channel).prefetch(self.epoch);
             }
             let (_, mailbox) = &mut chunk[slot as usize - start];
             let owner = mailbox.owner();
-            let inbox = match r.channel {
-                Channel::Wifi => &mut mailbox.wifi_in,
-                Channel::Network => &mut mailbox.network_in,
-            };
+            let inbox = mailbox.inbox_mut(r.channel);
             inbox.deliver_picks(self.epoch, r.round, &r.batch, owner, t.picks.iter().copied());
         }
     }

@@ -342,6 +342,14 @@ impl Mailbox {
         }
     }
 
+    /// The in-box of `channel`, to deliver into.
+    pub(crate) fn inbox_mut(&mut self, channel: Channel) -> &mut Inbox {
+        match channel {
+            Channel::Network => &mut self.network_in,
+            Channel::Wifi => &mut self.wifi_in,
+        }
+    }
+
     /// Queue a message of type `T` on `channel` (wraps it in the shared [`Payload`]); it leaves
     /// at the channel's next round.
     pub fn send_typed<T: Any + Send + Sync>(&mut self, channel: Channel, now: SimTime, message: T) {
