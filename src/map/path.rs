@@ -124,9 +124,22 @@ impl Path {
 
     /// Point and heading [rad] at arc length `s` [m]; wraps around a loop, clamps an open path.
     pub fn sample(&self, s: f64) -> (DVec2, f64) {
+        let (point, d) = self.sample_direction(s);
+        (point, d.y.atan2(d.x))
+    }
+
+    /// Point at arc length `s` [m], as [`Path::sample`] gives it, without the heading's `atan2`
+    /// (a path follower samples its look-ahead point every tick and needs the heading only to
+    /// aim beside the path).
+    pub fn sample_point(&self, s: f64) -> DVec2 {
+        self.sample_direction(s).0
+    }
+
+    /// Point at arc length `s` [m] and the (unnormalised) vector of its segment.
+    fn sample_direction(&self, s: f64) -> (DVec2, DVec2) {
         let n = self.segment_count();
         if n == 0 {
-            return (self.points.first().copied().unwrap_or(DVec2::ZERO), 0.0);
+            return (self.points.first().copied().unwrap_or(DVec2::ZERO), DVec2::X);
         }
         let s = if self.closed { s.rem_euclid(self.length) } else { s.clamp(0.0, self.length) };
         let spacing = self.spacing();
@@ -134,7 +147,7 @@ impl Path {
         let (a, b) = self.segment(i);
         let t = ((s - i as f64 * spacing) / spacing).clamp(0.0, 1.0);
         let d = b - a;
-        (a + d * t, d.y.atan2(d.x))
+        (a + d * t, d)
     }
 
     /// Nearest segment to `p` among segments `from..from+count` (wrapping for loops), as
@@ -190,8 +203,7 @@ impl Path {
     fn projection(&self, p: DVec2, (i, t, q, d2): (isize, f64, DVec2, f64)) -> PathProjection {
         let (a, b) = self.segment(i as usize);
         let d = b - a;
-        let cross = d.x * (p - a).y - d.y * (p - a).x;
-        let lateral = d2.sqrt() * if cross >= 0.0 { 1.0 } else { -1.0 };
+        let lateral = self.lateral(p, i, d2);
         let direction = d.try_normalize().unwrap_or(DVec2::X);
         PathProjection { s: (i as f64 + t) * self.spacing(), point: q, lateral, heading: d.y.atan2(d.x), direction }
     }
@@ -343,6 +355,29 @@ impl Path {
         let (from, count) = self.window(hint, window);
         self.project_segments(p, from, count)
     }
+
+    /// Arc length [m] and signed lateral offset [m] of [`Path::project_near`]'s projection, the
+    /// same numbers without its heading and direction (an `atan2`, a square root and a division
+    /// that a path follower, calling this every tick, never reads).
+    pub fn locate_near(&self, p: DVec2, hint: f64, window: f64) -> (f64, f64) {
+        if self.segment_count() == 0 {
+            let q = self.project(p);
+            return (q.s, q.lateral);
+        }
+        let (from, count) = self.window(hint, window);
+        match self.nearest(p, from, count, f64::INFINITY) {
+            Some((i, t, _, d2)) => ((i as f64 + t) * self.spacing(), self.lateral(p, i, d2)),
+            None => (0.0, f64::INFINITY),
+        }
+    }
+
+    /// Signed distance [m] of `p` at squared distance `d2` from segment `i`: positive left of it.
+    fn lateral(&self, p: DVec2, i: isize, d2: f64) -> f64 {
+        let (a, b) = self.segment(i as usize);
+        let d = b - a;
+        let cross = d.x * (p - a).y - d.y * (p - a).x;
+        d2.sqrt() * if cross >= 0.0 { 1.0 } else { -1.0 }
+    }
 }
 
 #[cfg(test)]
@@ -427,5 +462,33 @@ mod tests {
             }
         }
         assert!(compared > 10_000, "only {compared} walks found a segment");
+    }
+
+    #[test]
+    fn locate_near_and_sample_point_give_project_near_and_sample_to_the_bit() {
+        let wavy: Vec<DVec2> = (0..200).map(|k| DVec2::new(k as f64 * 0.7, (k as f64 * 0.2).sin() * 3.0)).collect();
+        let circle: Vec<DVec2> =
+            (0..150).map(|k| DVec2::from_angle(k as f64 * std::f64::consts::TAU / 150.0) * 20.0).collect();
+        let paths = [
+            Path::from_points(Vec::new(), wavy, false),
+            Path::from_points(Vec::new(), circle, true),
+            Path::from_points(Vec::new(), vec![DVec2::new(1.0, 2.0)], false),
+        ];
+        let mut left = 0;
+        for path in &paths {
+            for k in 0..2000 {
+                let s = (k as f64 * 0.618_033_988_7).fract() * path.length * 1.2 - 0.1 * path.length;
+                let (q, heading) = path.sample(s);
+                assert_eq!(path.sample_point(s), q, "s {s}");
+                let p = q + DVec2::from_angle(heading + std::f64::consts::FRAC_PI_2) * (((k % 9) as f64 - 4.0) * 0.7);
+                for (hint, window) in [(s, 1.0), (s + 3.0, 0.5), (s - 10.0, 4.0), (f64::NAN, 2.0)] {
+                    let want = path.project_near(p, hint, window);
+                    let (got_s, got_lateral) = path.locate_near(p, hint, window);
+                    assert_eq!((got_s.to_bits(), got_lateral.to_bits()), (want.s.to_bits(), want.lateral.to_bits()));
+                    left += usize::from(want.lateral > 0.0);
+                }
+            }
+        }
+        assert!(left > 1000, "too few points left of the paths: {left}");
     }
 }

@@ -35,11 +35,11 @@ fn small_sin_cos(a: f64) -> (f64, f64) {
 }
 
 /// Move `state` a distance `distance` [m] along an arc of curvature `curvature` [1/m] starting
-/// at its heading, and set its velocity to `end_speed` [m/s] along the new heading.
-/// (sin(yaw + 2π k) and sin(yaw) agree to rounding, so wrapping the yaw first is harmless.)
-fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_speed: f64) {
+/// at its heading, whose sine and cosine are `(s0, c0)`, and set its velocity to `end_speed`
+/// [m/s] along the new heading. (sin(yaw + 2π k) and sin(yaw) agree to rounding, so wrapping
+/// the yaw first is harmless.)
+fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_speed: f64, (s0, c0): (f64, f64)) {
     let turn = curvature * distance;
-    let (s0, c0) = state.yaw.sin_cos();
     if turn.abs() > 1e-12 {
         let yaw1 = wrap_angle(state.yaw + turn);
         let (st, ct) = small_sin_cos(turn);
@@ -64,7 +64,7 @@ pub fn step_kinematic_unicycle(
 ) {
     let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
     let curvature = steering.tan() / params.wheelbase;
-    advance_arc(state, command.speed * dt, curvature, command.speed);
+    advance_arc(state, command.speed * dt, curvature, command.speed, state.yaw.sin_cos());
 }
 
 /// One step of the acceleration unicycle over `dt` [s]: v̇ = (throttle − c v) / m, solved
@@ -79,7 +79,9 @@ pub fn step_acceleration_unicycle(
     let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
     let curvature = steering.tan() / params.wheelbase;
     let (u, m, c) = (command.throttle, params.mass, params.drag);
-    let v0 = state.speed().max(0.0);
+    // The heading's sine and cosine serve the starting speed (`state.speed()`) and the arc.
+    let (s0, c0) = state.yaw.sin_cos();
+    let v0 = state.velocity.dot(glam::DVec2::new(c0, s0)).max(0.0);
     // Time until the speed reaches zero if it does within the step, else the whole step.
     let (v1, moving_time) = if c > 0.0 {
         let tau = m / c;
@@ -103,7 +105,7 @@ pub fn step_acceleration_unicycle(
     } else {
         v0 * moving_time + 0.5 * (u / m) * moving_time * moving_time
     };
-    advance_arc(state, distance.max(0.0), curvature, v1);
+    advance_arc(state, distance.max(0.0), curvature, v1, (s0, c0));
 }
 
 /// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step, in contiguous

@@ -93,42 +93,48 @@ fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
         if path.points.len() < 2 {
             continue;
         }
-        let speed = state.speed();
-        let projection = if follower.tracking {
+        // One `sin_cos` for both the speed and the steering (`state.speed()` and
+        // `state.heading()` would take one each).
+        let facing = state.heading();
+        let speed = state.velocity.dot(facing);
+        let (s, lateral) = if follower.tracking {
             // Since the last tick the vehicle moved about |v| dt [m]: search that far around the
             // predicted arc length, plus a segment either side.
             let window = speed.abs() * dt + path.spacing();
-            path.project_near(state.position, follower.s + speed * dt, window)
+            path.locate_near(state.position, follower.s + speed * dt, window)
         } else {
-            path.project(state.position)
+            let projection = path.project(state.position);
+            (projection.s, projection.lateral)
         };
         let p = follower.params;
         follower.tracking = true;
-        follower.s = projection.s;
+        follower.s = s;
         // During a lane change the vehicle aims at the profile's offset from the (new) route.
-        let planned = manoeuvre.map_or(0.0, |m| m.offset_at(path, projection.s)) + shift;
-        follower.max_offset = follower.max_offset.max((projection.lateral - planned).abs());
+        let planned = manoeuvre.map_or(0.0, |m| m.offset_at(path, s)) + shift;
+        follower.max_offset = follower.max_offset.max((lateral - planned).abs());
 
         let wheelbase = kinematic.map(|m| m.wheelbase).or(acceleration.map(|m| m.wheelbase)).unwrap_or(2.8);
         let lookahead = p.lookahead_min.max(p.lookahead_time * speed.abs());
-        let (mut target, heading) = path.sample(projection.s + lookahead);
-        let aim = manoeuvre.map_or(0.0, |m| m.offset_at(path, projection.s + lookahead)) + shift;
-        if aim != 0.0 {
-            target += DVec2::from_angle(heading).perp() * aim;
-        }
+        let aim = manoeuvre.map_or(0.0, |m| m.offset_at(path, s + lookahead)) + shift;
+        let target = if aim != 0.0 {
+            let (target, heading) = path.sample(s + lookahead);
+            target + DVec2::from_angle(heading).perp() * aim
+        } else {
+            path.sample_point(s + lookahead)
+        };
         let relative = target - state.position;
         // Pure pursuit curvature 2 sin(α) / d, with d sin(α) the cross product of heading and
         // the offset to the target.
         let distance2 = relative.length_squared();
         command.steering = if distance2 > 1e-18 {
-            (wheelbase * 2.0 * state.heading().perp_dot(relative) / distance2).atan()
+            (wheelbase * 2.0 * facing.perp_dot(relative) / distance2).atan()
         } else {
             0.0
         };
 
         let mut target_speed = p.speed;
         if !path.closed {
-            let remaining = (path.length - projection.s).max(0.0);
+            let remaining = (path.length - s).max(0.0);
             target_speed = target_speed.min((2.0 * p.stop_deceleration * remaining).sqrt());
             if remaining < 0.5 {
                 target_speed = 0.0;
