@@ -29,25 +29,48 @@ struct Slot {
     cell: (i32, i32),
 }
 
+/// One bucket: where its entries start in the slots (they end where the next bucket's start),
+/// and whose they are: one cell's (`mixed` false: a query takes or skips the whole bucket by
+/// comparing `cell` once) or, after a hash collision, several cells' (a query then compares
+/// each entry's cell). Buckets are at least as many as entries, so collisions are rare. Four
+/// buckets fill a cache line.
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(align(16))]
+struct Bucket {
+    start: u32,
+    mixed: bool,
+    cell: (i32, i32),
+}
+
 /// The grid; keep one per use and call [`SpatialGrid::rebuild`] every tick.
 #[derive(Debug, Clone, Default)]
 pub struct SpatialGrid {
     cell: f64,
     mask: u64,
-    starts: Vec<u32>,
-    slots: Vec<Slot>,
+    /// One more than there are buckets: the last one only ends the one before.
+    buckets: Vec<Bucket>,
+    /// Entries in bucket order, and the cell of each (read only in mixed buckets).
+    slots: Vec<GridEntry>,
+    cells: Vec<(i32, i32)>,
     staging: Vec<Slot>,
 }
 
+/// Cells of one column that hash to one run of consecutive buckets (a cache line of them), so
+/// the three cells a query visits in a column are mostly found in one line, and their entries
+/// lie next to each other.
+const RUN: u64 = 4;
+
+/// The bucket of `cell` among `mask + 1` (a power of two, at least [`RUN`]).
 fn bucket_of(cell: (i32, i32), mask: u64) -> usize {
-    // The 64-bit finaliser of MurmurHash3: neighbouring cells land in unrelated buckets.
-    let mut h = ((cell.0 as u32 as u64) << 32) | cell.1 as u32 as u64;
+    // The 64-bit finaliser of MurmurHash3 on (x, y / RUN): neighbouring runs land in unrelated
+    // places; y's remainder picks the bucket within the run.
+    let mut h = ((cell.0 as u32 as u64) << 32) | (cell.1 >> RUN.trailing_zeros()) as u32 as u64;
     h ^= h >> 33;
     h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
     h ^= h >> 33;
     h = h.wrapping_mul(0xc4ce_b9fe_1a85_ec53);
     h ^= h >> 33;
-    (h & mask) as usize
+    (((h << RUN.trailing_zeros()) | (cell.1 as u32 as u64 & (RUN - 1))) & mask) as usize
 }
 
 impl SpatialGrid {
@@ -65,41 +88,69 @@ impl SpatialGrid {
             let cell = self.cell_of(entry.position);
             self.staging.push(Slot { entry, cell });
         }
-        let buckets = self.staging.len().max(1).next_power_of_two();
+        let buckets = self.staging.len().max(RUN as usize).next_power_of_two();
         self.mask = buckets as u64 - 1;
-        self.starts.clear();
-        self.starts.resize(buckets + 1, 0);
-        for s in &self.staging {
-            self.starts[bucket_of(s.cell, self.mask) + 1] += 1;
-        }
-        for b in 0..buckets {
-            self.starts[b + 1] += self.starts[b];
-        }
-        self.slots.clear();
-        self.slots.resize(self.staging.len(), Slot { entry: EMPTY, cell: (0, 0) });
-        // `starts[b]` is used as the insertion cursor of bucket b, then restored.
+        self.buckets.clear();
+        self.buckets.resize(buckets + 1, Bucket::default());
+        // Count each bucket's entries in the start of the bucket after it.
         for s in &self.staging {
             let b = bucket_of(s.cell, self.mask);
-            let at = self.starts[b] as usize;
-            self.slots[at] = *s;
-            self.starts[b] += 1;
+            let (owner, count) = (self.buckets[b].cell, self.buckets[b + 1].start);
+            if count == 0 {
+                self.buckets[b].cell = s.cell;
+            } else {
+                self.buckets[b].mixed |= owner != s.cell;
+            }
+            self.buckets[b + 1].start += 1;
+        }
+        for b in 0..buckets {
+            self.buckets[b + 1].start += self.buckets[b].start;
+        }
+        self.slots.clear();
+        self.slots.resize(self.staging.len(), EMPTY);
+        self.cells.clear();
+        self.cells.resize(self.staging.len(), (0, 0));
+        // `buckets[b].start` is used as the insertion cursor of bucket b, then restored.
+        for s in &self.staging {
+            let b = bucket_of(s.cell, self.mask);
+            let at = self.buckets[b].start as usize;
+            self.slots[at] = s.entry;
+            self.cells[at] = s.cell;
+            self.buckets[b].start += 1;
         }
         for b in (1..=buckets).rev() {
-            self.starts[b] = self.starts[b - 1];
+            self.buckets[b].start = self.buckets[b - 1].start;
         }
-        self.starts[0] = 0;
+        self.buckets[0].start = 0;
+    }
+
+    /// The slots of `cell`'s bucket, and whether they all lie in `cell` (else each must be
+    /// checked against [`SpatialGrid::cells`]; an empty range when none can).
+    #[inline]
+    fn bucket(&self, cell: (i32, i32)) -> (std::ops::Range<usize>, bool) {
+        let b = bucket_of(cell, self.mask);
+        let (this, next) = (self.buckets[b], self.buckets[b + 1]);
+        let range = this.start as usize..next.start as usize;
+        if this.mixed {
+            (range, false)
+        } else if this.cell == cell {
+            (range, true)
+        } else {
+            (0..0, true)
+        }
     }
 
     /// Call `f(slot, entry)` for every entry of `cell`.
+    #[inline]
     pub fn for_each_in_cell(&self, cell: (i32, i32), mut f: impl FnMut(u32, &GridEntry)) {
         if self.slots.is_empty() {
             return;
         }
-        let b = bucket_of(cell, self.mask);
-        let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
-        for (i, s) in self.slots[start..end].iter().enumerate() {
-            if s.cell == cell {
-                f((start + i) as u32, &s.entry);
+        let (range, pure) = self.bucket(cell);
+        let start = range.start;
+        for (i, e) in self.slots[range].iter().enumerate() {
+            if pure || self.cells[start + i] == cell {
+                f((start + i) as u32, e);
             }
         }
     }
@@ -121,12 +172,12 @@ impl SpatialGrid {
 
     /// All entries, in bucket order.
     pub fn entries(&self) -> impl Iterator<Item = &GridEntry> {
-        self.slots.iter().map(|s| &s.entry)
+        self.slots.iter()
     }
 
     /// The entry in slot `slot` (as passed to [`SpatialGrid::for_each_within`]).
     pub fn get(&self, slot: u32) -> &GridEntry {
-        &self.slots[slot as usize].entry
+        &self.slots[slot as usize]
     }
 
     /// Call `f(slot, entry, squared distance [m²])` with every entry within `radius` [m] of `p`
@@ -141,30 +192,86 @@ impl SpatialGrid {
         let cells = (hi.0 as i64 - lo.0 as i64 + 1) * (hi.1 as i64 - lo.1 as i64 + 1);
         if cells > self.slots.len() as i64 {
             // A disc far larger than the cells: scanning everything is cheaper.
-            for (i, s) in self.slots.iter().enumerate() {
-                let d2 = s.entry.position.distance_squared(p);
+            for (i, e) in self.slots.iter().enumerate() {
+                let d2 = e.position.distance_squared(p);
                 if d2 <= r2 {
-                    f(i as u32, &s.entry, d2);
+                    f(i as u32, e, d2);
                 }
             }
             return;
         }
         for cx in lo.0..=hi.0 {
             for cy in lo.1..=hi.1 {
-                let b = bucket_of((cx, cy), self.mask);
-                let (start, end) = (self.starts[b] as usize, self.starts[b + 1] as usize);
-                for (i, s) in self.slots[start..end].iter().enumerate() {
-                    if s.cell != (cx, cy) {
-                        continue;
-                    }
-                    let d2 = s.entry.position.distance_squared(p);
+                self.for_each_in_cell((cx, cy), |slot, e| {
+                    let d2 = e.position.distance_squared(p);
                     if d2 <= r2 {
-                        f((start + i) as u32, &s.entry, d2);
+                        f(slot, e, d2);
                     }
-                }
+                });
             }
         }
     }
 }
 
 const EMPTY: GridEntry = GridEntry { position: DVec2::ZERO, velocity: DVec2::ZERO, id: VehicleId(0), index: 0 };
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points of a fixed pseudo-random sequence in a square of side `side` [m].
+    fn points(n: usize, side: f64) -> Vec<GridEntry> {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        (0..n)
+            .map(|i| GridEntry {
+                position: DVec2::new(next() * side - 0.5 * side, next() * side - 0.5 * side),
+                velocity: DVec2::ZERO,
+                id: VehicleId(i as i32),
+                index: i as u32,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn queries_find_what_a_scan_of_every_entry_finds_with_and_without_hash_collisions() {
+        let mut mixed_seen = false;
+        // Few entries over many cells (buckets shared by cells), and many over few.
+        for (n, side, cell) in [(40, 2000.0, 10.0), (64, 500.0, 3.0), (3000, 400.0, 25.0), (1, 10.0, 1.0)] {
+            let entries = points(n, side);
+            let mut grid = SpatialGrid::default();
+            grid.rebuild(cell, entries.iter().copied());
+            mixed_seen |= grid.buckets.iter().any(|b| b.mixed);
+            assert_eq!(grid.len(), n);
+            for (k, centre) in points(50, side).iter().enumerate() {
+                let radius = [0.0, 0.5 * cell, cell, 3.3 * cell, side][k % 5];
+                let mut got = Vec::new();
+                grid.for_each_within(centre.position, radius, |slot, e, d2| {
+                    assert_eq!(grid.get(slot), e);
+                    assert_eq!(d2, e.position.distance_squared(centre.position));
+                    got.push(e.index);
+                });
+                got.sort_unstable();
+                let want: Vec<u32> = entries
+                    .iter()
+                    .filter(|e| e.position.distance_squared(centre.position) <= radius * radius)
+                    .map(|e| e.index)
+                    .collect();
+                assert_eq!(got, want, "n {n}, radius {radius}");
+                // Each cell holds exactly the entries that lie in it.
+                let c = grid.cell_of(centre.position);
+                let mut in_cell = Vec::new();
+                grid.for_each_in_cell(c, |_, e| in_cell.push(e.index));
+                in_cell.sort_unstable();
+                let want: Vec<u32> = entries.iter().filter(|e| grid.cell_of(e.position) == c).map(|e| e.index).collect();
+                assert_eq!(in_cell, want);
+            }
+        }
+        assert!(mixed_seen, "no bucket was shared by two cells: the collision path went untested");
+    }
+}
