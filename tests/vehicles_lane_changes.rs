@@ -137,8 +137,11 @@ fn shipped_scenarios_without_lane_change_drive_as_before() {
             let last = rows.iter().rev().find(|r| num(&r[1]) as i64 == id).unwrap();
             let (gx, gy) = (num(&last[2]), num(&last[3]));
             assert!(
-                // The CSV holds positions to 1 mm (issue 22 item 13): half a millimetre of rounding.
-                (gx - x).abs() < 5.1e-4 && (gy - y).abs() < 5.1e-4,
+                // The CSV holds positions to 1 mm (issue 22 item 13): half a millimetre of rounding,
+                // and since the dynamics turn the heading by the angle-sum formulas instead of a
+                // `sin_cos` of the yaw (issue 25), rounding-level differences that grow to 2 mm over
+                // platoon_brake's 70 s of hard braking. A behaviour change moves vehicles metres.
+                (gx - x).abs() < 5e-3 && (gy - y).abs() < 5e-3,
                 "{name}: vehicle {id} ends at ({gx}, {gy}), before ({x}, {y})"
             );
         }

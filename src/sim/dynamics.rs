@@ -36,8 +36,10 @@ fn small_sin_cos(a: f64) -> (f64, f64) {
 
 /// Move `state` a distance `distance` [m] along an arc of curvature `curvature` [1/m] starting
 /// at its heading, whose sine and cosine are `(s0, c0)`, and set its velocity to `end_speed`
-/// [m/s] along the new heading. (sin(yaw + 2π k) and sin(yaw) agree to rounding, so wrapping
-/// the yaw first is harmless.)
+/// [m/s] along the new heading. The new heading's sine and cosine come from the old ones by the
+/// angle-sum formulas and are remembered with the new yaw ([`VehicleState::turn_to`]), so a
+/// step takes no `sin_cos` of the yaw. (sin(yaw + 2π k) and sin(yaw) agree to rounding, so
+/// wrapping the yaw first is harmless.)
 fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_speed: f64, (s0, c0): (f64, f64)) {
     let turn = curvature * distance;
     if turn.abs() > 1e-12 {
@@ -46,7 +48,7 @@ fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_spee
         let (s1, c1) = (s0 * ct + c0 * st, c0 * ct - s0 * st);
         state.position.x += (s1 - s0) / curvature;
         state.position.y += (c0 - c1) / curvature;
-        state.yaw = yaw1;
+        state.turn_to(yaw1, glam::DVec2::new(c1, s1));
         state.velocity = glam::DVec2::new(c1, s1) * end_speed;
     } else {
         state.position += glam::DVec2::new(c0, s0) * distance;
@@ -64,7 +66,8 @@ pub fn step_kinematic_unicycle(
 ) {
     let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
     let curvature = steering.tan() / params.wheelbase;
-    advance_arc(state, command.speed * dt, curvature, command.speed, state.yaw.sin_cos());
+    let facing = state.heading();
+    advance_arc(state, command.speed * dt, curvature, command.speed, (facing.y, facing.x));
 }
 
 /// One step of the acceleration unicycle over `dt` [s]: v̇ = (throttle − c v) / m, solved
@@ -79,9 +82,10 @@ pub fn step_acceleration_unicycle(
     let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
     let curvature = steering.tan() / params.wheelbase;
     let (u, m, c) = (command.throttle, params.mass, params.drag);
-    // The heading's sine and cosine serve the starting speed (`state.speed()`) and the arc.
-    let (s0, c0) = state.yaw.sin_cos();
-    let v0 = state.velocity.dot(glam::DVec2::new(c0, s0)).max(0.0);
+    // The heading serves the starting speed (`state.speed()`) and the arc.
+    let facing = state.heading();
+    let (s0, c0) = (facing.y, facing.x);
+    let v0 = state.velocity.dot(facing).max(0.0);
     // Time until the speed reaches zero if it does within the step, else the whole step.
     let (v1, moving_time) = if c > 0.0 {
         let tau = m / c;

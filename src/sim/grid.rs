@@ -268,7 +268,8 @@ mod tests {
                 let mut in_cell = Vec::new();
                 grid.for_each_in_cell(c, |_, e| in_cell.push(e.index));
                 in_cell.sort_unstable();
-                let want: Vec<u32> = entries.iter().filter(|e| grid.cell_of(e.position) == c).map(|e| e.index).collect();
+                let want: Vec<u32> =
+                    entries.iter().filter(|e| grid.cell_of(e.position) == c).map(|e| e.index).collect();
                 assert_eq!(in_cell, want);
             }
         }

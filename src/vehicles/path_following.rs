@@ -126,11 +126,8 @@ fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
         // Pure pursuit curvature 2 sin(α) / d, with d sin(α) the cross product of heading and
         // the offset to the target.
         let distance2 = relative.length_squared();
-        command.steering = if distance2 > 1e-18 {
-            (wheelbase * 2.0 * facing.perp_dot(relative) / distance2).atan()
-        } else {
-            0.0
-        };
+        command.steering =
+            if distance2 > 1e-18 { (wheelbase * 2.0 * facing.perp_dot(relative) / distance2).atan() } else { 0.0 };
 
         let mut target_speed = p.speed;
         if !path.closed {

@@ -94,7 +94,7 @@ pub(crate) fn spawn_obstacles(b: &mut SimBuilder, sc: &CommonRoadScenario) -> Re
         let id = obstacle_vehicle_id(o.id).ok_or_else(|| {
             format!("static obstacle {} has no vehicle id (ids 1..=2147483647 become -1, -2, ...)", o.id)
         })?;
-        let state = VehicleState { position: o.position, yaw: o.orientation, velocity: glam::DVec2::ZERO };
+        let state = VehicleState::with_velocity(o.position, o.orientation, glam::DVec2::ZERO);
         let what = format!("static obstacle {}", o.id);
         spawn_obstacle(b, id, state, &o.kind, VehicleSize { length: o.length, width: o.width }, &what, Stationary)?;
         spawned += 1;
