@@ -13,25 +13,13 @@ use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Vehi
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::recycle;
+use super::trig::{small_sin_cos, small_tan};
 use super::{Dynamics, Parallelism, SimClock, SimSystems};
 
 /// Wrap an angle to (−π, π] [rad].
 fn wrap_angle(a: f64) -> f64 {
     let w = (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
     if w == -std::f64::consts::PI { std::f64::consts::PI } else { w }
-}
-
-/// sin and cos of `a` [rad]; by Taylor series to below rounding for the small turns of one
-/// step (|a| < 1e-2: the first omitted terms are under 1e-22), else by the library.
-fn small_sin_cos(a: f64) -> (f64, f64) {
-    if a.abs() < 1e-2 {
-        let a2 = a * a;
-        let sin = a * (1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0)));
-        let cos = 1.0 - a2 / 2.0 * (1.0 - a2 / 12.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0)));
-        (sin, cos)
-    } else {
-        a.sin_cos()
-    }
 }
 
 /// Move `state` a distance `distance` [m] along an arc of curvature `curvature` [1/m] starting
@@ -65,7 +53,7 @@ pub fn step_kinematic_unicycle(
     dt: f64,
 ) {
     let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
-    let curvature = steering.tan() / params.wheelbase;
+    let curvature = small_tan(steering) / params.wheelbase;
     let facing = state.heading();
     advance_arc(state, command.speed * dt, curvature, command.speed, (facing.y, facing.x));
 }
@@ -80,7 +68,7 @@ pub fn step_acceleration_unicycle(
     dt: f64,
 ) {
     let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
-    let curvature = steering.tan() / params.wheelbase;
+    let curvature = small_tan(steering) / params.wheelbase;
     let (u, m, c) = (command.throttle, params.mass, params.drag);
     // The heading serves the starting speed (`state.speed()`) and the arc.
     let facing = state.heading();

@@ -8,6 +8,7 @@
 
 use glam::DVec2;
 
+use super::trig::floor_i32;
 use crate::world::VehicleId;
 
 /// One vehicle in the grid.
@@ -76,7 +77,7 @@ fn bucket_of(cell: (i32, i32), mask: u64) -> usize {
 impl SpatialGrid {
     /// The cell holding `p`.
     pub fn cell_of(&self, p: DVec2) -> (i32, i32) {
-        ((p.x / self.cell).floor() as i32, (p.y / self.cell).floor() as i32)
+        (floor_i32(p.x / self.cell), floor_i32(p.y / self.cell))
     }
 
     /// Refill the grid with `entries` using square cells of side `cell` [m] (> 0); queries are

@@ -23,6 +23,7 @@ pub use crate::world::random;
 pub mod recorded;
 mod schedule;
 pub mod sensors;
+pub mod trig;
 pub mod v2v;
 
 pub use builder::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};

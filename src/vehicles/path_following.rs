@@ -13,6 +13,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use super::lane_state::LaneChanger;
 use super::longitudinal::SteeringSystems;
 use crate::sim::parallel::recycle;
+use crate::sim::trig::small_atan;
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Route, VehicleState};
 use glam::DVec2;
@@ -127,7 +128,7 @@ fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
         // the offset to the target.
         let distance2 = relative.length_squared();
         command.steering =
-            if distance2 > 1e-18 { (wheelbase * 2.0 * facing.perp_dot(relative) / distance2).atan() } else { 0.0 };
+            if distance2 > 1e-18 { small_atan(wheelbase * 2.0 * facing.perp_dot(relative) / distance2) } else { 0.0 };
 
         let mut target_speed = p.speed;
         if !path.closed {
