@@ -5,14 +5,13 @@
 //! an exact circle of radius L / tan φ whatever the step. The acceleration model's speed follows
 //! the exact solution of v̇ = (u − c v) / m over the step and stops at zero when braking.
 
-use bevy_ecs::prelude::{Local, Mut, Query, Res};
+use bevy_ecs::prelude::{Component, Local, Query, Res};
 
 use super::{Plugin, SimBuilder};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, VehicleState};
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::parallel::recycle;
 use super::trig::{small_sin_cos, small_tan};
 use super::{Dynamics, Parallelism, SimClock, SimSystems};
 
@@ -100,47 +99,58 @@ pub fn step_acceleration_unicycle(
     advance_arc(state, distance.max(0.0), curvature, v1, (s0, c0));
 }
 
-/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step, in contiguous
-/// chunks over [`Parallelism::threads`] threads (each vehicle's step reads only itself).
+/// Step every vehicle of `vehicles` (a query of state, command and model) with `step`: table by
+/// table, each table's slices cut into contiguous chunks over [`Parallelism::threads`] threads
+/// (each vehicle's step reads only itself). The slices come straight from the ECS tables
+/// (bevy's contiguous access): no list of the query's items is gathered first, which on one
+/// thread took about as long as the steps themselves.
+fn integrate<M: Component + Sync>(
+    vehicles: &mut Query<(&mut VehicleState, &ControlCommand, &M)>,
+    parallelism: &Parallelism,
+    scratch: &mut Vec<()>,
+    step: impl Fn(&mut VehicleState, &ControlCommand, &M) + Sync,
+) {
+    if let Ok(tables) = vehicles.contiguous_iter_mut() {
+        for (mut states, commands, models) in tables {
+            parallelism.for_each_chunk_at(&mut states, scratch, |start, chunk, _| {
+                for ((state, command), model) in chunk.iter_mut().zip(&commands[start..]).zip(&models[start..]) {
+                    step(state, command, model);
+                }
+            });
+        }
+        return;
+    }
+    // Only if a component were stored sparsely (none is): one by one.
+    for (mut state, command, model) in vehicles.iter_mut() {
+        step(&mut state, command, model);
+    }
+}
+
+/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step ([`integrate`]).
 pub fn integrate_kinematic_unicycles(
     clock: Res<SimClock>,
     parallelism: Res<Parallelism>,
     mut vehicles: Query<(&mut VehicleState, &ControlCommand, &KinematicUnicycle)>,
     mut scratch: Local<Vec<()>>,
-    mut buffer: Local<Vec<(Mut<'static, VehicleState>, &'static ControlCommand, &'static KinematicUnicycle)>>,
 ) {
     let dt = clock.dt;
-    let mut items: Vec<(Mut<'_, VehicleState>, &ControlCommand, &KinematicUnicycle)> =
-        recycle(std::mem::take(&mut *buffer));
-    items.extend(vehicles.iter_mut());
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
-        for (state, command, params) in chunk.iter_mut() {
-            step_kinematic_unicycle(state, command, params, dt);
-        }
+    integrate(&mut vehicles, &parallelism, &mut scratch, |state, command, model| {
+        step_kinematic_unicycle(state, command, model, dt)
     });
-    *buffer = recycle(items);
 }
 
-/// Integrate every vehicle with an [`AccelerationUnicycle`] over the dynamics step, in
-/// contiguous chunks over [`Parallelism::threads`] threads (each vehicle's step reads only
-/// itself).
+/// Integrate every vehicle with an [`AccelerationUnicycle`] over the dynamics step
+/// ([`integrate`]).
 pub fn integrate_acceleration_unicycles(
     clock: Res<SimClock>,
     parallelism: Res<Parallelism>,
     mut vehicles: Query<(&mut VehicleState, &ControlCommand, &AccelerationUnicycle)>,
     mut scratch: Local<Vec<()>>,
-    mut buffer: Local<Vec<(Mut<'static, VehicleState>, &'static ControlCommand, &'static AccelerationUnicycle)>>,
 ) {
     let dt = clock.dt;
-    let mut items: Vec<(Mut<'_, VehicleState>, &ControlCommand, &AccelerationUnicycle)> =
-        recycle(std::mem::take(&mut *buffer));
-    items.extend(vehicles.iter_mut());
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
-        for (state, command, params) in chunk.iter_mut() {
-            step_acceleration_unicycle(state, command, params, dt);
-        }
+    integrate(&mut vehicles, &parallelism, &mut scratch, |state, command, model| {
+        step_acceleration_unicycle(state, command, model, dt)
     });
-    *buffer = recycle(items);
 }
 
 /// Both unicycle models in the [`Dynamics`] schedule. Vehicles without a model component (real
