@@ -280,6 +280,43 @@ impl Parallelism {
     }
 }
 
+impl Parallelism {
+    /// [`Parallelism::for_each_chunk_at`] over two slices of equal length cut at the same
+    /// places: `f(start, chunk of a, chunk of b, scratch)`, for systems that write two
+    /// components of each vehicle straight in the ECS table's slices.
+    pub fn for_each_chunk_pair_at<A: Send, B: Send, S: Send + Default>(
+        &self,
+        a: &mut [A],
+        b: &mut [B],
+        scratch: &mut Vec<S>,
+        f: impl Fn(usize, &mut [A], &mut [B], &mut S) + Sync,
+    ) {
+        let len = a.len().min(b.len());
+        let (a, b) = (&mut a[..len], &mut b[..len]);
+        let threads = self.threads_for(len);
+        if scratch.len() < threads {
+            scratch.resize_with(threads, S::default);
+        }
+        let team = if threads > 1 { team(threads - 1) } else { None };
+        let Some(team) = team else {
+            f(0, a, b, &mut scratch[0]);
+            return;
+        };
+        let size = len.div_ceil(threads);
+        let parts = Parts { items: a.as_mut_ptr(), len, scratch: scratch.as_mut_ptr(), size };
+        let others = Parts { items: b.as_mut_ptr(), len, scratch: std::ptr::null_mut::<()>(), size };
+        team.run(&|k: usize| {
+            // SAFETY: as in `for_each_chunk_at`: every chunk number in 0..threads is called
+            // once, `scratch` holds at least `threads` values, and chunk k of `a` and of `b` are
+            // the same disjoint range of two slices of length `len`, borrowed for this call.
+            // `others`' scratch is never read (`take_items` does not touch it).
+            if let (Some((chunk, s)), Some(other)) = unsafe { (parts.take(k), others.take_items(k)) } {
+                f(k * size, chunk, other, s);
+            }
+        });
+    }
+}
+
 /// The items and scratch values of one [`Parallelism::for_each_chunk_at`] call, cut into chunks
 /// of `size` items without an allocation per call.
 struct Parts<T, S> {
@@ -307,6 +344,20 @@ impl<T, S> Parts<T, S> {
         let len = self.size.min(self.len - start);
         // SAFETY: `start + len <= self.len`, and chunk `k` is taken once (the caller's promise).
         unsafe { Some((std::slice::from_raw_parts_mut(self.items.add(start), len), &mut *self.scratch.add(k))) }
+    }
+
+    /// Chunk `k`'s items alone (`None` past the items' end); the scratch pointer is not used.
+    ///
+    /// # Safety
+    /// Each `k` must be taken at most once while the borrowed slice lives.
+    unsafe fn take_items<'a>(&self, k: usize) -> Option<&'a mut [T]> {
+        let start = k.checked_mul(self.size)?;
+        if start >= self.len {
+            return None;
+        }
+        let len = self.size.min(self.len - start);
+        // SAFETY: `start + len <= self.len`, and chunk `k` is taken once (the caller's promise).
+        unsafe { Some(std::slice::from_raw_parts_mut(self.items.add(start), len)) }
     }
 }
 
@@ -340,6 +391,28 @@ mod tests {
             });
             assert_eq!(items, (1..1002).collect::<Vec<u32>>(), "{threads} threads");
             assert_eq!(scratch.iter().sum::<u64>(), 1001);
+        }
+    }
+
+    #[test]
+    fn pair_chunks_cut_both_slices_at_the_same_places() {
+        for threads in [1, 2, 3, 4] {
+            let p = Parallelism { threads, min_vehicles: 1 };
+            let mut a: Vec<usize> = vec![usize::MAX; 1001];
+            let mut b: Vec<(usize, usize)> = (0..1001).map(|i| (i, 0)).collect();
+            let mut scratch: Vec<u64> = Vec::new();
+            p.for_each_chunk_pair_at(&mut a, &mut b, &mut scratch, |start, xs, ys, s| {
+                assert_eq!(xs.len(), ys.len());
+                for (k, (x, y)) in xs.iter_mut().zip(ys.iter_mut()).enumerate() {
+                    *x = start + k;
+                    y.1 = y.0 + 1;
+                    *s += 1;
+                }
+            });
+            assert_eq!(a, (0..1001).collect::<Vec<usize>>(), "{threads} threads");
+            assert!(b.iter().all(|&(i, j)| j == i + 1), "{threads} threads");
+            assert_eq!(scratch.iter().sum::<u64>(), 1001);
+            assert_eq!(scratch.iter().filter(|&&n| n > 0).count(), threads);
         }
     }
 

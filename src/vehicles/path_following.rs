@@ -5,14 +5,13 @@
 //! of curvature. Progress along the path is tracked with [`crate::map::Path::project_near`]
 //! around the last projection, O(1) per tick.
 
-use bevy_ecs::prelude::{Component, Local, Mut, Query, Res};
+use bevy_ecs::prelude::{Component, Local, Query, Res};
 
 use crate::sim::{Plugin, SimBuilder};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::lane_state::LaneChanger;
 use super::longitudinal::SteeringSystems;
-use crate::sim::parallel::recycle;
 use crate::sim::trig::small_atan;
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Route, VehicleState};
@@ -72,22 +71,35 @@ impl PathFollower {
 #[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
 pub struct LateralShift(pub f64);
 
-/// One path-following vehicle as the query hands it out.
-type FollowingItem<'a> = (
-    &'a VehicleState,
-    &'a Route,
-    Mut<'a, PathFollower>,
-    Mut<'a, ControlCommand>,
-    Option<&'a KinematicUnicycle>,
-    Option<&'a AccelerationUnicycle>,
-    Option<&'a LaneChanger>,
-    Option<&'a LateralShift>,
-);
+/// What a chunk of path-following vehicles reads: slices of one ECS table from `start` on,
+/// beside the chunk's followers and commands (the optional components' slices when the table
+/// has them).
+#[derive(Clone, Copy)]
+struct FollowingTable<'a> {
+    states: &'a [VehicleState],
+    routes: &'a [Route],
+    kinematic: Option<&'a [KinematicUnicycle]>,
+    acceleration: Option<&'a [AccelerationUnicycle]>,
+    changers: Option<&'a [LaneChanger]>,
+    shifts: Option<&'a [LateralShift]>,
+}
 
-/// Steer a contiguous chunk of vehicles; `dt` is the control step [s].
-fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
-    for (state, route, follower, command, kinematic, acceleration, changer, shift) in chunk.iter_mut() {
-        let (state, kinematic, acceleration) = (*state, *kinematic, *acceleration);
+/// Steer a contiguous chunk of vehicles (items `start..` of `table`); `dt` is the control
+/// step [s].
+fn follow_chunk(
+    table: FollowingTable<'_>,
+    start: usize,
+    followers: &mut [PathFollower],
+    commands: &mut [ControlCommand],
+    dt: f64,
+) {
+    for (k, (follower, command)) in followers.iter_mut().zip(commands.iter_mut()).enumerate() {
+        let i = start + k;
+        let (state, route) = (&table.states[i], &table.routes[i]);
+        let kinematic = table.kinematic.map(|m| &m[i]);
+        let acceleration = table.acceleration.map(|m| &m[i]);
+        let changer = table.changers.map(|c| &c[i]);
+        let shift = table.shifts.map(|s| &s[i]);
         let shift = shift.map_or(0.0, |s| s.0);
         let manoeuvre = changer.and_then(|c| c.active.as_ref());
         let path = &route.0;
@@ -148,8 +160,10 @@ fn follow_chunk(chunk: &mut [FollowingItem<'_>], dt: f64) {
 
 /// Pure pursuit + speed control for every vehicle with a [`Route`] and a [`PathFollower`].
 ///
-/// The vehicles are cut into contiguous chunks over [`Parallelism::threads`] threads; each
-/// vehicle's command depends only on its own components, so the split never changes it.
+/// Table by table, the followers and commands are cut into contiguous chunks over
+/// [`Parallelism::threads`] threads, straight in the ECS tables' slices (bevy's contiguous
+/// access: no list of the query's items is gathered first); each vehicle's command depends
+/// only on its own components, so the split never changes it.
 #[allow(clippy::type_complexity)]
 pub fn follow_paths(
     clock: Res<SimClock>,
@@ -165,13 +179,29 @@ pub fn follow_paths(
         Option<&LateralShift>,
     )>,
     mut scratch: Local<Vec<()>>,
-    mut buffer: Local<Vec<FollowingItem<'static>>>,
 ) {
     let dt = clock.dt;
-    let mut items: Vec<FollowingItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(vehicles.iter_mut());
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| follow_chunk(chunk, dt));
-    *buffer = recycle(items);
+    if let Ok(tables) = vehicles.contiguous_iter_mut() {
+        for (states, routes, mut followers, mut commands, kinematic, acceleration, changers, shifts) in tables {
+            let table = FollowingTable { states, routes, kinematic, acceleration, changers, shifts };
+            parallelism.for_each_chunk_pair_at(&mut followers, &mut commands, &mut scratch, |start, f, c, _| {
+                follow_chunk(table, start, f, c, dt)
+            });
+        }
+        return;
+    }
+    // Only if a component were stored sparsely (none is): one at a time.
+    for (state, route, mut follower, mut command, kinematic, acceleration, changer, shift) in &mut vehicles {
+        let table = FollowingTable {
+            states: std::slice::from_ref(state),
+            routes: std::slice::from_ref(route),
+            kinematic: kinematic.map(std::slice::from_ref),
+            acceleration: acceleration.map(std::slice::from_ref),
+            changers: changer.map(std::slice::from_ref),
+            shifts: shift.map(std::slice::from_ref),
+        };
+        follow_chunk(table, 0, std::slice::from_mut(&mut *follower), std::slice::from_mut(&mut *command), dt);
+    }
 }
 
 /// The path follower in the [`Control`] schedule.
