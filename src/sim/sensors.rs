@@ -18,7 +18,7 @@
 //! rotation from a short polynomial, so noise costs no `ln` or `sin_cos` per detection.
 //! [`SensorStats`] counts detections and the misses of each kind.
 
-use bevy_ecs::prelude::{Has, Local, Mut, Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Has, Local, Query, Res, ResMut, Resource};
 use glam::DVec2;
 use std::f64::consts::{PI, TAU};
 
@@ -30,7 +30,6 @@ use crate::world::{
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::parallel::recycle;
 use super::random::{key, mix, normal_half};
 use super::{GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
@@ -508,16 +507,18 @@ fn write_radar_error_readings(
     }
 }
 
-/// One sensing vehicle as the query hands it out.
-type SensingItem<'a> = (
-    &'a VehicleId,
-    &'a VehicleState,
-    Option<&'a Radar>,
-    Option<&'a Velodyne>,
-    bool,
-    Option<&'a SensorErrors>,
-    Mut<'a, SensorReadings>,
-);
+/// One ECS table of sensing vehicles as bevy's contiguous access hands it out: a slice of each
+/// component (of the optional ones when the table has them), whether the table's vehicles are
+/// omniscient, and the readings to write.
+#[derive(Clone, Copy)]
+struct SensingTable<'a> {
+    ids: &'a [VehicleId],
+    states: &'a [VehicleState],
+    radars: Option<&'a [Radar]>,
+    velodynes: Option<&'a [Velodyne]>,
+    omniscient: bool,
+    errors: Option<&'a [SensorErrors]>,
+}
 
 /// What every chunk reads: the grid, the footprints of its entries (filled only when some
 /// sensor has occlusion on) and the tick's draws.
@@ -528,12 +529,24 @@ struct SenseInput<'a> {
     draws: Draws,
 }
 
-/// Fill the readings of a contiguous chunk of sensing vehicles from the (read-only) grid.
-fn sense_chunk(input: SenseInput<'_>, chunk: &mut [SensingItem<'_>], s: &mut SenseScratch) {
+/// Fill the readings of a contiguous chunk of sensing vehicles (items `start..` of `table`)
+/// from the (read-only) grid.
+fn sense_chunk(
+    input: SenseInput<'_>,
+    table: SensingTable<'_>,
+    start: usize,
+    chunk: &mut [SensorReadings],
+    s: &mut SenseScratch,
+) {
     let grid = input.grid;
     let mut gathered: Option<((i32, i32), i32)> = None;
-    for (id, state, radar, velodyne, omniscient, errors, readings) in chunk.iter_mut() {
-        let sight = Sight::new(**id, state, *radar, *velodyne, *omniscient, &mut s.half_cos);
+    let omniscient = &table.omniscient;
+    for (k, readings) in chunk.iter_mut().enumerate() {
+        let i = start + k;
+        let (id, state) = (&table.ids[i], &table.states[i]);
+        let (radar, velodyne) = (table.radars.map(|r| &r[i]), table.velodynes.map(|v| &v[i]));
+        let errors = table.errors.map(|e| &e[i]);
+        let sight = Sight::new(*id, state, radar, velodyne, *omniscient, &mut s.half_cos);
         let mut n = 0;
         if *omniscient {
             s.found.clear();
@@ -544,7 +557,7 @@ fn sense_chunk(input: SenseInput<'_>, chunk: &mut [SensingItem<'_>], s: &mut Sen
             }
         } else {
             let centre = grid.cell_of(state.position);
-            let reach = reach(sensor_range(*radar, *velodyne), grid.cell_size());
+            let reach = reach(sensor_range(radar, velodyne), grid.cell_size());
             if gathered != Some((centre, reach)) {
                 gather(grid, centre, reach, &mut s.around);
                 gathered = Some((centre, reach));
@@ -629,7 +642,6 @@ pub fn sense_vehicles(
         &mut SensorReadings,
     )>,
     mut scratch: Local<Vec<SenseScratch>>,
-    mut buffer: Local<Vec<SensingItem<'static>>>,
     mut ranges: Local<Vec<f64>>,
     mut footprints: Local<Vec<Footprint>>,
 ) {
@@ -663,10 +675,30 @@ pub fn sense_vehicles(
     );
     let input =
         SenseInput { grid: &grid.0, footprints: &footprints, draws: Draws::new(seed.map_or(0, |s| s.0), clock.now.0) };
-    let mut items: Vec<SensingItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(sensing.iter_mut());
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, s| sense_chunk(input, chunk, s));
-    *buffer = recycle(items);
+    if let Ok(tables) = sensing.contiguous_iter_mut() {
+        for (ids, states, radars, velodynes, omniscient, errors, mut readings) in tables {
+            let table = SensingTable { ids, states, radars, velodynes, omniscient, errors };
+            parallelism.for_each_chunk_at(&mut readings, &mut scratch, |start, chunk, s| {
+                sense_chunk(input, table, start, chunk, s)
+            });
+        }
+    } else {
+        // Only if a component were stored sparsely (none is): one at a time.
+        if scratch.is_empty() {
+            scratch.push(SenseScratch::default());
+        }
+        for (id, state, radar, velodyne, omniscient, errors, mut readings) in &mut sensing {
+            let table = SensingTable {
+                ids: std::slice::from_ref(id),
+                states: std::slice::from_ref(state),
+                radars: radar.map(std::slice::from_ref),
+                velodynes: velodyne.map(std::slice::from_ref),
+                omniscient,
+                errors: errors.map(std::slice::from_ref),
+            };
+            sense_chunk(input, table, 0, std::slice::from_mut(&mut *readings), &mut scratch[0]);
+        }
+    }
     for s in scratch.iter_mut() {
         stats.add(&s.stats);
         s.stats = SensorStats::default();
