@@ -583,14 +583,9 @@ pub struct WifiScratch {
     /// First batch index of each sender's messages.
     starts: Vec<u32>,
     grid: SpatialGrid,
-    /// The receivers of this round (the query's items, gathered to be cut into chunks).
-    items: Vec<WifiItem<'static>>,
     /// One per thread.
     threads: Vec<WifiThread>,
 }
-
-/// One receiver as the wifi round's query hands it out.
-type WifiItem<'a> = (Entity, &'a VehicleState, Mut<'a, Mailbox>);
 
 /// What one thread of the wifi round keeps and counts for its contiguous chunk of receivers.
 struct WifiThread {
@@ -638,14 +633,15 @@ struct WifiRound<'a> {
 }
 
 impl WifiRound<'_> {
-    /// Hand each receiver of `chunk` (the round's receivers from slot `start` on) the messages
-    /// of the senders within range, less what the channel loses (delayed ones into
+    /// Hand each receiver of `chunk` (the round's receivers from slot `start` on, at `states`)
+    /// the messages of the senders within range, less what the channel loses (delayed ones into
     /// `t.receptions`); `links` is the per-link state when the model keeps one (then the whole
     /// round runs as one chunk).
     fn receive(
         &self,
         start: usize,
-        chunk: &mut [WifiItem<'_>],
+        states: &[VehicleState],
+        chunk: &mut [Mailbox],
         t: &mut WifiThread,
         mut links: Option<&mut HashMap<(VehicleId, VehicleId), LinkState>>,
     ) {
@@ -657,7 +653,7 @@ impl WifiRound<'_> {
             (Loss::Constant(p), None, false) => Some(p),
             _ => None,
         };
-        for (k, (_, state, mailbox)) in chunk.iter_mut().enumerate() {
+        for (k, (state, mailbox)) in states.iter().zip(chunk.iter_mut()).enumerate() {
             let slot = (start + k) as u32;
             let owner = mailbox.owner();
             t.heard.clear();
@@ -798,28 +794,45 @@ pub fn deliver_wifi(
         starts: &s.starts,
         grid: &s.grid,
     };
-    let mut items: Vec<WifiItem<'_>> = recycle(std::mem::take(&mut s.items));
-    items.extend(mailboxes.iter_mut());
-    if stateful {
-        if s.threads.is_empty() {
-            s.threads.push(WifiThread::default());
-        }
-        input.receive(0, &mut items, &mut s.threads[0], Some(&mut links.wifi));
-    } else {
-        let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
-        parallelism
-            .for_each_chunk_at(&mut items, &mut s.threads, |start, chunk, t| input.receive(start, chunk, t, None));
-    }
-    let mut record =
-        model.delays().then(|| delayed.open(Channel::Wifi, round, &batch, items.iter().map(|(e, _, _)| *e)));
-    s.items = recycle(items);
+    // Receivers table by table, straight in the ECS tables' slices (contiguous access); a
+    // receiver's slot is its place in query order, counted across the tables.
+    let mut record = model.delays().then(|| delayed.open(Channel::Wifi, round, &batch, std::iter::empty()));
     let mut delivered = 0;
-    for t in &mut s.threads {
-        delivered += std::mem::take(&mut t.delivered);
-        channel.wifi.absorb(&mut t.stats, t.bins);
-        t.bins = (usize::MAX, 0);
+    let mut base = 0;
+    let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
+    if s.threads.is_empty() {
+        s.threads.push(WifiThread::default());
+    }
+    let mut receive = |entities: &[Entity], states: &[VehicleState], boxes: &mut [Mailbox]| {
         if let Some(record) = &mut record {
-            record.append(&mut t.receptions, std::mem::replace(&mut t.due, (u64::MAX, 0)));
+            record.receivers.extend_from_slice(entities);
+        }
+        if stateful {
+            input.receive(base, states, boxes, &mut s.threads[0], Some(&mut links.wifi));
+        } else {
+            parallelism.for_each_chunk_at(boxes, &mut s.threads, |start, chunk, t| {
+                input.receive(base + start, &states[start..], chunk, t, None)
+            });
+        }
+        base += entities.len();
+        // Each thread's counts and delayed receptions (in receiver order), in chunk order.
+        for t in &mut s.threads {
+            delivered += std::mem::take(&mut t.delivered);
+            channel.wifi.absorb(&mut t.stats, t.bins);
+            t.bins = (usize::MAX, 0);
+            if let Some(record) = &mut record {
+                record.append(&mut t.receptions, std::mem::replace(&mut t.due, (u64::MAX, 0)));
+            }
+        }
+    };
+    if let Ok(tables) = mailboxes.contiguous_iter_mut() {
+        for (entities, states, mut boxes) in tables {
+            receive(entities, states, &mut boxes);
+        }
+    } else {
+        // Only if a component were stored sparsely (none is): one at a time.
+        for (entity, state, mut mailbox) in &mut mailboxes {
+            receive(std::slice::from_ref(&entity), std::slice::from_ref(state), std::slice::from_mut(&mut *mailbox));
         }
     }
     if let Some(record) = record {
