@@ -9,7 +9,6 @@ use bevy_ecs::prelude::{Component, Local, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use crate::sim::Control;
-use crate::sim::parallel::recycle;
 use crate::sim::{Parallelism, Plugin, SimBuilder, SimClock};
 use crate::world::{VehicleSize, VehicleState, Vehicles};
 
@@ -42,31 +41,41 @@ pub fn control_idm(
     sizes: Query<&VehicleSize>,
     mut vehicles: Query<(&VehicleState, &VehicleSize, &IdmController, &mut Longitudinal, Option<&LanePosition>)>,
     mut scratch: Local<Vec<()>>,
-    mut buffer: Local<Vec<IdmItem<'static>>>,
 ) {
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
     let registry = registry.as_deref();
     let sizes = &sizes;
     let fresh = clock.is_some_and(|c| LanePositionsAt::fresh(lanes_at.as_deref(), c.now));
-    let mut items: Vec<IdmItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    items.extend(vehicles.iter_mut().map(|(state, size, idm, lon, pos)| (state, size, idm, lon.into_inner(), pos)));
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
-        for (state, size, idm, lon, pos) in chunk.iter_mut() {
-            let leader = lon.leader.map(|l| {
-                let length = lon.leader_length.unwrap_or_else(|| {
-                    registry.and_then(|r| sizes.get(r.get(l.id)?).ok()).map_or(size.length, |s| s.length)
-                });
-                (l.distance - 0.5 * (size.length + length), l.speed)
+    let demand = |state: &VehicleState,
+                  size: &VehicleSize,
+                  idm: &IdmController,
+                  lon: &mut Longitudinal,
+                  pos: Option<&LanePosition>| {
+        let leader = lon.leader.map(|l| {
+            let length = lon.leader_length.unwrap_or_else(|| {
+                registry.and_then(|r| sizes.get(r.get(l.id)?).ok()).map_or(size.length, |s| s.length)
             });
-            lon.accel = idm.params.acceleration(forward_speed(state, *pos, fresh), leader);
+            (l.distance - 0.5 * (size.length + length), l.speed)
+        });
+        lon.accel = idm.params.acceleration(forward_speed(state, pos, fresh), leader);
+    };
+    // Straight in the ECS tables' slices (contiguous access), table by table.
+    if let Ok(tables) = vehicles.contiguous_iter_mut() {
+        for (states, sizes, idms, mut lons, positions) in tables {
+            parallelism.for_each_chunk_at(&mut lons, &mut scratch, |start, chunk, _| {
+                for (k, lon) in chunk.iter_mut().enumerate() {
+                    let i = start + k;
+                    demand(&states[i], &sizes[i], &idms[i], lon, positions.map(|p| &p[i]));
+                }
+            });
         }
-    });
-    *buffer = recycle(items);
+    } else {
+        // Only if a component were stored sparsely (none is): one at a time.
+        for (state, size, idm, mut lon, pos) in &mut vehicles {
+            demand(state, size, idm, &mut lon, pos);
+        }
+    }
 }
-
-/// One vehicle's part of [`control_idm`].
-type IdmItem<'a> =
-    (&'a VehicleState, &'a VehicleSize, &'a IdmController, &'a mut Longitudinal, Option<&'a LanePosition>);
 
 /// The IDM in the [`Control`] schedule.
 #[derive(Debug, Clone, Copy, Default)]

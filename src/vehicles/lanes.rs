@@ -15,7 +15,6 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
 use crate::map::{LaneletId, LaneletMap, Neighbours, Path};
-use crate::sim::parallel::recycle;
 use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::world::SimTime;
 use crate::world::VehicleState;
@@ -288,8 +287,6 @@ pub fn refresh_lane_positions(world: &mut World) {
 #[derive(Resource)]
 struct RefreshSystem(bevy_ecs::system::SystemId);
 
-type LaneItem<'a> = (&'a VehicleState, &'a mut LanePosition);
-
 /// Update every [`LanePosition`] from the vehicle's state (split over threads; each vehicle's
 /// result depends only on itself, so any thread count gives the same bits).
 ///
@@ -303,7 +300,6 @@ pub fn update_lane_positions(
     parallelism: Option<Res<Parallelism>>,
     mut vehicles: Query<(&VehicleState, &mut LanePosition)>,
     mut scratch: Local<Vec<()>>,
-    mut buffer: Local<Vec<LaneItem<'static>>>,
 ) {
     let Some(lanes) = lanes else { return };
     let lanes = &*lanes;
@@ -318,29 +314,36 @@ pub fn update_lane_positions(
     // Time since the last update: each vehicle moved about its speed times this along its lane.
     let dt = last.map_or(0.0, |l| now.0.saturating_sub(l.0) as f64 * 1e-6);
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
-    let mut items: Vec<LaneItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    // Plain references, not `Mut`s (a third of the size: the serial gathering writes less);
-    // nothing reads change ticks.
-    items.extend(vehicles.iter_mut().map(|(state, pos)| (state, pos.into_inner())));
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
-        for k in 0..chunk.len() {
+    // Straight in the ECS tables' slices (contiguous access), table by table.
+    let update = |states: &[VehicleState], positions: &mut [LanePosition]| {
+        for k in 0..positions.len() {
             // The centre-line points a vehicle a few places on will read are far apart in memory
             // on a big map: ask for them now so their loads overlap this vehicle's work.
-            if let Some((_, ahead)) = chunk.get(k + PREFETCH_AHEAD) {
+            if let Some(ahead) = positions.get(k + PREFETCH_AHEAD) {
                 lanes.prefetch(ahead.on(), ahead.s);
             }
-            let (state, pos) = &mut chunk[k];
+            let (state, pos) = (&states[k], &mut positions[k]);
             let last = pos.on().map(|i| (i, pos.s));
             // Moved about its speed times the step along the lane since the last update (the
             // length of the velocity: no trigonometry per vehicle and step).
             let found = lanes.locate(state.position, last, state.velocity.length() * dt);
             let new = LanePosition::found(lanes, found, state.speed());
-            if **pos != new {
-                **pos = new;
+            if *pos != new {
+                *pos = new;
             }
         }
-    });
-    *buffer = recycle(items);
+    };
+    if let Ok(tables) = vehicles.contiguous_iter_mut() {
+        for (states, mut positions) in tables {
+            parallelism
+                .for_each_chunk_at(&mut positions, &mut scratch, |start, chunk, _| update(&states[start..], chunk));
+        }
+    } else {
+        // Only if a component were stored sparsely (none is): one at a time.
+        for (state, mut pos) in &mut vehicles {
+            update(std::slice::from_ref(state), std::slice::from_mut(&mut *pos));
+        }
+    }
 }
 
 /// Keeps [`LanePosition`] up to date on a map ([`LaneMap`] resource).
