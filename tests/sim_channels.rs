@@ -462,3 +462,53 @@ fn a_link_keeps_its_order_whether_the_jitter_is_narrower_or_wider_than_the_round
         assert_eq!(arrivals, wifi_arrivals(model, 2), "jitter {jitter_ms}: threads changed the arrivals");
     }
 }
+
+#[test]
+fn a_perfect_wifi_round_ages_its_messages_whether_sent_at_one_instant_or_several() {
+    // Five parked vehicles within wifi range. Round 1 (t = 0): all sent at 0 (one instant: the
+    // ages are added at once). Round 2 (t = 0.1 s): even ids send at 0.04 s, odd at 0.08 s.
+    let n = 5;
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin::default());
+    for i in 0..n {
+        parked(&mut b, -1 - i, DVec2::new(f64::from(i) * 10.0, 0.0));
+    }
+    let mut sim = b.build();
+    let send = |sim: &mut Sim, odd: Option<bool>| {
+        let now = sim.now();
+        for id in (0..n).map(|i| -1 - i).filter(|id| odd.is_none_or(|o| (id % 2 != 0) == o)) {
+            let e = sim.entity(VehicleId(id)).unwrap();
+            sim.world_mut().get_mut::<Mailbox>(e).unwrap().send(Channel::Wifi, now, Arc::new(id));
+        }
+    };
+    let ages = |sim: &Sim, round_us: u64| -> (u64, u64) {
+        let (mut sum, mut count) = (0, 0);
+        for i in 0..n {
+            let e = sim.entity(VehicleId(-1 - i)).unwrap();
+            for m in sim.world().get::<Mailbox>(e).unwrap().wifi_in.iter() {
+                sum += round_us - m.sent_at.0;
+                count += 1;
+            }
+        }
+        (sum, count)
+    };
+    send(&mut sim, None);
+    sim.run_for(0.04);
+    let first = ages(&sim, 0);
+    send(&mut sim, Some(false));
+    sim.run_for(0.04);
+    send(&mut sim, Some(true));
+    sim.run_for(0.04);
+    let second = ages(&sim, 100_000);
+    // Round 3 (t = 0.2 s): all sent at 0.12 s, one instant again, 80 ms old.
+    send(&mut sim, None);
+    sim.run_for(0.1);
+    let third = ages(&sim, 200_000);
+    let stats = sim.world().resource::<V2vChannelStats>().wifi.clone();
+    let all = (n * (n - 1)) as u64;
+    assert_eq!(first, (0, all), "round 1: everyone hears the 4 others, sent at the round");
+    // Round 2: the 2 even senders' messages are 60 ms old, the 3 odd ones' 20 ms, 4 hearers each.
+    assert_eq!(second, (2 * 4 * 60_000 + 3 * 4 * 20_000, all));
+    assert_eq!(third, (80_000 * all, all));
+    assert_eq!((stats.age_sum_us, stats.aged), (first.0 + second.0 + third.0, 3 * all));
+}

@@ -627,6 +627,8 @@ struct WifiRound<'a> {
     now_us: u64,
     epoch: u64,
     batch: &'a Arc<[Message]>,
+    /// When every message of the batch was sent, if at one instant [µs].
+    sent_at_us: Option<u64>,
     senders: &'a [(VehicleId, glam::DVec2, u32)],
     starts: &'a [u32],
     grid: &'a SpatialGrid,
@@ -671,10 +673,16 @@ impl WifiRound<'_> {
                     let start = starts[i as usize];
                     start..start + senders[i as usize].2
                 });
-                for &i in &t.heard {
-                    let start = starts[i as usize] as usize;
-                    for m in &batch[start..start + senders[i as usize].2 as usize] {
-                        t.stats.age_sum_us += now.saturating_sub(m.sent_at.0);
+                match self.sent_at_us {
+                    // All sent at one instant (every beacon of a round): the ages at once.
+                    Some(sent_at) => t.stats.age_sum_us += attempted * now.saturating_sub(sent_at),
+                    None => {
+                        for &i in &t.heard {
+                            let start = starts[i as usize] as usize;
+                            for m in &batch[start..start + senders[i as usize].2 as usize] {
+                                t.stats.age_sum_us += now.saturating_sub(m.sent_at.0);
+                            }
+                        }
                     }
                 }
                 t.stats.aged += attempted;
@@ -790,6 +798,7 @@ pub fn deliver_wifi(
         now_us: now.0,
         epoch: epoch.0,
         batch: &batch,
+        sent_at_us: common_sent_at(&batch).map(|t| t.0),
         senders: &s.senders,
         starts: &s.starts,
         grid: &s.grid,
