@@ -273,7 +273,7 @@ pub struct SenseScratch {
     /// Candidates around the current cell: (slot, position, id).
     around: Vec<(u32, DVec2, VehicleId)>,
     /// Detections of the current vehicle as sort keys, see [`detection_key`].
-    found: Vec<u128>,
+    found: Vec<u64>,
     /// Angular extents of the targets found so far nearer than the current one (occlusion).
     extents: Vec<(f64, f64, f64)>,
     /// Counts of this thread's vehicles this tick.
@@ -306,11 +306,38 @@ fn gather(grid: &SpatialGrid, centre: (i32, i32), reach: i32, around: &mut Vec<(
     }
 }
 
-/// One detection as an integer sort key: squared distance, then id, then grid slot (the slot
-/// breaks no real tie: ids are unique). A non-negative f64's bits order like the number, and
-/// flipping an i32's sign bit makes its unsigned order the signed one.
-fn detection_key(d2: f64, id: VehicleId, slot: u32) -> u128 {
-    ((d2.to_bits() as u128) << 64) | (((id.0 as u32 ^ 0x8000_0000) as u128) << 32) | slot as u128
+/// One detection as an integer sort key: the squared distance rounded to an f32 (a
+/// non-negative float's bits order like the number, and rounding keeps the order but for
+/// ties), then `low` (the grid slot and which sensors reach it, see [`REACH`]). Eight bytes
+/// sort faster than the sixteen of the exact distance with the id; [`sort_nearest_first`]
+/// puts the rare ties of the rounded distance in exact order.
+fn detection_key(d2: f64, low: u32) -> u64 {
+    (u64::from((d2 as f32).to_bits()) << 32) | u64::from(low)
+}
+
+/// Sort detection keys nearest first, ties by id: as by the exact squared distance from `from`
+/// and then the id. The keys hold the distance rounded to an f32, so detections whose
+/// distances round alike (within about 1e-7 of each other, or equal) are put in exact order
+/// among themselves afterwards, from their grid entries.
+fn sort_nearest_first(found: &mut [u64], grid: &SpatialGrid, from: DVec2) {
+    found.sort_unstable();
+    let mut k = 0;
+    while k + 1 < found.len() {
+        let rounded = found[k] >> 32;
+        if found[k + 1] >> 32 != rounded {
+            k += 1;
+            continue;
+        }
+        let mut end = k + 2;
+        while end < found.len() && found[end] >> 32 == rounded {
+            end += 1;
+        }
+        found[k..end].sort_unstable_by_key(|&key| {
+            let e = grid.get(key as u32 & !REACH);
+            ((e.position - from).length_squared().to_bits(), e.id.0)
+        });
+        k = end;
+    }
 }
 
 /// What one vehicle's sensors see of the candidates (slot, position, id) around it.
@@ -345,14 +372,14 @@ impl Sight {
 
     /// Write the candidate's key at `found[n]` (with which sensors reach it, see [`REACH`]);
     /// returns `n + 1` if it is seen, else `n` (no branch on the outcome).
-    fn consider(&self, slot: u32, position: DVec2, id: VehicleId, found: &mut [u128], n: usize) -> usize {
+    fn consider(&self, slot: u32, position: DVec2, id: VehicleId, found: &mut [u64], n: usize) -> usize {
         let relative = position - self.position;
         let d2 = relative.length_squared();
         let radar = (d2 <= self.radar_range2) & self.cone.contains(relative, d2);
         let velodyne = d2 <= self.velodyne_range2;
         let seen = self.omniscient | velodyne | radar;
         let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
-        found[n] = detection_key(d2, id, slot | flags);
+        found[n] = detection_key(d2, slot | flags);
         n + (seen & (id != self.id)) as usize
     }
 }
@@ -367,9 +394,9 @@ const VELODYNE_REACH: u32 = 1 << 30;
 /// The cone of a vehicle without a radar (never consulted: its radar range is negative).
 const NO_CONE: Cone = Cone { heading: DVec2::ZERO, cos_half: 1.0, cos_half2: 1.0, everything: false };
 
-/// Sort `found` nearest first (ties by id) and write it into `readings`.
-fn write_readings(found: &mut [u128], grid: &SpatialGrid, readings: &mut SensorReadings) {
-    found.sort_unstable();
+/// Sort `found` nearest first from `from` (ties by id) and write it into `readings`.
+fn write_readings(found: &mut [u64], grid: &SpatialGrid, from: DVec2, readings: &mut SensorReadings) {
+    sort_nearest_first(found, grid, from);
     readings.0.clear();
     readings.0.extend(found.iter().map(|&key| {
         let e = grid.get(key as u32 & !REACH);
@@ -387,12 +414,12 @@ fn write_imperfect_readings(
     draws: Draws,
     footprints: &[Footprint],
     grid: &SpatialGrid,
-    found: &mut [u128],
+    found: &mut [u64],
     extents: &mut Vec<(f64, f64, f64)>,
     stats: &mut SensorStats,
     readings: &mut SensorReadings,
 ) {
-    found.sort_unstable();
+    sort_nearest_first(found, grid, sight.position);
     readings.0.clear();
     extents.clear();
     let occlusion = errors.radar.occlusion || errors.velodyne.occlusion;
@@ -400,7 +427,7 @@ fn write_imperfect_readings(
         let low = key as u32;
         let e = grid.get(low & !REACH);
         let relative = e.position - sight.position;
-        let d2 = f64::from_bits((key >> 64) as u64);
+        let d2 = relative.length_squared();
         let mut hidden = false;
         if occlusion {
             let ext = extent(relative, &footprints[e.index as usize]);
@@ -477,11 +504,11 @@ fn write_radar_error_readings(
     err: &SensorError,
     draws: Draws,
     grid: &SpatialGrid,
-    found: &mut [u128],
+    found: &mut [u64],
     stats: &mut SensorStats,
     readings: &mut SensorReadings,
 ) {
-    found.sort_unstable();
+    sort_nearest_first(found, grid, sight.position);
     readings.0.clear();
     readings.0.reserve(found.len());
     let (dropout, noisy) = (err.dropout > 0.0, err.is_noisy());
@@ -494,7 +521,7 @@ fn write_radar_error_readings(
             if !dropout || pair.kept(err.dropout) {
                 if noisy {
                     let relative = e.position - sight.position;
-                    let d2 = f64::from_bits((key >> 64) as u64);
+                    let d2 = relative.length_squared();
                     add_noise(&mut detection, sight.position, relative, d2, err, pair.normals());
                 }
             } else if low & VELODYNE_REACH == 0 {
@@ -592,7 +619,7 @@ fn sense_chunk(
             ),
             None => {
                 s.stats.detections += n as u64;
-                write_readings(&mut s.found, grid, readings);
+                write_readings(&mut s.found, grid, state.position, readings);
             }
         }
     }
@@ -782,7 +809,7 @@ mod tests {
 
     /// A grid of `n` vehicles scattered around the origin and a sensing vehicle at the origin
     /// facing +x with a radar and a velodyne: its candidates as `Sight::consider` keys.
-    fn scene(n: u32) -> (SpatialGrid, Sight, Vec<u128>) {
+    fn scene(n: u32) -> (SpatialGrid, Sight, Vec<u64>) {
         let mut grid = SpatialGrid::default();
         let entries = (0..n).map(|k| {
             let a = f64::from(k) * 2.399_963; // golden angle: spread in every direction
@@ -847,6 +874,59 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn detections_come_nearest_first_by_the_exact_distance_then_id_even_where_an_f32_ties() {
+        // Targets at 20 m + k * 1e-9 m (distinct doubles, one f32 squared distance), and pairs
+        // at exactly equal distances with ids in both orders, slots shuffled by the grid.
+        let mut entries = Vec::new();
+        for k in 0..12u32 {
+            let r = 20.0 + f64::from((k * 7) % 12) * 1e-9;
+            let a = f64::from(k) * 0.5;
+            entries.push((DVec2::new(r * a.cos(), r * a.sin()), 100 - k as i32));
+        }
+        for (k, id) in [(0, 7), (1, 3), (2, 9), (3, 1)] {
+            let a = 1.0 + f64::from(k) * std::f64::consts::FRAC_PI_2;
+            // Exactly 30 m: 30 (cos, sin) rounded may differ by an ulp, so mirror one point.
+            let p = DVec2::new(30.0 * a.cos(), 30.0 * a.sin());
+            entries.push((p, id));
+            entries.push((-p, id + 200));
+        }
+        let mut grid = SpatialGrid::default();
+        grid.rebuild(
+            100.0,
+            entries.iter().enumerate().map(|(i, &(position, id))| GridEntry {
+                position,
+                velocity: DVec2::ZERO,
+                id: VehicleId(id),
+                index: i as u32,
+            }),
+        );
+        let state = VehicleState::new(DVec2::ZERO, 0.0, 0.0);
+        let velodyne = Velodyne { range: 50.0 };
+        let sight = Sight::new(VehicleId(-1), &state, None, Some(&velodyne), false, &mut HalfCos::default());
+        let mut found = vec![0; grid.len()];
+        let mut n = 0;
+        for slot in 0..grid.len() as u32 {
+            let e = *grid.get(slot);
+            n = sight.consider(slot, e.position, e.id, &mut found, n);
+        }
+        found.truncate(n);
+        assert_eq!(n, entries.len());
+        let mut readings = SensorReadings::default();
+        write_readings(&mut found, &grid, DVec2::ZERO, &mut readings);
+        let mut want: Vec<(u64, i32)> = entries.iter().map(|&(p, id)| (p.length_squared().to_bits(), id)).collect();
+        want.sort_unstable();
+        let got: Vec<i32> = readings.0.iter().map(|d| d.id.0).collect();
+        assert_eq!(got, want.iter().map(|w| w.1).collect::<Vec<_>>());
+        // The f32 keys did tie: the first twelve share one rounded distance.
+        let rounded: std::collections::HashSet<u32> =
+            entries[..12].iter().map(|(p, _)| (p.length_squared() as f32).to_bits()).collect();
+        assert_eq!(rounded.len(), 1);
+        let exact: std::collections::HashSet<u64> =
+            entries[..12].iter().map(|(p, _)| p.length_squared().to_bits()).collect();
+        assert!(exact.len() > 6, "only {} distinct distances", exact.len());
     }
 
     #[test]
