@@ -22,12 +22,13 @@ fn wrap_angle(a: f64) -> f64 {
 }
 
 /// Move `state` a distance `distance` [m] along an arc of curvature `curvature` [1/m] starting
-/// at its heading, whose sine and cosine are `(s0, c0)`, and set its velocity to `end_speed`
+/// at its heading, whose unit vector is `facing` (cos, sin), and set its velocity to `end_speed`
 /// [m/s] along the new heading. The new heading's sine and cosine come from the old ones by the
 /// angle-sum formulas and are remembered with the new yaw ([`VehicleState::turn_to`]), so a
 /// step takes no `sin_cos` of the yaw. (sin(yaw + 2π k) and sin(yaw) agree to rounding, so
 /// wrapping the yaw first is harmless.)
-fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_speed: f64, (s0, c0): (f64, f64)) {
+fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_speed: f64, facing: glam::DVec2) {
+    let (s0, c0) = (facing.y, facing.x);
     let turn = curvature * distance;
     if turn.abs() > 1e-12 {
         let yaw1 = wrap_angle(state.yaw + turn);
@@ -53,8 +54,7 @@ pub fn step_kinematic_unicycle(
 ) {
     let steering = command.steering.max(-params.max_steering).min(params.max_steering); // total: clamp panics on NaN bounds
     let curvature = small_tan(steering) / params.wheelbase;
-    let facing = state.heading();
-    advance_arc(state, command.speed * dt, curvature, command.speed, (facing.y, facing.x));
+    advance_arc(state, command.speed * dt, curvature, command.speed, state.heading());
 }
 
 /// One step of the acceleration unicycle over `dt` [s]: v̇ = (throttle − c v) / m, solved
@@ -71,7 +71,6 @@ pub fn step_acceleration_unicycle(
     let (u, m, c) = (command.throttle, params.mass, params.drag);
     // The heading serves the starting speed (`state.speed()`) and the arc.
     let facing = state.heading();
-    let (s0, c0) = (facing.y, facing.x);
     let v0 = state.velocity.dot(facing).max(0.0);
     // Time until the speed reaches zero if it does within the step, else the whole step.
     let (v1, moving_time) = if c > 0.0 {
@@ -96,7 +95,7 @@ pub fn step_acceleration_unicycle(
     } else {
         v0 * moving_time + 0.5 * (u / m) * moving_time * moving_time
     };
-    advance_arc(state, distance.max(0.0), curvature, v1, (s0, c0));
+    advance_arc(state, distance.max(0.0), curvature, v1, facing);
 }
 
 /// Step every vehicle of `vehicles` (a query of state, command and model) with `step`: table by

@@ -253,34 +253,11 @@ impl Parallelism {
         scratch: &mut Vec<S>,
         f: impl Fn(usize, &mut [T], &mut S) + Sync,
     ) {
-        let threads = self.threads_for(items.len());
-        if scratch.len() < threads {
-            scratch.resize_with(threads, S::default);
-        }
-        if threads <= 1 {
-            f(0, items, &mut scratch[0]);
-            return;
-        }
-        // The calling thread works the first chunk itself, the team's threads - 1 helpers the
-        // others.
-        let Some(team) = team(threads - 1) else {
-            f(0, items, &mut scratch[0]);
-            return;
-        };
-        let size = items.len().div_ceil(threads);
-        let parts = Parts { items: items.as_mut_ptr(), len: items.len(), scratch: scratch.as_mut_ptr(), size };
-        team.run(&|k: usize| {
-            // SAFETY: the team calls every chunk number in 0..threads once, `scratch` has at
-            // least `threads` values (grown above), and the chunks are disjoint ranges of
-            // `items`, both borrowed mutably for this whole call.
-            if let Some((chunk, s)) = unsafe { parts.take(k) } {
-                f(k * size, chunk, s);
-            }
-        });
+        // A second slice of zero-sized values: no allocation, cut alongside and ignored.
+        let mut none = vec![(); items.len()];
+        self.for_each_chunk_pair_at(items, &mut none, scratch, |start, chunk, _, s| f(start, chunk, s));
     }
-}
 
-impl Parallelism {
     /// [`Parallelism::for_each_chunk_at`] over two slices of equal length cut at the same
     /// places: `f(start, chunk of a, chunk of b, scratch)`, for systems that write two
     /// components of each vehicle straight in the ECS table's slices.
@@ -297,6 +274,8 @@ impl Parallelism {
         if scratch.len() < threads {
             scratch.resize_with(threads, S::default);
         }
+        // The calling thread works the first chunk itself, the team's threads - 1 helpers the
+        // others.
         let team = if threads > 1 { team(threads - 1) } else { None };
         let Some(team) = team else {
             f(0, a, b, &mut scratch[0]);
@@ -306,10 +285,10 @@ impl Parallelism {
         let parts = Parts { items: a.as_mut_ptr(), len, scratch: scratch.as_mut_ptr(), size };
         let others = Parts { items: b.as_mut_ptr(), len, scratch: std::ptr::null_mut::<()>(), size };
         team.run(&|k: usize| {
-            // SAFETY: as in `for_each_chunk_at`: every chunk number in 0..threads is called
-            // once, `scratch` holds at least `threads` values, and chunk k of `a` and of `b` are
-            // the same disjoint range of two slices of length `len`, borrowed for this call.
-            // `others`' scratch is never read (`take_items` does not touch it).
+            // SAFETY: the team calls every chunk number in 0..threads once, `scratch` holds at
+            // least `threads` values (grown above), and chunk k of `a` and of `b` are the same
+            // disjoint range of two slices of length `len`, both borrowed mutably for this whole
+            // call. `others`' scratch is never read (`take_items` does not touch it).
             if let (Some((chunk, s)), Some(other)) = unsafe { (parts.take(k), others.take_items(k)) } {
                 f(k * size, chunk, other, s);
             }
@@ -337,13 +316,9 @@ impl<T, S> Parts<T, S> {
     /// Each `k` must be taken at most once while the borrowed slices live, and `scratch` must
     /// hold more than `k` values.
     unsafe fn take<'a>(&self, k: usize) -> Option<(&'a mut [T], &'a mut S)> {
-        let start = k.checked_mul(self.size)?;
-        if start >= self.len {
-            return None;
-        }
-        let len = self.size.min(self.len - start);
-        // SAFETY: `start + len <= self.len`, and chunk `k` is taken once (the caller's promise).
-        unsafe { Some((std::slice::from_raw_parts_mut(self.items.add(start), len), &mut *self.scratch.add(k))) }
+        // SAFETY: the caller's promises, passed on; `take_items` returned a chunk, so `k` is a
+        // chunk number and `scratch` holds more than `k` values.
+        unsafe { self.take_items(k).map(|chunk| (chunk, &mut *self.scratch.add(k))) }
     }
 
     /// Chunk `k`'s items alone (`None` past the items' end); the scratch pointer is not used.

@@ -567,15 +567,15 @@ fn sense_chunk(
 ) {
     let grid = input.grid;
     let mut gathered: Option<((i32, i32), i32)> = None;
-    let omniscient = &table.omniscient;
+    let omniscient = table.omniscient;
     for (k, readings) in chunk.iter_mut().enumerate() {
         let i = start + k;
         let (id, state) = (&table.ids[i], &table.states[i]);
         let (radar, velodyne) = (table.radars.map(|r| &r[i]), table.velodynes.map(|v| &v[i]));
         let errors = table.errors.map(|e| &e[i]);
-        let sight = Sight::new(*id, state, radar, velodyne, *omniscient, &mut s.half_cos);
+        let sight = Sight::new(*id, state, radar, velodyne, omniscient, &mut s.half_cos);
         let mut n = 0;
-        if *omniscient {
+        if omniscient {
             s.found.clear();
             s.found.resize(grid.len(), 0);
             for slot in 0..grid.len() as u32 {

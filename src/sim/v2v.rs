@@ -719,7 +719,9 @@ impl WifiRound<'_> {
                         t.due = (t.due.0.min(due), t.due.1.max(due));
                         t.receptions.push(Reception { due_us: due, slot, index: k });
                     } else {
-                        t.stats.age_sum_us += now.saturating_sub(batch[k as usize].sent_at.0);
+                        // One instant for the whole batch (beacons): no read of the message.
+                        let sent_at = self.sent_at_us.unwrap_or_else(|| batch[k as usize].sent_at.0);
+                        t.stats.age_sum_us += now.saturating_sub(sent_at);
                         t.stats.aged += 1;
                         t.picks.push(k);
                     }

@@ -106,8 +106,7 @@ fn follow_chunk(
         if path.points.len() < 2 {
             continue;
         }
-        // One `sin_cos` for both the speed and the steering (`state.speed()` and
-        // `state.heading()` would take one each).
+        // The heading once, for both the speed and the steering.
         let facing = state.heading();
         let speed = state.velocity.dot(facing);
         let (s, lateral) = if follower.tracking {
