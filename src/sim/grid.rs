@@ -24,9 +24,9 @@ pub struct GridEntry {
     pub index: u32,
 }
 
-/// What a query hands out of an entry: all but its velocity, 24 bytes, so a query's scan over
-/// the candidates of its cells reads about half the memory of whole entries
-/// ([`SpatialGrid::get`] gives the whole entry).
+/// What a query hands out of an entry: all but its velocity ([`SpatialGrid::get`] gives the
+/// whole entry). Queries scan the positions alone (two arrays of coordinates) and read an
+/// entry's id and index only when it is within range.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GridPoint {
     /// Position [m].
@@ -63,10 +63,14 @@ pub struct SpatialGrid {
     mask: u64,
     /// One more than there are buckets: the last one only ends the one before.
     buckets: Vec<Bucket>,
-    /// Entries in bucket order, the same without velocities (what queries scan), and the cell
-    /// of each (read only in mixed buckets).
+    /// Entries in bucket order; their coordinates, ids and indices again as arrays of their
+    /// own (what queries scan: structure of arrays, so a scan reads 16 bytes a candidate and
+    /// vectorises); and the cell of each (read only in mixed buckets).
     slots: Vec<GridEntry>,
-    points: Vec<GridPoint>,
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    ids: Vec<VehicleId>,
+    indices: Vec<u32>,
     cells: Vec<(i32, i32)>,
     staging: Vec<Slot>,
 }
@@ -124,8 +128,15 @@ impl SpatialGrid {
         }
         self.slots.clear();
         self.slots.resize(self.staging.len(), EMPTY);
-        self.points.clear();
-        self.points.resize(self.staging.len(), GridPoint { position: DVec2::ZERO, id: VehicleId(0), index: 0 });
+        let n = self.staging.len();
+        for column in [&mut self.xs, &mut self.ys] {
+            column.clear();
+            column.resize(n, 0.0);
+        }
+        self.ids.clear();
+        self.ids.resize(n, VehicleId(0));
+        self.indices.clear();
+        self.indices.resize(n, 0);
         self.cells.clear();
         self.cells.resize(self.staging.len(), (0, 0));
         // `buckets[b].start` is used as the insertion cursor of bucket b, then restored.
@@ -133,7 +144,8 @@ impl SpatialGrid {
             let b = bucket_of(s.cell, self.mask);
             let at = self.buckets[b].start as usize;
             self.slots[at] = s.entry;
-            self.points[at] = GridPoint { position: s.entry.position, id: s.entry.id, index: s.entry.index };
+            (self.xs[at], self.ys[at]) = (s.entry.position.x, s.entry.position.y);
+            (self.ids[at], self.indices[at]) = (s.entry.id, s.entry.index);
             self.cells[at] = s.cell;
             self.buckets[b].start += 1;
         }
@@ -159,19 +171,93 @@ impl SpatialGrid {
         }
     }
 
+    /// The entry of slot `i` without its velocity.
+    #[inline]
+    fn point(&self, i: usize) -> GridPoint {
+        GridPoint { position: DVec2::new(self.xs[i], self.ys[i]), id: self.ids[i], index: self.indices[i] }
+    }
+
     /// Call `f(slot, point)` for every entry of `cell`.
     #[inline]
     pub fn for_each_in_cell(&self, cell: (i32, i32), mut f: impl FnMut(u32, &GridPoint)) {
-        if self.points.is_empty() {
+        if self.slots.is_empty() {
             return;
         }
         let (range, pure) = self.bucket(cell);
-        let start = range.start;
-        for (i, e) in self.points[range].iter().enumerate() {
-            if pure || self.cells[start + i] == cell {
-                f((start + i) as u32, e);
+        for i in range {
+            if pure || self.cells[i] == cell {
+                f(i as u32, &self.point(i));
             }
         }
+    }
+
+    /// Append the entries of `cell` to `out`: whole runs of the coordinate arrays at once
+    /// where the cell's bucket is its alone.
+    #[inline]
+    pub fn gather_cell(&self, cell: (i32, i32), out: &mut Candidates) {
+        if self.slots.is_empty() {
+            return;
+        }
+        let (range, pure) = self.bucket(cell);
+        // Element by element: a cell holds a few entries, too few for a library copy's call.
+        out.reserve(range.len());
+        for i in range {
+            if pure || self.cells[i] == cell {
+                out.push(i as u32, self.xs[i], self.ys[i], self.ids[i]);
+            }
+        }
+    }
+
+    /// Append the entries of the cells (x, y) with x in `xs` and y in `ys` to `out`, each once.
+    ///
+    /// A column's cells that share a run of buckets ([`RUN`]) sit in consecutive buckets, so
+    /// their entries are one range of the arrays when each of those buckets holds only its own
+    /// cell's entries or none (the common case: buckets are at least as many as entries): that
+    /// range is copied whole (three copies and a count instead of an element at a time). Any
+    /// other bucket's cell goes through [`SpatialGrid::gather_cell`].
+    pub fn gather_cells(
+        &self,
+        xs: std::ops::RangeInclusive<i32>,
+        ys: std::ops::RangeInclusive<i32>,
+        out: &mut Candidates,
+    ) {
+        if self.slots.is_empty() {
+            return;
+        }
+        let shift = RUN.trailing_zeros();
+        for x in xs {
+            let mut y = *ys.start();
+            while y <= *ys.end() {
+                // The cells y..=last of this column share one run.
+                let last = (((y >> shift) << shift) + (RUN as i32 - 1)).min(*ys.end());
+                let first = bucket_of((x, y), self.mask);
+                let own = (y..=last).zip(first..).all(|(cy, b)| {
+                    let (this, next) = (self.buckets[b], self.buckets[b + 1]);
+                    this.start == next.start || (!this.mixed && this.cell == (x, cy))
+                });
+                if own {
+                    let count = (last - y) as usize + 1;
+                    let range = self.buckets[first].start as usize..self.buckets[first + count].start as usize;
+                    out.xs.extend_from_slice(&self.xs[range.clone()]);
+                    out.ys.extend_from_slice(&self.ys[range.clone()]);
+                    out.ids.extend_from_slice(&self.ids[range.clone()]);
+                    out.slots.extend(range.start as u32..range.end as u32);
+                } else {
+                    for cy in y..=last {
+                        self.gather_cell((x, cy), out);
+                    }
+                }
+                y = last + 1;
+            }
+        }
+    }
+
+    /// Append every entry to `out`.
+    pub fn gather_all(&self, out: &mut Candidates) {
+        out.xs.extend_from_slice(&self.xs);
+        out.ys.extend_from_slice(&self.ys);
+        out.ids.extend_from_slice(&self.ids);
+        out.slots.extend(0..self.slots.len() as u32);
     }
 
     /// Side of the cells [m].
@@ -202,33 +288,87 @@ impl SpatialGrid {
     /// Call `f(slot, point, squared distance [m²])` with every entry within `radius` [m] of `p`
     /// (inclusive), each exactly once.
     pub fn for_each_within(&self, p: DVec2, radius: f64, mut f: impl FnMut(u32, &GridPoint, f64)) {
-        if self.points.is_empty() {
+        if self.slots.is_empty() {
             return;
         }
         let r2 = radius * radius;
         let lo = self.cell_of(p - DVec2::splat(radius));
         let hi = self.cell_of(p + DVec2::splat(radius));
         let cells = (hi.0 as i64 - lo.0 as i64 + 1) * (hi.1 as i64 - lo.1 as i64 + 1);
-        if cells > self.points.len() as i64 {
+        // The squared distance as `DVec2::distance_squared` computes it.
+        let within = |i: usize| {
+            let (dx, dy) = (self.xs[i] - p.x, self.ys[i] - p.y);
+            let d2 = dx * dx + dy * dy;
+            (d2 <= r2).then_some(d2)
+        };
+        if cells > self.slots.len() as i64 {
             // A disc far larger than the cells: scanning everything is cheaper.
-            for (i, e) in self.points.iter().enumerate() {
-                let d2 = e.position.distance_squared(p);
-                if d2 <= r2 {
-                    f(i as u32, e, d2);
+            for i in 0..self.slots.len() {
+                if let Some(d2) = within(i) {
+                    f(i as u32, &self.point(i), d2);
                 }
             }
             return;
         }
         for cx in lo.0..=hi.0 {
             for cy in lo.1..=hi.1 {
-                self.for_each_in_cell((cx, cy), |slot, e| {
-                    let d2 = e.position.distance_squared(p);
-                    if d2 <= r2 {
-                        f(slot, e, d2);
+                let (range, pure) = self.bucket((cx, cy));
+                for i in range {
+                    if let Some(d2) = within(i).filter(|_| pure || self.cells[i] == (cx, cy)) {
+                        f(i as u32, &self.point(i), d2);
                     }
-                });
+                }
             }
         }
+    }
+}
+
+/// Candidates gathered from some cells of a grid, as arrays (structure of arrays): slot,
+/// coordinates [m] and id of each, so a test of all of them against one sensor vectorises.
+#[derive(Debug, Clone, Default)]
+pub struct Candidates {
+    /// Grid slot of each ([`SpatialGrid::get`]).
+    pub slots: Vec<u32>,
+    /// x [m].
+    pub xs: Vec<f64>,
+    /// y [m].
+    pub ys: Vec<f64>,
+    /// Vehicle id.
+    pub ids: Vec<VehicleId>,
+}
+
+impl Candidates {
+    /// Forget every candidate (the buffers stay).
+    pub fn clear(&mut self) {
+        self.slots.clear();
+        self.xs.clear();
+        self.ys.clear();
+        self.ids.clear();
+    }
+
+    /// Number of candidates.
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Whether there is none.
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
+    fn reserve(&mut self, more: usize) {
+        self.slots.reserve(more);
+        self.xs.reserve(more);
+        self.ys.reserve(more);
+        self.ids.reserve(more);
+    }
+
+    #[inline]
+    fn push(&mut self, slot: u32, x: f64, y: f64, id: VehicleId) {
+        self.slots.push(slot);
+        self.xs.push(x);
+        self.ys.push(y);
+        self.ids.push(id);
     }
 }
 
@@ -291,6 +431,39 @@ mod tests {
                 let want: Vec<u32> =
                     entries.iter().filter(|e| grid.cell_of(e.position) == c).map(|e| e.index).collect();
                 assert_eq!(in_cell, want);
+                // Gathering the cell appends the same entries, whole, after what was there.
+                let mut gathered = Candidates::default();
+                grid.gather_all(&mut gathered);
+                assert_eq!(gathered.len(), n);
+                grid.gather_cell(c, &mut gathered);
+                let mut got: Vec<u32> = (n..gathered.len())
+                    .map(|k| {
+                        let e = grid.get(gathered.slots[k]);
+                        assert_eq!(
+                            (e.position.x, e.position.y, e.id),
+                            (gathered.xs[k], gathered.ys[k], gathered.ids[k])
+                        );
+                        e.index
+                    })
+                    .collect();
+                got.sort_unstable();
+                assert_eq!(got, want);
+                // A block of cells gathers what its cells gather one by one.
+                let (mut block, mut one_by_one) = (Candidates::default(), Candidates::default());
+                let (xs, ys) = (c.0 - 2..=c.0 + 1, c.1 - 3..=c.1 + 2);
+                grid.gather_cells(xs.clone(), ys.clone(), &mut block);
+                for x in xs {
+                    for y in ys.clone() {
+                        grid.gather_cell((x, y), &mut one_by_one);
+                    }
+                }
+                let sorted = |c: &Candidates| {
+                    let mut v: Vec<(u32, u64, u64, i32)> =
+                        (0..c.len()).map(|k| (c.slots[k], c.xs[k].to_bits(), c.ys[k].to_bits(), c.ids[k].0)).collect();
+                    v.sort_unstable();
+                    v
+                };
+                assert_eq!(sorted(&block), sorted(&one_by_one));
             }
         }
         assert!(mixed_seen, "no bucket was shared by two cells: the collision path went untested");

@@ -31,7 +31,7 @@ use crate::world::{
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::random::{key, mix, normal_half};
-use super::{GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
+use super::{Candidates, GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
 /// Random stream of radar draws ("Rada").
 const RADAR_STREAM: u64 = 0x5261_6461;
@@ -270,9 +270,11 @@ pub struct SensorGrid(pub SpatialGrid);
 /// Scratch buffers of one thread of [`sense_vehicles`], kept between ticks.
 #[derive(Default)]
 pub struct SenseScratch {
-    /// Candidates around the current cell: (slot, position, id).
-    around: Vec<(u32, DVec2, VehicleId)>,
-    /// Detections of the current vehicle as sort keys, see [`detection_key`].
+    /// Candidates around the current cell.
+    around: Candidates,
+    /// Every candidate's key (or [`UNSEEN`]), then the detections of the current vehicle as
+    /// sort keys, see [`detection_key`].
+    keys: Vec<u64>,
     found: Vec<u64>,
     /// Angular extents of the targets found so far nearer than the current one (occlusion).
     extents: Vec<(f64, f64, f64)>,
@@ -287,23 +289,25 @@ fn reach(range: f64, cell: f64) -> i32 {
     ((range / cell).ceil() as i32).max(1)
 }
 
-/// Gather the candidates (slot, position, id) of the square of cells `reach` cells around
-/// `centre`, or of the whole grid when that square has more cells than the grid has entries.
-fn gather(grid: &SpatialGrid, centre: (i32, i32), reach: i32, around: &mut Vec<(u32, DVec2, VehicleId)>) {
+/// Which candidates [`SenseScratch::around`] holds: those of the square of cells `reach` cells
+/// around a cell, or the whole grid's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Gathered {
+    Square((i32, i32), i32),
+    All,
+}
+
+/// Gather the candidates of the square of cells `reach` cells around `centre`, or of the whole
+/// grid when that square has more cells than the grid has entries; returns which.
+fn gather(grid: &SpatialGrid, centre: (i32, i32), reach: i32, around: &mut Candidates) -> Gathered {
     around.clear();
     let side = 2.0 * reach as f64 + 1.0;
     if side * side > grid.len() as f64 {
-        around.extend((0..grid.len() as u32).map(|slot| {
-            let e = grid.get(slot);
-            (slot, e.position, e.id)
-        }));
-        return;
+        grid.gather_all(around);
+        return Gathered::All;
     }
-    for dx in -reach..=reach {
-        for dy in -reach..=reach {
-            grid.for_each_in_cell((centre.0 + dx, centre.1 + dy), |slot, e| around.push((slot, e.position, e.id)));
-        }
-    }
+    grid.gather_cells(centre.0 - reach..=centre.0 + reach, centre.1 - reach..=centre.1 + reach, around);
+    Gathered::Square(centre, reach)
 }
 
 /// One detection as an integer sort key: the squared distance rounded to an f32 (a
@@ -370,19 +374,75 @@ impl Sight {
         }
     }
 
-    /// Write the candidate's key at `found[n]` (with which sensors reach it, see [`REACH`]);
-    /// returns `n + 1` if it is seen, else `n` (no branch on the outcome).
-    fn consider(&self, slot: u32, position: DVec2, id: VehicleId, found: &mut [u64], n: usize) -> usize {
-        let relative = position - self.position;
-        let d2 = relative.length_squared();
-        let radar = (d2 <= self.radar_range2) & self.cone.contains(relative, d2);
-        let velodyne = d2 <= self.velodyne_range2;
-        let seen = self.omniscient | velodyne | radar;
-        let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
-        found[n] = detection_key(d2, slot | flags);
-        n + (seen & (id != self.id)) as usize
+    /// The detection keys of the candidates it sees (with which sensors reach each, see
+    /// [`REACH`]), in candidate order, into `found`; returns how many.
+    ///
+    /// Two passes: the first tests every candidate and writes its key, or [`UNSEEN`], without a
+    /// branch on the candidate (which ones are seen is unpredictable), over the candidates'
+    /// arrays, so the compiler turns it into vector code (four candidates an instruction where
+    /// the processor has AVX2, chosen at run time; the same operations in the same order as
+    /// the one-at-a-time code, so the same bits); the second packs the seen keys to the front.
+    fn consider_all(&self, around: &Candidates, keys: &mut Vec<u64>, found: &mut Vec<u64>) -> usize {
+        keys.clear();
+        keys.resize(around.len(), 0);
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor has AVX2, checked just above.
+            unsafe { self.keys_avx2(around, keys) };
+        } else {
+            self.keys(around, keys);
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        self.keys(around, keys);
+        // Packed into another buffer: in place, each store could alias the next load.
+        found.clear();
+        found.resize(keys.len(), 0);
+        let mut n = 0;
+        for &key in keys.iter() {
+            found[n] = key;
+            n += usize::from(key != UNSEEN);
+        }
+        found.truncate(n);
+        n
+    }
+
+    /// [`Sight::keys`] compiled for processors with AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn keys_avx2(&self, around: &Candidates, found: &mut [u64]) {
+        self.keys(around, found)
+    }
+
+    /// Each candidate's detection key, or [`UNSEEN`]: the first pass of [`Sight::consider_all`].
+    /// The arithmetic is [`Cone::contains`]'s and `DVec2`'s (differences, then `x*x + y*y`),
+    /// written on the coordinates.
+    #[inline(always)]
+    fn keys(&self, around: &Candidates, found: &mut [u64]) {
+        let (p, h, cone) = (self.position, self.cone.heading, &self.cone);
+        let (radar_range2, velodyne_range2, id) = (self.radar_range2, self.velodyne_range2, self.id);
+        let (acute, everything, omniscient) = (cone.cos_half >= 0.0, cone.everything, self.omniscient);
+        let candidates = around.xs.iter().zip(&around.ys).zip(&around.slots).zip(&around.ids);
+        for (key, (((&x, &y), &slot), &other)) in found.iter_mut().zip(candidates) {
+            let (rx, ry) = (x - p.x, y - p.y);
+            let d2 = rx * rx + ry * ry;
+            let dot = rx * h.x + ry * h.y;
+            let ahead = dot >= 0.0;
+            let (dot2, limit) = (dot * dot, d2 * cone.cos_half2);
+            let inside = (acute & ahead & (dot2 >= limit)) | (!acute & (ahead | (dot2 <= limit)));
+            let in_cone = everything | ((d2 != 0.0) & inside);
+            let radar = (d2 <= radar_range2) & in_cone;
+            let velodyne = d2 <= velodyne_range2;
+            let seen = (omniscient | velodyne | radar) & (other != id);
+            let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
+            *key = if seen { detection_key(d2, slot | flags) } else { UNSEEN };
+        }
     }
 }
+
+/// What [`Sight::keys`] writes for a candidate not seen: no detection key is all ones (a key's
+/// high word is the f32 bits of a squared distance, never all ones; its low word is a slot
+/// below 2³⁰ with the reach bits, which an unseen candidate would not have set).
+const UNSEEN: u64 = u64::MAX;
 
 /// The low word of a detection key: the grid slot in the low 30 bits (grids hold fewer than
 /// 2³⁰ vehicles), bit 31 set when the radar reaches the target, bit 30 when the velodyne does,
@@ -566,7 +626,7 @@ fn sense_chunk(
     s: &mut SenseScratch,
 ) {
     let grid = input.grid;
-    let mut gathered: Option<((i32, i32), i32)> = None;
+    let mut gathered: Option<Gathered> = None;
     let omniscient = table.omniscient;
     for (k, readings) in chunk.iter_mut().enumerate() {
         let i = start + k;
@@ -574,28 +634,20 @@ fn sense_chunk(
         let (radar, velodyne) = (table.radars.map(|r| &r[i]), table.velodynes.map(|v| &v[i]));
         let errors = table.errors.map(|e| &e[i]);
         let sight = Sight::new(*id, state, radar, velodyne, omniscient, &mut s.half_cos);
-        let mut n = 0;
         if omniscient {
-            s.found.clear();
-            s.found.resize(grid.len(), 0);
-            for slot in 0..grid.len() as u32 {
-                let e = grid.get(slot);
-                n = sight.consider(slot, e.position, e.id, &mut s.found, n);
+            if gathered != Some(Gathered::All) {
+                s.around.clear();
+                grid.gather_all(&mut s.around);
+                gathered = Some(Gathered::All);
             }
         } else {
             let centre = grid.cell_of(state.position);
             let reach = reach(sensor_range(radar, velodyne), grid.cell_size());
-            if gathered != Some((centre, reach)) {
-                gather(grid, centre, reach, &mut s.around);
-                gathered = Some((centre, reach));
-            }
-            s.found.clear();
-            s.found.resize(s.around.len(), 0);
-            for &(other, position, other_id) in &s.around {
-                n = sight.consider(other, position, other_id, &mut s.found, n);
+            if gathered.is_none_or(|g| g != Gathered::Square(centre, reach) && g != Gathered::All) {
+                gathered = Some(gather(grid, centre, reach, &mut s.around));
             }
         }
-        s.found.truncate(n);
+        let n = sight.consider_all(&s.around, &mut s.keys, &mut s.found);
         match errors {
             Some(errors) if radar_errors_only(errors) => write_radar_error_readings(
                 &sight,
@@ -826,13 +878,9 @@ mod tests {
         let radar = Some(&Radar::default());
         let sight =
             Sight::new(VehicleId(-1), &state, radar, Some(&Velodyne::default()), false, &mut HalfCos::default());
-        let mut found = vec![0; grid.len()];
-        let mut seen = 0;
-        for slot in 0..grid.len() as u32 {
-            let e = *grid.get(slot);
-            seen = sight.consider(slot, e.position, e.id, &mut found, seen);
-        }
-        found.truncate(seen);
+        let (mut around, mut found) = (Candidates::default(), Vec::new());
+        grid.gather_all(&mut around);
+        sight.consider_all(&around, &mut Vec::new(), &mut found);
         (grid, sight, found)
     }
 
@@ -906,14 +954,10 @@ mod tests {
         let state = VehicleState::new(DVec2::ZERO, 0.0, 0.0);
         let velodyne = Velodyne { range: 50.0 };
         let sight = Sight::new(VehicleId(-1), &state, None, Some(&velodyne), false, &mut HalfCos::default());
-        let mut found = vec![0; grid.len()];
-        let mut n = 0;
-        for slot in 0..grid.len() as u32 {
-            let e = *grid.get(slot);
-            n = sight.consider(slot, e.position, e.id, &mut found, n);
-        }
-        found.truncate(n);
-        assert_eq!(n, entries.len());
+        let (mut around, mut found) = (Candidates::default(), Vec::new());
+        grid.gather_all(&mut around);
+        let n = sight.consider_all(&around, &mut Vec::new(), &mut found);
+        assert_eq!((n, found.len()), (entries.len(), n));
         let mut readings = SensorReadings::default();
         write_readings(&mut found, &grid, DVec2::ZERO, &mut readings);
         let mut want: Vec<(u64, i32)> = entries.iter().map(|&(p, id)| (p.length_squared().to_bits(), id)).collect();
@@ -927,6 +971,70 @@ mod tests {
         let exact: std::collections::HashSet<u64> =
             entries[..12].iter().map(|(p, _)| p.length_squared().to_bits()).collect();
         assert!(exact.len() > 6, "only {} distinct distances", exact.len());
+    }
+
+    /// One candidate's key as the sensors decided before their test was vectorised (one at a
+    /// time, through `Cone::contains` and `DVec2`), `None` when not seen.
+    fn one_key(sight: &Sight, slot: u32, position: DVec2, id: VehicleId) -> Option<u64> {
+        let relative = position - sight.position;
+        let d2 = relative.length_squared();
+        let radar = (d2 <= sight.radar_range2) && sight.cone.contains(relative, d2);
+        let velodyne = d2 <= sight.velodyne_range2;
+        let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
+        ((sight.omniscient || velodyne || radar) && id != sight.id).then(|| detection_key(d2, slot | flags))
+    }
+
+    #[test]
+    fn the_vectorised_candidate_test_keeps_what_the_one_at_a_time_test_keeps() {
+        let (grid, _, _) = scene(500);
+        let mut around = Candidates::default();
+        grid.gather_all(&mut around);
+        // Sensors at a target's spot (distance 0), facing every way, with acute, obtuse, full and
+        // no radar cones, with and without a velodyne, omniscient or not.
+        let radars = [
+            None,
+            Some(Radar::default()),
+            Some(Radar { range: 60.0, angle: 4.0 }),
+            Some(Radar { range: 80.0, angle: TAU }),
+        ];
+        let mut seen_any = [false; 2];
+        for (k, (&radar, velodyne)) in
+            radars.iter().zip([None, Some(Velodyne { range: 30.0 })]).cycle().take(8).enumerate()
+        {
+            for (j, omniscient) in [false, true].into_iter().enumerate() {
+                let at = grid.get((k * 37 % grid.len()) as u32).position;
+                let state = VehicleState::new(at, k as f64 * 0.9 - 3.0, 5.0);
+                let sight = Sight::new(
+                    VehicleId(k as i32),
+                    &state,
+                    radar.as_ref(),
+                    velodyne.as_ref(),
+                    omniscient,
+                    &mut HalfCos::default(),
+                );
+                let want: Vec<u64> = (0..around.len())
+                    .filter_map(|c| {
+                        one_key(&sight, around.slots[c], DVec2::new(around.xs[c], around.ys[c]), around.ids[c])
+                    })
+                    .collect();
+                let mut got = Vec::new();
+                assert_eq!(sight.consider_all(&around, &mut Vec::new(), &mut got), want.len());
+                assert_eq!(got, want, "sensor {k}, omniscient {omniscient}");
+                // Both compilations of the first pass, whichever the processor runs.
+                let mut plain = vec![0; around.len()];
+                sight.keys(&around, &mut plain);
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    let mut wide = vec![0; around.len()];
+                    // SAFETY: checked just above.
+                    unsafe { sight.keys_avx2(&around, &mut wide) };
+                    assert_eq!(wide, plain);
+                }
+                assert_eq!(plain.iter().filter(|&&k| k != UNSEEN).count(), want.len());
+                seen_any[j] |= !want.is_empty() && want.len() < around.len() - 1;
+            }
+        }
+        assert!(seen_any[0], "no sensor saw some but not all");
     }
 
     #[test]

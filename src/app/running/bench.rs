@@ -193,10 +193,15 @@ impl BenchWorld {
         let sensors =
             SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
         let mut next = 0usize;
-        for (k, path) in lanes.iter().enumerate() {
-            // Lane k gets an equal share, the first lanes one more when N does not divide.
-            let count = self.vehicles / lanes.len() + usize::from(k < self.vehicles % lanes.len());
-            for j in 0..count {
+        // Lane k gets an equal share, the first lanes one more when N does not divide.
+        let count = |k: usize| self.vehicles / lanes.len() + usize::from(k < self.vehicles % lanes.len());
+        let most = count(0);
+        for j in 0..most {
+            for (k, path) in lanes.iter().enumerate() {
+                let count = count(k);
+                if j >= count {
+                    continue;
+                }
                 let s = path.length * j as f64 / count as f64;
                 let (p, heading) = path.sample(s);
                 let mut spec = VehicleSpec::new(VehicleId(-1 - next as i32), VehicleState::new(p, heading, self.speed));
