@@ -280,6 +280,27 @@ impl SpatialGrid {
         self.slots.iter()
     }
 
+    /// The caller-defined index of the entry in slot `slot`.
+    pub fn index_of(&self, slot: u32) -> u32 {
+        self.indices[slot as usize]
+    }
+
+    /// Gather into `out` every entry that may lie within `radius` [m] of a point of `cell` (the
+    /// square of cells as far as the radius reaches, or everything when that square has more
+    /// cells than the grid has entries); returns whether it gathered everything.
+    pub fn gather_around(&self, cell: (i32, i32), radius: f64, out: &mut Candidates) -> bool {
+        out.clear();
+        let reach = (radius / self.cell).ceil().max(1.0);
+        let side = 2.0 * reach + 1.0;
+        if !(side * side <= self.slots.len() as f64) {
+            self.gather_all(out);
+            return true;
+        }
+        let reach = reach as i32;
+        self.gather_cells(cell.0 - reach..=cell.0 + reach, cell.1 - reach..=cell.1 + reach, out);
+        false
+    }
+
     /// The entry in slot `slot` (as passed to [`SpatialGrid::for_each_within`]).
     pub fn get(&self, slot: u32) -> &GridEntry {
         &self.slots[slot as usize]
@@ -356,6 +377,52 @@ impl Candidates {
         self.slots.is_empty()
     }
 
+    /// The slots of the candidates within `radius` [m] of `p` (inclusive; the squared distance
+    /// as [`DVec2::distance_squared`] computes it) but vehicle `exclude`, in candidate order,
+    /// into `out`; `marks` is scratch. A branch-free pass over the arrays (vector code, AVX2
+    /// where the processor has it, chosen at run time), then a pack.
+    pub fn within(&self, p: DVec2, radius: f64, exclude: VehicleId, marks: &mut Vec<u32>, out: &mut Vec<u32>) {
+        marks.clear();
+        marks.resize(self.len(), 0);
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor has AVX2, checked just above.
+            unsafe { self.mark_within_avx2(p, radius * radius, exclude, marks) };
+        } else {
+            self.mark_within(p, radius * radius, exclude, marks);
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        self.mark_within(p, radius * radius, exclude, marks);
+        // Packed into another buffer: in place, each store could alias the next load.
+        out.clear();
+        out.resize(marks.len(), 0);
+        let mut n = 0;
+        for &mark in marks.iter() {
+            out[n] = mark;
+            n += usize::from(mark != u32::MAX);
+        }
+        out.truncate(n);
+    }
+
+    /// [`Candidates::mark_within`] compiled for processors with AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn mark_within_avx2(&self, p: DVec2, r2: f64, exclude: VehicleId, marks: &mut [u32]) {
+        self.mark_within(p, r2, exclude, marks)
+    }
+
+    /// Each candidate's slot where it is within reach, else `u32::MAX` (no slot: grids hold
+    /// fewer than 2³² entries).
+    #[inline(always)]
+    fn mark_within(&self, p: DVec2, r2: f64, exclude: VehicleId, marks: &mut [u32]) {
+        let candidates = self.xs.iter().zip(&self.ys).zip(&self.slots).zip(&self.ids);
+        for (mark, (((&x, &y), &slot), &id)) in marks.iter_mut().zip(candidates) {
+            let (dx, dy) = (x - p.x, y - p.y);
+            let d2 = dx * dx + dy * dy;
+            *mark = if (d2 <= r2) & (id != exclude) { slot } else { u32::MAX };
+        }
+    }
+
     fn reserve(&mut self, more: usize) {
         self.slots.reserve(more);
         self.xs.reserve(more);
@@ -423,6 +490,17 @@ mod tests {
                     .map(|e| e.index)
                     .collect();
                 assert_eq!(got, want, "n {n}, radius {radius}");
+                // What is gathered around the centre's cell, tested by the vector pass, is the
+                // same, less the vehicle excluded.
+                let exclude = VehicleId(k as i32 % 7);
+                let mut around = Candidates::default();
+                grid.gather_around(grid.cell_of(centre.position), radius, &mut around);
+                let (mut marks, mut slots) = (Vec::new(), Vec::new());
+                around.within(centre.position, radius, exclude, &mut marks, &mut slots);
+                let mut near: Vec<u32> = slots.iter().map(|&slot| grid.index_of(slot)).collect();
+                near.sort_unstable();
+                let want_near: Vec<u32> = want.iter().copied().filter(|&i| entries[i as usize].id != exclude).collect();
+                assert_eq!(near, want_near, "n {n}, radius {radius}");
                 // Each cell holds exactly the entries that lie in it.
                 let c = grid.cell_of(centre.position);
                 let mut in_cell = Vec::new();

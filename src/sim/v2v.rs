@@ -36,7 +36,7 @@ use crate::world::{Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::recycle;
-use super::{Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
+use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
 #[derive(Resource, Debug, Clone, Copy, PartialEq)]
@@ -589,6 +589,11 @@ pub struct WifiScratch {
 
 /// What one thread of the wifi round keeps and counts for its contiguous chunk of receivers.
 struct WifiThread {
+    /// The senders around the current receiver's cell, the slots of those in range (and
+    /// scratch for finding them), and their indices in sender order.
+    around: Candidates,
+    marks: Vec<u32>,
+    slots: Vec<u32>,
     heard: Vec<u32>,
     picks: Vec<u32>,
     /// This round's counts of the chunk's receivers, added to the channel's after the round.
@@ -606,6 +611,9 @@ struct WifiThread {
 impl Default for WifiThread {
     fn default() -> Self {
         WifiThread {
+            around: Candidates::default(),
+            marks: Vec::new(),
+            slots: Vec::new(),
             heard: Vec::new(),
             picks: Vec::new(),
             stats: ChannelStats::default(),
@@ -655,16 +663,22 @@ impl WifiRound<'_> {
             (Loss::Constant(p), None, false) => Some(p),
             _ => None,
         };
+        // The senders around a cell are gathered once for the receivers of that cell in a row
+        // (neighbours on the road are mostly neighbours in the query), everyone's once.
+        let (grid, mut gathered) = (self.grid, None);
         for (k, (state, mailbox)) in states.iter().zip(chunk.iter_mut()).enumerate() {
             let slot = (start + k) as u32;
             let owner = mailbox.owner();
+            let cell = grid.cell_of(state.position);
+            // `gathered`: Some(Some(cell)) around that cell, Some(None) everyone.
+            let stale = gathered.is_none_or(|g: Option<(i32, i32)>| g.is_some_and(|c| c != cell));
+            if stale {
+                let everything = grid.gather_around(cell, self.range, &mut t.around);
+                gathered = Some((!everything).then_some(cell));
+            }
+            t.around.within(state.position, self.range, owner, &mut t.marks, &mut t.slots);
             t.heard.clear();
-            let heard = &mut t.heard;
-            self.grid.for_each_within(state.position, self.range, |_, e, _| {
-                if e.id != owner {
-                    heard.push(e.index);
-                }
-            });
+            t.heard.extend(t.slots.iter().map(|&slot| grid.index_of(slot)));
             t.heard.sort_unstable();
             let attempted = t.heard.iter().map(|&i| senders[i as usize].2 as u64).sum::<u64>();
             t.stats.sent += attempted;
