@@ -375,16 +375,22 @@ impl Sight {
     }
 
     /// The detection keys of the candidates it sees (with which sensors reach each, see
-    /// [`REACH`]), in candidate order, into `found`; returns how many.
+    /// [`REACH`]), in candidate order, at the front of `found`; returns that front.
     ///
     /// Two passes: the first tests every candidate and writes its key, or [`UNSEEN`], without a
     /// branch on the candidate (which ones are seen is unpredictable), over the candidates'
     /// arrays, so the compiler turns it into vector code (four candidates an instruction where
     /// the processor has AVX2, chosen at run time; the same operations in the same order as
     /// the one-at-a-time code, so the same bits); the second packs the seen keys to the front.
-    fn consider_all(&self, around: &Candidates, keys: &mut Vec<u64>, found: &mut Vec<u64>) -> usize {
-        keys.clear();
-        keys.resize(around.len(), 0);
+    fn consider_all<'f>(&self, around: &Candidates, keys: &mut Vec<u64>, found: &'f mut Vec<u64>) -> &'f mut [u64] {
+        // The buffers only grow (no zero-filling per vehicle), and are used up to the length.
+        let n = around.len();
+        for buffer in [&mut *keys, &mut *found] {
+            if buffer.len() < n {
+                buffer.resize(n, 0);
+            }
+        }
+        let keys = &mut keys[..n];
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the processor has AVX2, checked just above.
@@ -395,15 +401,12 @@ impl Sight {
         #[cfg(not(target_arch = "x86_64"))]
         self.keys(around, keys);
         // Packed into another buffer: in place, each store could alias the next load.
-        found.clear();
-        found.resize(keys.len(), 0);
-        let mut n = 0;
+        let mut seen = 0;
         for &key in keys.iter() {
-            found[n] = key;
-            n += usize::from(key != UNSEEN);
+            found[seen] = key;
+            seen += usize::from(key != UNSEEN);
         }
-        found.truncate(n);
-        n
+        &mut found[..seen]
     }
 
     /// [`Sight::keys`] compiled for processors with AVX2.
@@ -647,31 +650,26 @@ fn sense_chunk(
                 gathered = Some(gather(grid, centre, reach, &mut s.around));
             }
         }
-        let n = sight.consider_all(&s.around, &mut s.keys, &mut s.found);
+        let found = sight.consider_all(&s.around, &mut s.keys, &mut s.found);
+        let n = found.len();
         match errors {
-            Some(errors) if radar_errors_only(errors) => write_radar_error_readings(
-                &sight,
-                &errors.radar,
-                input.draws,
-                grid,
-                &mut s.found,
-                &mut s.stats,
-                readings,
-            ),
+            Some(errors) if radar_errors_only(errors) => {
+                write_radar_error_readings(&sight, &errors.radar, input.draws, grid, found, &mut s.stats, readings)
+            }
             Some(errors) => write_imperfect_readings(
                 &sight,
                 errors,
                 input.draws,
                 input.footprints,
                 grid,
-                &mut s.found,
+                found,
                 &mut s.extents,
                 &mut s.stats,
                 readings,
             ),
             None => {
                 s.stats.detections += n as u64;
-                write_readings(&mut s.found, grid, state.position, readings);
+                write_readings(found, grid, state.position, readings);
             }
         }
     }
@@ -880,7 +878,8 @@ mod tests {
             Sight::new(VehicleId(-1), &state, radar, Some(&Velodyne::default()), false, &mut HalfCos::default());
         let (mut around, mut found) = (Candidates::default(), Vec::new());
         grid.gather_all(&mut around);
-        sight.consider_all(&around, &mut Vec::new(), &mut found);
+        let seen = sight.consider_all(&around, &mut Vec::new(), &mut found).len();
+        found.truncate(seen);
         (grid, sight, found)
     }
 
@@ -956,7 +955,8 @@ mod tests {
         let sight = Sight::new(VehicleId(-1), &state, None, Some(&velodyne), false, &mut HalfCos::default());
         let (mut around, mut found) = (Candidates::default(), Vec::new());
         grid.gather_all(&mut around);
-        let n = sight.consider_all(&around, &mut Vec::new(), &mut found);
+        let n = sight.consider_all(&around, &mut Vec::new(), &mut found).len();
+        found.truncate(n);
         assert_eq!((n, found.len()), (entries.len(), n));
         let mut readings = SensorReadings::default();
         write_readings(&mut found, &grid, DVec2::ZERO, &mut readings);
@@ -1017,9 +1017,10 @@ mod tests {
                         one_key(&sight, around.slots[c], DVec2::new(around.xs[c], around.ys[c]), around.ids[c])
                     })
                     .collect();
-                let mut got = Vec::new();
-                assert_eq!(sight.consider_all(&around, &mut Vec::new(), &mut got), want.len());
-                assert_eq!(got, want, "sensor {k}, omniscient {omniscient}");
+                // Buffers longer than needed from an earlier vehicle: only the seen part counts.
+                let (mut keys, mut got) = (vec![7; around.len() + 3], vec![9; around.len() + 5]);
+                let seen = sight.consider_all(&around, &mut keys, &mut got);
+                assert_eq!(seen, &want[..], "sensor {k}, omniscient {omniscient}");
                 // Both compilations of the first pass, whichever the processor runs.
                 let mut plain = vec![0; around.len()];
                 sight.keys(&around, &mut plain);

@@ -785,7 +785,12 @@ pub fn deliver_wifi(
     for (_, state, mut mailbox) in &mut mailboxes {
         if !mailbox.wifi_out.is_empty() {
             s.senders.push((mailbox.owner(), state.position, mailbox.wifi_out.len() as u32));
-            s.buffer.append(&mut mailbox.wifi_out);
+            // One message (a beacon) moved as one, not by a library copy call per sender.
+            if mailbox.wifi_out.len() == 1 {
+                s.buffer.extend(mailbox.wifi_out.pop());
+            } else {
+                s.buffer.append(&mut mailbox.wifi_out);
+            }
         }
     }
     let batch = into_batch(&mut s.buffer);
