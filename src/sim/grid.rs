@@ -41,6 +41,8 @@ pub struct GridPoint {
 struct Slot {
     entry: GridEntry,
     cell: (i32, i32),
+    /// `bucket_of(cell)`, hashed once for the count and the scatter.
+    bucket: u32,
 }
 
 /// One bucket: where its entries start in the slots (they end where the next bucket's start),
@@ -114,15 +116,18 @@ impl SpatialGrid {
         self.staging.clear();
         for entry in entries {
             let cell = self.cell_of(entry.position);
-            self.staging.push(Slot { entry, cell });
+            self.staging.push(Slot { entry, cell, bucket: 0 });
         }
         let buckets = self.staging.len().max((RUN * BLOCK) as usize).next_power_of_two();
         self.mask = buckets as u64 - 1;
+        for s in &mut self.staging {
+            s.bucket = bucket_of(s.cell, self.mask) as u32;
+        }
         self.buckets.clear();
         self.buckets.resize(buckets + 1, Bucket::default());
         // Count each bucket's entries in the start of the bucket after it.
         for s in &self.staging {
-            let b = bucket_of(s.cell, self.mask);
+            let b = s.bucket as usize;
             let (owner, count) = (self.buckets[b].cell, self.buckets[b + 1].start);
             if count == 0 {
                 self.buckets[b].cell = s.cell;
@@ -149,7 +154,7 @@ impl SpatialGrid {
         self.cells.resize(self.staging.len(), (0, 0));
         // `buckets[b].start` is used as the insertion cursor of bucket b, then restored.
         for s in &self.staging {
-            let b = bucket_of(s.cell, self.mask);
+            let b = s.bucket as usize;
             let at = self.buckets[b].start as usize;
             self.slots[at] = s.entry;
             (self.xs[at], self.ys[at]) = (s.entry.position.x, s.entry.position.y);
