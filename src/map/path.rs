@@ -141,7 +141,7 @@ impl Path {
         if n == 0 {
             return (self.points.first().copied().unwrap_or(DVec2::ZERO), DVec2::X);
         }
-        let s = if self.closed { s.rem_euclid(self.length) } else { s.clamp(0.0, self.length) };
+        let s = if self.closed { wrap_length(s, self.length) } else { s.clamp(0.0, self.length) };
         let spacing = self.spacing();
         let i = ((s / spacing) as usize).min(n - 1);
         let (a, b) = self.segment(i);
@@ -160,7 +160,7 @@ impl Path {
         let n = self.segment_count() as isize;
         let mut best: Option<(isize, f64, DVec2, f64)> = None;
         // One division up front, then wrap by comparison (path followers call this every tick).
-        let start = if self.closed { from.rem_euclid(n) } else { from };
+        let start = if self.closed && !(0..n).contains(&from) { from.rem_euclid(n) } else { from };
         let wrap = |i: isize| if self.closed && i >= n { i - n } else { i };
         // A point of a block lies within BLOCK / 2 segments of the block's middle vertex; the
         // margin covers rounding in the distances compared.
@@ -380,9 +380,43 @@ impl Path {
     }
 }
 
+/// `s.rem_euclid(length)` (for `length` > 0), without the library `fmod` call for the arc
+/// lengths a follower asks, which lie less than one lap outside `[0, length)`: there the
+/// subtraction or addition of one lap is exact (Sterbenz) and is what `rem_euclid` gives.
+#[inline]
+fn wrap_length(s: f64, length: f64) -> f64 {
+    if (0.0..length).contains(&s) {
+        s
+    } else if s >= length && s < 2.0 * length {
+        s - length
+    } else if s < 0.0 && s > -length {
+        s + length
+    } else {
+        s.rem_euclid(length)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn wrapping_an_arc_length_is_rem_euclid_to_the_bit() {
+        let lengths = [1.0, 0.3, 133_392.771_040_226_5, 1e-300, 7.25];
+        for length in lengths {
+            let mut xs: Vec<f64> = (-4000..4000).map(|k| k as f64 * length / 997.0).collect();
+            xs.extend([0.0, -0.0, length, -length, 2.0 * length, -2.0 * length, 3.0 * length]);
+            xs.extend([length.next_down(), length.next_up(), (2.0 * length).next_down(), (-length).next_up()]);
+            xs.extend([f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e300, -1e300, f64::MIN_POSITIVE]);
+            for s in xs {
+                let (got, want) = (wrap_length(s, length), s.rem_euclid(length));
+                assert!(
+                    got.to_bits() == want.to_bits() || got.is_nan() && want.is_nan(),
+                    "{s} mod {length}: {got} vs {want}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn index_rounding_matches_floor_and_ceil() {
