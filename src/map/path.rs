@@ -371,6 +371,19 @@ impl Path {
         }
     }
 
+    /// [`Path::locate_near`] found by walking from `hint` to the nearest segment ([`Path::walk`]:
+    /// two or three segments for a vehicle that moved a little along a smooth path, instead of
+    /// every segment of the window), the window searched only when the walk reaches its edge.
+    /// The same as `locate_near` wherever the distance to the path has one minimum in the
+    /// window; where it has several (a hairpin within the window), the minimum nearest the
+    /// hint, which is where a vehicle that was at `hint` is.
+    pub fn locate_walking(&self, p: DVec2, hint: f64, window: f64) -> (f64, f64) {
+        match self.walk(p, hint, window) {
+            Some((i, t, _, d2)) => ((i as f64 + t) * self.spacing(), self.lateral(p, i, d2)),
+            None => self.locate_near(p, hint, window),
+        }
+    }
+
     /// Signed distance [m] of `p` at squared distance `d2` from segment `i`: positive left of it.
     fn lateral(&self, p: DVec2, i: isize, d2: f64) -> f64 {
         let (a, b) = self.segment(i as usize);
@@ -496,6 +509,45 @@ mod tests {
             }
         }
         assert!(compared > 10_000, "only {compared} walks found a segment");
+    }
+
+    #[test]
+    fn a_follower_walking_to_its_place_finds_what_the_window_search_finds_on_a_smooth_path() {
+        // A lane-like loop (radius 200 m, 2 m segments): the distance has one minimum near any
+        // vehicle close to it, so walking gives locate_near's bits.
+        let circle: Vec<DVec2> =
+            (0..628).map(|k| DVec2::from_angle(k as f64 * std::f64::consts::TAU / 628.0) * 200.0).collect();
+        let path = Path::from_points(Vec::new(), circle, true);
+        let mut walked = 0;
+        for k in 0..5000 {
+            let s = (k as f64 * 0.618_033_988_7).fract() * path.length * 1.1 - 0.05 * path.length;
+            let (q, heading) = path.sample(s);
+            let p = q + DVec2::from_angle(heading + std::f64::consts::FRAC_PI_2) * (((k % 9) as f64 - 4.0) * 0.4);
+            for (hint, window) in [(s + 0.7, 3.0), (s - 1.9, 3.0), (s, 0.5), (s + 9.0, 3.0), (f64::NAN, 2.0)] {
+                let want = path.locate_near(p, hint, window);
+                let got = path.locate_walking(p, hint, window);
+                assert_eq!(
+                    (got.0.to_bits(), got.1.to_bits()),
+                    (want.0.to_bits(), want.1.to_bits()),
+                    "s {s}, hint {hint}"
+                );
+                walked += usize::from(path.walk(p, hint, window).is_some());
+            }
+        }
+        assert!(walked > 12_000, "only {walked} walks ended inside the window");
+        // A hairpin: two legs 1 m apart. A vehicle on the lower leg near its end stays on it,
+        // where the window search takes the nearer point of the upper leg.
+        let mut hairpin: Vec<DVec2> = (0..=20).map(|k| DVec2::new(k as f64, 0.0)).collect();
+        hairpin.extend((0..=20).rev().map(|k| DVec2::new(k as f64, 1.0)));
+        let path = Path::from_points(Vec::new(), hairpin, false);
+        let p = DVec2::new(10.0, 0.6);
+        let (s_near, _) = path.locate_near(p, 10.0, 30.0);
+        let (s_walk, lateral) = path.locate_walking(p, 10.0, 30.0);
+        assert!(
+            (s_walk - 10.0).abs() < 1e-9 && (lateral - 0.6).abs() < 1e-9,
+            "walked to s {s_walk}, lateral {lateral}"
+        );
+        assert!(s_near > 25.0, "the window search took s {s_near}");
     }
 
     #[test]

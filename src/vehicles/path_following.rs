@@ -113,7 +113,7 @@ fn follow_chunk(
             // Since the last tick the vehicle moved about |v| dt [m]: search that far around the
             // predicted arc length, plus a segment either side.
             let window = speed.abs() * dt + path.spacing();
-            path.locate_near(state.position, follower.s + speed * dt, window)
+            path.locate_walking(state.position, follower.s + speed * dt, window)
         } else {
             let projection = path.project(state.position);
             (projection.s, projection.lateral)
