@@ -202,12 +202,14 @@ impl BenchWorld {
         let params = PathFollowing { speed: self.speed, ..Default::default() };
         let sensors =
             SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
-        // Lane k gets an equal share, the first lanes one more when N does not divide. Vehicle
-        // j of lane k is number `next` (id −1 − next, desired speed) counted lane after lane,
-        // but they are spawned in road order across the lanes (the j-th of every lane, then
-        // the next j): vehicles near each other on the road are near each other in the ECS
-        // tables, so the per-vehicle systems read their neighbours from cache. Which vehicle is
-        // where, and its id, do not depend on the order.
+        // Lane k gets an equal share, the first lanes one more when N does not divide. They are
+        // spawned in road order across the lanes (the j-th of every lane, then the next j):
+        // vehicles near each other on the road are near each other in the ECS tables, so the
+        // per-vehicle systems read their neighbours from cache. Vehicle j of lane k has id
+        // −1 − (j·lanes + k), its rank in road order (so the V2V batches, sorted by sender id,
+        // come in sorted already), and the desired speed of number `first[k] + j` counted lane
+        // after lane, as before the order changed (the same traffic). Which vehicle is where,
+        // its id and its speed do not depend on the order the vehicles are spawned in.
         let count = |k: usize| self.vehicles / lanes.len() + usize::from(k < self.vehicles % lanes.len());
         let first: Vec<usize> = (0..lanes.len()).scan(0, |at, k| Some(std::mem::replace(at, *at + count(k)))).collect();
         let places: Vec<(usize, usize)> = match order {
@@ -221,10 +223,10 @@ impl BenchWorld {
                 if j >= count {
                     continue;
                 }
-                let next = first[k] + j;
+                let (rank, next) = (j * lanes.len() + k, first[k] + j);
                 let s = path.length * j as f64 / count as f64;
                 let (p, heading) = path.sample(s);
-                let mut spec = VehicleSpec::new(VehicleId(-1 - next as i32), VehicleState::new(p, heading, self.speed));
+                let mut spec = VehicleSpec::new(VehicleId(-1 - rank as i32), VehicleState::new(p, heading, self.speed));
                 spec.sensors = sensors;
                 if self.degraded {
                     spec.sensor_errors = degraded_radar();
