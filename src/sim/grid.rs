@@ -357,6 +357,18 @@ impl SpatialGrid {
     }
 }
 
+/// Copy the items of `from` other than `none` to the front of `to` (at least as long), in order;
+/// returns how many. Without a branch on the items (which are kept is unpredictable), and into
+/// another buffer (in place, each store could alias the next load).
+pub fn pack<T: Copy + PartialEq>(from: &[T], to: &mut [T], none: T) -> usize {
+    let mut n = 0;
+    for &item in from {
+        to[n] = item;
+        n += usize::from(item != none);
+    }
+    n
+}
+
 /// Candidates gathered from some cells of a grid, as arrays (structure of arrays): slot,
 /// coordinates [m] and id of each, so a test of all of them against one sensor vectorises.
 #[derive(Debug, Clone, Default)]
@@ -409,11 +421,7 @@ impl Candidates {
         // Packed into another buffer: in place, each store could alias the next load.
         out.clear();
         out.resize(marks.len(), 0);
-        let mut n = 0;
-        for &mark in marks.iter() {
-            out[n] = mark;
-            n += usize::from(mark != u32::MAX);
-        }
+        let n = pack(marks, out, u32::MAX);
         out.truncate(n);
     }
 

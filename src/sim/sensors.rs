@@ -30,6 +30,7 @@ use crate::world::{
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
+use super::grid::pack;
 use super::random::{key, mix, normal_half};
 use super::{Candidates, GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
@@ -400,12 +401,7 @@ impl Sight {
         }
         #[cfg(not(target_arch = "x86_64"))]
         self.keys(around, keys);
-        // Packed into another buffer: in place, each store could alias the next load.
-        let mut seen = 0;
-        for &key in keys.iter() {
-            found[seen] = key;
-            seen += usize::from(key != UNSEEN);
-        }
+        let seen = pack(keys, found, UNSEEN);
         &mut found[..seen]
     }
 
