@@ -204,8 +204,8 @@ impl SpatialGrid {
         }
     }
 
-    /// Append the entries of `cell` to `out`: whole runs of the coordinate arrays at once
-    /// where the cell's bucket is its alone.
+    /// Append the entries of `cell` to `out` (element by element; [`SpatialGrid::gather_cells`]
+    /// copies whole runs where it can).
     #[inline]
     pub fn gather_cell(&self, cell: (i32, i32), out: &mut Candidates) {
         if self.slots.is_empty() {
@@ -418,7 +418,6 @@ impl Candidates {
         }
         #[cfg(not(target_arch = "x86_64"))]
         self.mark_within(p, radius * radius, exclude, marks);
-        // Packed into another buffer: in place, each store could alias the next load.
         out.clear();
         out.resize(marks.len(), 0);
         let n = pack(marks, out, u32::MAX);
