@@ -204,21 +204,11 @@ impl SpatialGrid {
         }
     }
 
-    /// Append the entries of `cell` to `out` (element by element; [`SpatialGrid::gather_cells`]
-    /// copies whole runs where it can).
+    /// Append the entries of `cell` to `out` (element by element, a cell holds a few;
+    /// [`SpatialGrid::gather_cells`] copies whole runs where it can).
     #[inline]
     pub fn gather_cell(&self, cell: (i32, i32), out: &mut Candidates) {
-        if self.slots.is_empty() {
-            return;
-        }
-        let (range, pure) = self.bucket(cell);
-        // Element by element: a cell holds a few entries, too few for a library copy's call.
-        out.reserve(range.len());
-        for i in range {
-            if pure || self.cells[i] == cell {
-                out.push(i as u32, self.xs[i], self.ys[i], self.ids[i]);
-            }
-        }
+        self.for_each_in_cell(cell, |slot, e| out.push(slot, e.position.x, e.position.y, e.id));
     }
 
     /// Append the entries of the cells (x, y) with x in `xs` and y in `ys` to `out`, each once.
@@ -250,11 +240,10 @@ impl SpatialGrid {
                 });
                 if own {
                     let count = (last - y) as usize + 1;
-                    let range = self.buckets[first].start as usize..self.buckets[first + count].start as usize;
-                    out.xs.extend_from_slice(&self.xs[range.clone()]);
-                    out.ys.extend_from_slice(&self.ys[range.clone()]);
-                    out.ids.extend_from_slice(&self.ids[range.clone()]);
-                    out.slots.extend(range.start as u32..range.end as u32);
+                    self.gather_slots(
+                        self.buckets[first].start as usize..self.buckets[first + count].start as usize,
+                        out,
+                    );
                 } else {
                     for cy in y..=last {
                         self.gather_cell((x, cy), out);
@@ -267,10 +256,15 @@ impl SpatialGrid {
 
     /// Append every entry to `out`.
     pub fn gather_all(&self, out: &mut Candidates) {
-        out.xs.extend_from_slice(&self.xs);
-        out.ys.extend_from_slice(&self.ys);
-        out.ids.extend_from_slice(&self.ids);
-        out.slots.extend(0..self.slots.len() as u32);
+        self.gather_slots(0..self.slots.len(), out);
+    }
+
+    /// Append the entries of slots `range` to `out`, a copy of each array.
+    fn gather_slots(&self, range: std::ops::Range<usize>, out: &mut Candidates) {
+        out.xs.extend_from_slice(&self.xs[range.clone()]);
+        out.ys.extend_from_slice(&self.ys[range.clone()]);
+        out.ids.extend_from_slice(&self.ids[range.clone()]);
+        out.slots.extend(range.start as u32..range.end as u32);
     }
 
     /// Side of the cells [m].
@@ -305,7 +299,7 @@ impl SpatialGrid {
         out.clear();
         let reach = (radius / self.cell).ceil().max(1.0);
         let side = 2.0 * reach + 1.0;
-        if !(side * side <= self.slots.len() as f64) {
+        if side * side > self.slots.len() as f64 {
             self.gather_all(out);
             return true;
         }
@@ -329,32 +323,47 @@ impl SpatialGrid {
         let lo = self.cell_of(p - DVec2::splat(radius));
         let hi = self.cell_of(p + DVec2::splat(radius));
         let cells = (hi.0 as i64 - lo.0 as i64 + 1) * (hi.1 as i64 - lo.1 as i64 + 1);
-        // The squared distance as `DVec2::distance_squared` computes it.
-        let within = |i: usize| {
-            let (dx, dy) = (self.xs[i] - p.x, self.ys[i] - p.y);
-            let d2 = dx * dx + dy * dy;
-            (d2 <= r2).then_some(d2)
+        let mut test = |slot: u32, e: &GridPoint| {
+            let d2 = e.position.distance_squared(p);
+            if d2 <= r2 {
+                f(slot, e, d2);
+            }
         };
         if cells > self.slots.len() as i64 {
             // A disc far larger than the cells: scanning everything is cheaper.
-            for i in 0..self.slots.len() {
-                if let Some(d2) = within(i) {
-                    f(i as u32, &self.point(i), d2);
-                }
-            }
+            (0..self.slots.len()).for_each(|i| test(i as u32, &self.point(i)));
             return;
         }
         for cx in lo.0..=hi.0 {
             for cy in lo.1..=hi.1 {
-                let (range, pure) = self.bucket((cx, cy));
-                for i in range {
-                    if let Some(d2) = within(i).filter(|_| pure || self.cells[i] == (cx, cy)) {
-                        f(i as u32, &self.point(i), d2);
-                    }
-                }
+                self.for_each_in_cell((cx, cy), &mut test);
             }
         }
     }
+}
+
+/// `f()`, compiled for AVX2 where the processor has it (checked at run time; the standard
+/// library remembers the answer), else as it is: for the branch-free passes over candidate
+/// arrays, which the compiler turns into vector code four candidates wide. The same operations
+/// in the same order either way, so the same bits.
+#[inline(always)]
+pub fn vectorised<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2, checked just above.
+        return unsafe { with_avx2(f) };
+    }
+    f()
+}
+
+/// `f()` compiled with AVX2 on ([`vectorised`] calls it; tests call it to compare both).
+///
+/// # Safety
+/// Only on a processor with AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+pub unsafe fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
+    f()
 }
 
 /// Copy the items of `from` other than `none` to the front of `to` (at least as long), in order;
@@ -409,26 +418,11 @@ impl Candidates {
     pub fn within(&self, p: DVec2, radius: f64, exclude: VehicleId, marks: &mut Vec<u32>, out: &mut Vec<u32>) {
         marks.clear();
         marks.resize(self.len(), 0);
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor has AVX2, checked just above.
-            unsafe { self.mark_within_avx2(p, radius * radius, exclude, marks) };
-        } else {
-            self.mark_within(p, radius * radius, exclude, marks);
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        self.mark_within(p, radius * radius, exclude, marks);
+        vectorised(|| self.mark_within(p, radius * radius, exclude, marks));
         out.clear();
         out.resize(marks.len(), 0);
         let n = pack(marks, out, u32::MAX);
         out.truncate(n);
-    }
-
-    /// [`Candidates::mark_within`] compiled for processors with AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn mark_within_avx2(&self, p: DVec2, r2: f64, exclude: VehicleId, marks: &mut [u32]) {
-        self.mark_within(p, r2, exclude, marks)
     }
 
     /// Each candidate's slot where it is within reach, else `u32::MAX` (no slot: grids hold
@@ -441,13 +435,6 @@ impl Candidates {
             let d2 = dx * dx + dy * dy;
             *mark = if (d2 <= r2) & (id != exclude) { slot } else { u32::MAX };
         }
-    }
-
-    fn reserve(&mut self, more: usize) {
-        self.slots.reserve(more);
-        self.xs.reserve(more);
-        self.ys.reserve(more);
-        self.ids.reserve(more);
     }
 
     #[inline]

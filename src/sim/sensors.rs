@@ -30,7 +30,7 @@ use crate::world::{
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::grid::pack;
+use super::grid::{pack, vectorised};
 use super::random::{key, mix, normal_half};
 use super::{Candidates, GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
@@ -392,24 +392,9 @@ impl Sight {
             }
         }
         let keys = &mut keys[..n];
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor has AVX2, checked just above.
-            unsafe { self.keys_avx2(around, keys) };
-        } else {
-            self.keys(around, keys);
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        self.keys(around, keys);
+        vectorised(|| self.keys(around, keys));
         let seen = pack(keys, found, UNSEEN);
         &mut found[..seen]
-    }
-
-    /// [`Sight::keys`] compiled for processors with AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn keys_avx2(&self, around: &Candidates, found: &mut [u64]) {
-        self.keys(around, found)
     }
 
     /// Each candidate's detection key, or [`UNSEEN`]: the first pass of [`Sight::consider_all`].
@@ -1024,7 +1009,7 @@ mod tests {
                 if std::arch::is_x86_feature_detected!("avx2") {
                     let mut wide = vec![0; around.len()];
                     // SAFETY: checked just above.
-                    unsafe { sight.keys_avx2(&around, &mut wide) };
+                    unsafe { crate::sim::grid::with_avx2(|| sight.keys(&around, &mut wide)) };
                     assert_eq!(wide, plain);
                 }
                 assert_eq!(plain.iter().filter(|&&k| k != UNSEEN).count(), want.len());
