@@ -342,28 +342,41 @@ impl SpatialGrid {
     }
 }
 
-/// `f()`, compiled for AVX2 where the processor has it (checked at run time; the standard
-/// library remembers the answer), else as it is: for the branch-free passes over candidate
-/// arrays, which the compiler turns into vector code four candidates wide. The same operations
-/// in the same order either way, so the same bits.
+/// A branch-free pass over candidate arrays, which [`vectorised`] compiles for AVX2.
+///
+/// `run` must be `#[inline(always)]` and call only `#[inline(always)]` code: only what is inlined
+/// into [`with_avx2`] is compiled with AVX2 on. (The passes were closures until an unrelated
+/// change in the wifi round tipped the compiler's inlining: the sensors' closure was then called,
+/// not inlined, compiled without AVX2, and the sensors took 1.5 times as long.)
+pub trait Pass {
+    /// What the pass gives back.
+    type Output;
+    /// Do the pass.
+    fn run(self) -> Self::Output;
+}
+
+/// `pass.run()`, compiled for AVX2 where the processor has it (checked at run time; the
+/// standard library remembers the answer), else as it is: the compiler turns the branch-free
+/// loops over candidate arrays into vector code four candidates wide. The same operations in
+/// the same order either way, so the same bits.
 #[inline(always)]
-pub fn vectorised<R>(f: impl FnOnce() -> R) -> R {
+pub fn vectorised<P: Pass>(pass: P) -> P::Output {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the processor has AVX2, checked just above.
-        return unsafe { with_avx2(f) };
+        return unsafe { with_avx2(pass) };
     }
-    f()
+    pass.run()
 }
 
-/// `f()` compiled with AVX2 on ([`vectorised`] calls it; tests call it to compare both).
+/// `pass.run()` compiled with AVX2 on ([`vectorised`] calls it; tests call it to compare both).
 ///
 /// # Safety
 /// Only on a processor with AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-pub unsafe fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
-    f()
+pub unsafe fn with_avx2<P: Pass>(pass: P) -> P::Output {
+    pass.run()
 }
 
 /// Copy the items of `from` other than `none` to the front of `to` (at least as long), in order;
@@ -418,7 +431,7 @@ impl Candidates {
     pub fn within(&self, p: DVec2, radius: f64, exclude: VehicleId, marks: &mut Vec<u32>, out: &mut Vec<u32>) {
         marks.clear();
         marks.resize(self.len(), 0);
-        vectorised(|| self.mark_within(p, radius * radius, exclude, marks));
+        vectorised(MarkWithin { candidates: self, p, r2: radius * radius, exclude, marks });
         out.clear();
         out.resize(marks.len(), 0);
         let n = pack(marks, out, u32::MAX);
@@ -443,6 +456,23 @@ impl Candidates {
         self.xs.push(x);
         self.ys.push(y);
         self.ids.push(id);
+    }
+}
+
+/// [`Candidates::mark_within`] as a [`Pass`].
+struct MarkWithin<'a> {
+    candidates: &'a Candidates,
+    p: DVec2,
+    r2: f64,
+    exclude: VehicleId,
+    marks: &'a mut [u32],
+}
+
+impl Pass for MarkWithin<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        self.candidates.mark_within(self.p, self.r2, self.exclude, self.marks)
     }
 }
 

@@ -30,7 +30,7 @@ use crate::world::{
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::grid::{pack, vectorised};
+use super::grid::{Pass, pack, vectorised};
 use super::random::{key, mix, normal_half};
 use super::{Candidates, GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
@@ -392,7 +392,7 @@ impl Sight {
             }
         }
         let keys = &mut keys[..n];
-        vectorised(|| self.keys(around, keys));
+        vectorised(KeysPass { sight: self, around, found: keys });
         let seen = pack(keys, found, UNSEEN);
         &mut found[..seen]
     }
@@ -420,6 +420,21 @@ impl Sight {
             let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
             *key = if seen { detection_key(d2, slot | flags) } else { UNSEEN };
         }
+    }
+}
+
+/// [`Sight::keys`] as a [`Pass`].
+struct KeysPass<'a> {
+    sight: &'a Sight,
+    around: &'a Candidates,
+    found: &'a mut [u64],
+}
+
+impl Pass for KeysPass<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        self.sight.keys(self.around, self.found)
     }
 }
 
@@ -1009,7 +1024,9 @@ mod tests {
                 if std::arch::is_x86_feature_detected!("avx2") {
                     let mut wide = vec![0; around.len()];
                     // SAFETY: checked just above.
-                    unsafe { crate::sim::grid::with_avx2(|| sight.keys(&around, &mut wide)) };
+                    unsafe {
+                        crate::sim::grid::with_avx2(KeysPass { sight: &sight, around: &around, found: &mut wide })
+                    };
                     assert_eq!(wide, plain);
                 }
                 assert_eq!(plain.iter().filter(|&&k| k != UNSEEN).count(), want.len());

@@ -580,11 +580,38 @@ pub struct WifiScratch {
     buffer: Vec<Message>,
     /// (sender, position, message count), then sorted by sender.
     senders: Vec<(VehicleId, glam::DVec2, u32)>,
+    /// What each thread gathered of its chunk of out-boxes, joined in chunk order.
+    gathered: Vec<Outgoing>,
     /// First batch index of each sender's messages.
     starts: Vec<u32>,
     grid: SpatialGrid,
     /// One per thread.
     threads: Vec<WifiThread>,
+}
+
+/// The messages of one chunk of out-boxes and who sent them (sender, position, message count),
+/// in query order.
+#[derive(Default)]
+struct Outgoing {
+    senders: Vec<(VehicleId, glam::DVec2, u32)>,
+    messages: Vec<Message>,
+}
+
+impl Outgoing {
+    /// Empty the wifi out-boxes of `boxes` (at `states`) into this.
+    fn take(&mut self, states: &[VehicleState], boxes: &mut [Mailbox]) {
+        for (state, mailbox) in states.iter().zip(boxes) {
+            if !mailbox.wifi_out.is_empty() {
+                self.senders.push((mailbox.owner(), state.position, mailbox.wifi_out.len() as u32));
+                // One message (a beacon) moved as one, not by a library copy call per sender.
+                if mailbox.wifi_out.len() == 1 {
+                    self.messages.extend(mailbox.wifi_out.pop());
+                } else {
+                    self.messages.append(&mut mailbox.wifi_out);
+                }
+            }
+        }
+    }
 }
 
 /// What one thread of the wifi round keeps and counts for its contiguous chunk of receivers.
@@ -781,17 +808,28 @@ pub fn deliver_wifi(
     let ordered = model.delays() && delayed.needs_link_order(Channel::Wifi, now.0, &model);
     let stateful = model.burst.is_some() || ordered;
     let s = &mut *scratch;
+    let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
+    // The senders and their messages in query order: each thread empties a contiguous chunk of
+    // out-boxes (the reads of ten thousand out-boxes are most of a round's serial time), the
+    // chunks joined in order, so any thread count gathers the same batch.
     s.senders.clear();
-    for (_, state, mut mailbox) in &mut mailboxes {
-        if !mailbox.wifi_out.is_empty() {
-            s.senders.push((mailbox.owner(), state.position, mailbox.wifi_out.len() as u32));
-            // One message (a beacon) moved as one, not by a library copy call per sender.
-            if mailbox.wifi_out.len() == 1 {
-                s.buffer.extend(mailbox.wifi_out.pop());
-            } else {
-                s.buffer.append(&mut mailbox.wifi_out);
+    if let Ok(tables) = mailboxes.contiguous_iter_mut() {
+        for (_, states, mut boxes) in tables {
+            parallelism
+                .for_each_chunk_at(&mut boxes, &mut s.gathered, |start, chunk, out| out.take(&states[start..], chunk));
+            for out in &mut s.gathered {
+                s.senders.append(&mut out.senders);
+                s.buffer.append(&mut out.messages);
             }
         }
+    } else {
+        // Only if a component were stored sparsely (none is): one at a time.
+        let out = &mut Outgoing::default();
+        for (_, state, mut mailbox) in &mut mailboxes {
+            out.take(std::slice::from_ref(state), std::slice::from_mut(&mut *mailbox));
+        }
+        s.senders.append(&mut out.senders);
+        s.buffer.append(&mut out.messages);
     }
     let batch = into_batch(&mut s.buffer);
     stats.wifi_sent += batch.len() as u64;
@@ -829,7 +867,6 @@ pub fn deliver_wifi(
     let mut record = model.delays().then(|| delayed.open(Channel::Wifi, round, &batch, std::iter::empty()));
     let mut delivered = 0;
     let mut base = 0;
-    let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
     if s.threads.is_empty() {
         s.threads.push(WifiThread::default());
     }
