@@ -35,7 +35,7 @@ use crate::world::{Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, 
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::parallel::recycle;
+use super::parallel::{Padded, recycle};
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
@@ -383,7 +383,7 @@ type NetworkItem<'a> = Mut<'a, Mailbox>;
 pub struct LossyScratch {
     items: Vec<NetworkItem<'static>>,
     /// Per thread: receptions attempted, delivered, and the delivered ones' age sum [µs].
-    threads: Vec<(u64, u64, u64)>,
+    threads: Vec<Padded<(u64, u64, u64)>>,
 }
 
 /// What every chunk of a network round with constant loss reads (see the module docs).
@@ -403,7 +403,7 @@ struct LossyRound<'a> {
 impl LossyRound<'_> {
     /// Draw how many of the others' messages each in-box of `chunk` loses and deliver the rest,
     /// counting (attempted, delivered, age sum) into `t`.
-    fn deliver(&self, chunk: &mut [NetworkItem<'_>], t: &mut (u64, u64, u64)) {
+    fn deliver(&self, chunk: &mut [NetworkItem<'_>], Padded(t): &mut Padded<(u64, u64, u64)>) {
         let (batch, now) = (self.batch, self.now_us);
         for mailbox in chunk.iter_mut() {
             let owner = mailbox.owner();
@@ -497,7 +497,7 @@ pub fn deliver_network(
         parallelism.for_each_chunk(&mut items, &mut l.threads, |chunk, t| input.deliver(chunk, t));
         l.items = recycle(items);
         for t in &mut l.threads {
-            let (sent, kept, age_sum_us) = std::mem::take(t);
+            let (sent, kept, age_sum_us) = std::mem::take(&mut t.0);
             delivered += kept;
             channel.network.sent += sent;
             channel.network.delivered += kept;
@@ -592,6 +592,8 @@ pub struct WifiScratch {
 /// The messages of one chunk of out-boxes and who sent them (sender, position, message count),
 /// in query order.
 #[derive(Default)]
+/// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
+#[repr(align(128))]
 struct Outgoing {
     senders: Vec<(VehicleId, glam::DVec2, u32)>,
     messages: Vec<Message>,
@@ -615,6 +617,8 @@ impl Outgoing {
 }
 
 /// What one thread of the wifi round keeps and counts for its contiguous chunk of receivers.
+/// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
+#[repr(align(128))]
 struct WifiThread {
     /// The senders around the current receiver's cell, the slots of those in range (and
     /// scratch for finding them), and their indices in sender order.
@@ -926,6 +930,8 @@ pub struct DelayScratch {
 }
 
 /// What one thread of a delivery keeps and counts for its chunk of in-boxes.
+/// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
+#[repr(align(128))]
 struct DueThread {
     picks: Vec<u32>,
     /// Receptions of the chunk not due yet, in order.

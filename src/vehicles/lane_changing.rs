@@ -333,6 +333,8 @@ impl Decision {
 /// decisions and the vehicles that may need [`limit_for_lane_changes`], each with its item's
 /// place, in query order.
 #[derive(Default)]
+/// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
+#[repr(align(128))]
 pub struct ChunkOut {
     decisions: Vec<(usize, Decision)>,
     limited: Vec<usize>,
