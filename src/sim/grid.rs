@@ -8,6 +8,7 @@
 
 use glam::DVec2;
 
+use super::parallel::Parallelism;
 use super::trig::floor_i32;
 use crate::world::VehicleId;
 
@@ -75,6 +76,131 @@ pub struct SpatialGrid {
     indices: Vec<u32>,
     cells: Vec<(i32, i32)>,
     staging: Vec<Slot>,
+    /// Per chunk of entries, per range of buckets: the entries (in order) whose bucket lies in
+    /// that range (see [`SpatialGrid::rebuild_on`]; empty on one thread).
+    routes: Vec<Routes>,
+}
+
+/// One entry chunk's lists of entries by bucket range, on cache lines of its own (pushed to
+/// for every entry while the other threads push to theirs).
+#[derive(Debug, Clone, Default)]
+#[repr(align(128))]
+struct Routes(Vec<Vec<u32>>);
+
+/// The cell of side `size` [m] holding `p`.
+#[inline]
+fn cell_at(p: DVec2, size: f64) -> (i32, i32) {
+    (floor_i32(p.x / size), floor_i32(p.y / size))
+}
+
+/// The grid's columns from one slot on (a thread's share of them in a rebuild).
+struct Columns<'a> {
+    slots: &'a mut [GridEntry],
+    xs: &'a mut [f64],
+    ys: &'a mut [f64],
+    ids: &'a mut [VehicleId],
+    indices: &'a mut [u32],
+    cells: &'a mut [(i32, i32)],
+}
+
+impl<'a> Columns<'a> {
+    /// The first `k` slots' columns, and the rest's.
+    fn split_at(self, k: usize) -> (Columns<'a>, Columns<'a>) {
+        let (slots, slots_rest) = self.slots.split_at_mut(k);
+        let (xs, xs_rest) = self.xs.split_at_mut(k);
+        let (ys, ys_rest) = self.ys.split_at_mut(k);
+        let (ids, ids_rest) = self.ids.split_at_mut(k);
+        let (indices, indices_rest) = self.indices.split_at_mut(k);
+        let (cells, cells_rest) = self.cells.split_at_mut(k);
+        (
+            Columns { slots, xs, ys, ids, indices, cells },
+            Columns {
+                slots: slots_rest,
+                xs: xs_rest,
+                ys: ys_rest,
+                ids: ids_rest,
+                indices: indices_rest,
+                cells: cells_rest,
+            },
+        )
+    }
+}
+
+/// A contiguous range of buckets (from bucket `lo`, the `r`-th range) that one thread of a
+/// rebuild fills, and how many entries they hold.
+struct BucketRange<'a> {
+    r: usize,
+    lo: usize,
+    buckets: &'a mut [Bucket],
+    total: u32,
+}
+
+/// Run `$body` with `$s` bound to each entry of bucket range `$r`, in entry order: all of them
+/// on one thread, else the entries each chunk routed to the range. (A macro, not a function
+/// taking a closure: the body must be inlined into the loop, as a closure handed on was not.)
+macro_rules! for_each_routed {
+    ($staging:expr, $routes:expr, $threads:expr, $r:expr, |$s:ident| $body:block) => {
+        if $threads == 1 {
+            for $s in $staging {
+                $body
+            }
+        } else {
+            for routes in $routes {
+                for &i in &routes.0[$r] {
+                    let $s = &$staging[i as usize];
+                    $body
+                }
+            }
+        }
+    };
+}
+
+impl BucketRange<'_> {
+    /// Count the entries of each bucket, note each bucket's cell (and whether it holds others),
+    /// and turn the counts into each bucket's first slot within the range.
+    fn count(&mut self, staging: &[Slot], routes: &[Routes], threads: usize) {
+        self.buckets.fill(Bucket::default());
+        let (lo, buckets) = (self.lo, &mut *self.buckets);
+        for_each_routed!(staging, routes, threads, self.r, |s| {
+            let bucket = &mut buckets[s.bucket as usize - lo];
+            if bucket.start == 0 {
+                bucket.cell = s.cell;
+            } else {
+                bucket.mixed |= bucket.cell != s.cell;
+            }
+            bucket.start += 1;
+        });
+        let mut running = 0;
+        for bucket in buckets.iter_mut() {
+            let count = bucket.start;
+            bucket.start = running;
+            running += count;
+        }
+        self.total = running;
+    }
+
+    /// Write the entries of this range's buckets into `own` (the range's slots, from slot
+    /// `base`), and make each bucket's start a grid slot.
+    fn scatter(&mut self, base: u32, own: &mut Columns<'_>, staging: &[Slot], routes: &[Routes], threads: usize) {
+        let (lo, buckets) = (self.lo, &mut *self.buckets);
+        // `start` is the bucket's insertion cursor, then put back.
+        for_each_routed!(staging, routes, threads, self.r, |s| {
+            let bucket = &mut buckets[s.bucket as usize - lo];
+            let at = bucket.start as usize;
+            own.slots[at] = s.entry;
+            (own.xs[at], own.ys[at]) = (s.entry.position.x, s.entry.position.y);
+            (own.ids[at], own.indices[at]) = (s.entry.id, s.entry.index);
+            own.cells[at] = s.cell;
+            bucket.start += 1;
+        });
+        // Each cursor ended where the next bucket starts: shift back, and add the range's base.
+        for b in (1..buckets.len()).rev() {
+            buckets[b].start = buckets[b - 1].start + base;
+        }
+        if let Some(first) = buckets.first_mut() {
+            first.start = base;
+        }
+    }
 }
 
 /// Cells of one column that hash to one run of consecutive buckets (a cache line), so the three cells a
@@ -106,66 +232,88 @@ fn bucket_of(cell: (i32, i32), mask: u64) -> usize {
 impl SpatialGrid {
     /// The cell holding `p`.
     pub fn cell_of(&self, p: DVec2) -> (i32, i32) {
-        (floor_i32(p.x / self.cell), floor_i32(p.y / self.cell))
+        cell_at(p, self.cell)
     }
 
     /// Refill the grid with `entries` using square cells of side `cell` [m] (> 0); queries are
     /// cheapest when `cell` is about the largest query radius.
     pub fn rebuild(&mut self, cell: f64, entries: impl Iterator<Item = GridEntry>) {
+        self.rebuild_on(cell, entries, Parallelism::single());
+    }
+
+    /// [`SpatialGrid::rebuild`] with the work after reading `entries` split over
+    /// `parallelism`'s threads: the same grid, bit for bit, on any thread count.
+    ///
+    /// The entries' cells and buckets are computed in chunks of entries; then each thread takes
+    /// a contiguous range of buckets, and so a contiguous range of slots: it counts the entries
+    /// of its buckets and writes them into its slots, visiting them in entry order (each entry
+    /// chunk lists, per range, the entries bound there), so every bucket holds its entries in
+    /// entry order, as on one thread. Nothing is zero-filled but the buckets: every slot is
+    /// written once.
+    pub fn rebuild_on(&mut self, cell: f64, entries: impl Iterator<Item = GridEntry>, parallelism: Parallelism) {
         self.cell = if cell.is_finite() && cell > 0.0 { cell } else { 1.0 };
         self.staging.clear();
-        for entry in entries {
-            let cell = self.cell_of(entry.position);
-            self.staging.push(Slot { entry, cell, bucket: 0 });
-        }
-        let buckets = self.staging.len().max((RUN * BLOCK) as usize).next_power_of_two();
-        self.mask = buckets as u64 - 1;
-        for s in &mut self.staging {
-            s.bucket = bucket_of(s.cell, self.mask) as u32;
-        }
-        self.buckets.clear();
-        self.buckets.resize(buckets + 1, Bucket::default());
-        // Count each bucket's entries in the start of the bucket after it.
-        for s in &self.staging {
-            let b = s.bucket as usize;
-            let (owner, count) = (self.buckets[b].cell, self.buckets[b + 1].start);
-            if count == 0 {
-                self.buckets[b].cell = s.cell;
-            } else {
-                self.buckets[b].mixed |= owner != s.cell;
-            }
-            self.buckets[b + 1].start += 1;
-        }
-        for b in 0..buckets {
-            self.buckets[b + 1].start += self.buckets[b].start;
-        }
-        self.slots.clear();
-        self.slots.resize(self.staging.len(), EMPTY);
+        self.staging.extend(entries.map(|entry| Slot { entry, cell: (0, 0), bucket: 0 }));
         let n = self.staging.len();
-        for column in [&mut self.xs, &mut self.ys] {
-            column.clear();
-            column.resize(n, 0.0);
-        }
-        self.ids.clear();
+        let buckets = n.max((RUN * BLOCK) as usize).next_power_of_two();
+        self.mask = buckets as u64 - 1;
+        let threads = parallelism.threads_for(n);
+        // Buckets per range (the last may have fewer).
+        let per = buckets.div_ceil(threads);
+        let (size, mask) = (self.cell, self.mask);
+        parallelism.for_each_chunk_at(&mut self.staging, &mut self.routes, |start, chunk, routes| {
+            routes.0.resize_with(threads, Vec::new);
+            routes.0.iter_mut().for_each(Vec::clear);
+            for (i, s) in chunk.iter_mut().enumerate() {
+                s.cell = cell_at(s.entry.position, size);
+                s.bucket = bucket_of(s.cell, mask) as u32;
+                if threads > 1 {
+                    routes.0[s.bucket as usize / per].push((start + i) as u32);
+                }
+            }
+        });
+        // Every slot is written below: grown without a fill of the old length.
+        self.slots.resize(n, EMPTY);
+        self.xs.resize(n, 0.0);
+        self.ys.resize(n, 0.0);
         self.ids.resize(n, VehicleId(0));
-        self.indices.clear();
         self.indices.resize(n, 0);
-        self.cells.clear();
-        self.cells.resize(self.staging.len(), (0, 0));
-        // `buckets[b].start` is used as the insertion cursor of bucket b, then restored.
-        for s in &self.staging {
-            let b = s.bucket as usize;
-            let at = self.buckets[b].start as usize;
-            self.slots[at] = s.entry;
-            (self.xs[at], self.ys[at]) = (s.entry.position.x, s.entry.position.y);
-            (self.ids[at], self.indices[at]) = (s.entry.id, s.entry.index);
-            self.cells[at] = s.cell;
-            self.buckets[b].start += 1;
+        self.cells.resize(n, (0, 0));
+        self.buckets.resize(buckets + 1, Bucket::default());
+        let (staging, routes) = (&self.staging, &self.routes[..]);
+        // One range of buckets a thread: count, then (once every range's size is known) scatter.
+        let split = Parallelism { threads, min_vehicles: 0 };
+        let mut ranges: Vec<BucketRange<'_>> = self.buckets[..buckets]
+            .chunks_mut(per)
+            .enumerate()
+            .map(|(r, buckets)| BucketRange { r, lo: per * r, buckets, total: 0 })
+            .collect();
+        split.for_each_chunk(&mut ranges, &mut Vec::<()>::new(), |chunk, _| {
+            chunk.iter_mut().for_each(|range| range.count(staging, routes, threads))
+        });
+        let mut shares = Vec::with_capacity(ranges.len());
+        let mut columns = Columns {
+            slots: &mut self.slots[..],
+            xs: &mut self.xs[..],
+            ys: &mut self.ys[..],
+            ids: &mut self.ids[..],
+            indices: &mut self.indices[..],
+            cells: &mut self.cells[..],
+        };
+        let mut base = 0;
+        for range in ranges {
+            let (own, rest) = columns.split_at(range.total as usize);
+            columns = rest;
+            let total = range.total;
+            shares.push((range, base, own));
+            base += total;
         }
-        for b in (1..=buckets).rev() {
-            self.buckets[b].start = self.buckets[b - 1].start;
-        }
-        self.buckets[0].start = 0;
+        split.for_each_chunk(&mut shares, &mut Vec::<()>::new(), |chunk, _| {
+            for (range, base, own) in chunk {
+                range.scatter(*base, own, staging, routes, threads);
+            }
+        });
+        self.buckets[buckets] = Bucket { start: n as u32, mixed: false, cell: (0, 0) };
     }
 
     /// The slots of `cell`'s bucket, and whether they all lie in `cell` (else each must be
@@ -499,6 +647,48 @@ mod tests {
                 index: i as u32,
             })
             .collect()
+    }
+
+    /// Everything a rebuild writes, for comparing two grids.
+    #[allow(clippy::type_complexity)]
+    fn layout(
+        grid: &SpatialGrid,
+    ) -> (Vec<(u32, bool, (i32, i32))>, Vec<GridEntry>, Vec<f64>, Vec<f64>, Vec<(i32, i32)>) {
+        let buckets = grid.buckets.iter().map(|b| (b.start, b.mixed, b.cell)).collect();
+        assert_eq!(grid.ids, grid.slots.iter().map(|e| e.id).collect::<Vec<_>>());
+        assert_eq!(grid.indices, grid.slots.iter().map(|e| e.index).collect::<Vec<_>>());
+        (buckets, grid.slots.clone(), grid.xs.clone(), grid.ys.clone(), grid.cells.clone())
+    }
+
+    #[test]
+    fn a_rebuild_on_several_threads_lays_out_the_grid_one_thread_does() {
+        // Hash collisions (few cells over many buckets and many entries a cell), an empty grid,
+        // and a grid that shrinks after a larger one (left-overs must not show).
+        let mut grids = [SpatialGrid::default(), SpatialGrid::default(), SpatialGrid::default()];
+        for (n, side, cell) in
+            [(5000, 2000.0, 10.0), (3000, 400.0, 25.0), (0, 1.0, 1.0), (2500, 100.0, 3.0), (7, 50.0, 5.0)]
+        {
+            let entries = points(n, side);
+            let mut single = SpatialGrid::default();
+            single.rebuild(cell, entries.iter().copied());
+            for (threads, grid) in [1, 2, 3].into_iter().zip(&mut grids) {
+                grid.rebuild_on(cell, entries.iter().copied(), Parallelism::split(threads));
+                assert_eq!(layout(grid), layout(&single), "{n} entries, {threads} threads");
+                assert_eq!(grid.mask, single.mask);
+            }
+            // The layout a query reads: every entry in its own cell's bucket, in entry order.
+            let mut seen = 0;
+            for b in 0..single.buckets.len() - 1 {
+                let (start, end) = (single.buckets[b].start as usize, single.buckets[b + 1].start as usize);
+                let slots = &single.slots[start..end];
+                assert!(slots.windows(2).all(|w| w[0].index < w[1].index));
+                for e in slots {
+                    assert_eq!(bucket_of(single.cell_of(e.position), single.mask), b);
+                }
+                seen += slots.len();
+            }
+            assert_eq!(seen, n);
+        }
     }
 
     #[test]

@@ -844,7 +844,7 @@ pub fn deliver_wifi(
         s.starts.push(at);
         at += count;
     }
-    s.grid.rebuild(
+    s.grid.rebuild_on(
         config.wifi_range,
         s.senders.iter().enumerate().map(|(i, &(id, position, _))| GridEntry {
             position,
@@ -852,6 +852,7 @@ pub fn deliver_wifi(
             id,
             index: i as u32,
         }),
+        parallelism,
     );
     let input = WifiRound {
         model,
