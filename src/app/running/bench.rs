@@ -110,9 +110,37 @@ impl Default for BenchWorld {
 pub struct Beacons;
 
 /// Queue one small network message (the vehicle's speed [m/s]) per vehicle.
-pub fn send_beacons(clock: Res<SimClock>, mut vehicles: Query<(&VehicleState, &mut Mailbox)>) {
-    for (state, mut mailbox) in &mut vehicles {
-        mailbox.send(Channel::Network, clock.now, Arc::new(state.speed()));
+pub fn send_beacons(
+    clock: Res<SimClock>,
+    parallelism: Option<Res<Parallelism>>,
+    mut vehicles: Query<(&VehicleState, &mut Mailbox)>,
+) {
+    send_speeds(Channel::Network, clock.now, parallelism.map_or(Parallelism::single(), |p| *p), &mut vehicles);
+}
+
+/// Queue every vehicle's speed [m/s] on `channel`, the vehicles split over the threads (each
+/// writes only its own out-box: the same out-boxes on any thread count).
+fn send_speeds(
+    channel: Channel,
+    now: SimTime,
+    parallelism: Parallelism,
+    vehicles: &mut Query<(&VehicleState, &mut Mailbox)>,
+) {
+    let send = |states: &[VehicleState], boxes: &mut [Mailbox]| {
+        for (state, mailbox) in states.iter().zip(boxes) {
+            mailbox.send(channel, now, Arc::new(state.speed()));
+        }
+    };
+    if let Ok(tables) = vehicles.contiguous_iter_mut() {
+        for (states, mut boxes) in tables {
+            parallelism
+                .for_each_chunk_at(&mut boxes, &mut Vec::<()>::new(), |start, chunk, _| send(&states[start..], chunk));
+        }
+    } else {
+        // Only if a component were stored sparsely (none is): one at a time.
+        for (state, mut mailbox) in vehicles.iter_mut() {
+            send(std::slice::from_ref(state), std::slice::from_mut(&mut *mailbox));
+        }
     }
 }
 
@@ -125,10 +153,12 @@ fn at_rate(rate: f64) -> impl FnMut(Res<SimClock>) -> bool + Clone {
 /// Queue one small wifi message (the vehicle's speed [m/s]) per vehicle: the cooperative
 /// awareness beacon every CACC vehicle sends each wifi round, so the wifi fan-out (and, when
 /// degraded, its per-reception loss and delay) is inside the benchmark's figures.
-pub fn send_wifi_beacons(clock: Res<SimClock>, mut vehicles: Query<(&VehicleState, &mut Mailbox)>) {
-    for (state, mut mailbox) in &mut vehicles {
-        mailbox.send(Channel::Wifi, clock.now, Arc::new(state.speed()));
-    }
+pub fn send_wifi_beacons(
+    clock: Res<SimClock>,
+    parallelism: Option<Res<Parallelism>>,
+    mut vehicles: Query<(&VehicleState, &mut Mailbox)>,
+) {
+    send_speeds(Channel::Wifi, clock.now, parallelism.map_or(Parallelism::single(), |p| *p), &mut vehicles);
 }
 
 impl BenchWorld {
