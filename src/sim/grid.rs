@@ -8,7 +8,7 @@
 
 use glam::DVec2;
 
-use super::parallel::Parallelism;
+use super::parallel::{Parallelism, recycle};
 use super::trig::floor_i32;
 use crate::world::VehicleId;
 
@@ -79,7 +79,35 @@ pub struct SpatialGrid {
     /// Per chunk of entries, per range of buckets: the entries (in order) whose bucket lies in
     /// that range (see [`SpatialGrid::rebuild_on`]; empty on one thread).
     routes: Vec<Routes>,
+    /// Emptied lists of a rebuild's bucket ranges and their shares of the slots, kept for their
+    /// allocations ([`recycle`]).
+    range_list: Spare<BucketRange<'static>>,
+    share_list: Spare<Share<'static>>,
 }
+
+/// An emptied list kept for its allocation: a clone of it starts with none.
+struct Spare<T>(Vec<T>);
+
+impl<T> Default for Spare<T> {
+    fn default() -> Self {
+        Spare(Vec::new())
+    }
+}
+
+impl<T> Clone for Spare<T> {
+    fn clone(&self) -> Self {
+        Spare::default()
+    }
+}
+
+impl<T> std::fmt::Debug for Spare<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Spare")
+    }
+}
+
+/// A bucket range, its first slot and its slots' columns.
+type Share<'a> = (BucketRange<'a>, u32, Columns<'a>);
 
 /// One entry chunk's lists of entries by bucket range, on cache lines of its own (pushed to
 /// for every entry while the other threads push to theirs).
@@ -283,15 +311,18 @@ impl SpatialGrid {
         let (staging, routes) = (&self.staging, &self.routes[..]);
         // One range of buckets a thread: count, then (once every range's size is known) scatter.
         let split = Parallelism { threads, min_vehicles: 0 };
-        let mut ranges: Vec<BucketRange<'_>> = self.buckets[..buckets]
-            .chunks_mut(per)
-            .enumerate()
-            .map(|(r, buckets)| BucketRange { r, lo: per * r, buckets, total: 0 })
-            .collect();
+        // The lists of ranges and shares keep their allocations between rebuilds.
+        let mut ranges: Vec<BucketRange<'_>> = recycle(std::mem::take(&mut self.range_list.0));
+        ranges.extend(self.buckets[..buckets].chunks_mut(per).enumerate().map(|(r, buckets)| BucketRange {
+            r,
+            lo: per * r,
+            buckets,
+            total: 0,
+        }));
         split.for_each_chunk(&mut ranges, &mut Vec::<()>::new(), |chunk, _| {
             chunk.iter_mut().for_each(|range| range.count(staging, routes, threads))
         });
-        let mut shares = Vec::with_capacity(ranges.len());
+        let mut shares: Vec<Share<'_>> = recycle(std::mem::take(&mut self.share_list.0));
         let mut columns = Columns {
             slots: &mut self.slots[..],
             xs: &mut self.xs[..],
@@ -301,7 +332,7 @@ impl SpatialGrid {
             cells: &mut self.cells[..],
         };
         let mut base = 0;
-        for range in ranges {
+        for range in ranges.drain(..) {
             let (own, rest) = columns.split_at(range.total as usize);
             columns = rest;
             let total = range.total;
@@ -313,6 +344,8 @@ impl SpatialGrid {
                 range.scatter(*base, own, staging, routes, threads);
             }
         });
+        self.share_list.0 = recycle(shares);
+        self.range_list.0 = recycle(ranges);
         self.buckets[buckets] = Bucket { start: n as u32, mixed: false, cell: (0, 0) };
     }
 
@@ -672,8 +705,14 @@ mod tests {
             let mut single = SpatialGrid::default();
             single.rebuild(cell, entries.iter().copied());
             for (threads, grid) in [1, 2, 3].into_iter().zip(&mut grids) {
+                let kept = (grid.range_list.0.as_ptr(), grid.share_list.0.as_ptr());
                 grid.rebuild_on(cell, entries.iter().copied(), Parallelism::split(threads));
                 assert_eq!(layout(grid), layout(&single), "{n} entries, {threads} threads");
+                // The lists of ranges and shares are emptied and kept, not allocated anew.
+                assert!(grid.range_list.0.is_empty() && grid.share_list.0.is_empty());
+                if grid.range_list.0.capacity() > 0 && kept.0 != std::ptr::NonNull::dangling().as_ptr() {
+                    assert_eq!((grid.range_list.0.as_ptr(), grid.share_list.0.as_ptr()), kept);
+                }
                 assert_eq!(grid.mask, single.mask);
             }
             // The layout a query reads: every entry in its own cell's bucket, in entry order.
