@@ -269,8 +269,8 @@ impl Cone {
 pub struct SensorGrid(pub SpatialGrid);
 
 /// Scratch buffers of one thread of [`sense_vehicles`], kept between ticks.
-#[derive(Default)]
 /// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
+#[derive(Default)]
 #[repr(align(128))]
 pub struct SenseScratch {
     /// Candidates around the current cell.

@@ -591,8 +591,8 @@ pub struct WifiScratch {
 
 /// The messages of one chunk of out-boxes and who sent them (sender, position, message count),
 /// in query order.
-#[derive(Default)]
 /// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
+#[derive(Default)]
 #[repr(align(128))]
 struct Outgoing {
     senders: Vec<(VehicleId, glam::DVec2, u32)>,

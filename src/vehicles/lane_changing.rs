@@ -332,8 +332,8 @@ impl Decision {
 /// What one thread of [`decide_lane_changes`] hands to its serial part: the non-empty
 /// decisions and the vehicles that may need [`limit_for_lane_changes`], each with its item's
 /// place, in query order.
-#[derive(Default)]
 /// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
+#[derive(Default)]
 #[repr(align(128))]
 pub struct ChunkOut {
     decisions: Vec<(usize, Decision)>,
