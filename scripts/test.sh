@@ -44,11 +44,14 @@ echo "$PWD/python" > "$site/smlworld-source.pth"
 
 # pytest runs beside the Rust tests (both mostly wait: real-time runs, sockets, child
 # processes; one after the other they took just over a minute on an unchanged tree, issue 25
-# asks under 60 s); its output is printed after theirs. pytest exits 5 when it collected no
-# test: that fails here as any other failure does.
+# asks under 60 s), at the lowest priority: several Rust tests keep wall-clock time (a lab
+# run against a mock motion-capture server) and must not wait for pytest's processes (one was
+# 0.4 s late when pytest ran at their priority); no pytest test times the wall clock. Its
+# output is printed after theirs. pytest exits 5 when it collected no test: that fails here as
+# any other failure does.
 pytest_log=$(mktemp)
 trap 'rm -f "$pytest_log"' EXIT
-"$PY" -m pytest -q python/tests >"$pytest_log" 2>&1 &
+nice -n 19 "$PY" -m pytest -q python/tests >"$pytest_log" 2>&1 &
 pytest_pid=$!
 rust=0
 if cargo nextest --version >/dev/null 2>&1; then
