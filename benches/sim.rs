@@ -1,7 +1,8 @@
 //! Criterion benches of each simulation module alone on the benchmark world (1,000 and 10,000
 //! vehicles on a generated ring highway): dynamics, sensors (perfect, and with noise and
 //! dropout), network, wifi (perfect, and with loss, delay and jitter), path following, and the
-//! lane-change control stack (lane positions, index and MOBIL decisions, leaders, IDM).
+//! lane-change control stack (lane positions, index and MOBIL decisions, leaders, IDM); and the
+//! spatial grid's rebuild (what sensing and every wifi round start with) on one and two threads.
 //! Run with `cargo bench --bench sim`; `smlworld bench` measures everything together.
 
 use bevy_ecs::schedule::ScheduleLabel;
@@ -10,6 +11,7 @@ use smlworld::app::running::bench::{
     Beacons, BenchWorld, DEGRADED_WIFI, degraded_radar, send_beacons, send_wifi_beacons,
 };
 use smlworld::prelude::*;
+use smlworld::sim::{GridEntry, Parallelism, SpatialGrid};
 
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 struct WifiBeacons;
@@ -120,5 +122,32 @@ fn modules(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, modules);
+/// The grid rebuild alone: 10,000 vehicles in road order on a ring of 3 lanes (as the bench
+/// spawns them), 100 m cells (the sensors' median range), on one and two threads.
+fn grid_rebuild(c: &mut Criterion) {
+    let mut group = c.benchmark_group("spatial grid rebuild");
+    let (n, lanes, radius) = (10_000usize, 3usize, 21_225.0);
+    let entries: Vec<GridEntry> = (0..n)
+        .map(|i| {
+            let (j, k) = (i / lanes, i % lanes);
+            let angle = std::f64::consts::TAU * j as f64 * lanes as f64 / n as f64;
+            let r = radius + 3.5 * k as f64;
+            GridEntry {
+                position: DVec2::new(r * angle.cos(), r * angle.sin()),
+                velocity: DVec2::new(-angle.sin(), angle.cos()) * 30.0,
+                id: VehicleId(-1 - i as i32),
+                index: i as u32,
+            }
+        })
+        .collect();
+    for threads in [1usize, 2] {
+        let mut grid = SpatialGrid::default();
+        group.bench_with_input(BenchmarkId::new("10,000 vehicles, threads", threads), &threads, |b, &t| {
+            b.iter(|| grid.rebuild_on(100.0, entries.iter().copied(), Parallelism::split(t)))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, modules, grid_rebuild);
 criterion_main!(benches);

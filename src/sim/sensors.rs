@@ -739,7 +739,7 @@ pub fn sense_vehicles(
             Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw: state.yaw }
         }));
     }
-    grid.0.rebuild_on(
+    grid.0.rebuild(
         typical_range(&mut ranges),
         everyone.iter().enumerate().map(|(i, (&id, state, _))| GridEntry {
             position: state.position,
@@ -747,7 +747,6 @@ pub fn sense_vehicles(
             id,
             index: i as u32,
         }),
-        *parallelism,
     );
     let input =
         SenseInput { grid: &grid.0, footprints: &footprints, draws: Draws::new(seed.map_or(0, |s| s.0), clock.now.0) };

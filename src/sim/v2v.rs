@@ -844,7 +844,7 @@ pub fn deliver_wifi(
         s.starts.push(at);
         at += count;
     }
-    s.grid.rebuild_on(
+    s.grid.rebuild(
         config.wifi_range,
         s.senders.iter().enumerate().map(|(i, &(id, position, _))| GridEntry {
             position,
@@ -852,7 +852,6 @@ pub fn deliver_wifi(
             id,
             index: i as u32,
         }),
-        parallelism,
     );
     let input = WifiRound {
         model,
