@@ -2,7 +2,7 @@
 //! vehicles on a generated ring highway): dynamics, sensors (perfect, and with noise and
 //! dropout), network, wifi (perfect, and with loss, delay and jitter), path following, and the
 //! lane-change control stack (lane positions, index and MOBIL decisions, leaders, IDM); and the
-//! spatial grid's rebuild (what sensing and every wifi round start with) on one and two threads.
+//! spatial grid's rebuild (what sensing and every wifi round start with).
 //! Run with `cargo bench --bench sim`; `smlworld bench` measures everything together.
 
 use bevy_ecs::schedule::ScheduleLabel;
@@ -11,7 +11,7 @@ use smlworld::app::running::bench::{
     Beacons, BenchWorld, DEGRADED_WIFI, degraded_radar, send_beacons, send_wifi_beacons,
 };
 use smlworld::prelude::*;
-use smlworld::sim::{GridEntry, Parallelism, SpatialGrid};
+use smlworld::sim::{GridEntry, SpatialGrid};
 
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 struct WifiBeacons;
@@ -123,7 +123,7 @@ fn modules(c: &mut Criterion) {
 }
 
 /// The grid rebuild alone: 10,000 vehicles in road order on a ring of 3 lanes (as the bench
-/// spawns them), 100 m cells (the sensors' median range), on one and two threads.
+/// spawns them), 100 m cells (the sensors' median range).
 fn grid_rebuild(c: &mut Criterion) {
     let mut group = c.benchmark_group("spatial grid rebuild");
     let (n, lanes, radius) = (10_000usize, 3usize, 21_225.0);
@@ -140,12 +140,8 @@ fn grid_rebuild(c: &mut Criterion) {
             }
         })
         .collect();
-    for threads in [1usize, 2] {
-        let mut grid = SpatialGrid::default();
-        group.bench_with_input(BenchmarkId::new("10,000 vehicles, threads", threads), &threads, |b, &t| {
-            b.iter(|| grid.rebuild_on(100.0, entries.iter().copied(), Parallelism::split(t)))
-        });
-    }
+    let mut grid = SpatialGrid::default();
+    group.bench_function("10,000 vehicles", |b| b.iter(|| grid.rebuild(100.0, entries.iter().copied())));
     group.finish();
 }
 

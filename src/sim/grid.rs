@@ -8,7 +8,6 @@
 
 use glam::DVec2;
 
-use super::parallel::{Parallelism, recycle};
 use super::trig::floor_i32;
 use crate::world::VehicleId;
 
@@ -76,159 +75,12 @@ pub struct SpatialGrid {
     indices: Vec<u32>,
     cells: Vec<(i32, i32)>,
     staging: Vec<Slot>,
-    /// Per chunk of entries, per range of buckets: the entries (in order) whose bucket lies in
-    /// that range (see [`SpatialGrid::rebuild_on`]; empty on one thread).
-    routes: Vec<Routes>,
-    /// Emptied lists of a rebuild's bucket ranges and their shares of the slots, kept for their
-    /// allocations ([`recycle`]).
-    range_list: Spare<BucketRange<'static>>,
-    share_list: Spare<Share<'static>>,
 }
-
-/// An emptied list kept for its allocation: a clone of it starts with none.
-struct Spare<T>(Vec<T>);
-
-impl<T> Default for Spare<T> {
-    fn default() -> Self {
-        Spare(Vec::new())
-    }
-}
-
-impl<T> Clone for Spare<T> {
-    fn clone(&self) -> Self {
-        Spare::default()
-    }
-}
-
-impl<T> std::fmt::Debug for Spare<T> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("Spare")
-    }
-}
-
-/// A bucket range, its first slot and its slots' columns.
-type Share<'a> = (BucketRange<'a>, u32, Columns<'a>);
-
-/// One entry chunk's lists of entries by bucket range, on cache lines of its own (pushed to
-/// for every entry while the other threads push to theirs).
-#[derive(Debug, Clone, Default)]
-#[repr(align(128))]
-struct Routes(Vec<Vec<u32>>);
 
 /// The cell of side `size` [m] holding `p`.
 #[inline]
 fn cell_at(p: DVec2, size: f64) -> (i32, i32) {
     (floor_i32(p.x / size), floor_i32(p.y / size))
-}
-
-/// The grid's columns from one slot on (a thread's share of them in a rebuild).
-struct Columns<'a> {
-    slots: &'a mut [GridEntry],
-    xs: &'a mut [f64],
-    ys: &'a mut [f64],
-    ids: &'a mut [VehicleId],
-    indices: &'a mut [u32],
-    cells: &'a mut [(i32, i32)],
-}
-
-impl<'a> Columns<'a> {
-    /// The first `k` slots' columns, and the rest's.
-    fn split_at(self, k: usize) -> (Columns<'a>, Columns<'a>) {
-        let (slots, slots_rest) = self.slots.split_at_mut(k);
-        let (xs, xs_rest) = self.xs.split_at_mut(k);
-        let (ys, ys_rest) = self.ys.split_at_mut(k);
-        let (ids, ids_rest) = self.ids.split_at_mut(k);
-        let (indices, indices_rest) = self.indices.split_at_mut(k);
-        let (cells, cells_rest) = self.cells.split_at_mut(k);
-        (
-            Columns { slots, xs, ys, ids, indices, cells },
-            Columns {
-                slots: slots_rest,
-                xs: xs_rest,
-                ys: ys_rest,
-                ids: ids_rest,
-                indices: indices_rest,
-                cells: cells_rest,
-            },
-        )
-    }
-}
-
-/// A contiguous range of buckets (from bucket `lo`, the `r`-th range) that one thread of a
-/// rebuild fills, and how many entries they hold.
-struct BucketRange<'a> {
-    r: usize,
-    lo: usize,
-    buckets: &'a mut [Bucket],
-    total: u32,
-}
-
-/// Run `$body` with `$s` bound to each entry of bucket range `$r`, in entry order: all of them
-/// on one thread, else the entries each chunk routed to the range. (A macro, not a function
-/// taking a closure: the body must be inlined into the loop, as a closure handed on was not.)
-macro_rules! for_each_routed {
-    ($staging:expr, $routes:expr, $threads:expr, $r:expr, |$s:ident| $body:block) => {
-        if $threads == 1 {
-            for $s in $staging {
-                $body
-            }
-        } else {
-            for routes in $routes {
-                for &i in &routes.0[$r] {
-                    let $s = &$staging[i as usize];
-                    $body
-                }
-            }
-        }
-    };
-}
-
-impl BucketRange<'_> {
-    /// Count the entries of each bucket, note each bucket's cell (and whether it holds others),
-    /// and turn the counts into each bucket's first slot within the range.
-    fn count(&mut self, staging: &[Slot], routes: &[Routes], threads: usize) {
-        self.buckets.fill(Bucket::default());
-        let (lo, buckets) = (self.lo, &mut *self.buckets);
-        for_each_routed!(staging, routes, threads, self.r, |s| {
-            let bucket = &mut buckets[s.bucket as usize - lo];
-            if bucket.start == 0 {
-                bucket.cell = s.cell;
-            } else {
-                bucket.mixed |= bucket.cell != s.cell;
-            }
-            bucket.start += 1;
-        });
-        let mut running = 0;
-        for bucket in buckets.iter_mut() {
-            let count = bucket.start;
-            bucket.start = running;
-            running += count;
-        }
-        self.total = running;
-    }
-
-    /// Write the entries of this range's buckets into `own` (the range's slots, from slot
-    /// `base`), and make each bucket's start a grid slot.
-    fn scatter(&mut self, base: u32, own: &mut Columns<'_>, staging: &[Slot], routes: &[Routes], threads: usize) {
-        let (lo, buckets) = (self.lo, &mut *self.buckets);
-        // `start` is the bucket's insertion cursor, then put back.
-        for_each_routed!(staging, routes, threads, self.r, |s| {
-            let bucket = &mut buckets[s.bucket as usize - lo];
-            let at = bucket.start as usize;
-            own.slots[at] = s.entry;
-            (own.xs[at], own.ys[at]) = (s.entry.position.x, s.entry.position.y);
-            (own.ids[at], own.indices[at]) = (s.entry.id, s.entry.index);
-            own.cells[at] = s.cell;
-            bucket.start += 1;
-        });
-        // Each cursor ended where the next bucket starts: shift back, and add the range's base.
-        for b in (1..buckets.len()).rev() {
-            buckets[b].start = buckets[b - 1].start + base;
-        }
-        if let Some(first) = buckets.first_mut() {
-            first.start = base;
-        }
-    }
 }
 
 /// Cells of one column that hash to one run of consecutive buckets (a cache line), so the three cells a
@@ -265,48 +117,35 @@ impl SpatialGrid {
 
     /// Refill the grid with `entries` using square cells of side `cell` [m] (> 0); queries are
     /// cheapest when `cell` is about the largest query radius.
+    ///
+    /// One thread: split over two (by entry chunk, then by range of buckets, the same grid) it
+    /// took 428 µs instead of 193 µs at 10,000 vehicles (criterion `spatial grid rebuild`), each
+    /// thread reading the entries of its buckets from lines the other had just written.
     pub fn rebuild(&mut self, cell: f64, entries: impl Iterator<Item = GridEntry>) {
-        self.rebuild_on(cell, entries, Parallelism::single());
-    }
-
-    /// [`SpatialGrid::rebuild`] with the work after reading `entries` split over
-    /// `parallelism`'s threads: the same grid, bit for bit, on any thread count.
-    ///
-    /// The entries' cells and buckets are computed in chunks of entries; then each thread takes
-    /// a contiguous range of buckets, and so a contiguous range of slots: it counts the entries
-    /// of its buckets and writes them into its slots, visiting them in entry order (each entry
-    /// chunk lists, per range, the entries bound there), so every bucket holds its entries in
-    /// entry order, as on one thread. Nothing is zero-filled but the buckets: every slot is
-    /// written once.
-    ///
-    /// On the 2-core machines we measure on, splitting is slower, so the sensors and the wifi
-    /// round rebuild on one thread ([`SpatialGrid::rebuild`]): the criterion bench `spatial grid
-    /// rebuild` (10,000 vehicles on the bench ring, 100 m cells) takes 193 µs on one thread and
-    /// 428 µs on two, as each thread reads the entries of its buckets from lines the other has
-    /// just written (the entries of a range lie all over the entry list). In the full bench the
-    /// two came out alike (paired 1.02, 9 turns).
-    pub fn rebuild_on(&mut self, cell: f64, entries: impl Iterator<Item = GridEntry>, parallelism: Parallelism) {
         self.cell = if cell.is_finite() && cell > 0.0 { cell } else { 1.0 };
+        let size = self.cell;
         self.staging.clear();
-        self.staging.extend(entries.map(|entry| Slot { entry, cell: (0, 0), bucket: 0 }));
+        self.staging.extend(entries.map(|entry| Slot { entry, cell: cell_at(entry.position, size), bucket: 0 }));
         let n = self.staging.len();
         let buckets = n.max((RUN * BLOCK) as usize).next_power_of_two();
         self.mask = buckets as u64 - 1;
-        let threads = parallelism.threads_for(n);
-        // Buckets per range (the last may have fewer).
-        let per = buckets.div_ceil(threads);
-        let (size, mask) = (self.cell, self.mask);
-        parallelism.for_each_chunk_at(&mut self.staging, &mut self.routes, |start, chunk, routes| {
-            routes.0.resize_with(threads, Vec::new);
-            routes.0.iter_mut().for_each(Vec::clear);
-            for (i, s) in chunk.iter_mut().enumerate() {
-                s.cell = cell_at(s.entry.position, size);
-                s.bucket = bucket_of(s.cell, mask) as u32;
-                if threads > 1 {
-                    routes.0[s.bucket as usize / per].push((start + i) as u32);
-                }
+        self.buckets.clear();
+        self.buckets.resize(buckets + 1, Bucket::default());
+        // Count each bucket's entries in the start of the bucket after it.
+        for s in &mut self.staging {
+            s.bucket = bucket_of(s.cell, self.mask) as u32;
+            let b = s.bucket as usize;
+            let (owner, count) = (self.buckets[b].cell, self.buckets[b + 1].start);
+            if count == 0 {
+                self.buckets[b].cell = s.cell;
+            } else {
+                self.buckets[b].mixed |= owner != s.cell;
             }
-        });
+            self.buckets[b + 1].start += 1;
+        }
+        for b in 0..buckets {
+            self.buckets[b + 1].start += self.buckets[b].start;
+        }
         // Every slot is written below: grown without a fill of the old length.
         self.slots.resize(n, EMPTY);
         self.xs.resize(n, 0.0);
@@ -314,46 +153,20 @@ impl SpatialGrid {
         self.ids.resize(n, VehicleId(0));
         self.indices.resize(n, 0);
         self.cells.resize(n, (0, 0));
-        self.buckets.resize(buckets + 1, Bucket::default());
-        let (staging, routes) = (&self.staging, &self.routes[..]);
-        // One range of buckets a thread: count, then (once every range's size is known) scatter.
-        let split = Parallelism { threads, min_vehicles: 0 };
-        // The lists of ranges and shares keep their allocations between rebuilds.
-        let mut ranges: Vec<BucketRange<'_>> = recycle(std::mem::take(&mut self.range_list.0));
-        ranges.extend(self.buckets[..buckets].chunks_mut(per).enumerate().map(|(r, buckets)| BucketRange {
-            r,
-            lo: per * r,
-            buckets,
-            total: 0,
-        }));
-        split.for_each_chunk(&mut ranges, &mut Vec::<()>::new(), |chunk, _| {
-            chunk.iter_mut().for_each(|range| range.count(staging, routes, threads))
-        });
-        let mut shares: Vec<Share<'_>> = recycle(std::mem::take(&mut self.share_list.0));
-        let mut columns = Columns {
-            slots: &mut self.slots[..],
-            xs: &mut self.xs[..],
-            ys: &mut self.ys[..],
-            ids: &mut self.ids[..],
-            indices: &mut self.indices[..],
-            cells: &mut self.cells[..],
-        };
-        let mut base = 0;
-        for range in ranges.drain(..) {
-            let (own, rest) = columns.split_at(range.total as usize);
-            columns = rest;
-            let total = range.total;
-            shares.push((range, base, own));
-            base += total;
+        // `buckets[b].start` is used as the insertion cursor of bucket b, then restored.
+        for s in &self.staging {
+            let b = s.bucket as usize;
+            let at = self.buckets[b].start as usize;
+            self.slots[at] = s.entry;
+            (self.xs[at], self.ys[at]) = (s.entry.position.x, s.entry.position.y);
+            (self.ids[at], self.indices[at]) = (s.entry.id, s.entry.index);
+            self.cells[at] = s.cell;
+            self.buckets[b].start += 1;
         }
-        split.for_each_chunk(&mut shares, &mut Vec::<()>::new(), |chunk, _| {
-            for (range, base, own) in chunk {
-                range.scatter(*base, own, staging, routes, threads);
-            }
-        });
-        self.share_list.0 = recycle(shares);
-        self.range_list.0 = recycle(ranges);
-        self.buckets[buckets] = Bucket { start: n as u32, mixed: false, cell: (0, 0) };
+        for b in (1..=buckets).rev() {
+            self.buckets[b].start = self.buckets[b - 1].start;
+        }
+        self.buckets[0].start = 0;
     }
 
     /// The slots of `cell`'s bucket, and whether they all lie in `cell` (else each must be
@@ -701,27 +514,20 @@ mod tests {
     }
 
     #[test]
-    fn a_rebuild_on_several_threads_lays_out_the_grid_one_thread_does() {
+    fn a_reused_grid_lays_out_what_a_fresh_one_does_each_entry_in_its_cells_bucket_in_order() {
         // Hash collisions (few cells over many buckets and many entries a cell), an empty grid,
-        // and a grid that shrinks after a larger one (left-overs must not show).
-        let mut grids = [SpatialGrid::default(), SpatialGrid::default(), SpatialGrid::default()];
+        // and a grid that shrinks after a larger one: the columns are not cleared, so left-overs
+        // must not show.
+        let mut reused = SpatialGrid::default();
         for (n, side, cell) in
             [(5000, 2000.0, 10.0), (3000, 400.0, 25.0), (0, 1.0, 1.0), (2500, 100.0, 3.0), (7, 50.0, 5.0)]
         {
             let entries = points(n, side);
             let mut single = SpatialGrid::default();
             single.rebuild(cell, entries.iter().copied());
-            for (threads, grid) in [1, 2, 3].into_iter().zip(&mut grids) {
-                let kept = (grid.range_list.0.as_ptr(), grid.share_list.0.as_ptr());
-                grid.rebuild_on(cell, entries.iter().copied(), Parallelism::split(threads));
-                assert_eq!(layout(grid), layout(&single), "{n} entries, {threads} threads");
-                // The lists of ranges and shares are emptied and kept, not allocated anew.
-                assert!(grid.range_list.0.is_empty() && grid.share_list.0.is_empty());
-                if grid.range_list.0.capacity() > 0 && kept.0 != std::ptr::NonNull::dangling().as_ptr() {
-                    assert_eq!((grid.range_list.0.as_ptr(), grid.share_list.0.as_ptr()), kept);
-                }
-                assert_eq!(grid.mask, single.mask);
-            }
+            reused.rebuild(cell, entries.iter().copied());
+            assert_eq!(layout(&reused), layout(&single), "{n} entries");
+            assert_eq!(reused.mask, single.mask);
             // The layout a query reads: every entry in its own cell's bucket, in entry order.
             let mut seen = 0;
             for b in 0..single.buckets.len() - 1 {
