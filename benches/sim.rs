@@ -11,7 +11,7 @@ use smlworld::app::running::bench::{
     Beacons, BenchWorld, DEGRADED_WIFI, degraded_radar, send_beacons, send_wifi_beacons,
 };
 use smlworld::prelude::*;
-use smlworld::sim::{GridEntry, SpatialGrid};
+use smlworld::sim::{GridEntry, Parallelism, SpatialGrid};
 
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 struct WifiBeacons;
@@ -142,6 +142,10 @@ fn grid_rebuild(c: &mut Criterion) {
         .collect();
     let mut grid = SpatialGrid::default();
     group.bench_function("10,000 vehicles", |b| b.iter(|| grid.rebuild(100.0, entries.iter().copied())));
+    let two = Parallelism::split(2);
+    group.bench_function("10,000 vehicles, 2 threads", |b| {
+        b.iter(|| grid.rebuild_on(two, 100.0, entries.len(), |i| entries[i]))
+    });
     group.finish();
 }
 

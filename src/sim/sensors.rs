@@ -739,15 +739,32 @@ pub fn sense_vehicles(
             Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw: state.yaw }
         }));
     }
-    grid.0.rebuild(
-        typical_range(&mut ranges),
-        everyone.iter().enumerate().map(|(i, (&id, state, _))| GridEntry {
-            position: state.position,
-            velocity: state.velocity,
-            id,
+    let cell = typical_range(&mut ranges);
+    // Split over the threads when every vehicle lies in one ECS table (the common case; the
+    // tables a vehicle left when a component was added stay, empty; the index of each vehicle
+    // is its place in query order either way).
+    let one_table = everyone.contiguous_iter().ok().and_then(|tables| {
+        let mut full = tables.filter(|(ids, _, _)| !ids.is_empty());
+        let first = full.next()?;
+        full.next().is_none().then_some(first)
+    });
+    match one_table {
+        Some((ids, states, _)) => grid.0.rebuild_on(*parallelism, cell, ids.len().min(states.len()), |i| GridEntry {
+            position: states[i].position,
+            velocity: states[i].velocity,
+            id: ids[i],
             index: i as u32,
         }),
-    );
+        None => grid.0.rebuild(
+            cell,
+            everyone.iter().enumerate().map(|(i, (&id, state, _))| GridEntry {
+                position: state.position,
+                velocity: state.velocity,
+                id,
+                index: i as u32,
+            }),
+        ),
+    }
     let input =
         SenseInput { grid: &grid.0, footprints: &footprints, draws: Draws::new(seed.map_or(0, |s| s.0), clock.now.0) };
     if let Ok(tables) = sensing.contiguous_iter_mut() {

@@ -844,15 +844,11 @@ pub fn deliver_wifi(
         s.starts.push(at);
         at += count;
     }
-    s.grid.rebuild(
-        config.wifi_range,
-        s.senders.iter().enumerate().map(|(i, &(id, position, _))| GridEntry {
-            position,
-            velocity: glam::DVec2::ZERO,
-            id,
-            index: i as u32,
-        }),
-    );
+    let senders = &s.senders;
+    s.grid.rebuild_on(parallelism, config.wifi_range, senders.len(), |i| {
+        let (id, position, _) = senders[i];
+        GridEntry { position, velocity: glam::DVec2::ZERO, id, index: i as u32 }
+    });
     let input = WifiRound {
         model,
         range: config.wifi_range,
