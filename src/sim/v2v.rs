@@ -24,6 +24,7 @@
 //! delay) decides each reception on its own as before, keyed per reception: O(N²) per round.
 
 use std::collections::HashMap;
+use std::mem::ManuallyDrop;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::{Entity, Local, Mut, Query, Res, ResMut, Resource};
@@ -587,6 +588,9 @@ pub struct WifiScratch {
     grid: SpatialGrid,
     /// One per thread.
     threads: Vec<WifiThread>,
+    /// The last round's batch, kept so that its messages are dropped here, split over the
+    /// threads ([`release`]), not by whichever in-box happened to hold it last.
+    previous: Option<Arc<[Message]>>,
 }
 
 /// The messages of one chunk of out-boxes and who sent them (sender, position, message count),
@@ -906,6 +910,40 @@ pub fn deliver_wifi(
         delayed.keep(record);
     }
     stats.wifi_delivered += delivered;
+    if let Some(previous) = s.previous.replace(batch) {
+        release(previous, parallelism);
+    }
+}
+
+/// Let go of `batch`; if this was its last reference, drop its messages split over the
+/// threads of `parallelism`, each thread a contiguous chunk.
+///
+/// A round's batch was freed by the in-box that dropped it last, inside the next round's
+/// parallel section: ten thousand payloads (each an allocation) freed on one thread, about
+/// 0.2 ms while the other threads waited. Chunks of a batch (sorted by sender) are mostly the
+/// payloads the same thread allocated when its chunk of vehicles sent them.
+fn release(batch: Arc<[Message]>, parallelism: Parallelism) {
+    // SAFETY: `ManuallyDrop<Message>` is `repr(transparent)` over `Message` (same size and
+    // alignment), so the allocation is the same `ArcInner` either way. Dropping this form never
+    // drops a message: should a payload's drop panic below, the rest leak, none is dropped
+    // twice.
+    let mut batch: Arc<[ManuallyDrop<Message>]> =
+        unsafe { Arc::from_raw(Arc::into_raw(batch) as *const [ManuallyDrop<Message>]) };
+    let Some(messages) = Arc::get_mut(&mut batch) else {
+        // Others still hold it (in-boxes that kept several rounds, delayed receptions): back to
+        // the form that drops its messages when the last of them lets go.
+        // SAFETY: as above, the other way; no message was dropped.
+        drop(unsafe { Arc::from_raw(Arc::into_raw(batch) as *const [Message]) });
+        return;
+    };
+    parallelism.for_each_chunk(messages, &mut Vec::<()>::new(), |chunk, _| {
+        for message in chunk {
+            // SAFETY: this is the batch's only reference, each message is in one chunk and
+            // dropped once here, and the `ManuallyDrop` form frees the allocation after
+            // without dropping any again.
+            unsafe { ManuallyDrop::drop(message) };
+        }
+    });
 }
 
 /// One mailbox as [`deliver_delayed`]'s query hands it out.
@@ -1152,5 +1190,51 @@ impl Plugin for V2vPlugin {
         // and then the delayed receptions were queued and never delivered. With nothing queued
         // it looks at an empty queue and returns.
         sim.add_systems(Control, deliver_delayed.in_set(SimSystems::Communicate));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    /// Counts its drops in its own counter.
+    struct Counted(&'static AtomicUsize);
+
+    impl Drop for Counted {
+        fn drop(&mut self) {
+            self.0.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    fn batch(n: usize, drops: &'static AtomicUsize) -> Arc<[Message]> {
+        (0..n)
+            .map(|i| Message {
+                sender: VehicleId(i as i32),
+                sent_at: SimTime(0),
+                channel: Channel::Wifi,
+                payload: Arc::new(Counted(drops)),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_released_batch_drops_each_message_once_and_only_with_its_last_reference() {
+        for threads in [1, 2, 3] {
+            // The only reference: every message dropped, once, whatever the thread count.
+            static ALONE: AtomicUsize = AtomicUsize::new(0);
+            ALONE.store(0, Ordering::Relaxed);
+            release(batch(1000, &ALONE), Parallelism::split(threads));
+            assert_eq!(ALONE.load(Ordering::Relaxed), 1000, "{threads} threads");
+            // Still held elsewhere: nothing dropped until that holder lets go, then all, once.
+            static SHARED: AtomicUsize = AtomicUsize::new(0);
+            SHARED.store(0, Ordering::Relaxed);
+            let held = batch(500, &SHARED);
+            release(Arc::clone(&held), Parallelism::split(threads));
+            assert_eq!(SHARED.load(Ordering::Relaxed), 0, "{threads} threads");
+            assert_eq!(held.len(), 500);
+            drop(held);
+            assert_eq!(SHARED.load(Ordering::Relaxed), 500, "{threads} threads");
+        }
     }
 }
