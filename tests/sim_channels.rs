@@ -411,6 +411,28 @@ fn constant_network_loss_is_the_same_on_any_thread_count_and_differs_by_seed() {
     assert_ne!(lost_of(&a[0][0], -1), lost_of(&a[2][0], -1));
 }
 
+#[test]
+fn a_perfect_network_round_split_over_threads_delivers_and_counts_what_one_thread_does() {
+    // Loss 0: the perfect round (every in-box the batch but its own), which splits its in-boxes
+    // over the threads and adds each chunk's counts.
+    let n = 90;
+    let (one, stats) = lossy_network_rounds(n, 0.0, 1, 1);
+    let messages = n + (n / 2 + n) + n;
+    assert_eq!((stats.sent, stats.delivered), ((messages * (n - 1)) as u64, (messages * (n - 1)) as u64));
+    let held: u64 = one.iter().flatten().map(|inbox| inbox.len() as u64).sum();
+    assert_eq!(stats.aged, held);
+    let round_time = [0u64, 1_000_000, 2_000_000];
+    let ages: u64 =
+        one.iter().zip(round_time).map(|(round, t)| round.iter().flatten().map(|&(_, s)| t - s).sum::<u64>()).sum();
+    assert_eq!(stats.age_sum_us, ages);
+    assert!(ages > 0);
+    for threads in [2, 3] {
+        let (split, split_stats) = lossy_network_rounds(n, 0.0, 1, threads);
+        assert_eq!(split, one, "{threads} threads");
+        assert_eq!(split_stats, stats, "{threads} threads");
+    }
+}
+
 /// The wifi messages (send time [µs], payload) vehicle -2 received from -1, in the order its
 /// in-box held them, over 400 wifi rounds with -1 sending two messages each round; `threads` split the
 /// wifi round.

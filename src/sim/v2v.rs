@@ -470,15 +470,38 @@ pub fn deliver_network(
     }
     let mut delivered = 0;
     if model.is_perfect() {
-        for (_, _, mut mailbox) in &mut mailboxes {
-            let owner = mailbox.owner();
-            let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
-            let n = (batch.len() - own.len()) as u64;
+        // Every in-box gets the batch but its own messages: split over the threads, each
+        // counting (delivered, age sum) for its chunk (integer sums: the same on any split).
+        let (epoch, batch) = (epoch.0, &batch);
+        let deliver = |boxes: &mut [Mailbox], Padded(t): &mut Padded<(u64, u64, u64)>| {
+            for mailbox in boxes {
+                let owner = mailbox.owner();
+                let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
+                let n = (batch.len() - own.len()) as u64;
+                let own_age: u64 = batch[own].iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
+                t.0 += n;
+                t.1 += age_all - own_age;
+                mailbox.network_in.deliver_all_but(epoch, round, batch, owner);
+            }
+        };
+        let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
+        let threads = &mut lossy.threads;
+        if let Ok(tables) = mailboxes.contiguous_iter_mut() {
+            for (_, _, mut boxes) in tables {
+                parallelism.for_each_chunk(&mut boxes, threads, deliver);
+            }
+        } else {
+            // Only if a component were stored sparsely (none is): one at a time.
+            threads.resize_with(threads.len().max(1), Default::default);
+            for (_, _, mut mailbox) in &mut mailboxes {
+                deliver(std::slice::from_mut(&mut *mailbox), &mut threads[0]);
+            }
+        }
+        for t in threads.iter_mut() {
+            let (n, age_sum_us, _) = std::mem::take(&mut t.0);
             delivered += n;
-            let own_age: u64 = batch[own].iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
-            channel.network.age_sum_us += age_all - own_age;
+            channel.network.age_sum_us += age_sum_us;
             channel.network.aged += n;
-            mailbox.network_in.deliver_all_but(epoch.0, round, &batch, owner);
         }
         channel.network.sent += delivered;
         channel.network.delivered += delivered;
