@@ -191,13 +191,7 @@ impl SpatialGrid {
         for b in 0..buckets {
             self.buckets[b + 1].start += self.buckets[b].start;
         }
-        // Every slot is written below: grown without a fill of the old length.
-        self.slots.resize(n, EMPTY);
-        self.xs.resize(n, 0.0);
-        self.ys.resize(n, 0.0);
-        self.ids.resize(n, VehicleId(0));
-        self.indices.resize(n, 0);
-        self.cells.resize(n, (0, 0));
+        self.size_columns(n);
         // `buckets[b].start` is used as the insertion cursor of bucket b, then restored.
         let mut scattered = 0;
         for (entry, &(cell, bucket)) in entries.zip(&self.placed) {
@@ -215,6 +209,17 @@ impl SpatialGrid {
             self.buckets[b].start = self.buckets[b - 1].start;
         }
         self.buckets[0].start = 0;
+    }
+
+    /// Make every column `n` long: a rebuild writes every slot, so they are grown without a
+    /// fill of the old length (only new places are initialised).
+    fn size_columns(&mut self, n: usize) {
+        self.slots.resize(n, EMPTY);
+        self.xs.resize(n, 0.0);
+        self.ys.resize(n, 0.0);
+        self.ids.resize(n, VehicleId(0));
+        self.indices.resize(n, 0);
+        self.cells.resize(n, (0, 0));
     }
 
     /// [`SpatialGrid::rebuild`] from the `n` entries `entry(0)`, `entry(1)`, ..., split over
@@ -286,12 +291,7 @@ impl SpatialGrid {
                 *at += count;
             }
         }
-        self.slots.resize(n, EMPTY);
-        self.xs.resize(n, 0.0);
-        self.ys.resize(n, 0.0);
-        self.ids.resize(n, VehicleId(0));
-        self.indices.resize(n, 0);
-        self.cells.resize(n, (0, 0));
+        self.size_columns(n);
         let out = Scatter {
             slots: self.slots.as_mut_ptr(),
             xs: self.xs.as_mut_ptr(),
