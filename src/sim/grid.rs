@@ -167,13 +167,11 @@ impl SpatialGrid {
     ///
     /// On one thread; [`SpatialGrid::rebuild_on`] splits it over several.
     pub fn rebuild(&mut self, cell: f64, entries: impl Iterator<Item = GridEntry> + Clone) {
-        self.cell = if cell.is_finite() && cell > 0.0 { cell } else { 1.0 };
-        let size = self.cell;
+        let size = self.set_cell(cell);
         self.placed.clear();
         self.placed.extend(entries.clone().map(|entry| (cell_at(entry.position, size), 0)));
         let n = self.placed.len();
-        let buckets = n.max((RUN * BLOCK) as usize).next_power_of_two();
-        self.mask = buckets as u64 - 1;
+        let buckets = self.set_buckets(n);
         self.buckets.clear();
         self.buckets.resize(buckets + 1, Bucket::default());
         // Count each bucket's entries in the start of the bucket after it.
@@ -211,6 +209,20 @@ impl SpatialGrid {
         self.buckets[0].start = 0;
     }
 
+    /// Take `cell` [m] as the cells' side (1 m unless finite and positive); returns it.
+    fn set_cell(&mut self, cell: f64) -> f64 {
+        self.cell = if cell.is_finite() && cell > 0.0 { cell } else { 1.0 };
+        self.cell
+    }
+
+    /// Size the hash for `n` entries: a power of two buckets, at least `n` and a block's;
+    /// returns how many.
+    fn set_buckets(&mut self, n: usize) -> usize {
+        let buckets = n.max((RUN * BLOCK) as usize).next_power_of_two();
+        self.mask = buckets as u64 - 1;
+        buckets
+    }
+
     /// Make every column `n` long: a rebuild writes every slot, so they are grown without a
     /// fill of the old length (only new places are initialised).
     fn size_columns(&mut self, n: usize) {
@@ -245,10 +257,8 @@ impl SpatialGrid {
             self.rebuild(cell, (0..n).map(&entry));
             return;
         }
-        self.cell = if cell.is_finite() && cell > 0.0 { cell } else { 1.0 };
-        let size = self.cell;
-        let buckets = n.max((RUN * BLOCK) as usize).next_power_of_two();
-        self.mask = buckets as u64 - 1;
+        let size = self.set_cell(cell);
+        let buckets = self.set_buckets(n);
         let mask = self.mask;
         self.placed.resize(n, ((0, 0), 0));
         // Each chunk's cells and buckets, and its count per bucket.

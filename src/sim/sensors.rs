@@ -745,6 +745,12 @@ pub fn sense_vehicles(
         }));
     }
     let cell = typical_range(&mut ranges);
+    let entry = |i: usize, id: VehicleId, state: &VehicleState| GridEntry {
+        position: state.position,
+        velocity: state.velocity,
+        id,
+        index: i as u32,
+    };
     // Split over the threads when every vehicle lies in one ECS table (the common case; the
     // tables a vehicle left when a component was added stay, empty; the index of each vehicle
     // is its place in query order either way).
@@ -754,21 +760,10 @@ pub fn sense_vehicles(
         full.next().is_none().then_some(first)
     });
     match one_table {
-        Some((ids, states, _)) => grid.0.rebuild_on(*parallelism, cell, ids.len().min(states.len()), |i| GridEntry {
-            position: states[i].position,
-            velocity: states[i].velocity,
-            id: ids[i],
-            index: i as u32,
-        }),
-        None => grid.0.rebuild(
-            cell,
-            everyone.iter().enumerate().map(|(i, (&id, state, _))| GridEntry {
-                position: state.position,
-                velocity: state.velocity,
-                id,
-                index: i as u32,
-            }),
-        ),
+        Some((ids, states, _)) => {
+            grid.0.rebuild_on(*parallelism, cell, ids.len().min(states.len()), |i| entry(i, ids[i], &states[i]))
+        }
+        None => grid.0.rebuild(cell, everyone.iter().enumerate().map(|(i, (&id, state, _))| entry(i, id, state))),
     }
     let input =
         SenseInput { grid: &grid.0, footprints: &footprints, draws: Draws::new(seed.map_or(0, |s| s.0), clock.now.0) };

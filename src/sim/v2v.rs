@@ -387,6 +387,23 @@ pub struct LossyScratch {
     threads: Vec<Padded<(u64, u64, u64)>>,
 }
 
+impl LossyScratch {
+    /// Add every thread's counts of this round to `network` (and empty them); returns the
+    /// deliveries.
+    fn absorb(&mut self, network: &mut ChannelStats) -> u64 {
+        let mut delivered = 0;
+        for t in &mut self.threads {
+            let (sent, kept, age_sum_us) = std::mem::take(&mut t.0);
+            delivered += kept;
+            network.sent += sent;
+            network.delivered += kept;
+            network.aged += kept;
+            network.age_sum_us += age_sum_us;
+        }
+        delivered
+    }
+}
+
 /// What every chunk of a network round with constant loss reads (see the module docs).
 struct LossyRound<'a> {
     seed: u64,
@@ -471,7 +488,8 @@ pub fn deliver_network(
     let mut delivered = 0;
     if model.is_perfect() {
         // Every in-box gets the batch but its own messages: split over the threads, each
-        // counting (delivered, age sum) for its chunk (integer sums: the same on any split).
+        // counting (attempted, delivered, age sum) for its chunk as a lossy round does
+        // (integer sums: the same on any split).
         let (epoch, batch) = (epoch.0, &batch);
         let deliver = |boxes: &mut [Mailbox], Padded(t): &mut Padded<(u64, u64, u64)>| {
             for mailbox in boxes {
@@ -479,8 +497,10 @@ pub fn deliver_network(
                 let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
                 let n = (batch.len() - own.len()) as u64;
                 let own_age: u64 = batch[own].iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
+                // Attempted and delivered alike: nothing is lost.
                 t.0 += n;
-                t.1 += age_all - own_age;
+                t.1 += n;
+                t.2 += age_all - own_age;
                 mailbox.network_in.deliver_all_but(epoch, round, batch, owner);
             }
         };
@@ -497,15 +517,7 @@ pub fn deliver_network(
                 deliver(std::slice::from_mut(&mut *mailbox), &mut threads[0]);
             }
         }
-        for t in threads.iter_mut() {
-            let (n, age_sum_us, _) = std::mem::take(&mut t.0);
-            delivered += n;
-            channel.network.age_sum_us += age_sum_us;
-            channel.network.aged += n;
-        }
-        channel.network.sent += delivered;
-        channel.network.delivered += delivered;
-        stats.network_delivered += delivered;
+        stats.network_delivered += lossy.absorb(&mut channel.network);
         return;
     }
     let seed = seed.map_or(0, |s| s.0);
@@ -520,15 +532,7 @@ pub fn deliver_network(
         items.extend(mailboxes.iter_mut().map(|(_, _, m)| m));
         parallelism.for_each_chunk(&mut items, &mut l.threads, |chunk, t| input.deliver(chunk, t));
         l.items = recycle(items);
-        for t in &mut l.threads {
-            let (sent, kept, age_sum_us) = std::mem::take(&mut t.0);
-            delivered += kept;
-            channel.network.sent += sent;
-            channel.network.delivered += kept;
-            channel.network.aged += kept;
-            channel.network.age_sum_us += age_sum_us;
-        }
-        stats.network_delivered += delivered;
+        stats.network_delivered += l.absorb(&mut channel.network);
         return;
     }
     // Senders' positions for the distance model, sorted by id.
