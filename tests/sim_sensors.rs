@@ -169,9 +169,74 @@ fn a_few_long_range_sensors_see_as_far_as_their_range_on_a_fine_grid() {
     assert_matches_brute_force(&vehicles);
 }
 
+#[test]
+fn moving_vehicles_are_seen_as_a_brute_force_scan_sees_them_tick_after_tick() {
+    // 300 vehicles on a 700 m square, each at its own speed (0 to 40 m/s, some turning); now and
+    // then one jumps 150 m (a lab bridge's correction) and one gets a much longer or shorter range. Sensing keeps
+    // neighbour lists between ticks while nobody has moved far: every tick's readings must
+    // still be those of a scan over everyone.
+    let mut rng = 29u64;
+    let mut vehicles = Vec::new();
+    let mut motion = Vec::new();
+    for i in 0..300 {
+        let p = DVec2::new(lcg(&mut rng) * 700.0 - 350.0, lcg(&mut rng) * 700.0 - 350.0);
+        let yaw = lcg(&mut rng) * std::f64::consts::TAU;
+        // Every vehicle a radar and a velodyne (one ECS table, where the lists are used), of
+        // ranges that differ.
+        let (radar, velodyne) = match i % 3 {
+            0 => (Radar { angle: 1.0, range: 80.0 }, Velodyne { range: 10.0 }),
+            1 => (Radar { angle: 0.5, range: 0.0 }, Velodyne { range: 35.0 }),
+            _ => (Radar::default(), Velodyne::default()),
+        };
+        let sensors = SensorSet { radar: Some(radar), velodyne: Some(velodyne), omniscient: false };
+        vehicles.push((-1 - i, p, yaw, sensors));
+        // Speed [m/s] and turn rate [rad/s].
+        motion.push((lcg(&mut rng) * 40.0, if i % 4 == 0 { lcg(&mut rng) - 0.5 } else { 0.0 }));
+    }
+    let mut sim = world_of(&vehicles);
+    assert_sim_matches_brute_force(&sim, &vehicles);
+    let dt = 0.05; // one sensor tick at 20 Hz
+    for tick in 1..80 {
+        for (k, ((_, p, yaw, sensors), (speed, turn))) in vehicles.iter_mut().zip(&motion).enumerate() {
+            *yaw += turn * dt;
+            *p += DVec2::from_angle(*yaw) * speed * dt;
+            if tick % 25 == 0 && k % 50 == 0 {
+                *p += DVec2::new(150.0, -40.0);
+            }
+            if tick % 10 == 3 && k % 37 == 0 {
+                // A much longer range (or a shorter one); the same sensors (the same ECS table).
+                let range = if tick % 20 == 3 { 150.0 } else { 20.0 };
+                match (&mut sensors.velodyne, &mut sensors.radar) {
+                    (Some(velodyne), _) if k % 2 == 0 => velodyne.range = range,
+                    (_, Some(radar)) => radar.range = range,
+                    _ => unreachable!("every vehicle has both sensors"),
+                }
+            }
+        }
+        for &(id, p, yaw, sensors) in &vehicles {
+            let e = sim.entity(VehicleId(id)).expect("vehicle exists");
+            let mut entity = sim.world_mut().entity_mut(e);
+            *entity.get_mut::<VehicleState>().expect("has a state") = VehicleState::new(p, yaw, 0.0);
+            if let Some(velodyne) = sensors.velodyne {
+                *entity.get_mut::<Velodyne>().expect("has a velodyne") = velodyne;
+            }
+            if let Some(radar) = sensors.radar {
+                *entity.get_mut::<Radar>().expect("has a radar") = radar;
+            }
+        }
+        sim.run_for(dt);
+        assert_sim_matches_brute_force(&sim, &vehicles);
+    }
+}
+
 /// Every vehicle's readings are those of a brute-force scan over all others, nearest first.
 fn assert_matches_brute_force(vehicles: &[(i32, DVec2, f64, SensorSet)]) {
-    let sim = world_of(vehicles);
+    assert_sim_matches_brute_force(&world_of(vehicles), vehicles);
+}
+
+/// Every vehicle's readings in `sim` are those of a brute-force scan over `vehicles` (where
+/// they are now, with the sensors they carry now), nearest first.
+fn assert_sim_matches_brute_force(sim: &Sim, vehicles: &[(i32, DVec2, f64, SensorSet)]) {
     for &(id, p, yaw, sensors) in vehicles {
         let mut expected: Vec<(f64, i32)> = vehicles
             .iter()
@@ -191,7 +256,7 @@ fn assert_matches_brute_force(vehicles: &[(i32, DVec2, f64, SensorSet)]) {
             .collect();
         expected.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let expected: Vec<i32> = expected.into_iter().map(|x| x.1).collect();
-        assert_eq!(seen(&sim, id), expected, "vehicle {id}");
+        assert_eq!(seen(sim, id), expected, "vehicle {id} at {}", sim.now().as_secs());
     }
 }
 
