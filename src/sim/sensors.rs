@@ -429,6 +429,13 @@ impl Sight {
     /// into vector code, and shared with [`Sight::consider_listed`] so both give the same bits.
     #[inline(always)]
     fn key(&self, x: f64, y: f64, slot: u32, other: VehicleId) -> u64 {
+        let (key, seen) = self.seen_key(x, y, slot, other);
+        if seen { key } else { UNSEEN }
+    }
+
+    /// [`Sight::key`] as the key the candidate would have and whether it is seen.
+    #[inline(always)]
+    fn seen_key(&self, x: f64, y: f64, slot: u32, other: VehicleId) -> (u64, bool) {
         let (p, h, cone) = (self.position, self.cone.heading, &self.cone);
         let acute = cone.cos_half >= 0.0;
         let (rx, ry) = (x - p.x, y - p.y);
@@ -442,7 +449,7 @@ impl Sight {
         let velodyne = d2 <= self.velodyne_range2;
         let seen = (self.omniscient | velodyne | radar) & (other != self.id);
         let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
-        if seen { detection_key(d2, slot | flags) } else { UNSEEN }
+        (detection_key(d2, slot | flags), seen)
     }
 
     /// The detection keys of the neighbours `list` (places in `everyone`) it sees, in list
@@ -456,9 +463,10 @@ impl Sight {
         let mut seen = 0;
         for &j in list {
             let p = everyone.states[j as usize].position;
-            let key = self.key(p.x, p.y, j, everyone.ids[j as usize]);
+            // Written whether seen or not, kept by counting it: no branch on which are seen.
+            let (key, sees) = self.seen_key(p.x, p.y, j, everyone.ids[j as usize]);
             found[seen] = key;
-            seen += usize::from(key != UNSEEN);
+            seen += usize::from(sees);
         }
         &mut found[..seen]
     }
