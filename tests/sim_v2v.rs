@@ -179,3 +179,79 @@ fn no_message_lost_between_rounds_when_control_is_faster_or_slower() {
     assert_eq!(network, (0..180).collect::<Vec<u64>>(), "network, slow control");
     assert_eq!(wifi, (0..190).collect::<Vec<u64>>(), "wifi, slow control");
 }
+
+/// A deterministic pseudo-random sequence in [0, 1).
+fn lcg(state: &mut u64) -> f64 {
+    *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    (*state >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Vehicles with radars and velodynes moving on a square, a changing half of them sending on
+/// wifi each round; every round, each vehicle's in-box holds this round's messages of exactly
+/// the senders within `wifi_range` (a scan over everyone). Returns the receptions counted.
+fn moving_wifi_rounds(wifi_range: f64, sensor_rate: f64) -> usize {
+    let mut rng = 5u64;
+    let mut b = SimBuilder::new();
+    b.set_rate(Sensors, sensor_rate);
+    b.add_plugin(SensorsPlugin);
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range, ..Default::default() } });
+    let mut vehicles = Vec::new();
+    for i in 0..250 {
+        let p = DVec2::new(lcg(&mut rng) * 600.0 - 300.0, lcg(&mut rng) * 600.0 - 300.0);
+        let yaw = lcg(&mut rng) * std::f64::consts::TAU;
+        let mut spec = VehicleSpec::new(VehicleId(-1 - i), VehicleState::new(p, yaw, 0.0));
+        spec.model = VehicleModel::None;
+        spec.sensors =
+            SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
+        b.spawn_vehicle(spec).expect("unique ids");
+        // Speed [m/s] (up to 40), heading [rad].
+        vehicles.push((-1 - i, p, lcg(&mut rng) * 40.0, yaw));
+    }
+    let mut sim = b.build();
+    let dt = 0.1; // one wifi round at 10 Hz
+    let mut receptions = 0;
+    for round in 0..40u32 {
+        for (k, (id, p, speed, yaw)) in vehicles.iter_mut().enumerate() {
+            if round > 0 {
+                *p += DVec2::from_angle(*yaw) * *speed * dt;
+                if round % 15 == 7 && k % 60 == 0 {
+                    *p += DVec2::new(-120.0, 90.0); // a jump
+                }
+            }
+            let e = sim.entity(VehicleId(*id)).expect("vehicle exists");
+            *sim.world_mut().get_mut::<VehicleState>(e).expect("state") = VehicleState::new(*p, *yaw, 0.0);
+        }
+        let sending = |k: usize| (k as u32 + round) % 3 != 0;
+        for (k, &(id, ..)) in vehicles.iter().enumerate() {
+            if sending(k) {
+                send(&mut sim, id, Channel::Wifi, Arc::new(round));
+            }
+        }
+        let now = sim.now();
+        sim.run_for(dt);
+        for &(id, p, ..) in &vehicles {
+            let e = sim.entity(VehicleId(id)).expect("vehicle exists");
+            let inbox = sim.world().get::<Mailbox>(e).expect("mailbox").inbox(Channel::Wifi);
+            let mut heard: Vec<i32> = inbox.iter().filter(|m| m.sent_at == now).map(|m| m.sender.0).collect();
+            heard.sort_unstable();
+            let mut expected: Vec<i32> = (vehicles.iter().enumerate())
+                .filter(|&(k, o)| sending(k) && o.0 != id && (o.1 - p).length_squared() <= wifi_range * wifi_range)
+                .map(|(_, o)| o.0)
+                .collect();
+            expected.sort_unstable();
+            assert_eq!(heard, expected, "receiver {id}, round {round}, wifi range {wifi_range} m");
+            receptions += heard.len();
+        }
+    }
+    receptions
+}
+
+#[test]
+fn moving_receivers_hear_exactly_the_senders_in_range_round_after_round() {
+    // Within the sensors' 100 m (the wifi round reads the sensors' neighbour lists, built at
+    // the same instant, or at 2 Hz up to half a second before) and beyond it (it cannot: a grid
+    // of the senders).
+    assert!(moving_wifi_rounds(50.0, 20.0) > 10_000);
+    assert!(moving_wifi_rounds(50.0, 2.0) > 10_000);
+    assert!(moving_wifi_rounds(170.0, 20.0) > 10_000);
+}

@@ -787,6 +787,8 @@ struct NeighbourLists {
     ranges: Vec<f64>,
     /// Skin of the build [m] (0: no lists built yet).
     skin: f64,
+    /// The shortest of `ranges` [m].
+    shortest: f64,
     /// Each vehicle's neighbours, nearest first at the build (so that a tick's detections
     /// arrive nearly sorted): places in the query.
     lists: Vec<Vec<u32>>,
@@ -806,15 +808,32 @@ struct Neighbours {
 /// at 20 m/s.
 const SKIN_SHARE: f64 = 0.2;
 
+impl SensorGrid {
+    /// The neighbour lists of the vehicles `ids` at `states` (every vehicle, in query order),
+    /// when they hold every vehicle within `range` [m] of each: the lists of the same vehicles
+    /// in the same order, each at least `range` plus the skin wide, and no vehicle moved half
+    /// the skin since they were built. For modules that look around the vehicles at the same
+    /// instant as the sensors (the wifi round), so that one search serves both.
+    pub(crate) fn lists_within(&self, ids: &[VehicleId], states: &[VehicleState], range: f64) -> Option<&[Vec<u32>]> {
+        let lists = &self.neighbours.lists;
+        let wide = lists.skin > 0.0 && lists.lists.len() == ids.len() && lists.shortest >= range;
+        (wide && lists.moved_little(Everyone { ids, states })).then_some(&lists.lists[..])
+    }
+}
+
 impl NeighbourLists {
     /// Whether the lists still hold every vehicle within sensor range of each: the same
     /// vehicles in the same order, the same ranges and skin, and none moved more than just
     /// under half the skin (the margin covers rounding; a NaN position fails the test).
     fn hold(&self, everyone: Everyone<'_>, ranges: &[f64], skin: f64) -> bool {
-        let limit = (0.49 * skin) * (0.49 * skin);
-        self.skin == skin
-            && self.ids == everyone.ids
-            && self.ranges == ranges
+        self.skin == skin && self.ranges == ranges && self.moved_little(everyone)
+    }
+
+    /// Whether `everyone` are the vehicles of the build, in the same order, and none has moved
+    /// just under half the skin since (the margin covers rounding; a NaN position fails).
+    fn moved_little(&self, everyone: Everyone<'_>) -> bool {
+        let limit = (0.49 * self.skin) * (0.49 * self.skin);
+        self.ids == everyone.ids
             && self.anchors.len() == everyone.states.len()
             && self.anchors.iter().zip(everyone.states).all(|(a, s)| (s.position - *a).length_squared() <= limit)
     }
@@ -979,6 +998,7 @@ pub fn sense_vehicles(
             lists.ranges.clear();
             lists.ranges.extend_from_slice(ranges_now);
             lists.skin = skin;
+            lists.shortest = ranges_now.iter().copied().fold(f64::INFINITY, f64::min);
             lists.lists.resize_with(n, Vec::new);
             lists.builds += 1;
         }

@@ -3,7 +3,10 @@
 //! A round takes every out-going message of its channel, sorts them by sender id (so the order
 //! never depends on entity layout) into one shared batch, and hands each receiver the batch plus
 //! which entries are for it: the payloads are never copied. Wifi finds senders in range with a
-//! spatial grid (O(N) per round).
+//! spatial grid (O(N) per round), or, when the sensors' neighbour lists still hold everyone
+//! within the wifi range (every vehicle in one ECS table with sensors reaching at least as far,
+//! nobody moved half their skin since their build), from those lists: no grid to build, a
+//! short list per receiver ([`crate::sim::sensors`]). Either way the same receptions.
 //!
 //! Each channel has a [`ChannelModel`] (loss, bursts, delay; perfect by default). A lossy channel
 //! decides every reception with a seeded draw ([`super::channel`]); a delaying one queues the
@@ -37,6 +40,7 @@ use crate::world::{Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::{Padded, recycle};
+use super::sensors::SensorGrid;
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
@@ -606,8 +610,11 @@ pub fn deliver_network(
 #[derive(Default)]
 pub struct WifiScratch {
     buffer: Vec<Message>,
-    /// (sender, position, message count), then sorted by sender.
-    senders: Vec<(VehicleId, glam::DVec2, u32)>,
+    /// The senders, then sorted by id.
+    senders: Vec<Sender>,
+    /// With neighbour lists: each vehicle's place in the senders (by place in the query), or
+    /// [`NOT_SENDING`].
+    sender_of: Vec<u32>,
     /// What each thread gathered of its chunk of out-boxes, joined in chunk order.
     gathered: Vec<Outgoing>,
     /// First batch index of each sender's messages.
@@ -620,22 +627,37 @@ pub struct WifiScratch {
     previous: Option<Arc<[Message]>>,
 }
 
-/// The messages of one chunk of out-boxes and who sent them (sender, position, message count),
-/// in query order.
+/// A vehicle that sends this wifi round.
+#[derive(Debug, Clone, Copy)]
+struct Sender {
+    id: VehicleId,
+    /// Where it sends from [m].
+    position: glam::DVec2,
+    /// How many messages it sends.
+    count: u32,
+    /// Its place in the query.
+    place: u32,
+}
+
+/// [`WifiScratch::sender_of`] of a vehicle that sends nothing.
+const NOT_SENDING: u32 = u32::MAX;
+
+/// The messages of one chunk of out-boxes and who sent them, in query order.
 /// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
 #[derive(Default)]
 #[repr(align(128))]
 struct Outgoing {
-    senders: Vec<(VehicleId, glam::DVec2, u32)>,
+    senders: Vec<Sender>,
     messages: Vec<Message>,
 }
 
 impl Outgoing {
-    /// Empty the wifi out-boxes of `boxes` (at `states`) into this.
-    fn take(&mut self, states: &[VehicleState], boxes: &mut [Mailbox]) {
-        for (state, mailbox) in states.iter().zip(boxes) {
+    /// Empty the wifi out-boxes of `boxes` (at `states`, places `start..` in the query) into this.
+    fn take(&mut self, start: usize, states: &[VehicleState], boxes: &mut [Mailbox]) {
+        for (k, (state, mailbox)) in states.iter().zip(boxes).enumerate() {
             if !mailbox.wifi_out.is_empty() {
-                self.senders.push((mailbox.owner(), state.position, mailbox.wifi_out.len() as u32));
+                let (id, position, count) = (mailbox.owner(), state.position, mailbox.wifi_out.len() as u32);
+                self.senders.push(Sender { id, position, count, place: (start + k) as u32 });
                 // One message (a beacon) moved as one, not by a library copy call per sender.
                 if mailbox.wifi_out.len() == 1 {
                     self.messages.extend(mailbox.wifi_out.pop());
@@ -699,9 +721,13 @@ struct WifiRound<'a> {
     batch: &'a Arc<[Message]>,
     /// When every message of the batch was sent, if at one instant [µs].
     sent_at_us: Option<u64>,
-    senders: &'a [(VehicleId, glam::DVec2, u32)],
+    senders: &'a [Sender],
     starts: &'a [u32],
     grid: &'a SpatialGrid,
+    /// The sensors' neighbour lists (each vehicle's, by place in the query) and
+    /// [`WifiScratch::sender_of`], when they hold everyone within the wifi range: then the grid
+    /// is not built.
+    nearby: Option<(&'a [Vec<u32>], &'a [u32])>,
 }
 
 impl WifiRound<'_> {
@@ -731,23 +757,39 @@ impl WifiRound<'_> {
         for (k, (state, mailbox)) in states.iter().zip(chunk.iter_mut()).enumerate() {
             let slot = (start + k) as u32;
             let owner = mailbox.owner();
-            let cell = grid.cell_of(state.position);
-            // `gathered`: Some(Some(cell)) around that cell, Some(None) everyone.
-            let stale = gathered.is_none_or(|g: Option<(i32, i32)>| g.is_some_and(|c| c != cell));
-            if stale {
-                let everything = grid.gather_around(cell, self.range, &mut t.around);
-                gathered = Some((!everything).then_some(cell));
-            }
-            t.around.within(state.position, self.range, owner, &mut t.marks, &mut t.slots);
             t.heard.clear();
-            t.heard.extend(t.slots.iter().map(|&slot| grid.index_of(slot)));
+            if let Some((lists, sender_of)) = self.nearby {
+                // The senders on its list within range: the test of `Candidates::within`.
+                let (p, r2) = (state.position, self.range * self.range);
+                for &j in &lists[slot as usize] {
+                    let i = sender_of[j as usize];
+                    if i == NOT_SENDING {
+                        continue;
+                    }
+                    let Sender { id, position, .. } = senders[i as usize];
+                    let (dx, dy) = (position.x - p.x, position.y - p.y);
+                    if (dx * dx + dy * dy <= r2) & (id != owner) {
+                        t.heard.push(i);
+                    }
+                }
+            } else {
+                let cell = grid.cell_of(state.position);
+                // `gathered`: Some(Some(cell)) around that cell, Some(None) everyone.
+                let stale = gathered.is_none_or(|g: Option<(i32, i32)>| g.is_some_and(|c| c != cell));
+                if stale {
+                    let everything = grid.gather_around(cell, self.range, &mut t.around);
+                    gathered = Some((!everything).then_some(cell));
+                }
+                t.around.within(state.position, self.range, owner, &mut t.marks, &mut t.slots);
+                t.heard.extend(t.slots.iter().map(|&slot| grid.index_of(slot)));
+            }
             t.heard.sort_unstable();
-            let attempted = t.heard.iter().map(|&i| senders[i as usize].2 as u64).sum::<u64>();
+            let attempted = t.heard.iter().map(|&i| senders[i as usize].count as u64).sum::<u64>();
             t.stats.sent += attempted;
             if model.is_perfect() {
                 let picks = t.heard.iter().flat_map(|&i| {
                     let start = starts[i as usize];
-                    start..start + senders[i as usize].2
+                    start..start + senders[i as usize].count
                 });
                 match self.sent_at_us {
                     // All sent at one instant (every beacon of a round): the ages at once.
@@ -755,7 +797,7 @@ impl WifiRound<'_> {
                     None => {
                         for &i in &t.heard {
                             let start = starts[i as usize] as usize;
-                            for m in &batch[start..start + senders[i as usize].2 as usize] {
+                            for m in &batch[start..start + senders[i as usize].count as usize] {
                                 t.stats.age_sum_us += now.saturating_sub(m.sent_at.0);
                             }
                         }
@@ -769,7 +811,7 @@ impl WifiRound<'_> {
             }
             t.picks.clear();
             for &i in &t.heard {
-                let (sender, position, count) = senders[i as usize];
+                let Sender { id: sender, position, count, .. } = senders[i as usize];
                 let distance = if model.uses_distance() { position.distance(state.position) } else { 0.0 };
                 let mut fresh = LinkState::default();
                 let link = match links.as_deref_mut() {
@@ -829,7 +871,8 @@ pub fn deliver_wifi(
     mut links: ResMut<V2vLinks>,
     registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
-    mut mailboxes: Query<(Entity, &VehicleState, &mut Mailbox)>,
+    sensor_grid: Option<Res<SensorGrid>>,
+    mut mailboxes: Query<(Entity, Option<&VehicleId>, &VehicleState, &mut Mailbox)>,
     mut scratch: Local<WifiScratch>,
 ) {
     stats.wifi_rounds += 1;
@@ -848,10 +891,13 @@ pub fn deliver_wifi(
     // out-boxes (the reads of ten thousand out-boxes are most of a round's serial time), the
     // chunks joined in order, so any thread count gathers the same batch.
     s.senders.clear();
+    let mut base = 0;
     if let Ok(tables) = mailboxes.contiguous_iter_mut() {
-        for (_, states, mut boxes) in tables {
-            parallelism
-                .for_each_chunk_at(&mut boxes, &mut s.gathered, |start, chunk, out| out.take(&states[start..], chunk));
+        for (_, _, states, mut boxes) in tables {
+            parallelism.for_each_chunk_at(&mut boxes, &mut s.gathered, |start, chunk, out| {
+                out.take(base + start, &states[start..], chunk)
+            });
+            base += states.len();
             for out in &mut s.gathered {
                 s.senders.append(&mut out.senders);
                 s.buffer.append(&mut out.messages);
@@ -860,26 +906,45 @@ pub fn deliver_wifi(
     } else {
         // Only if a component were stored sparsely (none is): one at a time.
         let out = &mut Outgoing::default();
-        for (_, state, mut mailbox) in &mut mailboxes {
-            out.take(std::slice::from_ref(state), std::slice::from_mut(&mut *mailbox));
+        for (_, _, state, mut mailbox) in &mut mailboxes {
+            out.take(0, std::slice::from_ref(state), std::slice::from_mut(&mut *mailbox));
         }
         s.senders.append(&mut out.senders);
         s.buffer.append(&mut out.messages);
     }
     let batch = into_batch(&mut s.buffer);
     stats.wifi_sent += batch.len() as u64;
-    s.senders.sort_by_key(|&(id, _, _)| id);
+    s.senders.sort_by_key(|sender| sender.id);
     s.starts.clear();
     let mut at = 0;
-    for &(_, _, count) in &s.senders {
+    for sender in &s.senders {
         s.starts.push(at);
-        at += count;
+        at += sender.count;
     }
-    let senders = &s.senders;
-    s.grid.rebuild_on(parallelism, config.wifi_range, senders.len(), |i| {
-        let (id, position, _) = senders[i];
-        GridEntry { position, velocity: glam::DVec2::ZERO, id, index: i as u32 }
+    // The sensors' neighbour lists, when every vehicle lies in one table and they still hold
+    // everyone within the wifi range; else a grid of the senders.
+    let nearby = sensor_grid.as_deref().and_then(|sensor_grid| {
+        let readonly = mailboxes.as_readonly();
+        let mut full = readonly.contiguous_iter().ok()?.filter(|t| !t.0.is_empty());
+        let (_, ids, states, _) = full.next()?;
+        if full.next().is_some() {
+            return None;
+        }
+        sensor_grid.lists_within(ids?, states, config.wifi_range)
     });
+    let senders = &s.senders;
+    if let Some(lists) = nearby {
+        s.sender_of.clear();
+        s.sender_of.resize(lists.len(), NOT_SENDING);
+        for (i, sender) in senders.iter().enumerate() {
+            s.sender_of[sender.place as usize] = i as u32;
+        }
+    } else {
+        s.grid.rebuild_on(parallelism, config.wifi_range, senders.len(), |i| {
+            let Sender { id, position, .. } = senders[i];
+            GridEntry { position, velocity: glam::DVec2::ZERO, id, index: i as u32 }
+        });
+    }
     let input = WifiRound {
         model,
         range: config.wifi_range,
@@ -892,6 +957,7 @@ pub fn deliver_wifi(
         senders: &s.senders,
         starts: &s.starts,
         grid: &s.grid,
+        nearby: nearby.map(|lists| (lists, &s.sender_of[..])),
     };
     // Receivers table by table, straight in the ECS tables' slices (contiguous access); a
     // receiver's slot is its place in query order, counted across the tables.
@@ -924,12 +990,12 @@ pub fn deliver_wifi(
         }
     };
     if let Ok(tables) = mailboxes.contiguous_iter_mut() {
-        for (entities, states, mut boxes) in tables {
+        for (entities, _, states, mut boxes) in tables {
             receive(entities, states, &mut boxes);
         }
     } else {
         // Only if a component were stored sparsely (none is): one at a time.
-        for (entity, state, mut mailbox) in &mut mailboxes {
+        for (entity, _, state, mut mailbox) in &mut mailboxes {
             receive(std::slice::from_ref(&entity), std::slice::from_ref(state), std::slice::from_mut(&mut *mailbox));
         }
     }
