@@ -221,7 +221,7 @@ fn moving_wifi_rounds(wifi_range: f64, sensor_rate: f64) -> usize {
             let e = sim.entity(VehicleId(*id)).expect("vehicle exists");
             *sim.world_mut().get_mut::<VehicleState>(e).expect("state") = VehicleState::new(*p, *yaw, 0.0);
         }
-        let sending = |k: usize| (k as u32 + round) % 3 != 0;
+        let sending = |k: usize| !(k as u32 + round).is_multiple_of(3);
         for (k, &(id, ..)) in vehicles.iter().enumerate() {
             if sending(k) {
                 send(&mut sim, id, Channel::Wifi, Arc::new(round));
