@@ -35,6 +35,7 @@ use bevy_ecs::prelude::{Entity, Local, Mut, Query, Res, ResMut, Resource};
 use super::channel::{ChannelModel, LinkState, Loss, link_key, round_key};
 use super::random::{OrderedSample, binomial, key, mix, uniform_at};
 use super::{Plugin, SimBuilder, SimClock, SimSeed};
+use crate::world::BatchRef;
 use crate::world::{Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, Vehicles};
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
@@ -427,6 +428,7 @@ impl LossyRound<'_> {
     /// counting (attempted, delivered, age sum) into `t`.
     fn deliver(&self, chunk: &mut [NetworkItem<'_>], Padded(t): &mut Padded<(u64, u64, u64)>) {
         let (batch, now) = (self.batch, self.now_us);
+        let shared = BatchRef::new(batch);
         for mailbox in chunk.iter_mut() {
             let owner = mailbox.owner();
             let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
@@ -449,7 +451,7 @@ impl LossyRound<'_> {
                     self.age_all - own_age - lost_age
                 }
             };
-            mailbox.network_in.deliver_all_but_lost(self.epoch, self.round, batch, owner, lost);
+            mailbox.network_in.deliver_all_but_lost(self.epoch, self.round, &shared, owner, lost);
         }
     }
 }
@@ -496,6 +498,7 @@ pub fn deliver_network(
         // (integer sums: the same on any split).
         let (epoch, batch) = (epoch.0, &batch);
         let deliver = |boxes: &mut [Mailbox], Padded(t): &mut Padded<(u64, u64, u64)>| {
+            let shared = BatchRef::new(batch);
             for mailbox in boxes {
                 let owner = mailbox.owner();
                 let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
@@ -505,7 +508,7 @@ pub fn deliver_network(
                 t.0 += n;
                 t.1 += n;
                 t.2 += age_all - own_age;
-                mailbox.network_in.deliver_all_but(epoch, round, batch, owner);
+                mailbox.network_in.deliver_all_but(epoch, round, &shared, owner);
             }
         };
         let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
@@ -550,6 +553,7 @@ pub fn deliver_network(
     let mut record =
         model.delays().then(|| delayed.open(Channel::Network, round, &batch, mailboxes.iter().map(|(e, _, _)| e)));
     let network_round = round_key(seed, NETWORK_STREAM, round);
+    let shared = BatchRef::new(&batch);
     for (slot, (_, state, mut mailbox)) in mailboxes.iter_mut().enumerate() {
         let owner = mailbox.owner();
         picks.clear();
@@ -597,7 +601,7 @@ pub fn deliver_network(
         }
         if !model.delays() {
             delivered += picks.len() as u64;
-            mailbox.network_in.deliver_picks(epoch.0, round, &batch, owner, picks.iter().copied());
+            mailbox.network_in.deliver_picks(epoch.0, round, &shared, owner, picks.iter().copied());
         }
     }
     if let Some(record) = record {
@@ -745,6 +749,7 @@ impl WifiRound<'_> {
     ) {
         let (model, now) = (&self.model, self.now_us);
         let (senders, starts, batch) = (self.senders, self.starts, self.batch);
+        let shared = BatchRef::new(batch);
         // Without per-link state or distance (a constant loss, no bursts) every reception's fate
         // is `ChannelModel::fate` with one loss probability: no link to look up.
         let memoryless = match (model.loss, model.burst, links.is_some()) {
@@ -806,7 +811,7 @@ impl WifiRound<'_> {
                 t.stats.aged += attempted;
                 t.stats.delivered += attempted;
                 t.delivered += attempted;
-                mailbox.wifi_in.deliver_picks(self.epoch, self.round, batch, owner, picks);
+                mailbox.wifi_in.deliver_picks(self.epoch, self.round, &shared, owner, picks);
                 continue;
             }
             t.picks.clear();
@@ -847,7 +852,7 @@ impl WifiRound<'_> {
             }
             if !model.delays() {
                 t.delivered += t.picks.len() as u64;
-                mailbox.wifi_in.deliver_picks(self.epoch, self.round, batch, owner, t.picks.iter().copied());
+                mailbox.wifi_in.deliver_picks(self.epoch, self.round, &shared, owner, t.picks.iter().copied());
             }
         }
     }
@@ -1087,6 +1092,7 @@ impl DueRound<'_> {
     /// them, one delivery per in-box, and keep the others in `t.kept`.
     fn deliver(&self, start: usize, chunk: &mut [DelayItem<'_>], t: &mut DueThread) {
         let (r, now) = (self.round, self.now);
+        let shared = BatchRef::new(&r.batch);
         let receptions = &r.receptions;
         let end = start + chunk.len();
         let mut i = receptions.partition_point(|x| (x.slot as usize) < start);
@@ -1120,7 +1126,7 @@ impl DueRound<'_> {
             let (_, mailbox) = &mut chunk[slot as usize - start];
             let owner = mailbox.owner();
             let inbox = mailbox.inbox_mut(r.channel);
-            inbox.deliver_picks(self.epoch, r.round, &r.batch, owner, t.picks.iter().copied());
+            inbox.deliver_picks(self.epoch, r.round, &shared, owner, t.picks.iter().copied());
         }
     }
 }

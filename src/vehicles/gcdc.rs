@@ -39,7 +39,7 @@ use glam::DVec2;
 
 use crate::sim::channel::{Draw, LinkState};
 use crate::sim::{Control, ControlEpoch, Plugin, SimBuilder, SimClock, SimSeed, SimSystems, V2vConfig, V2vStats, Wifi};
-use crate::world::{Channel, Mailbox, Message, Route, VehicleId, VehicleSize, VehicleState};
+use crate::world::{BatchRef, Channel, Mailbox, Message, Route, VehicleId, VehicleSize, VehicleState};
 
 use super::acc::AdaptiveCruise;
 use super::gcdc_protocol::{
@@ -431,6 +431,7 @@ pub fn broadcast_rsus(
         let payload = Arc::new(RsuMessage { message: rsu.message, at: rsu.position });
         let batch: Arc<[Message]> =
             Arc::from(vec![Message { sender: rsu.id, sent_at: clock.now, channel: Channel::Wifi, payload }]);
+        let shared = BatchRef::new(&batch);
         for (state, mut mailbox) in &mut mailboxes {
             let distance = state.position.distance(rsu.position);
             if distance > rsu.range {
@@ -440,7 +441,7 @@ pub fn broadcast_rsus(
             let draw = Draw { seed, stream: RSU_STREAM, sender: rsu.id.0, receiver: owner.0, round, index: 0 };
             let link = links.entry((rsu.id.0, owner.0)).or_default();
             if model.deliver(&draw, clock.now.0, distance, rsu.range, link).is_some() {
-                mailbox.wifi_in.deliver_picks(epoch.0, round, &batch, owner, std::iter::once(0));
+                mailbox.wifi_in.deliver_picks(epoch.0, round, &shared, owner, std::iter::once(0));
             }
         }
     }

@@ -14,6 +14,7 @@ mod sensors;
 mod time;
 mod vehicle;
 
+pub(crate) use mailbox::BatchRef;
 pub use mailbox::{Channel, Inbox, InboxIter, Mailbox, Message, Payload};
 pub use models::{AccelerationUnicycle, KinematicUnicycle, VehicleModel};
 pub use registry::{SensorSet, VehicleSpec, Vehicles, WorldError, despawn_vehicle, spawn_vehicle};
