@@ -293,6 +293,11 @@ pub struct SenseScratch {
     /// A neighbour list's build: which candidates lie within reach, and scratch for finding them.
     marks: Vec<u32>,
     slots: Vec<u32>,
+    /// The lists this thread built this tick (its chunk's, from vehicle `built_from` on), one
+    /// after the other, and where each ends.
+    built: Vec<u32>,
+    built_ends: Vec<u32>,
+    built_from: Option<usize>,
     /// Angular extents of the targets found so far nearer than the current one (occlusion).
     extents: Vec<(f64, f64, f64)>,
     /// Counts of this thread's vehicles this tick.
@@ -789,11 +794,34 @@ struct NeighbourLists {
     skin: f64,
     /// The shortest of `ranges` [m].
     shortest: f64,
-    /// Each vehicle's neighbours, nearest first at the build (so that a tick's detections
-    /// arrive nearly sorted): places in the query.
-    lists: Vec<Vec<u32>>,
+    /// Every vehicle's neighbours, nearest first at the build (so that a tick's detections
+    /// arrive nearly sorted), as places in the query: vehicle i's are
+    /// `neighbours[starts[i]..starts[i + 1]]`. One array, in query order, so that a pass over
+    /// the vehicles reads it straight through (a list per vehicle, each its own allocation,
+    /// made every list a cache miss: two thirds of a wifi round's samples).
+    lists: Lists,
     /// Builds so far.
     builds: u64,
+}
+
+/// Neighbour lists in one array ([`NeighbourLists::lists`]).
+#[derive(Debug, Default)]
+pub(crate) struct Lists {
+    starts: Vec<u32>,
+    neighbours: Vec<u32>,
+}
+
+impl Lists {
+    /// Number of vehicles.
+    pub(crate) fn len(&self) -> usize {
+        self.starts.len().saturating_sub(1)
+    }
+
+    /// The neighbours of the vehicle at place `i`.
+    #[inline]
+    pub(crate) fn of(&self, i: usize) -> &[u32] {
+        &self.neighbours[self.starts[i] as usize..self.starts[i + 1] as usize]
+    }
 }
 
 /// The neighbour lists and this tick's ranges (scratch), kept between ticks.
@@ -814,10 +842,10 @@ impl SensorGrid {
     /// in the same order, each at least `range` plus the skin wide, and no vehicle moved half
     /// the skin since they were built. For modules that look around the vehicles at the same
     /// instant as the sensors (the wifi round), so that one search serves both.
-    pub(crate) fn lists_within(&self, ids: &[VehicleId], states: &[VehicleState], range: f64) -> Option<&[Vec<u32>]> {
+    pub(crate) fn lists_within(&self, ids: &[VehicleId], states: &[VehicleState], range: f64) -> Option<&Lists> {
         let lists = &self.neighbours.lists;
         let wide = lists.skin > 0.0 && lists.lists.len() == ids.len() && lists.shortest >= range;
-        (wide && lists.moved_little(Everyone { ids, states })).then_some(&lists.lists[..])
+        (wide && lists.moved_little(Everyone { ids, states })).then_some(&lists.lists)
     }
 }
 
@@ -839,43 +867,55 @@ impl NeighbourLists {
     }
 }
 
+/// Where a sensor tick finds the neighbour lists: built this tick over the grid with the skin
+/// [m] (each chunk into its thread's [`SenseScratch::built`], joined after the tick), or kept.
+#[derive(Clone, Copy)]
+enum Listing<'a> {
+    Build(f64),
+    Kept(&'a Lists),
+}
+
 /// Fill the readings of a contiguous chunk of sensing vehicles (items `start..` of `table`,
-/// which is every vehicle, `everyone`) from their neighbour lists, first building each list
-/// over the grid when `build` (the lists' skin [m]).
-#[allow(clippy::too_many_arguments)]
+/// which is every vehicle, `everyone`) from their neighbour lists.
 fn sense_listed(
     input: SenseInput<'_>,
     table: SensingTable<'_>,
     everyone: Everyone<'_>,
-    build: Option<f64>,
-    start: usize,
-    chunk: &mut [SensorReadings],
-    lists: &mut [Vec<u32>],
+    listing: Listing<'_>,
+    (start, chunk): (usize, &mut [SensorReadings]),
     s: &mut SenseScratch,
 ) {
     let grid = input.grid;
     let mut gathered: Option<Gathered> = None;
-    for (k, (readings, list)) in chunk.iter_mut().zip(lists).enumerate() {
+    s.built.clear();
+    s.built_ends.clear();
+    s.built_from = matches!(listing, Listing::Build(_)).then_some(start);
+    for (k, readings) in chunk.iter_mut().enumerate() {
         let i = start + k;
         let (id, state) = (table.ids[i], &table.states[i]);
         let (radar, velodyne) = (table.radars.map(|r| &r[i]), table.velodynes.map(|v| &v[i]));
-        if let Some(skin) = build {
-            let radius = sensor_range(radar, velodyne) + skin;
-            let centre = grid.cell_of(state.position);
-            let reach = reach(radius, grid.cell_size());
-            if gathered.is_none_or(|g| g != Gathered::Square(centre, reach) && g != Gathered::All) {
-                gathered = Some(gather(grid, centre, reach, &mut s.around));
+        let list = match listing {
+            Listing::Kept(lists) => lists.of(i),
+            Listing::Build(skin) => {
+                let radius = sensor_range(radar, velodyne) + skin;
+                let centre = grid.cell_of(state.position);
+                let reach = reach(radius, grid.cell_size());
+                if gathered.is_none_or(|g| g != Gathered::Square(centre, reach) && g != Gathered::All) {
+                    gathered = Some(gather(grid, centre, reach, &mut s.around));
+                }
+                s.around.within(state.position, radius, id, &mut s.marks, &mut s.slots);
+                s.keys.clear();
+                s.keys.extend(s.slots.iter().map(|&slot| {
+                    let e = grid.get(slot);
+                    detection_key((e.position - state.position).length_squared(), e.index)
+                }));
+                s.keys.sort_unstable();
+                let begin = s.built.len();
+                s.built.extend(s.keys.iter().map(|&key| key as u32));
+                s.built_ends.push(s.built.len() as u32);
+                &s.built[begin..]
             }
-            s.around.within(state.position, radius, id, &mut s.marks, &mut s.slots);
-            s.keys.clear();
-            s.keys.extend(s.slots.iter().map(|&slot| {
-                let e = grid.get(slot);
-                detection_key((e.position - state.position).length_squared(), e.index)
-            }));
-            s.keys.sort_unstable();
-            list.clear();
-            list.extend(s.keys.iter().map(|&key| key as u32));
-        }
+        };
         let sight = Sight::new(id, state, radar, velodyne, false, &mut s.half_cos);
         let found = sight.consider_listed(list, everyone, &mut s.found);
         let errors = table.errors.map(|e| &e[i]);
@@ -999,7 +1039,6 @@ pub fn sense_vehicles(
             lists.ranges.extend_from_slice(ranges_now);
             lists.skin = skin;
             lists.shortest = ranges_now.iter().copied().fold(f64::INFINITY, f64::min);
-            lists.lists.resize_with(n, Vec::new);
             lists.builds += 1;
         }
         let input =
@@ -1010,10 +1049,26 @@ pub fn sense_vehicles(
                 continue;
             }
             let table = SensingTable { ids, states, radars, velodynes, omniscient, errors };
-            let build = build.then_some(skin);
-            parallelism.for_each_chunk_pair_at(&mut readings, &mut lists.lists, &mut scratch, |start, chunk, l, s| {
-                sense_listed(input, table, everyone, build, start, chunk, l, s)
+            let listing = if build { Listing::Build(skin) } else { Listing::Kept(&lists.lists) };
+            parallelism.for_each_chunk_at(&mut readings, &mut scratch, |start, chunk, s| {
+                sense_listed(input, table, everyone, listing, (start, chunk), s)
             });
+        }
+        if build {
+            // Each chunk's lists, in chunk order, into the one array.
+            let Lists { starts, neighbours } = &mut lists.lists;
+            starts.clear();
+            starts.push(0);
+            neighbours.clear();
+            let mut built: Vec<&mut SenseScratch> = scratch.iter_mut().filter(|s| s.built_from.is_some()).collect();
+            built.sort_by_key(|s| s.built_from);
+            for s in built {
+                let base = neighbours.len() as u32;
+                neighbours.extend_from_slice(&s.built);
+                starts.extend(s.built_ends.iter().map(|&end| base + end));
+                s.built_from = None;
+            }
+            debug_assert_eq!(starts.len(), n + 1);
         }
         for s in scratch.iter_mut() {
             stats.add(&s.stats);

@@ -41,7 +41,7 @@ use crate::world::{Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::parallel::{Padded, recycle};
-use super::sensors::SensorGrid;
+use super::sensors::{Lists, SensorGrid};
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
@@ -731,7 +731,7 @@ struct WifiRound<'a> {
     /// The sensors' neighbour lists (each vehicle's, by place in the query) and
     /// [`WifiScratch::sender_of`], when they hold everyone within the wifi range: then the grid
     /// is not built.
-    nearby: Option<(&'a [Vec<u32>], &'a [u32])>,
+    nearby: Option<(&'a Lists, &'a [u32])>,
 }
 
 impl WifiRound<'_> {
@@ -766,7 +766,7 @@ impl WifiRound<'_> {
             if let Some((lists, sender_of)) = self.nearby {
                 // The senders on its list within range: the test of `Candidates::within`.
                 let (p, r2) = (state.position, self.range * self.range);
-                for &j in &lists[slot as usize] {
+                for &j in lists.of(slot as usize) {
                     let i = sender_of[j as usize];
                     if i == NOT_SENDING {
                         continue;

@@ -215,12 +215,7 @@ impl Inbox {
         self.begin(epoch);
         let own = batch.partition_point(|m| m.sender < exclude)..batch.partition_point(|m| m.sender <= exclude);
         let kept = batch.len() - own.len() - lost.remaining() as usize;
-        self.push(Delivery {
-            round,
-            batch: batch.clone(),
-            exclude,
-            selection: Selection::AllButLost { lost, kept },
-        });
+        self.push(Delivery { round, batch: batch.clone(), exclude, selection: Selection::AllButLost { lost, kept } });
     }
 
     /// Deliver the batch entries whose indices `picks` yields (the wifi channel).
