@@ -375,6 +375,32 @@ fn into_batch(buffer: &mut Vec<Message>) -> Arc<[Message]> {
     buffer.drain(..).collect()
 }
 
+/// The batch of a round whose messages are `buffer`'s then the `chunks`' (in query order),
+/// sorted by sender id as [`into_batch`] sorts them. When they are sorted already (the chunks
+/// alone, in order: one table whose vehicles came in id order, the common case) they are moved
+/// once, straight into the batch, rather than into `buffer` and from there into the batch: one
+/// copy of the round's messages (400 kB at 10,000 vehicles) fewer, on the main thread.
+fn join_batch(chunks: &mut [Outgoing], buffer: &mut Vec<Message>) -> Arc<[Message]> {
+    let sorted = buffer.is_empty() && chunks.iter().flat_map(|c| &c.messages).is_sorted_by_key(|m| m.sender);
+    if !sorted {
+        for chunk in chunks {
+            buffer.append(&mut chunk.messages);
+        }
+        return into_batch(buffer);
+    }
+    let n = chunks.iter().map(|c| c.messages.len()).sum();
+    let mut batch = Arc::<[Message]>::new_uninit_slice(n);
+    let slots = Arc::get_mut(&mut batch).expect("a new batch has no other reference");
+    let mut written = 0;
+    for (slot, message) in slots.iter_mut().zip(chunks.iter_mut().flat_map(|c| c.messages.drain(..))) {
+        slot.write(message);
+        written += 1;
+    }
+    assert_eq!(written, n, "every slot of the batch written");
+    // SAFETY: each of the n slots was written just above (counted and checked).
+    unsafe { batch.assume_init() }
+}
+
 /// The time every message of `batch` was written, when they were all written at once (beacons
 /// of one tick): a delivery's age sum is then its count times one age, not a read per message.
 fn common_sent_at(batch: &[Message]) -> Option<SimTime> {
@@ -899,13 +925,16 @@ pub fn deliver_wifi(
     let mut base = 0;
     if let Ok(tables) = mailboxes.contiguous_iter_mut() {
         for (_, _, states, mut boxes) in tables {
+            // The last table's messages stay in the chunks (see `join_batch`).
+            for out in &mut s.gathered {
+                s.buffer.append(&mut out.messages);
+            }
             parallelism.for_each_chunk_at(&mut boxes, &mut s.gathered, |start, chunk, out| {
                 out.take(base + start, &states[start..], chunk)
             });
             base += states.len();
             for out in &mut s.gathered {
                 s.senders.append(&mut out.senders);
-                s.buffer.append(&mut out.messages);
             }
         }
     } else {
@@ -917,7 +946,7 @@ pub fn deliver_wifi(
         s.senders.append(&mut out.senders);
         s.buffer.append(&mut out.messages);
     }
-    let batch = into_batch(&mut s.buffer);
+    let batch = join_batch(&mut s.gathered, &mut s.buffer);
     stats.wifi_sent += batch.len() as u64;
     s.senders.sort_by_key(|sender| sender.id);
     s.starts.clear();
@@ -1296,6 +1325,30 @@ impl Plugin for V2vPlugin {
 mod tests {
     use super::*;
     use std::sync::atomic::{AtomicUsize, Ordering};
+
+    #[test]
+    fn a_joined_batch_is_the_messages_sorted_by_sender_each_senders_in_its_order() {
+        let message = |sender: i32, k: u64| Message {
+            sender: VehicleId(sender),
+            sent_at: SimTime(k),
+            channel: Channel::Wifi,
+            payload: Arc::new(k),
+        };
+        let chunk = |messages: Vec<Message>| Outgoing { senders: Vec::new(), messages };
+        let order = |batch: &[Message]| batch.iter().map(|m| (m.sender.0, m.sent_at.0)).collect::<Vec<_>>();
+        // Sorted across the chunks: moved straight in.
+        let mut chunks = [chunk(vec![message(-3, 0), message(-3, 1)]), chunk(vec![]), chunk(vec![message(2, 2)])];
+        let batch = join_batch(&mut chunks, &mut Vec::new());
+        assert_eq!(order(&batch), [(-3, 0), (-3, 1), (2, 2)]);
+        assert!(chunks.iter().all(|c| c.messages.is_empty()), "the chunks are emptied");
+        // Out of order across two chunks, and an earlier table's messages in the buffer.
+        let mut chunks = [chunk(vec![message(5, 0), message(1, 1)]), chunk(vec![message(1, 2), message(-4, 3)])];
+        let batch = join_batch(&mut chunks, &mut Vec::new());
+        assert_eq!(order(&batch), [(-4, 3), (1, 1), (1, 2), (5, 0)]);
+        let mut chunks = [chunk(vec![message(1, 1)])];
+        let batch = join_batch(&mut chunks, &mut vec![message(7, 0), message(1, 5)]);
+        assert_eq!(order(&batch), [(1, 5), (1, 1), (7, 0)]);
+    }
 
     /// Counts its drops in its own counter.
     struct Counted(&'static AtomicUsize);
