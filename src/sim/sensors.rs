@@ -981,13 +981,25 @@ pub fn sense_vehicles(
     }
     ranges.clear();
     let mut occlusion = false;
-    ranges.extend(
-        sensing
-            .iter()
-            .inspect(|item| occlusion |= item.5.is_some_and(|e| e.radar.occlusion || e.velodyne.occlusion))
-            .map(|(_, _, radar, velodyne, _, _, _)| sensor_range(radar, velodyne))
-            .filter(|&r| r > 0.0 && r.is_finite()),
-    );
+    let occludes = |e: &SensorErrors| e.radar.occlusion || e.velodyne.occlusion;
+    let bounded = |r: &f64| *r > 0.0 && r.is_finite();
+    if let Ok(tables) = sensing.as_readonly().contiguous_iter() {
+        // Table by table, over the components' slices (an item at a time through the whole
+        // query was most of this serial pass).
+        for (ids, _, radars, velodynes, _, errors, _) in tables {
+            occlusion |= errors.is_some_and(|e| e.iter().any(occludes));
+            let range = |i: usize| sensor_range(radars.map(|r| &r[i]), velodynes.map(|v| &v[i]));
+            ranges.extend((0..ids.len()).map(range).filter(bounded));
+        }
+    } else {
+        ranges.extend(
+            sensing
+                .iter()
+                .inspect(|item| occlusion |= item.5.is_some_and(occludes))
+                .map(|(_, _, radar, velodyne, _, _, _)| sensor_range(radar, velodyne))
+                .filter(bounded),
+        );
+    }
     footprints.clear();
     if occlusion {
         footprints.extend(everyone.iter().map(|(_, state, size)| {
