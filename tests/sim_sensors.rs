@@ -2,12 +2,18 @@
 //! spatial grid against a brute-force scan.
 
 use smlworld::prelude::*;
-use smlworld::sim::{SensorStats, in_radar_cone};
+use smlworld::sim::{Parallelism, SensorStats, in_radar_cone};
 use smlworld::world::{SensorError, SensorErrors};
 
 /// A sim with sensors only; vehicles have no dynamics so they stay where they are put.
 fn world_of(vehicles: &[(i32, DVec2, f64, SensorSet)]) -> Sim {
+    world_on(vehicles, 1)
+}
+
+/// [`world_of`], sensing split over `threads` threads however few the vehicles.
+fn world_on(vehicles: &[(i32, DVec2, f64, SensorSet)], threads: usize) -> Sim {
     let mut b = SimBuilder::new();
+    b.insert_resource(Parallelism { threads, min_vehicles: 0 });
     b.add_plugin(SensorsPlugin);
     for &(id, p, yaw, sensors) in vehicles {
         let mut spec = VehicleSpec::new(VehicleId(id), VehicleState::new(p, yaw, 0.0));
@@ -171,6 +177,13 @@ fn a_few_long_range_sensors_see_as_far_as_their_range_on_a_fine_grid() {
 
 #[test]
 fn moving_vehicles_are_seen_as_a_brute_force_scan_sees_them_tick_after_tick() {
+    // On one thread, and on three (the lists built in three chunks and joined).
+    for threads in [1, 3] {
+        moving_vehicles_against_a_scan(threads);
+    }
+}
+
+fn moving_vehicles_against_a_scan(threads: usize) {
     // 300 vehicles on a 700 m square, each at its own speed (0 to 40 m/s, some turning); now and
     // then one jumps 150 m (a lab bridge's correction) and one gets a much longer or shorter range. Sensing keeps
     // neighbour lists between ticks while nobody has moved far: every tick's readings must
@@ -193,7 +206,7 @@ fn moving_vehicles_are_seen_as_a_brute_force_scan_sees_them_tick_after_tick() {
         // Speed [m/s] and turn rate [rad/s].
         motion.push((lcg(&mut rng) * 40.0, if i % 4 == 0 { lcg(&mut rng) - 0.5 } else { 0.0 }));
     }
-    let mut sim = world_of(&vehicles);
+    let mut sim = world_on(&vehicles, threads);
     assert_sim_matches_brute_force(&sim, &vehicles);
     let dt = 0.05; // one sensor tick at 20 Hz
     for tick in 1..80 {

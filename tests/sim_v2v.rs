@@ -189,9 +189,10 @@ fn lcg(state: &mut u64) -> f64 {
 /// Vehicles with radars and velodynes moving on a square, a changing half of them sending on
 /// wifi each round; every round, each vehicle's in-box holds this round's messages of exactly
 /// the senders within `wifi_range` (a scan over everyone). Returns the receptions counted.
-fn moving_wifi_rounds(wifi_range: f64, sensor_rate: f64) -> usize {
+fn moving_wifi_rounds(wifi_range: f64, sensor_rate: f64, threads: usize) -> usize {
     let mut rng = 5u64;
     let mut b = SimBuilder::new();
+    b.insert_resource(smlworld::sim::Parallelism { threads, min_vehicles: 0 });
     b.set_rate(Sensors, sensor_rate);
     b.add_plugin(SensorsPlugin);
     b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range, ..Default::default() } });
@@ -251,7 +252,9 @@ fn moving_receivers_hear_exactly_the_senders_in_range_round_after_round() {
     // Within the sensors' 100 m (the wifi round reads the sensors' neighbour lists, built at
     // the same instant, or at 2 Hz up to half a second before) and beyond it (it cannot: a grid
     // of the senders).
-    assert!(moving_wifi_rounds(50.0, 20.0) > 10_000);
-    assert!(moving_wifi_rounds(50.0, 2.0) > 10_000);
-    assert!(moving_wifi_rounds(170.0, 20.0) > 10_000);
+    for threads in [1, 3] {
+        assert!(moving_wifi_rounds(50.0, 20.0, threads) > 10_000);
+        assert!(moving_wifi_rounds(50.0, 2.0, threads) > 10_000);
+        assert!(moving_wifi_rounds(170.0, 20.0, threads) > 10_000);
+    }
 }
