@@ -618,9 +618,7 @@ impl Candidates {
     fn mark_within(&self, p: DVec2, r2: f64, exclude: VehicleId, marks: &mut [u32]) {
         let candidates = self.xs.iter().zip(&self.ys).zip(&self.slots).zip(&self.ids);
         for (mark, (((&x, &y), &slot), &id)) in marks.iter_mut().zip(candidates) {
-            let (dx, dy) = (x - p.x, y - p.y);
-            let d2 = dx * dx + dy * dy;
-            *mark = if (d2 <= r2) & (id != exclude) { slot } else { u32::MAX };
+            *mark = if within_reach(p, x, y, r2) & (id != exclude) { slot } else { u32::MAX };
         }
     }
 
@@ -631,6 +629,15 @@ impl Candidates {
         self.ys.push(y);
         self.ids.push(id);
     }
+}
+
+/// Whether (`x`, `y`) lies within squared distance `r2` [m²] of `p` (inclusive), computed as
+/// every range query computes it (differences, then x² + y²), so that a search through the
+/// grid and one through neighbour lists agree at the edge bit for bit.
+#[inline(always)]
+pub(crate) fn within_reach(p: DVec2, x: f64, y: f64, r2: f64) -> bool {
+    let (dx, dy) = (x - p.x, y - p.y);
+    dx * dx + dy * dy <= r2
 }
 
 /// [`Candidates::mark_within`] as a [`Pass`].

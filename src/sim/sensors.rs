@@ -332,6 +332,17 @@ fn gather(grid: &SpatialGrid, centre: (i32, i32), reach: i32, around: &mut Candi
     Gathered::Square(centre, reach)
 }
 
+/// Gather into `around` the candidates of the cells that `range` [m] reaches around `p`, unless
+/// it holds them already (`gathered` says what it holds: consecutive vehicles mostly share a
+/// cell).
+fn gather_within(grid: &SpatialGrid, p: DVec2, range: f64, gathered: &mut Option<Gathered>, around: &mut Candidates) {
+    let centre = grid.cell_of(p);
+    let reach = reach(range, grid.cell_size());
+    if gathered.is_none_or(|g| g != Gathered::Square(centre, reach) && g != Gathered::All) {
+        *gathered = Some(gather(grid, centre, reach, around));
+    }
+}
+
 /// One detection as an integer sort key: the squared distance rounded to an f32 (a
 /// non-negative float's bits order like the number, and rounding keeps the order but for
 /// ties), then `low` (the grid slot and which sensors reach it, see [`REACH`]). Eight bytes
@@ -722,11 +733,7 @@ fn sense_chunk(
                 gathered = Some(Gathered::All);
             }
         } else {
-            let centre = grid.cell_of(state.position);
-            let reach = reach(sensor_range(radar, velodyne), grid.cell_size());
-            if gathered.is_none_or(|g| g != Gathered::Square(centre, reach) && g != Gathered::All) {
-                gathered = Some(gather(grid, centre, reach, &mut s.around));
-            }
+            gather_within(grid, state.position, sensor_range(radar, velodyne), &mut gathered, &mut s.around);
         }
         let found = sight.consider_all(&s.around, &mut s.keys, &mut s.found);
         write_found(&sight, errors, input, grid, found, (&mut s.extents, &mut s.stats), readings);
@@ -898,11 +905,7 @@ fn sense_listed(
             Listing::Kept(lists) => lists.of(i),
             Listing::Build(skin) => {
                 let radius = sensor_range(radar, velodyne) + skin;
-                let centre = grid.cell_of(state.position);
-                let reach = reach(radius, grid.cell_size());
-                if gathered.is_none_or(|g| g != Gathered::Square(centre, reach) && g != Gathered::All) {
-                    gathered = Some(gather(grid, centre, reach, &mut s.around));
-                }
+                gather_within(grid, state.position, radius, &mut gathered, &mut s.around);
                 s.around.within(state.position, radius, id, &mut s.marks, &mut s.slots);
                 s.keys.clear();
                 s.keys.extend(s.slots.iter().map(|&slot| {
@@ -983,14 +986,18 @@ pub fn sense_vehicles(
     let mut occlusion = false;
     let occludes = |e: &SensorErrors| e.radar.occlusion || e.velodyne.occlusion;
     let bounded = |r: &f64| *r > 0.0 && r.is_finite();
+    // Every sensing vehicle's range in query order (what the neighbour lists keep), and the
+    // bounded ones (for the typical range).
+    neighbours.ranges_now.clear();
     if let Ok(tables) = sensing.as_readonly().contiguous_iter() {
         // Table by table, over the components' slices (an item at a time through the whole
         // query was most of this serial pass).
         for (ids, _, radars, velodynes, _, errors, _) in tables {
             occlusion |= errors.is_some_and(|e| e.iter().any(occludes));
             let range = |i: usize| sensor_range(radars.map(|r| &r[i]), velodynes.map(|v| &v[i]));
-            ranges.extend((0..ids.len()).map(range).filter(bounded));
+            neighbours.ranges_now.extend((0..ids.len()).map(range));
         }
+        ranges.extend(neighbours.ranges_now.iter().copied().filter(bounded));
     } else {
         ranges.extend(
             sensing
@@ -1026,16 +1033,14 @@ pub fn sense_vehicles(
     let listed = one_table.and_then(|(ids, states, _)| {
         let readonly = sensing.as_readonly();
         let mut full = readonly.contiguous_iter().ok()?.filter(|t| !t.0.is_empty());
-        let (sensing_ids, _, radars, velodynes, omniscient, _, _) = full.next()?;
+        let (sensing_ids, _, _, _, omniscient, _, _) = full.next()?;
         if full.next().is_some() || omniscient || sensing_ids != ids {
             return None;
         }
-        neighbours.ranges_now.clear();
-        neighbours
-            .ranges_now
-            .extend((0..ids.len()).map(|i| sensor_range(radars.map(|r| &r[i]), velodynes.map(|v| &v[i]))));
+        // The ranges gathered above are this one table's.
         neighbours.ranges_now.iter().all(|r| r.is_finite()).then_some(Everyone { ids, states })
     });
+    let draws = Draws::new(seed.map_or(0, |s| s.0), clock.now.0);
     if let Some(everyone) = listed {
         let skin = SKIN_SHARE * cell;
         let n = neighbours.ranges_now.len();
@@ -1053,8 +1058,7 @@ pub fn sense_vehicles(
             lists.shortest = ranges_now.iter().copied().fold(f64::INFINITY, f64::min);
             lists.builds += 1;
         }
-        let input =
-            SenseInput { grid, footprints: &footprints, draws: Draws::new(seed.map_or(0, |s| s.0), clock.now.0) };
+        let input = SenseInput { grid, footprints: &footprints, draws };
         let tables = sensing.contiguous_iter_mut().ok().into_iter().flatten();
         for (ids, states, radars, velodynes, omniscient, errors, mut readings) in tables {
             if ids.is_empty() {
@@ -1082,41 +1086,37 @@ pub fn sense_vehicles(
             }
             debug_assert_eq!(starts.len(), n + 1);
         }
-        for s in scratch.iter_mut() {
-            stats.add(&s.stats);
-            s.stats = SensorStats::default();
-        }
-        return;
-    }
-    match one_table {
-        Some((ids, states, _)) => {
-            grid.rebuild_on(*parallelism, cell, ids.len().min(states.len()), |i| entry(i, ids[i], &states[i]))
-        }
-        None => grid.rebuild(cell, everyone.iter().enumerate().map(|(i, (&id, state, _))| entry(i, id, state))),
-    }
-    let input = SenseInput { grid, footprints: &footprints, draws: Draws::new(seed.map_or(0, |s| s.0), clock.now.0) };
-    if let Ok(tables) = sensing.contiguous_iter_mut() {
-        for (ids, states, radars, velodynes, omniscient, errors, mut readings) in tables {
-            let table = SensingTable { ids, states, radars, velodynes, omniscient, errors };
-            parallelism.for_each_chunk_at(&mut readings, &mut scratch, |start, chunk, s| {
-                sense_chunk(input, table, start, chunk, s)
-            });
-        }
     } else {
-        // Only if a component were stored sparsely (none is): one at a time.
-        if scratch.is_empty() {
-            scratch.push(SenseScratch::default());
+        match one_table {
+            Some((ids, states, _)) => {
+                grid.rebuild_on(*parallelism, cell, ids.len().min(states.len()), |i| entry(i, ids[i], &states[i]))
+            }
+            None => grid.rebuild(cell, everyone.iter().enumerate().map(|(i, (&id, state, _))| entry(i, id, state))),
         }
-        for (id, state, radar, velodyne, omniscient, errors, mut readings) in &mut sensing {
-            let table = SensingTable {
-                ids: std::slice::from_ref(id),
-                states: std::slice::from_ref(state),
-                radars: radar.map(std::slice::from_ref),
-                velodynes: velodyne.map(std::slice::from_ref),
-                omniscient,
-                errors: errors.map(std::slice::from_ref),
-            };
-            sense_chunk(input, table, 0, std::slice::from_mut(&mut *readings), &mut scratch[0]);
+        let input = SenseInput { grid, footprints: &footprints, draws };
+        if let Ok(tables) = sensing.contiguous_iter_mut() {
+            for (ids, states, radars, velodynes, omniscient, errors, mut readings) in tables {
+                let table = SensingTable { ids, states, radars, velodynes, omniscient, errors };
+                parallelism.for_each_chunk_at(&mut readings, &mut scratch, |start, chunk, s| {
+                    sense_chunk(input, table, start, chunk, s)
+                });
+            }
+        } else {
+            // Only if a component were stored sparsely (none is): one at a time.
+            if scratch.is_empty() {
+                scratch.push(SenseScratch::default());
+            }
+            for (id, state, radar, velodyne, omniscient, errors, mut readings) in &mut sensing {
+                let table = SensingTable {
+                    ids: std::slice::from_ref(id),
+                    states: std::slice::from_ref(state),
+                    radars: radar.map(std::slice::from_ref),
+                    velodynes: velodyne.map(std::slice::from_ref),
+                    omniscient,
+                    errors: errors.map(std::slice::from_ref),
+                };
+                sense_chunk(input, table, 0, std::slice::from_mut(&mut *readings), &mut scratch[0]);
+            }
         }
     }
     for s in scratch.iter_mut() {

@@ -40,6 +40,7 @@ use crate::world::{Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, 
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
+use super::grid::within_reach;
 use super::parallel::{Padded, recycle};
 use super::sensors::{Lists, SensorGrid};
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
@@ -798,8 +799,7 @@ impl WifiRound<'_> {
                         continue;
                     }
                     let Sender { id, position, .. } = senders[i as usize];
-                    let (dx, dy) = (position.x - p.x, position.y - p.y);
-                    if (dx * dx + dy * dy <= r2) & (id != owner) {
+                    if within_reach(p, position.x, position.y, r2) & (id != owner) {
                         t.heard.push(i);
                     }
                 }
