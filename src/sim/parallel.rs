@@ -40,10 +40,12 @@ const SPIN: Duration = Duration::from_micros(2000);
 /// (a helper may have been descheduled on a busy machine).
 const WAIT_SPIN: Duration = Duration::from_micros(100);
 
-/// Chunks a section is cut into per thread: enough that a thread which finishes early finds a
-/// quarter of the other's share left to take, few enough that each chunk's fixed costs (a
-/// scratch value's cache lines, a sensing chunk's first gathering) stay small.
-pub const CHUNKS_PER_THREAD: usize = 4;
+/// Chunks a section is cut into per thread, so that a thread which finishes early finds half of
+/// the other's share left to take. Measured on 2 threads (`bench`, instrumented): at 10,000
+/// vehicles the caller waited 50-120 ms a run with one chunk a thread, 28-49 ms with 2, 12-24 ms
+/// with 4, but at 100,000 vehicles 4 made the wifi round 10-30 % slower than 2 (0.98 -> 1.08 s
+/// and 0.83 -> 1.12 s), and wall time at 10,000 could not tell 2 and 4 apart; 8 was slower.
+pub const CHUNKS_PER_THREAD: usize = 2;
 
 /// One section's work as the helpers see it: call `run(data, chunk)` for their chunk.
 struct Job {
