@@ -477,10 +477,13 @@ impl Sight {
             found.resize(list.len(), 0);
         }
         let mut seen = 0;
+        // A list never holds its own vehicle (`Candidates::within` leaves its id out when the
+        // list is built), so no neighbour's id is read: an id that differs from ours stands in.
+        let other = VehicleId(!self.id.0);
         for &j in list {
             let p = everyone.states[j as usize].position;
             // Written whether seen or not, kept by counting it: no branch on which are seen.
-            let (key, sees) = self.seen_key(p.x, p.y, j, everyone.ids[j as usize]);
+            let (key, sees) = self.seen_key(p.x, p.y, j, other);
             found[seen] = key;
             seen += usize::from(sees);
         }
