@@ -1,6 +1,9 @@
 //! `smlworld run --frames DIR --gif FILE`: frames at their own rate, vehicles where the
 //! trajectories say, and the simulation's results unchanged by recording.
 
+mod scratch_support;
+
+use scratch_support::Scratch;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -13,11 +16,8 @@ fn smlworld(args: &[&str]) {
     assert!(out.status.success(), "smlworld {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("smlworld-render-run-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+fn tmp(name: &str) -> Scratch {
+    Scratch::new("smlworld-render-run", name)
 }
 
 /// Position of every vehicle at time `t` [s], extrapolated with its velocity from its last row

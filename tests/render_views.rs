@@ -2,7 +2,10 @@
 //! auto-fit frames the vehicles when the whole map would be unreadable, every vehicle in view
 //! carries its id label at 640x360, and a collision of a replayed run is a red ring for 2 s.
 
-use std::path::{Path, PathBuf};
+mod scratch_support;
+
+use scratch_support::Scratch;
+use std::path::Path;
 use std::process::Command;
 
 use glam::DVec2;
@@ -19,11 +22,8 @@ fn smlworld(args: &[&str]) -> String {
     stderr
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("smlworld-render-views-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+fn tmp(name: &str) -> Scratch {
+    Scratch::new("smlworld-render-views", name)
 }
 
 fn s(p: &Path) -> &str {

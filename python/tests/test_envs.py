@@ -79,6 +79,31 @@ def test_platoon_parallel_api():
     parallel_api_test(platoon_parallel_env(n=5), num_cycles=200)
 
 
+def test_platoon_parallel_env_leaves_no_folder_behind():
+    """Each env writes its scenario into a temporary folder: ``close()`` removes it, and so does
+    collecting an env nobody closed (a sweep of many envs used to leave one folder each)."""
+    import gc
+    import os
+
+    from smlworld.envs import platoon_parallel_env
+
+    env = platoon_parallel_env(n=2)
+    env.reset(seed=1)
+    folder = env._dir
+    assert os.path.isdir(folder)
+    env.close()
+    assert not os.path.exists(folder)
+    with pytest.raises(RuntimeError, match="closed"):
+        env.reset(seed=1)
+
+    env = platoon_parallel_env(n=2)
+    folder = env._dir
+    assert os.path.isdir(folder)
+    del env
+    gc.collect()
+    assert not os.path.exists(folder)
+
+
 def test_platoon_parallel_observes_predecessor_over_wifi():
     from smlworld.envs import platoon_parallel_env
 

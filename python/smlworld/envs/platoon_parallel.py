@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import functools
 import os
+import shutil
 import struct
 import tempfile
+import weakref
 from importlib import resources
 from typing import Optional
 
@@ -60,6 +62,9 @@ class PlatoonParallelEnv(ParallelEnv):
         self.possible_agents = [f"member_{k}" for k in range(self.n)]
         self.agents = []
         self._dir = tempfile.mkdtemp(prefix="smlworld-platoon-")
+        # The scenario file lives as long as the env (every reset reads it); the folder goes
+        # with `close()` or when the env is collected, so a sweep of many envs leaves nothing.
+        self._cleanup = weakref.finalize(self, shutil.rmtree, self._dir, True)
         self._path = os.path.join(self._dir, "platoon.toml")
         with open(self._path, "w") as f:
             f.write(_scenario(self.n, float(spacing)))
@@ -99,7 +104,13 @@ class PlatoonParallelEnv(ParallelEnv):
             obs[agent] = np.clip(o, sp.low, sp.high)
         return obs, v, gaps
 
+    def close(self):
+        """Remove the env's scenario folder (also done when the env is collected)."""
+        self._cleanup()
+
     def reset(self, seed: Optional[int] = None, options=None):
+        if not self._cleanup.alive:
+            raise RuntimeError("this PlatoonParallelEnv is closed; make a new one with platoon_parallel_env()")
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         self._sim = smlworld.Sim.from_scenario(self._path, seed=int(self._rng.integers(0, 2**31 - 1)))
