@@ -73,8 +73,8 @@ struct Shared {
     wake: Condvar,
 }
 
-/// `helpers` persistent threads that run chunks 1..=helpers of each section while the caller
-/// runs chunk 0 ([`Team::run`]). One section at a time: a second caller (another thread, or a
+/// `helpers` persistent threads that share each section's chunks with the caller
+/// ([`Team::run`]). One section at a time: a second caller (another thread, or a
 /// chunk that itself splits its work) finds the team busy and runs its chunks itself.
 pub struct Team {
     shared: Arc<Shared>,
@@ -169,7 +169,7 @@ impl Team {
 }
 
 /// A helper's loop: wait for the next epoch (spinning for [`SPIN`], then parked), run its
-/// chunk of that section, report done.
+/// share of that section's chunks ([`work`]), report done.
 fn help(s: &Shared, me: usize) {
     let mut seen = 0u64;
     loop {
@@ -366,8 +366,8 @@ impl Parallelism {
         if scratch.len() < chunks {
             scratch.resize_with(chunks, S::default);
         }
-        // The calling thread works the first chunk itself, the team's threads - 1 helpers the
-        // others.
+        // The calling thread and the team's threads - 1 helpers share the chunks out
+        // ([`Team::run`]); on one thread, or without a team, one chunk holds everything.
         let team = if threads > 1 { team(threads - 1) } else { None };
         let Some(team) = team else {
             f(0, a, b, &mut scratch[0]);
