@@ -854,7 +854,8 @@ impl SensorGrid {
     /// instant as the sensors (the wifi round), so that one search serves both.
     pub(crate) fn lists_within(&self, ids: &[VehicleId], states: &[VehicleState], range: f64) -> Option<&Lists> {
         let lists = &self.neighbours.lists;
-        let wide = lists.skin > 0.0 && lists.lists.len() == ids.len() && lists.shortest >= range;
+        // `moved_little` also checks that these are the vehicles of the build (so one list each).
+        let wide = lists.skin > 0.0 && lists.shortest >= range;
         (wide && lists.moved_little(Everyone { ids, states })).then_some(&lists.lists)
     }
 }
@@ -1079,9 +1080,10 @@ pub fn sense_vehicles(
             starts.clear();
             starts.push(0);
             neighbours.clear();
-            let mut built: Vec<&mut SenseScratch> = scratch.iter_mut().filter(|s| s.built_from.is_some()).collect();
-            built.sort_by_key(|s| s.built_from);
-            for s in built {
+            // Scratch value k is chunk k's whichever thread ran it (`Parallelism::for_each_chunk`),
+            // so the scratches are in chunk order already.
+            debug_assert!(scratch.iter().filter_map(|s| s.built_from).is_sorted());
+            for s in scratch.iter_mut().filter(|s| s.built_from.is_some()) {
                 let base = neighbours.len() as u32;
                 neighbours.extend_from_slice(&s.built);
                 starts.extend(s.built_ends.iter().map(|&end| base + end));

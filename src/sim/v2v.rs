@@ -35,8 +35,7 @@ use bevy_ecs::prelude::{Entity, Local, Mut, Query, Res, ResMut, Resource};
 use super::channel::{ChannelModel, LinkState, Loss, link_key, round_key};
 use super::random::{OrderedSample, binomial, key, mix, uniform_at};
 use super::{Plugin, SimBuilder, SimClock, SimSeed};
-use crate::world::BatchRef;
-use crate::world::{Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, Vehicles};
+use crate::world::{BatchRef, Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, Vehicles};
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
