@@ -1,6 +1,9 @@
 //! V2V: the network reaches everyone but the sender, wifi range is inclusive, rounds follow the
-//! rates, payloads are shared not copied, and no message is lost between rounds.
+//! rates, payloads are shared not copied (small `Copy` ones held inline, with no allocation),
+//! and no message is lost between rounds.
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
@@ -14,7 +17,7 @@ fn parked(b: &mut SimBuilder, id: i32, p: DVec2) {
     b.spawn_vehicle(spec).expect("unique ids");
 }
 
-fn send(sim: &mut Sim, id: i32, channel: Channel, payload: Payload) {
+fn send(sim: &mut Sim, id: i32, channel: Channel, payload: impl Into<Payload>) {
     let e = sim.entity(VehicleId(id)).unwrap();
     let now = sim.now();
     sim.world_mut().get_mut::<Mailbox>(e).unwrap().send(channel, now, payload);
@@ -33,7 +36,7 @@ fn network_reaches_everyone_but_the_sender_without_copying_the_payload() {
         parked(&mut b, -1 - i, DVec2::new(i as f64 * 10_000.0, 0.0));
     }
     let mut sim = b.build();
-    let payload: Payload = Arc::new(String::from("hello"));
+    let payload = Payload::from(Arc::new(String::from("hello")));
     send(&mut sim, -3, Channel::Network, payload.clone());
     sim.run_for(0.5); // the network round at t = 0
     for id in [-1, -2, -4, -5] {
@@ -42,12 +45,90 @@ fn network_reaches_everyone_but_the_sender_without_copying_the_payload() {
         let inbox = &sim.world().get::<Mailbox>(e).unwrap().network_in;
         let m = inbox.iter().next().unwrap();
         assert_eq!(m.payload::<String>().map(String::as_str), Some("hello"));
-        assert!(Arc::ptr_eq(&m.payload, &payload), "payload was copied for receiver {id}");
+        assert!(Payload::ptr_eq(&m.payload, &payload), "payload was copied for receiver {id}");
     }
     assert!(inbox_senders(&sim, -3, Channel::Network).is_empty());
     assert!(inbox_senders(&sim, -1, Channel::Wifi).is_empty(), "network messages leaked onto wifi");
     let stats = *sim.world().resource::<V2vStats>();
     assert_eq!((stats.network_sent, stats.network_delivered), (1, 4));
+}
+
+/// The system allocator, counting the allocations of each thread (so that tests running beside
+/// each other do not count each other's).
+struct CountingAllocator;
+
+thread_local! {
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: every call is passed on to `System` unchanged; the count is a thread-local `Cell`
+// with a const initialiser, which does not allocate.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|a| a.set(a.get() + 1));
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: CountingAllocator = CountingAllocator;
+
+fn allocations() -> u64 {
+    ALLOCATIONS.with(Cell::get)
+}
+
+#[test]
+fn a_small_copy_payload_is_sent_without_an_allocation_and_read_as_its_type() {
+    let mut mailbox = Mailbox::new(VehicleId(1));
+    mailbox.wifi_out.reserve(1000);
+    mailbox.network_out.reserve(1000);
+    let before = allocations();
+    for k in 0..1000 {
+        mailbox.send_copy(Channel::Wifi, SimTime(k), k as f64 * 0.5);
+        mailbox.send_copy(Channel::Network, SimTime(k), (k as u32, -(k as i64)));
+    }
+    assert_eq!(allocations() - before, 0, "an allocation per message");
+    assert!(mailbox.wifi_out.iter().all(|m| m.payload.is_inline()));
+    assert_eq!(mailbox.wifi_out[7].payload::<f64>(), Some(&3.5));
+    assert_eq!(mailbox.wifi_out[7].payload::<u64>(), None, "another type of the same size");
+    assert_eq!(mailbox.network_out[9].payload::<(u32, i64)>(), Some(&(9, -9)));
+    // Shared payloads still cost one allocation each (what the inline form saves).
+    let before = allocations();
+    for k in 0..100 {
+        mailbox.send_typed(Channel::Wifi, SimTime(k), k as f64);
+    }
+    assert!(allocations() - before >= 100);
+}
+
+#[test]
+fn small_copy_payloads_arrive_inline_through_both_channels() {
+    let mut b = SimBuilder::new();
+    b.add_plugin(V2vPlugin::default());
+    parked(&mut b, -1, DVec2::new(0.0, 0.0));
+    parked(&mut b, -2, DVec2::new(20.0, 0.0));
+    parked(&mut b, -3, DVec2::new(5000.0, 0.0));
+    let mut sim = b.build();
+    for (id, speed) in [(-1, 11.5_f64), (-2, 22.5), (-3, 33.5)] {
+        let e = sim.entity(VehicleId(id)).unwrap();
+        let now = sim.now();
+        let mut mailbox = sim.world_mut().get_mut::<Mailbox>(e).unwrap();
+        mailbox.send_copy(Channel::Wifi, now, speed);
+        mailbox.send_copy(Channel::Network, now, [id as f32, speed as f32]);
+    }
+    let e = sim.entity(VehicleId(-1)).unwrap();
+    sim.run_for(0.05); // the wifi round at t = 0
+    let mailbox = sim.world().get::<Mailbox>(e).unwrap();
+    let wifi: Vec<_> = mailbox.received::<f64>(Channel::Wifi).map(|(s, _, v)| (s.0, *v)).collect();
+    assert_eq!(wifi, [(-2, 22.5)], "wifi: the one sender in range");
+    assert!(mailbox.inbox(Channel::Wifi).iter().all(|m| m.payload.is_inline()));
+    sim.run_for(0.45); // the network round at t = 0
+    let mailbox = sim.world().get::<Mailbox>(e).unwrap();
+    let network: Vec<_> = mailbox.received::<[f32; 2]>(Channel::Network).map(|(s, _, v)| (s.0, *v)).collect();
+    assert_eq!(network, [(-3, [-3.0, 33.5]), (-2, [-2.0, 22.5])]);
+    assert!(mailbox.inbox(Channel::Network).iter().all(|m| m.payload.is_inline()));
 }
 
 #[test]

@@ -1323,6 +1323,7 @@ impl Plugin for V2vPlugin {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::world::Payload;
     use std::sync::atomic::{AtomicUsize, Ordering};
 
     #[test]
@@ -1331,7 +1332,7 @@ mod tests {
             sender: VehicleId(sender),
             sent_at: SimTime(k),
             channel: Channel::Wifi,
-            payload: Arc::new(k),
+            payload: Payload::copied(k),
         };
         let chunk = |messages: Vec<Message>| Outgoing { senders: Vec::new(), messages };
         let order = |batch: &[Message]| batch.iter().map(|m| (m.sender.0, m.sent_at.0)).collect::<Vec<_>>();
@@ -1364,7 +1365,7 @@ mod tests {
                 sender: VehicleId(i as i32),
                 sent_at: SimTime(0),
                 channel: Channel::Wifi,
-                payload: Arc::new(Counted(drops)),
+                payload: Payload::new(Counted(drops)),
             })
             .collect()
     }

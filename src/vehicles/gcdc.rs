@@ -39,7 +39,7 @@ use glam::DVec2;
 
 use crate::sim::channel::{Draw, LinkState};
 use crate::sim::{Control, ControlEpoch, Plugin, SimBuilder, SimClock, SimSeed, SimSystems, V2vConfig, V2vStats, Wifi};
-use crate::world::{BatchRef, Channel, Mailbox, Message, Route, VehicleId, VehicleSize, VehicleState};
+use crate::world::{BatchRef, Channel, Mailbox, Message, Payload, Route, VehicleId, VehicleSize, VehicleState};
 
 use super::acc::AdaptiveCruise;
 use super::gcdc_protocol::{
@@ -428,7 +428,7 @@ pub fn broadcast_rsus(
     let round = stats.wifi_rounds;
     let model = config.wifi;
     for rsu in &rsus.0 {
-        let payload = Arc::new(RsuMessage { message: rsu.message, at: rsu.position });
+        let payload = Payload::new(RsuMessage { message: rsu.message, at: rsu.position });
         let batch: Arc<[Message]> =
             Arc::from(vec![Message { sender: rsu.id, sent_at: clock.now, channel: Channel::Wifi, payload }]);
         let shared = BatchRef::new(&batch);

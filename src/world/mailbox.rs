@@ -23,8 +23,7 @@ use bevy_ecs::prelude::Component;
 use super::random::OrderedSample;
 use super::{SimTime, VehicleId};
 
-/// Any value a vehicle sends; shared, never copied per receiver.
-pub type Payload = Arc<dyn Any + Send + Sync>;
+pub use super::payload::Payload;
 
 /// The two V2V channels of the 2015 simulator.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
@@ -353,8 +352,9 @@ impl Mailbox {
     }
 
     /// Queue `payload` on `channel`, written at `now`; it leaves at the channel's next round.
-    pub fn send(&mut self, channel: Channel, now: SimTime, payload: Payload) {
-        let message = Message { sender: self.owner, sent_at: now, channel, payload };
+    /// `payload` is a [`Payload`] or an `Arc` of any value (shared by the receivers).
+    pub fn send(&mut self, channel: Channel, now: SimTime, payload: impl Into<Payload>) {
+        let message = Message { sender: self.owner, sent_at: now, channel, payload: payload.into() };
         match channel {
             Channel::Network => self.network_out.push(message),
             Channel::Wifi => self.wifi_out.push(message),
@@ -380,7 +380,14 @@ impl Mailbox {
     /// Queue a message of type `T` on `channel` (wraps it in the shared [`Payload`]); it leaves
     /// at the channel's next round.
     pub fn send_typed<T: Any + Send + Sync>(&mut self, channel: Channel, now: SimTime, message: T) {
-        self.send(channel, now, Arc::new(message));
+        self.send(channel, now, Payload::new(message));
+    }
+
+    /// Queue a small `Copy` value on `channel`: held inline in the message when it fits
+    /// ([`Payload::copied`]: no allocation, no reference count), shared otherwise. Read it as
+    /// any other message. It leaves at the channel's next round.
+    pub fn send_copy<T: Copy + Any + Send + Sync>(&mut self, channel: Channel, now: SimTime, message: T) {
+        self.send(channel, now, Payload::copied(message));
     }
 
     /// Replace this vehicle's queued messages of type `T` on `channel` with `message`: for
@@ -419,7 +426,7 @@ mod tests {
                 sender: VehicleId(s),
                 sent_at: SimTime(i as u64),
                 channel: Channel::Network,
-                payload: Arc::new(i),
+                payload: Payload::copied(i),
             })
             .collect();
         BatchRef::new(&messages)

@@ -8,6 +8,7 @@
 
 mod mailbox;
 mod models;
+mod payload;
 pub mod random;
 mod registry;
 mod sensors;

@@ -128,7 +128,7 @@ fn send_speeds(
 ) {
     let send = |states: &[VehicleState], boxes: &mut [Mailbox]| {
         for (state, mailbox) in states.iter().zip(boxes) {
-            mailbox.send(channel, now, Arc::new(state.speed()));
+            mailbox.send_copy(channel, now, state.speed());
         }
     };
     if let Ok(tables) = vehicles.contiguous_iter_mut() {

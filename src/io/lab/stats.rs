@@ -10,7 +10,7 @@ use glam::DVec2;
 
 use crate::sim::{Control, Sensors, SimClock, SimSystems};
 use crate::sim::{Plugin, SimBuilder};
-use crate::world::{Channel, Mailbox, SensorReadings, VehicleId, VehicleState, Vehicles};
+use crate::world::{Channel, Mailbox, Payload, SensorReadings, VehicleId, VehicleState, Vehicles};
 
 use super::{MocapTrack, TruckBridge, TruckLine, VizStream};
 
@@ -60,7 +60,7 @@ pub fn beacon_real_vehicles(
         match waiting {
             Some(m) => {
                 m.sent_at = clock.now;
-                m.payload = Arc::new(beacon);
+                m.payload = Payload::new(beacon);
             }
             None => {
                 mailbox.send(Channel::Wifi, clock.now, Arc::new(beacon));
