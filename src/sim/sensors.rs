@@ -290,6 +290,10 @@ pub struct SenseScratch {
     /// sort keys, see [`detection_key`].
     keys: Vec<u64>,
     found: Vec<u64>,
+    /// A neighbour list's coordinates [m] and keys ([`Sight::consider_listed`]).
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    list_keys: Vec<u64>,
     /// A neighbour list's build: which candidates lie within reach, and scratch for finding them.
     marks: Vec<u32>,
     slots: Vec<u32>,
@@ -469,25 +473,63 @@ impl Sight {
     }
 
     /// The detection keys of the neighbours `list` (places in `everyone`) it sees, in list
-    /// order, at the front of `found`; returns that front. One pass: a neighbour list holds
-    /// few vehicles that are not seen (it is a circle a skin wider than the range, not a
-    /// square of cells), so there is little to gain from a vector pass and a pack.
-    fn consider_listed<'f>(&self, list: &[u32], everyone: Everyone<'_>, found: &'f mut Vec<u64>) -> &'f mut [u64] {
-        if found.len() < list.len() {
-            found.resize(list.len(), 0);
+    /// order, at the front of `found`; returns that front.
+    ///
+    /// Three passes, as [`Sight::consider_all`]: the neighbours' coordinates into arrays, every
+    /// neighbour's key (or [`UNSEEN`]) in vector code, then the seen keys packed to the front.
+    /// One scalar pass, which wrote each key and counted it if seen, spent nearly all its time
+    /// on the range and cone tests one neighbour at a time (perf: the flag arithmetic was the
+    /// hottest instructions of the sensor tick); the vector pass does four at once.
+    fn consider_listed<'f>(
+        &self,
+        list: &[u32],
+        everyone: Everyone<'_>,
+        (xs, ys, keys): (&mut Vec<f64>, &mut Vec<f64>, &mut Vec<u64>),
+        found: &'f mut Vec<u64>,
+    ) -> &'f mut [u64] {
+        let n = list.len();
+        for buffer in [&mut *keys, &mut *found] {
+            if buffer.len() < n {
+                buffer.resize(n, 0);
+            }
         }
-        let mut seen = 0;
+        for buffer in [&mut *xs, &mut *ys] {
+            if buffer.len() < n {
+                buffer.resize(n, 0.0);
+            }
+        }
+        let (xs, ys, keys) = (&mut xs[..n], &mut ys[..n], &mut keys[..n]);
+        for ((x, y), &j) in xs.iter_mut().zip(ys.iter_mut()).zip(list) {
+            let p = everyone.states[j as usize].position;
+            (*x, *y) = (p.x, p.y);
+        }
+        vectorised(ListKeysPass { sight: self, xs, ys, slots: list, keys });
+        let seen = pack(keys, found, UNSEEN);
+        &mut found[..seen]
+    }
+}
+
+/// The keys of a neighbour list's vehicles at (`xs`, `ys`): the second pass of
+/// [`Sight::consider_listed`], [`Sight::key`] on each.
+struct ListKeysPass<'a> {
+    sight: &'a Sight,
+    xs: &'a [f64],
+    ys: &'a [f64],
+    slots: &'a [u32],
+    keys: &'a mut [u64],
+}
+
+impl Pass for ListKeysPass<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
         // A list never holds its own vehicle (`Candidates::within` leaves its id out when the
         // list is built), so no neighbour's id is read: an id that differs from ours stands in.
-        let other = VehicleId(!self.id.0);
-        for &j in list {
-            let p = everyone.states[j as usize].position;
-            // Written whether seen or not, kept by counting it: no branch on which are seen.
-            let (key, sees) = self.seen_key(p.x, p.y, j, other);
-            found[seen] = key;
-            seen += usize::from(sees);
+        let other = VehicleId(!self.sight.id.0);
+        let neighbours = self.xs.iter().zip(self.ys).zip(self.slots);
+        for (key, ((&x, &y), &slot)) in self.keys.iter_mut().zip(neighbours) {
+            *key = self.sight.key(x, y, slot, other);
         }
-        &mut found[..seen]
     }
 }
 
@@ -924,7 +966,7 @@ fn sense_listed(
             }
         };
         let sight = Sight::new(id, state, radar, velodyne, false, &mut s.half_cos);
-        let found = sight.consider_listed(list, everyone, &mut s.found);
+        let found = sight.consider_listed(list, everyone, (&mut s.xs, &mut s.ys, &mut s.list_keys), &mut s.found);
         let errors = table.errors.map(|e| &e[i]);
         write_found(&sight, errors, input, &everyone, found, (&mut s.extents, &mut s.stats), readings);
     }
@@ -1286,6 +1328,44 @@ mod tests {
         let seen = sight.consider_all(&around, &mut Vec::new(), &mut found).len();
         found.truncate(seen);
         (grid, sight, found)
+    }
+
+    #[test]
+    fn a_neighbour_list_is_seen_as_the_grid_scan_sees_it_in_vector_and_scalar_code() {
+        let n = 400;
+        let (grid, sight, found) = scene(n);
+        // Everyone at their places (a list names vehicles by place), the list all of them.
+        let (ids, states): (Vec<_>, Vec<_>) =
+            (0..n).map(|slot| grid.get(slot)).map(|e| (e.id, VehicleState::new(e.position, 0.0, 0.0))).unzip();
+        let everyone = Everyone { ids: &ids, states: &states };
+        let list: Vec<u32> = (0..n).rev().collect();
+        let mut buffers = (Vec::new(), Vec::new(), Vec::new());
+        let mut listed = Vec::new();
+        let listed =
+            sight.consider_listed(&list, everyone, (&mut buffers.0, &mut buffers.1, &mut buffers.2), &mut listed);
+        // The same targets, distances and reach bits as the grid scan's keys.
+        let named = |keys: &[u64], id_of: &dyn Fn(u32) -> VehicleId| {
+            let mut named: Vec<_> =
+                keys.iter().map(|&k| (id_of(k as u32 & !REACH).0, k >> 32, k as u32 & REACH)).collect();
+            named.sort_unstable();
+            named
+        };
+        let from_list = named(listed, &|place| ids[place as usize]);
+        assert_eq!(from_list, named(&found, &|slot| grid.get(slot).id));
+        assert!(from_list.len() > 50 && from_list.len() < n as usize, "{} of {n} seen", from_list.len());
+        // The pass gives the same bits compiled as it is and with AVX2.
+        let (xs, ys) = (&buffers.0[..n as usize], &buffers.1[..n as usize]);
+        let (mut plain, mut wide) = (vec![0; n as usize], vec![0; n as usize]);
+        ListKeysPass { sight: &sight, xs, ys, slots: &list, keys: &mut plain }.run();
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor has AVX2, checked just above.
+            unsafe {
+                crate::sim::grid::with_avx2(ListKeysPass { sight: &sight, xs, ys, slots: &list, keys: &mut wide })
+            };
+            assert_eq!(plain, wide);
+        }
+        assert_eq!(plain.iter().filter(|&&k| k != UNSEEN).count(), from_list.len());
     }
 
     #[test]
