@@ -11,25 +11,36 @@ const SMALL: f64 = 1e-2;
 /// sin and cos of `a` [rad].
 #[inline]
 pub fn small_sin_cos(a: f64) -> (f64, f64) {
-    if a.abs() < SMALL {
-        let a2 = a * a;
-        let sin = a * (1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0)));
-        let cos = 1.0 - a2 / 2.0 * (1.0 - a2 / 12.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0)));
-        (sin, cos)
-    } else {
-        a.sin_cos()
-    }
+    if is_small(a) { sin_cos_polynomial(a) } else { a.sin_cos() }
+}
+
+/// Whether `a` is small enough for the polynomials ([`SMALL`]).
+#[inline(always)]
+pub fn is_small(a: f64) -> bool {
+    a.abs() < SMALL
+}
+
+/// [`small_sin_cos`]'s polynomials, for `a` that [`is_small`] (also in vector code: the same
+/// operations, so the same bits).
+#[inline(always)]
+pub fn sin_cos_polynomial(a: f64) -> (f64, f64) {
+    let a2 = a * a;
+    let sin = a * (1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0)));
+    let cos = 1.0 - a2 / 2.0 * (1.0 - a2 / 12.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0)));
+    (sin, cos)
 }
 
 /// tan of `a` [rad]: a + a³/3 + 2a⁵/15 + 17a⁷/315 + 62a⁹/2835 when small.
 #[inline]
 pub fn small_tan(a: f64) -> f64 {
-    if a.abs() < SMALL {
-        let a2 = a * a;
-        a + a * a2 * (1.0 / 3.0 + a2 * (2.0 / 15.0 + a2 * (17.0 / 315.0 + a2 * (62.0 / 2835.0))))
-    } else {
-        a.tan()
-    }
+    if is_small(a) { tan_polynomial(a) } else { a.tan() }
+}
+
+/// [`small_tan`]'s polynomial, for `a` that [`is_small`].
+#[inline(always)]
+pub fn tan_polynomial(a: f64) -> f64 {
+    let a2 = a * a;
+    a + a * a2 * (1.0 / 3.0 + a2 * (2.0 / 15.0 + a2 * (17.0 / 315.0 + a2 * (62.0 / 2835.0))))
 }
 
 /// atan of `x`: x − x³/3 + x⁵/5 − x⁷/7 + x⁹/9 when small.
