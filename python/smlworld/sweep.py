@@ -26,6 +26,7 @@ import argparse
 import itertools
 import os
 import re
+import shutil
 import signal
 import sys
 import tempfile
@@ -67,7 +68,10 @@ def run_one(bundle: dict, params: dict, seed: int, duration: Optional[float] = N
     """One sweep run in a fresh temporary folder; returns its table row."""
     import smlworld
 
-    with tempfile.TemporaryDirectory(prefix="smlworld-sweep-") as tmp:
+    # In the sweep's own folder when it runs on this machine (`bundle["scratch"]`, removed by
+    # the sweep even when this process is ended mid-run), else in the system's.
+    scratch = bundle.get("scratch")
+    with tempfile.TemporaryDirectory(prefix="run-" if scratch else "smlworld-sweep-", dir=scratch) as tmp:
         scenario = os.path.join(tmp, bundle["name"])
         with open(scenario, "w") as f:
             f.write(bundle["text"])
@@ -120,7 +124,13 @@ def sweep(
     rows: Dict[int, dict] = {}  # job index -> row, filled as runs finish
     try:
         if backend == "local":
-            _sweep_local(bundle, jobs, duration, max_workers, rows)
+            # The runs' folders go into one folder of the sweep's, removed below: a run whose
+            # process is ended (Ctrl-C, SIGTERM) cannot remove its own.
+            bundle["scratch"] = tempfile.mkdtemp(prefix="smlworld-sweep-")
+            try:
+                _sweep_local(bundle, jobs, duration, max_workers, rows)
+            finally:
+                shutil.rmtree(bundle["scratch"], ignore_errors=True)
         else:
             _sweep_ray(bundle, jobs, duration, address, rows)
     except KeyboardInterrupt:
@@ -161,9 +171,12 @@ def _sweep_local(bundle, jobs, duration, max_workers, rows: Dict[int, dict]) -> 
                 rows[index[f]] = f.result()
             _progress(len(rows), len(jobs))
     except BaseException:
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        for process in processes:
             process.terminate()
         pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:  # ended before their folders are removed
+            process.join(timeout=10)
         raise
     pool.shutdown()
 

@@ -118,8 +118,12 @@ def _interrupted_sweep(root, tmp_path, send, code):
     spec = tmp_path / "sweep.toml"
     spec.write_text('scenario = "platoon.toml"\nseeds = [1]\n[grid]\nduration = [1.0, 2.0, 1000000.0]\n')
     out = tmp_path / "results.csv"
+    # Its own temporary folder, to see what the sweep leaves there.
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
     proc = subprocess.Popen(
         [sys.executable, "-m", "smlworld.sweep", str(spec), "--workers", "1", "--out", str(out)],
+        env={**os.environ, "TMPDIR": str(tmp)},
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
         # As from a terminal: a shell's background job starts with SIGINT ignored, and Python keeps
         # an ignored SIGINT ignored (so the suite behaves the same however it was launched).
@@ -144,6 +148,8 @@ def _interrupted_sweep(root, tmp_path, send, code):
     df = pd.read_csv(out)
     assert list(df["duration"]) == [1.0, 2.0]
     assert (df["metrics.collision_count"] == 0).all()
+    # The stopped run's folder went with the sweep's (CI's /tmp outlives its runs).
+    assert not list(tmp.glob("smlworld-sweep-*")), list(tmp.rglob("*"))
 
 
 def test_ctrl_c_keeps_the_finished_rows(root, tmp_path):
