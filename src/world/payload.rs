@@ -25,28 +25,28 @@ pub struct Payload(Repr);
 /// How a [`Payload`] holds its value.
 #[derive(Clone)]
 enum Repr {
-    /// A `Copy` value of at most [`INLINE_BYTES`] bytes, aligned to at most 8, in `bits`;
-    /// `type_id` gives its type (a function pointer: 8 bytes, where a `TypeId` takes 16).
+    /// A `Copy` value of at most [`Payload::INLINE_BYTES`] bytes, aligned to at most 8, in
+    /// `bits`; `type_id` gives its type (a function pointer: 8 bytes, where a `TypeId` takes 16).
     Inline { type_id: fn() -> TypeId, bits: MaybeUninit<[u64; 2]> },
     /// Any other value, shared.
     Shared(Arc<dyn Any + Send + Sync>),
 }
 
-/// The largest value [`Payload::copied`] holds inline [bytes].
-pub const INLINE_BYTES: usize = 16;
-
 impl Payload {
+    /// The largest value [`Payload::copied`] holds inline [bytes].
+    pub const INLINE_BYTES: usize = 16;
+
     /// `value`, shared behind an `Arc` (clones of the payload share it).
     pub fn new<T: Any + Send + Sync>(value: T) -> Payload {
         Payload(Repr::Shared(Arc::new(value)))
     }
 
-    /// `value` held inline when it fits ([`INLINE_BYTES`] bytes, aligned to at most 8), else
-    /// shared as by [`Payload::new`]. `Copy` is what makes the inline form sound: a `Copy` type
-    /// has no destructor and no interior mutability (`UnsafeCell` is not `Copy`), so copying
-    /// its bytes with the message copies the value and receivers only ever see `&T`.
+    /// `value` held inline when it fits ([`Payload::INLINE_BYTES`] bytes, aligned to at most
+    /// 8), else shared as by [`Payload::new`]. `Copy` is what makes the inline form sound: a
+    /// `Copy` type has no destructor and no interior mutability (`UnsafeCell` is not `Copy`),
+    /// so copying its bytes with the message copies the value and receivers only see `&T`.
     pub fn copied<T: Copy + Any + Send + Sync>(value: T) -> Payload {
-        if size_of::<T>() <= INLINE_BYTES && align_of::<T>() <= align_of::<u64>() {
+        if size_of::<T>() <= Self::INLINE_BYTES && align_of::<T>() <= align_of::<u64>() {
             let mut bits = MaybeUninit::<[u64; 2]>::uninit();
             // SAFETY: `bits` is 16 bytes aligned to 8, and `T` fits in that (checked above).
             unsafe { bits.as_mut_ptr().cast::<T>().write(value) };
