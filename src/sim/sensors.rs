@@ -381,6 +381,15 @@ fn sort_nearest_first(found: &mut [u64], grid: &impl Targets, from: DVec2) {
     }
 }
 
+/// The first `n` items of `buffer`, grown to hold them if it is shorter. A sensor tick's
+/// buffers only grow (no zero-filling per vehicle) and are used up to the length.
+fn first<T: Copy + Default>(buffer: &mut Vec<T>, n: usize) -> &mut [T] {
+    if buffer.len() < n {
+        buffer.resize(n, T::default());
+    }
+    &mut buffer[..n]
+}
+
 /// What one vehicle's sensors see of the candidates (slot, position, id) around it.
 struct Sight {
     id: VehicleId,
@@ -420,14 +429,9 @@ impl Sight {
     /// the processor has AVX2, chosen at run time; the same operations in the same order as
     /// the one-at-a-time code, so the same bits); the second packs the seen keys to the front.
     fn consider_all<'f>(&self, around: &Candidates, keys: &mut Vec<u64>, found: &'f mut Vec<u64>) -> &'f mut [u64] {
-        // The buffers only grow (no zero-filling per vehicle), and are used up to the length.
         let n = around.len();
-        for buffer in [&mut *keys, &mut *found] {
-            if buffer.len() < n {
-                buffer.resize(n, 0);
-            }
-        }
-        let keys = &mut keys[..n];
+        let keys = first(keys, n);
+        first(found, n);
         vectorised(KeysPass { sight: self, around, found: keys });
         let seen = pack(keys, found, UNSEEN);
         &mut found[..seen]
@@ -449,13 +453,6 @@ impl Sight {
     /// into vector code, and shared with [`Sight::consider_listed`] so both give the same bits.
     #[inline(always)]
     fn key(&self, x: f64, y: f64, slot: u32, other: VehicleId) -> u64 {
-        let (key, seen) = self.seen_key(x, y, slot, other);
-        if seen { key } else { UNSEEN }
-    }
-
-    /// [`Sight::key`] as the key the candidate would have and whether it is seen.
-    #[inline(always)]
-    fn seen_key(&self, x: f64, y: f64, slot: u32, other: VehicleId) -> (u64, bool) {
         let (p, h, cone) = (self.position, self.cone.heading, &self.cone);
         let acute = cone.cos_half >= 0.0;
         let (rx, ry) = (x - p.x, y - p.y);
@@ -469,7 +466,7 @@ impl Sight {
         let velodyne = d2 <= self.velodyne_range2;
         let seen = (self.omniscient | velodyne | radar) & (other != self.id);
         let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
-        (detection_key(d2, slot | flags), seen)
+        if seen { detection_key(d2, slot | flags) } else { UNSEEN }
     }
 
     /// The detection keys of the neighbours `list` (places in `everyone`) it sees, in list
@@ -488,17 +485,8 @@ impl Sight {
         found: &'f mut Vec<u64>,
     ) -> &'f mut [u64] {
         let n = list.len();
-        for buffer in [&mut *keys, &mut *found] {
-            if buffer.len() < n {
-                buffer.resize(n, 0);
-            }
-        }
-        for buffer in [&mut *xs, &mut *ys] {
-            if buffer.len() < n {
-                buffer.resize(n, 0.0);
-            }
-        }
-        let (xs, ys, keys) = (&mut xs[..n], &mut ys[..n], &mut keys[..n]);
+        let (xs, ys, keys) = (first(xs, n), first(ys, n), first(keys, n));
+        first(found, n);
         for ((x, y), &j) in xs.iter_mut().zip(ys.iter_mut()).zip(list) {
             let p = everyone.states[j as usize].position;
             (*x, *y) = (p.x, p.y);
