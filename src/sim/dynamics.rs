@@ -195,34 +195,35 @@ pub fn step_acceleration_unicycle(
     advance_arc(state, distance.max(0.0), curvature, v1, facing);
 }
 
-/// Step every vehicle of `vehicles` (a query of state, command and model) with `step`: table by
-/// table, each table's slices cut into contiguous chunks over [`Parallelism::threads`] threads
-/// (each vehicle's step reads only itself). The slices come straight from the ECS tables
-/// (bevy's contiguous access): no list of the query's items is gathered first, which on one
-/// thread took about as long as the steps themselves.
+/// Step every vehicle of `vehicles` (a query of state, command and model) with `step`, which
+/// steps the vehicles of equally long slices of states, commands and models: table by table,
+/// each table's slices cut into contiguous chunks over [`Parallelism::threads`] threads (each
+/// vehicle's step reads only itself). The slices come straight from the ECS tables (bevy's
+/// contiguous access): no list of the query's items is gathered first, which on one thread
+/// took about as long as the steps themselves.
 fn integrate<M: Component + Sync>(
     vehicles: &mut Query<(&mut VehicleState, &ControlCommand, &M)>,
     parallelism: &Parallelism,
     scratch: &mut Vec<()>,
-    step: impl Fn(&mut VehicleState, &ControlCommand, &M) + Sync,
+    step: impl Fn(&mut [VehicleState], &[ControlCommand], &[M]) + Sync,
 ) {
     if let Ok(tables) = vehicles.contiguous_iter_mut() {
         for (mut states, commands, models) in tables {
             parallelism.for_each_chunk_at(&mut states, scratch, |start, chunk, _| {
-                for ((state, command), model) in chunk.iter_mut().zip(&commands[start..]).zip(&models[start..]) {
-                    step(state, command, model);
-                }
+                let end = start + chunk.len();
+                step(chunk, &commands[start..end], &models[start..end]);
             });
         }
         return;
     }
     // Only if a component were stored sparsely (none is): one by one.
     for (mut state, command, model) in vehicles.iter_mut() {
-        step(&mut state, command, model);
+        step(std::slice::from_mut(&mut *state), std::slice::from_ref(command), std::slice::from_ref(model));
     }
 }
 
-/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step ([`integrate`]).
+/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step ([`integrate`]),
+/// four at a time where they can ([`KinematicChunk`]).
 pub fn integrate_kinematic_unicycles(
     clock: Res<SimClock>,
     parallelism: Res<Parallelism>,
@@ -230,16 +231,8 @@ pub fn integrate_kinematic_unicycles(
     mut scratch: Local<Vec<()>>,
 ) {
     let dt = clock.dt;
-    if let Ok(tables) = vehicles.contiguous_iter_mut() {
-        for (mut states, commands, models) in tables {
-            parallelism.for_each_chunk_at(&mut states, &mut *scratch, |start, chunk, _| {
-                vectorised(KinematicChunk { states: chunk, commands: &commands[start..], models: &models[start..], dt })
-            });
-        }
-        return;
-    }
-    integrate(&mut vehicles, &parallelism, &mut scratch, |state, command, model| {
-        step_kinematic_unicycle(state, command, model, dt)
+    integrate(&mut vehicles, &parallelism, &mut scratch, |states, commands, models| {
+        vectorised(KinematicChunk { states, commands, models, dt })
     });
 }
 
@@ -252,8 +245,10 @@ pub fn integrate_acceleration_unicycles(
     mut scratch: Local<Vec<()>>,
 ) {
     let dt = clock.dt;
-    integrate(&mut vehicles, &parallelism, &mut scratch, |state, command, model| {
-        step_acceleration_unicycle(state, command, model, dt)
+    integrate(&mut vehicles, &parallelism, &mut scratch, |states, commands, models| {
+        for ((state, command), model) in states.iter_mut().zip(commands).zip(models) {
+            step_acceleration_unicycle(state, command, model, dt);
+        }
     });
 }
 
