@@ -13,14 +13,14 @@ const BLOCK: usize = 8;
 /// rounding instruction, and a projection's two calls were a tenth of a lane position's time):
 /// the same value for every finite `x` in `isize`'s range, saturating like `as` beyond it.
 #[inline]
-fn floor_index(x: f64) -> isize {
+pub(crate) fn floor_index(x: f64) -> isize {
     let t = x as isize;
     if (t as f64) > x { t.saturating_sub(1) } else { t }
 }
 
 /// `x.ceil() as isize`, as [`floor_index`].
 #[inline]
-fn ceil_index(x: f64) -> isize {
+pub(crate) fn ceil_index(x: f64) -> isize {
     let t = x as isize;
     if (t as f64) < x { t.saturating_add(1) } else { t }
 }
@@ -110,7 +110,7 @@ impl Path {
     }
 
     /// End points of segment `i` (wrapping for a loop).
-    fn segment(&self, i: usize) -> (DVec2, DVec2) {
+    pub(crate) fn segment(&self, i: usize) -> (DVec2, DVec2) {
         let n = self.points.len();
         let i = if i < n { i } else { i % n };
         let j = if i + 1 < n { i + 1 } else { 0 };
@@ -145,9 +145,7 @@ impl Path {
         let spacing = self.spacing();
         let i = ((s / spacing) as usize).min(n - 1);
         let (a, b) = self.segment(i);
-        let t = ((s - i as f64 * spacing) / spacing).clamp(0.0, 1.0);
-        let d = b - a;
-        (a + d * t, d)
+        along_segment(s, i as f64, spacing, a, b)
     }
 
     /// Nearest segment to `p` among segments `from..from+count` (wrapping for loops), as
@@ -185,11 +183,7 @@ impl Path {
                     continue;
                 }
                 let (a, b) = self.segment(i as usize);
-                let d = b - a;
-                let len2 = d.length_squared();
-                let t = if len2 > 0.0 { ((p - a).dot(d) / len2).clamp(0.0, 1.0) } else { 0.0 };
-                let q = a + d * t;
-                let d2 = p.distance_squared(q);
+                let (t, q, d2) = onto_segment(p, a, b);
                 if d2 < best.map_or(f64::INFINITY, |b| b.3) && d2 <= cutoff2 {
                     best = Some((i, t, q, d2));
                 }
@@ -234,11 +228,8 @@ impl Path {
     /// Squared distance from `p` to segment `i`, with `t` along it and the nearest point.
     fn to_segment(&self, p: DVec2, i: isize) -> (isize, f64, DVec2, f64) {
         let (a, b) = self.segment(i as usize);
-        let d = b - a;
-        let len2 = d.length_squared();
-        let t = if len2 > 0.0 { ((p - a).dot(d) / len2).clamp(0.0, 1.0) } else { 0.0 };
-        let q = a + d * t;
-        (i, t, q, p.distance_squared(q))
+        let (t, q, d2) = onto_segment(p, a, b);
+        (i, t, q, d2)
     }
 
     /// Nearest segment to `p` found by walking from the segment at `hint` [m] towards nearer
@@ -317,10 +308,8 @@ impl Path {
             }
         };
         let (a, b) = self.segment(i as usize);
-        let d = b - a;
-        let cross = d.x * (p - a).y - d.y * (p - a).x;
-        let lateral = d2.sqrt() * if cross >= 0.0 { 1.0 } else { -1.0 };
-        Some(((i as f64 + t) * self.spacing(), q, lateral, d.try_normalize().unwrap_or(DVec2::X)))
+        let lateral = lateral_of(p, a, b, d2);
+        Some(((i as f64 + t) * self.spacing(), q, lateral, (b - a).try_normalize().unwrap_or(DVec2::X)))
     }
 
     /// First segment and segment count of the window of `window` [m] either side of `hint` [m]
@@ -387,10 +376,38 @@ impl Path {
     /// Signed distance [m] of `p` at squared distance `d2` from segment `i`: positive left of it.
     fn lateral(&self, p: DVec2, i: isize, d2: f64) -> f64 {
         let (a, b) = self.segment(i as usize);
-        let d = b - a;
-        let cross = d.x * (p - a).y - d.y * (p - a).x;
-        d2.sqrt() * if cross >= 0.0 { 1.0 } else { -1.0 }
+        lateral_of(p, a, b, d2)
     }
+}
+
+/// The nearest point to `p` of the segment from `a` to `b`: (how far along it, 0..1; the
+/// point; its squared distance to `p`). Every projection on a [`Path`] goes through here, the
+/// four-at-a-time path following too, so all give the same bits.
+#[inline(always)]
+pub(crate) fn onto_segment(p: DVec2, a: DVec2, b: DVec2) -> (f64, DVec2, f64) {
+    let d = b - a;
+    let len2 = d.length_squared();
+    let t = if len2 > 0.0 { ((p - a).dot(d) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    let q = a + d * t;
+    (t, q, p.distance_squared(q))
+}
+
+/// Signed distance [m] of `p`, at squared distance `d2` from the segment `a`→`b`: positive left.
+#[inline(always)]
+pub(crate) fn lateral_of(p: DVec2, a: DVec2, b: DVec2, d2: f64) -> f64 {
+    let d = b - a;
+    let cross = d.x * (p - a).y - d.y * (p - a).x;
+    d2.sqrt() * if cross >= 0.0 { 1.0 } else { -1.0 }
+}
+
+/// The point a share `(s - i·spacing) / spacing` (clamped to 0..1) along the segment `a`→`b`
+/// (the `i`th of a path of that spacing, `i` given as a float) and the segment's vector:
+/// [`Path::sample_direction`]'s last step, shared with the four-at-a-time path following.
+#[inline(always)]
+pub(crate) fn along_segment(s: f64, i: f64, spacing: f64, a: DVec2, b: DVec2) -> (DVec2, DVec2) {
+    let t = ((s - i * spacing) / spacing).clamp(0.0, 1.0);
+    let d = b - a;
+    (a + d * t, d)
 }
 
 /// `s.rem_euclid(length)` (for `length` > 0), without the library `fmod` call for the arc

@@ -46,13 +46,15 @@ pub fn tan_polynomial(a: f64) -> f64 {
 /// atan of `x`: x − x³/3 + x⁵/5 − x⁷/7 + x⁹/9 when small.
 #[inline]
 pub fn small_atan(x: f64) -> f64 {
-    if x.abs() < SMALL {
-        let x2 = x * x;
-        // The leading x stays a factor, so atan(−0) is −0.
-        x * (1.0 - x2 * (1.0 / 3.0 - x2 * (1.0 / 5.0 - x2 * (1.0 / 7.0 - x2 * (1.0 / 9.0)))))
-    } else {
-        x.atan()
-    }
+    if is_small(x) { atan_polynomial(x) } else { x.atan() }
+}
+
+/// [`small_atan`]'s polynomial, for `x` that [`is_small`].
+#[inline(always)]
+pub fn atan_polynomial(x: f64) -> f64 {
+    let x2 = x * x;
+    // The leading x stays a factor, so atan(−0) is −0.
+    x * (1.0 - x2 * (1.0 / 3.0 - x2 * (1.0 / 5.0 - x2 * (1.0 / 7.0 - x2 * (1.0 / 9.0)))))
 }
 
 /// ⌊x⌋ as an i32 (saturating, NaN to 0, as `x.floor() as i32`) without the library's `floor`,

@@ -12,7 +12,10 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::lane_state::LaneChanger;
 use super::longitudinal::SteeringSystems;
-use crate::sim::trig::small_atan;
+use crate::map::Path;
+use crate::map::path::{along_segment, ceil_index, floor_index, lateral_of, onto_segment};
+use crate::sim::grid::{Pass, vectorised};
+use crate::sim::trig::{atan_polynomial, is_small, small_atan};
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{AccelerationUnicycle, ControlCommand, KinematicUnicycle, Route, VehicleState};
 use glam::DVec2;
@@ -85,8 +88,230 @@ struct FollowingTable<'a> {
 }
 
 /// Steer a contiguous chunk of vehicles (items `start..` of `table`); `dt` is the control
-/// step [s].
+/// step [s]. Four at a time where [`follow_four`] can (in vector code where the processor has
+/// AVX2), else one at a time ([`follow_one_by_one`]).
 fn follow_chunk(
+    table: FollowingTable<'_>,
+    start: usize,
+    followers: &mut [PathFollower],
+    commands: &mut [ControlCommand],
+    dt: f64,
+) {
+    vectorised(FollowPass { table, start, followers, commands, dt });
+}
+
+/// [`follow_chunk`] as a [`Pass`].
+struct FollowPass<'a, 'b> {
+    table: FollowingTable<'a>,
+    start: usize,
+    followers: &'b mut [PathFollower],
+    commands: &'b mut [ControlCommand],
+    dt: f64,
+}
+
+impl Pass for FollowPass<'_, '_> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        let FollowPass { table, start, followers, commands, dt } = self;
+        let n = followers.len().min(commands.len());
+        for k in (0..n).step_by(LANES) {
+            let end = (k + LANES).min(n);
+            let (followers, commands) = (&mut followers[k..end], &mut commands[k..end]);
+            if !follow_four(table, start + k, followers, commands, dt) {
+                follow_one_by_one(table, start + k, followers, commands, dt);
+            }
+        }
+    }
+}
+
+/// Vehicles a [`follow_four`] steers at once.
+const LANES: usize = 4;
+
+/// [`follow_one_by_one`] for four vehicles at once, when all four take its common path: no
+/// lane change under way, no lateral shift, tracking, the walk along the route ending on the
+/// segment it starts from (neither neighbour nearer, none of the three wrapping), the look-ahead
+/// point less than a lap past the loop's end, and a steering small enough for the polynomial.
+/// Then it writes what the one-at-a-time code writes, bit for bit (the same operations in the
+/// same order, lane by lane: [`onto_segment`], [`lateral_of`], [`along_segment`] are the path's
+/// own), and returns true; else it writes nothing and returns false.
+///
+/// A vehicle's tick is a chain of about eight divisions (the walk's start, its three
+/// projections, the look-ahead sample, the pure-pursuit curvature) between loads of route
+/// points: one at a time it waits on the divider; in vector code four vehicles share each
+/// division, as in the kinematic steps ([`crate::sim::dynamics`]). The loads stay next to the
+/// arithmetic that needs them (a pass over the whole chunk for each stage was twice as slow:
+/// the points had left the cache by the second pass).
+#[inline(always)]
+fn follow_four(
+    table: FollowingTable<'_>,
+    start: usize,
+    followers: &mut [PathFollower],
+    commands: &mut [ControlCommand],
+    dt: f64,
+) -> bool {
+    let (followers, commands): (&mut [PathFollower; LANES], &mut [ControlCommand; LANES]) =
+        match (followers.try_into(), commands.try_into()) {
+            (Ok(f), Ok(c)) => (f, c),
+            _ => return false,
+        };
+    let Some(states) = table.states.get(start..start + LANES) else { return false };
+    let Some(routes) = table.routes.get(start..start + LANES) else { return false };
+    let changing = |l: usize| table.changers.is_some_and(|c| c[start + l].active.is_some());
+    let shift = |l: usize| table.shifts.map_or(0.0, |s| s[start + l].0);
+    let paths: [&Path; LANES] = std::array::from_fn(|l| &*routes[l].0);
+    let mut common = true;
+    for l in 0..LANES {
+        // What `follow_one_by_one` adds to the route's offset: the manoeuvre's (none) and the shift.
+        common &= paths[l].points.len() >= 2 && followers[l].tracking && !changing(l) && 0.0 + shift(l) == 0.0;
+    }
+    if !common {
+        return false;
+    }
+    let facing: [DVec2; LANES] = std::array::from_fn(|l| states[l].heading());
+    let position: [DVec2; LANES] = std::array::from_fn(|l| states[l].position);
+    let spacing: [f64; LANES] = std::array::from_fn(|l| paths[l].spacing());
+    let (mut speed, mut window, mut hint, mut steps, mut from) =
+        ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    for l in 0..LANES {
+        // `follow_one_by_one`'s prediction, then the divisions at the start of `Path::walk`.
+        speed[l] = states[l].velocity.dot(facing[l]);
+        window[l] = speed[l].abs() * dt + spacing[l];
+        hint[l] = followers[l].s + speed[l] * dt;
+        steps[l] = window[l] / spacing[l];
+        from[l] = hint[l] / spacing[l];
+    }
+    // The walk's segments: the one at the hint and two either side, none wrapping.
+    let mut segments = [[(DVec2::ZERO, DVec2::ZERO); 5]; LANES];
+    // The candidate segments' numbers as floats, converted here: vector code has no
+    // instruction for 64-bit integers to floats.
+    let (mut numbers, mut far) = ([[0.0; 3]; LANES], [false; LANES]);
+    for l in 0..LANES {
+        let (path, n) = (paths[l], paths[l].segment_count() as isize);
+        let walks = spacing[l] > 0.0 && hint[l].is_finite() && ceil_index(steps[l]) >= 1;
+        let i = floor_index(from[l]);
+        let i = if path.closed { i } else { i.clamp(0, n - 1) };
+        if !(walks && i >= 2 && i + 2 < n) {
+            return false;
+        }
+        // A step to a neighbour goes on to the next one only within the window.
+        far[l] = ceil_index(steps[l]) >= 2;
+        numbers[l] = [(i - 1) as f64, i as f64, (i + 1) as f64];
+        segments[l] = std::array::from_fn(|k| path.segment((i - 2) as usize + k));
+    }
+    let (mut s, mut lateral, mut ahead, mut walked) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [true; LANES]);
+    for l in 0..LANES {
+        let p = position[l];
+        let [back2, back, this, next, next2] = segments[l];
+        let (t, _, d2) = onto_segment(p, this.0, this.1);
+        let (next_t, _, next_d2) = onto_segment(p, next.0, next.1);
+        let (back_t, _, back_d2) = onto_segment(p, back.0, back.1);
+        let (_, _, next2_d2) = onto_segment(p, next2.0, next2.1);
+        let (_, _, back2_d2) = onto_segment(p, back2.0, back2.1);
+        // `Path::walk`: the next segment if nearer, else the previous one if nearer, else this
+        // one; from a neighbour the walk goes on while the segments come nearer (here: not).
+        let forward = next_d2 < d2;
+        let backward = !forward & (back_d2 < d2);
+        let (on_forward, on_backward) = (next2_d2 < next_d2, back2_d2 < back_d2);
+        walked[l] = (!forward | (far[l] & !on_forward)) & (!backward | (far[l] & !on_backward));
+        let [before, at, after] = numbers[l];
+        let (i, t, d2, (a, b)) = if forward {
+            (after, next_t, next_d2, next)
+        } else if backward {
+            (before, back_t, back_d2, back)
+        } else {
+            (at, t, d2, this)
+        };
+        s[l] = (i + t) * spacing[l];
+        lateral[l] = lateral_of(p, a, b, d2);
+        let params = followers[l].params;
+        let lookahead = params.lookahead_min.max(params.lookahead_time * speed[l].abs());
+        ahead[l] = s[l] + lookahead;
+    }
+    if walked != [true; LANES] {
+        return false;
+    }
+    // The look-ahead sample (`Path::sample_direction`): wrapped on a loop (at most one lap
+    // past its end here, no `fmod`), clamped on an open path.
+    let (mut sample, mut at, mut within) = ([0.0; LANES], [0.0; LANES], [true; LANES]);
+    for l in 0..LANES {
+        let (path, s) = (paths[l], ahead[l]);
+        within[l] = !path.closed || (s >= 0.0 && s < 2.0 * path.length);
+        let wrapped = if s < path.length { s } else { s - path.length };
+        sample[l] = if path.closed { wrapped } else { s.clamp(0.0, path.length) };
+        at[l] = sample[l] / spacing[l];
+    }
+    if within != [true; LANES] {
+        return false;
+    }
+    // The sampled segments' ends, coordinate by coordinate (so the arithmetic below runs four
+    // lanes wide).
+    let (mut index, mut ax, mut ay, mut bx, mut by) =
+        ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    for l in 0..LANES {
+        let i = (at[l] as usize).min(paths[l].segment_count() - 1);
+        let (a, b) = paths[l].segment(i);
+        (index[l], ax[l], ay[l], bx[l], by[l]) = (i as f64, a.x, a.y, b.x, b.y);
+    }
+    let wheelbase: [f64; LANES] = std::array::from_fn(|l| {
+        let kinematic = table.kinematic.map(|m| m[start + l].wheelbase);
+        kinematic.or(table.acceleration.map(|m| m[start + l].wheelbase)).unwrap_or(2.8)
+    });
+    let mut steering = [0.0; LANES];
+    let mut steers = [true; LANES];
+    for l in 0..LANES {
+        let (a, b) = (DVec2::new(ax[l], ay[l]), DVec2::new(bx[l], by[l]));
+        let (target, _) = along_segment(sample[l], index[l], spacing[l], a, b);
+        let relative = target - position[l];
+        let distance2 = relative.length_squared();
+        let x = wheelbase[l] * 2.0 * facing[l].perp_dot(relative) / distance2;
+        steers[l] = (distance2 > 1e-18) & is_small(x);
+        steering[l] = atan_polynomial(x);
+    }
+    if steers != [true; LANES] {
+        return false;
+    }
+    for l in 0..LANES {
+        let follower = &mut followers[l];
+        follower.tracking = true;
+        follower.s = s[l];
+        let planned = 0.0 + shift(l);
+        follower.max_offset = follower.max_offset.max((lateral[l] - planned).abs());
+        let acceleration = table.acceleration.map(|m| &m[start + l]);
+        let (command, params) = (&mut commands[l], follower.params);
+        command.steering = steering[l];
+        (command.speed, command.throttle) = speed_command(paths[l], &params, acceleration, s[l], speed[l]);
+    }
+    true
+}
+
+/// Target speed [m/s] and throttle of a vehicle at arc length `s` [m] of `path` driving at
+/// `speed` [m/s]: the cruise speed, less near the end of an open path.
+#[inline(always)]
+fn speed_command(
+    path: &Path,
+    p: &PathFollowing,
+    acceleration: Option<&AccelerationUnicycle>,
+    s: f64,
+    speed: f64,
+) -> (f64, f64) {
+    let mut target_speed = p.speed;
+    if !path.closed {
+        let remaining = (path.length - s).max(0.0);
+        target_speed = target_speed.min((2.0 * p.stop_deceleration * remaining).sqrt());
+        if remaining < 0.5 {
+            target_speed = 0.0;
+        }
+    }
+    let throttle = match acceleration {
+        Some(m) => m.drag * target_speed + m.mass * p.speed_gain * (target_speed - speed),
+        None => 0.0,
+    };
+    (target_speed, throttle)
+}
+
+/// Steer vehicles `start..` of `table` one at a time (see [`follow_chunk`]).
+fn follow_one_by_one(
     table: FollowingTable<'_>,
     start: usize,
     followers: &mut [PathFollower],
@@ -141,19 +366,7 @@ fn follow_chunk(
         command.steering =
             if distance2 > 1e-18 { small_atan(wheelbase * 2.0 * facing.perp_dot(relative) / distance2) } else { 0.0 };
 
-        let mut target_speed = p.speed;
-        if !path.closed {
-            let remaining = (path.length - s).max(0.0);
-            target_speed = target_speed.min((2.0 * p.stop_deceleration * remaining).sqrt());
-            if remaining < 0.5 {
-                target_speed = 0.0;
-            }
-        }
-        command.speed = target_speed;
-        command.throttle = match acceleration {
-            Some(m) => m.drag * target_speed + m.mass * p.speed_gain * (target_speed - speed),
-            None => 0.0,
-        };
+        (command.speed, command.throttle) = speed_command(path, &p, acceleration, s, speed);
     }
 }
 
@@ -212,5 +425,145 @@ impl Plugin for PathFollowingPlugin {
         sim.world_mut().init_resource::<Parallelism>();
         sim.configure_sets(Control, SteeringSystems.in_set(SimSystems::Control));
         sim.add_systems(Control, follow_paths.in_set(SteeringSystems));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::grid::with_avx2;
+    use std::sync::Arc;
+
+    /// A loop of radius `r` [m] through `n` points.
+    fn circle(r: f64, n: usize) -> Path {
+        let points = (0..n).map(|k| DVec2::from_angle(k as f64 * std::f64::consts::TAU / n as f64) * r).collect();
+        Path::from_points(Vec::new(), points, true)
+    }
+
+    /// Vehicles near `paths` (a few far off their follower's arc length, off the route, not yet
+    /// tracking or shifted aside), with their routes, models, followers and shifts.
+    #[allow(clippy::type_complexity)]
+    fn vehicles(
+        n: usize,
+    ) -> (
+        Vec<VehicleState>,
+        Vec<Route>,
+        Vec<KinematicUnicycle>,
+        Vec<AccelerationUnicycle>,
+        Vec<PathFollower>,
+        Vec<LateralShift>,
+    ) {
+        let open = Path::from_polyline(&[DVec2::ZERO, DVec2::new(400.0, 30.0), DVec2::new(800.0, -20.0)], 0.5);
+        let paths = [Arc::new(circle(1500.0, 4712)), Arc::new(open), Arc::new(circle(8.0, 12))];
+        let mut rng = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let dt = 0.05;
+        let mut out = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for k in 0..n {
+            let path = &paths[match k % 47 {
+                0 => 2,
+                1..=8 => 1,
+                _ => 0,
+            }];
+            let s = next() * path.length;
+            let (point, heading) = path.sample(s);
+            // Mostly on the route and along it, as a tracking vehicle is (gentle steering); now
+            // and then well off it (steering beyond the polynomial) or far off (another segment
+            // nearer than the walk's).
+            let offset = (next() - 0.5)
+                * match (k % 31, k % 37) {
+                    (0, _) => 40.0,
+                    (_, 0) => 3.0,
+                    _ => 0.01,
+                };
+            let yaw = heading + (next() - 0.5) * if k % 29 == 0 { 0.1 } else { 1e-4 };
+            let speed = 30.0 * next();
+            let state = VehicleState::new(point + DVec2::from_angle(heading).perp() * offset, yaw, speed);
+            // Where the follower was a tick ago, give or take the dynamics' uneven steps (and
+            // now and then much farther, so that the walk goes on or the window is searched).
+            let error = (next() - 0.5) * if k % 41 == 0 { 20.0 } else { 1.0 };
+            // A look-ahead now and then beyond two laps of the big loop (which only `fmod` wraps).
+            let lookahead_min = if k % 59 == 0 { 25_000.0 } else { 4.0 };
+            let params = PathFollowing { speed: 15.0 + 10.0 * next(), lookahead_min, ..Default::default() };
+            let follower = if k % 43 == 0 {
+                PathFollower::new(params)
+            } else {
+                PathFollower::starting_at(params, s - speed * dt + error)
+            };
+            out.0.push(state);
+            out.1.push(Route(Arc::clone(path)));
+            out.2.push(KinematicUnicycle { wheelbase: 2.5 + next(), max_steering: 0.5 });
+            out.3.push(AccelerationUnicycle { wheelbase: 2.5 + next(), mass: 1500.0, drag: 30.0, max_steering: 0.5 });
+            out.4.push(follower);
+            out.5.push(LateralShift(if k % 53 == 0 { 0.5 } else { 0.0 }));
+        }
+        out
+    }
+
+    fn bits(followers: &[PathFollower], commands: &[ControlCommand]) -> Vec<[u64; 6]> {
+        let f = followers.iter().zip(commands);
+        f.map(|(f, c)| {
+            [f.s, f.max_offset, f64::from(u8::from(f.tracking)), c.steering, c.speed, c.throttle].map(f64::to_bits)
+        })
+        .collect()
+    }
+
+    #[test]
+    fn four_vehicles_at_once_are_steered_to_the_bits_of_four_one_at_a_time() {
+        let n = 4003;
+        let (states, routes, kinematic, acceleration, followers, shifts) = vehicles(n);
+        let dt = 0.05;
+        let tables = [
+            FollowingTable {
+                states: &states,
+                routes: &routes,
+                kinematic: Some(&kinematic),
+                acceleration: None,
+                changers: None,
+                shifts: None,
+            },
+            FollowingTable {
+                states: &states,
+                routes: &routes,
+                kinematic: None,
+                acceleration: Some(&acceleration),
+                changers: None,
+                shifts: Some(&shifts),
+            },
+        ];
+        for table in tables {
+            let commands = vec![ControlCommand::default(); n];
+            let (mut want_f, mut want_c) = (followers.clone(), commands.clone());
+            follow_one_by_one(table, 0, &mut want_f, &mut want_c, dt);
+            let want = bits(&want_f, &want_c);
+            let (mut plain_f, mut plain_c) = (followers.clone(), commands.clone());
+            let pass = FollowPass { table, start: 0, followers: &mut plain_f, commands: &mut plain_c, dt };
+            pass.run();
+            assert_eq!(bits(&plain_f, &plain_c), want, "scalar code");
+            if std::arch::is_x86_feature_detected!("avx2") {
+                let (mut f, mut c) = (followers.clone(), commands.clone());
+                // SAFETY: the processor has AVX2, checked just above.
+                unsafe { with_avx2(FollowPass { table, start: 0, followers: &mut f, commands: &mut c, dt }) };
+                assert_eq!(bits(&f, &c), want, "AVX2 code");
+            }
+            // Both ways were taken: four at once (else this compared nothing new) and one at a
+            // time, where `follow_four` must leave the followers and commands as they were.
+            let mut taken = 0;
+            for g in 0..n / LANES {
+                let r = g * LANES..(g + 1) * LANES;
+                let (mut f, mut c) = (followers[r.clone()].to_vec(), commands[r.clone()].to_vec());
+                if follow_four(table, r.start, &mut f, &mut c, dt) {
+                    taken += 1;
+                } else {
+                    assert_eq!(bits(&f, &c), bits(&followers[r.clone()], &commands[r]), "group {g} changed");
+                }
+            }
+            assert!(taken > n / LANES / 4 && taken < n / LANES, "{taken} of {} groups four at once", n / LANES);
+        }
     }
 }
