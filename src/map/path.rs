@@ -380,6 +380,102 @@ impl Path {
     }
 }
 
+/// Points a [`walk_four`] places at once.
+pub(crate) const LANES: usize = 4;
+
+/// Where [`walk_four`] placed four points.
+pub(crate) struct Walked {
+    /// Arc length of each point's nearest path point [m].
+    pub s: [f64; LANES],
+    /// Signed lateral offset [m], positive left of the path.
+    pub lateral: [f64; LANES],
+    /// Squared distance to the path [m²].
+    pub d2: [f64; LANES],
+    /// The nearest path point [m].
+    pub point: [DVec2; LANES],
+    /// The vector of the nearest point's segment [m].
+    pub direction: [DVec2; LANES],
+}
+
+/// [`Path::walk`] (then [`Path::locate_walking`]'s arc length and lateral offset) for four
+/// points at once, each on its own path, when all four take the walk's common path: the
+/// segment at the hint and the two either side all within the path (no wrapping, no edge of
+/// the window reached), and the walk ending on the segment at the hint or one step from it.
+/// Then the same bits as four walks (the same operations in the same order, lane by lane; the
+/// projections are [`onto_segment`] and [`lateral_of`]), else `None`.
+///
+/// A walk is a chain of divisions (the hint's segment, then a projection on each segment
+/// looked at); inside a [`crate::sim::grid::Pass`] run with AVX2 the four points share each
+/// division. Used by the path following and the lane positions, which walk every vehicle every
+/// control tick.
+#[inline(always)]
+pub(crate) fn walk_four(
+    paths: [&Path; LANES],
+    p: [DVec2; LANES],
+    hint: [f64; LANES],
+    window: [f64; LANES],
+) -> Option<Walked> {
+    let spacing: [f64; LANES] = std::array::from_fn(|l| paths[l].spacing());
+    let (mut steps, mut from) = ([0.0; LANES], [0.0; LANES]);
+    for l in 0..LANES {
+        steps[l] = window[l] / spacing[l];
+        from[l] = hint[l] / spacing[l];
+    }
+    // The walk's segments: the one at the hint and two either side, none wrapping.
+    let mut segments = [[(DVec2::ZERO, DVec2::ZERO); 5]; LANES];
+    // The candidate segments' numbers as floats, converted here: vector code has no
+    // instruction for 64-bit integers to floats.
+    let (mut numbers, mut far) = ([[0.0; 3]; LANES], [false; LANES]);
+    for l in 0..LANES {
+        let (path, n) = (paths[l], paths[l].segment_count() as isize);
+        let walks = spacing[l] > 0.0 && hint[l].is_finite() && ceil_index(steps[l]) >= 1;
+        let i = floor_index(from[l]);
+        let i = if path.closed { i } else { i.clamp(0, n - 1) };
+        if !(walks && i >= 2 && i + 2 < n) {
+            return None;
+        }
+        // A step to a neighbour goes on to the next one only within the window.
+        far[l] = ceil_index(steps[l]) >= 2;
+        numbers[l] = [(i - 1) as f64, i as f64, (i + 1) as f64];
+        segments[l] = std::array::from_fn(|k| path.segment((i - 2) as usize + k));
+    }
+    let mut out = Walked {
+        s: [0.0; LANES],
+        lateral: [0.0; LANES],
+        d2: [0.0; LANES],
+        point: [DVec2::ZERO; LANES],
+        direction: [DVec2::ZERO; LANES],
+    };
+    let mut walked = [true; LANES];
+    for l in 0..LANES {
+        let p = p[l];
+        let [back2, back, this, next, next2] = segments[l];
+        let (t, q, d2) = onto_segment(p, this.0, this.1);
+        let (next_t, next_q, next_d2) = onto_segment(p, next.0, next.1);
+        let (back_t, back_q, back_d2) = onto_segment(p, back.0, back.1);
+        let (_, _, next2_d2) = onto_segment(p, next2.0, next2.1);
+        let (_, _, back2_d2) = onto_segment(p, back2.0, back2.1);
+        // `Path::walk`: the next segment if nearer, else the previous one if nearer, else this
+        // one; from a neighbour the walk goes on while the segments come nearer (here: not).
+        let forward = next_d2 < d2;
+        let backward = !forward & (back_d2 < d2);
+        let (on_forward, on_backward) = (next2_d2 < next_d2, back2_d2 < back_d2);
+        walked[l] = (!forward | (far[l] & !on_forward)) & (!backward | (far[l] & !on_backward));
+        let [before, at, after] = numbers[l];
+        let (i, t, q, d2, (a, b)) = if forward {
+            (after, next_t, next_q, next_d2, next)
+        } else if backward {
+            (before, back_t, back_q, back_d2, back)
+        } else {
+            (at, t, q, d2, this)
+        };
+        out.s[l] = (i + t) * spacing[l];
+        out.lateral[l] = lateral_of(p, a, b, d2);
+        (out.d2[l], out.point[l], out.direction[l]) = (d2, q, b - a);
+    }
+    (walked == [true; LANES]).then_some(out)
+}
+
 /// The nearest point to `p` of the segment from `a` to `b`: (how far along it, 0..1; the
 /// point; its squared distance to `p`). Every projection on a [`Path`] goes through here, the
 /// four-at-a-time path following too, so all give the same bits.

@@ -14,7 +14,9 @@ use bevy_ecs::prelude::{Component, Local, Query, Res, ResMut, Resource, World};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
+use crate::map::path::{LANES, walk_four};
 use crate::map::{LaneletId, LaneletMap, Neighbours, Path};
+use crate::sim::grid::{Pass, vectorised};
 use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::world::SimTime;
 use crate::world::VehicleState;
@@ -314,24 +316,10 @@ pub fn update_lane_positions(
     // Time since the last update: each vehicle moved about its speed times this along its lane.
     let dt = last.map_or(0.0, |l| now.0.saturating_sub(l.0) as f64 * 1e-6);
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
-    // Straight in the ECS tables' slices (contiguous access), table by table.
+    // Straight in the ECS tables' slices (contiguous access), table by table; four at a time
+    // where they can, in vector code where the processor has it.
     let update = |states: &[VehicleState], positions: &mut [LanePosition]| {
-        for k in 0..positions.len() {
-            // The centre-line points a vehicle a few places on will read are far apart in memory
-            // on a big map: ask for them now so their loads overlap this vehicle's work.
-            if let Some(ahead) = positions.get(k + PREFETCH_AHEAD) {
-                lanes.prefetch(ahead.on(), ahead.s);
-            }
-            let (state, pos) = (&states[k], &mut positions[k]);
-            let last = pos.on().map(|i| (i, pos.s));
-            // Moved about its speed times the step along the lane since the last update (the
-            // length of the velocity: no trigonometry per vehicle and step).
-            let found = lanes.locate(state.position, last, state.velocity.length() * dt);
-            let new = LanePosition::found(lanes, found, state.speed());
-            if *pos != new {
-                *pos = new;
-            }
-        }
+        vectorised(LanePositionsPass { lanes, states, positions, dt });
     };
     if let Ok(tables) = vehicles.contiguous_iter_mut() {
         for (states, mut positions) in tables {
@@ -344,6 +332,109 @@ pub fn update_lane_positions(
             update(std::slice::from_ref(state), std::slice::from_mut(&mut *pos));
         }
     }
+}
+
+/// The lane positions of a slice of vehicles, `dt` [s] after the last update, as a [`Pass`]:
+/// four at a time where [`update_four`] can, else one at a time ([`update_one`]).
+struct LanePositionsPass<'a, 'b> {
+    lanes: &'a LaneMap,
+    states: &'b [VehicleState],
+    positions: &'b mut [LanePosition],
+    dt: f64,
+}
+
+impl Pass for LanePositionsPass<'_, '_> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        let LanePositionsPass { lanes, states, positions, dt } = self;
+        let n = positions.len().min(states.len());
+        for k in (0..n).step_by(LANES) {
+            let end = (k + LANES).min(n);
+            // The centre-line points a vehicle a few places on will read are far apart in memory
+            // on a big map: ask for them now so their loads overlap these vehicles' work.
+            for ahead in positions.iter().skip(k + PREFETCH_AHEAD).take(end - k) {
+                lanes.prefetch(ahead.on(), ahead.s);
+            }
+            let (states, positions) = (&states[k..end], &mut positions[k..end]);
+            if !update_four(lanes, states, positions, dt) {
+                for (state, pos) in states.iter().zip(positions) {
+                    update_one(lanes, state, pos, dt);
+                }
+            }
+        }
+    }
+}
+
+/// Update one vehicle's lane position from its state, `dt` [s] after the last update.
+#[inline(always)]
+fn update_one(lanes: &LaneMap, state: &VehicleState, pos: &mut LanePosition, dt: f64) {
+    let last = pos.on().map(|i| (i, pos.s));
+    // Moved about its speed times the step along the lane since the last update (the length
+    // of the velocity: no trigonometry per vehicle and step).
+    let found = lanes.locate(state.position, last, state.velocity.length() * dt);
+    let new = LanePosition::found(lanes, found, state.speed());
+    if *pos != new {
+        *pos = new;
+    }
+}
+
+/// [`update_one`] for four vehicles at once, when all four take [`LaneMap::locate`]'s common
+/// path: on a lanelet at the last update, the walk along its centre line from there short
+/// ([`walk_four`]: the same bits as [`Path::walk`]), and the vehicle found on the same lanelet
+/// within the narrow window, inside the lane's middle half. Then it writes what four
+/// [`update_one`]s write (the same operations in the same order, lane by lane) and returns true;
+/// else it writes nothing and returns false. The walks' divisions are shared four wide, as in
+/// the path following.
+#[inline(always)]
+fn update_four(lanes: &LaneMap, states: &[VehicleState], positions: &mut [LanePosition], dt: f64) -> bool {
+    let (states, positions): (&[VehicleState; LANES], &mut [LanePosition; LANES]) =
+        match (states.try_into(), positions.try_into()) {
+            (Ok(s), Ok(p)) => (s, p),
+            _ => return false,
+        };
+    let mut on = [0u32; LANES];
+    for l in 0..LANES {
+        match positions[l].on() {
+            Some(i) if (i as usize) < lanes.centres.len() => on[l] = i,
+            _ => return false,
+        }
+    }
+    let paths: [&Path; LANES] = std::array::from_fn(|l| &lanes.centres[on[l] as usize]);
+    let p: [DVec2; LANES] = std::array::from_fn(|l| states[l].position);
+    let (mut hint, mut velocity) = ([0.0; LANES], [DVec2::ZERO; LANES]);
+    for l in 0..LANES {
+        velocity[l] = states[l].velocity;
+    }
+    for l in 0..LANES {
+        hint[l] = positions[l].s + velocity[l].length() * dt;
+    }
+    let Some(walked) = walk_four(paths, p, hint, [NARROW_WINDOW; LANES]) else { return false };
+    let half: [f64; LANES] = std::array::from_fn(|l| lanes.half_widths[on[l] as usize]);
+    let length: [f64; LANES] = std::array::from_fn(|l| paths[l].length);
+    let mut found = [true; LANES];
+    for l in 0..LANES {
+        // `Path::near_within`'s distance test and direction, `LaneMap::on`'s end test, then
+        // `LaneMap::locate`'s narrow window and middle of the lane.
+        let max = half[l] + 1e-9;
+        let s = walked.s[l];
+        let direction = walked.direction[l].try_normalize().unwrap_or(DVec2::X);
+        let along = (p[l] - walked.point[l]).dot(direction);
+        let ended = (s <= 0.0 && along < -END_SLACK) || (s >= length[l] && along > END_SLACK);
+        let narrow = (s - hint[l]).abs() < NARROW_WINDOW - 1.0 || s <= 0.0 || s >= length[l];
+        found[l] = (walked.d2[l] <= max * max) & !ended & narrow & (walked.lateral[l].abs() < 0.5 * half[l]);
+    }
+    if found != [true; LANES] {
+        return false;
+    }
+    for l in 0..LANES {
+        let found = Some((on[l], walked.s[l], walked.lateral[l]));
+        let new = LanePosition::found(lanes, found, states[l].speed());
+        if positions[l] != new {
+            positions[l] = new;
+        }
+    }
+    true
 }
 
 /// Keeps [`LanePosition`] up to date on a map ([`LaneMap`] resource).
@@ -360,5 +451,90 @@ impl Plugin for LanesPlugin {
         sim.world_mut().init_resource::<LanePositionsAt>();
         sim.configure_sets(Control, LaneSystems.in_set(SimSystems::Sense));
         sim.add_systems(Control, update_lane_positions.in_set(LaneSystems));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::RouteOptions;
+    use crate::map::generate::{RingParams, ring_highway, ring_lane_tag};
+    use crate::sim::grid::with_avx2;
+
+    fn bits(positions: &[LanePosition]) -> Vec<(Option<LaneletId>, u32, [u64; 3])> {
+        positions.iter().map(|p| (p.lanelet, p.index, [p.s, p.offset, p.speed].map(f64::to_bits))).collect()
+    }
+
+    #[test]
+    fn four_lane_positions_at_once_are_the_bits_of_four_one_at_a_time() {
+        // A three-lane ring like the benchmark's: vehicles along its lanes, mostly near the centre
+        // line, now and then off it, beside the road or far from the last update.
+        let ring = RingParams { lanes: 3, radius: 800.0, lane_width: 3.5, clockwise: false, node_spacing: 20.0 };
+        let map = LaneletMap::parse_str(&ring_highway(&ring).unwrap(), std::path::Path::new("ring")).unwrap();
+        let options = RouteOptions { points_per_meter: 0.5 };
+        let loops: Vec<Path> = (0..3).map(|k| map.closed_loop_tag(&ring_lane_tag(3, k), &options).unwrap()).collect();
+        let lanes = LaneMap::new(Arc::new(map));
+        let mut rng = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let n = 4001;
+        let (mut states, mut positions) = (Vec::new(), Vec::new());
+        let dt = 0.05;
+        for k in 0..n {
+            let path = &loops[k % loops.len()];
+            let s = next() * path.length;
+            let (point, heading) = path.sample(s);
+            let offset = (next() - 0.5)
+                * match (k % 29, k % 31) {
+                    (0, _) => 30.0,
+                    (_, 0) => 2.0,
+                    _ => 0.2,
+                };
+            let speed = 30.0 * next();
+            let then = VehicleState::new(point + DVec2::from_angle(heading).perp() * offset, heading, speed);
+            let mut position = if k % 37 == 0 { LanePosition::default() } else { LanePosition::of(&lanes, &then) };
+            if k % 41 == 0 {
+                position.s += 10.0; // far from where it is: the narrow window misses
+            }
+            // A dynamics step or three later (the control tick does not divide the steps evenly).
+            let moved = speed * dt * (0.8 + 0.4 * next());
+            let now = VehicleState::new(
+                then.position + DVec2::from_angle(heading) * moved,
+                heading + 1e-3 * (next() - 0.5),
+                speed,
+            );
+            states.push(now);
+            positions.push(position);
+        }
+        let mut want = positions.clone();
+        for (state, pos) in states.iter().zip(&mut want) {
+            update_one(&lanes, state, pos, dt);
+        }
+        let want = bits(&want);
+        let mut plain = positions.clone();
+        LanePositionsPass { lanes: &lanes, states: &states, positions: &mut plain, dt }.run();
+        assert_eq!(bits(&plain), want, "scalar code");
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let mut four = positions.clone();
+            // SAFETY: the processor has AVX2, checked just above.
+            unsafe { with_avx2(LanePositionsPass { lanes: &lanes, states: &states, positions: &mut four, dt }) };
+            assert_eq!(bits(&four), want, "AVX2 code");
+        }
+        // Both ways were taken; a group left to one at a time is left as it was.
+        let mut taken = 0;
+        for g in 0..n / LANES {
+            let r = g * LANES..(g + 1) * LANES;
+            let mut four = positions[r.clone()].to_vec();
+            if update_four(&lanes, &states[r.clone()], &mut four, dt) {
+                taken += 1;
+            } else {
+                assert_eq!(bits(&four), bits(&positions[r]), "group {g} changed");
+            }
+        }
+        assert!(taken > n / LANES / 4 && taken < n / LANES, "{taken} of {} groups four at once", n / LANES);
     }
 }

@@ -13,7 +13,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use super::lane_state::LaneChanger;
 use super::longitudinal::SteeringSystems;
 use crate::map::Path;
-use crate::map::path::{along_segment, ceil_index, floor_index, lateral_of, onto_segment};
+use crate::map::path::{LANES, along_segment, walk_four};
 use crate::sim::grid::{Pass, vectorised};
 use crate::sim::trig::{atan_polynomial, is_small, small_atan};
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
@@ -125,16 +125,13 @@ impl Pass for FollowPass<'_, '_> {
     }
 }
 
-/// Vehicles a [`follow_four`] steers at once.
-const LANES: usize = 4;
-
 /// [`follow_one_by_one`] for four vehicles at once, when all four take its common path: no
 /// lane change under way, no lateral shift, tracking, the walk along the route ending on the
 /// segment it starts from (neither neighbour nearer, none of the three wrapping), the look-ahead
 /// point less than a lap past the loop's end, and a steering small enough for the polynomial.
 /// Then it writes what the one-at-a-time code writes, bit for bit (the same operations in the
-/// same order, lane by lane: [`onto_segment`], [`lateral_of`], [`along_segment`] are the path's
-/// own), and returns true; else it writes nothing and returns false.
+/// same order, lane by lane: [`walk_four`] and [`along_segment`] are the path's own), and returns
+/// true; else it writes nothing and returns false.
 ///
 /// A vehicle's tick is a chain of about eight divisions (the walk's start, its three
 /// projections, the look-ahead sample, the pure-pursuit curvature) between loads of route
@@ -171,65 +168,20 @@ fn follow_four(
     let facing: [DVec2; LANES] = std::array::from_fn(|l| states[l].heading());
     let position: [DVec2; LANES] = std::array::from_fn(|l| states[l].position);
     let spacing: [f64; LANES] = std::array::from_fn(|l| paths[l].spacing());
-    let (mut speed, mut window, mut hint, mut steps, mut from) =
-        ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    let (mut speed, mut window, mut hint) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
     for l in 0..LANES {
-        // `follow_one_by_one`'s prediction, then the divisions at the start of `Path::walk`.
+        // `follow_one_by_one`'s prediction and `Path::locate_walking`'s window.
         speed[l] = states[l].velocity.dot(facing[l]);
         window[l] = speed[l].abs() * dt + spacing[l];
         hint[l] = followers[l].s + speed[l] * dt;
-        steps[l] = window[l] / spacing[l];
-        from[l] = hint[l] / spacing[l];
     }
-    // The walk's segments: the one at the hint and two either side, none wrapping.
-    let mut segments = [[(DVec2::ZERO, DVec2::ZERO); 5]; LANES];
-    // The candidate segments' numbers as floats, converted here: vector code has no
-    // instruction for 64-bit integers to floats.
-    let (mut numbers, mut far) = ([[0.0; 3]; LANES], [false; LANES]);
+    let Some(walked) = walk_four(paths, position, hint, window) else { return false };
+    let (s, lateral) = (walked.s, walked.lateral);
+    let mut ahead = [0.0; LANES];
     for l in 0..LANES {
-        let (path, n) = (paths[l], paths[l].segment_count() as isize);
-        let walks = spacing[l] > 0.0 && hint[l].is_finite() && ceil_index(steps[l]) >= 1;
-        let i = floor_index(from[l]);
-        let i = if path.closed { i } else { i.clamp(0, n - 1) };
-        if !(walks && i >= 2 && i + 2 < n) {
-            return false;
-        }
-        // A step to a neighbour goes on to the next one only within the window.
-        far[l] = ceil_index(steps[l]) >= 2;
-        numbers[l] = [(i - 1) as f64, i as f64, (i + 1) as f64];
-        segments[l] = std::array::from_fn(|k| path.segment((i - 2) as usize + k));
-    }
-    let (mut s, mut lateral, mut ahead, mut walked) = ([0.0; LANES], [0.0; LANES], [0.0; LANES], [true; LANES]);
-    for l in 0..LANES {
-        let p = position[l];
-        let [back2, back, this, next, next2] = segments[l];
-        let (t, _, d2) = onto_segment(p, this.0, this.1);
-        let (next_t, _, next_d2) = onto_segment(p, next.0, next.1);
-        let (back_t, _, back_d2) = onto_segment(p, back.0, back.1);
-        let (_, _, next2_d2) = onto_segment(p, next2.0, next2.1);
-        let (_, _, back2_d2) = onto_segment(p, back2.0, back2.1);
-        // `Path::walk`: the next segment if nearer, else the previous one if nearer, else this
-        // one; from a neighbour the walk goes on while the segments come nearer (here: not).
-        let forward = next_d2 < d2;
-        let backward = !forward & (back_d2 < d2);
-        let (on_forward, on_backward) = (next2_d2 < next_d2, back2_d2 < back_d2);
-        walked[l] = (!forward | (far[l] & !on_forward)) & (!backward | (far[l] & !on_backward));
-        let [before, at, after] = numbers[l];
-        let (i, t, d2, (a, b)) = if forward {
-            (after, next_t, next_d2, next)
-        } else if backward {
-            (before, back_t, back_d2, back)
-        } else {
-            (at, t, d2, this)
-        };
-        s[l] = (i + t) * spacing[l];
-        lateral[l] = lateral_of(p, a, b, d2);
         let params = followers[l].params;
         let lookahead = params.lookahead_min.max(params.lookahead_time * speed[l].abs());
         ahead[l] = s[l] + lookahead;
-    }
-    if walked != [true; LANES] {
-        return false;
     }
     // The look-ahead sample (`Path::sample_direction`): wrapped on a loop (at most one lap
     // past its end here, no `fmod`), clamped on an open path.
