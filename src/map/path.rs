@@ -389,12 +389,6 @@ pub(crate) struct Walked {
     pub s: [f64; LANES],
     /// Signed lateral offset [m], positive left of the path.
     pub lateral: [f64; LANES],
-    /// Squared distance to the path [m²].
-    pub d2: [f64; LANES],
-    /// The nearest path point [m].
-    pub point: [DVec2; LANES],
-    /// The vector of the nearest point's segment [m].
-    pub direction: [DVec2; LANES],
 }
 
 /// [`Path::walk`] (then [`Path::locate_walking`]'s arc length and lateral offset) for four
@@ -439,20 +433,14 @@ pub(crate) fn walk_four(
         numbers[l] = [(i - 1) as f64, i as f64, (i + 1) as f64];
         segments[l] = std::array::from_fn(|k| path.segment((i - 2) as usize + k));
     }
-    let mut out = Walked {
-        s: [0.0; LANES],
-        lateral: [0.0; LANES],
-        d2: [0.0; LANES],
-        point: [DVec2::ZERO; LANES],
-        direction: [DVec2::ZERO; LANES],
-    };
+    let mut out = Walked { s: [0.0; LANES], lateral: [0.0; LANES] };
     let mut walked = [true; LANES];
     for l in 0..LANES {
         let p = p[l];
         let [back2, back, this, next, next2] = segments[l];
-        let (t, q, d2) = onto_segment(p, this.0, this.1);
-        let (next_t, next_q, next_d2) = onto_segment(p, next.0, next.1);
-        let (back_t, back_q, back_d2) = onto_segment(p, back.0, back.1);
+        let (t, _, d2) = onto_segment(p, this.0, this.1);
+        let (next_t, _, next_d2) = onto_segment(p, next.0, next.1);
+        let (back_t, _, back_d2) = onto_segment(p, back.0, back.1);
         let (_, _, next2_d2) = onto_segment(p, next2.0, next2.1);
         let (_, _, back2_d2) = onto_segment(p, back2.0, back2.1);
         // `Path::walk`: the next segment if nearer, else the previous one if nearer, else this
@@ -462,16 +450,15 @@ pub(crate) fn walk_four(
         let (on_forward, on_backward) = (next2_d2 < next_d2, back2_d2 < back_d2);
         walked[l] = (!forward | (far[l] & !on_forward)) & (!backward | (far[l] & !on_backward));
         let [before, at, after] = numbers[l];
-        let (i, t, q, d2, (a, b)) = if forward {
-            (after, next_t, next_q, next_d2, next)
+        let (i, t, d2, (a, b)) = if forward {
+            (after, next_t, next_d2, next)
         } else if backward {
-            (before, back_t, back_q, back_d2, back)
+            (before, back_t, back_d2, back)
         } else {
-            (at, t, q, d2, this)
+            (at, t, d2, this)
         };
         out.s[l] = (i + t) * spacing[l];
         out.lateral[l] = lateral_of(p, a, b, d2);
-        (out.d2[l], out.point[l], out.direction[l]) = (d2, q, b - a);
     }
     (walked == [true; LANES]).then_some(out)
 }

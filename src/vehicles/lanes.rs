@@ -411,18 +411,15 @@ fn update_four(lanes: &LaneMap, states: &[VehicleState], positions: &mut [LanePo
     }
     let Some(walked) = walk_four(paths, p, hint, [NARROW_WINDOW; LANES]) else { return false };
     let half: [f64; LANES] = std::array::from_fn(|l| lanes.half_widths[on[l] as usize]);
-    let length: [f64; LANES] = std::array::from_fn(|l| paths[l].length);
     let mut found = [true; LANES];
     for l in 0..LANES {
-        // `Path::near_within`'s distance test and direction, `LaneMap::on`'s end test, then
-        // `LaneMap::locate`'s narrow window and middle of the lane.
-        let max = half[l] + 1e-9;
-        let s = walked.s[l];
-        let direction = walked.direction[l].try_normalize().unwrap_or(DVec2::X);
-        let along = (p[l] - walked.point[l]).dot(direction);
-        let ended = (s <= 0.0 && along < -END_SLACK) || (s >= length[l] && along > END_SLACK);
-        let narrow = (s - hint[l]).abs() < NARROW_WINDOW - 1.0 || s <= 0.0 || s >= length[l];
-        found[l] = (walked.d2[l] <= max * max) & !ended & narrow & (walked.lateral[l].abs() < 0.5 * half[l]);
+        // `LaneMap::locate`'s middle of the lane (which also puts it within `Path::near_within`'s
+        // distance, the half width). The walk's segments lie inside the centre line (neither
+        // its first nor its last), so the arc length is inside it too: `LaneMap::on`'s tests at
+        // the ends do not apply. Nor does the narrow window: where a vehicle is found outside
+        // it, `locate` walks again with a wider window from the same hint, and that walk ends
+        // where this one did.
+        found[l] = walked.lateral[l].abs() < 0.5 * half[l];
     }
     if found != [true; LANES] {
         return false;
@@ -495,18 +492,20 @@ mod tests {
                     _ => 0.2,
                 };
             let speed = 30.0 * next();
-            let then = VehicleState::new(point + DVec2::from_angle(heading).perp() * offset, heading, speed);
+            let side = DVec2::from_angle(heading).perp();
+            let then = VehicleState::new(point + side * offset, heading, speed);
             let mut position = if k % 37 == 0 { LanePosition::default() } else { LanePosition::of(&lanes, &then) };
-            if k % 41 == 0 {
-                position.s += 10.0; // far from where it is: the narrow window misses
+            match k % 41 {
+                0 => position.s += 10.0,    // far from where it is: the narrow window misses
+                1..=4 => position.s -= 1.5, // a step behind: found by the walk outside the narrow window
+                _ => {}
             }
             // A dynamics step or three later (the control tick does not divide the steps evenly).
             let moved = speed * dt * (0.8 + 0.4 * next());
-            let now = VehicleState::new(
-                then.position + DVec2::from_angle(heading) * moved,
-                heading + 1e-3 * (next() - 0.5),
-                speed,
-            );
+            // Now and then across a lane's edge since (into the next lane, or off the road).
+            let across = if k % 7 == 0 { (next() - 0.5) * 6.0 } else { 0.0 };
+            let to = then.position + DVec2::from_angle(heading) * moved + side * across;
+            let now = VehicleState::new(to, heading + 1e-3 * (next() - 0.5), speed);
             states.push(now);
             positions.push(position);
         }
