@@ -380,8 +380,16 @@ impl Path {
     }
 }
 
-/// Points a [`walk_four`] places at once.
+/// Lanes of the four-wide passes: points a [`walk_four`] places at once, vehicles the path
+/// following, the lane positions and the kinematic steps take at once.
 pub(crate) const LANES: usize = 4;
+
+/// The groups of [`LANES`] consecutive places of `0..n` (the last one shorter when `n` is not a
+/// multiple of it): how a four-wide pass goes through its chunk, each group four at once or,
+/// where it cannot, one at a time.
+pub(crate) fn groups_of_four(n: usize) -> impl Iterator<Item = std::ops::Range<usize>> {
+    (0..n).step_by(LANES).map(move |k| k..(k + LANES).min(n))
+}
 
 /// Where [`walk_four`] placed four points.
 pub(crate) struct Walked {

@@ -16,6 +16,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use super::grid::{Pass, vectorised};
 use super::trig::{is_small, sin_cos_polynomial, small_sin_cos, small_tan, tan_polynomial};
 use super::{Dynamics, Parallelism, SimClock, SimSystems};
+use crate::map::path::{LANES, groups_of_four};
 
 /// Wrap an angle to (−π, π] [rad].
 fn wrap_angle(a: f64) -> f64 {
@@ -62,9 +63,6 @@ pub fn step_kinematic_unicycle(
     let curvature = small_tan(steering) / params.wheelbase;
     advance_arc(state, command.speed * dt, curvature, command.speed, state.heading());
 }
-
-/// Vehicles a [`step_kinematic_four`] steps at once.
-const LANES: usize = 4;
 
 /// [`step_kinematic_unicycle`] for four vehicles at once, when all four take its common path: a
 /// steering and a one-step turn small enough for the polynomials ([`is_small`]), a turn above
@@ -142,9 +140,8 @@ impl Pass for KinematicChunk<'_> {
     fn run(self) {
         let KinematicChunk { states, commands, models, dt } = self;
         let n = states.len().min(commands.len()).min(models.len());
-        for start in (0..n).step_by(LANES) {
-            let end = (start + LANES).min(n);
-            let (states, commands, models) = (&mut states[start..end], &commands[start..end], &models[start..end]);
+        for r in groups_of_four(n) {
+            let (states, commands, models) = (&mut states[r.clone()], &commands[r.clone()], &models[r]);
             if !step_kinematic_four(states, commands, models, dt) {
                 for ((state, command), model) in states.iter_mut().zip(commands).zip(models) {
                     step_kinematic_unicycle(state, command, model, dt);
@@ -277,13 +274,7 @@ mod tests {
         // Common cases (gentle steering, headings all round, some near ±π so that the turn
         // wraps) and the ones the four-wide step must leave to the one-at-a-time step (large
         // steering, a straight line, NaN, a stale heading), mixed into groups of four.
-        let mut rng = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = crate::world::random::draws(0x9e37_79b9_7f4a_7c15);
         let (mut states, mut commands, mut models) = (Vec::new(), Vec::new(), Vec::new());
         for k in 0..4003 {
             let yaw = match k % 9 {

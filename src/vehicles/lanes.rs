@@ -14,7 +14,7 @@ use bevy_ecs::prelude::{Component, Local, Query, Res, ResMut, Resource, World};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
-use crate::map::path::{LANES, walk_four};
+use crate::map::path::{LANES, groups_of_four, walk_four};
 use crate::map::{LaneletId, LaneletMap, Neighbours, Path};
 use crate::sim::grid::{Pass, vectorised};
 use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
@@ -349,14 +349,13 @@ impl Pass for LanePositionsPass<'_, '_> {
     fn run(self) {
         let LanePositionsPass { lanes, states, positions, dt } = self;
         let n = positions.len().min(states.len());
-        for k in (0..n).step_by(LANES) {
-            let end = (k + LANES).min(n);
+        for r in groups_of_four(n) {
             // The centre-line points a vehicle a few places on will read are far apart in memory
             // on a big map: ask for them now so their loads overlap these vehicles' work.
-            for ahead in positions.iter().skip(k + PREFETCH_AHEAD).take(end - k) {
+            for ahead in positions.iter().skip(r.start + PREFETCH_AHEAD).take(r.len()) {
                 lanes.prefetch(ahead.on(), ahead.s);
             }
-            let (states, positions) = (&states[k..end], &mut positions[k..end]);
+            let (states, positions) = (&states[r.clone()], &mut positions[r]);
             if !update_four(lanes, states, positions, dt) {
                 for (state, pos) in states.iter().zip(positions) {
                     update_one(lanes, state, pos, dt);
@@ -471,13 +470,7 @@ mod tests {
         let options = RouteOptions { points_per_meter: 0.5 };
         let loops: Vec<Path> = (0..3).map(|k| map.closed_loop_tag(&ring_lane_tag(3, k), &options).unwrap()).collect();
         let lanes = LaneMap::new(Arc::new(map));
-        let mut rng = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = crate::world::random::draws(0x9e37_79b9_7f4a_7c15);
         let n = 4001;
         let (mut states, mut positions) = (Vec::new(), Vec::new());
         let dt = 0.05;

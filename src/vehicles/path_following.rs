@@ -13,7 +13,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use super::lane_state::LaneChanger;
 use super::longitudinal::SteeringSystems;
 use crate::map::Path;
-use crate::map::path::{LANES, along_segment, walk_four};
+use crate::map::path::{LANES, along_segment, groups_of_four, walk_four};
 use crate::sim::grid::{Pass, vectorised};
 use crate::sim::trig::{atan_polynomial, is_small, small_atan};
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
@@ -115,9 +115,8 @@ impl Pass for FollowPass<'_, '_> {
     fn run(self) {
         let FollowPass { table, start, followers, commands, dt } = self;
         let n = followers.len().min(commands.len());
-        for k in (0..n).step_by(LANES) {
-            let end = (k + LANES).min(n);
-            let (followers, commands) = (&mut followers[k..end], &mut commands[k..end]);
+        for r in groups_of_four(n) {
+            let (k, followers, commands) = (r.start, &mut followers[r.clone()], &mut commands[r]);
             if !follow_four(table, start + k, followers, commands, dt) {
                 follow_one_by_one(table, start + k, followers, commands, dt);
             }
@@ -407,13 +406,7 @@ mod tests {
     ) {
         let open = Path::from_polyline(&[DVec2::ZERO, DVec2::new(400.0, 30.0), DVec2::new(800.0, -20.0)], 0.5);
         let paths = [Arc::new(circle(1500.0, 4712)), Arc::new(open), Arc::new(circle(8.0, 12))];
-        let mut rng = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = crate::world::random::draws(0x2545_f491_4f6c_dd1d);
         let dt = 0.05;
         let mut out = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for k in 0..n {

@@ -318,6 +318,17 @@ fn normal_outside(words: &mut Words, z: &Ziggurat, mut u: f64, mut i: usize) -> 
     }
 }
 
+/// Uniform draws in [0, 1) from `seed`, one after another ([`uniform`] at consecutive
+/// indices): test data for the four-wide passes' tests.
+#[cfg(test)]
+pub(crate) fn draws(seed: u64) -> impl FnMut() -> f64 {
+    let mut index = 0;
+    move || {
+        index += 1;
+        uniform(seed, 0, index, 0)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
