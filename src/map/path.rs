@@ -430,10 +430,15 @@ pub(crate) fn walk_four(
     let (mut numbers, mut far) = ([[0.0; 3]; LANES], [false; LANES]);
     for l in 0..LANES {
         let (path, n) = (paths[l], paths[l].segment_count() as isize);
-        let walks = spacing[l] > 0.0 && hint[l].is_finite() && ceil_index(steps[l]) >= 1;
+        // Five segments at least (else no hint has two either side), checked before the clamp
+        // to 0..n, which an empty path would not allow.
+        let walks = n >= 5 && spacing[l] > 0.0 && hint[l].is_finite() && ceil_index(steps[l]) >= 1;
+        if !walks {
+            return None;
+        }
         let i = floor_index(from[l]);
         let i = if path.closed { i } else { i.clamp(0, n - 1) };
-        if !(walks && i >= 2 && i + 2 < n) {
+        if !(i >= 2 && i + 2 < n) {
             return None;
         }
         // A step to a neighbour goes on to the next one only within the window.
@@ -585,6 +590,24 @@ mod tests {
             }
         }
         Some(best)
+    }
+
+    #[test]
+    fn four_walks_on_paths_too_short_to_walk_give_way_to_the_one_by_one_walk() {
+        // An empty path, one point, and too few segments for two either side of the hint:
+        // `walk_four` leaves them to `Path::walk` (it clamped an empty open path's segment
+        // number to 0..-1 before it checked its length, which panics).
+        let long = Path::from_points(Vec::new(), (0..50).map(|k| DVec2::new(k as f64, 0.0)).collect(), false);
+        let short: Vec<Path> = [0, 1, 2, 5]
+            .iter()
+            .map(|&n| Path::from_points(Vec::new(), (0..n).map(|k| DVec2::new(k as f64, 0.0)).collect(), false))
+            .collect();
+        let (p, hint, window) = ([DVec2::new(20.5, 0.5); LANES], [20.0; LANES], [2.0; LANES]);
+        assert!(walk_four([&long; LANES], p, hint, window).is_some());
+        for path in &short {
+            let paths = [&long, path, &long, &long];
+            assert!(walk_four(paths, p, hint, window).is_none(), "{} points", path.points.len());
+        }
     }
 
     #[test]

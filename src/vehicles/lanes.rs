@@ -372,6 +372,13 @@ fn update_one(lanes: &LaneMap, state: &VehicleState, pos: &mut LanePosition, dt:
     // Moved about its speed times the step along the lane since the last update (the length
     // of the velocity: no trigonometry per vehicle and step).
     let found = lanes.locate(state.position, last, state.velocity.length() * dt);
+    set_found(lanes, pos, found, state);
+}
+
+/// Write what [`LaneMap::locate`] `found` for the vehicle at `state` into `pos` (only if it
+/// changed).
+#[inline(always)]
+fn set_found(lanes: &LaneMap, pos: &mut LanePosition, found: Option<(u32, f64, f64)>, state: &VehicleState) {
     let new = LanePosition::found(lanes, found, state.speed());
     if *pos != new {
         *pos = new;
@@ -401,13 +408,8 @@ fn update_four(lanes: &LaneMap, states: &[VehicleState], positions: &mut [LanePo
     }
     let paths: [&Path; LANES] = std::array::from_fn(|l| &lanes.centres[on[l] as usize]);
     let p: [DVec2; LANES] = std::array::from_fn(|l| states[l].position);
-    let (mut hint, mut velocity) = ([0.0; LANES], [DVec2::ZERO; LANES]);
-    for l in 0..LANES {
-        velocity[l] = states[l].velocity;
-    }
-    for l in 0..LANES {
-        hint[l] = positions[l].s + velocity[l].length() * dt;
-    }
+    // `update_one`'s hint for `LaneMap::locate`.
+    let hint: [f64; LANES] = std::array::from_fn(|l| positions[l].s + states[l].velocity.length() * dt);
     let Some(walked) = walk_four(paths, p, hint, [NARROW_WINDOW; LANES]) else { return false };
     let half: [f64; LANES] = std::array::from_fn(|l| lanes.half_widths[on[l] as usize]);
     let mut found = [true; LANES];
@@ -424,11 +426,7 @@ fn update_four(lanes: &LaneMap, states: &[VehicleState], positions: &mut [LanePo
         return false;
     }
     for l in 0..LANES {
-        let found = Some((on[l], walked.s[l], walked.lateral[l]));
-        let new = LanePosition::found(lanes, found, states[l].speed());
-        if positions[l] != new {
-            positions[l] = new;
-        }
+        set_found(lanes, &mut positions[l], Some((on[l], walked.s[l], walked.lateral[l])), &states[l]);
     }
     true
 }

@@ -87,6 +87,15 @@ struct FollowingTable<'a> {
     shifts: Option<&'a [LateralShift]>,
 }
 
+impl FollowingTable<'_> {
+    /// The wheelbase [m] of vehicle `i`'s model (2.8 m without one).
+    #[inline(always)]
+    fn wheelbase(&self, i: usize) -> f64 {
+        let kinematic = self.kinematic.map(|m| m[i].wheelbase);
+        kinematic.or(self.acceleration.map(|m| m[i].wheelbase)).unwrap_or(2.8)
+    }
+}
+
 /// Steer a contiguous chunk of vehicles (items `start..` of `table`); `dt` is the control
 /// step [s]. Four at a time where [`follow_four`] can (in vector code where the processor has
 /// AVX2), else one at a time ([`follow_one_by_one`]).
@@ -126,14 +135,14 @@ impl Pass for FollowPass<'_, '_> {
 
 /// [`follow_one_by_one`] for four vehicles at once, when all four take its common path: no
 /// lane change under way, no lateral shift, tracking, the walk along the route ending on the
-/// segment it starts from (neither neighbour nearer, none of the three wrapping), the look-ahead
-/// point less than a lap past the loop's end, and a steering small enough for the polynomial.
+/// segment at the hint or one step from it ([`walk_four`]), the look-ahead point less than a
+/// lap past the loop's end, and a steering small enough for the polynomial.
 /// Then it writes what the one-at-a-time code writes, bit for bit (the same operations in the
 /// same order, lane by lane: [`walk_four`] and [`along_segment`] are the path's own), and returns
 /// true; else it writes nothing and returns false.
 ///
-/// A vehicle's tick is a chain of about eight divisions (the walk's start, its three
-/// projections, the look-ahead sample, the pure-pursuit curvature) between loads of route
+/// A vehicle's tick is a chain of divisions (the walk's start, its projections, the look-ahead
+/// sample, the pure-pursuit curvature) between loads of route
 /// points: one at a time it waits on the divider; in vector code four vehicles share each
 /// division, as in the kinematic steps ([`crate::sim::dynamics`]). The loads stay next to the
 /// arithmetic that needs them (a pass over the whole chunk for each stage was twice as slow:
@@ -157,9 +166,10 @@ fn follow_four(
     let shift = |l: usize| table.shifts.map_or(0.0, |s| s[start + l].0);
     let paths: [&Path; LANES] = std::array::from_fn(|l| &*routes[l].0);
     let mut common = true;
-    for l in 0..LANES {
-        // What `follow_one_by_one` adds to the route's offset: the manoeuvre's (none) and the shift.
-        common &= paths[l].points.len() >= 2 && followers[l].tracking && !changing(l) && 0.0 + shift(l) == 0.0;
+    for (l, follower) in followers.iter().enumerate() {
+        // What `follow_one_by_one` adds to the route's offset: the manoeuvre's (none) and the
+        // shift. (A route too short to steer along fails `walk_four`.)
+        common &= follower.tracking && !changing(l) && 0.0 + shift(l) == 0.0;
     }
     if !common {
         return false;
@@ -204,10 +214,7 @@ fn follow_four(
         let (a, b) = paths[l].segment(i);
         (index[l], ax[l], ay[l], bx[l], by[l]) = (i as f64, a.x, a.y, b.x, b.y);
     }
-    let wheelbase: [f64; LANES] = std::array::from_fn(|l| {
-        let kinematic = table.kinematic.map(|m| m[start + l].wheelbase);
-        kinematic.or(table.acceleration.map(|m| m[start + l].wheelbase)).unwrap_or(2.8)
-    });
+    let wheelbase: [f64; LANES] = std::array::from_fn(|l| table.wheelbase(start + l));
     let mut steering = [0.0; LANES];
     let mut steers = [true; LANES];
     for l in 0..LANES {
@@ -272,7 +279,6 @@ fn follow_one_by_one(
     for (k, (follower, command)) in followers.iter_mut().zip(commands.iter_mut()).enumerate() {
         let i = start + k;
         let (state, route) = (&table.states[i], &table.routes[i]);
-        let kinematic = table.kinematic.map(|m| &m[i]);
         let acceleration = table.acceleration.map(|m| &m[i]);
         let changer = table.changers.map(|c| &c[i]);
         let shift = table.shifts.map(|s| &s[i]);
@@ -301,7 +307,7 @@ fn follow_one_by_one(
         let planned = manoeuvre.map_or(0.0, |m| m.offset_at(path, s)) + shift;
         follower.max_offset = follower.max_offset.max((lateral - planned).abs());
 
-        let wheelbase = kinematic.map(|m| m.wheelbase).or(acceleration.map(|m| m.wheelbase)).unwrap_or(2.8);
+        let wheelbase = table.wheelbase(i);
         let lookahead = p.lookahead_min.max(p.lookahead_time * speed.abs());
         let aim = manoeuvre.map_or(0.0, |m| m.offset_at(path, s + lookahead)) + shift;
         let target = if aim != 0.0 {
