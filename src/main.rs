@@ -5,6 +5,7 @@ mod cli;
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
+    cli::huge_pages::restart_with_huge_pages();
     restore_default_sigpipe();
     let args = cli::Cli::parse();
     cli::init_logging(args.verbose);

@@ -1,6 +1,7 @@
 //! Command-line interface: one file per subcommand, each a thin layer over the library.
 
 mod bench;
+pub mod huge_pages;
 mod map;
 mod map_generate;
 mod map_render;

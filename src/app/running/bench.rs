@@ -384,6 +384,10 @@ pub struct BenchReport {
     pub modules: Vec<ModuleTime>,
     /// Peak resident memory of the process [MB] (Linux only).
     pub peak_rss_mb: Option<f64>,
+    /// Resident memory on transparent huge pages at the end of the run [MB] (Linux
+    /// `AnonHugePages`): the heap's, when `smlworld` restarted itself with glibc's malloc on
+    /// huge pages (see `SMLWORLD_HUGE_PAGES` in the README); 0 without.
+    pub huge_pages_mb: Option<f64>,
     /// What the V2V channels carried, counted per receiver (as `summary.json`'s
     /// `metrics.v2v`): the evidence that the wifi fan-out, and a degraded run's loss and delay,
     /// are inside the figures.
@@ -442,6 +446,15 @@ pub fn process_cpu_seconds() -> Option<f64> {
 pub fn peak_rss_mb() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// Resident memory of this process on transparent huge pages [MB] (Linux `AnonHugePages`), if
+/// known.
+pub fn huge_pages_mb() -> Option<f64> {
+    let rollup = std::fs::read_to_string("/proc/self/smaps_rollup").ok()?;
+    let line = rollup.lines().find(|l| l.starts_with("AnonHugePages:"))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb / 1024.0)
 }
@@ -510,6 +523,7 @@ impl BenchWorld {
             us_per_vehicle_sim_second: wall_seconds * 1e6 / (self.vehicles as f64 * duration),
             modules,
             peak_rss_mb: peak_rss_mb(),
+            huge_pages_mb: huge_pages_mb(),
             v2v: {
                 let c = sim.world().resource::<V2vChannelStats>();
                 BenchV2v { wifi: (&c.wifi).into(), network: (&c.network).into() }
