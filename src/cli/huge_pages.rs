@@ -11,8 +11,8 @@
 //! only when the tunable `glibc.malloc.hugetlb=1` is set when the process starts: the dynamic
 //! loader reads `GLIBC_TUNABLES` before any of our code runs (glibc manual, "Memory Allocation
 //! Tunables"). So `smlworld`, started without it where the kernel is in that mode, starts itself
-//! again at once with it added ([`restart_with_huge_pages`]): the same program, arguments and
-//! process id, the rest of the environment unchanged. `SMLWORLD_HUGE_PAGES=0` turns this off;
+//! again at once with it added ([`restart_with_huge_pages`]): the same program, arguments, name
+//! and process id, the rest of the environment unchanged. `SMLWORLD_HUGE_PAGES=0` turns this off;
 //! a `GLIBC_TUNABLES` that names the tunable already is left as the user set it.
 //!
 //! A custom global allocator that advised its own large blocks was tried first: it reached
@@ -83,8 +83,14 @@ pub fn restart_with_huge_pages() {
         };
         let mut args = std::env::args_os();
         let arg0 = args.next().unwrap_or_else(|| OsString::from("smlworld"));
+        // The program's own path, not `/proc/self/exe`, which would name the process `exe` in
+        // `ps` and `top`; that link only when the file is gone (rebuilt while starting).
+        let program = std::env::current_exe()
+            .ok()
+            .filter(|p| p.is_file())
+            .unwrap_or_else(|| std::path::PathBuf::from("/proc/self/exe"));
         // `exec` replaces this process; it returns only with the reason it could not.
-        let _failed = std::process::Command::new("/proc/self/exe")
+        let _failed = std::process::Command::new(program)
             .arg0(arg0)
             .args(args)
             .env("GLIBC_TUNABLES", tunables)
