@@ -384,6 +384,15 @@ impl Path {
 /// following, the lane positions and the kinematic steps take at once.
 pub(crate) const LANES: usize = 4;
 
+/// `[f(0), f(1), f(2), f(3)]`, written out: `std::array::from_fn` in the four-wide passes was
+/// left as a call (perf: the five route segments loaded through it, written to the stack by the
+/// call and read back in 32-byte loads that could not be forwarded from its smaller stores,
+/// were 15 % of the path following's samples).
+#[inline(always)]
+pub(crate) fn per_lane<T>(mut f: impl FnMut(usize) -> T) -> [T; LANES] {
+    [f(0), f(1), f(2), f(3)]
+}
+
 /// The groups of [`LANES`] consecutive places of `0..n` (the last one shorter when `n` is not a
 /// multiple of it): how a four-wide pass goes through its chunk, each group four at once or,
 /// where it cannot, one at a time.
@@ -417,7 +426,7 @@ pub(crate) fn walk_four(
     hint: [f64; LANES],
     window: [f64; LANES],
 ) -> Option<Walked> {
-    let spacing: [f64; LANES] = std::array::from_fn(|l| paths[l].spacing());
+    let spacing: [f64; LANES] = per_lane(|l| paths[l].spacing());
     let (mut steps, mut from) = ([0.0; LANES], [0.0; LANES]);
     for l in 0..LANES {
         steps[l] = window[l] / spacing[l];
@@ -444,7 +453,9 @@ pub(crate) fn walk_four(
         // A step to a neighbour goes on to the next one only within the window.
         far[l] = ceil_index(steps[l]) >= 2;
         numbers[l] = [(i - 1) as f64, i as f64, (i + 1) as f64];
-        segments[l] = std::array::from_fn(|k| path.segment((i - 2) as usize + k));
+        let b = (i - 2) as usize;
+        segments[l] =
+            [path.segment(b), path.segment(b + 1), path.segment(b + 2), path.segment(b + 3), path.segment(b + 4)];
     }
     let mut out = Walked { s: [0.0; LANES], lateral: [0.0; LANES] };
     let mut walked = [true; LANES];

@@ -16,7 +16,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use super::grid::{Pass, vectorised};
 use super::trig::{is_small, sin_cos_polynomial, small_sin_cos, small_tan, tan_polynomial};
 use super::{Dynamics, Parallelism, SimClock, SimSystems};
-use crate::map::path::{LANES, groups_of_four};
+use crate::map::path::{LANES, groups_of_four, per_lane};
 
 /// Wrap an angle to (−π, π] [rad].
 fn wrap_angle(a: f64) -> f64 {
@@ -90,7 +90,7 @@ fn step_kinematic_four(
         (Ok(s), Ok(c), Ok(m)) => (s, c, m),
         _ => return false,
     };
-    let facing: [DVec2; LANES] = std::array::from_fn(|l| states[l].heading());
+    let facing: [DVec2; LANES] = per_lane(|l| states[l].heading());
     let mut common = [true; LANES];
     let (mut x, mut y, mut yaw, mut c1s, mut s1s, mut speeds) =
         ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);

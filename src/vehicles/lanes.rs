@@ -14,7 +14,7 @@ use bevy_ecs::prelude::{Component, Local, Query, Res, ResMut, Resource, World};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
-use crate::map::path::{LANES, groups_of_four, walk_four};
+use crate::map::path::{LANES, groups_of_four, per_lane, walk_four};
 use crate::map::{LaneletId, LaneletMap, Neighbours, Path};
 use crate::sim::grid::{Pass, vectorised};
 use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
@@ -406,12 +406,12 @@ fn update_four(lanes: &LaneMap, states: &[VehicleState], positions: &mut [LanePo
             _ => return false,
         }
     }
-    let paths: [&Path; LANES] = std::array::from_fn(|l| &lanes.centres[on[l] as usize]);
-    let p: [DVec2; LANES] = std::array::from_fn(|l| states[l].position);
+    let paths: [&Path; LANES] = per_lane(|l| &lanes.centres[on[l] as usize]);
+    let p: [DVec2; LANES] = per_lane(|l| states[l].position);
     // `update_one`'s hint for `LaneMap::locate`.
-    let hint: [f64; LANES] = std::array::from_fn(|l| positions[l].s + states[l].velocity.length() * dt);
+    let hint: [f64; LANES] = per_lane(|l| positions[l].s + states[l].velocity.length() * dt);
     let Some(walked) = walk_four(paths, p, hint, [NARROW_WINDOW; LANES]) else { return false };
-    let half: [f64; LANES] = std::array::from_fn(|l| lanes.half_widths[on[l] as usize]);
+    let half: [f64; LANES] = per_lane(|l| lanes.half_widths[on[l] as usize]);
     let mut found = [true; LANES];
     for l in 0..LANES {
         // `LaneMap::locate`'s middle of the lane (which also puts it within `Path::near_within`'s

@@ -13,7 +13,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use super::lane_state::LaneChanger;
 use super::longitudinal::SteeringSystems;
 use crate::map::Path;
-use crate::map::path::{LANES, along_segment, groups_of_four, walk_four};
+use crate::map::path::{LANES, along_segment, groups_of_four, per_lane, walk_four};
 use crate::sim::grid::{Pass, vectorised};
 use crate::sim::trig::{atan_polynomial, is_small, small_atan};
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
@@ -164,7 +164,7 @@ fn follow_four(
     let Some(routes) = table.routes.get(start..start + LANES) else { return false };
     let changing = |l: usize| table.changers.is_some_and(|c| c[start + l].active.is_some());
     let shift = |l: usize| table.shifts.map_or(0.0, |s| s[start + l].0);
-    let paths: [&Path; LANES] = std::array::from_fn(|l| &*routes[l].0);
+    let paths: [&Path; LANES] = per_lane(|l| &*routes[l].0);
     let mut common = true;
     for (l, follower) in followers.iter().enumerate() {
         // What `follow_one_by_one` adds to the route's offset: the manoeuvre's (none) and the
@@ -174,9 +174,9 @@ fn follow_four(
     if !common {
         return false;
     }
-    let facing: [DVec2; LANES] = std::array::from_fn(|l| states[l].heading());
-    let position: [DVec2; LANES] = std::array::from_fn(|l| states[l].position);
-    let spacing: [f64; LANES] = std::array::from_fn(|l| paths[l].spacing());
+    let facing: [DVec2; LANES] = per_lane(|l| states[l].heading());
+    let position: [DVec2; LANES] = per_lane(|l| states[l].position);
+    let spacing: [f64; LANES] = per_lane(|l| paths[l].spacing());
     let (mut speed, mut window, mut hint) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
     for l in 0..LANES {
         // `follow_one_by_one`'s prediction and `Path::locate_walking`'s window.
@@ -214,7 +214,7 @@ fn follow_four(
         let (a, b) = paths[l].segment(i);
         (index[l], ax[l], ay[l], bx[l], by[l]) = (i as f64, a.x, a.y, b.x, b.y);
     }
-    let wheelbase: [f64; LANES] = std::array::from_fn(|l| table.wheelbase(start + l));
+    let wheelbase: [f64; LANES] = per_lane(|l| table.wheelbase(start + l));
     let mut steering = [0.0; LANES];
     let mut steers = [true; LANES];
     for l in 0..LANES {
