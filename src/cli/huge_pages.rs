@@ -4,7 +4,9 @@
 //! tens of megabytes at 10,000 vehicles, read in an order the 4 KiB pages' translation cache
 //! cannot hold. With the heap on 2 MiB pages (and [`SETTINGS`]) the same work took 11 to 13 %
 //! less time (`bench --vehicles 10000 --duration 10`, 7 alternating turns, paired: 0.890 on one
-//! thread, 0.867 on two; Intel Xeon, 2 cores), and `--vehicles 100000 --duration 2` 8 % less.
+//! thread, 0.867 on two; Intel Xeon, 2 cores). At `--vehicles 100000 --duration 2` the best
+//! runs are faster (0.86 -> 0.76 s) but the median moves with how fresh the pages the kernel
+//! hands over in the first ticks are (paired 0.91, 0.97 and 1.12 in three sets of turns).
 //!
 //! Most Linux kernels give huge pages only to memory that asks for them (`madvise`, the
 //! `[madvise]` mode of `/sys/kernel/mm/transparent_hugepage/enabled`), and glibc's malloc asks
@@ -33,7 +35,7 @@ const TUNABLE: &str = "glibc.malloc.hugetlb";
 /// and maps large blocks apart, unmapping them when freed) pays that again and again: the
 /// 100,000-vehicle run took 13 to 17 % longer with huge pages alone. Growing the heap 64 MiB
 /// at a time, trimming only above 1 GiB free, and taking blocks below 32 MiB from the heap
-/// made it 8 % faster instead (peak memory 285 MB against 263 MB).
+/// made it 9 % faster instead in the same minutes (peak memory 285 MB against 263 MB).
 const SETTINGS: &str = "glibc.malloc.hugetlb=1:glibc.malloc.top_pad=67108864:glibc.malloc.trim_threshold=1073741824:glibc.malloc.mmap_threshold=33554432";
 /// Where Linux says when it gives transparent huge pages.
 const THP_MODE: &str = "/sys/kernel/mm/transparent_hugepage/enabled";
