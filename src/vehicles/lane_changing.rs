@@ -616,7 +616,8 @@ fn evaluate(
     }
     let Some(i) = pos.on() else { return };
     let len_i = lanes.length(i);
-    let law = ch.law;
+    // The law (72 bytes of the changer) is read where a gap is weighed, not every tick: most
+    // ticks weigh none, and its cache lines stay unread.
     let p = ch.params;
 
     // Cooperation: a neighbour signalling a mandatory change into our gap.
@@ -679,7 +680,7 @@ fn evaluate(
                 || target.is_some_and(|j| {
                     let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
                     let (ahead, behind) = (index.ahead(lanes, j, s_j, me), index.behind(lanes, j, s_j, me));
-                    target_gap_closed(&law, p.safe_deceleration, v, size.length, ahead, behind)
+                    target_gap_closed(&ch.law, p.safe_deceleration, v, size.length, ahead, behind)
                 });
             if closed {
                 let back = m.old_route.project_near(state.position, m.old_s, 10.0);
@@ -782,6 +783,7 @@ fn evaluate(
             target_follower: tf.map(|f| seen_behind(f, size.length)),
         };
         let mobil = mobil_for(&p, side, kind, u);
+        let law = &ch.law;
         let decision = mobil_decision(&mobil, &around, |v, l| law.accel(v, l));
         match decision {
             // Whether an earlier vehicle claimed the place this tick is known only in query
