@@ -38,6 +38,7 @@ const TUNABLE: &str = "glibc.malloc.hugetlb";
 /// made it 9 % faster instead in the same minutes (peak memory 285 MB against 263 MB).
 const SETTINGS: &str = "glibc.malloc.hugetlb=1:glibc.malloc.top_pad=67108864:glibc.malloc.trim_threshold=1073741824:glibc.malloc.mmap_threshold=33554432";
 /// Where Linux says when it gives transparent huge pages.
+#[cfg_attr(not(all(target_os = "linux", target_env = "gnu")), allow(dead_code))]
 const THP_MODE: &str = "/sys/kernel/mm/transparent_hugepage/enabled";
 
 /// The `GLIBC_TUNABLES` to restart with, or `None` to go on as we are: `switch` is
