@@ -442,21 +442,24 @@ pub fn process_cpu_seconds() -> Option<f64> {
     None
 }
 
-/// Peak resident memory of this process [MB] (Linux `VmHWM`), if known.
-pub fn peak_rss_mb() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+/// A size this process's `/proc/self/{file}` gives in kB on the line `key:`, in MB (Linux), if
+/// known: the memory figures of the bench and the soak.
+pub(crate) fn proc_self_mb(file: &str, key: &str) -> Option<f64> {
+    let text = std::fs::read_to_string(format!("/proc/self/{file}")).ok()?;
+    let line = text.lines().find(|l| l.strip_prefix(key).is_some_and(|rest| rest.starts_with(':')))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb / 1024.0)
+}
+
+/// Peak resident memory of this process [MB] (Linux `VmHWM`), if known.
+pub fn peak_rss_mb() -> Option<f64> {
+    proc_self_mb("status", "VmHWM")
 }
 
 /// Resident memory of this process on transparent huge pages [MB] (Linux `AnonHugePages`), if
 /// known.
 pub fn huge_pages_mb() -> Option<f64> {
-    let rollup = std::fs::read_to_string("/proc/self/smaps_rollup").ok()?;
-    let line = rollup.lines().find(|l| l.starts_with("AnonHugePages:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
+    proc_self_mb("smaps_rollup", "AnonHugePages")
 }
 
 impl BenchWorld {

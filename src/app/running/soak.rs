@@ -65,10 +65,7 @@ pub struct SoakReport {
 
 /// Resident memory of this process now [MB] (Linux `VmRSS`), if known.
 pub fn rss_mb() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
+    super::bench::proc_self_mb("status", "VmRSS")
 }
 
 /// Run `world` for `wall_seconds` of wall time, sampling memory every `every` [s] (`on_sample`
