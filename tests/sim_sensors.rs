@@ -242,6 +242,88 @@ fn moving_vehicles_against_a_scan(threads: usize) {
     }
 }
 
+#[test]
+fn traffic_driving_together_is_seen_as_a_brute_force_scan_sees_it_tick_after_tick() {
+    // The neighbour lists are kept while vehicles move alike (their displacements since the
+    // build differ by less than the skin), not only while each stays near where it was: here for
+    // seconds at a time, over which vehicles at different speeds close in on and pass each other.
+    for threads in [1, 3] {
+        traffic_against_a_scan(threads);
+    }
+}
+
+fn traffic_against_a_scan(threads: usize) {
+    // 240 vehicles on four lanes of a 2 km road heading east at 25 m/s, each up to 6 m/s faster
+    // or slower and some weaving a little; 60 more 4 km away heading north at 30 m/s, apart
+    // from them (drift cells that do not touch), one of which brakes hard; now and then a
+    // vehicle jumps back 30 m.
+    let mut rng = 41u64;
+    let mut vehicles = Vec::new();
+    let mut motion = Vec::new();
+    for i in 0..300 {
+        let (p, yaw, speed) = if i < 240 {
+            let p = DVec2::new(lcg(&mut rng) * 2000.0, 3.5 * f64::from(i % 4));
+            (p, 0.0, 25.0 + 12.0 * (lcg(&mut rng) - 0.5))
+        } else {
+            let p = DVec2::new(4000.0 + 3.5 * f64::from(i % 3), lcg(&mut rng) * 1500.0);
+            (p, std::f64::consts::FRAC_PI_2, 30.0)
+        };
+        let sensors =
+            SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
+        vehicles.push((-1 - i, p, yaw, sensors));
+        motion.push((speed, if i % 7 == 0 { 0.05 } else { 0.0 }));
+    }
+    let mut sim = world_on(&vehicles, threads);
+    assert_sim_matches_brute_force(&sim, &vehicles);
+    let dt = 0.05;
+    for tick in 1..200 {
+        for (k, ((_, p, yaw, _), (speed, weave))) in vehicles.iter_mut().zip(&mut motion).enumerate() {
+            let heading = *yaw + *weave * (f64::from(tick) * 0.3).sin();
+            *p += DVec2::from_angle(heading) * *speed * dt;
+            if k == 250 {
+                *speed = (*speed - 8.0 * dt).max(0.0);
+            }
+            if tick % 60 == 0 && k % 40 == 3 {
+                p.x -= 30.0;
+            }
+        }
+        for &(id, p, yaw, _) in &vehicles {
+            let e = sim.entity(VehicleId(id)).expect("vehicle exists");
+            *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
+        }
+        sim.run_for(dt);
+        assert_sim_matches_brute_force(&sim, &vehicles);
+    }
+}
+
+#[test]
+fn a_group_that_drives_far_together_is_seen_where_it_arrives() {
+    // Two groups 1 km apart with empty road between: the first jumps 150 m east every tick,
+    // all alike (so none closes in on another of its own group), until it reaches the second.
+    // Lists kept because the group moved together would miss the second group on arrival: how
+    // far a vehicle may move before they are built again is bounded too.
+    let sensors = SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
+    let mut vehicles: Vec<(i32, DVec2, f64, SensorSet)> = (0..10)
+        .map(|k| {
+            let x = if k < 5 { 10.0 * f64::from(k) } else { 950.0 + 10.0 * f64::from(k) };
+            (-1 - k, DVec2::new(x, 0.0), 0.0, sensors)
+        })
+        .collect();
+    let mut sim = world_on(&vehicles, 1);
+    for _ in 0..6 {
+        for v in vehicles.iter_mut().take(5) {
+            v.1.x += 150.0;
+        }
+        for &(id, p, yaw, _) in &vehicles {
+            let e = sim.entity(VehicleId(id)).expect("vehicle exists");
+            *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
+        }
+        sim.run_for(0.05);
+        assert_sim_matches_brute_force(&sim, &vehicles);
+    }
+    assert!(seen(&sim, -1).len() >= 5, "the first group reached the second: {:?}", seen(&sim, -1));
+}
+
 /// Every vehicle's readings are those of a brute-force scan over all others, nearest first.
 fn assert_matches_brute_force(vehicles: &[(i32, DVec2, f64, SensorSet)]) {
     assert_sim_matches_brute_force(&world_of(vehicles), vehicles);

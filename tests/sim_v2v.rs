@@ -331,8 +331,8 @@ fn moving_wifi_rounds(wifi_range: f64, sensor_rate: f64, threads: usize) -> usiz
 #[test]
 fn moving_receivers_hear_exactly_the_senders_in_range_round_after_round() {
     // Within the sensors' 100 m (the wifi round reads the sensors' neighbour lists, built at
-    // the same instant, or at 2 Hz up to half a second before) and beyond it (it cannot: a grid
-    // of the senders).
+    // the same instant or kept from an earlier sensor tick, at 20 Hz or at 2 Hz) and beyond it
+    // (it cannot: a grid of the senders).
     for threads in [1, 3] {
         assert!(moving_wifi_rounds(50.0, 20.0, threads) > 10_000);
         assert!(moving_wifi_rounds(50.0, 2.0, threads) > 10_000);

@@ -9,9 +9,10 @@
 //!
 //! Where every vehicle senses with a bounded range from one ECS table (the common case), the
 //! grid is built only now and then, for Verlet neighbour lists ([`NeighbourLists`]): each
-//! vehicle's list holds those within its range plus a skin, kept while no vehicle has moved
-//! half the skin, so most ticks test a short list per vehicle and rebuild nothing. The readings
-//! are the grid scan's, bit for bit.
+//! vehicle's list holds those within its range plus a skin, kept while no two neighbours have
+//! closed in on each other by the skin (traffic moves together: seconds at a time), so most
+//! ticks test a short list per vehicle and rebuild nothing. The readings are the grid scan's,
+//! bit for bit.
 //!
 //! Imperfect sensors ([`SensorErrors`], issue 21) cost only their own vehicles: after the
 //! candidates are found as above, occlusion compares each with the nearer ones found (a target
@@ -809,13 +810,19 @@ fn write_found(
 /// Verlet neighbour lists of the sensing vehicles ("skin" lists, Verlet 1967; the cell-list
 /// and skin scheme of molecular dynamics, e.g. Allen & Tildesley, *Computer Simulation of
 /// Liquids*, §5.3): each vehicle's list holds every vehicle that was within its sensor range
-/// plus a skin when the lists were built. While no vehicle has moved more than half the skin
-/// since then, every vehicle within a sensor's range now is on its list (two vehicles closed
-/// in by at most the skin), so a sensor tick tests only its list: no grid rebuild, no gather
-/// of the cells around, and a circle of candidates rather than a square of cells (about 18
-/// instead of 30 on the benchmark's highway). A tick checks the displacements (one pass over
-/// the positions) and rebuilds the lists over a grid when one moved too far, when the vehicles
-/// or their sensors' ranges changed, or when the typical range did.
+/// plus a skin when the lists were built. While no two vehicles that could meet have closed
+/// in on each other by the skin since then, every vehicle within a sensor's range now is on
+/// its list, so a sensor tick tests only its list: no grid rebuild, no gather of the cells
+/// around, and a circle of candidates rather than a square of cells (about 18 instead of 30 on
+/// the benchmark's highway). A tick checks the displacements (one pass over the positions,
+/// [`NeighbourLists::moved_together`]) and rebuilds the lists over a grid when two neighbours'
+/// displacements differ by the skin or one moved far, when the vehicles or their sensors'
+/// ranges changed, or when the typical range did.
+///
+/// The test is on displacements relative to each other, not on each vehicle's own: traffic
+/// moves together (a highway's vehicles at 20-30 m/s drift apart by a few m/s), so lists that
+/// a test of each vehicle's own displacement against half the skin rebuilt every half second
+/// hold for seconds (the "moving frame" of Verlet lists in a flowing system).
 ///
 /// The readings are those of the grid scan, bit for bit: the same vehicles pass the same range
 /// and cone tests on the same coordinates, and the detections are ordered by distance, then
@@ -840,9 +847,28 @@ struct NeighbourLists {
     /// the vehicles reads it straight through (a list per vehicle, each its own allocation,
     /// made every list a cache miss: two thirds of a wifi round's samples).
     lists: Lists,
+    /// Each vehicle's drift cell (see [`NeighbourLists::moved_together`]), in query order: an
+    /// index into the cells occupied at the build.
+    cell_of: Vec<u32>,
+    /// How many drift cells are occupied.
+    cells: usize,
+    /// The pairs of occupied drift cells that touch (a cell with itself too), each once.
+    touching: Vec<[u32; 2]>,
+    /// Farthest any vehicle may move from its anchor before the lists are built again [m]:
+    /// vehicles in drift cells that do not touch cannot come within sensor range until then.
+    max_drift: f64,
     /// Builds so far.
     builds: u64,
 }
+
+/// Per drift cell, the smallest and largest displacement since the build of its vehicles along
+/// x and y [m]: `[min x, max x, min y, max y]`.
+pub(crate) type DriftBox = [f64; 4];
+
+/// The drift cells' side as a multiple of the widest list's radius (range plus skin): wider
+/// cells let vehicles move farther between builds (`max_drift`), narrower ones hold fewer
+/// vehicles, whose displacements differ less on a curve.
+const DRIFT_CELL: f64 = 4.0;
 
 /// Neighbour lists in one array ([`NeighbourLists::lists`]).
 #[derive(Debug, Default)]
@@ -869,42 +895,136 @@ impl Lists {
 struct Neighbours {
     lists: NeighbourLists,
     ranges_now: Vec<f64>,
+    /// Scratch of [`NeighbourLists::moved_together`] and of the drift cells' build.
+    boxes: Vec<DriftBox>,
+    keys: Vec<(i64, i64)>,
 }
 
 /// The skin of the neighbour lists as a share of the typical sensor range: wider lists cost
-/// more tests per tick, narrower ones more builds. At 100 m, 20 m: a build every half second
-/// at 20 m/s.
+/// more tests per tick, narrower ones more builds. At 100 m, 20 m: a build once neighbours
+/// 10 m/s apart in speed have driven 2 s.
 const SKIN_SHARE: f64 = 0.2;
 
 impl SensorGrid {
     /// The neighbour lists of the vehicles `ids` at `states` (every vehicle, in query order),
     /// when they hold every vehicle within `range` [m] of each: the lists of the same vehicles
-    /// in the same order, each at least `range` plus the skin wide, and no vehicle moved half
-    /// the skin since they were built. For modules that look around the vehicles at the same
-    /// instant as the sensors (the wifi round), so that one search serves both.
-    pub(crate) fn lists_within(&self, ids: &[VehicleId], states: &[VehicleState], range: f64) -> Option<&Lists> {
+    /// in the same order, each at least `range` plus the skin wide, and no two neighbours
+    /// closed in by the skin since they were built ([`NeighbourLists::moved_together`];
+    /// `boxes` is its scratch). For modules that look around the vehicles at the same instant
+    /// as the sensors (the wifi round), so that one search serves both.
+    pub(crate) fn lists_within(
+        &self,
+        ids: &[VehicleId],
+        states: &[VehicleState],
+        range: f64,
+        boxes: &mut Vec<DriftBox>,
+    ) -> Option<&Lists> {
         let lists = &self.neighbours.lists;
-        // `moved_little` also checks that these are the vehicles of the build (so one list each).
+        // `moved_together` also checks that these are the vehicles of the build (one list each).
         let wide = lists.skin > 0.0 && lists.shortest >= range;
-        (wide && lists.moved_little(Everyone { ids, states })).then_some(&lists.lists)
+        (wide && lists.moved_together(Everyone { ids, states }, boxes)).then_some(&lists.lists)
     }
 }
 
 impl NeighbourLists {
     /// Whether the lists still hold every vehicle within sensor range of each: the same
-    /// vehicles in the same order, the same ranges and skin, and none moved more than just
-    /// under half the skin (the margin covers rounding; a NaN position fails the test).
-    fn hold(&self, everyone: Everyone<'_>, ranges: &[f64], skin: f64) -> bool {
-        self.skin == skin && self.ranges == ranges && self.moved_little(everyone)
+    /// vehicles in the same order, the same ranges and skin, and the vehicles moved together
+    /// ([`NeighbourLists::moved_together`]; `boxes` is its scratch).
+    fn hold(&self, everyone: Everyone<'_>, ranges: &[f64], skin: f64, boxes: &mut Vec<DriftBox>) -> bool {
+        self.skin == skin && self.ranges == ranges && self.moved_together(everyone, boxes)
     }
 
-    /// Whether `everyone` are the vehicles of the build, in the same order, and none has moved
-    /// just under half the skin since (the margin covers rounding; a NaN position fails).
-    fn moved_little(&self, everyone: Everyone<'_>) -> bool {
-        let limit = (0.49 * self.skin) * (0.49 * self.skin);
-        self.ids == everyone.ids
-            && self.anchors.len() == everyone.states.len()
-            && self.anchors.iter().zip(everyone.states).all(|(a, s)| (s.position - *a).length_squared() <= limit)
+    /// Whether `everyone` are the vehicles of the build, in the same order, and no two of them
+    /// that could now be within sensor range of each other have closed in by (just under) the
+    /// skin since: then every vehicle within range of another now was within its range plus
+    /// the skin at the build, on its list (the margin covers rounding; a NaN or infinite
+    /// position fails).
+    ///
+    /// With d_i a vehicle's displacement since the build, two vehicles closed in by at most
+    /// |d_i - d_j|. The anchors (positions at the build) lie in square drift cells, each side
+    /// [`DRIFT_CELL`] times the widest list radius. Two vehicles in cells that do not touch were
+    /// more than a side apart, so while no vehicle moved more than `max_drift` they are still
+    /// farther apart than any sensor reaches. For two in cells that touch, |d_i - d_j| is at
+    /// most the distance across the two cells' boxes of displacements (each cell's smallest
+    /// and largest x and y), which must stay under the skin. Vehicles driving together move
+    /// alike whatever their speed, so their lists hold until speeds that differ have opened or
+    /// closed a gap of the skin, or a vehicle drove `max_drift`; when every displacement is
+    /// under half the skin (the test of each vehicle on its own) they hold whatever the cells.
+    /// One pass over the positions, then one over the touching cells.
+    pub(crate) fn moved_together(&self, everyone: Everyone<'_>, boxes: &mut Vec<DriftBox>) -> bool {
+        if self.ids != everyone.ids
+            || self.anchors.len() != everyone.states.len()
+            || self.cell_of.len() != self.anchors.len()
+        {
+            return false;
+        }
+        const EMPTY: DriftBox = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
+        let merge =
+            |b: &mut DriftBox, r: &DriftBox| *b = [b[0].min(r[0]), b[1].max(r[1]), b[2].min(r[2]), b[3].max(r[3])];
+        boxes.clear();
+        boxes.resize(self.cells, EMPTY);
+        let (mut farthest, mut finite) = (0.0f64, true);
+        // Vehicles near each other are mostly next to each other in the query: a run of them in
+        // one cell is boxed in registers and merged into the cell's box once (a merge into
+        // memory per vehicle waited on the last one's store).
+        let (mut current, mut run) = (self.cell_of.first().copied().unwrap_or(0), EMPTY);
+        let moves = self.anchors.iter().zip(everyone.states).zip(&self.cell_of);
+        for ((anchor, state), &cell) in moves {
+            let d = state.position - *anchor;
+            let d2 = d.length_squared();
+            finite &= d2.is_finite();
+            farthest = farthest.max(d2);
+            if cell != current {
+                merge(&mut boxes[current as usize], &run);
+                (current, run) = (cell, EMPTY);
+            }
+            run = [run[0].min(d.x), run[1].max(d.x), run[2].min(d.y), run[3].max(d.y)];
+        }
+        if let Some(b) = boxes.get_mut(current as usize) {
+            merge(b, &run);
+        }
+        let half = 0.49 * self.skin;
+        if !finite || farthest > self.max_drift * self.max_drift {
+            return false;
+        }
+        if farthest <= half * half {
+            return true;
+        }
+        let limit = (2.0 * half) * (2.0 * half);
+        self.touching.iter().all(|&[a, b]| {
+            let (p, q) = (&boxes[a as usize], &boxes[b as usize]);
+            let dx = (p[1] - q[0]).max(q[1] - p[0]);
+            let dy = (p[3] - q[2]).max(q[3] - p[2]);
+            dx * dx + dy * dy <= limit
+        })
+    }
+
+    /// Place the anchors (just built, with `ranges` and `skin` [m]) in drift cells and find
+    /// the cells that touch (see [`NeighbourLists::moved_together`]); `keys` is scratch.
+    fn place_in_drift_cells(&mut self, keys: &mut Vec<(i64, i64)>) {
+        let widest = self.ranges.iter().copied().fold(0.0, f64::max) + self.skin;
+        let side = DRIFT_CELL * widest;
+        // Non-touching cells are more than a side apart; each of two vehicles may close in by
+        // `max_drift`, and must stay farther apart than the widest range (a margin for rounding).
+        self.max_drift = 0.49 * (side - (widest - self.skin));
+        let key = |p: DVec2| ((p.x / side).floor() as i64, (p.y / side).floor() as i64);
+        keys.clear();
+        keys.extend(self.anchors.iter().map(|&p| key(p)));
+        keys.sort_unstable();
+        keys.dedup();
+        self.cells = keys.len();
+        let place = |k: (i64, i64)| keys.binary_search(&k).ok().map(|c| c as u32);
+        self.cell_of.clear();
+        self.cell_of.extend(self.anchors.iter().map(|&p| place(key(p)).unwrap_or(0)));
+        self.touching.clear();
+        for (a, &(x, y)) in keys.iter().enumerate() {
+            // Each touching pair once: the cell itself and the neighbours after it.
+            for (dx, dy) in [(0, 0), (0, 1), (1, -1), (1, 0), (1, 1)] {
+                if let Some(b) = place((x.saturating_add(dx), y.saturating_add(dy))) {
+                    self.touching.push([a as u32, b]);
+                }
+            }
+        }
     }
 }
 
@@ -1078,8 +1198,8 @@ pub fn sense_vehicles(
     if let Some(everyone) = listed {
         let skin = SKIN_SHARE * cell;
         let n = neighbours.ranges_now.len();
-        let Neighbours { lists, ranges_now } = neighbours;
-        let build = !lists.hold(everyone, ranges_now, skin);
+        let Neighbours { lists, ranges_now, boxes, keys } = neighbours;
+        let build = !lists.hold(everyone, ranges_now, skin, boxes);
         if build {
             grid.rebuild_on(*parallelism, cell + skin, n, |i| entry(i, everyone.ids[i], &everyone.states[i]));
             lists.ids.clear();
@@ -1090,6 +1210,7 @@ pub fn sense_vehicles(
             lists.ranges.extend_from_slice(ranges_now);
             lists.skin = skin;
             lists.shortest = ranges_now.iter().copied().fold(f64::INFINITY, f64::min);
+            lists.place_in_drift_cells(keys);
             lists.builds += 1;
         }
         let input = SenseInput { grid, footprints: &footprints, draws };
@@ -1178,7 +1299,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_neighbour_lists_are_kept_while_nobody_moves_far_and_built_again_when_one_does() {
+    fn the_neighbour_lists_are_kept_while_the_vehicles_move_together_and_built_again_when_two_close_in() {
         use crate::world::{SensorSet, VehicleModel, VehicleSpec};
         let spec = |k: i32, x: f64| {
             let mut spec = VehicleSpec::new(VehicleId(k), VehicleState::new(DVec2::new(x, 0.0), 0.0, 0.0));
@@ -1199,27 +1320,50 @@ mod tests {
             *sim.world_mut().get_mut::<VehicleState>(e).expect("state") =
                 VehicleState::new(DVec2::new(x, 0.0), 0.0, 0.0);
         };
+        let move_all_by = |sim: &mut crate::sim::Sim, dx: f64| {
+            for k in 0..50 {
+                let e = sim.entity(VehicleId(k)).expect("vehicle");
+                sim.world_mut().get_mut::<VehicleState>(e).expect("state").position.x += dx;
+            }
+        };
         sim.run_for(0.5);
         assert_eq!(builds(&sim), 1, "ten ticks, nobody moved: one build");
-        // 100 m ranges: a 20 m skin, kept while nobody moved 9.8 m.
+        // 100 m ranges: a 20 m skin, kept while no two neighbours closed in by 19.6 m.
         move_to(&mut sim, 210.0 + 9.0);
         sim.run_for(0.1);
         assert_eq!(builds(&sim), 1, "9 m is within half the skin");
-        move_to(&mut sim, 210.0 + 11.0);
+        move_to(&mut sim, 210.0 + 19.0);
+        sim.run_for(0.1);
+        assert_eq!(builds(&sim), 1, "19 m closer to its neighbours: still under the skin");
+        move_to(&mut sim, 210.0 + 21.0);
         sim.run_for(0.05);
-        assert_eq!(builds(&sim), 2, "11 m is not");
+        assert_eq!(builds(&sim), 2, "21 m is not");
+        // Everyone 150 m on together (drift cells 480 m wide: up to 186 m), then 40 m more.
+        move_all_by(&mut sim, 150.0);
+        sim.run_for(0.1);
+        assert_eq!(builds(&sim), 2, "everyone moved alike: the lists hold");
+        move_all_by(&mut sim, 40.0);
+        sim.run_for(0.05);
+        assert_eq!(builds(&sim), 3, "190 m from where the lists were built: too far to tell");
+        move_all_by(&mut sim, 1.0);
+        move_to(&mut sim, f64::NAN);
+        sim.run_for(0.05);
+        assert_eq!(builds(&sim), 4, "a NaN position");
+        move_to(&mut sim, 400.0);
+        sim.run_for(0.05);
+        assert_eq!(builds(&sim), 5, "and back");
         sim.spawn_vehicle(spec(50, -30.0)).expect("unique id");
         sim.run_for(0.05);
-        assert_eq!(builds(&sim), 3, "a new vehicle");
+        assert_eq!(builds(&sim), 6, "a new vehicle");
         let e = sim.entity(VehicleId(3)).expect("vehicle 3");
         sim.world_mut().get_mut::<Velodyne>(e).expect("velodyne").range = 60.0;
         sim.run_for(0.05);
-        assert_eq!(builds(&sim), 3, "a longer velodyne, still shorter than the radar");
+        assert_eq!(builds(&sim), 6, "a longer velodyne, still shorter than the radar");
         sim.world_mut().get_mut::<Radar>(e).expect("radar").range = 150.0;
         sim.run_for(0.05);
-        assert_eq!(builds(&sim), 4, "a longer radar");
+        assert_eq!(builds(&sim), 7, "a longer radar");
         sim.run_for(0.2);
-        assert_eq!(builds(&sim), 4);
+        assert_eq!(builds(&sim), 7);
     }
 
     #[test]

@@ -41,7 +41,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::grid::within_reach;
 use super::parallel::{Padded, recycle};
-use super::sensors::{Lists, SensorGrid};
+use super::sensors::{DriftBox, Lists, SensorGrid};
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
@@ -652,6 +652,8 @@ pub struct WifiScratch {
     grid: SpatialGrid,
     /// One per thread.
     threads: Vec<WifiThread>,
+    /// Scratch of the test that the sensors' neighbour lists still hold.
+    drift: Vec<DriftBox>,
     /// The last round's batch, kept so that its messages are dropped here, split over the
     /// threads ([`release`]), not by whichever in-box happened to hold it last.
     previous: Option<Arc<[Message]>>,
@@ -963,7 +965,7 @@ pub fn deliver_wifi(
         if full.next().is_some() {
             return None;
         }
-        sensor_grid.lists_within(ids?, states, config.wifi_range)
+        sensor_grid.lists_within(ids?, states, config.wifi_range, &mut s.drift)
     });
     let senders = &s.senders;
     if let Some(lists) = nearby {
