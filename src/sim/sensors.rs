@@ -863,7 +863,60 @@ struct NeighbourLists {
 
 /// Per drift cell, the smallest and largest displacement since the build of its vehicles along
 /// x and y [m]: `[min x, max x, min y, max y]`.
-pub(crate) type DriftBox = [f64; 4];
+type DriftBox = [f64; 4];
+
+/// A box holding nothing yet.
+const EMPTY_BOX: DriftBox = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
+
+/// Scratch of [`NeighbourLists::moved_together`], kept between ticks.
+#[derive(Debug, Default)]
+pub(crate) struct DriftScratch {
+    boxes: Vec<DriftBox>,
+    parts: Vec<DriftPart>,
+}
+
+/// What one chunk of vehicles found of their displacements since the build (none yet: 0, all
+/// finite, no runs).
+#[derive(Debug)]
+struct DriftPart {
+    /// The largest squared displacement [m²].
+    farthest: f64,
+    /// Whether every displacement is finite.
+    finite: bool,
+    /// Each run of vehicles in one drift cell: the cell and their box of displacements.
+    runs: Vec<(u32, DriftBox)>,
+}
+
+impl Default for DriftPart {
+    fn default() -> Self {
+        DriftPart { farthest: 0.0, finite: true, runs: Vec::new() }
+    }
+}
+
+impl DriftPart {
+    /// Add the displacements of the vehicles at `states` from their `anchors`, in drift cells
+    /// `cells`. Vehicles near each other are mostly next to each other in the query: a run of
+    /// them in one cell is boxed in registers and noted once (a merge into memory per vehicle
+    /// waited on the last one's store).
+    fn add(&mut self, anchors: &[DVec2], states: &[VehicleState], cells: &[u32]) {
+        let Some(&first) = cells.first() else { return };
+        let (mut current, mut run) = (first, EMPTY_BOX);
+        let (mut farthest, mut finite) = (self.farthest, self.finite);
+        for ((anchor, state), &cell) in anchors.iter().zip(states).zip(cells) {
+            let d = state.position - *anchor;
+            let d2 = d.length_squared();
+            finite &= d2.is_finite();
+            farthest = farthest.max(d2);
+            if cell != current {
+                self.runs.push((current, run));
+                (current, run) = (cell, EMPTY_BOX);
+            }
+            run = [run[0].min(d.x), run[1].max(d.x), run[2].min(d.y), run[3].max(d.y)];
+        }
+        self.runs.push((current, run));
+        (self.farthest, self.finite) = (farthest, finite);
+    }
+}
 
 /// The drift cells' side as a multiple of the widest list's radius (range plus skin): wider
 /// cells let vehicles move farther between builds (`max_drift`), narrower ones hold fewer
@@ -896,7 +949,7 @@ struct Neighbours {
     lists: NeighbourLists,
     ranges_now: Vec<f64>,
     /// Scratch of [`NeighbourLists::moved_together`] and of the drift cells' build.
-    boxes: Vec<DriftBox>,
+    drift: DriftScratch,
     keys: Vec<(i64, i64)>,
 }
 
@@ -909,29 +962,37 @@ impl SensorGrid {
     /// The neighbour lists of the vehicles `ids` at `states` (every vehicle, in query order),
     /// when they hold every vehicle within `range` [m] of each: the lists of the same vehicles
     /// in the same order, each at least `range` plus the skin wide, and no two neighbours
-    /// closed in by the skin since they were built ([`NeighbourLists::moved_together`];
-    /// `boxes` is its scratch). For modules that look around the vehicles at the same instant
+    /// closed in by the skin since they were built ([`NeighbourLists::moved_together`], on
+    /// `parallelism`, with its `scratch`). For modules that look around the vehicles at the same instant
     /// as the sensors (the wifi round), so that one search serves both.
     pub(crate) fn lists_within(
         &self,
         ids: &[VehicleId],
         states: &[VehicleState],
         range: f64,
-        boxes: &mut Vec<DriftBox>,
+        parallelism: Parallelism,
+        scratch: &mut DriftScratch,
     ) -> Option<&Lists> {
         let lists = &self.neighbours.lists;
         // `moved_together` also checks that these are the vehicles of the build (one list each).
         let wide = lists.skin > 0.0 && lists.shortest >= range;
-        (wide && lists.moved_together(Everyone { ids, states }, boxes)).then_some(&lists.lists)
+        (wide && lists.moved_together(Everyone { ids, states }, parallelism, scratch)).then_some(&lists.lists)
     }
 }
 
 impl NeighbourLists {
     /// Whether the lists still hold every vehicle within sensor range of each: the same
     /// vehicles in the same order, the same ranges and skin, and the vehicles moved together
-    /// ([`NeighbourLists::moved_together`]; `boxes` is its scratch).
-    fn hold(&self, everyone: Everyone<'_>, ranges: &[f64], skin: f64, boxes: &mut Vec<DriftBox>) -> bool {
-        self.skin == skin && self.ranges == ranges && self.moved_together(everyone, boxes)
+    /// ([`NeighbourLists::moved_together`], on `parallelism`, with its `scratch`).
+    fn hold(
+        &self,
+        everyone: Everyone<'_>,
+        ranges: &[f64],
+        skin: f64,
+        parallelism: Parallelism,
+        scratch: &mut DriftScratch,
+    ) -> bool {
+        self.skin == skin && self.ranges == ranges && self.moved_together(everyone, parallelism, scratch)
     }
 
     /// Whether `everyone` are the vehicles of the build, in the same order, and no two of them
@@ -951,37 +1012,39 @@ impl NeighbourLists {
     /// closed a gap of the skin, or a vehicle drove `max_drift`; when every displacement is
     /// under half the skin (the test of each vehicle on its own) they hold whatever the cells.
     /// One pass over the positions, then one over the touching cells.
-    pub(crate) fn moved_together(&self, everyone: Everyone<'_>, boxes: &mut Vec<DriftBox>) -> bool {
-        if self.ids != everyone.ids
-            || self.anchors.len() != everyone.states.len()
-            || self.cell_of.len() != self.anchors.len()
-        {
+    pub(crate) fn moved_together(
+        &self,
+        everyone: Everyone<'_>,
+        parallelism: Parallelism,
+        scratch: &mut DriftScratch,
+    ) -> bool {
+        let n = self.anchors.len();
+        if self.ids != everyone.ids || everyone.states.len() != n || self.cell_of.len() != n {
             return false;
         }
-        const EMPTY: DriftBox = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
-        let merge =
-            |b: &mut DriftBox, r: &DriftBox| *b = [b[0].min(r[0]), b[1].max(r[1]), b[2].min(r[2]), b[3].max(r[3])];
-        boxes.clear();
-        boxes.resize(self.cells, EMPTY);
-        let (mut farthest, mut finite) = (0.0f64, true);
-        // Vehicles near each other are mostly next to each other in the query: a run of them in
-        // one cell is boxed in registers and merged into the cell's box once (a merge into
-        // memory per vehicle waited on the last one's store).
-        let (mut current, mut run) = (self.cell_of.first().copied().unwrap_or(0), EMPTY);
-        let moves = self.anchors.iter().zip(everyone.states).zip(&self.cell_of);
-        for ((anchor, state), &cell) in moves {
-            let d = state.position - *anchor;
-            let d2 = d.length_squared();
-            finite &= d2.is_finite();
-            farthest = farthest.max(d2);
-            if cell != current {
-                merge(&mut boxes[current as usize], &run);
-                (current, run) = (cell, EMPTY);
-            }
-            run = [run[0].min(d.x), run[1].max(d.x), run[2].min(d.y), run[3].max(d.y)];
+        // The pass over the positions (most of the test: they come from memory) split over
+        // the threads, each chunk boxing its runs; the runs merged in chunk order.
+        let DriftScratch { boxes, parts } = scratch;
+        let chunks = parallelism.chunks_for(n);
+        for part in parts.iter_mut().take(chunks) {
+            part.runs.clear();
+            (part.farthest, part.finite) = (0.0, true);
         }
-        if let Some(b) = boxes.get_mut(current as usize) {
-            merge(b, &run);
+        // (Parts made for this call start empty too: `DriftPart::default`.)
+        parallelism.for_each_chunk_at(&mut vec![(); n], parts, |start, chunk, part| {
+            let r = start..start + chunk.len();
+            part.add(&self.anchors[r.clone()], &everyone.states[r.clone()], &self.cell_of[r]);
+        });
+        boxes.clear();
+        boxes.resize(self.cells, EMPTY_BOX);
+        let (mut farthest, mut finite) = (0.0f64, true);
+        for part in parts.iter().take(chunks) {
+            farthest = farthest.max(part.farthest);
+            finite &= part.finite;
+            for (cell, run) in &part.runs {
+                let b = &mut boxes[*cell as usize];
+                *b = [b[0].min(run[0]), b[1].max(run[1]), b[2].min(run[2]), b[3].max(run[3])];
+            }
         }
         let half = 0.49 * self.skin;
         if !finite || farthest > self.max_drift * self.max_drift {
@@ -1198,8 +1261,8 @@ pub fn sense_vehicles(
     if let Some(everyone) = listed {
         let skin = SKIN_SHARE * cell;
         let n = neighbours.ranges_now.len();
-        let Neighbours { lists, ranges_now, boxes, keys } = neighbours;
-        let build = !lists.hold(everyone, ranges_now, skin, boxes);
+        let Neighbours { lists, ranges_now, drift, keys } = neighbours;
+        let build = !lists.hold(everyone, ranges_now, skin, *parallelism, drift);
         if build {
             grid.rebuild_on(*parallelism, cell + skin, n, |i| entry(i, everyone.ids[i], &everyone.states[i]));
             lists.ids.clear();

@@ -41,7 +41,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::grid::within_reach;
 use super::parallel::{Padded, recycle};
-use super::sensors::{DriftBox, Lists, SensorGrid};
+use super::sensors::{DriftScratch, Lists, SensorGrid};
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
@@ -653,7 +653,7 @@ pub struct WifiScratch {
     /// One per thread.
     threads: Vec<WifiThread>,
     /// Scratch of the test that the sensors' neighbour lists still hold.
-    drift: Vec<DriftBox>,
+    drift: DriftScratch,
     /// The last round's batch, kept so that its messages are dropped here, split over the
     /// threads ([`release`]), not by whichever in-box happened to hold it last.
     previous: Option<Arc<[Message]>>,
@@ -965,7 +965,7 @@ pub fn deliver_wifi(
         if full.next().is_some() {
             return None;
         }
-        sensor_grid.lists_within(ids?, states, config.wifi_range, &mut s.drift)
+        sensor_grid.lists_within(ids?, states, config.wifi_range, parallelism, &mut s.drift)
     });
     let senders = &s.senders;
     if let Some(lists) = nearby {
