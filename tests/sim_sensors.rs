@@ -297,6 +297,46 @@ fn traffic_against_a_scan(threads: usize) {
 }
 
 #[test]
+fn a_vehicle_turning_round_sees_what_was_behind_it() {
+    // A neighbour list leaves out what lies behind beyond the velodyne; a vehicle that turns
+    // round (here 10° a tick, in place, among a line of vehicles 30 m apart) must see it.
+    let sensors = SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
+    let mut vehicles: Vec<(i32, DVec2, f64, SensorSet)> =
+        (0..15).map(|k| (-1 - k, DVec2::new(30.0 * f64::from(k), 0.0), 0.0, sensors)).collect();
+    let mut sim = world_on(&vehicles, 1);
+    for tick in 1..=36 {
+        vehicles[7].2 = f64::from(tick) * 10f64.to_radians();
+        let (id, p, yaw, _) = vehicles[7];
+        let e = sim.entity(VehicleId(id)).expect("vehicle exists");
+        *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
+        sim.run_for(0.05);
+        assert_sim_matches_brute_force(&sim, &vehicles);
+    }
+}
+
+#[test]
+fn a_vehicle_turning_towards_one_closing_in_from_the_side_sees_it() {
+    // The radar cone's edge turns with the vehicle (here 29°, kept under the 30° that rebuilds
+    // the lists) while the other, 80 m off at 62° from the heading, beyond the velodyne, moves
+    // 15 m across towards it (under the skin): both together bring it into the cone, so its
+    // list must have held it from the start.
+    let sensors = SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
+    let side = DVec2::from_angle(62f64.to_radians()) * 80.0;
+    let mut vehicles = vec![(-1, DVec2::ZERO, 0.0, sensors), (-2, side, 0.0, sensors)];
+    let mut sim = world_on(&vehicles, 1);
+    assert_sim_matches_brute_force(&sim, &vehicles);
+    vehicles[0].2 = 29f64.to_radians();
+    vehicles[1].1 += DVec2::new(62f64.to_radians().sin(), -62f64.to_radians().cos()) * 15.0;
+    for &(id, p, yaw, _) in &vehicles {
+        let e = sim.entity(VehicleId(id)).expect("vehicle exists");
+        *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
+    }
+    sim.run_for(0.05);
+    assert_eq!(seen(&sim, -1), [-2], "now in the cone");
+    assert_sim_matches_brute_force(&sim, &vehicles);
+}
+
+#[test]
 fn a_group_that_drives_far_together_is_seen_where_it_arrives() {
     // Two groups 1 km apart with empty road between: the first jumps 150 m east every tick,
     // all alike (so none closes in on another of its own group), until it reaches the second.

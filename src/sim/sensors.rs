@@ -835,12 +835,17 @@ struct NeighbourLists {
     ids: Vec<VehicleId>,
     /// Every vehicle's position at the build [m].
     anchors: Vec<DVec2>,
-    /// Every vehicle's sensor range at the build [m] ([`sensor_range`]).
-    ranges: Vec<f64>,
+    /// Every vehicle's sensors at the build.
+    shapes: Vec<Shape>,
+    /// Every vehicle's heading at the build (a unit vector).
+    headings: Vec<DVec2>,
+    /// The wifi range at the build [m] (0 without V2V): every list holds at least that far
+    /// all around (or its whole sensor range, when shorter), so the wifi round can use them.
+    floor: f64,
     /// Skin of the build [m] (0: no lists built yet).
     skin: f64,
-    /// The shortest of `ranges` [m].
-    shortest: f64,
+    /// How far every list reaches all around (the shortest of [`Reach::around`]) [m].
+    around: f64,
     /// Every vehicle's neighbours, nearest first at the build (so that a tick's detections
     /// arrive nearly sorted), as places in the query: vehicle i's are
     /// `neighbours[starts[i]..starts[i + 1]]`. One array, in query order, so that a pass over
@@ -883,26 +888,32 @@ struct DriftPart {
     farthest: f64,
     /// Whether every displacement is finite.
     finite: bool,
+    /// Whether a vehicle turned by [`TURN`] or more.
+    turned: bool,
     /// Each run of vehicles in one drift cell: the cell and their box of displacements.
     runs: Vec<(u32, DriftBox)>,
 }
 
 impl Default for DriftPart {
     fn default() -> Self {
-        DriftPart { farthest: 0.0, finite: true, runs: Vec::new() }
+        DriftPart { farthest: 0.0, finite: true, turned: false, runs: Vec::new() }
     }
 }
 
 impl DriftPart {
     /// Add the displacements of the vehicles at `states` from their `anchors`, in drift cells
-    /// `cells`. Vehicles near each other are mostly next to each other in the query: a run of
+    /// `cells`, and whether one turned from its heading `headings` by [`TURN`]. Vehicles near each other are mostly next to each other in the query: a run of
     /// them in one cell is boxed in registers and noted once (a merge into memory per vehicle
     /// waited on the last one's store).
-    fn add(&mut self, anchors: &[DVec2], states: &[VehicleState], cells: &[u32]) {
+    fn add(&mut self, anchors: &[DVec2], headings: &[DVec2], states: &[VehicleState], cells: &[u32]) {
         let Some(&first) = cells.first() else { return };
         let (mut current, mut run) = (first, EMPTY_BOX);
-        let (mut farthest, mut finite) = (self.farthest, self.finite);
-        for ((anchor, state), &cell) in anchors.iter().zip(states).zip(cells) {
+        let (mut farthest, mut finite, mut turned) = (self.farthest, self.finite, self.turned);
+        let cos_turn = TURN.cos();
+        for (((anchor, heading), state), &cell) in anchors.iter().zip(headings).zip(states).zip(cells) {
+            // (A NaN heading counts as turned.)
+            let along = state.heading().dot(*heading);
+            turned |= along.is_nan() | (along <= cos_turn);
             let d = state.position - *anchor;
             let d2 = d.length_squared();
             finite &= d2.is_finite();
@@ -914,7 +925,7 @@ impl DriftPart {
             run = [run[0].min(d.x), run[1].max(d.x), run[2].min(d.y), run[3].max(d.y)];
         }
         self.runs.push((current, run));
-        (self.farthest, self.finite) = (farthest, finite);
+        (self.farthest, self.finite, self.turned) = (farthest, finite, turned);
     }
 }
 
@@ -922,6 +933,78 @@ impl DriftPart {
 /// cells let vehicles move farther between builds (`max_drift`), narrower ones hold fewer
 /// vehicles, whose displacements differ less on a curve.
 const DRIFT_CELL: f64 = 4.0;
+
+/// How far a vehicle may turn from its heading at the build of the lists [rad] before they are
+/// built again: a list leaves out what lies behind the radar cone beyond the all-around reach
+/// ([`Reach`]), which a turn brings into view. 30°: lane changes and long bends keep them.
+const TURN: f64 = std::f64::consts::FRAC_PI_6;
+
+/// A vehicle's sensors as its neighbour list was built for: radar range [m] and full opening
+/// angle [rad] (0 and 0 without a radar), velodyne range [m] (0 without).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Shape {
+    radar: f64,
+    angle: f64,
+    velodyne: f64,
+}
+
+impl Shape {
+    fn of(radar: Option<&Radar>, velodyne: Option<&Velodyne>) -> Shape {
+        Shape {
+            radar: radar.map_or(0.0, |r| r.range),
+            angle: radar.map_or(0.0, |r| r.angle),
+            velodyne: velodyne.map_or(0.0, |v| v.range),
+        }
+    }
+
+    /// Its largest range [m] ([`sensor_range`]).
+    fn range(&self) -> f64 {
+        self.radar.max(self.velodyne)
+    }
+
+    /// How far its list reaches all around [m]: the velodyne's range, or the wifi range
+    /// `floor` [m] where that is longer (within the sensors' largest range).
+    fn around(&self, floor: f64) -> f64 {
+        self.velodyne.max(floor.min(self.range()))
+    }
+}
+
+/// Which vehicles around one vehicle its neighbour list holds: all within its all-around reach
+/// plus the skin, and, up to its radar's range plus the skin, those within the radar cone
+/// widened by the turn the lists allow ([`TURN`]) and by the bearing a relative displacement
+/// under the skin can change (asin(skin / d) at distance d). While the lists hold (no two
+/// vehicles closed in by the skin, nobody turned by [`TURN`]), any vehicle that comes within the
+/// velodyne's or the wifi's range or into the radar cone was within this reach at the build:
+/// the angle between where it was and the heading then is at most the cone's half angle, plus
+/// the turn, plus the bearing change. On a road this leaves out the vehicles behind beyond the
+/// velodyne (a fifth of the list on the benchmark's highway).
+struct Reach {
+    around2: f64,
+    heading: DVec2,
+    /// Half the radar's opening angle plus [`TURN`] [rad] (none without a radar).
+    half: Option<f64>,
+    skin: f64,
+}
+
+impl Reach {
+    fn new(shape: &Shape, heading: DVec2, floor: f64, skin: f64) -> Reach {
+        let around = shape.around(floor) + skin;
+        let half = (shape.radar > 0.0).then_some(0.5 * shape.angle + TURN);
+        Reach { around2: around * around, heading, half, skin }
+    }
+
+    /// Whether the vehicle at `relative` [m] (squared distance `d2`, within the list's radius)
+    /// belongs on the list.
+    fn holds(&self, relative: DVec2, d2: f64) -> bool {
+        let Some(half) = self.half.filter(|_| d2 > self.around2) else {
+            return d2 <= self.around2;
+        };
+        let d = d2.sqrt();
+        let limit = half + (self.skin / d).min(1.0).asin();
+        // (A NaN limit, from a NaN angle, keeps everything.)
+        limit.is_nan() || limit >= std::f64::consts::PI || relative.dot(self.heading) >= d * limit.cos()
+    }
+}
 
 /// Neighbour lists in one array ([`NeighbourLists::lists`]).
 #[derive(Debug, Default)]
@@ -947,7 +1030,7 @@ impl Lists {
 #[derive(Debug, Default)]
 struct Neighbours {
     lists: NeighbourLists,
-    ranges_now: Vec<f64>,
+    shapes_now: Vec<Shape>,
     /// Scratch of [`NeighbourLists::moved_together`] and of the drift cells' build.
     drift: DriftScratch,
     keys: Vec<(i64, i64)>,
@@ -975,7 +1058,7 @@ impl SensorGrid {
     ) -> Option<&Lists> {
         let lists = &self.neighbours.lists;
         // `moved_together` also checks that these are the vehicles of the build (one list each).
-        let wide = lists.skin > 0.0 && lists.shortest >= range;
+        let wide = lists.skin > 0.0 && lists.around >= range;
         (wide && lists.moved_together(Everyone { ids, states }, parallelism, scratch)).then_some(&lists.lists)
     }
 }
@@ -987,12 +1070,14 @@ impl NeighbourLists {
     fn hold(
         &self,
         everyone: Everyone<'_>,
-        ranges: &[f64],
-        skin: f64,
+        (shapes, floor, skin): (&[Shape], f64, f64),
         parallelism: Parallelism,
         scratch: &mut DriftScratch,
     ) -> bool {
-        self.skin == skin && self.ranges == ranges && self.moved_together(everyone, parallelism, scratch)
+        self.skin == skin
+            && self.floor == floor
+            && self.shapes == shapes
+            && self.moved_together(everyone, parallelism, scratch)
     }
 
     /// Whether `everyone` are the vehicles of the build, in the same order, and no two of them
@@ -1019,7 +1104,8 @@ impl NeighbourLists {
         scratch: &mut DriftScratch,
     ) -> bool {
         let n = self.anchors.len();
-        if self.ids != everyone.ids || everyone.states.len() != n || self.cell_of.len() != n {
+        if self.ids != everyone.ids || everyone.states.len() != n || self.cell_of.len() != n || self.headings.len() != n
+        {
             return false;
         }
         // The pass over the positions (most of the test: they come from memory) split over
@@ -1028,26 +1114,32 @@ impl NeighbourLists {
         let chunks = parallelism.chunks_for(n);
         for part in parts.iter_mut().take(chunks) {
             part.runs.clear();
-            (part.farthest, part.finite) = (0.0, true);
+            (part.farthest, part.finite, part.turned) = (0.0, true, false);
         }
         // (Parts made for this call start empty too: `DriftPart::default`.)
         parallelism.for_each_chunk_at(&mut vec![(); n], parts, |start, chunk, part| {
             let r = start..start + chunk.len();
-            part.add(&self.anchors[r.clone()], &everyone.states[r.clone()], &self.cell_of[r]);
+            part.add(
+                &self.anchors[r.clone()],
+                &self.headings[r.clone()],
+                &everyone.states[r.clone()],
+                &self.cell_of[r],
+            );
         });
         boxes.clear();
         boxes.resize(self.cells, EMPTY_BOX);
-        let (mut farthest, mut finite) = (0.0f64, true);
+        let (mut farthest, mut finite, mut turned) = (0.0f64, true, false);
         for part in parts.iter().take(chunks) {
             farthest = farthest.max(part.farthest);
             finite &= part.finite;
+            turned |= part.turned;
             for (cell, run) in &part.runs {
                 let b = &mut boxes[*cell as usize];
                 *b = [b[0].min(run[0]), b[1].max(run[1]), b[2].min(run[2]), b[3].max(run[3])];
             }
         }
         let half = 0.49 * self.skin;
-        if !finite || farthest > self.max_drift * self.max_drift {
+        if !finite || turned || farthest > self.max_drift * self.max_drift {
             return false;
         }
         if farthest <= half * half {
@@ -1065,7 +1157,7 @@ impl NeighbourLists {
     /// Place the anchors (just built, with `ranges` and `skin` [m]) in drift cells and find
     /// the cells that touch (see [`NeighbourLists::moved_together`]); `keys` is scratch.
     fn place_in_drift_cells(&mut self, keys: &mut Vec<(i64, i64)>) {
-        let widest = self.ranges.iter().copied().fold(0.0, f64::max) + self.skin;
+        let widest = self.shapes.iter().map(Shape::range).fold(0.0, f64::max) + self.skin;
         let side = DRIFT_CELL * widest;
         // Non-touching cells are more than a side apart; each of two vehicles may close in by
         // `max_drift`, and must stay farther apart than the widest range (a margin for rounding).
@@ -1092,10 +1184,11 @@ impl NeighbourLists {
 }
 
 /// Where a sensor tick finds the neighbour lists: built this tick over the grid with the skin
-/// [m] (each chunk into its thread's [`SenseScratch::built`], joined after the tick), or kept.
+/// [m] and the wifi range `floor` [m] ([`Reach`]; each chunk into its thread's
+/// [`SenseScratch::built`], joined after the tick), or kept.
 #[derive(Clone, Copy)]
 enum Listing<'a> {
-    Build(f64),
+    Build { skin: f64, floor: f64 },
     Kept(&'a Lists),
 }
 
@@ -1113,21 +1206,25 @@ fn sense_listed(
     let mut gathered: Option<Gathered> = None;
     s.built.clear();
     s.built_ends.clear();
-    s.built_from = matches!(listing, Listing::Build(_)).then_some(start);
+    s.built_from = matches!(listing, Listing::Build { .. }).then_some(start);
     for (k, readings) in chunk.iter_mut().enumerate() {
         let i = start + k;
         let (id, state) = (table.ids[i], &table.states[i]);
         let (radar, velodyne) = (table.radars.map(|r| &r[i]), table.velodynes.map(|v| &v[i]));
         let list = match listing {
             Listing::Kept(lists) => lists.of(i),
-            Listing::Build(skin) => {
-                let radius = sensor_range(radar, velodyne) + skin;
+            Listing::Build { skin, floor } => {
+                let shape = Shape::of(radar, velodyne);
+                let radius = shape.range() + skin;
                 gather_within(grid, state.position, radius, &mut gathered, &mut s.around);
                 s.around.within(state.position, radius, id, &mut s.marks, &mut s.slots);
+                let reach = Reach::new(&shape, state.heading(), floor, skin);
                 s.keys.clear();
-                s.keys.extend(s.slots.iter().map(|&slot| {
+                s.keys.extend(s.slots.iter().filter_map(|&slot| {
                     let e = grid.get(slot);
-                    detection_key((e.position - state.position).length_squared(), e.index)
+                    let relative = e.position - state.position;
+                    let d2 = relative.length_squared();
+                    reach.holds(relative, d2).then(|| detection_key(d2, e.index))
                 }));
                 s.keys.sort_unstable();
                 let begin = s.built.len();
@@ -1194,6 +1291,7 @@ pub fn sense_vehicles(
     mut scratch: Local<Vec<SenseScratch>>,
     mut ranges: Local<Vec<f64>>,
     mut footprints: Local<Vec<Footprint>>,
+    v2v: Option<Res<super::v2v::V2vConfig>>,
 ) {
     let SensorGrid { grid, neighbours } = &mut *grid;
     if sensing.is_empty() {
@@ -1203,18 +1301,18 @@ pub fn sense_vehicles(
     let mut occlusion = false;
     let occludes = |e: &SensorErrors| e.radar.occlusion || e.velodyne.occlusion;
     let bounded = |r: &f64| *r > 0.0 && r.is_finite();
-    // Every sensing vehicle's range in query order (what the neighbour lists keep), and the
-    // bounded ones (for the typical range).
-    neighbours.ranges_now.clear();
+    // Every sensing vehicle's sensors in query order (what the neighbour lists keep), and the
+    // bounded ranges (for the typical range).
+    neighbours.shapes_now.clear();
     if let Ok(tables) = sensing.as_readonly().contiguous_iter() {
         // Table by table, over the components' slices (an item at a time through the whole
         // query was most of this serial pass).
         for (ids, _, radars, velodynes, _, errors, _) in tables {
             occlusion |= errors.is_some_and(|e| e.iter().any(occludes));
-            let range = |i: usize| sensor_range(radars.map(|r| &r[i]), velodynes.map(|v| &v[i]));
-            neighbours.ranges_now.extend((0..ids.len()).map(range));
+            let shape = |i: usize| Shape::of(radars.map(|r| &r[i]), velodynes.map(|v| &v[i]));
+            neighbours.shapes_now.extend((0..ids.len()).map(shape));
         }
-        ranges.extend(neighbours.ranges_now.iter().copied().filter(bounded));
+        ranges.extend(neighbours.shapes_now.iter().map(Shape::range).filter(bounded));
     } else {
         ranges.extend(
             sensing
@@ -1255,24 +1353,27 @@ pub fn sense_vehicles(
             return None;
         }
         // The ranges gathered above are this one table's.
-        neighbours.ranges_now.iter().all(|r| r.is_finite()).then_some(Everyone { ids, states })
+        neighbours.shapes_now.iter().all(|s| s.range().is_finite()).then_some(Everyone { ids, states })
     });
     let draws = Draws::new(seed.map_or(0, |s| s.0), clock.now.0);
     if let Some(everyone) = listed {
         let skin = SKIN_SHARE * cell;
-        let n = neighbours.ranges_now.len();
-        let Neighbours { lists, ranges_now, drift, keys } = neighbours;
-        let build = !lists.hold(everyone, ranges_now, skin, *parallelism, drift);
+        let n = neighbours.shapes_now.len();
+        let floor = v2v.map_or(0.0, |c| c.wifi_range);
+        let Neighbours { lists, shapes_now, drift, keys } = neighbours;
+        let build = !lists.hold(everyone, (shapes_now, floor, skin), *parallelism, drift);
         if build {
             grid.rebuild_on(*parallelism, cell + skin, n, |i| entry(i, everyone.ids[i], &everyone.states[i]));
             lists.ids.clear();
             lists.ids.extend_from_slice(everyone.ids);
             lists.anchors.clear();
             lists.anchors.extend(everyone.states.iter().map(|s| s.position));
-            lists.ranges.clear();
-            lists.ranges.extend_from_slice(ranges_now);
-            lists.skin = skin;
-            lists.shortest = ranges_now.iter().copied().fold(f64::INFINITY, f64::min);
+            lists.headings.clear();
+            lists.headings.extend(everyone.states.iter().map(VehicleState::heading));
+            lists.shapes.clear();
+            lists.shapes.extend_from_slice(shapes_now);
+            (lists.skin, lists.floor) = (skin, floor);
+            lists.around = shapes_now.iter().map(|s| s.around(floor)).fold(f64::INFINITY, f64::min);
             lists.place_in_drift_cells(keys);
             lists.builds += 1;
         }
@@ -1283,7 +1384,7 @@ pub fn sense_vehicles(
                 continue;
             }
             let table = SensingTable { ids, states, radars, velodynes, omniscient, errors };
-            let listing = if build { Listing::Build(skin) } else { Listing::Kept(&lists.lists) };
+            let listing = if build { Listing::Build { skin, floor } } else { Listing::Kept(&lists.lists) };
             parallelism.for_each_chunk_at(&mut readings, &mut scratch, |start, chunk, s| {
                 sense_listed(input, table, everyone, listing, (start, chunk), s)
             });
@@ -1421,12 +1522,56 @@ mod tests {
         let e = sim.entity(VehicleId(3)).expect("vehicle 3");
         sim.world_mut().get_mut::<Velodyne>(e).expect("velodyne").range = 60.0;
         sim.run_for(0.05);
-        assert_eq!(builds(&sim), 6, "a longer velodyne, still shorter than the radar");
+        assert_eq!(builds(&sim), 7, "a longer velodyne: a list reaches that far behind");
         sim.world_mut().get_mut::<Radar>(e).expect("radar").range = 150.0;
         sim.run_for(0.05);
-        assert_eq!(builds(&sim), 7, "a longer radar");
+        assert_eq!(builds(&sim), 8, "a longer radar");
         sim.run_for(0.2);
-        assert_eq!(builds(&sim), 7);
+        assert_eq!(builds(&sim), 8);
+        // Vehicle 20 turns round by 20° a tick: kept up to just under 30°, then built again.
+        let e = sim.entity(VehicleId(20)).expect("vehicle 20");
+        let turn = |sim: &mut crate::sim::Sim, yaw: f64| {
+            let mut state = sim.world_mut().get_mut::<VehicleState>(e).expect("state");
+            *state = VehicleState::new(state.position, yaw, 0.0);
+        };
+        turn(&mut sim, 0.5);
+        sim.run_for(0.05);
+        assert_eq!(builds(&sim), 8, "turned 29°");
+        turn(&mut sim, 0.53);
+        sim.run_for(0.05);
+        assert_eq!(builds(&sim), 9, "turned 30.4°");
+        // Each list leaves out what lies behind beyond the velodyne (50 m) and its skin (20 m):
+        // on a line of vehicles 30 m apart facing along it, two behind and four ahead (up to
+        // 120 m), not the four behind up to 120 m.
+        let grid = sim.world().resource::<SensorGrid>();
+        let lists = &grid.neighbours.lists;
+        let place = lists.ids.iter().position(|&id| id == VehicleId(10)).expect("vehicle 10 listed");
+        let mut listed: Vec<i32> = lists.lists.of(place).iter().map(|&j| lists.ids[j as usize].0).collect();
+        listed.sort_unstable();
+        assert_eq!(listed, [8, 9, 11, 12, 13, 14]);
+    }
+
+    #[test]
+    fn a_list_holds_all_around_the_velodyne_or_the_wifi_range_and_the_widened_radar_cone_ahead() {
+        let shape = Shape { radar: 100.0, angle: std::f64::consts::FRAC_PI_3, velodyne: 50.0 };
+        let east = DVec2::X;
+        let holds = |reach: &Reach, x: f64, y: f64| reach.holds(DVec2::new(x, y), x * x + y * y);
+        let reach = Reach::new(&shape, east, 0.0, 20.0);
+        assert!(holds(&reach, -70.0, 0.0) && !holds(&reach, -70.1, 0.0), "behind: velodyne and skin");
+        assert!(holds(&reach, 0.0, 69.9) && !holds(&reach, 0.0, 80.0), "beside");
+        // Ahead at 100 m: half the cone (30°), the turn (30°), asin(20 / 100) = 11.5°.
+        let at = |deg: f64| DVec2::from_angle(deg.to_radians()) * 100.0;
+        assert!(holds(&reach, at(71.0).x, at(71.0).y) && !holds(&reach, at(72.0).x, at(72.0).y));
+        assert!(holds(&reach, at(-71.0).x, at(-71.0).y) && !holds(&reach, at(-72.0).x, at(-72.0).y));
+        // With the wifi at 60 m, 80 m all around; a wifi range beyond the sensors' adds nothing.
+        let reach = Reach::new(&shape, east, 60.0, 20.0);
+        assert!(holds(&reach, -80.0, 0.0) && !holds(&reach, -80.1, 0.0));
+        assert_eq!(shape.around(500.0), 100.0);
+        // Without a radar, the velodyne's circle; with a NaN angle (which sees all ahead), all.
+        let no_radar = Shape { radar: 0.0, angle: 1.0, velodyne: 50.0 };
+        assert!(!holds(&Reach::new(&no_radar, east, 0.0, 20.0), 80.0, 0.0));
+        let nan = Shape { angle: f64::NAN, ..shape };
+        assert!(holds(&Reach::new(&nan, east, 0.0, 20.0), -100.0, 10.0));
     }
 
     #[test]
