@@ -64,11 +64,16 @@ pub fn step_kinematic_unicycle(
     advance_arc(state, command.speed * dt, curvature, command.speed, state.heading());
 }
 
-/// [`step_kinematic_unicycle`] for four vehicles at once, when all four take its common path: a
-/// steering and a one-step turn small enough for the polynomials ([`is_small`]), a turn above
-/// the straight-line threshold, and a new yaw inside (−π, π] after one addition and subtraction
-/// of π (no `fmod`). Then it writes what the one-at-a-time step writes, bit for bit (the same
-/// operations in the same order, lane by lane), and returns true; else it writes nothing.
+/// [`step_kinematic_unicycle`] for four vehicles at once, when all four take its common paths: a
+/// steering small enough for the polynomials ([`is_small`]), and either a turn at or under the
+/// straight-line threshold (a straight step) or one small enough for the polynomials with a new
+/// yaw inside (−π, π] after one addition and subtraction of π (no `fmod`). Then it writes what
+/// the one-at-a-time step writes, bit for bit (the same operations in the same order, lane by
+/// lane), and returns true; else it writes nothing.
+///
+/// Straight steps are most steps on a road drawn as straight lines between nodes (the
+/// benchmark's ring: pure pursuit on a chord steers by about 1e-13 rad): while they took the
+/// one-at-a-time path, every group of four fell back to it.
 ///
 /// A step is a chain of about ten divisions (the polynomials divide by their constants, the
 /// arc by the curvature): one at a time it waits on the divider (about 16 ns a step on the
@@ -94,6 +99,7 @@ fn step_kinematic_four(
     let mut common = [true; LANES];
     let (mut x, mut y, mut yaw, mut c1s, mut s1s, mut speeds) =
         ([0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+    let (mut arc, mut straight_x, mut straight_y) = ([true; LANES], [0.0; LANES], [0.0; LANES]);
     for l in 0..LANES {
         let (command, params, state) = (&commands[l], &models[l], &states[l]);
         // `step_kinematic_unicycle`, then `advance_arc` and `wrap_angle` on their common path.
@@ -110,17 +116,25 @@ fn step_kinematic_four(
         y[l] = state.position.y + (c0 - c1) / curvature;
         yaw[l] = if w == -PI { PI } else { w };
         (c1s[l], s1s[l], speeds[l]) = (c1, s1, command.speed);
-        common[l] = is_small(steering) & is_small(turn) & (turn.abs() > 1e-12) & (0.0..TAU).contains(&wrapped);
+        // `advance_arc`'s straight line: along the old heading, which stays.
+        arc[l] = turn.abs() > 1e-12;
+        (straight_x[l], straight_y[l]) = (state.position.x + c0 * distance, state.position.y + s0 * distance);
+        common[l] = is_small(steering) & (!arc[l] | (is_small(turn) & (0.0..TAU).contains(&wrapped)));
     }
     if common != [true; LANES] {
         return false;
     }
     for l in 0..LANES {
         let state = &mut states[l];
-        state.position = DVec2::new(x[l], y[l]);
-        let facing = DVec2::new(c1s[l], s1s[l]);
-        state.turn_to(yaw[l], facing);
-        state.velocity = facing * speeds[l];
+        if arc[l] {
+            state.position = DVec2::new(x[l], y[l]);
+            let facing = DVec2::new(c1s[l], s1s[l]);
+            state.turn_to(yaw[l], facing);
+            state.velocity = facing * speeds[l];
+        } else {
+            state.position = DVec2::new(straight_x[l], straight_y[l]);
+            state.velocity = facing[l] * speeds[l];
+        }
     }
     true
 }
@@ -326,6 +340,27 @@ mod tests {
             })
             .count();
         assert!(taken > states.len() / LANES / 4, "{taken} groups of four stepped at once");
+
+        // Straight steps (a steering of 1e-13 rad turns by less than the threshold; pure
+        // pursuit along a straight line steers so), also with a stale heading and mixed with
+        // turning ones: four at once, with the one-at-a-time step's bits.
+        let straight: Vec<f64> = vec![1e-13, -3e-13, 0.0, 2e-13, 1e-13, 1e-3, -2e-13, 5e-4];
+        let mut states: Vec<VehicleState> = (0..8)
+            .map(|k| VehicleState::new(DVec2::new(1e4 + f64::from(k), -5e3), 0.3 * f64::from(k) - 1.0, 20.0))
+            .collect();
+        states[2].yaw += 1e-3;
+        let commands: Vec<ControlCommand> =
+            straight.iter().map(|&steering| ControlCommand { steering, speed: 25.0, ..Default::default() }).collect();
+        let models = vec![KinematicUnicycle { wheelbase: 2.8, max_steering: 0.5 }; 8];
+        let mut one_at_a_time = states.clone();
+        for ((state, command), model) in one_at_a_time.iter_mut().zip(&commands).zip(&models) {
+            step_kinematic_unicycle(state, command, model, dt);
+        }
+        let mut four = states.clone();
+        for r in [0..4, 4..8] {
+            assert!(step_kinematic_four(&mut four[r.clone()], &commands[r.clone()], &models[r], dt));
+        }
+        assert_eq!(bits(&four), bits(&one_at_a_time));
     }
 
     /// The wrap as it was: `rem_euclid` whatever the angle.
