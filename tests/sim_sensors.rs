@@ -287,10 +287,7 @@ fn traffic_against_a_scan(threads: usize) {
                 p.x -= 30.0;
             }
         }
-        for &(id, p, yaw, _) in &vehicles {
-            let e = sim.entity(VehicleId(id)).expect("vehicle exists");
-            *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
-        }
+        place(&mut sim, &vehicles);
         sim.run_for(dt);
         assert_sim_matches_brute_force(&sim, &vehicles);
     }
@@ -306,9 +303,7 @@ fn a_vehicle_turning_round_sees_what_was_behind_it() {
     let mut sim = world_on(&vehicles, 1);
     for tick in 1..=36 {
         vehicles[7].2 = f64::from(tick) * 10f64.to_radians();
-        let (id, p, yaw, _) = vehicles[7];
-        let e = sim.entity(VehicleId(id)).expect("vehicle exists");
-        *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
+        place(&mut sim, &vehicles[7..8]);
         sim.run_for(0.05);
         assert_sim_matches_brute_force(&sim, &vehicles);
     }
@@ -327,10 +322,7 @@ fn a_vehicle_turning_towards_one_closing_in_from_the_side_sees_it() {
     assert_sim_matches_brute_force(&sim, &vehicles);
     vehicles[0].2 = 29f64.to_radians();
     vehicles[1].1 += DVec2::new(62f64.to_radians().sin(), -62f64.to_radians().cos()) * 15.0;
-    for &(id, p, yaw, _) in &vehicles {
-        let e = sim.entity(VehicleId(id)).expect("vehicle exists");
-        *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
-    }
+    place(&mut sim, &vehicles);
     sim.run_for(0.05);
     assert_eq!(seen(&sim, -1), [-2], "now in the cone");
     assert_sim_matches_brute_force(&sim, &vehicles);
@@ -354,14 +346,19 @@ fn a_group_that_drives_far_together_is_seen_where_it_arrives() {
         for v in vehicles.iter_mut().take(5) {
             v.1.x += 150.0;
         }
-        for &(id, p, yaw, _) in &vehicles {
-            let e = sim.entity(VehicleId(id)).expect("vehicle exists");
-            *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
-        }
+        place(&mut sim, &vehicles);
         sim.run_for(0.05);
         assert_sim_matches_brute_force(&sim, &vehicles);
     }
     assert!(seen(&sim, -1).len() >= 5, "the first group reached the second: {:?}", seen(&sim, -1));
+}
+
+/// Put each of `vehicles` where it now is, heading its way, at rest (sensing needs no speed).
+fn place(sim: &mut Sim, vehicles: &[(i32, DVec2, f64, SensorSet)]) {
+    for &(id, p, yaw, _) in vehicles {
+        let e = sim.entity(VehicleId(id)).expect("vehicle exists");
+        *sim.world_mut().get_mut::<VehicleState>(e).expect("has a state") = VehicleState::new(p, yaw, 0.0);
+    }
 }
 
 /// Every vehicle's readings are those of a brute-force scan over all others, nearest first.
