@@ -902,9 +902,10 @@ impl Default for DriftPart {
 
 impl DriftPart {
     /// Add the displacements of the vehicles at `states` from their `anchors`, in drift cells
-    /// `cells`, and whether one turned from its heading `headings` by [`TURN`]. Vehicles near each other are mostly next to each other in the query: a run of
-    /// them in one cell is boxed in registers and noted once (a merge into memory per vehicle
-    /// waited on the last one's store).
+    /// `cells`, and whether one turned from its heading `headings` by [`TURN`]. Vehicles near
+    /// each other are mostly next to each other in the query: a run of them in one cell is
+    /// boxed in registers and noted once (a merge into memory per vehicle waited on the last
+    /// one's store).
     fn add(&mut self, anchors: &[DVec2], headings: &[DVec2], states: &[VehicleState], cells: &[u32]) {
         let Some(&first) = cells.first() else { return };
         let (mut current, mut run) = (first, EMPTY_BOX);
@@ -1046,8 +1047,8 @@ impl SensorGrid {
     /// when they hold every vehicle within `range` [m] of each: the lists of the same vehicles
     /// in the same order, each at least `range` plus the skin wide, and no two neighbours
     /// closed in by the skin since they were built ([`NeighbourLists::moved_together`], on
-    /// `parallelism`, with its `scratch`). For modules that look around the vehicles at the same instant
-    /// as the sensors (the wifi round), so that one search serves both.
+    /// `parallelism`, with its `scratch`). For modules that look around the vehicles at the
+    /// same instant as the sensors (the wifi round), so that one search serves both.
     pub(crate) fn lists_within(
         &self,
         ids: &[VehicleId],
@@ -1065,8 +1066,8 @@ impl SensorGrid {
 
 impl NeighbourLists {
     /// Whether the lists still hold every vehicle within sensor range of each: the same
-    /// vehicles in the same order, the same ranges and skin, and the vehicles moved together
-    /// ([`NeighbourLists::moved_together`], on `parallelism`, with its `scratch`).
+    /// vehicles in the same order, the same sensors, wifi range and skin, and the vehicles moved
+    /// together ([`NeighbourLists::moved_together`], on `parallelism`, with its `scratch`).
     fn hold(
         &self,
         everyone: Everyone<'_>,
@@ -1154,7 +1155,7 @@ impl NeighbourLists {
         })
     }
 
-    /// Place the anchors (just built, with `ranges` and `skin` [m]) in drift cells and find
+    /// Place the anchors (just built, with `shapes` and `skin` [m]) in drift cells and find
     /// the cells that touch (see [`NeighbourLists::moved_together`]); `keys` is scratch.
     fn place_in_drift_cells(&mut self, keys: &mut Vec<(i64, i64)>) {
         let widest = self.shapes.iter().map(Shape::range).fold(0.0, f64::max) + self.skin;
