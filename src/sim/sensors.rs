@@ -982,26 +982,38 @@ impl Shape {
 struct Reach {
     around2: f64,
     heading: DVec2,
-    /// Half the radar's opening angle plus [`TURN`] [rad] (none without a radar).
-    half: Option<f64>,
+    /// Half the radar's opening angle plus [`TURN`] [rad] (none without a radar), and its
+    /// cosine and sine.
+    half: Option<(f64, f64, f64)>,
     skin: f64,
 }
 
 impl Reach {
     fn new(shape: &Shape, heading: DVec2, floor: f64, skin: f64) -> Reach {
         let around = shape.around(floor) + skin;
-        let half = (shape.radar > 0.0).then_some(0.5 * shape.angle + TURN);
+        let half = (shape.radar > 0.0).then(|| {
+            let half = 0.5 * shape.angle + TURN;
+            let (sin, cos) = half.sin_cos();
+            (half, cos, sin)
+        });
         Reach { around2: around * around, heading, half, skin }
     }
 
     /// Whether the vehicle at `relative` [m] (squared distance `d2`, within the list's radius)
     /// belongs on the list.
     fn holds(&self, relative: DVec2, d2: f64) -> bool {
-        let Some(half) = self.half.filter(|_| d2 > self.around2) else {
+        let Some((half, cos, sin)) = self.half.filter(|_| d2 > self.around2) else {
             return d2 <= self.around2;
         };
         let d = d2.sqrt();
-        let limit = half + (self.skin / d).min(1.0).asin();
+        // sin of the bearing change; under 1 beyond the all-around reach (d > skin).
+        let x = (self.skin / d).min(1.0);
+        if half <= std::f64::consts::FRAC_PI_2 {
+            // The limit half + asin(x) is under π: its cosine by the angle-sum formula (a build
+            // tests every neighbour beyond the velodyne: no asin and cos each).
+            return relative.dot(self.heading) >= d * (cos * (1.0 - x * x).sqrt() - sin * x);
+        }
+        let limit = half + x.asin();
         // (A NaN limit, from a NaN angle, keeps everything.)
         limit.is_nan() || limit >= std::f64::consts::PI || relative.dot(self.heading) >= d * limit.cos()
     }
@@ -1564,6 +1576,10 @@ mod tests {
         let at = |deg: f64| DVec2::from_angle(deg.to_radians()) * 100.0;
         assert!(holds(&reach, at(71.0).x, at(71.0).y) && !holds(&reach, at(72.0).x, at(72.0).y));
         assert!(holds(&reach, at(-71.0).x, at(-71.0).y) && !holds(&reach, at(-72.0).x, at(-72.0).y));
+        // A radar of 150°: 75° + 30° + 11.5°.
+        let wide = Shape { angle: 150f64.to_radians(), ..shape };
+        let reach_wide = Reach::new(&wide, east, 0.0, 20.0);
+        assert!(holds(&reach_wide, at(116.0).x, at(116.0).y) && !holds(&reach_wide, at(117.0).x, at(117.0).y));
         // With the wifi at 60 m, 80 m all around; a wifi range beyond the sensors' adds nothing.
         let reach = Reach::new(&shape, east, 60.0, 20.0);
         assert!(holds(&reach, -80.0, 0.0) && !holds(&reach, -80.1, 0.0));
