@@ -344,13 +344,13 @@ mod tests {
         // Straight steps (a steering of 1e-13 rad turns by less than the threshold; pure
         // pursuit along a straight line steers so), also with a stale heading and mixed with
         // turning ones: four at once, with the one-at-a-time step's bits.
-        let straight: Vec<f64> = vec![1e-13, -3e-13, 0.0, 2e-13, 1e-13, 1e-3, -2e-13, 5e-4];
+        let steerings: Vec<f64> = vec![1e-13, -3e-13, 0.0, 2e-13, 1e-13, 1e-3, -2e-13, 5e-4];
         let mut states: Vec<VehicleState> = (0..8)
             .map(|k| VehicleState::new(DVec2::new(1e4 + f64::from(k), -5e3), 0.3 * f64::from(k) - 1.0, 20.0))
             .collect();
         states[2].yaw += 1e-3;
         let commands: Vec<ControlCommand> =
-            straight.iter().map(|&steering| ControlCommand { steering, speed: 25.0, ..Default::default() }).collect();
+            steerings.iter().map(|&steering| ControlCommand { steering, speed: 25.0, ..Default::default() }).collect();
         let models = vec![KinematicUnicycle { wheelbase: 2.8, max_steering: 0.5 }; 8];
         let mut one_at_a_time = states.clone();
         for ((state, command), model) in one_at_a_time.iter_mut().zip(&commands).zip(&models) {
