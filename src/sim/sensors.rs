@@ -930,6 +930,13 @@ impl DriftPart {
     }
 }
 
+/// How far all around each vehicle the neighbour lists must reach for the modules that read
+/// them besides the sensors [m] (the wifi round asks for its range, [`super::v2v`]); within the
+/// sensors' own largest range, the lists then hold everyone that close (see [`Reach`]). A
+/// resource those modules set, so that sensing depends on none of them. 0: the sensors' needs.
+#[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
+pub struct ListFloor(pub f64);
+
 /// The drift cells' side as a multiple of the widest list's radius (range plus skin): wider
 /// cells let vehicles move farther between builds (`max_drift`), narrower ones hold fewer
 /// vehicles, whose displacements differ less on a curve.
@@ -1304,7 +1311,7 @@ pub fn sense_vehicles(
     mut scratch: Local<Vec<SenseScratch>>,
     mut ranges: Local<Vec<f64>>,
     mut footprints: Local<Vec<Footprint>>,
-    v2v: Option<Res<super::v2v::V2vConfig>>,
+    asked: Option<Res<ListFloor>>,
 ) {
     let SensorGrid { grid, neighbours } = &mut *grid;
     if sensing.is_empty() {
@@ -1372,7 +1379,7 @@ pub fn sense_vehicles(
     if let Some(everyone) = listed {
         let skin = SKIN_SHARE * cell;
         let n = neighbours.shapes_now.len();
-        let floor = v2v.map_or(0.0, |c| c.wifi_range);
+        let floor = asked.map_or(0.0, |f| f.0);
         let Neighbours { lists, shapes_now, drift, keys } = neighbours;
         let build = !lists.hold(everyone, (shapes_now, floor, skin), *parallelism, drift);
         if build {

@@ -41,7 +41,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::grid::within_reach;
 use super::parallel::{Padded, recycle};
-use super::sensors::{DriftScratch, Lists, SensorGrid};
+use super::sensors::{DriftScratch, ListFloor, Lists, SensorGrid};
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
@@ -904,11 +904,19 @@ pub fn deliver_wifi(
     registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
     sensor_grid: Option<Res<SensorGrid>>,
+    floor: Option<ResMut<ListFloor>>,
     mut mailboxes: Query<(Entity, Option<&VehicleId>, &VehicleState, &mut Mailbox)>,
     mut scratch: Local<WifiScratch>,
 ) {
     stats.wifi_rounds += 1;
     let round = stats.wifi_rounds;
+    // A config inserted after the plugin was built: the lists reach its range from the next
+    // sensor tick on (until then a round whose range they do not cover uses a grid).
+    if let Some(mut floor) = floor
+        && floor.0 != config.wifi_range
+    {
+        floor.0 = config.wifi_range;
+    }
     let now = clock.now;
     let seed = seed.map_or(0, |s| s.0);
     let model = config.wifi;
@@ -1304,6 +1312,8 @@ impl Plugin for V2vPlugin {
     /// ran twice (the second over empty out-boxes, counting a round of its own).
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(self.config);
+        // The sensors' neighbour lists reach the wifi range all around, so a round reads them.
+        sim.insert_resource(ListFloor(self.config.wifi_range));
         if sim.world_mut().contains_resource::<V2vInstalled>() {
             return;
         }
@@ -1327,6 +1337,18 @@ mod tests {
     use super::*;
     use crate::world::Payload;
     use std::sync::atomic::{AtomicUsize, Ordering};
+
+    #[test]
+    fn the_sensors_lists_are_asked_to_reach_the_wifi_range_also_after_the_config_is_replaced() {
+        let config = V2vConfig { wifi_range: 80.0, ..V2vConfig::default() };
+        let mut b = SimBuilder::new();
+        b.add_plugin(V2vPlugin { config });
+        assert_eq!(b.world_mut().resource::<ListFloor>().0, 80.0);
+        b.insert_resource(V2vConfig { wifi_range: 30.0, ..config });
+        let mut sim = b.build();
+        sim.run_for(0.2);
+        assert_eq!(sim.world().resource::<ListFloor>().0, 30.0);
+    }
 
     #[test]
     fn a_joined_batch_is_the_messages_sorted_by_sender_each_senders_in_its_order() {
