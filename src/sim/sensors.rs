@@ -767,7 +767,7 @@ fn sense_chunk(
                 gathered = Some(Gathered::All);
             }
         } else {
-            gather_within(grid, state.position, sensor_range(radar, velodyne), &mut gathered, &mut s.around);
+            gather_within(grid, state.position, Shape::of(radar, velodyne).range(), &mut gathered, &mut s.around);
         }
         let found = sight.consider_all(&s.around, &mut s.keys, &mut s.found);
         write_found(&sight, errors, input, grid, found, (&mut s.extents, &mut s.stats), readings);
@@ -965,7 +965,7 @@ impl Shape {
         }
     }
 
-    /// Its largest range [m] ([`sensor_range`]).
+    /// Its largest range [m] (0 without radar and velodyne).
     fn range(&self) -> f64 {
         self.radar.max(self.velodyne)
     }
@@ -1260,11 +1260,6 @@ fn sense_listed(
     }
 }
 
-/// Largest bounded range of a vehicle's sensors [m] (0 without radar and velodyne).
-fn sensor_range(radar: Option<&Radar>, velodyne: Option<&Velodyne>) -> f64 {
-    radar.map_or(0.0, |r| r.range).max(velodyne.map_or(0.0, |v| v.range))
-}
-
 /// Side of the sensor grid's cells [m]: the median of the sensing vehicles' positive ranges
 /// (100 m when none has one). `ranges` is scratch space, reused between ticks.
 fn typical_range(ranges: &mut [f64]) -> f64 {
@@ -1338,7 +1333,7 @@ pub fn sense_vehicles(
             sensing
                 .iter()
                 .inspect(|item| occlusion |= item.5.is_some_and(occludes))
-                .map(|(_, _, radar, velodyne, _, _, _)| sensor_range(radar, velodyne))
+                .map(|(_, _, radar, velodyne, _, _, _)| Shape::of(radar, velodyne).range())
                 .filter(bounded),
         );
     }
@@ -1548,7 +1543,7 @@ mod tests {
         assert_eq!(builds(&sim), 8, "a longer radar");
         sim.run_for(0.2);
         assert_eq!(builds(&sim), 8);
-        // Vehicle 20 turns round by 20° a tick: kept up to just under 30°, then built again.
+        // Vehicle 20 turns: kept at 29° from its heading at the build, built again at 30.4°.
         let e = sim.entity(VehicleId(20)).expect("vehicle 20");
         let turn = |sim: &mut crate::sim::Sim, yaw: f64| {
             let mut state = sim.world_mut().get_mut::<VehicleState>(e).expect("state");
