@@ -25,7 +25,6 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
 use crate::map::{Path, Place, RouteOptions};
-use crate::sim::parallel::recycle;
 use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
@@ -351,17 +350,27 @@ fn needs_limit(ch: &LaneChanger) -> bool {
     ch.lane_end.is_some() || ch.virtual_leader.is_some() || ch.yield_to.is_some() || ch.active.is_some()
 }
 
-/// One lane changer as [`decide_lane_changes`] gathers it.
-type ChangerItem<'a> = (
-    usize,
-    &'a VehicleId,
-    &'a VehicleState,
-    &'a VehicleSize,
-    &'a LanePosition,
-    &'a mut Route,
-    &'a mut PathFollower,
-    &'a mut LaneChanger,
-);
+/// One ECS table's lane changers as [`decide_lane_changes`] reads them: slices of the same rows
+/// (bevy's contiguous access, no list of the query's items gathered first).
+#[derive(Clone, Copy)]
+struct ChangerTable<'a> {
+    entities: &'a [Entity],
+    ids: &'a [VehicleId],
+    states: &'a [VehicleState],
+    sizes: &'a [VehicleSize],
+    positions: &'a [LanePosition],
+}
+
+/// What the serial part of [`decide_lane_changes`] writes besides the vehicles' own components.
+struct Applying<'a> {
+    lanes: &'a LaneMap,
+    paths: &'a mut LanePaths,
+    log: &'a mut LaneChangeLog,
+    signals: &'a mut LaneSignals,
+    claims: &'a mut Claims,
+    limits: &'a mut LaneChangeLimits,
+    t: f64,
+}
 
 /// What every vehicle's evaluation reads.
 struct Shared<'a> {
@@ -410,8 +419,6 @@ pub fn decide_lane_changes(
     )>,
     mut entries: Local<Vec<IndexEntry>>,
     mut scratch: Local<Vec<ChunkOut>>,
-    mut buffer: Local<Vec<ChangerItem<'static>>>,
-    mut entities: Local<Vec<Entity>>,
 ) {
     // Last tick's list holds every vehicle with a manoeuvre under way (only this system starts
     // or ends one, and it lists each it leaves running): the crossing ones are found among
@@ -449,37 +456,96 @@ pub fn decide_lane_changes(
     let last_signals = std::mem::take(&mut signals.0);
     claims.0.clear();
 
-    let mut items: Vec<ChangerItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    // Plain references, not `Mut`s (smaller items for the serial gathering; nothing reads
-    // change ticks). Which lanelets reach each goal was looked up by [`find_reach`]: the
-    // gathering reads no component, it only takes their addresses.
-    entities.clear();
-    items.extend(changers.iter_mut().enumerate().map(|(n, (entity, id, state, size, pos, route, follower, ch))| {
-        entities.push(entity);
-        (n, id, state, size, pos, route.into_inner(), follower.into_inner(), ch.into_inner())
-    }));
     let shared = Shared { lanes, index: &index, signals: &last_signals, t, dt, tick };
-    // Each chunk keeps the non-empty decisions with their item's place (chunks are in query
-    // order, and so is each list): the serial part visits only those, not every vehicle.
-    // They also note the vehicles [`limit_for_lane_changes`] may have to slow: those with a
-    // limit set by the evaluation, or a decision the serial part may turn into a manoeuvre.
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, out| {
-        for (n, id, state, size, pos, route, follower, ch) in chunk.iter_mut() {
+    let mut apply = Applying {
+        lanes,
+        paths: &mut paths,
+        log: &mut log,
+        signals: &mut signals,
+        claims: &mut claims,
+        limits: &mut limits,
+        t,
+    };
+    // Table by table, straight in the ECS tables' slices. Evaluations read only the index and
+    // the vehicle's own components, so doing one table's serial part before the next table's
+    // evaluations keeps the order of the serial part (query order) and the results.
+    // Which lanelets reach each goal was looked up by [`find_reach`].
+    match changers.contiguous_iter_mut() {
+        Ok(tables) => {
+            for (entities, ids, states, sizes, positions, mut routes, mut followers, mut chs) in tables {
+                let table = ChangerTable { entities, ids, states, sizes, positions };
+                // Written through `DerefMut`: every row is marked changed, as `Mut::into_inner`
+                // marked every gathered item before.
+                decide_table(
+                    &shared,
+                    parallelism,
+                    &mut scratch,
+                    table,
+                    &mut routes,
+                    &mut followers,
+                    &mut chs,
+                    &mut apply,
+                );
+            }
+        }
+        // Only if a component were stored sparsely (none is): one at a time, in query order.
+        Err(_) => {
+            for (entity, id, state, size, pos, mut route, mut follower, mut ch) in &mut changers {
+                let table = ChangerTable {
+                    entities: std::slice::from_ref(&entity),
+                    ids: std::slice::from_ref(id),
+                    states: std::slice::from_ref(state),
+                    sizes: std::slice::from_ref(size),
+                    positions: std::slice::from_ref(pos),
+                };
+                let (route, follower, ch) = (
+                    std::slice::from_mut(&mut *route),
+                    std::slice::from_mut(&mut *follower),
+                    std::slice::from_mut(&mut *ch),
+                );
+                decide_table(&shared, parallelism, &mut scratch, table, route, follower, ch, &mut apply);
+            }
+        }
+    }
+}
+
+/// [`decide_lane_changes`]' evaluations (split over threads) and serial part for one table's
+/// lane changers: `routes`, `followers` and `chs` are the same rows as `table`'s slices.
+#[allow(clippy::too_many_arguments)]
+fn decide_table(
+    shared: &Shared<'_>,
+    parallelism: Parallelism,
+    scratch: &mut Vec<ChunkOut>,
+    table: ChangerTable<'_>,
+    routes: &mut [Route],
+    followers: &mut [PathFollower],
+    chs: &mut [LaneChanger],
+    apply: &mut Applying<'_>,
+) {
+    let ChangerTable { entities, ids, states, sizes, positions } = table;
+    // Each chunk keeps the non-empty decisions with their row (chunks are in query order, and
+    // so is each list): the serial part visits only those, not every vehicle. They also note
+    // the vehicles [`limit_for_lane_changes`] may have to slow: those with a limit set by the
+    // evaluation, or a decision the serial part may turn into a manoeuvre.
+    parallelism.for_each_chunk_triple_at(routes, followers, chs, scratch, |start, routes, followers, chs, out| {
+        for (k, ((route, follower), ch)) in routes.iter_mut().zip(followers.iter_mut()).zip(chs.iter_mut()).enumerate()
+        {
+            let n = start + k;
             let mut decision = Decision::default();
-            evaluate(&shared, **id, state, size, pos, route, follower, ch, &mut decision);
+            evaluate(shared, ids[n], &states[n], &sizes[n], &positions[n], route, follower, ch, &mut decision);
             if !decision.is_empty() {
-                out.decisions.push((*n, decision));
-                out.limited.push(*n);
+                out.decisions.push((n, decision));
+                out.limited.push(n);
             } else if needs_limit(ch) {
-                out.limited.push(*n);
+                out.limited.push(n);
             }
         }
     });
-
+    let Applying { lanes, ref mut paths, ref mut log, ref mut signals, ref mut claims, ref mut limits, t } = *apply;
     for (k, decision) in scratch.iter_mut().flat_map(|out| out.decisions.drain(..)) {
-        let (_, id, state, size, pos, route, follower, ch) = &mut items[k];
-        let (state, size, pos) = (*state, *size, *pos);
-        let me = **id;
+        let (state, size, pos) = (&states[k], &sizes[k], &positions[k]);
+        let (route, follower, ch) = (&mut routes[k], &mut followers[k], &mut chs[k]);
+        let me = ids[k];
         if let Some(event) = decision.finished {
             log.record(event);
         }
@@ -541,7 +607,7 @@ pub fn decide_lane_changes(
         let params = follower.params;
         let max_offset = follower.max_offset;
         route.0 = path;
-        **follower = PathFollower::starting_at(params, q.s);
+        *follower = PathFollower::starting_at(params, q.s);
         follower.max_offset = max_offset;
         claims.0.push((j, s_j));
         ch.request = None;
@@ -549,11 +615,10 @@ pub fn decide_lane_changes(
         ch.active = Some(m);
     }
     for k in scratch.iter_mut().flat_map(|out| out.limited.drain(..)) {
-        if needs_limit(items[k].7) {
+        if needs_limit(&chs[k]) {
             limits.0.push(entities[k]);
         }
     }
-    *buffer = recycle(items);
 }
 
 /// Look up which lanelets reach the goal ([`LanePaths::reach`], cached per goal) for every
@@ -594,9 +659,9 @@ fn evaluate(
     state: &VehicleState,
     size: &VehicleSize,
     pos: &LanePosition,
-    route: &mut &mut Route,
-    follower: &mut &mut PathFollower,
-    ch: &mut &mut LaneChanger,
+    route: &mut Route,
+    follower: &mut PathFollower,
+    ch: &mut LaneChanger,
     out: &mut Decision,
 ) {
     let Shared { lanes, index, signals: last_signals, t, dt, tick } = *shared;
@@ -698,7 +763,7 @@ fn evaluate(
                     ..m
                 };
                 let (params, max_offset) = (follower.params, follower.max_offset);
-                **follower = PathFollower::starting_at(params, back.s);
+                *follower = PathFollower::starting_at(params, back.s);
                 follower.max_offset = max_offset;
                 ch.active = Some(aborted);
                 return;

@@ -28,7 +28,7 @@ use glam::DVec2;
 
 use crate::map::{LaneletId, Path};
 use crate::sim::SimBuilder;
-use crate::sim::parallel::{prefetch, recycle};
+use crate::sim::parallel::prefetch;
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
 use crate::world::{
     AccelerationUnicycle, ControlCommand, Detection, KinematicUnicycle, Route, SensorReadings, VehicleId, VehicleSize,
@@ -157,19 +157,28 @@ pub fn leader_on_path_with(
     None
 }
 
-/// One vehicle's part of [`find_leaders`].
-type LeaderItem<'a> = (
-    &'a VehicleId,
-    Option<&'a LanePosition>,
-    &'a VehicleState,
-    &'a VehicleSize,
-    &'a Route,
-    &'a PathFollower,
-    &'a ControlCommand,
-    Option<&'a SensorReadings>,
-    &'a mut Longitudinal,
-    Option<&'a LaneChanger>,
-);
+/// One ECS table's vehicles as [`find_leaders`] reads them: slices of the same rows (bevy's
+/// contiguous access; an optional component is in all of a table's rows or in none).
+#[derive(Clone, Copy)]
+struct LeaderTable<'a> {
+    ids: &'a [VehicleId],
+    positions: Option<&'a [LanePosition]>,
+    states: &'a [VehicleState],
+    sizes: &'a [VehicleSize],
+    routes: &'a [Route],
+    followers: &'a [PathFollower],
+    commands: &'a [ControlCommand],
+    readings: Option<&'a [SensorReadings]>,
+    changers: Option<&'a [LaneChanger]>,
+}
+
+/// What every vehicle's leader search reads besides its own components.
+#[derive(Clone, Copy)]
+struct LeaderShared<'a> {
+    dt: f64,
+    crossings: Option<&'a BTreeMap<VehicleId, (LaneletId, LaneletId)>>,
+    lanes: Option<(&'a LaneIndex, &'a LaneMap)>,
+}
 
 /// Reset the demand and find each vehicle's leader on its route (split over threads; each
 /// vehicle's result depends only on its own components, so any thread count gives the same bits).
@@ -193,71 +202,90 @@ pub fn find_leaders(
         Option<&LaneChanger>,
     )>,
     mut scratch: Local<Vec<()>>,
-    mut buffer: Local<Vec<LeaderItem<'static>>>,
 ) {
     let crossings = crossings.as_deref().map(|c| &c.0).filter(|c| !c.is_empty());
-    let dt = clock.dt;
+    let shared = LeaderShared { dt: clock.dt, crossings, lanes: index.as_deref().zip(lane_map.as_deref()) };
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
-    let mut items: Vec<LeaderItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    // Plain references, not `Mut`s (smaller items for the serial gathering; nothing reads
-    // change ticks).
-    items.extend(vehicles.iter_mut().map(
-        |(id, pos, state, size, route, follower, command, readings, lon, changer)| {
-            (id, pos, state, size, route, follower, command, readings, lon.into_inner(), changer)
-        },
-    ));
-    let lanes = index.as_deref().zip(lane_map.as_deref());
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
-        for k in 0..chunk.len() {
-            // The detections a vehicle a few places on will scan: far apart on a big world.
-            // The leader is mostly among the nearest few: the first four cache lines.
-            if let Some(r) = chunk.get(k + PREFETCH_AHEAD).and_then(|item| item.7) {
-                let bytes = r.0.as_ptr().cast::<u8>();
-                let len = std::mem::size_of_val(&r.0[..]);
-                for line in (0..len.min(256)).step_by(64) {
-                    prefetch(bytes.wrapping_add(line));
-                }
-            }
-            let (id, pos, state, size, route, follower, command, readings, lon, changer) = &mut chunk[k];
-            // A lane changer's leader comes from the lane index (the vehicle ahead in its lane,
-            // crossing vehicles in both lanes) among those its sensors detect.
-            let in_lane = match (lanes, *changer, pos.and_then(|p| p.on().map(|i| (i, p.s)))) {
-                (Some((index, map)), Some(_), Some((i, s))) => Some((index, map, i, s)),
-                _ => None,
-            };
-            match in_lane {
-                Some((index, map, i, s)) => {
-                    let detections = readings.map_or(&[][..], |r| &r.0[..]);
-                    // The detection of the vehicle found, kept from the search (one scan).
-                    let matched = std::cell::Cell::new(None);
-                    let seen = |other: VehicleId| match detections.iter().find(|d| d.id == other) {
-                        Some(d) => {
-                            matched.set(Some(d));
-                            true
+    // Table by table, straight in the ECS tables' slices: no list of the query's items is
+    // gathered first (a serial pass over every vehicle).
+    if let Ok(tables) = vehicles.contiguous_iter_mut() {
+        for (ids, positions, states, sizes, routes, followers, commands, readings, mut lons, changers) in tables {
+            let table = LeaderTable { ids, positions, states, sizes, routes, followers, commands, readings, changers };
+            parallelism.for_each_chunk_at(&mut lons, &mut scratch, |start, lons, _| {
+                for (k, lon) in lons.iter_mut().enumerate() {
+                    // The detections a vehicle a few places on will scan: far apart on a big
+                    // world. The leader is mostly among the nearest few: the first four cache lines.
+                    if let Some(r) = readings.and_then(|r| r.get(start + k + PREFETCH_AHEAD)) {
+                        let bytes = r.0.as_ptr().cast::<u8>();
+                        let len = std::mem::size_of_val(&r.0[..]);
+                        for line in (0..len.min(256)).step_by(64) {
+                            prefetch(bytes.wrapping_add(line));
                         }
-                        None => false,
-                    };
-                    let found = index.ahead_where(map, i, s, **id, seen);
-                    let leader = found.map(|f| {
-                        let d = matched.get().filter(|d| d.id == f.id);
-                        // The speed as sensed: the detection's velocity along its own motion.
-                        let speed = d.map_or(f.speed, |d| d.velocity.length());
-                        LeaderGap {
-                            id: f.id,
-                            distance: f.distance,
-                            gap: f.distance - size.length,
-                            speed,
-                            acceleration: 0.0,
-                        }
-                    });
-                    set_leader(dt, lon, command, leader);
-                    lon.leader_length = found.map(|f| f.length);
+                    }
+                    leader_of(shared, table, start + k, lon);
                 }
-                None => find_leader(dt, crossings, state, size, route, follower, command, *readings, lon, *changer),
-            }
+            });
         }
-    });
-    *buffer = recycle(items);
+        return;
+    }
+    // Only if a component were stored sparsely (none is): one at a time.
+    for (id, pos, state, size, route, follower, command, readings, mut lon, changer) in &mut vehicles {
+        let table = LeaderTable {
+            ids: std::slice::from_ref(id),
+            positions: pos.map(std::slice::from_ref),
+            states: std::slice::from_ref(state),
+            sizes: std::slice::from_ref(size),
+            routes: std::slice::from_ref(route),
+            followers: std::slice::from_ref(follower),
+            commands: std::slice::from_ref(command),
+            readings: readings.map(std::slice::from_ref),
+            changers: changer.map(std::slice::from_ref),
+        };
+        leader_of(shared, table, 0, &mut lon);
+    }
+}
+
+/// [`find_leaders`] for row `n` of `table`.
+#[inline(always)]
+fn leader_of(shared: LeaderShared<'_>, table: LeaderTable<'_>, n: usize, lon: &mut Longitudinal) {
+    let LeaderShared { dt, crossings, lanes } = shared;
+    let (id, size, command) = (&table.ids[n], &table.sizes[n], &table.commands[n]);
+    let pos = table.positions.map(|p| &p[n]);
+    let readings = table.readings.map(|r| &r[n]);
+    let changer = table.changers.map(|c| &c[n]);
+    // A lane changer's leader comes from the lane index (the vehicle ahead in its lane,
+    // crossing vehicles in both lanes) among those its sensors detect.
+    let in_lane = match (lanes, changer, pos.and_then(|p| p.on().map(|i| (i, p.s)))) {
+        (Some((index, map)), Some(_), Some((i, s))) => Some((index, map, i, s)),
+        _ => None,
+    };
+    match in_lane {
+        Some((index, map, i, s)) => {
+            let detections = readings.map_or(&[][..], |r| &r.0[..]);
+            // The detection of the vehicle found, kept from the search (one scan).
+            let matched = std::cell::Cell::new(None);
+            let seen = |other: VehicleId| match detections.iter().find(|d| d.id == other) {
+                Some(d) => {
+                    matched.set(Some(d));
+                    true
+                }
+                None => false,
+            };
+            let found = index.ahead_where(map, i, s, *id, seen);
+            let leader = found.map(|f| {
+                let d = matched.get().filter(|d| d.id == f.id);
+                // The speed as sensed: the detection's velocity along its own motion.
+                let speed = d.map_or(f.speed, |d| d.velocity.length());
+                LeaderGap { id: f.id, distance: f.distance, gap: f.distance - size.length, speed, acceleration: 0.0 }
+            });
+            set_leader(dt, lon, command, leader);
+            lon.leader_length = found.map(|f| f.length);
+        }
+        None => {
+            let (state, route, follower) = (&table.states[n], &table.routes[n], &table.followers[n]);
+            find_leader(dt, crossings, state, size, route, follower, command, readings, lon, changer)
+        }
+    }
 }
 
 /// [`find_leaders`] for one vehicle.
@@ -339,50 +367,59 @@ pub fn actuate_longitudinal(
         Option<&LanePosition>,
     )>,
     mut scratch: Local<Vec<()>>,
-    mut buffer: Local<Vec<ActuateItem<'static>>>,
 ) {
     let dt = clock.dt;
     let fresh = LanePositionsAt::fresh(lanes_at.as_deref(), clock.now);
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
-    let mut items: Vec<ActuateItem<'_>> = recycle(std::mem::take(&mut *buffer));
-    // Every vehicle is gathered, those without a demand (NaN) are skipped in the chunks: a
-    // filter here would read each vehicle's `Longitudinal` in this serial loop (a cache miss
-    // each on a big world, see issue 19 item 8).
-    items.extend(
-        vehicles.iter_mut().map(|(state, lon, command, a, k, pos)| (state, lon, command.into_inner(), a, k, pos)),
-    );
-    // Each vehicle's command depends only on itself: any split gives the same bits.
-    parallelism.for_each_chunk(&mut items, &mut scratch, |chunk, _| {
-        for (state, lon, command, acceleration, kinematic, pos) in chunk.iter_mut() {
-            if lon.accel.is_nan() {
-                continue;
-            }
-            let v = forward_speed(state, *pos, fresh).max(0.0);
-            // Never faster than the route's target speed (it stops at the end of an open route).
-            let accel =
-                if v > lon.route_speed { lon.accel.min(ROUTE_SPEED_GAIN * (lon.route_speed - v)) } else { lon.accel };
-            if let Some(m) = acceleration {
-                command.throttle = m.mass * accel + m.drag * v;
-            }
-            if kinematic.is_some() || acceleration.is_none() {
-                command.speed = (v + accel * dt).max(0.0);
-            } else {
-                command.speed = v;
-            }
+    // Table by table, straight in the ECS tables' slices (no list of the query's items gathered
+    // first); each vehicle's command depends only on itself: any split gives the same bits.
+    if let Ok(tables) = vehicles.contiguous_iter_mut() {
+        for (states, lons, mut commands, acceleration, kinematic, positions) in tables {
+            parallelism.for_each_chunk_at(&mut commands, &mut scratch, |start, commands, _| {
+                for (k, command) in commands.iter_mut().enumerate() {
+                    let n = start + k;
+                    let (a, kin) = (acceleration.map(|a| &a[n]), kinematic.is_some());
+                    actuate(dt, fresh, &states[n], &lons[n], command, a, kin, positions.map(|p| &p[n]));
+                }
+            });
         }
-    });
-    *buffer = recycle(items);
+        return;
+    }
+    // Only if a component were stored sparsely (none is): one at a time.
+    for (state, lon, mut command, a, k, pos) in &mut vehicles {
+        actuate(dt, fresh, state, lon, &mut command, a, k.is_some(), pos);
+    }
 }
 
-/// One vehicle's part of [`actuate_longitudinal`].
-type ActuateItem<'a> = (
-    &'a VehicleState,
-    &'a Longitudinal,
-    &'a mut ControlCommand,
-    Option<&'a AccelerationUnicycle>,
-    Option<&'a KinematicUnicycle>,
-    Option<&'a LanePosition>,
-);
+/// One vehicle's part of [`actuate_longitudinal`] (`kinematic`: it has a [`KinematicUnicycle`]).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn actuate(
+    dt: f64,
+    fresh: bool,
+    state: &VehicleState,
+    lon: &Longitudinal,
+    command: &mut ControlCommand,
+    acceleration: Option<&AccelerationUnicycle>,
+    kinematic: bool,
+    pos: Option<&LanePosition>,
+) {
+    // Vehicles without a demand (NaN) keep their command.
+    if lon.accel.is_nan() {
+        return;
+    }
+    let v = forward_speed(state, pos, fresh).max(0.0);
+    // Never faster than the route's target speed (it stops at the end of an open route).
+    let accel = if v > lon.route_speed { lon.accel.min(ROUTE_SPEED_GAIN * (lon.route_speed - v)) } else { lon.accel };
+    if let Some(m) = acceleration {
+        command.throttle = m.mass * accel + m.drag * v;
+    }
+    if kinematic || acceleration.is_none() {
+        command.speed = (v + accel * dt).max(0.0);
+    } else {
+        command.speed = v;
+    }
+}
 
 /// Marks that the pipeline's systems are in the [`Control`] schedule (each controller plugin
 /// installs them once).
