@@ -24,7 +24,7 @@ use bevy_ecs::prelude::{Added, Entity, Local, ParamSet, Query, Res, ResMut, Reso
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
-use crate::map::{Path, Place, RouteOptions};
+use crate::map::{LaneletId, Path, Place, RouteOptions};
 use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
@@ -131,6 +131,8 @@ pub struct LanePaths {
     reach: BTreeMap<String, Arc<Vec<bool>>>,
     /// Closed loops, one per lane: a loop through a lanelet serves every lanelet it passes.
     loops: Vec<Arc<Path>>,
+    /// Where each loop's lanelets start along it [m] (same order as `loops`).
+    loop_starts: Vec<BTreeMap<LaneletId, f64>>,
 }
 
 impl LanePaths {
@@ -192,10 +194,18 @@ impl LanePaths {
         }
         let path = self.path(lanes, i, goal)?;
         if path.closed {
+            self.loop_starts.push(lanelet_starts(lanes, &path));
             self.loops.push(Arc::clone(&path));
             self.paths.remove(&(i, goal.key()));
         }
         Some(path)
+    }
+
+    /// Where lanelet `i` starts along the loop [`LanePaths::path_through`] gave for it [m]
+    /// (`None` if no loop passes it).
+    pub fn loop_start(&self, lanes: &LaneMap, i: u32) -> Option<f64> {
+        let id = lanes.id(i);
+        self.loop_starts.iter().find_map(|starts| starts.get(&id).copied())
     }
 
     /// The path from the start of lanelet `i` along its lane to `goal` (round the loop; to the
@@ -240,6 +250,37 @@ impl LanePaths {
         self.paths.insert(key, path.clone());
         path
     }
+}
+
+/// Where each lanelet of the closed loop `path` starts along it [m]: the first point of its
+/// centre line projected on the loop, near where the one before it ended (one projection over
+/// the whole loop, for the first).
+fn lanelet_starts(lanes: &LaneMap, path: &Path) -> BTreeMap<LaneletId, f64> {
+    let mut starts = BTreeMap::new();
+    let mut expected: Option<f64> = None;
+    for &id in &path.lanelets {
+        let Some(k) = lanes.map.lanelet_index(id) else { continue };
+        let Some(&first) = lanes.map.lanelets[k].centre.first() else { continue };
+        let s = match expected {
+            Some(hint) => path.project_near(first, hint, 50.0).s,
+            None => path.project(first).s,
+        };
+        starts.insert(id, s);
+        expected = Some(s + lanes.length(k as u32));
+    }
+    starts
+}
+
+/// The projection of `p` on the closed loop `path` near arc length `hint` [m], as over the whole
+/// loop (`Path::project`) where the loop does not pass within 15 m of itself: the same nearest
+/// point, its arc length in [0, length) (at the loop's start the window may end on the closing
+/// segment's end, the same point at arc length `length`).
+fn loop_projection_near(path: &Path, p: DVec2, hint: f64) -> crate::map::PathProjection {
+    let mut q = path.project_near(p, hint, 15.0);
+    if q.s >= path.length {
+        q.s -= path.length;
+    }
+    q
 }
 
 /// Mandatory-change signals of the last tick: target lanelet -> (arc length [m], speed [m/s],
@@ -580,9 +621,14 @@ fn decide_table(
         let Some(path) = paths.path_through(lanes, j, &ch.goal) else { continue };
         let s_j = pos.s * lanes.length(j) / lanes.length(i).max(1e-9);
         let q = if path.closed {
-            // A lane's loop may start at any of its lanelets: find the vehicle on the whole loop
-            // (once per change; a lane's loop does not pass within a lane of itself).
-            path.project(state.position)
+            // A lane's loop may start at any of its lanelets: near where lanelet j starts on it
+            // (a lane's loop does not pass within a lane of itself, so the nearest point of the
+            // window is the loop's nearest; a ring's loop has tens of thousands of points, and a
+            // projection over all of them for every change was the serial part's largest cost).
+            match paths.loop_start(lanes, j) {
+                Some(start) => loop_projection_near(&path, state.position, start + s_j),
+                None => path.project(state.position),
+            }
         } else {
             path.project_near(state.position, s_j, 15.0)
         };
@@ -1076,5 +1122,45 @@ mod tests {
         assert!(target_gap_closed(&law, 4.0, 20.0, 4.0, None, Some(found(10.0, 30.0))), "fast follower 6 m behind");
         assert!(target_gap_closed(&law, 4.0, 20.0, 4.0, Some(found(3.0, 20.0)), None), "leader overlapping");
         assert!(!target_gap_closed(&law, 4.0, 20.0, 4.0, None, Some(found(10.0, 10.0))), "slow follower falls back");
+    }
+}
+
+#[cfg(test)]
+mod loop_tests {
+    use super::*;
+    use crate::map::LaneletMap;
+    use crate::map::generate::{RingParams, ring_highway};
+
+    #[test]
+    fn a_change_onto_a_loop_projects_near_its_lanelet_as_over_the_whole_loop() {
+        // Three lanes round a ring: every lanelet of every lane's loop, points along it and
+        // beside it (within and across the lane), start and end of the lanelet included.
+        let ring = RingParams { lanes: 3, radius: 400.0, lane_width: 3.5, clockwise: false, node_spacing: 20.0 };
+        let map = LaneletMap::parse_str(&ring_highway(&ring).unwrap(), std::path::Path::new("ring")).unwrap();
+        let lanes = LaneMap::new(Arc::new(map));
+        let mut paths = LanePaths::new(0.5);
+        let mut checked = 0;
+        for j in 0..lanes.map.lanelets.len() as u32 {
+            let path = paths.path_through(&lanes, j, &RouteGoal::Loop).expect("a ring lane is a loop");
+            assert!(path.closed);
+            let start = paths.loop_start(&lanes, j).expect("the loop through j knows where j starts");
+            for f in [0.0, 0.25, 0.6, 0.999] {
+                let s_j = f * lanes.length(j);
+                let (point, heading) = lanes.centres[j as usize].sample(s_j);
+                for offset in [-3.5, -1.2, 0.0, 1.6, 3.5] {
+                    let p = point + offset * DVec2::new(-heading.sin(), heading.cos());
+                    let near = loop_projection_near(&path, p, start + s_j);
+                    let all = path.project(p);
+                    assert_eq!(
+                        (near.s.to_bits(), near.lateral.to_bits(), near.point),
+                        (all.s.to_bits(), all.lateral.to_bits(), all.point),
+                        "lanelet {j} at {s_j} m, {offset} m beside: near {near:?}, whole loop {all:?}"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(paths.loops.len(), 3, "one loop a lane");
+        assert!(checked >= 3 * 20, "{checked} points");
     }
 }
