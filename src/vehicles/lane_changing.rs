@@ -413,6 +413,19 @@ struct Applying<'a> {
     t: f64,
 }
 
+/// The [`LaneIndex`] entry of a vehicle on no lanelet (left out of the index).
+const NOT_ON_A_LANELET: IndexEntry =
+    IndexEntry { lanelet: u32::MAX, s: 0.0, speed: 0.0, length: 0.0, id: VehicleId(0) };
+
+/// A vehicle's [`LaneIndex`] entry on its own lanelet ([`NOT_ON_A_LANELET`] when on none).
+#[inline(always)]
+fn index_entry(id: VehicleId, size: &VehicleSize, pos: &LanePosition) -> IndexEntry {
+    match pos.on() {
+        Some(i) => IndexEntry { lanelet: i, s: pos.s, speed: pos.speed, length: size.length, id },
+        None => NOT_ON_A_LANELET,
+    }
+}
+
 /// What every vehicle's evaluation reads.
 struct Shared<'a> {
     lanes: &'a LaneMap,
@@ -459,6 +472,7 @@ pub fn decide_lane_changes(
         &mut LaneChanger,
     )>,
     mut entries: Local<Vec<IndexEntry>>,
+    mut index_scratch: Local<Vec<()>>,
     mut scratch: Local<Vec<ChunkOut>>,
 ) {
     // Last tick's list holds every vehicle with a manoeuvre under way (only this system starts
@@ -473,8 +487,36 @@ pub fn decide_lane_changes(
     let tick = if dt > 0.0 { (t / dt).round() as i64 } else { 0 };
     // The index: every vehicle on its lanelet (with the speed found with its position at the
     // start of this control tick: no trigonometry here), a crossing one on the other lane too.
+    // Table by table, straight in the ECS tables' slices and split over the threads; a vehicle
+    // on no lanelet gets an entry on none (`NOT_ON_A_LANELET`), which the index leaves out. The
+    // entries' order does not matter: the index sorts them.
+    let lanelets = lanes.map.lanelets.len();
+    match all.contiguous_iter() {
+        Ok(tables) => {
+            let mut end = 0;
+            for (ids, sizes, positions) in tables {
+                let start = end;
+                end += ids.len();
+                // Longer only while the world grows: last tick's entries are overwritten.
+                if entries.len() < end {
+                    entries.resize(end, NOT_ON_A_LANELET);
+                }
+                parallelism.for_each_chunk_at(&mut entries[start..end], &mut index_scratch, |k0, chunk, _| {
+                    for (k, e) in chunk.iter_mut().enumerate() {
+                        let n = k0 + k;
+                        *e = index_entry(ids[n], &sizes[n], &positions[n]);
+                    }
+                });
+            }
+            entries.truncate(end);
+        }
+        // Only if a component were stored sparsely (none is): one at a time.
+        Err(_) => {
+            entries.clear();
+            entries.extend(all.iter().map(|(id, size, pos)| index_entry(*id, size, pos)));
+        }
+    }
     crossings.0.clear();
-    entries.clear();
     for &e in &previous {
         let Ok((_, id, _, size, pos, _, _, ch)) = changers.get(e) else { continue };
         if let Some(m) = &ch.active {
@@ -487,11 +529,7 @@ pub fn decide_lane_changes(
             }
         }
     }
-    for (id, size, pos) in &all {
-        let Some(i) = pos.on() else { continue };
-        entries.push(IndexEntry { lanelet: i, s: pos.s, speed: pos.speed, length: size.length, id: *id });
-    }
-    index.rebuild(lanes.map.lanelets.len(), entries.iter().copied());
+    index.rebuild(parallelism, lanelets, &entries);
     previous.clear();
     limits.0 = previous;
     let last_signals = std::mem::take(&mut signals.0);

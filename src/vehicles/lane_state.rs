@@ -15,6 +15,8 @@ use crate::world::{TurnSignal, VehicleId};
 use super::follow_laws::{AdaptiveCruise, Idm, LeaderGap};
 use super::lane_change::LaneChangeProfile;
 use super::lanes::LaneMap;
+use crate::sim::Parallelism;
+use crate::sim::parallel::CHUNKS_PER_THREAD;
 
 /// How far the leader and follower searches look along the lane [m].
 pub const SEARCH_HORIZON: f64 = 200.0;
@@ -362,6 +364,28 @@ pub struct LaneIndex {
     entries: Vec<IndexEntry>,
     starts: Vec<u32>,
     counts: Vec<u32>,
+    /// Where the next entry of each lanelet goes while [`LaneIndex::rebuild`] fills `entries`.
+    fill: Vec<u32>,
+}
+
+/// Most groups of lanelets [`LaneIndex::rebuild`] sorts side by side.
+const SORT_GROUPS: usize = 16;
+
+/// Consecutive lanelets of the [`LaneIndex`] that one thread sorts: their entries and where each
+/// lanelet's starts among them (plus the end), offset by the group's first entry.
+#[derive(Default)]
+struct SortGroup<'a> {
+    entries: &'a mut [IndexEntry],
+    starts: &'a [u32],
+}
+
+impl SortGroup<'_> {
+    fn sort(&mut self) {
+        let Some(&base) = self.starts.first() else { return };
+        for w in self.starts.windows(2) {
+            sort_nearly_sorted(&mut self.entries[(w[0] - base) as usize..(w[1] - base) as usize]);
+        }
+    }
 }
 
 /// A vehicle found by the index: distance along the lane [m, centre to centre], speed, length.
@@ -378,32 +402,65 @@ pub struct Found {
 }
 
 impl LaneIndex {
-    /// Rebuild from `items` (counting sort by lanelet, then by arc length and id): allocation
-    /// free once the buffers have grown.
-    pub fn rebuild(&mut self, lanelets: usize, items: impl Iterator<Item = IndexEntry> + Clone) {
-        self.counts.clear();
-        self.counts.resize(lanelets + 1, 0);
-        for e in items.clone() {
-            self.counts[e.lanelet as usize] += 1;
+    /// Rebuild from `items` (in any order; an entry whose lanelet is not below `lanelets` is
+    /// left out): a counting sort by lanelet, then each lanelet's entries by arc length and id,
+    /// the lanelets' sorts split over `parallelism`'s threads in groups of consecutive lanelets
+    /// (each lanelet's order depends on its entries only, so any split gives the same index).
+    /// Allocation free once the buffers have grown.
+    pub fn rebuild(&mut self, parallelism: Parallelism, lanelets: usize, items: &[IndexEntry]) {
+        let LaneIndex { entries, starts, counts, fill } = self;
+        counts.clear();
+        counts.resize(lanelets, 0);
+        for e in items {
+            if let Some(c) = counts.get_mut(e.lanelet as usize) {
+                *c += 1;
+            }
         }
-        self.starts.clear();
+        starts.clear();
         let mut acc = 0;
-        for c in &self.counts {
-            self.starts.push(acc);
+        for &c in counts.iter() {
+            starts.push(acc);
             acc += c;
         }
-        self.entries.clear();
-        self.entries.resize(acc as usize, IndexEntry { lanelet: 0, s: 0.0, speed: 0.0, length: 0.0, id: VehicleId(0) });
-        let mut fill = self.starts.clone();
+        starts.push(acc);
+        // Every place is written below: no need to clear what the last tick left.
+        entries.resize(acc as usize, IndexEntry { lanelet: 0, s: 0.0, speed: 0.0, length: 0.0, id: VehicleId(0) });
+        fill.clear();
+        fill.extend_from_slice(&starts[..lanelets]);
         for e in items {
-            let k = &mut fill[e.lanelet as usize];
-            self.entries[*k as usize] = e;
-            *k += 1;
+            if let Some(k) = fill.get_mut(e.lanelet as usize) {
+                entries[*k as usize] = *e;
+                *k += 1;
+            }
         }
-        for i in 0..lanelets {
-            let (a, b) = (self.starts[i] as usize, self.starts[i + 1] as usize);
-            sort_nearly_sorted(&mut self.entries[a..b]);
+        let threads = parallelism.threads_for(entries.len());
+        let groups = (threads * CHUNKS_PER_THREAD).min(SORT_GROUPS).min(lanelets);
+        if threads <= 1 || groups <= 1 {
+            SortGroup { entries, starts }.sort();
+            return;
         }
+        // Groups of consecutive lanelets of about equal entry counts, one a chunk.
+        let mut parts: [SortGroup<'_>; SORT_GROUPS] = Default::default();
+        let mut rest: &mut [IndexEntry] = entries;
+        let mut first = 0;
+        for (g, part) in parts.iter_mut().enumerate().take(groups) {
+            let end = if g + 1 == groups {
+                lanelets
+            } else {
+                let target = (acc as usize * (g + 1) / groups) as u32;
+                starts.partition_point(|&s| s < target).clamp(first, lanelets)
+            };
+            let len = (starts[end] - starts[first]) as usize;
+            let (mine, others) = std::mem::take(&mut rest).split_at_mut(len);
+            rest = others;
+            *part = SortGroup { entries: mine, starts: &starts[first..=end] };
+            first = end;
+        }
+        Parallelism::split(threads).for_each_chunk(&mut parts[..groups], &mut Vec::<()>::new(), |chunk, _| {
+            for part in chunk {
+                part.sort();
+            }
+        });
     }
 
     pub(crate) fn on(&self, i: u32) -> &[IndexEntry] {
@@ -477,6 +534,44 @@ impl LaneIndex {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_index_is_the_same_on_any_thread_count_and_leaves_out_entries_on_no_lanelet() {
+        // 40 lanelets, 3,000 entries in scrambled order, some on no lanelet; then fewer entries
+        // (the buffers shrink) on fewer lanelets.
+        let scrambled = |n: usize, lanelets: usize| -> Vec<IndexEntry> {
+            (0..n)
+                .map(|k| IndexEntry {
+                    lanelet: if k % 97 == 0 { u32::MAX } else { (k * 7919 % lanelets) as u32 },
+                    s: ((k * 104_729) % 1000) as f64 * 0.5,
+                    speed: k as f64,
+                    length: 4.0,
+                    id: VehicleId(k as i32),
+                })
+                .collect()
+        };
+        let mut many: Vec<LaneIndex> = vec![LaneIndex::default(); 4];
+        for (n, lanelets) in [(3000, 40), (500, 5), (3000, 1)] {
+            let items = scrambled(n, lanelets);
+            let mut one = LaneIndex::default();
+            one.rebuild(Parallelism::single(), lanelets, &items);
+            let mut seen = 0;
+            for i in 0..lanelets as u32 {
+                let list = one.on(i);
+                assert!(list.iter().all(|e| e.lanelet == i), "lanelet {i}");
+                assert!(list.is_sorted_by(|a, b| entry_order(a, b).is_le()), "lanelet {i} sorted");
+                seen += list.len();
+            }
+            assert_eq!(seen, items.iter().filter(|e| e.lanelet != u32::MAX).count(), "all on a lanelet, once");
+            for (index, threads) in many.iter_mut().zip([2, 3, 4, 8]) {
+                index.rebuild(Parallelism::split(threads), lanelets, &items);
+                for i in 0..lanelets as u32 {
+                    assert_eq!(index.on(i), one.on(i), "{threads} threads, lanelet {i} of {lanelets}");
+                }
+                assert!(index.on(lanelets as u32).is_empty());
+            }
+        }
+    }
 
     fn entry(s: f64) -> IndexEntry {
         IndexEntry { lanelet: 0, s, speed: 0.0, length: 4.0, id: VehicleId(0) }
