@@ -956,7 +956,58 @@ struct Shape {
     velodyne: f64,
 }
 
+/// What [`typical_range`] and the neighbour lists need to know of a run of [`Shape`]s, found
+/// in the pass that makes them (split over the threads) and merged in order: the first bounded
+/// range, whether every bounded range equals it, and whether every range is finite.
+#[derive(Debug, Clone, Copy)]
+#[repr(align(128))]
+pub struct ShapeSummary {
+    first: Option<u64>,
+    uniform: bool,
+    finite: bool,
+}
+
+impl Default for ShapeSummary {
+    fn default() -> Self {
+        ShapeSummary { first: None, uniform: true, finite: true }
+    }
+}
+
+impl ShapeSummary {
+    fn add(&mut self, shape: &Shape) {
+        let r = shape.range();
+        self.finite &= r.is_finite();
+        if r > 0.0 && r.is_finite() {
+            match self.first {
+                None => self.first = Some(r.to_bits()),
+                Some(bits) => self.uniform &= bits == r.to_bits(),
+            }
+        }
+    }
+
+    /// This run followed by `next`.
+    fn then(&mut self, next: &ShapeSummary) {
+        self.finite &= next.finite;
+        match (self.first, next.first) {
+            (None, _) => (self.first, self.uniform) = (next.first, next.uniform),
+            (Some(_), None) => {}
+            (Some(a), Some(b)) => self.uniform &= next.uniform && a == b,
+        }
+    }
+
+    /// [`typical_range`] of the bounded ranges, when every one is the same (or there is none).
+    fn typical(&self) -> Option<f64> {
+        match self.first {
+            None => Some(typical_range(&mut [])),
+            Some(bits) => self.uniform.then_some(f64::from_bits(bits)),
+        }
+    }
+}
+
 impl Shape {
+    /// No radar, no velodyne.
+    const NONE: Shape = Shape { radar: 0.0, angle: 0.0, velodyne: 0.0 };
+
     fn of(radar: Option<&Radar>, velodyne: Option<&Velodyne>) -> Shape {
         Shape {
             radar: radar.map_or(0.0, |r| r.range),
@@ -1304,6 +1355,7 @@ pub fn sense_vehicles(
         &mut SensorReadings,
     )>,
     mut scratch: Local<Vec<SenseScratch>>,
+    mut shape_parts: Local<Vec<ShapeSummary>>,
     mut ranges: Local<Vec<f64>>,
     mut footprints: Local<Vec<Footprint>>,
     asked: Option<Res<ListFloor>>,
@@ -1318,17 +1370,38 @@ pub fn sense_vehicles(
     let bounded = |r: &f64| *r > 0.0 && r.is_finite();
     // Every sensing vehicle's sensors in query order (what the neighbour lists keep), and the
     // bounded ranges (for the typical range).
-    neighbours.shapes_now.clear();
+    let mut summary = ShapeSummary::default();
+    let mut cell = None;
     if let Ok(tables) = sensing.as_readonly().contiguous_iter() {
-        // Table by table, over the components' slices (an item at a time through the whole
-        // query was most of this serial pass).
+        // Table by table, over the components' slices, split over the threads (a serial pass
+        // every sensor tick before); each chunk sums up its shapes, merged in chunk order.
+        let shapes_now = &mut neighbours.shapes_now;
+        let mut end = 0;
         for (ids, _, radars, velodynes, _, errors, _) in tables {
             occlusion |= errors.is_some_and(|e| e.iter().any(occludes));
-            let shape = |i: usize| Shape::of(radars.map(|r| &r[i]), velodynes.map(|v| &v[i]));
-            neighbours.shapes_now.extend((0..ids.len()).map(shape));
+            let start = end;
+            end += ids.len();
+            // Longer only while the world grows: last tick's shapes are overwritten.
+            if shapes_now.len() < end {
+                shapes_now.resize(end, Shape::NONE);
+            }
+            let chunks = parallelism.chunks_for(ids.len());
+            shape_parts.iter_mut().for_each(|p| *p = ShapeSummary::default());
+            parallelism.for_each_chunk_at(&mut shapes_now[start..end], &mut shape_parts, |k0, chunk, part| {
+                for (k, shape) in chunk.iter_mut().enumerate() {
+                    *shape = Shape::of(radars.map(|r| &r[k0 + k]), velodynes.map(|v| &v[k0 + k]));
+                    part.add(shape);
+                }
+            });
+            shape_parts.iter().take(chunks).for_each(|part| summary.then(part));
         }
-        ranges.extend(neighbours.shapes_now.iter().map(Shape::range).filter(bounded));
+        shapes_now.truncate(end);
+        cell = summary.typical();
+        if cell.is_none() {
+            ranges.extend(shapes_now.iter().map(Shape::range).filter(bounded));
+        }
     } else {
+        neighbours.shapes_now.clear();
         ranges.extend(
             sensing
                 .iter()
@@ -1344,7 +1417,7 @@ pub fn sense_vehicles(
             Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw: state.yaw }
         }));
     }
-    let cell = typical_range(&mut ranges);
+    let cell = cell.unwrap_or_else(|| typical_range(&mut ranges));
     let entry = |i: usize, id: VehicleId, state: &VehicleState| GridEntry {
         position: state.position,
         velocity: state.velocity,
@@ -1368,7 +1441,7 @@ pub fn sense_vehicles(
             return None;
         }
         // The ranges gathered above are this one table's.
-        neighbours.shapes_now.iter().all(|s| s.range().is_finite()).then_some(Everyone { ids, states })
+        summary.finite.then_some(Everyone { ids, states })
     });
     let draws = Draws::new(seed.map_or(0, |s| s.0), clock.now.0);
     if let Some(everyone) = listed {
@@ -1476,6 +1549,44 @@ impl Plugin for SensorsPlugin {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shapes_summed_up_in_any_chunks_give_the_typical_range_of_all_of_them() {
+        let shape = |radar: f64, velodyne: f64| Shape { radar, angle: 1.0, velodyne };
+        let cases: Vec<Vec<Shape>> = vec![
+            vec![shape(100.0, 50.0); 7],
+            vec![shape(0.0, 0.0), shape(100.0, 50.0), shape(0.0, 0.0), shape(40.0, 100.0)],
+            vec![shape(100.0, 50.0), shape(100.0, 50.0), shape(30.0, 20.0), shape(100.0, 0.0), shape(0.0, 70.0)],
+            vec![shape(0.0, 0.0); 3],
+            vec![shape(100.0, 50.0), shape(f64::INFINITY, 0.0), shape(100.0, 0.0)],
+            vec![shape(100.0, 0.0), shape(100.0, 0.0), shape(30.0, 0.0), shape(30.0, 0.0), shape(0.0, 30.0)],
+            vec![],
+        ];
+        for shapes in cases {
+            let mut ranges: Vec<f64> = shapes.iter().map(Shape::range).filter(|r| *r > 0.0 && r.is_finite()).collect();
+            let expected = typical_range(&mut ranges);
+            let finite = shapes.iter().all(|s| s.range().is_finite());
+            // Chunks of every size, and two chunks split at every place.
+            let fixed = (1..=shapes.len().max(1)).map(|cut| shapes.chunks(cut).collect::<Vec<_>>());
+            let split = (0..=shapes.len()).map(|k| vec![&shapes[..k], &shapes[k..]]);
+            for chunks in fixed.chain(split) {
+                let cut = chunks.iter().map(|c| c.len()).collect::<Vec<_>>();
+                let mut summary = ShapeSummary::default();
+                for chunk in chunks {
+                    let mut part = ShapeSummary::default();
+                    chunk.iter().for_each(|s| part.add(s));
+                    summary.then(&part);
+                    summary.then(&ShapeSummary::default());
+                }
+                assert_eq!(summary.finite, finite, "{shapes:?} in chunks of {cut:?}");
+                if let Some(cell) = summary.typical() {
+                    assert_eq!(cell, expected, "{shapes:?} in chunks of {cut:?}");
+                } else {
+                    assert!(ranges.iter().any(|r| *r != ranges[0]), "only mixed ranges leave it to the median");
+                }
+            }
+        }
+    }
 
     #[test]
     fn the_neighbour_lists_are_kept_while_the_vehicles_move_together_and_built_again_when_two_close_in() {
