@@ -413,16 +413,13 @@ struct Applying<'a> {
     t: f64,
 }
 
-/// The [`LaneIndex`] entry of a vehicle on no lanelet (left out of the index).
-const NOT_ON_A_LANELET: IndexEntry =
-    IndexEntry { lanelet: u32::MAX, s: 0.0, speed: 0.0, length: 0.0, id: VehicleId(0) };
-
-/// A vehicle's [`LaneIndex`] entry on its own lanelet ([`NOT_ON_A_LANELET`] when on none).
+/// A vehicle's [`LaneIndex`] entry on its own lanelet ([`IndexEntry::NOT_ON_A_LANELET`] when
+/// on none).
 #[inline(always)]
 fn index_entry(id: VehicleId, size: &VehicleSize, pos: &LanePosition) -> IndexEntry {
     match pos.on() {
         Some(i) => IndexEntry { lanelet: i, s: pos.s, speed: pos.speed, length: size.length, id },
-        None => NOT_ON_A_LANELET,
+        None => IndexEntry::NOT_ON_A_LANELET,
     }
 }
 
@@ -488,7 +485,7 @@ pub fn decide_lane_changes(
     // The index: every vehicle on its lanelet (with the speed found with its position at the
     // start of this control tick: no trigonometry here), a crossing one on the other lane too.
     // Table by table, straight in the ECS tables' slices and split over the threads; a vehicle
-    // on no lanelet gets an entry on none (`NOT_ON_A_LANELET`), which the index leaves out. The
+    // on no lanelet gets an entry on none (`IndexEntry::NOT_ON_A_LANELET`), which the index leaves out. The
     // entries' order does not matter: the index sorts them.
     let lanelets = lanes.map.lanelets.len();
     match all.contiguous_iter() {
@@ -499,7 +496,7 @@ pub fn decide_lane_changes(
                 end += ids.len();
                 // Longer only while the world grows: last tick's entries are overwritten.
                 if entries.len() < end {
-                    entries.resize(end, NOT_ON_A_LANELET);
+                    entries.resize(end, IndexEntry::NOT_ON_A_LANELET);
                 }
                 parallelism.for_each_chunk_at(&mut entries[start..end], &mut index_scratch, |k0, chunk, _| {
                     for (k, e) in chunk.iter_mut().enumerate() {

@@ -296,6 +296,12 @@ pub struct IndexEntry {
     pub id: VehicleId,
 }
 
+impl IndexEntry {
+    /// An entry on no lanelet, which [`LaneIndex::rebuild`] leaves out.
+    pub const NOT_ON_A_LANELET: IndexEntry =
+        IndexEntry { lanelet: u32::MAX, s: 0.0, speed: 0.0, length: 0.0, id: VehicleId(0) };
+}
+
 /// `list.partition_point(|e| e.s < s)` for a lanelet's entries (sorted by arc length, the
 /// lanelet `length` [m] long): the first entry at or after `s`. Traffic spreads along a lanelet,
 /// so the place in proportion to `s / length` is a few entries off: walk from there (in cache)
@@ -367,8 +373,8 @@ fn sort_nearly_sorted(list: &mut [IndexEntry]) {
 pub struct LaneIndex {
     entries: Vec<IndexEntry>,
     starts: Vec<u32>,
-    counts: Vec<u32>,
-    /// Where the next entry of each lanelet goes while [`LaneIndex::rebuild`] fills `entries`.
+    /// Each lanelet's count, then where its next entry goes, while [`LaneIndex::rebuild`] fills
+    /// `entries`.
     fill: Vec<u32>,
 }
 
@@ -412,25 +418,24 @@ impl LaneIndex {
     /// (each lanelet's order depends on its entries only, so any split gives the same index).
     /// Allocation free once the buffers have grown.
     pub fn rebuild(&mut self, parallelism: Parallelism, lanelets: usize, items: &[IndexEntry]) {
-        let LaneIndex { entries, starts, counts, fill } = self;
-        counts.clear();
-        counts.resize(lanelets, 0);
+        let LaneIndex { entries, starts, fill } = self;
+        // Each lanelet's count in `fill`, then where its entries start.
+        fill.clear();
+        fill.resize(lanelets, 0);
         for e in items {
-            if let Some(c) = counts.get_mut(e.lanelet as usize) {
+            if let Some(c) = fill.get_mut(e.lanelet as usize) {
                 *c += 1;
             }
         }
         starts.clear();
         let mut acc = 0;
-        for &c in counts.iter() {
+        for c in fill.iter_mut() {
             starts.push(acc);
-            acc += c;
+            acc += std::mem::replace(c, acc);
         }
         starts.push(acc);
         // Every place is written below: no need to clear what the last tick left.
-        entries.resize(acc as usize, IndexEntry { lanelet: 0, s: 0.0, speed: 0.0, length: 0.0, id: VehicleId(0) });
-        fill.clear();
-        fill.extend_from_slice(&starts[..lanelets]);
+        entries.resize(acc as usize, IndexEntry::NOT_ON_A_LANELET);
         for e in items {
             if let Some(k) = fill.get_mut(e.lanelet as usize) {
                 entries[*k as usize] = *e;
