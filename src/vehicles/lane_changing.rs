@@ -404,13 +404,11 @@ struct ChangerTable<'a> {
 
 /// What the serial part of [`decide_lane_changes`] writes besides the vehicles' own components.
 struct Applying<'a> {
-    lanes: &'a LaneMap,
     paths: &'a mut LanePaths,
     log: &'a mut LaneChangeLog,
     signals: &'a mut LaneSignals,
     claims: &'a mut Claims,
     limits: &'a mut LaneChangeLimits,
-    t: f64,
 }
 
 /// A vehicle's [`LaneIndex`] entry on its own lanelet ([`IndexEntry::NOT_ON_A_LANELET`] when
@@ -533,15 +531,8 @@ pub fn decide_lane_changes(
     claims.0.clear();
 
     let shared = Shared { lanes, index: &index, signals: &last_signals, t, dt, tick };
-    let mut apply = Applying {
-        lanes,
-        paths: &mut paths,
-        log: &mut log,
-        signals: &mut signals,
-        claims: &mut claims,
-        limits: &mut limits,
-        t,
-    };
+    let mut apply =
+        Applying { paths: &mut paths, log: &mut log, signals: &mut signals, claims: &mut claims, limits: &mut limits };
     // Table by table, straight in the ECS tables' slices. Evaluations read only the index and
     // the vehicle's own components, so doing one table's serial part before the next table's
     // evaluations keeps the order of the serial part (query order) and the results.
@@ -617,7 +608,8 @@ fn decide_table(
             }
         }
     });
-    let Applying { lanes, ref mut paths, ref mut log, ref mut signals, ref mut claims, ref mut limits, t } = *apply;
+    let Applying { ref mut paths, ref mut log, ref mut signals, ref mut claims, ref mut limits } = *apply;
+    let (lanes, t) = (shared.lanes, shared.t);
     for (k, decision) in scratch.iter_mut().flat_map(|out| out.decisions.drain(..)) {
         let (state, size, pos) = (&states[k], &sizes[k], &positions[k]);
         let (route, follower, ch) = (&mut routes[k], &mut followers[k], &mut chs[k]);
