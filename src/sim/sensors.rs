@@ -977,7 +977,7 @@ impl ShapeSummary {
     fn add(&mut self, shape: &Shape) {
         let r = shape.range();
         self.finite &= r.is_finite();
-        if r > 0.0 && r.is_finite() {
+        if bounded(&r) {
             match self.first {
                 None => self.first = Some(r.to_bits()),
                 Some(bits) => self.uniform &= bits == r.to_bits(),
@@ -1311,6 +1311,12 @@ fn sense_listed(
     }
 }
 
+/// Whether a sensor range `r` [m] bounds what the sensor sees (positive and finite): the ranges
+/// [`typical_range`] takes the median of.
+fn bounded(r: &f64) -> bool {
+    *r > 0.0 && r.is_finite()
+}
+
 /// Side of the sensor grid's cells [m]: the median of the sensing vehicles' positive ranges
 /// (100 m when none has one). `ranges` is scratch space, reused between ticks.
 fn typical_range(ranges: &mut [f64]) -> f64 {
@@ -1367,7 +1373,6 @@ pub fn sense_vehicles(
     ranges.clear();
     let mut occlusion = false;
     let occludes = |e: &SensorErrors| e.radar.occlusion || e.velodyne.occlusion;
-    let bounded = |r: &f64| *r > 0.0 && r.is_finite();
     // Every sensing vehicle's sensors in query order (what the neighbour lists keep), and the
     // bounded ranges (for the typical range).
     let mut summary = ShapeSummary::default();
@@ -1440,7 +1445,7 @@ pub fn sense_vehicles(
         if full.next().is_some() || omniscient || sensing_ids != ids {
             return None;
         }
-        // The ranges gathered above are this one table's.
+        // The shapes summed up above are this one table's.
         summary.finite.then_some(Everyone { ids, states })
     });
     let draws = Draws::new(seed.map_or(0, |s| s.0), clock.now.0);
@@ -1563,7 +1568,7 @@ mod tests {
             vec![],
         ];
         for shapes in cases {
-            let mut ranges: Vec<f64> = shapes.iter().map(Shape::range).filter(|r| *r > 0.0 && r.is_finite()).collect();
+            let mut ranges: Vec<f64> = shapes.iter().map(Shape::range).filter(bounded).collect();
             let expected = typical_range(&mut ranges);
             let finite = shapes.iter().all(|s| s.range().is_finite());
             // Chunks of every size, and two chunks split at every place.
