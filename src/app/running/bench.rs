@@ -394,6 +394,11 @@ pub struct BenchReport {
     pub v2v: BenchV2v,
     /// What the sensors detected and missed (as `summary.json`'s `metrics.sensors`).
     pub sensor_stats: SensorStats,
+    /// Lane changes ended during the run (aborted ones included), with `--lane-change`; `None`
+    /// without. The evidence of what a `--lane-change` figure holds: every vehicle weighs MOBIL
+    /// every control tick either way, and on the bench's evenly spaced start the first changes
+    /// come only after vehicles of different desired speeds have closed up (none in 10 sim s).
+    pub lane_changes: Option<u64>,
 }
 
 /// One channel's receptions in a benchmark run.
@@ -532,6 +537,9 @@ impl BenchWorld {
                 BenchV2v { wifi: (&c.wifi).into(), network: (&c.network).into() }
             },
             sensor_stats: *sim.world().resource::<SensorStats>(),
+            lane_changes: self
+                .lane_change
+                .then(|| sim.world().get_resource::<LaneChangeLog>().map_or(0, |log| log.count() as u64)),
         })
     }
 }
@@ -678,6 +686,18 @@ mod tests {
         // One loop per lane, whatever lanelet the changes happened at (each is a whole lane).
         let paths = sim.world().resource::<crate::vehicles::lane_changing::LanePaths>();
         assert!(paths.cached() <= 3, "{} lane paths kept for a 3-lane ring", paths.cached());
+    }
+
+    #[test]
+    fn the_report_counts_the_lane_changes_of_a_lane_change_run_and_none_without() {
+        let plain = BenchWorld { vehicles: 300, ..Default::default() };
+        let changing = BenchWorld { lane_change: true, ..plain };
+        let single = Some(Parallelism::single());
+        let (p, c) = (plain.run(1.0, single).expect("runs"), changing.run(60.0, single).expect("runs"));
+        assert_eq!(p.lane_changes, None);
+        assert!(c.lane_changes.is_some_and(|n| n > 0), "lane changes {:?}", c.lane_changes);
+        let json = serde_json::to_value(&c).expect("the report serialises");
+        assert_eq!(json["lane_changes"].as_u64(), c.lane_changes);
     }
 
     #[test]
