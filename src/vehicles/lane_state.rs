@@ -152,16 +152,22 @@ pub enum ChangeKind {
 }
 
 /// A lane change in progress.
+///
+/// `repr(C)` with the one-byte fields first: `Option<Manoeuvre>`'s "none" lives in the first of
+/// them, so the per-tick test for a change under way reads [`LaneChanger`]'s hot lines only.
 #[derive(Debug, Clone, PartialEq)]
+#[repr(C)]
 pub struct Manoeuvre {
-    /// Lanelet left (of the change as first intended).
-    pub from: LaneletId,
-    /// Lanelet aimed at (of the change as first intended).
-    pub to: LaneletId,
     /// Direction as first intended.
     pub direction: Side,
     /// Why.
     pub kind: ChangeKind,
+    /// Whether it is being aborted (driving back).
+    pub aborted: bool,
+    /// Lanelet left (of the change as first intended).
+    pub from: LaneletId,
+    /// Lanelet aimed at (of the change as first intended).
+    pub to: LaneletId,
     /// Lateral profile: the offset from the route goes from `start_offset` to 0.
     pub profile: LaneChangeProfile,
     /// Offset from the (new) route at the start [m], positive left.
@@ -174,8 +180,6 @@ pub struct Manoeuvre {
     pub old_s: f64,
     /// Start time [s].
     pub t_start: f64,
-    /// Whether it is being aborted (driving back).
-    pub aborted: bool,
     /// Largest lateral acceleration of the profile so far, v² |d''(s)| [m/s²].
     pub peak_lateral_accel: f64,
     /// Speed cap while changing [m/s] (the profile was sized for it).
@@ -200,20 +204,21 @@ impl Manoeuvre {
 }
 
 /// Per-vehicle lane-change state (the `lane_change` table of a scenario vehicle).
+///
+/// Laid out in field order (`repr(C)`): what [`decide_lane_changes`](super::lane_changing::decide_lane_changes)
+/// reads or clears for every vehicle every control tick first (the first four cache lines, up to
+/// and including whether a change is under way), what only a weighed gap or a manoeuvre reads
+/// after (the goal, the law, the manoeuvre's body). In the compiler's order those fields lay
+/// spread over all seven lines of the 392 bytes.
 #[derive(Component, Debug, Clone, PartialEq)]
+#[repr(C)]
 pub struct LaneChanger {
     /// Parameters.
     pub params: LaneChangeParams,
-    /// The longitudinal law MOBIL evaluates.
-    pub law: FollowLaw,
-    /// Where the route goes.
-    pub goal: RouteGoal,
-    /// A change asked for from outside, carried out when safe (cleared when done or refused).
-    pub request: Option<Side>,
-    /// The change in progress.
-    pub active: Option<Manoeuvre>,
     /// End time of the last change [s].
     pub last_change: f64,
+    /// Which lanelets reach the goal (looked up once, shared by every vehicle with this goal).
+    pub(super) reach: Option<Arc<Vec<bool>>>,
     /// A slower vehicle in the target lane to fall behind while a mandatory change waits: (gap [m], speed [m/s]).
     pub virtual_leader: Option<(f64, f64)>,
     /// A neighbour signalling a mandatory change in our gap: (gap [m], speed [m/s]).
@@ -222,6 +227,9 @@ pub struct LaneChanger {
     pub lane_end: Option<f64>,
     /// While crossing: the vehicles ahead in both lanes, (gap [m], speed [m/s]) each.
     pub crossing_leaders: [Option<(f64, f64)>; 2],
+    pub(super) wait_since: Option<f64>,
+    /// A change asked for from outside, carried out when safe (cleared when done or refused).
+    pub request: Option<Side>,
     /// A side no discretionary change may go to now, set each tick by a cooperative plugin (a
     /// vehicle does not move into the lane of an emergency vehicle coming up behind it).
     pub keep_out: Option<Side>,
@@ -235,10 +243,13 @@ pub struct LaneChanger {
     /// Abort the change in progress back to the old lane if it is not halfway yet (set by a
     /// cooperative plugin, taken once by the plugin).
     pub abort: bool,
-    pub(super) wait_since: Option<f64>,
     pub(super) missed: bool,
-    /// Which lanelets reach the goal (looked up once, shared by every vehicle with this goal).
-    pub(super) reach: Option<Arc<Vec<bool>>>,
+    /// The change in progress.
+    pub active: Option<Manoeuvre>,
+    /// Where the route goes.
+    pub goal: RouteGoal,
+    /// The longitudinal law MOBIL evaluates.
+    pub law: FollowLaw,
 }
 
 impl LaneChanger {
@@ -580,6 +591,51 @@ mod tests {
                 assert!(index.on(lanelets as u32).is_empty());
             }
         }
+    }
+
+    #[test]
+    fn what_every_tick_reads_of_a_lane_changer_lies_in_its_first_four_cache_lines() {
+        use std::mem::offset_of;
+        // (offset, size) of every field the evaluation reads or clears for every vehicle.
+        let hot = [
+            (offset_of!(LaneChanger, params), size_of::<LaneChangeParams>()),
+            (offset_of!(LaneChanger, last_change), 8),
+            (offset_of!(LaneChanger, reach), 8),
+            (offset_of!(LaneChanger, virtual_leader), 24),
+            (offset_of!(LaneChanger, yield_to), 24),
+            (offset_of!(LaneChanger, lane_end), 16),
+            (offset_of!(LaneChanger, crossing_leaders), 48),
+            (offset_of!(LaneChanger, wait_since), 16),
+            (offset_of!(LaneChanger, request), 1),
+            (offset_of!(LaneChanger, keep_out), 1),
+            (offset_of!(LaneChanger, hold), 1),
+            (offset_of!(LaneChanger, abort), 1),
+            (offset_of!(LaneChanger, missed), 1),
+            // Whether a change is under way: `Option<Manoeuvre>`'s "none" is in its first byte.
+            (offset_of!(LaneChanger, active), 1),
+        ];
+        for (k, (offset, size)) in hot.into_iter().enumerate() {
+            assert!(offset + size <= 256, "field {k} at {offset}..{}", offset + size);
+        }
+        let none: Option<Manoeuvre> = None;
+        let first = |m: &Option<Manoeuvre>| unsafe { *(m as *const Option<Manoeuvre>).cast::<u8>() };
+        let some = Some(Manoeuvre {
+            direction: Side::Left,
+            kind: ChangeKind::Discretionary,
+            aborted: false,
+            from: LaneletId(1),
+            to: LaneletId(2),
+            profile: super::super::lane_change::LaneChangeProfile { offset: 3.5, length: 40.0 },
+            start_offset: 3.5,
+            s_start: 0.0,
+            old_route: Arc::new(Path::from_points(vec![LaneletId(1)], vec![glam::DVec2::ZERO, glam::DVec2::X], false)),
+            old_s: 0.0,
+            t_start: 0.0,
+            peak_lateral_accel: 0.0,
+            speed_cap: 20.0,
+        });
+        let other = Some(Manoeuvre { direction: Side::Right, aborted: true, ..some.clone().unwrap() });
+        assert!(first(&none) != first(&some) && first(&none) != first(&other), "none is told in the first byte");
     }
 
     fn entry(s: f64) -> IndexEntry {
