@@ -965,11 +965,14 @@ pub struct ShapeSummary {
     first: Option<u64>,
     uniform: bool,
     finite: bool,
+    /// Every shape equals the one at its place in the neighbour lists' last build (their
+    /// [`NeighbourLists::hold`] compared the whole slice again, serially, every sensor tick).
+    as_built: bool,
 }
 
 impl Default for ShapeSummary {
     fn default() -> Self {
-        ShapeSummary { first: None, uniform: true, finite: true }
+        ShapeSummary { first: None, uniform: true, finite: true, as_built: true }
     }
 }
 
@@ -988,6 +991,7 @@ impl ShapeSummary {
     /// This run followed by `next`.
     fn then(&mut self, next: &ShapeSummary) {
         self.finite &= next.finite;
+        self.as_built &= next.as_built;
         match (self.first, next.first) {
             (None, _) => (self.first, self.uniform) = (next.first, next.uniform),
             (Some(_), None) => {}
@@ -1138,16 +1142,19 @@ impl NeighbourLists {
     /// Whether the lists still hold every vehicle within sensor range of each: the same
     /// vehicles in the same order, the same sensors, wifi range and skin, and the vehicles moved
     /// together ([`NeighbourLists::moved_together`], on `parallelism`, with its `scratch`).
+    ///
+    /// `shapes_as_built`: whether this tick's shapes are the build's (`self.shapes`), found by
+    /// the pass that made them ([`ShapeSummary`]).
     fn hold(
         &self,
         everyone: Everyone<'_>,
-        (shapes, floor, skin): (&[Shape], f64, f64),
+        (shapes_as_built, floor, skin): (bool, f64, f64),
         parallelism: Parallelism,
         scratch: &mut DriftScratch,
     ) -> bool {
         self.skin == skin
             && self.floor == floor
-            && self.shapes == shapes
+            && shapes_as_built
             && self.moved_together(everyone, parallelism, scratch)
     }
 
@@ -1380,7 +1387,7 @@ pub fn sense_vehicles(
     if let Ok(tables) = sensing.as_readonly().contiguous_iter() {
         // Table by table, over the components' slices, split over the threads (a serial pass
         // every sensor tick before); each chunk sums up its shapes, merged in chunk order.
-        let shapes_now = &mut neighbours.shapes_now;
+        let (shapes_now, built) = (&mut neighbours.shapes_now, &neighbours.lists.shapes);
         let mut end = 0;
         for (ids, _, radars, velodynes, _, errors, _) in tables {
             occlusion |= errors.is_some_and(|e| e.iter().any(occludes));
@@ -1393,20 +1400,24 @@ pub fn sense_vehicles(
             let chunks = parallelism.chunks_for(ids.len());
             shape_parts.iter_mut().for_each(|p| *p = ShapeSummary::default());
             parallelism.for_each_chunk_at(&mut shapes_now[start..end], &mut shape_parts, |k0, chunk, part| {
+                let was = built.get(start + k0..).unwrap_or(&[]);
                 for (k, shape) in chunk.iter_mut().enumerate() {
                     *shape = Shape::of(radars.map(|r| &r[k0 + k]), velodynes.map(|v| &v[k0 + k]));
                     part.add(shape);
+                    part.as_built &= was.get(k) == Some(shape);
                 }
             });
             shape_parts.iter().take(chunks).for_each(|part| summary.then(part));
         }
         shapes_now.truncate(end);
+        summary.as_built &= built.len() == end;
         cell = summary.typical();
         if cell.is_none() {
             ranges.extend(shapes_now.iter().map(Shape::range).filter(bounded));
         }
     } else {
         neighbours.shapes_now.clear();
+        summary.as_built = neighbours.lists.shapes.is_empty();
         ranges.extend(
             sensing
                 .iter()
@@ -1454,7 +1465,7 @@ pub fn sense_vehicles(
         let n = neighbours.shapes_now.len();
         let floor = asked.map_or(0.0, |f| f.0);
         let Neighbours { lists, shapes_now, drift, keys } = neighbours;
-        let build = !lists.hold(everyone, (shapes_now, floor, skin), *parallelism, drift);
+        let build = !lists.hold(everyone, (summary.as_built, floor, skin), *parallelism, drift);
         if build {
             grid.rebuild_on(*parallelism, cell + skin, n, |i| entry(i, everyone.ids[i], &everyone.states[i]));
             lists.ids.clear();
@@ -1680,6 +1691,41 @@ mod tests {
         let mut listed: Vec<i32> = lists.lists.of(place).iter().map(|&j| lists.ids[j as usize].0).collect();
         listed.sort_unstable();
         assert_eq!(listed, [8, 9, 11, 12, 13, 14]);
+    }
+
+    #[test]
+    fn a_sensor_changed_in_any_chunk_builds_the_lists_again_on_any_thread_count() {
+        use crate::world::{SensorSet, VehicleModel, VehicleSpec};
+        // The shapes pass tells whether this tick's sensors are the build's, chunk by chunk: a
+        // change in the first, a middle or the last chunk, or one vehicle more, must be seen.
+        for threads in [1, 2, 3] {
+            for changed in [0, 31, 59] {
+                let mut b = SimBuilder::new();
+                b.add_plugin(SensorsPlugin);
+                b.insert_resource(Parallelism::split(threads));
+                for k in 0..60 {
+                    let state = VehicleState::new(DVec2::new(30.0 * f64::from(k), 0.0), 0.0, 0.0);
+                    let mut spec = VehicleSpec::new(VehicleId(k), state);
+                    spec.model = VehicleModel::None;
+                    let (radar, velodyne) = (Some(Radar::default()), Some(Velodyne::default()));
+                    spec.sensors = SensorSet { radar, velodyne, omniscient: false };
+                    b.spawn_vehicle(spec).expect("unique ids");
+                }
+                let mut sim = b.build();
+                let builds = |sim: &crate::sim::Sim| sim.world().resource::<SensorGrid>().neighbours.lists.builds;
+                sim.run_for(0.2);
+                assert_eq!(builds(&sim), 1, "{threads} threads: nobody moved");
+                let e = sim.entity(VehicleId(changed)).expect("vehicle");
+                sim.world_mut().get_mut::<Radar>(e).expect("radar").range = 120.0;
+                sim.run_for(0.05);
+                assert_eq!(builds(&sim), 2, "{threads} threads, vehicle {changed}'s radar longer");
+                sim.run_for(0.2);
+                assert_eq!(builds(&sim), 2, "{threads} threads, vehicle {changed}: the same again");
+                sim.world_mut().get_mut::<Velodyne>(e).expect("velodyne").range = 49.0;
+                sim.run_for(0.05);
+                assert_eq!(builds(&sim), 3, "{threads} threads, vehicle {changed}'s velodyne shorter");
+            }
+        }
     }
 
     #[test]

@@ -29,9 +29,10 @@ use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems}
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
 use super::lane_change::{LaneChangeProfile, Mobil, MobilDecision, Seen, Surroundings, mobil_decision};
-use super::lanes::{LaneMap, LanePosition};
+use super::lanes::{LaneMap, LanePosition, PREFETCH_AHEAD};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, SteeringSystems};
 use super::path_following::PathFollower;
+use crate::sim::parallel::prefetch;
 
 /// Keep-right bias Δa_bias [m/s²] of MOBIL's asymmetric rule: a change to the left needs this
 /// much more incentive, a change to the right this much less (Kesting et al. 2007, section 3).
@@ -595,8 +596,18 @@ fn decide_table(
     // the vehicles [`limit_for_lane_changes`] may have to slow: those with a limit set by the
     // evaluation, or a decision the serial part may turn into a manoeuvre.
     parallelism.for_each_chunk_triple_at(routes, followers, chs, scratch, |start, routes, followers, chs, out| {
+        // The changers a few places on: the evaluation reads the first lines of each (see
+        // `LaneChanger`'s layout); a miss on them was most of its samples.
+        let ahead = chs.as_ptr();
+        let len = chs.len();
         for (k, ((route, follower), ch)) in routes.iter_mut().zip(followers.iter_mut()).zip(chs.iter_mut()).enumerate()
         {
+            if k + PREFETCH_AHEAD < len {
+                let bytes = ahead.wrapping_add(k + PREFETCH_AHEAD).cast::<u8>();
+                for line in [0, 64, 128, 192, LaneChanger::HOT_BYTES - 1] {
+                    prefetch(bytes.wrapping_add(line));
+                }
+            }
             let n = start + k;
             let mut decision = Decision::default();
             evaluate(shared, ids[n], &states[n], &sizes[n], &positions[n], route, follower, ch, &mut decision);

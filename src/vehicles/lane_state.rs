@@ -253,6 +253,10 @@ pub struct LaneChanger {
 }
 
 impl LaneChanger {
+    /// The leading bytes of a changer that the evaluation reads every control tick (every field
+    /// up to and including the first byte of `active`).
+    pub const HOT_BYTES: usize = std::mem::offset_of!(LaneChanger, active) + 1;
+
     /// The turn signal others see: on the side of the change in progress (an aborted change
     /// drives back, so the side it goes now), off without one.
     pub fn signal(&self) -> TurnSignal {
