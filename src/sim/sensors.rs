@@ -31,8 +31,8 @@ use std::f64::consts::{PI, TAU};
 
 use super::{Plugin, SimBuilder};
 use crate::world::{
-    Detection, Omniscient, Radar, SensorError, SensorErrors, SensorReadings, VehicleId, VehicleSize, VehicleState,
-    Velodyne,
+    Detection, Omniscient, Radar, SensorError, SensorErrors, SensorReadings, SimTime, VehicleId, VehicleSize,
+    VehicleState, Velodyne,
 };
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
@@ -864,6 +864,11 @@ struct NeighbourLists {
     max_drift: f64,
     /// Builds so far.
     builds: u64,
+    /// The instant the sensors last found the lists to hold (or built them) for the vehicles'
+    /// states then. States change only in the dynamics, at the end of an instant (after sensing,
+    /// communication and control, see [`crate::vehicles::LanePositionsAt`]), so the lists hold
+    /// for every module at that instant: the wifi round then need not test the drift again.
+    held_at: Option<SimTime>,
 }
 
 /// Per drift cell, the smallest and largest displacement since the build of its vehicles along
@@ -1123,18 +1128,23 @@ impl SensorGrid {
     /// closed in by the skin since they were built ([`NeighbourLists::moved_together`], on
     /// `parallelism`, with its `scratch`). For modules that look around the vehicles at the
     /// same instant as the sensors (the wifi round), so that one search serves both.
+    ///
+    /// At the instant `now` of a sensor tick that found them holding (or built them), only that
+    /// the vehicles are the build's is checked: the states are the ones the sensors tested.
     pub(crate) fn lists_within(
         &self,
         ids: &[VehicleId],
         states: &[VehicleState],
         range: f64,
-        parallelism: Parallelism,
+        (parallelism, now): (Parallelism, SimTime),
         scratch: &mut DriftScratch,
     ) -> Option<&Lists> {
         let lists = &self.neighbours.lists;
         // `moved_together` also checks that these are the vehicles of the build (one list each).
         let wide = lists.skin > 0.0 && lists.around >= range;
-        (wide && lists.moved_together(Everyone { ids, states }, parallelism, scratch)).then_some(&lists.lists)
+        let tested = || lists.held_at == Some(now) && lists.ids == ids && states.len() == lists.anchors.len();
+        (wide && (tested() || lists.moved_together(Everyone { ids, states }, parallelism, scratch)))
+            .then_some(&lists.lists)
     }
 }
 
@@ -1510,6 +1520,7 @@ pub fn sense_vehicles(
             }
             debug_assert_eq!(starts.len(), n + 1);
         }
+        lists.held_at = Some(clock.now);
     } else {
         match one_table {
             Some((ids, states, _)) => {
@@ -1726,6 +1737,45 @@ mod tests {
                 assert_eq!(builds(&sim), 3, "{threads} threads, vehicle {changed}'s velodyne shorter");
             }
         }
+    }
+
+    #[test]
+    fn at_the_instant_the_sensors_tested_the_lists_the_wifi_round_takes_them_without_testing_again() {
+        use crate::world::{SensorSet, VehicleModel, VehicleSpec};
+        let mut b = SimBuilder::new();
+        b.add_plugin(SensorsPlugin);
+        for k in 0..50 {
+            let state = VehicleState::new(DVec2::new(30.0 * f64::from(k), 0.0), 0.0, 0.0);
+            let mut spec = VehicleSpec::new(VehicleId(k), state);
+            spec.model = VehicleModel::None;
+            let (radar, velodyne) = (Some(Radar::default()), Some(Velodyne::default()));
+            spec.sensors = SensorSet { radar, velodyne, omniscient: false };
+            b.spawn_vehicle(spec).expect("unique ids");
+        }
+        let mut sim = b.build();
+        sim.run_for(0.12);
+        let mut query = sim.world_mut().query::<(&VehicleId, &VehicleState)>();
+        let (ids, mut states): (Vec<VehicleId>, Vec<VehicleState>) =
+            query.iter(sim.world()).map(|(id, state)| (*id, *state)).unzip();
+        let grid = sim.world().resource::<SensorGrid>();
+        let tested = grid.neighbours.lists.held_at.expect("the sensors tested the lists");
+        let later = SimTime(tested.0 + 1);
+        let mut scratch = DriftScratch::default();
+        let mut within = |ids: &[VehicleId], states: &[VehicleState], now| {
+            grid.lists_within(ids, states, 10.0, (Parallelism::single(), now), &mut scratch).is_some()
+        };
+        assert!(within(&ids, &states, tested), "as the sensors left them");
+        assert!(within(&ids, &states, later), "nobody moved: they hold at any instant");
+        // Vehicle 7 25 m on (more than the 20 m skin): at the sensors' instant the states are
+        // the ones they tested (only the dynamics moves vehicles, after every other module), so
+        // no drift test; at any other instant the drift test finds the lists stale.
+        states[7].position.x += 25.0;
+        assert!(within(&ids, &states, tested), "the sensors' instant: taken without a test");
+        assert!(!within(&ids, &states, later), "another instant: tested, and stale");
+        let mut swapped = ids.clone();
+        swapped.swap(3, 4);
+        assert!(!within(&swapped, &states, tested), "other vehicles than the build's");
+        assert!(!within(&ids[1..], &states[1..], tested), "fewer vehicles than the build's");
     }
 
     #[test]

@@ -973,7 +973,7 @@ pub fn deliver_wifi(
         if full.next().is_some() {
             return None;
         }
-        sensor_grid.lists_within(ids?, states, config.wifi_range, parallelism, &mut s.drift)
+        sensor_grid.lists_within(ids?, states, config.wifi_range, (parallelism, now), &mut s.drift)
     });
     let senders = &s.senders;
     if let Some(lists) = nearby {
