@@ -376,29 +376,90 @@ fn into_batch(buffer: &mut Vec<Message>) -> Arc<[Message]> {
 }
 
 /// The batch of a round whose messages are `buffer`'s then the `chunks`' (in query order),
-/// sorted by sender id as [`into_batch`] sorts them. When they are sorted already (the chunks
-/// alone, in order: one table whose vehicles came in id order, the common case) they are moved
-/// once, straight into the batch, rather than into `buffer` and from there into the batch: one
-/// copy of the round's messages (400 kB at 10,000 vehicles) fewer, on the main thread.
-fn join_batch(chunks: &mut [Outgoing], buffer: &mut Vec<Message>) -> Arc<[Message]> {
-    let sorted = buffer.is_empty() && chunks.iter().flat_map(|c| &c.messages).is_sorted_by_key(|m| m.sender);
-    if !sorted {
+/// sorted by sender id as [`into_batch`] sorts them; the round's senders (`senders`' then the
+/// chunks') end in `senders`, sorted by id.
+///
+/// When the round came from one table (`buffer` and `senders` empty) with its senders in id
+/// order, or in reverse id order with one message each (vehicles spawned with ids -1, -2, ...,
+/// as the benchmark's), each chunk moves its messages and senders straight into its own
+/// stretch of the batch and of `senders` (from the end, reversed, for the latter), the chunks
+/// side by side on `parallelism`: no copy through `buffer`, no sort. Those copies (400 kB of
+/// messages twice, 320 kB of senders, at 10,000 vehicles) and the sorts were the largest
+/// serial stretch of a wifi round. Else everything is appended and sorted (stable).
+fn join_batch(
+    chunks: &mut [Outgoing],
+    buffer: &mut Vec<Message>,
+    senders: &mut Vec<Sender>,
+    parallelism: Parallelism,
+) -> Arc<[Message]> {
+    let order = (buffer.is_empty() && senders.is_empty()).then(|| round_order(chunks)).flatten();
+    let Some(rising) = order else {
         for chunk in chunks {
             buffer.append(&mut chunk.messages);
+            senders.append(&mut chunk.senders);
         }
+        senders.sort_by_key(|sender| sender.id);
         return into_batch(buffer);
-    }
+    };
     let n = chunks.iter().map(|c| c.messages.len()).sum();
+    let m = chunks.iter().map(|c| c.senders.len()).sum();
     let mut batch = Arc::<[Message]>::new_uninit_slice(n);
     let slots = Arc::get_mut(&mut batch).expect("a new batch has no other reference");
-    let mut written = 0;
-    for (slot, message) in slots.iter_mut().zip(chunks.iter_mut().flat_map(|c| c.messages.drain(..))) {
-        slot.write(message);
-        written += 1;
+    // Every place is overwritten below.
+    senders.resize(m, Sender { id: VehicleId(0), position: glam::DVec2::ZERO, count: 0, place: 0 });
+    // Each chunk's stretch of the batch and of the senders: in chunk order, or from the end.
+    let mut pieces = Vec::with_capacity(chunks.len());
+    let (mut slots_left, mut senders_left) = (slots, &mut senders[..]);
+    for chunk in chunks.iter_mut() {
+        let (k, j) = (chunk.messages.len(), chunk.senders.len());
+        let (slot_piece, sender_piece);
+        if rising {
+            (slot_piece, slots_left) = std::mem::take(&mut slots_left).split_at_mut(k);
+            (sender_piece, senders_left) = std::mem::take(&mut senders_left).split_at_mut(j);
+        } else {
+            let (len, count) = (slots_left.len(), senders_left.len());
+            (slots_left, slot_piece) = std::mem::take(&mut slots_left).split_at_mut(len - k);
+            (senders_left, sender_piece) = std::mem::take(&mut senders_left).split_at_mut(count - j);
+        }
+        pieces.push((chunk, slot_piece, sender_piece));
     }
-    assert_eq!(written, n, "every slot of the batch written");
-    // SAFETY: each of the n slots was written just above (counted and checked).
+    let threads = parallelism.threads_for(m);
+    Parallelism::split(threads).for_each_chunk(&mut pieces, &mut Vec::<()>::new(), |pieces, _| {
+        for (chunk, slots, senders) in pieces.iter_mut() {
+            let written = if rising {
+                senders.copy_from_slice(&chunk.senders);
+                slots.iter_mut().zip(chunk.messages.drain(..)).map(|(slot, message)| slot.write(message)).count()
+            } else {
+                senders.iter_mut().rev().zip(&chunk.senders).for_each(|(to, from)| *to = *from);
+                slots.iter_mut().rev().zip(chunk.messages.drain(..)).map(|(slot, message)| slot.write(message)).count()
+            };
+            chunk.senders.clear();
+            // (A panic here leaves the batch uninitialised and never read: its messages leak.)
+            assert_eq!(written, slots.len(), "every place of the chunk's stretch written");
+        }
+    });
+    drop(pieces);
+    // SAFETY: the stretches cut above cover the n places, each chunk's as long as its messages,
+    // and every stretch was written in full (counted and checked) before this point.
     unsafe { batch.assume_init() }
+}
+
+/// Whether a round's chunks (in query order) hold their senders in rising id order (`true`), or
+/// in falling id order with one message each (`false`), or neither (`None`); each chunk noted
+/// its own order when it was filled ([`Outgoing::take`]).
+fn round_order(chunks: &[Outgoing]) -> Option<bool> {
+    let filled = || chunks.iter().filter(|c| !c.senders.is_empty());
+    let ends = || filled().map(|c| (c.senders[0].id, c.senders[c.senders.len() - 1].id));
+    let joins = |rising: bool| {
+        ends().zip(ends().skip(1)).all(|((_, last), (first, _))| if rising { last < first } else { last > first })
+    };
+    if filled().all(|c| c.rising) && joins(true) {
+        Some(true)
+    } else if filled().all(|c| c.falling) && joins(false) {
+        Some(false)
+    } else {
+        None
+    }
 }
 
 /// The time every message of `batch` was written, when they were all written at once (beacons
@@ -681,6 +742,10 @@ const NOT_SENDING: u32 = u32::MAX;
 struct Outgoing {
     senders: Vec<Sender>,
     messages: Vec<Message>,
+    /// The senders' ids rise (strictly), as [`Outgoing::take`] left them.
+    rising: bool,
+    /// The senders' ids fall (strictly) and each sent one message.
+    falling: bool,
 }
 
 impl Outgoing {
@@ -698,6 +763,14 @@ impl Outgoing {
                 }
             }
         }
+        self.note_order();
+    }
+
+    /// Note whether the senders' ids rise or fall ([`Outgoing::rising`], [`Outgoing::falling`]).
+    fn note_order(&mut self) {
+        let ids = || self.senders.windows(2).map(|w| (w[0].id, w[1].id));
+        self.rising = ids().all(|(a, b)| a < b);
+        self.falling = self.messages.len() == self.senders.len() && ids().all(|(a, b)| a > b);
     }
 }
 
@@ -934,17 +1007,15 @@ pub fn deliver_wifi(
     let mut base = 0;
     if let Ok(tables) = mailboxes.contiguous_iter_mut() {
         for (_, _, states, mut boxes) in tables {
-            // The last table's messages stay in the chunks (see `join_batch`).
+            // The last table's messages and senders stay in the chunks (see `join_batch`).
             for out in &mut s.gathered {
                 s.buffer.append(&mut out.messages);
+                s.senders.append(&mut out.senders);
             }
             parallelism.for_each_chunk_at(&mut boxes, &mut s.gathered, |start, chunk, out| {
                 out.take(base + start, &states[start..], chunk)
             });
             base += states.len();
-            for out in &mut s.gathered {
-                s.senders.append(&mut out.senders);
-            }
         }
     } else {
         // Only if a component were stored sparsely (none is): one at a time.
@@ -955,9 +1026,8 @@ pub fn deliver_wifi(
         s.senders.append(&mut out.senders);
         s.buffer.append(&mut out.messages);
     }
-    let batch = join_batch(&mut s.gathered, &mut s.buffer);
+    let batch = join_batch(&mut s.gathered, &mut s.buffer, &mut s.senders, parallelism);
     stats.wifi_sent += batch.len() as u64;
-    s.senders.sort_by_key(|sender| sender.id);
     s.starts.clear();
     let mut at = 0;
     for sender in &s.senders {
@@ -1358,20 +1428,74 @@ mod tests {
             channel: Channel::Wifi,
             payload: Payload::copied(k),
         };
-        let chunk = |messages: Vec<Message>| Outgoing { senders: Vec::new(), messages };
+        // A chunk as `Outgoing::take` fills it: one sender per run of messages from it.
+        let chunk = |messages: Vec<Message>| {
+            let mut out = Outgoing { messages, ..Outgoing::default() };
+            for (place, m) in out.messages.iter().enumerate() {
+                match out.senders.last_mut() {
+                    Some(last) if last.id == m.sender => last.count += 1,
+                    _ => out.senders.push(Sender {
+                        id: m.sender,
+                        position: glam::DVec2::new(place as f64, 0.0),
+                        count: 1,
+                        place: place as u32,
+                    }),
+                }
+            }
+            out.note_order();
+            out
+        };
         let order = |batch: &[Message]| batch.iter().map(|m| (m.sender.0, m.sent_at.0)).collect::<Vec<_>>();
-        // Sorted across the chunks: moved straight in.
-        let mut chunks = [chunk(vec![message(-3, 0), message(-3, 1)]), chunk(vec![]), chunk(vec![message(2, 2)])];
-        let batch = join_batch(&mut chunks, &mut Vec::new());
-        assert_eq!(order(&batch), [(-3, 0), (-3, 1), (2, 2)]);
-        assert!(chunks.iter().all(|c| c.messages.is_empty()), "the chunks are emptied");
-        // Out of order across two chunks, and an earlier table's messages in the buffer.
-        let mut chunks = [chunk(vec![message(5, 0), message(1, 1)]), chunk(vec![message(1, 2), message(-4, 3)])];
-        let batch = join_batch(&mut chunks, &mut Vec::new());
-        assert_eq!(order(&batch), [(-4, 3), (1, 1), (1, 2), (5, 0)]);
-        let mut chunks = [chunk(vec![message(1, 1)])];
-        let batch = join_batch(&mut chunks, &mut vec![message(7, 0), message(1, 5)]);
-        assert_eq!(order(&batch), [(1, 5), (1, 1), (7, 0)]);
+        let ids = |senders: &[Sender]| senders.iter().map(|s| (s.id.0, s.count)).collect::<Vec<_>>();
+        for threads in [1, 2, 3] {
+            let parallelism = Parallelism::split(threads);
+            let join = |chunks: &mut [Outgoing], buffer: &mut Vec<Message>, senders: &mut Vec<Sender>| {
+                join_batch(chunks, buffer, senders, parallelism)
+            };
+            // Rising across the chunks: moved straight in.
+            let mut chunks = [chunk(vec![message(-3, 0), message(-3, 1)]), chunk(vec![]), chunk(vec![message(2, 2)])];
+            let mut senders = Vec::new();
+            let batch = join(&mut chunks, &mut Vec::new(), &mut senders);
+            assert_eq!(order(&batch), [(-3, 0), (-3, 1), (2, 2)]);
+            assert_eq!(ids(&senders), [(-3, 2), (2, 1)]);
+            assert!(chunks.iter().all(|c| c.messages.is_empty() && c.senders.is_empty()), "the chunks are emptied");
+            // Falling, one message each, over chunks of uneven lengths and an empty one: reversed.
+            let mut chunks = [
+                chunk(vec![message(9, 0), message(7, 1), message(4, 2)]),
+                chunk(vec![]),
+                chunk(vec![message(3, 3)]),
+                chunk(vec![message(-1, 4), message(-2, 5)]),
+            ];
+            let mut senders = Vec::new();
+            let batch = join(&mut chunks, &mut Vec::new(), &mut senders);
+            assert_eq!(order(&batch), [(-2, 5), (-1, 4), (3, 3), (4, 2), (7, 1), (9, 0)]);
+            assert_eq!(ids(&senders), [(-2, 1), (-1, 1), (3, 1), (4, 1), (7, 1), (9, 1)]);
+            assert_eq!(senders.iter().map(|s| s.place).collect::<Vec<_>>(), [1, 0, 0, 2, 1, 0], "each its own place");
+            // Falling with two messages from one sender: sorted (stable), its two in their order.
+            let mut chunks = [chunk(vec![message(5, 0), message(5, 1)]), chunk(vec![message(1, 2)])];
+            let mut senders = Vec::new();
+            let batch = join(&mut chunks, &mut Vec::new(), &mut senders);
+            assert_eq!(order(&batch), [(1, 2), (5, 0), (5, 1)]);
+            assert_eq!(ids(&senders), [(1, 1), (5, 2)]);
+            // Each chunk falling, but not across them; each rising, but not across them.
+            for (a, b) in [(vec![(5, 0), (1, 1)], vec![(6, 2), (-4, 3)]), (vec![(1, 0), (5, 1)], vec![(2, 2), (8, 3)])]
+            {
+                let make = |v: &[(i32, u64)]| chunk(v.iter().map(|&(s, k)| message(s, k)).collect());
+                let mut chunks = [make(&a), make(&b)];
+                let mut senders = Vec::new();
+                let batch = join(&mut chunks, &mut Vec::new(), &mut senders);
+                let mut want: Vec<(i32, u64)> = a.iter().chain(&b).copied().collect();
+                want.sort_by_key(|m| m.0);
+                assert_eq!(order(&batch), want);
+                assert!(senders.is_sorted_by_key(|s| s.id) && senders.len() == 4);
+            }
+            // An earlier table's messages in the buffer (and its senders).
+            let mut chunks = [chunk(vec![message(1, 1)])];
+            let mut earlier = chunk(vec![message(7, 0), message(1, 5)]);
+            let batch = join(&mut chunks, &mut earlier.messages, &mut earlier.senders);
+            assert_eq!(order(&batch), [(1, 5), (1, 1), (7, 0)]);
+            assert_eq!(ids(&earlier.senders), [(1, 1), (1, 1), (7, 1)]);
+        }
     }
 
     /// Counts its drops in its own counter.
