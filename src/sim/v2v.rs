@@ -377,19 +377,21 @@ fn into_batch(buffer: &mut Vec<Message>) -> Arc<[Message]> {
 
 /// The batch of a round whose messages are `buffer`'s then the `chunks`' (in query order),
 /// sorted by sender id as [`into_batch`] sorts them; the round's senders (`senders`' then the
-/// chunks') end in `senders`, sorted by id.
+/// chunks') end in `senders`, sorted by id, and the first batch index of each one's messages
+/// in `starts`.
 ///
 /// When the round came from one table (`buffer` and `senders` empty) with its senders in id
 /// order, or in reverse id order with one message each (vehicles spawned with ids -1, -2, ...,
 /// as the benchmark's), each chunk moves its messages and senders straight into its own
-/// stretch of the batch and of `senders` (from the end, reversed, for the latter), the chunks
-/// side by side on `parallelism`: no copy through `buffer`, no sort. Those copies (400 kB of
-/// messages twice, 320 kB of senders, at 10,000 vehicles) and the sorts were the largest
-/// serial stretch of a wifi round. Else everything is appended and sorted (stable).
+/// stretch of the batch and of `senders` (from the end, reversed, for the latter) and writes
+/// their starts, the chunks side by side on `parallelism`: no copy through `buffer`, no sort.
+/// Those copies (400 kB of messages twice, 320 kB of senders, at 10,000 vehicles) and the sorts
+/// were the largest serial stretch of a wifi round. Else everything is appended and sorted
+/// (stable).
 fn join_batch(
     chunks: &mut [Outgoing],
     buffer: &mut Vec<Message>,
-    senders: &mut Vec<Sender>,
+    (senders, starts): (&mut Vec<Sender>, &mut Vec<u32>),
     parallelism: Parallelism,
 ) -> Arc<[Message]> {
     let order = (buffer.is_empty() && senders.is_empty()).then(|| round_order(chunks)).flatten();
@@ -399,49 +401,77 @@ fn join_batch(
             senders.append(&mut chunk.senders);
         }
         senders.sort_by_key(|sender| sender.id);
+        starts.clear();
+        let mut at = 0;
+        starts.extend(senders.iter().map(|sender| {
+            at += sender.count;
+            at - sender.count
+        }));
         return into_batch(buffer);
     };
     let n = chunks.iter().map(|c| c.messages.len()).sum();
     let m = chunks.iter().map(|c| c.senders.len()).sum();
     let mut batch = Arc::<[Message]>::new_uninit_slice(n);
     let slots = Arc::get_mut(&mut batch).expect("a new batch has no other reference");
-    // Every place is overwritten below.
-    senders.resize(m, Sender { id: VehicleId(0), position: glam::DVec2::ZERO, count: 0, place: 0 });
-    // Each chunk's stretch of the batch and of the senders: in chunk order, or from the end.
+    (senders.clear(), starts.clear());
+    (senders.reserve(m), starts.reserve(m));
+    // Each chunk's stretch of the batch, the senders and their starts: in chunk order, or from
+    // the end; with the batch index of the stretch's first message.
     let mut pieces = Vec::with_capacity(chunks.len());
-    let (mut slots_left, mut senders_left) = (slots, &mut senders[..]);
+    let (mut slots_left, mut senders_left) = (slots, &mut senders.spare_capacity_mut()[..m]);
+    let mut starts_left = &mut starts.spare_capacity_mut()[..m];
     for chunk in chunks.iter_mut() {
         let (k, j) = (chunk.messages.len(), chunk.senders.len());
-        let (slot_piece, sender_piece);
+        let (slot_piece, sender_piece, start_piece, first);
         if rising {
+            first = n - slots_left.len();
             (slot_piece, slots_left) = std::mem::take(&mut slots_left).split_at_mut(k);
             (sender_piece, senders_left) = std::mem::take(&mut senders_left).split_at_mut(j);
+            (start_piece, starts_left) = std::mem::take(&mut starts_left).split_at_mut(j);
         } else {
             let (len, count) = (slots_left.len(), senders_left.len());
+            first = len - k;
             (slots_left, slot_piece) = std::mem::take(&mut slots_left).split_at_mut(len - k);
             (senders_left, sender_piece) = std::mem::take(&mut senders_left).split_at_mut(count - j);
+            (starts_left, start_piece) = std::mem::take(&mut starts_left).split_at_mut(count - j);
         }
-        pieces.push((chunk, slot_piece, sender_piece));
+        pieces.push((chunk, slot_piece, sender_piece, start_piece, first as u32));
     }
     let threads = parallelism.threads_for(m);
     Parallelism::split(threads).for_each_chunk(&mut pieces, &mut Vec::<()>::new(), |pieces, _| {
-        for (chunk, slots, senders) in pieces.iter_mut() {
+        for (chunk, slots, senders, starts, first) in pieces.iter_mut() {
             let written = if rising {
-                senders.copy_from_slice(&chunk.senders);
+                let mut at = *first;
+                for ((to, start), from) in senders.iter_mut().zip(starts.iter_mut()).zip(&chunk.senders) {
+                    to.write(*from);
+                    start.write(at);
+                    at += from.count;
+                }
                 slots.iter_mut().zip(chunk.messages.drain(..)).map(|(slot, message)| slot.write(message)).count()
             } else {
-                senders.iter_mut().rev().zip(&chunk.senders).for_each(|(to, from)| *to = *from);
+                // One message each: the sender `k` places from the stretch's end has its message
+                // there too.
+                let places = senders.iter_mut().zip(starts.iter_mut()).enumerate().rev();
+                for ((k, (to, start)), from) in places.zip(&chunk.senders) {
+                    to.write(*from);
+                    start.write(*first + k as u32);
+                }
                 slots.iter_mut().rev().zip(chunk.messages.drain(..)).map(|(slot, message)| slot.write(message)).count()
             };
+            // (A panic here leaves the batch, senders and starts unwritten and never read.)
+            assert!(written == slots.len() && chunk.senders.len() == senders.len(), "every place written");
             chunk.senders.clear();
-            // (A panic here leaves the batch uninitialised and never read: its messages leak.)
-            assert_eq!(written, slots.len(), "every place of the chunk's stretch written");
         }
     });
     drop(pieces);
-    // SAFETY: the stretches cut above cover the n places, each chunk's as long as its messages,
-    // and every stretch was written in full (counted and checked) before this point.
-    unsafe { batch.assume_init() }
+    // SAFETY: the stretches cut above cover the n places of the batch and the m of `senders`'
+    // and `starts`' spare capacity (reserved above), each chunk's as long as its messages and
+    // senders, and every stretch was written in full (counted and checked) before this point.
+    unsafe {
+        senders.set_len(m);
+        starts.set_len(m);
+        batch.assume_init()
+    }
 }
 
 /// Whether a round's chunks (in query order) hold their senders in rising id order (`true`), or
@@ -1026,14 +1056,8 @@ pub fn deliver_wifi(
         s.senders.append(&mut out.senders);
         s.buffer.append(&mut out.messages);
     }
-    let batch = join_batch(&mut s.gathered, &mut s.buffer, &mut s.senders, parallelism);
+    let batch = join_batch(&mut s.gathered, &mut s.buffer, (&mut s.senders, &mut s.starts), parallelism);
     stats.wifi_sent += batch.len() as u64;
-    s.starts.clear();
-    let mut at = 0;
-    for sender in &s.senders {
-        s.starts.push(at);
-        at += sender.count;
-    }
     // The sensors' neighbour lists, when every vehicle lies in one table and they still hold
     // everyone within the wifi range; else a grid of the senders.
     let nearby = sensor_grid.as_deref().and_then(|sensor_grid| {
@@ -1450,7 +1474,18 @@ mod tests {
         for threads in [1, 2, 3] {
             let parallelism = Parallelism::split(threads);
             let join = |chunks: &mut [Outgoing], buffer: &mut Vec<Message>, senders: &mut Vec<Sender>| {
-                join_batch(chunks, buffer, senders, parallelism)
+                let mut starts = Vec::new();
+                let batch = join_batch(chunks, buffer, (senders, &mut starts), parallelism);
+                // Each sender's messages start where the ones before it end, and are its own.
+                let mut at = 0;
+                for (sender, &start) in senders.iter().zip(&starts) {
+                    assert_eq!(start, at, "{threads} threads: sender {:?}", sender.id);
+                    let own = &batch[start as usize..(start + sender.count) as usize];
+                    assert!(own.iter().all(|m| m.sender == sender.id), "{threads} threads: {:?}'s", sender.id);
+                    at += sender.count;
+                }
+                assert_eq!(at as usize, batch.len());
+                batch
             };
             // Rising across the chunks: moved straight in.
             let mut chunks = [chunk(vec![message(-3, 0), message(-3, 1)]), chunk(vec![]), chunk(vec![message(2, 2)])];
