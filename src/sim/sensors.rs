@@ -1615,16 +1615,20 @@ mod tests {
         }
     }
 
+    /// A vehicle `k` at (`x`, 0) facing east, standing still (no dynamics), with the default
+    /// radar and velodyne.
+    fn sensing_at(k: i32, x: f64) -> crate::world::VehicleSpec {
+        use crate::world::{SensorSet, VehicleModel, VehicleSpec};
+        let mut spec = VehicleSpec::new(VehicleId(k), VehicleState::new(DVec2::new(x, 0.0), 0.0, 0.0));
+        spec.model = VehicleModel::None;
+        let (radar, velodyne) = (Some(Radar::default()), Some(Velodyne::default()));
+        spec.sensors = SensorSet { radar, velodyne, omniscient: false };
+        spec
+    }
+
     #[test]
     fn the_neighbour_lists_are_kept_while_the_vehicles_move_together_and_built_again_when_two_close_in() {
-        use crate::world::{SensorSet, VehicleModel, VehicleSpec};
-        let spec = |k: i32, x: f64| {
-            let mut spec = VehicleSpec::new(VehicleId(k), VehicleState::new(DVec2::new(x, 0.0), 0.0, 0.0));
-            spec.model = VehicleModel::None;
-            let (radar, velodyne) = (Some(Radar::default()), Some(Velodyne::default()));
-            spec.sensors = SensorSet { radar, velodyne, omniscient: false };
-            spec
-        };
+        let spec = sensing_at;
         let mut b = SimBuilder::new();
         b.add_plugin(SensorsPlugin);
         for k in 0..50 {
@@ -1706,7 +1710,6 @@ mod tests {
 
     #[test]
     fn a_sensor_changed_in_any_chunk_builds_the_lists_again_on_any_thread_count() {
-        use crate::world::{SensorSet, VehicleModel, VehicleSpec};
         // The shapes pass tells whether this tick's sensors are the build's, chunk by chunk: a
         // change in the first, a middle or the last chunk, or one vehicle more, must be seen.
         for threads in [1, 2, 3] {
@@ -1715,12 +1718,7 @@ mod tests {
                 b.add_plugin(SensorsPlugin);
                 b.insert_resource(Parallelism::split(threads));
                 for k in 0..60 {
-                    let state = VehicleState::new(DVec2::new(30.0 * f64::from(k), 0.0), 0.0, 0.0);
-                    let mut spec = VehicleSpec::new(VehicleId(k), state);
-                    spec.model = VehicleModel::None;
-                    let (radar, velodyne) = (Some(Radar::default()), Some(Velodyne::default()));
-                    spec.sensors = SensorSet { radar, velodyne, omniscient: false };
-                    b.spawn_vehicle(spec).expect("unique ids");
+                    b.spawn_vehicle(sensing_at(k, 30.0 * f64::from(k))).expect("unique ids");
                 }
                 let mut sim = b.build();
                 let builds = |sim: &crate::sim::Sim| sim.world().resource::<SensorGrid>().neighbours.lists.builds;
@@ -1741,16 +1739,10 @@ mod tests {
 
     #[test]
     fn at_the_instant_the_sensors_tested_the_lists_the_wifi_round_takes_them_without_testing_again() {
-        use crate::world::{SensorSet, VehicleModel, VehicleSpec};
         let mut b = SimBuilder::new();
         b.add_plugin(SensorsPlugin);
         for k in 0..50 {
-            let state = VehicleState::new(DVec2::new(30.0 * f64::from(k), 0.0), 0.0, 0.0);
-            let mut spec = VehicleSpec::new(VehicleId(k), state);
-            spec.model = VehicleModel::None;
-            let (radar, velodyne) = (Some(Radar::default()), Some(Velodyne::default()));
-            spec.sensors = SensorSet { radar, velodyne, omniscient: false };
-            b.spawn_vehicle(spec).expect("unique ids");
+            b.spawn_vehicle(sensing_at(k, 30.0 * f64::from(k))).expect("unique ids");
         }
         let mut sim = b.build();
         sim.run_for(0.12);

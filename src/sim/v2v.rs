@@ -413,8 +413,10 @@ fn join_batch(
     let m = chunks.iter().map(|c| c.senders.len()).sum();
     let mut batch = Arc::<[Message]>::new_uninit_slice(n);
     let slots = Arc::get_mut(&mut batch).expect("a new batch has no other reference");
-    (senders.clear(), starts.clear());
-    (senders.reserve(m), starts.reserve(m));
+    senders.clear();
+    starts.clear();
+    senders.reserve(m);
+    starts.reserve(m);
     // Each chunk's stretch of the batch, the senders and their starts: in chunk order, or from
     // the end; with the batch index of the stretch's first message.
     let mut pieces = Vec::with_capacity(chunks.len());
