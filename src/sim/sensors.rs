@@ -1711,7 +1711,7 @@ mod tests {
     #[test]
     fn a_sensor_changed_in_any_chunk_builds_the_lists_again_on_any_thread_count() {
         // The shapes pass tells whether this tick's sensors are the build's, chunk by chunk: a
-        // change in the first, a middle or the last chunk, or one vehicle more, must be seen.
+        // change in the first, a middle or the last chunk must be seen.
         for threads in [1, 2, 3] {
             for changed in [0, 31, 59] {
                 let mut b = SimBuilder::new();
