@@ -1142,7 +1142,7 @@ impl SensorGrid {
         let lists = &self.neighbours.lists;
         // `moved_together` also checks that these are the vehicles of the build (one list each).
         let wide = lists.skin > 0.0 && lists.around >= range;
-        let tested = || lists.held_at == Some(now) && lists.ids == ids && states.len() == lists.anchors.len();
+        let tested = || lists.held_at == Some(now) && lists.of_vehicles(Everyone { ids, states });
         (wide && (tested() || lists.moved_together(Everyone { ids, states }, parallelism, scratch)))
             .then_some(&lists.lists)
     }
@@ -1166,6 +1166,11 @@ impl NeighbourLists {
             && self.floor == floor
             && shapes_as_built
             && self.moved_together(everyone, parallelism, scratch)
+    }
+
+    /// Whether `everyone` are the vehicles of the build, in the same order (one list each).
+    fn of_vehicles(&self, everyone: Everyone<'_>) -> bool {
+        self.ids == everyone.ids && everyone.states.len() == self.anchors.len()
     }
 
     /// Whether `everyone` are the vehicles of the build, in the same order, and no two of them
@@ -1192,8 +1197,7 @@ impl NeighbourLists {
         scratch: &mut DriftScratch,
     ) -> bool {
         let n = self.anchors.len();
-        if self.ids != everyone.ids || everyone.states.len() != n || self.cell_of.len() != n || self.headings.len() != n
-        {
+        if !self.of_vehicles(everyone) || self.cell_of.len() != n || self.headings.len() != n {
             return false;
         }
         // The pass over the positions (most of the test: they come from memory) split over

@@ -32,7 +32,7 @@ use super::lane_change::{LaneChangeProfile, Mobil, MobilDecision, Seen, Surround
 use super::lanes::{LaneMap, LanePosition, PREFETCH_AHEAD};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, SteeringSystems};
 use super::path_following::PathFollower;
-use crate::sim::parallel::prefetch;
+use crate::world::prefetch_bytes;
 
 /// Keep-right bias Δa_bias [m/s²] of MOBIL's asymmetric rule: a change to the left needs this
 /// much more incentive, a change to the right this much less (Kesting et al. 2007, section 3).
@@ -603,10 +603,7 @@ fn decide_table(
         for (k, ((route, follower), ch)) in routes.iter_mut().zip(followers.iter_mut()).zip(chs.iter_mut()).enumerate()
         {
             if k + PREFETCH_AHEAD < len {
-                let bytes = ahead.wrapping_add(k + PREFETCH_AHEAD).cast::<u8>();
-                for line in [0, 64, 128, 192, LaneChanger::HOT_BYTES - 1] {
-                    prefetch(bytes.wrapping_add(line));
-                }
+                prefetch_bytes(ahead.wrapping_add(k + PREFETCH_AHEAD).cast(), LaneChanger::HOT_BYTES);
             }
             let n = start + k;
             let mut decision = Decision::default();

@@ -618,9 +618,11 @@ mod tests {
             // Whether a change is under way: `Option<Manoeuvre>`'s "none" is in its first byte.
             (offset_of!(LaneChanger, active), 1),
         ];
+        // All within what the decisions prefetch (`HOT_BYTES`), and that within four lines.
         for (k, (offset, size)) in hot.into_iter().enumerate() {
-            assert!(offset + size <= 256, "field {k} at {offset}..{}", offset + size);
+            assert!(offset + size <= LaneChanger::HOT_BYTES, "field {k} at {offset}..{}", offset + size);
         }
+        const { assert!(LaneChanger::HOT_BYTES <= 256, "the hot bytes within four cache lines") };
         let none: Option<Manoeuvre> = None;
         let first = |m: &Option<Manoeuvre>| unsafe { *(m as *const Option<Manoeuvre>).cast::<u8>() };
         let some = Some(Manoeuvre {

@@ -28,8 +28,8 @@ use glam::DVec2;
 
 use crate::map::{LaneletId, Path};
 use crate::sim::SimBuilder;
-use crate::sim::parallel::prefetch;
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
+use crate::world::prefetch_bytes;
 use crate::world::{
     AccelerationUnicycle, ControlCommand, Detection, KinematicUnicycle, Route, SensorReadings, VehicleId, VehicleSize,
     VehicleState,
@@ -216,11 +216,7 @@ pub fn find_leaders(
                     // The detections a vehicle a few places on will scan: far apart on a big
                     // world. The leader is mostly among the nearest few: the first four cache lines.
                     if let Some(r) = readings.and_then(|r| r.get(start + k + PREFETCH_AHEAD)) {
-                        let bytes = r.0.as_ptr().cast::<u8>();
-                        let len = std::mem::size_of_val(&r.0[..]);
-                        for line in (0..len.min(256)).step_by(64) {
-                            prefetch(bytes.wrapping_add(line));
-                        }
+                        prefetch_bytes(r.0.as_ptr().cast(), std::mem::size_of_val(&r.0[..]).min(256));
                     }
                     leader_of(shared, table, start + k, lon);
                 }

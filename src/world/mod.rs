@@ -37,3 +37,16 @@ pub fn prefetch<T>(p: *const T) {
     #[cfg(not(target_arch = "x86_64"))]
     let _ = p;
 }
+
+/// [`prefetch`] every cache line of the `len` bytes at `p` (a value's leading fields, a
+/// buffer's first entries): a line each 64 bytes, and the last byte's, which lies on a line of
+/// its own when `p` is not on a line's start.
+#[inline]
+pub fn prefetch_bytes(p: *const u8, len: usize) {
+    for offset in (0..len).step_by(64) {
+        prefetch(p.wrapping_add(offset));
+    }
+    if len > 0 {
+        prefetch(p.wrapping_add(len - 1));
+    }
+}
