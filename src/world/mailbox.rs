@@ -15,8 +15,11 @@
 //! in-box is iterated, so a round with N receivers stores O(N), not N² picks.
 
 use std::any::Any;
+use std::cell::Cell;
 use std::ops::Range;
+use std::ptr::NonNull;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use bevy_ecs::prelude::Component;
 
@@ -81,35 +84,157 @@ enum Selection {
     },
 }
 
-/// A round's batch as the in-boxes of one thread's chunk hold it: a reference of that chunk's
-/// own to the shared batch, its count on cache lines of its own.
+/// A round's batch as the in-boxes of one thread's chunk take it: a count of that chunk's own
+/// on the shared batch, which it hands out and takes back in bulk.
 ///
 /// Every in-box of a round took a reference to the one batch (and let go of the last round's):
 /// two locked operations per receiver on one count, from every thread at once, so the cache
 /// line of the count went back and forth between the cores. perf put 92 % of the wifi
 /// delivery's two-thread samples on those two instructions, and the round took several times
-/// the processor time on two threads that it took on one. A round now makes one `BatchRef` per
-/// chunk ([`BatchRef::new`]) and its in-boxes count on that: each thread on its own line.
-#[derive(Debug, Clone)]
-pub(crate) struct BatchRef(Arc<Counted>);
+/// the processor time on two threads that it took on one. A round made one counted reference
+/// per chunk, each thread counting on its own line; still two locked operations per receiver
+/// (a quarter of the wifi reception's samples on one thread). Now a `BatchRef` counts the
+/// references it hands out ([`BatchRef::lend`]) `LEND_BLOCK` at a time, and takes the in-boxes'
+/// references to an earlier round back ([`BatchRef::take_back`]) run by run: a locked
+/// operation every few hundred receivers. It is used on the thread that made it (not `Sync`).
+pub(crate) struct BatchRef {
+    /// The chunk's own reference (which keeps the batch while the chunk delivers).
+    own: Held,
+    /// References counted into `own`'s count but not handed out yet.
+    spare: Cell<usize>,
+    /// References to another round's batch handed back by in-boxes and not yet taken off its
+    /// count: consecutive in-boxes mostly held the same one.
+    returned: Cell<Option<(NonNull<Counted>, usize)>>,
+}
 
-/// The shared batch behind a [`BatchRef`], aligned so that its reference count shares its
-/// cache lines with nothing else.
-#[derive(Debug)]
+/// References [`BatchRef::lend`] counts in at a time.
+const LEND_BLOCK: usize = 256;
+
+/// A shared batch and its count of references ([`Held`]), aligned so that the count shares
+/// its cache lines with nothing else.
 #[repr(align(128))]
-struct Counted(Arc<[Message]>);
+struct Counted {
+    count: AtomicUsize,
+    batch: Arc<[Message]>,
+}
+
+/// One counted reference to a [`Counted`] batch: `Arc`'s protocol (an increment to clone, a
+/// decrement to drop, the last one frees), on a count [`BatchRef`] can move in bulk.
+pub(crate) struct Held(NonNull<Counted>);
+
+// SAFETY: a `Held` gives shared access to a `Counted` (an atomic count and an `Arc<[Message]>`,
+// both `Send + Sync`) and frees it only as the last reference, like `Arc<Counted>`.
+unsafe impl Send for Held {}
+// SAFETY: as above.
+unsafe impl Sync for Held {}
+const _: () = {
+    const fn send_sync<T: Send + Sync>() {}
+    send_sync::<Arc<[Message]>>()
+};
+
+impl Held {
+    fn counted(&self) -> &Counted {
+        // SAFETY: this reference is counted, so the `Counted` is alive.
+        unsafe { self.0.as_ref() }
+    }
+}
+
+impl Clone for Held {
+    fn clone(&self) -> Held {
+        // Relaxed, as `Arc::clone`: a new reference is made from an existing one.
+        self.counted().count.fetch_add(1, Ordering::Relaxed);
+        Held(self.0)
+    }
+}
+
+impl Drop for Held {
+    fn drop(&mut self) {
+        release(self.0, 1);
+    }
+}
+
+/// Take `n` references off `counted`'s count, freeing it when they were the last ones.
+fn release(counted: NonNull<Counted>, n: usize) {
+    // SAFETY: the caller gives up `n` counted references, so the `Counted` is alive until the
+    // decrement; Release then Acquire before freeing, as `Arc`'s drop.
+    unsafe {
+        if counted.as_ref().count.fetch_sub(n, Ordering::Release) == n {
+            std::sync::atomic::fence(Ordering::Acquire);
+            drop(Box::from_raw(counted.as_ptr()));
+        }
+    }
+}
+
+impl std::fmt::Debug for Held {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Held").field("messages", &self.len()).finish()
+    }
+}
+
+impl std::ops::Deref for Held {
+    type Target = [Message];
+    fn deref(&self) -> &[Message] {
+        &self.counted().batch
+    }
+}
 
 impl BatchRef {
-    /// A reference of one chunk's own to `batch` (one count taken on the shared batch).
+    /// A chunk's own reference to `batch` (one count taken on the shared batch).
     pub(crate) fn new(batch: &Arc<[Message]>) -> BatchRef {
-        BatchRef(Arc::new(Counted(Arc::clone(batch))))
+        let counted = Box::new(Counted { count: AtomicUsize::new(1), batch: Arc::clone(batch) });
+        let own = Held(NonNull::from(Box::leak(counted)));
+        BatchRef { own, spare: Cell::new(0), returned: Cell::new(None) }
+    }
+
+    /// A counted reference for an in-box: from the references counted in ahead, a block of
+    /// them counted in at once when none is left.
+    fn lend(&self) -> Held {
+        let spare = match self.spare.get() {
+            0 => {
+                self.own.counted().count.fetch_add(LEND_BLOCK, Ordering::Relaxed);
+                LEND_BLOCK
+            }
+            n => n,
+        };
+        self.spare.set(spare - 1);
+        Held(self.own.0)
+    }
+
+    /// Take back an in-box's reference `held` (to any round's batch): counted off with the run
+    /// of references to the same batch it belongs to.
+    fn take_back(&self, held: Held) {
+        let counted = held.0;
+        std::mem::forget(held);
+        match self.returned.get() {
+            Some((c, n)) if c == counted => self.returned.set(Some((c, n + 1))),
+            other => {
+                self.returned.set(Some((counted, 1)));
+                if let Some((c, n)) = other {
+                    release(c, n);
+                }
+            }
+        }
+    }
+}
+
+impl Drop for BatchRef {
+    fn drop(&mut self) {
+        if let Some((c, n)) = self.returned.take() {
+            release(c, n);
+        }
+        // The spare references are counted on the batch `own` holds, which keeps it: this
+        // cannot free it.
+        let spare = self.spare.take();
+        if spare > 0 {
+            release(self.own.0, spare);
+        }
     }
 }
 
 impl std::ops::Deref for BatchRef {
     type Target = [Message];
     fn deref(&self) -> &[Message] {
-        &self.0.0
+        &self.own
     }
 }
 
@@ -117,7 +242,7 @@ impl std::ops::Deref for BatchRef {
 #[derive(Debug, Clone)]
 struct Delivery {
     round: u64,
-    batch: BatchRef,
+    batch: Held,
     /// Messages from this sender are skipped (the receiver's own).
     exclude: VehicleId,
     selection: Selection,
@@ -175,10 +300,13 @@ impl Inbox {
         super::prefetch(self.picks.as_ptr().wrapping_add(at(self.picks.len())));
     }
 
-    /// Drop old rounds if the control phase has run since the last delivery (`epoch` differs).
-    fn begin(&mut self, epoch: u64) {
+    /// Drop old rounds if the control phase has run since the last delivery (`epoch` differs),
+    /// their references handed back to `batch`.
+    fn begin(&mut self, epoch: u64, batch: &BatchRef) {
         if self.epoch != epoch {
-            self.deliveries.clear();
+            for delivery in self.deliveries.drain(..) {
+                batch.take_back(delivery.batch);
+            }
             self.picks.clear();
             self.epoch = epoch;
         }
@@ -196,8 +324,8 @@ impl Inbox {
 
     /// Deliver the whole `batch` except the messages of `exclude` (the network channel).
     pub(crate) fn deliver_all_but(&mut self, epoch: u64, round: u64, batch: &BatchRef, exclude: VehicleId) {
-        self.begin(epoch);
-        self.push(Delivery { round, batch: batch.clone(), exclude, selection: Selection::AllBut });
+        self.begin(epoch, batch);
+        self.push(Delivery { round, batch: batch.lend(), exclude, selection: Selection::AllBut });
     }
 
     /// Deliver the whole `batch` (sorted by sender) except the messages of `exclude` and the
@@ -211,10 +339,10 @@ impl Inbox {
         exclude: VehicleId,
         lost: OrderedSample,
     ) {
-        self.begin(epoch);
+        self.begin(epoch, batch);
         let own = batch.partition_point(|m| m.sender < exclude)..batch.partition_point(|m| m.sender <= exclude);
         let kept = batch.len() - own.len() - lost.remaining() as usize;
-        self.push(Delivery { round, batch: batch.clone(), exclude, selection: Selection::AllButLost { lost, kept } });
+        self.push(Delivery { round, batch: batch.lend(), exclude, selection: Selection::AllButLost { lost, kept } });
     }
 
     /// Deliver the batch entries whose indices `picks` yields (the wifi channel).
@@ -226,11 +354,11 @@ impl Inbox {
         exclude: VehicleId,
         picks: impl Iterator<Item = u32>,
     ) {
-        self.begin(epoch);
+        self.begin(epoch, batch);
         let start = self.picks.len();
         self.picks.extend(picks);
         let range = start..self.picks.len();
-        self.push(Delivery { round, batch: batch.clone(), exclude, selection: Selection::Picks(range) });
+        self.push(Delivery { round, batch: batch.lend(), exclude, selection: Selection::Picks(range) });
     }
 }
 
@@ -455,6 +583,53 @@ mod tests {
             })
             .collect();
         BatchRef::new(&messages)
+    }
+
+    #[test]
+    fn rounds_lend_and_take_back_references_in_bulk_and_each_batch_goes_with_its_last_reader() {
+        // More receivers than a block of lent references; a third of them skip each round, so
+        // in-boxes hold references to three rounds at once when the next one is delivered.
+        let rounds: Vec<Arc<[Message]>> = (0..4)
+            .map(|r| {
+                (0..3)
+                    .map(|i| Message {
+                        sender: VehicleId(i),
+                        sent_at: SimTime(r),
+                        channel: Channel::Wifi,
+                        payload: Payload::copied(r as usize * 10 + i as usize),
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut inboxes = vec![Inbox::default(); 2 * LEND_BLOCK + 77];
+        let held = |inboxes: &[Inbox], r: usize| inboxes.iter().any(|i| i.latest_round() == Some(r as u64 + 1));
+        for (r, batch) in rounds.iter().enumerate() {
+            let shared = BatchRef::new(batch);
+            for (k, inbox) in inboxes.iter_mut().enumerate() {
+                if (k + r) % 3 != 0 {
+                    inbox.deliver_picks(r as u64 + 1, r as u64 + 1, &shared, VehicleId(-1), [k as u32 % 3].into_iter());
+                }
+            }
+            drop(shared);
+            for (k, inbox) in inboxes.iter().enumerate() {
+                if (k + r) % 3 != 0 {
+                    let got: Vec<usize> = inbox.iter().map(|m| *m.payload::<usize>().expect("a usize")).collect();
+                    assert_eq!(got, [r * 10 + k % 3], "in-box {k}, round {r}");
+                }
+            }
+            // A batch is kept (our reference and its count's) exactly while an in-box holds it.
+            for (q, batch) in rounds.iter().enumerate().take(r + 1) {
+                assert_eq!(Arc::strong_count(batch), 1 + usize::from(held(&inboxes, q)), "round {q} after {r}");
+            }
+        }
+        let copy = inboxes[4].clone();
+        drop(inboxes);
+        let kept = copy.latest_round().expect("in-box 4 received") as usize - 1;
+        for (q, batch) in rounds.iter().enumerate() {
+            assert_eq!(Arc::strong_count(batch), 1 + usize::from(q == kept), "round {q}, the copy holds {kept}");
+        }
+        drop(copy);
+        assert!(rounds.iter().all(|b| Arc::strong_count(b) == 1), "every batch went with its last reader");
     }
 
     #[test]
