@@ -2025,6 +2025,65 @@ mod tests {
         assert!(exact.len() > 6, "only {} distinct distances", exact.len());
     }
 
+    #[test]
+    fn runs_of_tied_distances_of_any_length_and_place_come_in_exact_order() {
+        // Groups of targets whose squared distances round to one f32 (radius r + k * 1e-9 m,
+        // and mirrored pairs at exactly equal distances), of 1 to 150 targets, so that runs
+        // start and end at and across the 64-key windows of the tie search; ids descending
+        // within a group, so the exact order is not the order they were made in.
+        let mut entries = Vec::new();
+        let mut id = 10_000;
+        let sizes = [1usize, 2, 3, 61, 1, 64, 2, 65, 1, 1, 150, 2, 4];
+        for (g, size) in sizes.into_iter().enumerate() {
+            let r = 10.0 + g as f64 * 7.0;
+            for k in 0..size {
+                let a = k as f64 * 0.37 + g as f64;
+                let p = if k % 3 == 2 {
+                    // Mirror the one before: exactly the same distance, another id.
+                    -entries.last().map(|&(p, _): &(DVec2, i32)| p).expect("k > 0")
+                } else {
+                    let r = r + ((k * 5) % 7) as f64 * 1e-9;
+                    DVec2::new(r * a.cos(), r * a.sin())
+                };
+                entries.push((p, id));
+                id -= 1;
+            }
+        }
+        let mut grid = SpatialGrid::default();
+        grid.rebuild(
+            50.0,
+            entries.iter().enumerate().map(|(i, &(position, id))| GridEntry {
+                position,
+                velocity: DVec2::ZERO,
+                id: VehicleId(id),
+                index: i as u32,
+            }),
+        );
+        let state = VehicleState::new(DVec2::ZERO, 0.0, 0.0);
+        let velodyne = Velodyne { range: 1000.0 };
+        let sight = Sight::new(VehicleId(-1), &state, None, Some(&velodyne), false, &mut HalfCos::default());
+        let (mut around, mut found) = (Candidates::default(), Vec::new());
+        grid.gather_all(&mut around);
+        let n = sight.consider_all(&around, &mut Vec::new(), &mut found).len();
+        found.truncate(n);
+        assert_eq!(n, entries.len());
+        let mut readings = SensorReadings::default();
+        write_readings(&mut found, &grid, DVec2::ZERO, &mut readings);
+        let mut want: Vec<(u64, i32)> = entries.iter().map(|&(p, id)| (p.length_squared().to_bits(), id)).collect();
+        want.sort_unstable();
+        let got: Vec<i32> = readings.0.iter().map(|d| d.id.0).collect();
+        assert_eq!(got, want.iter().map(|w| w.1).collect::<Vec<_>>());
+        // The groups did tie in the f32 keys (each rounds to one value).
+        let mut start = 0;
+        for size in sizes {
+            let group = &entries[start..start + size];
+            let rounded: std::collections::HashSet<u32> =
+                group.iter().map(|(p, _)| (p.length_squared() as f32).to_bits()).collect();
+            assert_eq!(rounded.len(), 1, "the group of {size} at {start} rounds to one f32");
+            start += size;
+        }
+    }
+
     /// One candidate's key as the sensors decided before their test was vectorised (one at a
     /// time, through `Cone::contains` and `DVec2`), `None` when not seen.
     fn one_key(sight: &Sight, slot: u32, position: DVec2, id: VehicleId) -> Option<u64> {
