@@ -1975,6 +1975,35 @@ mod tests {
         }
     }
 
+    /// Targets `entries` (position, id) in a grid of `cell` [m], all seen by a velodyne of
+    /// `range` [m] at the origin: their readings come by the exact squared distance, then id.
+    fn assert_seen_nearest_first(entries: &[(DVec2, i32)], cell: f64, range: f64) {
+        let mut grid = SpatialGrid::default();
+        grid.rebuild(
+            cell,
+            entries.iter().enumerate().map(|(i, &(position, id))| GridEntry {
+                position,
+                velocity: DVec2::ZERO,
+                id: VehicleId(id),
+                index: i as u32,
+            }),
+        );
+        let state = VehicleState::new(DVec2::ZERO, 0.0, 0.0);
+        let velodyne = Velodyne { range };
+        let sight = Sight::new(VehicleId(-1), &state, None, Some(&velodyne), false, &mut HalfCos::default());
+        let (mut around, mut found) = (Candidates::default(), Vec::new());
+        grid.gather_all(&mut around);
+        let n = sight.consider_all(&around, &mut Vec::new(), &mut found).len();
+        found.truncate(n);
+        assert_eq!((n, found.len()), (entries.len(), n));
+        let mut readings = SensorReadings::default();
+        write_readings(&mut found, &grid, DVec2::ZERO, &mut readings);
+        let mut want: Vec<(u64, i32)> = entries.iter().map(|&(p, id)| (p.length_squared().to_bits(), id)).collect();
+        want.sort_unstable();
+        let got: Vec<i32> = readings.0.iter().map(|d| d.id.0).collect();
+        assert_eq!(got, want.iter().map(|w| w.1).collect::<Vec<_>>());
+    }
+
     #[test]
     fn detections_come_nearest_first_by_the_exact_distance_then_id_even_where_an_f32_ties() {
         // Targets at 20 m + k * 1e-9 m (distinct doubles, one f32 squared distance), and pairs
@@ -1992,30 +2021,7 @@ mod tests {
             entries.push((p, id));
             entries.push((-p, id + 200));
         }
-        let mut grid = SpatialGrid::default();
-        grid.rebuild(
-            100.0,
-            entries.iter().enumerate().map(|(i, &(position, id))| GridEntry {
-                position,
-                velocity: DVec2::ZERO,
-                id: VehicleId(id),
-                index: i as u32,
-            }),
-        );
-        let state = VehicleState::new(DVec2::ZERO, 0.0, 0.0);
-        let velodyne = Velodyne { range: 50.0 };
-        let sight = Sight::new(VehicleId(-1), &state, None, Some(&velodyne), false, &mut HalfCos::default());
-        let (mut around, mut found) = (Candidates::default(), Vec::new());
-        grid.gather_all(&mut around);
-        let n = sight.consider_all(&around, &mut Vec::new(), &mut found).len();
-        found.truncate(n);
-        assert_eq!((n, found.len()), (entries.len(), n));
-        let mut readings = SensorReadings::default();
-        write_readings(&mut found, &grid, DVec2::ZERO, &mut readings);
-        let mut want: Vec<(u64, i32)> = entries.iter().map(|&(p, id)| (p.length_squared().to_bits(), id)).collect();
-        want.sort_unstable();
-        let got: Vec<i32> = readings.0.iter().map(|d| d.id.0).collect();
-        assert_eq!(got, want.iter().map(|w| w.1).collect::<Vec<_>>());
+        assert_seen_nearest_first(&entries, 100.0, 50.0);
         // The f32 keys did tie: the first twelve share one rounded distance.
         let rounded: std::collections::HashSet<u32> =
             entries[..12].iter().map(|(p, _)| (p.length_squared() as f32).to_bits()).collect();
@@ -2049,30 +2055,7 @@ mod tests {
                 id -= 1;
             }
         }
-        let mut grid = SpatialGrid::default();
-        grid.rebuild(
-            50.0,
-            entries.iter().enumerate().map(|(i, &(position, id))| GridEntry {
-                position,
-                velocity: DVec2::ZERO,
-                id: VehicleId(id),
-                index: i as u32,
-            }),
-        );
-        let state = VehicleState::new(DVec2::ZERO, 0.0, 0.0);
-        let velodyne = Velodyne { range: 1000.0 };
-        let sight = Sight::new(VehicleId(-1), &state, None, Some(&velodyne), false, &mut HalfCos::default());
-        let (mut around, mut found) = (Candidates::default(), Vec::new());
-        grid.gather_all(&mut around);
-        let n = sight.consider_all(&around, &mut Vec::new(), &mut found).len();
-        found.truncate(n);
-        assert_eq!(n, entries.len());
-        let mut readings = SensorReadings::default();
-        write_readings(&mut found, &grid, DVec2::ZERO, &mut readings);
-        let mut want: Vec<(u64, i32)> = entries.iter().map(|&(p, id)| (p.length_squared().to_bits(), id)).collect();
-        want.sort_unstable();
-        let got: Vec<i32> = readings.0.iter().map(|d| d.id.0).collect();
-        assert_eq!(got, want.iter().map(|w| w.1).collect::<Vec<_>>());
+        assert_seen_nearest_first(&entries, 50.0, 1000.0);
         // The groups did tie in the f32 keys (each rounds to one value).
         let mut start = 0;
         for size in sizes {
