@@ -11,6 +11,15 @@
 # Prints one line per round and a closing JSON object with the medians and their ratio (ours /
 # SUMO's). Nothing is written into the repository but .venv-sumo; the SUMO network and routes go
 # into a temporary folder that is removed at the end.
+#
+# Each program writes into a file while it is timed and is read only after it has exited: a
+# reader started beside it (`bench | python3 -c ...`, as this script once did) takes one of the
+# two cores for its own start-up (about 0.2 s here) while the bench runs, and cut our figure by
+# a fifth.
+#
+# Environment: SMLWORLD_BIN times that smlworld binary instead of building this checkout's
+# (e.g. another build beside SUMO); SUMO_VENV uses that virtual environment for SUMO instead of
+# .venv-sumo (it must hold bin/sumo, bin/netconvert and bin/python with the `sumo` package).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -23,7 +32,7 @@ while [ $# -gt 0 ]; do
     --vehicles) VEHICLES="$2"; shift 2 ;;
     --rounds) ROUNDS="$2"; shift 2 ;;
     --sumo-seconds) SUMO_SECONDS="$2"; shift 2 ;;
-    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bench_vs_sumo.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -31,7 +40,7 @@ case "$VEHICLES$ROUNDS" in
   *[!0-9]*) echo "bench_vs_sumo.sh: --vehicles and --rounds take whole numbers" >&2; exit 2 ;;
 esac
 
-VENV=.venv-sumo
+VENV=${SUMO_VENV:-.venv-sumo}
 if [ ! -x "$VENV/bin/sumo" ] || [ "$(cat "$VENV/.sumo.stamp" 2>/dev/null || true)" != "$SUMO_VERSION" ]; then
   echo "installing eclipse-sumo $SUMO_VERSION into $VENV ..." >&2
   python3 -m venv "$VENV"
@@ -41,8 +50,12 @@ fi
 export SUMO_HOME
 SUMO_HOME=$("$VENV/bin/python" -c 'import sumo; print(sumo.SUMO_HOME)')
 
-cargo build --release --quiet
-SMLWORLD=target/release/smlworld
+if [ -n "${SMLWORLD_BIN:-}" ]; then
+  SMLWORLD=$SMLWORLD_BIN
+else
+  cargo build --release --quiet
+  SMLWORLD=target/release/smlworld
+fi
 
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -100,8 +113,13 @@ for round in $(seq 1 "$ROUNDS"); do
     cat "$work/sumo.log" >&2
     exit 1
   fi
-  ours=$("$SMLWORLD" bench --vehicles "$VEHICLES" --duration 10 2>/dev/null |
-    python3 -c 'import json, sys; print(json.load(sys.stdin)["vehicle_steps_per_second"])')
+  # Into a file, read once the bench has exited (see the top: no reader beside it).
+  if ! "$SMLWORLD" bench --vehicles "$VEHICLES" --duration 10 > "$work/ours.json" 2> "$work/ours.log"; then
+    echo "bench_vs_sumo.sh: $SMLWORLD bench failed; its log:" >&2
+    cat "$work/ours.log" >&2
+    exit 1
+  fi
+  ours=$(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["vehicle_steps_per_second"])' "$work/ours.json")
   echo "$ups" >> "$work/sumo.txt"
   echo "$ours" >> "$work/ours.txt"
   echo "round $round: SUMO $ups vehicle updates/s, smlworld $ours vehicle-steps/s" >&2
