@@ -400,6 +400,11 @@ struct Sight {
     radar_range2: f64,
     velodyne_range2: f64,
     omniscient: bool,
+    /// `omniscient` (bit 0) and the cone's `everything` (bit 1) as one word, written whole, for
+    /// [`Sight::key`]: the key pass reads them as a word, and a word read over the two separate
+    /// byte stores of the flags just made waited for those stores to leave the store buffer
+    /// (perf: a seventh of the key pass's samples on that load).
+    flags: u32,
 }
 
 impl Sight {
@@ -411,13 +416,15 @@ impl Sight {
         omniscient: bool,
         half_cos: &mut HalfCos,
     ) -> Sight {
+        let cone = radar.map_or(NO_CONE, |r| Cone::with_cos(state.heading(), r.angle, half_cos.of(r.angle)));
         Sight {
             id,
             position: state.position,
-            cone: radar.map_or(NO_CONE, |r| Cone::with_cos(state.heading(), r.angle, half_cos.of(r.angle))),
+            cone,
             radar_range2: radar.map_or(-1.0, |r| r.range * r.range),
             velodyne_range2: velodyne.map_or(-1.0, |v| v.range * v.range),
             omniscient,
+            flags: u32::from(omniscient) | (u32::from(cone.everything) << 1),
         }
     }
 
@@ -462,10 +469,11 @@ impl Sight {
         let ahead = dot >= 0.0;
         let (dot2, limit) = (dot * dot, d2 * cone.cos_half2);
         let inside = (acute & ahead & (dot2 >= limit)) | (!acute & (ahead | (dot2 <= limit)));
-        let in_cone = cone.everything | ((d2 != 0.0) & inside);
+        let (omniscient, everything) = (self.flags & 1 != 0, self.flags & 2 != 0);
+        let in_cone = everything | ((d2 != 0.0) & inside);
         let radar = (d2 <= self.radar_range2) & in_cone;
         let velodyne = d2 <= self.velodyne_range2;
-        let seen = (self.omniscient | velodyne | radar) & (other != self.id);
+        let seen = (omniscient | velodyne | radar) & (other != self.id);
         let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
         if seen { detection_key(d2, slot | flags) } else { UNSEEN }
     }
@@ -488,14 +496,70 @@ impl Sight {
         let n = list.len();
         let (xs, ys, keys) = (first(xs, n), first(ys, n), first(keys, n));
         first(found, n);
-        for ((x, y), &j) in xs.iter_mut().zip(ys.iter_mut()).zip(list) {
-            let p = everyone.states[j as usize].position;
-            (*x, *y) = (p.x, p.y);
-        }
+        gather_positions(everyone.states, list, xs, ys);
         vectorised(ListKeysPass { sight: self, xs, ys, slots: list, keys });
         let seen = pack(keys, found, UNSEEN);
         &mut found[..seen]
     }
+}
+
+/// The coordinates of the vehicles at places `slots` of `states` into `xs` and `ys`: the first
+/// pass of [`Sight::consider_listed`].
+///
+/// Where the processor has AVX2, four at a time, each four stored whole
+/// ([`gather_positions_avx2`]): the key pass that follows loads the coordinates four at a time,
+/// and a load as wide as four separate 8-byte stores waits until they have all left the store
+/// buffer, where one store as wide as the load hands its value straight over.
+#[inline]
+fn gather_positions(states: &[VehicleState], slots: &[u32], xs: &mut [f64], ys: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2, checked just above.
+        let done = unsafe { gather_positions_avx2(states, slots, xs, ys) };
+        gather_positions_scalar(states, &slots[done..], &mut xs[done..], &mut ys[done..]);
+        return;
+    }
+    gather_positions_scalar(states, slots, xs, ys);
+}
+
+/// [`gather_positions`] one vehicle at a time.
+#[inline]
+fn gather_positions_scalar(states: &[VehicleState], slots: &[u32], xs: &mut [f64], ys: &mut [f64]) {
+    for ((x, y), &j) in xs.iter_mut().zip(ys.iter_mut()).zip(slots) {
+        let p = states[j as usize].position;
+        (*x, *y) = (p.x, p.y);
+    }
+}
+
+/// [`gather_positions`] for the whole groups of four at the front of `slots`, in AVX2 registers:
+/// returns how many it placed (the rest are left to [`gather_positions_scalar`]).
+///
+/// # Safety
+/// Only on a processor with AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn gather_positions_avx2(states: &[VehicleState], slots: &[u32], xs: &mut [f64], ys: &mut [f64]) -> usize {
+    use std::arch::x86_64::{_mm_loadu_pd, _mm256_set_m128d, _mm256_storeu_pd, _mm256_unpackhi_pd, _mm256_unpacklo_pd};
+    let n = slots.len().min(xs.len()).min(ys.len());
+    let groups = n / 4 * 4;
+    for ((x4, y4), j4) in
+        xs[..groups].chunks_exact_mut(4).zip(ys[..groups].chunks_exact_mut(4)).zip(slots.chunks_exact(4))
+    {
+        // (x, y) of vehicle j: a `DVec2` is two f64 side by side (`#[repr(C)]`, x first).
+        let at = |l: usize| {
+            let p: &DVec2 = &states[j4[l] as usize].position;
+            // SAFETY: `p` points at two initialised f64s (x, then y); the load needs no alignment.
+            unsafe { _mm_loadu_pd(std::ptr::from_ref(p).cast::<f64>()) }
+        };
+        // (x0, y0, x2, y2) and (x1, y1, x3, y3), then their even and odd lanes interleaved.
+        let (even, odd) = (_mm256_set_m128d(at(2), at(0)), _mm256_set_m128d(at(3), at(1)));
+        // SAFETY: `x4` and `y4` are four f64s each (chunks of 4); the stores need no alignment.
+        unsafe {
+            _mm256_storeu_pd(x4.as_mut_ptr(), _mm256_unpacklo_pd(even, odd));
+            _mm256_storeu_pd(y4.as_mut_ptr(), _mm256_unpackhi_pd(even, odd));
+        }
+    }
+    groups
 }
 
 /// The keys of a neighbour list's vehicles at (`xs`, `ys`): the second pass of
@@ -1895,6 +1959,41 @@ mod tests {
         let seen = sight.consider_all(&around, &mut Vec::new(), &mut found).len();
         found.truncate(seen);
         (grid, sight, found)
+    }
+
+    #[test]
+    fn neighbour_positions_are_gathered_four_at_a_time_as_one_at_a_time() {
+        // Lists of every length up to 13 (whole groups of four and every remainder), in an
+        // order that jumps about the states; both halves of each coordinate pair distinct.
+        let states: Vec<VehicleState> = (0..40)
+            .map(|k| {
+                let p = DVec2::new(k as f64 * 1.5 - 7.25, 3.0 - k as f64 * 0.375);
+                VehicleState::new(p, 0.1 * k as f64, 1.0)
+            })
+            .collect();
+        for n in 0..=13 {
+            let slots: Vec<u32> = (0..n).map(|k| ((k * 7 + 3) % 40) as u32).collect();
+            let want: Vec<(f64, f64)> =
+                slots.iter().map(|&j| (states[j as usize].position.x, states[j as usize].position.y)).collect();
+            let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
+            gather_positions(&states, &slots, &mut xs, &mut ys);
+            assert_eq!(xs.iter().copied().zip(ys.iter().copied()).collect::<Vec<_>>(), want, "{n} vehicles");
+            let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
+            gather_positions_scalar(&states, &slots, &mut xs, &mut ys);
+            assert_eq!(xs.into_iter().zip(ys).collect::<Vec<_>>(), want, "{n} vehicles, one at a time");
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") {
+                let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
+                // SAFETY: the processor has AVX2, checked just above.
+                let done = unsafe { gather_positions_avx2(&states, &slots, &mut xs, &mut ys) };
+                assert_eq!(done, n / 4 * 4);
+                assert_eq!(
+                    xs[..done].iter().copied().zip(ys[..done].iter().copied()).collect::<Vec<_>>(),
+                    want[..done]
+                );
+                assert!(xs[done..].iter().all(|x| x.is_nan()), "the remainder is left to the scalar pass");
+            }
+        }
     }
 
     #[test]
