@@ -5,8 +5,10 @@
 #   scripts/bench_vs_sumo.sh [--vehicles N] [--rounds R] [--sumo-seconds S]
 #
 # SUMO (eclipse-sumo from PyPI, pinned) lives in its own virtual environment .venv-sumo (not the
-# test .venv). Each round runs SUMO, then `smlworld bench --vehicles N --duration 10`, so both
-# figures of a round come from the same minute. SUMO's figure is its own "UPS" (vehicle updates
+# test .venv). Each round runs SUMO and `smlworld bench --vehicles N --duration 10`, so both
+# figures of a round come from the same minute; odd rounds start with SUMO, even ones with
+# smlworld, so neither always runs straight after the other (a bench straight after SUMO's
+# 10 s at full load ran 0-10 % slower than one before it, 5 pairs). SUMO's figure is its own "UPS" (vehicle updates
 # per second of wall time, from --duration-log.statistics); ours is `vehicle_steps_per_second`.
 # Prints one line per round and a closing JSON object with the medians and their ratio (ours /
 # SUMO's). Nothing is written into the repository but .venv-sumo; the SUMO network and routes go
@@ -32,7 +34,7 @@ while [ $# -gt 0 ]; do
     --vehicles) VEHICLES="$2"; shift 2 ;;
     --rounds) ROUNDS="$2"; shift 2 ;;
     --sumo-seconds) SUMO_SECONDS="$2"; shift 2 ;;
-    -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bench_vs_sumo.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -104,7 +106,7 @@ EOF
 median() { sort -g | awk '{a[NR]=$1} END {print (NR % 2) ? a[(NR+1)/2] : (a[NR/2] + a[NR/2+1]) / 2}'; }
 : > "$work/sumo.txt"
 : > "$work/ours.txt"
-for round in $(seq 1 "$ROUNDS"); do
+run_sumo() {
   "$VENV/bin/sumo" -n "$work/ring.net.xml" -r "$work/ring.rou.xml" --step-length 0.02 --end "$SUMO_SECONDS" \
     --no-step-log --no-warnings --duration-log.statistics --time-to-teleport -1 > "$work/sumo.log" 2>&1
   ups=$(awk '/UPS:/ {print $2}' "$work/sumo.log" | tail -1)
@@ -113,6 +115,8 @@ for round in $(seq 1 "$ROUNDS"); do
     cat "$work/sumo.log" >&2
     exit 1
   fi
+}
+run_ours() {
   # Into a file, read once the bench has exited (see the top: no reader beside it).
   if ! "$SMLWORLD" bench --vehicles "$VEHICLES" --duration 10 > "$work/ours.json" 2> "$work/ours.log"; then
     echo "bench_vs_sumo.sh: $SMLWORLD bench failed; its log:" >&2
@@ -120,9 +124,21 @@ for round in $(seq 1 "$ROUNDS"); do
     exit 1
   fi
   ours=$(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["vehicle_steps_per_second"])' "$work/ours.json")
+}
+for round in $(seq 1 "$ROUNDS"); do
+  # Odd rounds start with SUMO, even ones with smlworld (see the top).
+  if [ $((round % 2)) -eq 1 ]; then
+    run_sumo
+    run_ours
+    first=SUMO
+  else
+    run_ours
+    run_sumo
+    first=smlworld
+  fi
   echo "$ups" >> "$work/sumo.txt"
   echo "$ours" >> "$work/ours.txt"
-  echo "round $round: SUMO $ups vehicle updates/s, smlworld $ours vehicle-steps/s" >&2
+  echo "round $round ($first first): SUMO $ups vehicle updates/s, smlworld $ours vehicle-steps/s" >&2
 done
 sumo_median=$(median < "$work/sumo.txt")
 ours_median=$(median < "$work/ours.txt")
