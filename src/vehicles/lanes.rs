@@ -50,6 +50,10 @@ pub struct LaneMap {
     /// Index of the left and right neighbour of every lanelet (from [`LaneMap::neighbours`]),
     /// so the per-vehicle lane systems look them up in an array, not in the map's id tree.
     beside: Vec<[Option<u32>; 2]>,
+    /// 1 / the length of every lanelet's centre line [1/m] (0 for one of no length): where in
+    /// its list of vehicles an arc length falls, without a division on the way to that load
+    /// ([`super::lane_state::first_at_or_after`]).
+    per_length: Vec<f64>,
     /// Cell -> (lanelet, arc length [m] where its centre line enters the cell).
     grid: BTreeMap<(i64, i64), Vec<(u32, f64)>>,
 }
@@ -105,7 +109,8 @@ impl LaneMap {
         let ids = map.lanelets.iter().map(|l| l.id).collect();
         let index_of = |id: Option<LaneletId>| id.and_then(|id| map.lanelet_index(id)).map(|j| j as u32);
         let beside = neighbours.iter().map(|n| [index_of(n.left), index_of(n.right)]).collect();
-        LaneMap { map, neighbours, centres, half_widths, successors, predecessors, ids, beside, grid }
+        let per_length = centres.iter().map(|c| if c.length > 0.0 { 1.0 / c.length } else { 0.0 }).collect();
+        LaneMap { map, neighbours, centres, half_widths, successors, predecessors, ids, beside, per_length, grid }
     }
 
     /// Hint to the processor that lanelet `i`'s centre line around arc length `s` [m] will be
@@ -125,6 +130,11 @@ impl LaneMap {
     /// Length of lanelet `i`'s centre line [m].
     pub fn length(&self, i: u32) -> f64 {
         self.centres[i as usize].length
+    }
+
+    /// 1 / the length of lanelet `i`'s centre line [1/m] (0 when it has no length).
+    pub fn per_length(&self, i: u32) -> f64 {
+        self.per_length[i as usize]
     }
 
     /// Id of lanelet `i`.
