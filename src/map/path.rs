@@ -46,6 +46,10 @@ pub struct Path {
     /// was a measurable share of the lane systems' per-vehicle work (issue 19 item 8).
     #[serde(skip)]
     spacing: f64,
+    /// 1 / [`Path::spacing`] (0 without segments): where a point near an arc length lies, for
+    /// prefetches that must not wait on a division ([`Path::segment_near`]).
+    #[serde(skip)]
+    per_meter: f64,
 }
 
 fn serialize_points<S: serde::Serializer>(points: &[DVec2], s: S) -> Result<S::Ok, S::Error> {
@@ -83,9 +87,10 @@ impl Path {
         if closed && points.len() > 1 {
             max_segment = max_segment.max(points[points.len() - 1].distance(points[0]));
         }
-        let mut path = Path { lanelets, points, length, closed, max_segment, spacing: 0.0 };
+        let mut path = Path { lanelets, points, length, closed, max_segment, spacing: 0.0, per_meter: 0.0 };
         if let n @ 1.. = path.segment_count() {
             path.spacing = length / n as f64;
+            path.per_meter = n as f64 / length;
         }
         path
     }
@@ -115,6 +120,13 @@ impl Path {
         let i = if i < n { i } else { i % n };
         let j = if i + 1 < n { i + 1 } else { 0 };
         (self.points[i], self.points[j])
+    }
+
+    /// The point about arc length `s` [m] of the path, as a place in `points` (clamped to the
+    /// last; 0 for a NaN): found by a multiplication, so it may be a point off the one
+    /// [`Path::spacing`] would give. For hints (prefetches), not for geometry.
+    pub(crate) fn segment_near(&self, s: f64) -> usize {
+        ((s * self.per_meter) as usize).min(self.points.len().saturating_sub(1))
     }
 
     /// Mean segment length [m] (all segments are equal up to rounding after resampling).
@@ -540,6 +552,28 @@ fn wrap_length(s: f64, length: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_point_near_an_arc_length_is_the_sampled_segment_within_one() {
+        // Spacings that are not powers of two (so the inverse rounds), a loop and an open path.
+        for (n, length, closed) in [(700, 1000.0, true), (333, 137.5, false), (2, 3.0, false)] {
+            let points: Vec<DVec2> =
+                (0..n).map(|k| DVec2::new(k as f64 * length / (n - usize::from(!closed)) as f64, 0.0)).collect();
+            let path = Path::from_points(Vec::new(), points, closed);
+            let last = path.points.len() - 1;
+            for k in 0..4000 {
+                let s = length * k as f64 / 3999.0;
+                let exact = ((s / path.spacing()) as usize).min(last);
+                let near = path.segment_near(s);
+                assert!(near.abs_diff(exact) <= 1, "n {n}, s {s}: {near} against {exact}");
+            }
+            assert_eq!(path.segment_near(2.0 * length), last);
+            assert_eq!(path.segment_near(-5.0), 0);
+            assert_eq!(path.segment_near(f64::NAN), 0);
+            assert_eq!(path.segment_near(f64::INFINITY), last);
+        }
+        assert_eq!(Path::from_points(Vec::new(), vec![DVec2::ZERO], false).segment_near(1.0), 0, "no segment");
+    }
 
     #[test]
     fn wrapping_an_arc_length_is_rem_euclid_to_the_bit() {

@@ -117,12 +117,8 @@ impl LaneMap {
     /// read soon (no effect off-road or off x86-64).
     pub fn prefetch(&self, i: Option<u32>, s: f64) {
         let Some(path) = i.and_then(|i| self.centres.get(i as usize)) else { return };
-        let spacing = path.spacing();
-        if spacing <= 0.0 || !s.is_finite() {
-            return;
-        }
-        let k = ((s / spacing) as usize).min(path.points.len().saturating_sub(1));
-        if let Some(p) = path.points.get(k) {
+        // A multiplication, not a division: this runs beside the lane positions' own divisions.
+        if let Some(p) = path.points.get(path.segment_near(s)) {
             crate::sim::parallel::prefetch(p);
         }
     }
