@@ -399,11 +399,11 @@ struct Sight {
     cone: Cone,
     radar_range2: f64,
     velodyne_range2: f64,
-    omniscient: bool,
-    /// `omniscient` (bit 0) and the cone's `everything` (bit 1) as one word, written whole, for
-    /// [`Sight::key`]: the key pass reads them as a word, and a word read over the two separate
-    /// byte stores of the flags just made waited for those stores to leave the store buffer
-    /// (perf: a seventh of the key pass's samples on that load).
+    /// Whether the sensor is omniscient (bit 0, [`Sight::omniscient`]) and the cone's
+    /// `everything` (bit 1) as one word, written whole, for [`Sight::key`]: the key pass reads
+    /// them as a word, and a word read over two separate byte stores of the flags just made
+    /// waited for those stores to leave the store buffer (perf: a seventh of the key pass's
+    /// samples on that load).
     flags: u32,
 }
 
@@ -423,9 +423,13 @@ impl Sight {
             cone,
             radar_range2: radar.map_or(-1.0, |r| r.range * r.range),
             velodyne_range2: velodyne.map_or(-1.0, |v| v.range * v.range),
-            omniscient,
             flags: u32::from(omniscient) | (u32::from(cone.everything) << 1),
         }
+    }
+
+    /// Whether the sensor sees everyone ([`Omniscient`]).
+    fn omniscient(&self) -> bool {
+        self.flags & 1 != 0
     }
 
     /// The detection keys of the candidates it sees (with which sensors reach each, see
@@ -469,7 +473,7 @@ impl Sight {
         let ahead = dot >= 0.0;
         let (dot2, limit) = (dot * dot, d2 * cone.cos_half2);
         let inside = (acute & ahead & (dot2 >= limit)) | (!acute & (ahead | (dot2 <= limit)));
-        let (omniscient, everything) = (self.flags & 1 != 0, self.flags & 2 != 0);
+        let (omniscient, everything) = (self.omniscient(), self.flags & 2 != 0);
         let in_cone = everything | ((d2 != 0.0) & inside);
         let radar = (d2 <= self.radar_range2) & in_cone;
         let velodyne = d2 <= self.velodyne_range2;
@@ -692,7 +696,7 @@ fn write_imperfect_readings(
         };
         let (radar_visible, radar_kept) = sees(low & RADAR_REACH != 0, &errors.radar, &draws.radar);
         let (velodyne_visible, velodyne_kept) = sees(low & VELODYNE_REACH != 0, &errors.velodyne, &draws.velodyne);
-        let noise = if sight.omniscient {
+        let noise = if sight.omniscient() {
             None
         } else if radar_kept {
             Some((&errors.radar, &draws.radar))
@@ -766,7 +770,7 @@ fn write_radar_error_readings(
         let low = key as u32;
         let e = grid.target(low & !REACH);
         let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
-        if !sight.omniscient && low & RADAR_REACH != 0 && (dropout || noisy) {
+        if !sight.omniscient() && low & RADAR_REACH != 0 && (dropout || noisy) {
             let pair = draws.radar.pair(sight.id, e.id);
             if !dropout || pair.kept(err.dropout) {
                 if noisy {
@@ -2174,7 +2178,7 @@ mod tests {
         let radar = (d2 <= sight.radar_range2) && sight.cone.contains(relative, d2);
         let velodyne = d2 <= sight.velodyne_range2;
         let flags = (u32::from(radar) << 31) | (u32::from(velodyne) << 30);
-        ((sight.omniscient || velodyne || radar) && id != sight.id).then(|| detection_key(d2, slot | flags))
+        ((sight.omniscient() || velodyne || radar) && id != sight.id).then(|| detection_key(d2, slot | flags))
     }
 
     #[test]
