@@ -403,6 +403,17 @@ pub struct LaneIndex {
     /// The allocations of the chunks of the items and of the stretches of `entries` each chunk
     /// fills (slices: a pointer and a length), kept between ticks ([`recycle`]).
     spare: [Vec<(usize, usize)>; 2],
+    /// By vehicle id ([`slot_key`]): where in `entries` the last rebuild put an entry of that
+    /// vehicle (of a crossing vehicle's two entries, one). Only a hint, checked where it is read
+    /// ([`LaneIndex::own_place`]): a vehicle gone, or an id past the table, reads nothing.
+    slots: Vec<u32>,
+}
+
+/// Where vehicle `id`'s place is kept in [`LaneIndex::slots`]: ids of either sign (traffic's are
+/// negative) interleaved, 0, -1, 1, -2, 2, ... as 0, 1, 2, 3, 4, ...
+#[inline]
+fn slot_key(id: VehicleId) -> usize {
+    ((id.0 << 1) ^ (id.0 >> 31)) as u32 as usize
 }
 
 /// Most chunks [`LaneIndex::rebuild`] counts and places the items in side by side.
@@ -453,6 +464,12 @@ impl LaneIndex {
         } else {
             self.place(lanelets, items);
         }
+        self.sort(parallelism, lanelets);
+        self.note_slots();
+    }
+
+    /// Each lanelet's entries by [`entry_order`], over the threads in groups of lanelets.
+    fn sort(&mut self, parallelism: Parallelism, lanelets: usize) {
         let LaneIndex { entries, starts, .. } = self;
         let acc = *starts.last().unwrap_or(&0);
         let threads = parallelism.threads_for(entries.len());
@@ -601,6 +618,54 @@ impl LaneIndex {
         spare[0] = recycle(parts);
     }
 
+    /// Note where each vehicle's entry went ([`LaneIndex::slots`]), for ids whose key is below
+    /// a bound in proportion to the entries (the others are searched for as before).
+    fn note_slots(&mut self) {
+        let LaneIndex { entries, slots, .. } = self;
+        let bound = (8 * entries.len()).max(1 << 16);
+        for (k, e) in entries.iter().enumerate() {
+            let key = slot_key(e.id);
+            if key >= bound {
+                continue;
+            }
+            if key >= slots.len() {
+                slots.resize(key + 1, u32::MAX);
+            }
+            slots[key] = k as u32;
+        }
+    }
+
+    /// `first_at_or_after(self.on(i), s, ..)` read from `me`'s own entry instead of searched
+    /// for, when `me` has an entry at arc length `s` on lanelet `i` (a vehicle asking about its
+    /// own lane: the leader search of every vehicle, every control tick). Entries before it at
+    /// the same arc length (smaller ids) are walked back over. `None`: search.
+    #[inline]
+    fn own_place(&self, i: u32, s: f64, me: VehicleId) -> Option<usize> {
+        let k = *self.slots.get(slot_key(me))? as usize;
+        let e = self.entries.get(k)?;
+        // `!=` also turns a NaN `s` away.
+        if e.id != me || e.lanelet != i || e.s != s {
+            return None;
+        }
+        let start = *self.starts.get(i as usize)? as usize;
+        let list = &self.entries[start..=k];
+        let mut k = k - start;
+        while k > 0 && !(list[k - 1].s < s) {
+            k -= 1;
+        }
+        Some(k)
+    }
+
+    /// Fetch `me`'s own entry into the cache ahead of its [`LaneIndex::ahead_where`] (a hint).
+    #[inline]
+    pub fn prefetch_own(&self, me: VehicleId) {
+        if let Some(&k) = self.slots.get(slot_key(me))
+            && (k as usize) < self.entries.len()
+        {
+            crate::world::prefetch_bytes(self.entries.as_ptr().wrapping_add(k as usize).cast(), 32);
+        }
+    }
+
     pub(crate) fn on(&self, i: u32) -> &[IndexEntry] {
         let i = i as usize;
         if i + 1 >= self.starts.len() {
@@ -630,7 +695,10 @@ impl LaneIndex {
         let mut first = true;
         for _ in 0..8 {
             let list = self.on(i);
-            let from = if first { first_at_or_after(list, s, lanes.per_length(i)) } else { 0 };
+            let from = match first {
+                true => self.own_place(i, s, me).unwrap_or_else(|| first_at_or_after(list, s, lanes.per_length(i))),
+                false => 0,
+            };
             if let Some(e) = list[from..].iter().find(|e| e.id != me && seen(e.id)) {
                 let distance = if first { e.s - s } else { base + e.s };
                 return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
@@ -653,7 +721,10 @@ impl LaneIndex {
         let mut first = true;
         for _ in 0..8 {
             let list = self.on(i);
-            let end = if first { first_at_or_after(list, s, lanes.per_length(i)) } else { list.len() };
+            let end = match first {
+                true => self.own_place(i, s, me).unwrap_or_else(|| first_at_or_after(list, s, lanes.per_length(i))),
+                false => list.len(),
+            };
             if let Some(e) = list[..end].iter().rev().find(|e| e.id != me) {
                 let distance = if first { s - e.s } else { base + lanes.length(i) - e.s };
                 return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
@@ -791,6 +862,54 @@ mod tests {
             sort_nearly_sorted(&mut got);
             assert_eq!(got, want, "{case:?}");
         }
+    }
+
+    #[test]
+    fn a_vehicles_own_entry_gives_the_place_a_search_finds() {
+        // 6 lanelets; ids of both signs, several vehicles at the same arc length (the ones with
+        // smaller ids sort first and count as ahead), a crossing vehicle with an entry on two
+        // lanelets, an id past the slots' bound. Built on one thread and on two.
+        let mut items: Vec<IndexEntry> = (0..600)
+            .map(|k: i32| IndexEntry {
+                lanelet: (k * 7 % 6) as u32,
+                s: ((k * 37) % 50) as f64 * 2.0,
+                speed: 1.0,
+                length: 4.0,
+                id: VehicleId(if k % 2 == 0 { -1 - k } else { k }),
+            })
+            .collect();
+        items.push(IndexEntry { lanelet: 3, s: 10.0, ..items[5] });
+        items.push(IndexEntry { lanelet: 2, s: 10.0, id: VehicleId(i32::MIN), ..items[0] });
+        items.push(IndexEntry { lanelet: 2, s: 10.0, id: VehicleId(i32::MAX), ..items[0] });
+        for threads in [1, 2] {
+            let mut index = LaneIndex::default();
+            index.rebuild(Parallelism::split(threads), 6, &items);
+            let mut found = 0;
+            for e in &items {
+                let list = index.on(e.lanelet);
+                let want = list.partition_point(|x| x.s < e.s);
+                match index.own_place(e.lanelet, e.s, e.id) {
+                    Some(k) => {
+                        assert_eq!(k, want, "{e:?} on {threads} threads");
+                        found += 1;
+                    }
+                    // Only the crossing vehicle's other entry and the ids past the bound.
+                    None => assert!(e.id == items[5].id || e.id.0.unsigned_abs() > 1 << 20, "{e:?}"),
+                }
+                // Elsewhere, or at another arc length: no place (the caller searches).
+                assert_eq!(index.own_place((e.lanelet + 1) % 6, e.s, e.id), None);
+                assert_eq!(index.own_place(e.lanelet, e.s + 0.5, e.id), None);
+                assert_eq!(index.own_place(e.lanelet, f64::NAN, e.id), None);
+            }
+            assert_eq!(found, 600, "every vehicle with one entry and a small id, once");
+            assert!(list_has_ties(&index), "the case of equal arc lengths is covered");
+            // A vehicle with no entry: none.
+            assert_eq!(index.own_place(0, 0.0, VehicleId(5000)), None);
+        }
+    }
+
+    fn list_has_ties(index: &LaneIndex) -> bool {
+        (0..6).any(|i| index.on(i).windows(2).any(|w| w[0].s == w[1].s))
     }
 
     #[test]

@@ -218,6 +218,10 @@ pub fn find_leaders(
                     if let Some(r) = readings.and_then(|r| r.get(start + k + PREFETCH_AHEAD)) {
                         prefetch_bytes(r.0.as_ptr().cast(), std::mem::size_of_val(&r.0[..]).min(256));
                     }
+                    // Its own entry in the lane index, where its leader search starts.
+                    if let (Some((index, _)), Some(id)) = (shared.lanes, ids.get(start + k + PREFETCH_AHEAD)) {
+                        index.prefetch_own(*id);
+                    }
                     leader_of(shared, table, start + k, lon);
                 }
             });
