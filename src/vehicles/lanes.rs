@@ -114,12 +114,15 @@ impl LaneMap {
     }
 
     /// Hint to the processor that lanelet `i`'s centre line around arc length `s` [m] will be
-    /// read soon (no effect off-road or off x86-64).
+    /// read soon (no effect off-road or off x86-64): the six points a walk from there reads
+    /// ([`crate::map::path::walk_four`]: two segments either side of the one at `s`), which
+    /// span two or three cache lines.
     pub fn prefetch(&self, i: Option<u32>, s: f64) {
         let Some(path) = i.and_then(|i| self.centres.get(i as usize)) else { return };
         // A multiplication, not a division: this runs beside the lane positions' own divisions.
-        if let Some(p) = path.points.get(path.segment_near(s)) {
-            crate::sim::parallel::prefetch(p);
+        let k = path.segment_near(s).saturating_sub(2);
+        if let Some(p) = path.points.get(k..(k + 6).min(path.points.len())) {
+            crate::world::prefetch_bytes(p.as_ptr().cast(), std::mem::size_of_val(p));
         }
     }
 
@@ -359,7 +362,8 @@ impl Pass for LanePositionsPass<'_, '_> {
             // The centre-line points a vehicle a few places on will read are far apart in memory
             // on a big map: ask for them now so their loads overlap these vehicles' work.
             for ahead in positions.iter().skip(r.start + PREFETCH_AHEAD).take(r.len()) {
-                lanes.prefetch(ahead.on(), ahead.s);
+                // Where its walk will start: about its speed times the step on.
+                lanes.prefetch(ahead.on(), ahead.s + ahead.speed * dt);
             }
             let (states, positions) = (&states[r.clone()], &mut positions[r]);
             if !update_four(lanes, states, positions, dt) {
