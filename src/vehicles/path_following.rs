@@ -11,6 +11,7 @@ use crate::sim::{Plugin, SimBuilder};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::lane_state::LaneChanger;
+use super::lanes::PREFETCH_AHEAD;
 use super::longitudinal::SteeringSystems;
 use crate::map::Path;
 use crate::map::path::{LANES, along_segment, groups_of_four, per_lane, walk_four};
@@ -125,6 +126,13 @@ impl Pass for FollowPass<'_, '_> {
         let FollowPass { table, start, followers, commands, dt } = self;
         let n = followers.len().min(commands.len());
         for r in groups_of_four(n) {
+            // What a vehicle a few places on reads first: whether its lane changer has a
+            // manoeuvre under way (one byte of a large component, a line of its own per vehicle).
+            if let Some(changers) = table.changers {
+                for ahead in changers.iter().skip(start + r.start + PREFETCH_AHEAD).take(r.len()) {
+                    crate::world::prefetch(std::ptr::from_ref(&ahead.active).cast::<u8>());
+                }
+            }
             let (k, followers, commands) = (r.start, &mut followers[r.clone()], &mut commands[r]);
             if !follow_four(table, start + k, followers, commands, dt) {
                 follow_one_by_one(table, start + k, followers, commands, dt);
