@@ -277,7 +277,7 @@ impl SpatialGrid {
         // over the chunks), then each chunk's counts become its cursors: the bucket's start plus
         // the counts of the chunks before it. Passes over whole arrays without a branch (the
         // compiler vectorises the sums), not a loop over buckets and chunks.
-        let chunks = n.div_ceil(n.div_ceil(parallelism.chunks_for(n)));
+        let chunks = parallelism.chunks_for(n);
         let (starts, acc) = (&mut self.starts, &mut self.acc);
         starts.clear();
         starts.resize(buckets + 1, 0);

@@ -53,7 +53,7 @@ const WAIT_SPIN: Duration = Duration::from_micros(100);
 /// vehicles the caller waited 50-120 ms a run with one chunk a thread, 28-49 ms with 2, 12-24 ms
 /// with 4, but at 100,000 vehicles 4 made the wifi round 10-30 % slower than 2 (0.98 -> 1.08 s
 /// and 0.83 -> 1.12 s), and wall time at 10,000 could not tell 2 and 4 apart; 8 was slower.
-pub const CHUNKS_PER_THREAD: usize = 2;
+pub const CHUNKS_PER_THREAD: usize = 4;
 
 /// One section's work as the helpers see it: call `run(data, chunk)` for their chunk.
 struct Job {
@@ -401,10 +401,9 @@ impl Parallelism {
             f(0, a, b, c, &mut scratch[0]);
             return;
         };
-        let size = len.div_ceil(chunks);
-        let parts = Parts { items: a.as_mut_ptr(), len, scratch: scratch.as_mut_ptr(), size };
-        let seconds = Parts { items: b.as_mut_ptr(), len, scratch: std::ptr::null_mut::<()>(), size };
-        let thirds = Parts { items: c.as_mut_ptr(), len, scratch: std::ptr::null_mut::<()>(), size };
+        let parts = Parts { items: a.as_mut_ptr(), len, scratch: scratch.as_mut_ptr(), chunks };
+        let seconds = Parts { items: b.as_mut_ptr(), len, scratch: std::ptr::null_mut::<()>(), chunks };
+        let thirds = Parts { items: c.as_mut_ptr(), len, scratch: std::ptr::null_mut::<()>(), chunks };
         team.run(chunks, &|k: usize| {
             // SAFETY: the team calls every chunk number in 0..chunks once, `scratch` holds at
             // least `chunks` values (grown above), and chunk k of `a`, `b` and `c` are the same
@@ -413,19 +412,42 @@ impl Parallelism {
             if let (Some((chunk, s)), Some(second), Some(third)) =
                 unsafe { (parts.take(k), seconds.take_items(k), thirds.take_items(k)) }
             {
-                f(k * size, chunk, second, third, s);
+                f(chunk_start(len, chunks, k), chunk, second, third, s);
             }
         });
     }
 }
 
-/// The items and scratch values of one [`Parallelism::for_each_chunk_at`] call, cut into chunks
-/// of `size` items without an allocation per call.
+/// Where chunk `k` of `chunks` over `len` items starts (`k == chunks`: `len`). Cut as
+/// [`Team::run`] shares them out, [`CHUNKS_PER_THREAD`] to each participant: each participant's
+/// equal share in chunks of falling size ([`CHUNK_SHARES`]), so that whichever chunk is still
+/// running when the other participant runs out of work is a small one (the wait at the end of a
+/// section is about half the chunk in progress). Otherwise equal chunks. Either way, with
+/// `chunks <= len` ([`Parallelism::chunks_for`]) no chunk is empty.
+pub(crate) fn chunk_start(len: usize, chunks: usize, k: usize) -> usize {
+    let participants = chunks / CHUNKS_PER_THREAD;
+    // (Only where every chunk gets an item: a share of 10 or more.)
+    if chunks > 1 && chunks % CHUNKS_PER_THREAD == 0 && len >= 10 * participants {
+        let (p, j) = (k / CHUNKS_PER_THREAD, k % CHUNKS_PER_THREAD);
+        let from = p * len / participants;
+        let share = (p + 1) * len / participants - from;
+        let total = CHUNK_SHARES[CHUNKS_PER_THREAD];
+        from + share * CHUNK_SHARES[j] / total
+    } else {
+        k * len / chunks.max(1)
+    }
+}
+
+/// The running sums of the chunk sizes within a participant's share ([`chunk_start`]).
+const CHUNK_SHARES: [usize; CHUNKS_PER_THREAD + 1] = [0, 4, 7, 9, 10];
+
+/// The items and scratch values of one [`Parallelism::for_each_chunk_at`] call, cut into
+/// `chunks` chunks ([`chunk_start`]) without an allocation per call.
 struct Parts<T, S> {
     items: *mut T,
     len: usize,
     scratch: *mut S,
-    size: usize,
+    chunks: usize,
 }
 
 // SAFETY: `Parts` only hands out the disjoint chunk `k` to whoever runs chunk `k` (see
@@ -449,11 +471,14 @@ impl<T, S> Parts<T, S> {
     /// # Safety
     /// Each `k` must be taken at most once while the borrowed slice lives.
     unsafe fn take_items<'a>(&self, k: usize) -> Option<&'a mut [T]> {
-        let start = k.checked_mul(self.size)?;
-        if start >= self.len {
+        if k >= self.chunks {
             return None;
         }
-        let len = self.size.min(self.len - start);
+        let start = chunk_start(self.len, self.chunks, k);
+        let len = chunk_start(self.len, self.chunks, k + 1) - start;
+        if len == 0 {
+            return None;
+        }
         // SAFETY: `start + len <= self.len`, and chunk `k` is taken once (the caller's promise).
         unsafe { Some(std::slice::from_raw_parts_mut(self.items.add(start), len)) }
     }
@@ -564,6 +589,31 @@ mod tests {
     }
 
     #[test]
+    fn each_participants_share_is_cut_into_falling_chunks_none_empty() {
+        for threads in [2, 3, 4] {
+            let p = Parallelism { threads, min_vehicles: 0 };
+            for len in [1, 2, 7, 8, 9, 12, 39, 40, 41, 100, 1001, 10_000] {
+                let chunks = p.chunks_for(len);
+                let starts: Vec<usize> = (0..=chunks).map(|k| chunk_start(len, chunks, k)).collect();
+                assert_eq!((starts[0], starts[chunks]), (0, len), "{threads} threads, {len} items");
+                assert!(starts.windows(2).all(|w| w[0] < w[1]), "none empty: {starts:?}");
+                if len >= 10 * threads {
+                    // Each participant's chunks (as `Team::run` shares them out) fall in size,
+                    // its last at most half its first.
+                    for share in starts.windows(CHUNKS_PER_THREAD + 1).step_by(CHUNKS_PER_THREAD) {
+                        let sizes: Vec<usize> = share.windows(2).map(|w| w[1] - w[0]).collect();
+                        assert!(sizes.windows(2).all(|w| w[0] >= w[1]), "{sizes:?}");
+                        assert!(sizes[sizes.len() - 1] * 2 <= sizes[0], "{sizes:?}");
+                    }
+                    // And the shares are equal to an item.
+                    let share = |q: usize| starts[(q + 1) * CHUNKS_PER_THREAD] - starts[q * CHUNKS_PER_THREAD];
+                    assert!((0..threads).all(|q| share(q).abs_diff(len / threads) <= 1), "{starts:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn the_caller_takes_the_chunks_of_a_helper_that_is_held_up() {
         let p = Parallelism { threads: 2, min_vehicles: 0 };
         let caller = std::thread::current().id();
@@ -585,9 +635,8 @@ mod tests {
         });
         let chunks = p.chunks_for(800);
         assert_eq!(scratch.len(), chunks);
-        let size = 800 / chunks;
         for (k, s) in scratch.iter().enumerate() {
-            assert_eq!(s.map(|s| s.0), Some(k * size), "chunk {k} ran on its own items once");
+            assert_eq!(s.map(|s| s.0), Some(chunk_start(800, chunks, k)), "chunk {k} ran on its own items once");
         }
         let by_caller = scratch.iter().filter(|s| s.is_some_and(|s| s.1)).count();
         // The caller's own half, and all but the held chunk of the helper's.
