@@ -429,7 +429,7 @@ impl Parallelism {
 pub(crate) fn chunk_start(len: usize, chunks: usize, k: usize) -> usize {
     let participants = chunks / CHUNKS_PER_THREAD;
     // (Only where every chunk gets an item: a share of 10 or more.)
-    if chunks > 1 && chunks % CHUNKS_PER_THREAD == 0 && len >= 10 * participants {
+    if chunks > 1 && chunks.is_multiple_of(CHUNKS_PER_THREAD) && len >= 10 * participants {
         let (p, j) = (k / CHUNKS_PER_THREAD, k % CHUNKS_PER_THREAD);
         let from = p * len / participants;
         let share = (p + 1) * len / participants - from;

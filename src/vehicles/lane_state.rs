@@ -650,10 +650,17 @@ impl LaneIndex {
         let start = *self.starts.get(i as usize)? as usize;
         let list = &self.entries[start..=k];
         let mut k = k - start;
-        while k > 0 && !(list[k - 1].s < s) {
+        while k > 0 && list[k - 1].s.partial_cmp(&s) != Some(std::cmp::Ordering::Less) {
             k -= 1;
         }
         Some(k)
+    }
+
+    /// The first of lanelet `i`'s entries (`list`) at or after arc length `s`: at `me`'s own
+    /// entry when it is there ([`LaneIndex::own_place`]), else searched for.
+    #[inline]
+    fn start_of(&self, lanes: &LaneMap, list: &[IndexEntry], i: u32, s: f64, me: VehicleId) -> usize {
+        self.own_place(i, s, me).unwrap_or_else(|| first_at_or_after(list, s, lanes.per_length(i)))
     }
 
     /// Fetch `me`'s own entry into the cache ahead of its [`LaneIndex::ahead_where`] (a hint).
@@ -695,10 +702,7 @@ impl LaneIndex {
         let mut first = true;
         for _ in 0..8 {
             let list = self.on(i);
-            let from = match first {
-                true => self.own_place(i, s, me).unwrap_or_else(|| first_at_or_after(list, s, lanes.per_length(i))),
-                false => 0,
-            };
+            let from = if first { self.start_of(lanes, list, i, s, me) } else { 0 };
             if let Some(e) = list[from..].iter().find(|e| e.id != me && seen(e.id)) {
                 let distance = if first { e.s - s } else { base + e.s };
                 return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
@@ -721,10 +725,7 @@ impl LaneIndex {
         let mut first = true;
         for _ in 0..8 {
             let list = self.on(i);
-            let end = match first {
-                true => self.own_place(i, s, me).unwrap_or_else(|| first_at_or_after(list, s, lanes.per_length(i))),
-                false => list.len(),
-            };
+            let end = if first { self.start_of(lanes, list, i, s, me) } else { list.len() };
             if let Some(e) = list[..end].iter().rev().find(|e| e.id != me) {
                 let distance = if first { s - e.s } else { base + lanes.length(i) - e.s };
                 return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
