@@ -6,6 +6,8 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
+use std::sync::atomic::AtomicU32;
+use std::sync::atomic::Ordering::Relaxed;
 
 use bevy_ecs::prelude::{Component, Resource};
 
@@ -403,13 +405,13 @@ pub struct LaneIndex {
     /// The allocations of the chunks of the items and of the stretches of `entries` each chunk
     /// fills (slices: a pointer and a length), kept between ticks ([`recycle`]).
     spare: [Vec<(usize, usize)>; 2],
-    /// By vehicle id ([`slot_key`]): where in `entries` the last rebuild put an entry of that
-    /// vehicle (of a crossing vehicle's two entries, one). Only a hint, checked where it is read
-    /// ([`LaneIndex::own_place`]): a vehicle gone, or an id past the table, reads nothing.
-    slots: Vec<u32>,
+    /// Where each vehicle's entry went ([`Slots`]), for ids whose key is below a bound in
+    /// proportion to the entries (the others are searched for as before); a vehicle gone reads
+    /// a place that is not its own.
+    slots: Slots,
 }
 
-/// Where vehicle `id`'s place is kept in [`LaneIndex::slots`]: ids of either sign (traffic's are
+/// Where vehicle `id`'s place is kept in [`Slots`]: ids of either sign (traffic's are
 /// negative) interleaved, 0, -1, 1, -2, 2, ... as 0, 1, 2, 3, 4, ...
 #[inline]
 fn slot_key(id: VehicleId) -> usize {
@@ -431,11 +433,50 @@ struct SortGroup<'a> {
 }
 
 impl SortGroup<'_> {
-    fn sort(&mut self) {
+    /// Sort each lanelet's entries, then note where each vehicle's entry went in `slots` (the
+    /// group's entries start at `starts[0]` in the index).
+    fn sort(&mut self, slots: &Slots) {
         let Some(&base) = self.starts.first() else { return };
         for w in self.starts.windows(2) {
             sort_nearly_sorted(&mut self.entries[(w[0] - base) as usize..(w[1] - base) as usize]);
         }
+        for (k, e) in self.entries.iter().enumerate() {
+            slots.note(e.id, base + k as u32);
+        }
+    }
+}
+
+/// By vehicle id ([`slot_key`]): where in the [`LaneIndex`]'s entries the last rebuild put an
+/// entry of that vehicle. Written by the sorting threads side by side: a crossing vehicle's two
+/// entries may lie in two groups, and either may be noted (relaxed atomic stores: plain stores
+/// on x86-64). Only a hint, checked where it is read ([`LaneIndex::own_place`]).
+#[derive(Debug, Default)]
+struct Slots(Vec<AtomicU32>);
+
+impl Clone for Slots {
+    fn clone(&self) -> Slots {
+        Slots(self.0.iter().map(|a| AtomicU32::new(a.load(Relaxed))).collect())
+    }
+}
+
+impl Slots {
+    /// Grow to hold the keys below `bound` (new places hold nothing).
+    fn reach(&mut self, bound: usize) {
+        if self.0.len() < bound {
+            self.0.resize_with(bound, || AtomicU32::new(u32::MAX));
+        }
+    }
+
+    #[inline]
+    fn note(&self, id: VehicleId, place: u32) {
+        if let Some(a) = self.0.get(slot_key(id)) {
+            a.store(place, Relaxed);
+        }
+    }
+
+    #[inline]
+    fn get(&self, id: VehicleId) -> Option<usize> {
+        self.0.get(slot_key(id)).map(|a| a.load(Relaxed) as usize)
     }
 }
 
@@ -464,18 +505,20 @@ impl LaneIndex {
         } else {
             self.place(lanelets, items);
         }
+        // Noted by the sorting threads (a serial pass over every entry was as long as the sort).
+        self.slots.reach((8 * self.entries.len()).max(1 << 12));
         self.sort(parallelism, lanelets);
-        self.note_slots();
     }
 
     /// Each lanelet's entries by [`entry_order`], over the threads in groups of lanelets.
     fn sort(&mut self, parallelism: Parallelism, lanelets: usize) {
-        let LaneIndex { entries, starts, .. } = self;
+        let LaneIndex { entries, starts, slots, .. } = self;
+        let slots = &*slots;
         let acc = *starts.last().unwrap_or(&0);
         let threads = parallelism.threads_for(entries.len());
         let groups = (threads * CHUNKS_PER_THREAD).min(SORT_GROUPS).min(lanelets);
         if threads <= 1 || groups <= 1 {
-            SortGroup { entries, starts }.sort();
+            SortGroup { entries, starts }.sort(slots);
             return;
         }
         // Groups of consecutive lanelets of about equal entry counts, one a chunk.
@@ -497,7 +540,7 @@ impl LaneIndex {
         }
         Parallelism::split(threads).for_each_chunk(&mut parts[..groups], &mut Vec::<()>::new(), |chunk, _| {
             for part in chunk {
-                part.sort();
+                part.sort(slots);
             }
         });
     }
@@ -618,30 +661,13 @@ impl LaneIndex {
         spare[0] = recycle(parts);
     }
 
-    /// Note where each vehicle's entry went ([`LaneIndex::slots`]), for ids whose key is below
-    /// a bound in proportion to the entries (the others are searched for as before).
-    fn note_slots(&mut self) {
-        let LaneIndex { entries, slots, .. } = self;
-        let bound = (8 * entries.len()).max(1 << 16);
-        for (k, e) in entries.iter().enumerate() {
-            let key = slot_key(e.id);
-            if key >= bound {
-                continue;
-            }
-            if key >= slots.len() {
-                slots.resize(key + 1, u32::MAX);
-            }
-            slots[key] = k as u32;
-        }
-    }
-
     /// `first_at_or_after(self.on(i), s, ..)` read from `me`'s own entry instead of searched
     /// for, when `me` has an entry at arc length `s` on lanelet `i` (a vehicle asking about its
     /// own lane: the leader search of every vehicle, every control tick). Entries before it at
     /// the same arc length (smaller ids) are walked back over. `None`: search.
     #[inline]
     fn own_place(&self, i: u32, s: f64, me: VehicleId) -> Option<usize> {
-        let k = *self.slots.get(slot_key(me))? as usize;
+        let k = self.slots.get(me)?;
         let e = self.entries.get(k)?;
         // `!=` also turns a NaN `s` away.
         if e.id != me || e.lanelet != i || e.s != s {
@@ -666,10 +692,10 @@ impl LaneIndex {
     /// Fetch `me`'s own entry into the cache ahead of its [`LaneIndex::ahead_where`] (a hint).
     #[inline]
     pub fn prefetch_own(&self, me: VehicleId) {
-        if let Some(&k) = self.slots.get(slot_key(me))
-            && (k as usize) < self.entries.len()
+        if let Some(k) = self.slots.get(me)
+            && k < self.entries.len()
         {
-            crate::world::prefetch_bytes(self.entries.as_ptr().wrapping_add(k as usize).cast(), 32);
+            crate::world::prefetch_bytes(self.entries.as_ptr().wrapping_add(k).cast(), 32);
         }
     }
 
