@@ -695,7 +695,7 @@ impl LaneIndex {
         if let Some(k) = self.slots.get(me)
             && k < self.entries.len()
         {
-            crate::world::prefetch_bytes(self.entries.as_ptr().wrapping_add(k).cast(), 32);
+            crate::world::prefetch_bytes(self.entries.as_ptr().wrapping_add(k).cast(), size_of::<IndexEntry>());
         }
     }
 
