@@ -20,7 +20,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Added, Entity, Local, ParamSet, Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Entity, Local, Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
@@ -44,7 +44,7 @@ pub const MIN_CHANGE_LENGTH: f64 = 10.0;
 
 pub use super::lane_state::{
     ChangeKind, FollowLaw, Found, IndexEntry, LaneChangeParams, LaneChanger, LaneCrossings, LaneIndex, Manoeuvre,
-    RouteGoal, SEARCH_HORIZON, Side,
+    NewLaneChangers, RouteGoal, SEARCH_HORIZON, Side,
 };
 
 /// One finished (or aborted) lane change, for `summary.json`.
@@ -708,18 +708,34 @@ fn decide_table(
 /// inserted once, when its vehicle spawns. Doing this in the serial gathering of
 /// `decide_lane_changes` read every vehicle's `LaneChanger` every tick for the few new ones: a
 /// cache miss per vehicle, a third of the lane-change decisions' serial time (issue 19 item 8).
+/// The new ones come from [`NewLaneChangers`], which the component's `on_add` hook fills: an
+/// `Added<LaneChanger>` query tested every vehicle's tick every control tick, on one thread
+/// (2 ms of a 10 s `--lane-change` bench run). The first run also takes every changer without
+/// its lanelets looked up, in case some were added before the plugin installed the list (and
+/// so does the first run after a tick without a [`LaneMap`]).
 #[allow(clippy::type_complexity)]
 pub fn find_reach(
     lanes: Option<Res<LaneMap>>,
     mut paths: ResMut<LanePaths>,
-    mut queries: ParamSet<(Query<Entity, Added<LaneChanger>>, Query<(&LanePosition, &mut LaneChanger)>)>,
+    mut new: ResMut<NewLaneChangers>,
+    mut changers: Query<(Entity, &LanePosition, &mut LaneChanger)>,
     mut waiting: Local<Vec<Entity>>,
+    mut started: Local<bool>,
 ) {
-    let Some(lanes) = lanes else { return };
-    waiting.extend(queries.p0().iter());
-    let mut changers = queries.p1();
+    waiting.append(&mut new.0);
+    let Some(lanes) = lanes else {
+        // Nothing to look up on: the first run with a map takes them all.
+        waiting.clear();
+        *started = false;
+        return;
+    };
+    if !std::mem::replace(&mut *started, true) {
+        waiting.extend(changers.iter().filter(|(_, _, ch)| ch.reach.is_none()).map(|(e, _, _)| e));
+        waiting.sort_unstable();
+        waiting.dedup();
+    }
     waiting.retain(|&e| {
-        let Ok((pos, mut ch)) = changers.get_mut(e) else { return false };
+        let Ok((_, pos, mut ch)) = changers.get_mut(e) else { return false };
         if ch.reach.is_some() {
             return false;
         }
@@ -1042,6 +1058,7 @@ impl Plugin for LaneChangePlugin {
         sim.world_mut().init_resource::<LaneSignals>();
         sim.world_mut().init_resource::<Claims>();
         sim.world_mut().init_resource::<LaneChangeLimits>();
+        sim.world_mut().init_resource::<NewLaneChangers>();
         sim.configure_sets(Control, LaneChangeSystems.in_set(SimSystems::Control).before(SteeringSystems));
         sim.add_systems(Control, (find_reach, decide_lane_changes).chain().in_set(LaneChangeSystems));
         sim.add_systems(Control, limit_for_lane_changes.in_set(LongitudinalSystems::Limit));

@@ -9,7 +9,9 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicU32;
 use std::sync::atomic::Ordering::Relaxed;
 
-use bevy_ecs::prelude::{Component, Resource};
+use bevy_ecs::lifecycle::HookContext;
+use bevy_ecs::prelude::{Component, Entity, Resource};
+use bevy_ecs::world::DeferredWorld;
 
 use crate::map::{LaneletId, Path, Place};
 use crate::world::{TurnSignal, VehicleId};
@@ -213,6 +215,7 @@ impl Manoeuvre {
 /// after (the goal, the law, the manoeuvre's body). In the compiler's order those fields lay
 /// spread over all seven lines of the 392 bytes.
 #[derive(Component, Debug, Clone, PartialEq)]
+#[component(on_add = note_new_changer)]
 #[repr(C)]
 pub struct LaneChanger {
     /// Parameters.
@@ -254,7 +257,28 @@ pub struct LaneChanger {
     pub law: FollowLaw,
 }
 
+/// The vehicles a [`LaneChanger`] was added to since
+/// [`find_reach`](super::lane_changing::find_reach) last took them (noted by the component's
+/// `on_add` hook, where the [`LaneChangePlugin`](super::LaneChangePlugin) installed this list),
+/// so that it need not test every vehicle's `Added` tick each control tick.
+#[derive(Resource, Debug, Default)]
+pub struct NewLaneChangers(pub Vec<Entity>);
+
+/// `on_add` hook of [`LaneChanger`]: note the vehicle in [`NewLaneChangers`], if installed.
+fn note_new_changer(mut world: DeferredWorld<'_>, context: HookContext) {
+    if let Some(mut new) = world.get_resource_mut::<NewLaneChangers>() {
+        new.0.push(context.entity);
+    }
+}
+
 impl LaneChanger {
+    /// Whether the lanelets that reach its goal have been looked up (at the first control tick
+    /// that finds the vehicle on a lanelet, [`find_reach`](super::lane_changing::find_reach)):
+    /// until then it makes no change.
+    pub fn knows_its_goal_lanes(&self) -> bool {
+        self.reach.is_some()
+    }
+
     /// The leading bytes of a changer that the evaluation reads every control tick (every field
     /// up to and including the first byte of `active`).
     pub const HOT_BYTES: usize = std::mem::offset_of!(LaneChanger, active) + 1;

@@ -55,7 +55,7 @@ pub use gcdc::{GcdcMessage, GcdcPlugin, GcdcVehicle, MergeLog, MergeParams, Merg
 pub use idm::{Idm, IdmController, IdmPlugin, control_idm};
 pub use lane_changing::{
     ChangeKind, FollowLaw, LaneChangeEvent, LaneChangeLog, LaneChangeParams, LaneChangePlugin, LaneChanger,
-    LaneCrossings, RouteGoal, Side,
+    LaneCrossings, NewLaneChangers, RouteGoal, Side,
 };
 pub use lanes::{LaneMap, LanePosition, LanePositionsAt, LanesPlugin, refresh_lane_positions};
 pub use longitudinal::{

@@ -689,6 +689,45 @@ mod tests {
     }
 
     #[test]
+    fn lane_changers_added_before_the_first_tick_or_during_the_run_get_their_goal_lanes() {
+        use crate::vehicles::{LaneChanger, NewLaneChangers};
+        let world = BenchWorld { vehicles: 30, lane_change: true, ..Default::default() };
+        let mut b = world.builder().expect("the bench world builds");
+        b.insert_resource(Parallelism::single());
+        // The changers' hook noted the 30 spawned after the plugin; forget them, as if they had
+        // been added before the plugin installed the list: the first tick must find them anyway.
+        assert_eq!(b.world_mut().resource::<NewLaneChangers>().0.len(), 30);
+        b.world_mut().resource_mut::<NewLaneChangers>().0.clear();
+        let mut sim = b.build();
+        let knowing = |sim: &mut crate::sim::Sim| {
+            let world = sim.world_mut();
+            let mut q = world.query::<(&VehicleId, &LaneChanger)>();
+            q.iter(world).filter(|(_, ch)| ch.knows_its_goal_lanes()).map(|(id, _)| id.0).collect::<Vec<_>>()
+        };
+        assert!(knowing(&mut sim).is_empty());
+        sim.run_for(0.1);
+        assert_eq!(knowing(&mut sim).len(), 30, "every changer present at the first tick");
+        // One more, spawned mid-run beside the others (as traffic enters): only the hook tells.
+        let lane = world.lanes().expect("the bench world builds").remove(1);
+        let s = 0.5 * lane.length + 20.0;
+        let (p, heading) = lane.sample(s);
+        let mut spec = VehicleSpec::new(VehicleId(1000), VehicleState::new(p, heading, world.speed));
+        spec.route = Some(Arc::clone(&lane));
+        let e = sim.spawn_vehicle(spec).expect("spawns");
+        let law = FollowLaw::Idm(Idm::default());
+        sim.world_mut().entity_mut(e).insert((
+            PathFollower::starting_at(PathFollowing { speed: world.speed, ..Default::default() }, s),
+            IdmController { params: Idm::default() },
+            LanePosition::default(),
+            LaneChanger::new(LaneChangeParams::default(), law, RouteGoal::Loop),
+        ));
+        sim.run_for(0.1);
+        let known = knowing(&mut sim);
+        assert_eq!(known.len(), 31);
+        assert!(known.contains(&1000), "the changer added during the run has its goal's lanelets");
+    }
+
+    #[test]
     fn the_report_counts_the_lane_changes_of_a_lane_change_run_and_none_without() {
         let plain = BenchWorld { vehicles: 300, ..Default::default() };
         let changing = BenchWorld { lane_change: true, ..plain };
