@@ -767,6 +767,31 @@ struct Sender {
 /// [`WifiScratch::sender_of`] of a vehicle that sends nothing.
 const NOT_SENDING: u32 = u32::MAX;
 
+/// Where a wifi round finds a vehicle (by its place in the query) among the senders, with
+/// neighbour lists.
+#[derive(Clone, Copy)]
+enum SenderOf<'a> {
+    /// Every vehicle sent and the senders are in query order: its own place.
+    Same,
+    /// Every vehicle sent one message and the senders are in reverse query order (the
+    /// benchmark's ids fall): the count less one less its place.
+    Reversed(u32),
+    /// Looked up ([`WifiScratch::sender_of`]; [`NOT_SENDING`] for a vehicle that sent nothing).
+    Table(&'a [u32]),
+}
+
+impl SenderOf<'_> {
+    /// The sender at place `j` of the query, or [`NOT_SENDING`].
+    #[inline(always)]
+    fn get(self, j: u32) -> u32 {
+        match self {
+            SenderOf::Same => j,
+            SenderOf::Reversed(count) => count - 1 - j,
+            SenderOf::Table(table) => table[j as usize],
+        }
+    }
+}
+
 /// The messages of one chunk of out-boxes and who sent them, in query order.
 /// On cache lines of its own (see [`crate::sim::parallel::Padded`]).
 #[derive(Default)]
@@ -778,11 +803,14 @@ struct Outgoing {
     rising: bool,
     /// The senders' ids fall (strictly) and each sent one message.
     falling: bool,
+    /// Earliest and latest send time of `messages` [µs] (none: `u64::MAX`, 0).
+    sent: (u64, u64),
 }
 
 impl Outgoing {
     /// Empty the wifi out-boxes of `boxes` (at `states`, places `start..` in the query) into this.
     fn take(&mut self, start: usize, states: &[VehicleState], boxes: &mut [Mailbox]) {
+        let first = self.messages.len();
         for (k, (state, mailbox)) in states.iter().zip(boxes).enumerate() {
             if !mailbox.wifi_out.is_empty() {
                 let (id, position, count) = (mailbox.owner(), state.position, mailbox.wifi_out.len() as u32);
@@ -795,6 +823,9 @@ impl Outgoing {
                 }
             }
         }
+        // While the messages are in cache: the round's ages need not read the batch again.
+        self.sent =
+            self.messages[first..].iter().fold((u64::MAX, 0), |(lo, hi), m| (lo.min(m.sent_at.0), hi.max(m.sent_at.0)));
         self.note_order();
     }
 
@@ -861,10 +892,10 @@ struct WifiRound<'a> {
     senders: &'a [Sender],
     starts: &'a [u32],
     grid: &'a SpatialGrid,
-    /// The sensors' neighbour lists (each vehicle's, by place in the query) and
-    /// [`WifiScratch::sender_of`], when they hold everyone within the wifi range: then the grid
-    /// is not built.
-    nearby: Option<(&'a Lists, &'a [u32])>,
+    /// The sensors' neighbour lists (each vehicle's, by place in the query) and where each
+    /// vehicle is among the senders, when they hold everyone within the wifi range: then the
+    /// grid is not built.
+    nearby: Option<(&'a Lists, SenderOf<'a>)>,
 }
 
 impl WifiRound<'_> {
@@ -900,11 +931,12 @@ impl WifiRound<'_> {
                 // The senders on its list within range: the test of `Candidates::within`.
                 let (p, r2) = (state.position, self.range * self.range);
                 for &j in lists.of(slot as usize) {
-                    let i = sender_of[j as usize];
+                    let i = sender_of.get(j);
                     if i == NOT_SENDING {
                         continue;
                     }
-                    let Sender { id, position, .. } = senders[i as usize];
+                    let Sender { id, position, place, .. } = senders[i as usize];
+                    debug_assert_eq!(place, j, "the sender found is the neighbour's");
                     if within_reach(p, position.x, position.y, r2) & (id != owner) {
                         t.heard.push(i);
                     }
@@ -1037,6 +1069,13 @@ pub fn deliver_wifi(
     // chunks joined in order, so any thread count gathers the same batch.
     s.senders.clear();
     let mut base = 0;
+    // Earliest and latest send time of the round's messages [µs], as each chunk found them.
+    let mut sent = (u64::MAX, 0);
+    let mut note_sent = |chunks: &[Outgoing]| {
+        for out in chunks.iter().filter(|out| !out.messages.is_empty()) {
+            sent = (sent.0.min(out.sent.0), sent.1.max(out.sent.1));
+        }
+    };
     if let Ok(tables) = mailboxes.contiguous_iter_mut() {
         for (_, _, states, mut boxes) in tables {
             // The last table's messages and senders stay in the chunks (see `join_batch`).
@@ -1047,6 +1086,7 @@ pub fn deliver_wifi(
             parallelism.for_each_chunk_at(&mut boxes, &mut s.gathered, |start, chunk, out| {
                 out.take(base + start, &states[start..], chunk)
             });
+            note_sent(&s.gathered);
             base += states.len();
         }
     } else {
@@ -1054,10 +1094,13 @@ pub fn deliver_wifi(
         let out = &mut Outgoing::default();
         for (_, _, state, mut mailbox) in &mut mailboxes {
             out.take(0, std::slice::from_ref(state), std::slice::from_mut(&mut *mailbox));
+            note_sent(std::slice::from_ref(out));
         }
         s.senders.append(&mut out.senders);
         s.buffer.append(&mut out.messages);
     }
+    // The order `join_batch` finds the senders in (rising or falling ids), if one.
+    let order = (s.buffer.is_empty() && s.senders.is_empty()).then(|| round_order(&s.gathered)).flatten();
     let batch = join_batch(&mut s.gathered, &mut s.buffer, (&mut s.senders, &mut s.starts), parallelism);
     stats.wifi_sent += batch.len() as u64;
     // The sensors' neighbour lists, when every vehicle lies in one table and they still hold
@@ -1072,13 +1115,18 @@ pub fn deliver_wifi(
         sensor_grid.lists_within(ids?, states, config.wifi_range, (parallelism, now), &mut s.drift)
     });
     let senders = &s.senders;
-    if let Some(lists) = nearby {
+    // With every vehicle of the one table sending, in id order (rising, or falling with one
+    // message each), a vehicle's sender is its own place or the mirror of it: no table to fill
+    // on this thread each round.
+    let everyone = nearby.is_some_and(|lists| senders.len() == lists.len());
+    let mirrored = order.filter(|_| everyone).map(|rising| !rising);
+    if let (Some(lists), None) = (nearby, mirrored) {
         s.sender_of.clear();
         s.sender_of.resize(lists.len(), NOT_SENDING);
         for (i, sender) in senders.iter().enumerate() {
             s.sender_of[sender.place as usize] = i as u32;
         }
-    } else {
+    } else if nearby.is_none() {
         s.grid.rebuild_on(parallelism, config.wifi_range, senders.len(), |i| {
             let Sender { id, position, .. } = senders[i];
             GridEntry { position, velocity: glam::DVec2::ZERO, id, index: i as u32 }
@@ -1092,11 +1140,18 @@ pub fn deliver_wifi(
         now_us: now.0,
         epoch: epoch.0,
         batch: &batch,
-        sent_at_us: common_sent_at(&batch).map(|t| t.0),
+        sent_at_us: (!batch.is_empty() && sent.0 == sent.1).then_some(sent.0),
         senders: &s.senders,
         starts: &s.starts,
         grid: &s.grid,
-        nearby: nearby.map(|lists| (lists, &s.sender_of[..])),
+        nearby: nearby.map(|lists| {
+            let sender_of = match mirrored {
+                Some(false) => SenderOf::Same,
+                Some(true) => SenderOf::Reversed(s.senders.len() as u32),
+                None => SenderOf::Table(&s.sender_of),
+            };
+            (lists, sender_of)
+        }),
     };
     // Receivers table by table, straight in the ECS tables' slices (contiguous access); a
     // receiver's slot is its place in query order, counted across the tables.
