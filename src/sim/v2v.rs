@@ -889,6 +889,8 @@ struct WifiRound<'a> {
     batch: &'a Arc<[Message]>,
     /// When every message of the batch was sent, if at one instant [µs].
     sent_at_us: Option<u64>,
+    /// Every sender sent one message (a beacon each): sender i's is message i of the batch.
+    one_each: bool,
     senders: &'a [Sender],
     starts: &'a [u32],
     grid: &'a SpatialGrid,
@@ -953,13 +955,13 @@ impl WifiRound<'_> {
                 t.heard.extend(t.slots.iter().map(|&slot| grid.index_of(slot)));
             }
             t.heard.sort_unstable();
-            let attempted = t.heard.iter().map(|&i| senders[i as usize].count as u64).sum::<u64>();
+            let attempted = if self.one_each {
+                t.heard.len() as u64
+            } else {
+                t.heard.iter().map(|&i| senders[i as usize].count as u64).sum::<u64>()
+            };
             t.stats.sent += attempted;
             if model.is_perfect() {
-                let picks = t.heard.iter().flat_map(|&i| {
-                    let start = starts[i as usize];
-                    start..start + senders[i as usize].count
-                });
                 match self.sent_at_us {
                     // All sent at one instant (every beacon of a round): the ages at once.
                     Some(sent_at) => t.stats.age_sum_us += attempted * now.saturating_sub(sent_at),
@@ -975,7 +977,17 @@ impl WifiRound<'_> {
                 t.stats.aged += attempted;
                 t.stats.delivered += attempted;
                 t.delivered += attempted;
-                mailbox.wifi_in.deliver_picks(self.epoch, self.round, &shared, owner, picks);
+                let inbox = &mut mailbox.wifi_in;
+                if self.one_each {
+                    // Each sender's index is its message's: a copy of the list, no lookups.
+                    inbox.deliver_picks(self.epoch, self.round, &shared, owner, t.heard.iter().copied());
+                } else {
+                    let picks = t.heard.iter().flat_map(|&i| {
+                        let start = starts[i as usize];
+                        start..start + senders[i as usize].count
+                    });
+                    inbox.deliver_picks(self.epoch, self.round, &shared, owner, picks);
+                }
                 continue;
             }
             t.picks.clear();
@@ -1141,6 +1153,7 @@ pub fn deliver_wifi(
         epoch: epoch.0,
         batch: &batch,
         sent_at_us: (!batch.is_empty() && sent.0 == sent.1).then_some(sent.0),
+        one_each: batch.len() == s.senders.len(),
         senders: &s.senders,
         starts: &s.starts,
         grid: &s.grid,
