@@ -308,7 +308,8 @@ fn fuzz_truck_line_encoder_extreme_states() {
 /// a long run's findings are kept).
 #[test]
 fn fuzz_corpus_replay() {
-    let targets: [(&str, fn(&[u8]) -> String); 5] = [
+    type Target = (&'static str, fn(&[u8]) -> String);
+    let targets: [Target; 5] = [
         ("osm", osm_target),
         ("scenario", scenario_target),
         ("viz", viz_target),

@@ -121,7 +121,7 @@ fn lab_mixed_tracks_the_real_trucks_and_virtual_vehicles_see_them() {
         let heading = (num("y").atan2(num("x")).to_degrees() + 90.0).rem_euclid(360.0);
         let yaw = num("yaw").rem_euclid(360.0);
         let diff = (yaw - heading).abs();
-        assert!(diff < 3.0 || diff > 357.0, "yaw {yaw} deg, heading {heading} deg: {line}");
+        assert!(!(3.0..=357.0).contains(&diff), "yaw {yaw} deg, heading {heading} deg: {line}");
     }
     let times: Vec<f64> =
         lines.iter().map(|l| l["time=".len()..].split("XcRt").next().unwrap().parse().unwrap()).collect();

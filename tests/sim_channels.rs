@@ -92,7 +92,10 @@ fn a_delayed_message_reaches_the_inbox_at_the_first_control_tick_after_it_is_due
 
 /// Delayed wifi while vehicles come and go between the round and the delivery: what each of
 /// `receivers` holds at 51 ms (sender, payload), and the wifi's (sent, delivered).
-fn delayed_wifi_under_churn(threads: usize) -> (Vec<(i32, Vec<(i32, u32)>)>, (u64, u64)) {
+/// Each receiver and the (sender, payload) of every message in its in-box.
+type Heard = Vec<(i32, Vec<(i32, u32)>)>;
+
+fn delayed_wifi_under_churn(threads: usize) -> (Heard, (u64, u64)) {
     let model = ChannelModel { delay_ms: 30.0, ..Default::default() };
     let mut b = SimBuilder::new();
     b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model, ..Default::default() } });
@@ -311,7 +314,10 @@ fn link_state_of_despawned_vehicles_is_dropped_so_memory_stays_flat_under_churn(
 /// of three network rounds with constant `loss`, and the network's channel stats. Round 1
 /// carries one message per vehicle written at t = 0 (one age); round 2 messages written at
 /// 0.25 s (even ids) and 0.5 s (odd ids, two each), so the ages differ.
-fn lossy_network_rounds(n: i32, loss: f64, seed: u64, threads: usize) -> (Vec<Vec<Vec<(i32, u64)>>>, ChannelStats) {
+/// Per round, each vehicle's in-box as (sender, send time [µs]) pairs.
+type Rounds = Vec<Vec<Vec<(i32, u64)>>>;
+
+fn lossy_network_rounds(n: i32, loss: f64, seed: u64, threads: usize) -> (Rounds, ChannelStats) {
     let mut b = SimBuilder::new();
     let network = ChannelModel { loss: Loss::Constant(loss), ..Default::default() };
     b.add_plugin(V2vPlugin { config: V2vConfig { network, ..Default::default() } });

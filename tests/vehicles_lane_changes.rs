@@ -85,7 +85,10 @@ fn overtaking_car_changes_left_passes_the_truck_and_returns_right() {
 
 /// Final (x, y) of every vehicle, as the run before lane changes existed wrote them (commit
 /// d24ab97, `smlworld run`; the last row of each vehicle in trajectories.csv).
-const BEFORE: [(&str, &[(i64, f64, f64)]); 3] = [
+/// (id, x, y) of each vehicle at the end of a run.
+type Ends = &'static [(i64, f64, f64)];
+
+const BEFORE: [(&str, Ends); 3] = [
     (
         "highway",
         &[

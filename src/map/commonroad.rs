@@ -381,12 +381,10 @@ fn parse_tree(text: &str, source: &FsPath) -> Result<Element, MapError> {
                     top.text.push_str(&t.xml10_content());
                 }
             }
-            Event::End(_) => {
-                if stack.len() > 1 {
-                    let el = stack.pop().unwrap_or_default();
-                    if let Some(parent) = stack.last_mut() {
-                        parent.children.push(el);
-                    }
+            Event::End(_) if stack.len() > 1 => {
+                let el = stack.pop().unwrap_or_default();
+                if let Some(parent) = stack.last_mut() {
+                    parent.children.push(el);
                 }
             }
             Event::Eof => break,
@@ -786,7 +784,7 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
     let mut first_line: BTreeMap<i64, usize> = BTreeMap::new();
     for el in root.children("lanelet") {
         let id = cx.id(el)?;
-        if id < 0 || id >= i64::MAX / (2 * NODE_IDS_PER_LANELET) {
+        if !(0..i64::MAX / (2 * NODE_IDS_PER_LANELET)).contains(&id) {
             return Err(cx.err(el, format!("lanelet id {id} must be in 0..{}", i64::MAX / (2 * NODE_IDS_PER_LANELET))));
         }
         if let Some(first) = first_line.insert(id, el.line) {

@@ -139,10 +139,10 @@ impl LaneletMap {
         for &(i, along) in &starts {
             let start = Node::At(i as u32, mm(along));
             let found = pathfinding::directed::dijkstra::dijkstra(&start, &successors, |n| matches!(n, Node::Goal(_)));
-            if let Some((nodes, cost)) = found {
-                if best.as_ref().is_none_or(|(_, c)| cost < *c) {
-                    best = Some((nodes, cost));
-                }
+            if let Some((nodes, cost)) = found
+                && best.as_ref().is_none_or(|(_, c)| cost < *c)
+            {
+                best = Some((nodes, cost));
             }
         }
         let (nodes, cost) = best.ok_or_else(no_route)?;

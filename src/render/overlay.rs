@@ -35,8 +35,8 @@ fn blend(img: &mut RgbaImage, x: i64, y: i64, c: [u8; 4], coverage: f32) {
     }
     let a = (f32::from(c[3]) / 255.0) * coverage.clamp(0.0, 1.0);
     let p = img.get_pixel_mut(x as u32, y as u32);
-    for k in 0..3 {
-        p.0[k] = (f32::from(p.0[k]) * (1.0 - a) + f32::from(c[k]) * a).round() as u8;
+    for (channel, &over) in p.0.iter_mut().zip(&c).take(3) {
+        *channel = (f32::from(*channel) * (1.0 - a) + f32::from(over) * a).round() as u8;
     }
     p.0[3] = 255;
 }

@@ -480,7 +480,7 @@ mod tests {
         assert!(g.claim(500.0, 500.0, 600.0, 520.0));
         assert!(g.claim(90.0, 45.0, 120.0, 60.0));
         assert!(g.claim(-30.0, -30.0, -1.0, -1.0));
-        assert!(g.claim(0.0, 0.0, 4.0, 4.0) == false, "the first label still holds cell (0, 0)");
+        assert!(!g.claim(0.0, 0.0, 4.0, 4.0), "the first label still holds cell (0, 0)");
     }
 
     #[test]

@@ -1432,7 +1432,7 @@ fn typical_range(ranges: &mut [f64]) -> f64 {
 /// that cell. The vehicles are cut into contiguous chunks over [`Parallelism::threads`]
 /// threads; each vehicle's readings depend only on the grid and itself, so the split never
 /// changes them.
-#[allow(clippy::type_complexity)]
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub fn sense_vehicles(
     mut grid: ResMut<SensorGrid>,
     parallelism: Res<Parallelism>,

@@ -64,6 +64,9 @@ struct Row {
 /// A curve: legend label, points and colour.
 type Series = (String, Vec<(f64, f64)>, RGBColor);
 
+/// A curve: (x, y) points, x rising.
+type Curve = Vec<(f64, f64)>;
+
 /// A panel of curves over a shared x axis.
 struct Lines {
     title: String,
@@ -321,7 +324,7 @@ impl RunData {
     }
 
     /// Bumper-to-bumper gap [m] and time gap [s] of `follower` to `leader` over time.
-    fn gaps(&self, follower: i32, leader: i32) -> Option<(Vec<(f64, f64)>, Vec<(f64, f64)>)> {
+    fn gaps(&self, follower: i32, leader: i32) -> Option<(Curve, Curve)> {
         let (fr, lr) = (self.rows.get(&follower)?, self.rows.get(&leader)?);
         let length = |id: i32| self.info.vehicles.iter().find(|v| v.id == id).map_or(0.0, |v| v.length);
         let half = (length(follower) + length(leader)) / 2.0;
@@ -337,7 +340,7 @@ impl RunData {
     }
 
     /// Each vehicle's distance from the nearest routable lanelet centre line over time [m].
-    fn lateral(&self) -> Option<Vec<(i32, Vec<(f64, f64)>)>> {
+    fn lateral(&self) -> Option<Vec<(i32, Curve)>> {
         let map = self.map.as_ref()?;
         let centres: Vec<&[DVec2]> = map.lanelets.iter().filter(|l| l.routable).map(|l| l.centre.as_slice()).collect();
         Some(
@@ -590,7 +593,7 @@ pub fn plot_compare(out_dirs: &[PathBuf], dest: &FsPath) -> Result<Vec<PathBuf>,
     let names: Vec<&str> = runs.iter().map(|(n, _)| n.as_str()).collect();
     let title = |what: &str| format!("{what}: {}", names.join(" vs "));
     // One legend entry per run (its first curve); the other curves of the run share its colour.
-    let per_run = |curves: &dyn Fn(&RunData) -> Vec<Vec<(f64, f64)>>| -> Vec<Series> {
+    let per_run = |curves: &dyn Fn(&RunData) -> Vec<Curve>| -> Vec<Series> {
         let mut series = Vec::new();
         for (k, (name, run)) in runs.iter().enumerate() {
             let color = RUN_COLORS[k % RUN_COLORS.len()];

@@ -151,6 +151,7 @@ fn apply_overrides(mut q: Query<(&CommandOverride, &mut ControlCommand)>) {
 /// those commands give, not what its own controller asked for (issue 22 item 5: CACC followers
 /// of a Python-driven leader must brake with it). Acceleration model: `(throttle - drag v) /
 /// mass`; kinematic model: `(speed - v) / dt` [m/s²].
+#[allow(clippy::type_complexity)]
 fn report_overridden_accel(
     clock: Res<SimClock>,
     mut q: Query<(

@@ -636,6 +636,8 @@ impl NoiseConfig {
 
 /// `controller = { type = ... }`: a built-in controller, or one a plugin registered by name
 /// (see [`crate::sim::ScenarioController`]).
+// The built-in variant is the common one and is matched on by users' code: left unboxed.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 pub enum ControllerConfig {
     /// A built-in controller.

@@ -384,12 +384,7 @@ fn start_mocap(
         ..Default::default()
     })
     .map_err(|e| lab_error("mocap", format!("cannot start the client: {e}")))?;
-    let tracker = Tracker::new(TrackerConfig {
-        mapping,
-        scale,
-        stale_after: Duration::from_secs_f64(m.stale_after),
-        ..Default::default()
-    });
+    let tracker = Tracker::new(TrackerConfig { mapping, scale, stale_after: Duration::from_secs_f64(m.stale_after) });
     Ok(MocapBridge::new(client, tracker, mock))
 }
 
