@@ -387,13 +387,13 @@ fn into_batch(buffer: &mut Vec<Message>) -> Arc<[Message]> {
 /// their starts, the chunks side by side on `parallelism`: no copy through `buffer`, no sort.
 /// Those copies (400 kB of messages twice, 320 kB of senders, at 10,000 vehicles) and the sorts
 /// were the largest serial stretch of a wifi round. Else everything is appended and sorted
-/// (stable).
+/// (stable). Also returns which of the two orders the senders came in ([`round_order`]), if one.
 fn join_batch(
     chunks: &mut [Outgoing],
     buffer: &mut Vec<Message>,
     (senders, starts): (&mut Vec<Sender>, &mut Vec<u32>),
     parallelism: Parallelism,
-) -> Arc<[Message]> {
+) -> (Arc<[Message]>, Option<bool>) {
     let order = (buffer.is_empty() && senders.is_empty()).then(|| round_order(chunks)).flatten();
     let Some(rising) = order else {
         for chunk in chunks {
@@ -407,7 +407,7 @@ fn join_batch(
             at += sender.count;
             at - sender.count
         }));
-        return into_batch(buffer);
+        return (into_batch(buffer), None);
     };
     let n = chunks.iter().map(|c| c.messages.len()).sum();
     let m = chunks.iter().map(|c| c.senders.len()).sum();
@@ -472,7 +472,7 @@ fn join_batch(
     unsafe {
         senders.set_len(m);
         starts.set_len(m);
-        batch.assume_init()
+        (batch.assume_init(), order)
     }
 }
 
@@ -1111,9 +1111,8 @@ pub fn deliver_wifi(
         s.senders.append(&mut out.senders);
         s.buffer.append(&mut out.messages);
     }
-    // The order `join_batch` finds the senders in (rising or falling ids), if one.
-    let order = (s.buffer.is_empty() && s.senders.is_empty()).then(|| round_order(&s.gathered)).flatten();
-    let batch = join_batch(&mut s.gathered, &mut s.buffer, (&mut s.senders, &mut s.starts), parallelism);
+    // (`order`: whether the senders came in rising or falling ids, if one of the two.)
+    let (batch, order) = join_batch(&mut s.gathered, &mut s.buffer, (&mut s.senders, &mut s.starts), parallelism);
     stats.wifi_sent += batch.len() as u64;
     // The sensors' neighbour lists, when every vehicle lies in one table and they still hold
     // everyone within the wifi range; else a grid of the senders.
@@ -1131,8 +1130,8 @@ pub fn deliver_wifi(
     // message each), a vehicle's sender is its own place or the mirror of it: no table to fill
     // on this thread each round.
     let everyone = nearby.is_some_and(|lists| senders.len() == lists.len());
-    let mirrored = order.filter(|_| everyone).map(|rising| !rising);
-    if let (Some(lists), None) = (nearby, mirrored) {
+    let by_place = order.filter(|_| everyone);
+    if let (Some(lists), None) = (nearby, by_place) {
         s.sender_of.clear();
         s.sender_of.resize(lists.len(), NOT_SENDING);
         for (i, sender) in senders.iter().enumerate() {
@@ -1158,9 +1157,9 @@ pub fn deliver_wifi(
         starts: &s.starts,
         grid: &s.grid,
         nearby: nearby.map(|lists| {
-            let sender_of = match mirrored {
-                Some(false) => SenderOf::Same,
-                Some(true) => SenderOf::Reversed(s.senders.len() as u32),
+            let sender_of = match by_place {
+                Some(true) => SenderOf::Same,
+                Some(false) => SenderOf::Reversed(s.senders.len() as u32),
                 None => SenderOf::Table(&s.sender_of),
             };
             (lists, sender_of)
@@ -1545,7 +1544,7 @@ mod tests {
             let parallelism = Parallelism::split(threads);
             let join = |chunks: &mut [Outgoing], buffer: &mut Vec<Message>, senders: &mut Vec<Sender>| {
                 let mut starts = Vec::new();
-                let batch = join_batch(chunks, buffer, (senders, &mut starts), parallelism);
+                let (batch, found) = join_batch(chunks, buffer, (senders, &mut starts), parallelism);
                 // Each sender's messages start where the ones before it end, and are its own.
                 let mut at = 0;
                 for (sender, &start) in senders.iter().zip(&starts) {
@@ -1555,12 +1554,13 @@ mod tests {
                     at += sender.count;
                 }
                 assert_eq!(at as usize, batch.len());
-                batch
+                (batch, found)
             };
             // Rising across the chunks: moved straight in.
             let mut chunks = [chunk(vec![message(-3, 0), message(-3, 1)]), chunk(vec![]), chunk(vec![message(2, 2)])];
             let mut senders = Vec::new();
-            let batch = join(&mut chunks, &mut Vec::new(), &mut senders);
+            let (batch, found) = join(&mut chunks, &mut Vec::new(), &mut senders);
+            assert_eq!(found, Some(true), "rising");
             assert_eq!(order(&batch), [(-3, 0), (-3, 1), (2, 2)]);
             assert_eq!(ids(&senders), [(-3, 2), (2, 1)]);
             assert!(chunks.iter().all(|c| c.messages.is_empty() && c.senders.is_empty()), "the chunks are emptied");
@@ -1572,14 +1572,16 @@ mod tests {
                 chunk(vec![message(-1, 4), message(-2, 5)]),
             ];
             let mut senders = Vec::new();
-            let batch = join(&mut chunks, &mut Vec::new(), &mut senders);
+            let (batch, found) = join(&mut chunks, &mut Vec::new(), &mut senders);
+            assert_eq!(found, Some(false), "falling");
             assert_eq!(order(&batch), [(-2, 5), (-1, 4), (3, 3), (4, 2), (7, 1), (9, 0)]);
             assert_eq!(ids(&senders), [(-2, 1), (-1, 1), (3, 1), (4, 1), (7, 1), (9, 1)]);
             assert_eq!(senders.iter().map(|s| s.place).collect::<Vec<_>>(), [1, 0, 0, 2, 1, 0], "each its own place");
             // Falling with two messages from one sender: sorted (stable), its two in their order.
             let mut chunks = [chunk(vec![message(5, 0), message(5, 1)]), chunk(vec![message(1, 2)])];
             let mut senders = Vec::new();
-            let batch = join(&mut chunks, &mut Vec::new(), &mut senders);
+            let (batch, found) = join(&mut chunks, &mut Vec::new(), &mut senders);
+            assert_eq!(found, None, "falling with two from one sender");
             assert_eq!(order(&batch), [(1, 2), (5, 0), (5, 1)]);
             assert_eq!(ids(&senders), [(1, 1), (5, 2)]);
             // Each chunk falling, but not across them; each rising, but not across them.
@@ -1588,7 +1590,8 @@ mod tests {
                 let make = |v: &[(i32, u64)]| chunk(v.iter().map(|&(s, k)| message(s, k)).collect());
                 let mut chunks = [make(&a), make(&b)];
                 let mut senders = Vec::new();
-                let batch = join(&mut chunks, &mut Vec::new(), &mut senders);
+                let (batch, found) = join(&mut chunks, &mut Vec::new(), &mut senders);
+                assert_eq!(found, None, "neither across the chunks");
                 let mut want: Vec<(i32, u64)> = a.iter().chain(&b).copied().collect();
                 want.sort_by_key(|m| m.0);
                 assert_eq!(order(&batch), want);
@@ -1597,7 +1600,8 @@ mod tests {
             // An earlier table's messages in the buffer (and its senders).
             let mut chunks = [chunk(vec![message(1, 1)])];
             let mut earlier = chunk(vec![message(7, 0), message(1, 5)]);
-            let batch = join(&mut chunks, &mut earlier.messages, &mut earlier.senders);
+            let (batch, found) = join(&mut chunks, &mut earlier.messages, &mut earlier.senders);
+            assert_eq!(found, None, "an earlier table's messages");
             assert_eq!(order(&batch), [(1, 5), (1, 1), (7, 0)]);
             assert_eq!(ids(&earlier.senders), [(1, 1), (1, 1), (7, 1)]);
         }
