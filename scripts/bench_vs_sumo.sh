@@ -10,8 +10,11 @@
 # smlworld, so neither always runs straight after the other (a bench straight after SUMO's
 # 10 s at full load ran 0-10 % slower than one before it, 5 pairs). SUMO's figure is its own "UPS" (vehicle updates
 # per second of wall time, from --duration-log.statistics); ours is `vehicle_steps_per_second`.
-# Prints one line per round and a closing JSON object with the medians and their ratio (ours /
-# SUMO's). Nothing is written into the repository but .venv-sumo; the SUMO network and routes go
+# Prints one line per round (with that round's own ratio, ours / SUMO's: the two figures of one
+# minute) and a closing JSON object with the medians and their ratio ("ratio"), and each round's
+# ratio with their median, least and greatest ("round_ratios", "round_ratio_median", ...): SUMO's
+# figure swings by half from one minute to the next on this kind of machine, so the ratio of the
+# medians can pair a fast minute of one program with a slow one of the other. Nothing is written into the repository but .venv-sumo; the SUMO network and routes go
 # into a temporary folder that is removed at the end.
 #
 # Each program writes into a file while it is timed and is read only after it has exited: a
@@ -34,7 +37,7 @@ while [ $# -gt 0 ]; do
     --vehicles) VEHICLES="$2"; shift 2 ;;
     --rounds) ROUNDS="$2"; shift 2 ;;
     --sumo-seconds) SUMO_SECONDS="$2"; shift 2 ;;
-    -h|--help) sed -n '2,24p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "bench_vs_sumo.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -106,6 +109,7 @@ EOF
 median() { sort -g | awk '{a[NR]=$1} END {print (NR % 2) ? a[(NR+1)/2] : (a[NR/2] + a[NR/2+1]) / 2}'; }
 : > "$work/sumo.txt"
 : > "$work/ours.txt"
+: > "$work/ratios.txt"
 run_sumo() {
   "$VENV/bin/sumo" -n "$work/ring.net.xml" -r "$work/ring.rou.xml" --step-length 0.02 --end "$SUMO_SECONDS" \
     --no-step-log --no-warnings --duration-log.statistics --time-to-teleport -1 > "$work/sumo.log" 2>&1
@@ -138,17 +142,22 @@ for round in $(seq 1 "$ROUNDS"); do
   fi
   echo "$ups" >> "$work/sumo.txt"
   echo "$ours" >> "$work/ours.txt"
-  echo "round $round ($first first): SUMO $ups vehicle updates/s, smlworld $ours vehicle-steps/s" >&2
+  ratio=$(awk -v a="$ours" -v b="$ups" 'BEGIN { printf "%.2f", a / b }')
+  echo "$ratio" >> "$work/ratios.txt"
+  echo "round $round ($first first): SUMO $ups vehicle updates/s, smlworld $ours vehicle-steps/s, ratio $ratio" >&2
 done
 sumo_median=$(median < "$work/sumo.txt")
 ours_median=$(median < "$work/ours.txt")
-python3 - "$VEHICLES" "$ROUNDS" "$SUMO_SECONDS" "$sumo_median" "$ours_median" <<'EOF'
-import json, sys
+python3 - "$VEHICLES" "$ROUNDS" "$SUMO_SECONDS" "$sumo_median" "$ours_median" "$work/ratios.txt" <<'EOF'
+import json, statistics, sys
 n, rounds, seconds, sumo, ours = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5])
+round_ratios = [float(line) for line in open(sys.argv[6]) if line.strip()]
 print(json.dumps({
     "vehicles": n, "rounds": rounds, "step_s": 0.02, "sumo_version": "eclipse-sumo " + "1.28.0",
     "sumo_sim_seconds": seconds, "sumo_updates_per_second": sumo,
     "smlworld_vehicle_steps_per_second": ours, "ratio": ours / sumo,
     "sumo_real_time_factor": sumo / n * 0.02, "smlworld_real_time_factor": ours / n * 0.02,
+    "round_ratios": round_ratios, "round_ratio_median": statistics.median(round_ratios),
+    "round_ratio_min": min(round_ratios), "round_ratio_max": max(round_ratios),
 }))
 EOF

@@ -93,3 +93,34 @@ def test_a_failing_bench_stops_the_script_with_its_log(root, tmp_path):
     done = run_script(root, fakes, "--vehicles", "30", "--rounds", "1")
     assert done.returncode != 0
     assert "no such map" in done.stderr
+
+
+def test_each_round_has_its_own_ratio_beside_the_ratio_of_the_medians(root, tmp_path):
+    # SUMO's figure swings from one minute to the next: a round's two figures are of one minute,
+    # the medians may come from different rounds.
+    fakes = stand_ins(tmp_path)
+    runs = fakes["runs"]
+    sumo_ups = [100_000, 200_000, 400_000]
+    ours = [20_000_000, 30_000_000, 10_000_000]
+    count = f"$(grep -c {{}} {runs} 2>/dev/null || true)"
+    executable(
+        fakes["venv"] / "bin" / "sumo",
+        f"#!/bin/sh\necho sumo >> {runs}\nset -- {' '.join(map(str, sumo_ups))}\n"
+        f"shift $(( {count.format('sumo')} - 1 ))\necho 'Performance:'\necho \" UPS: $1\"\n",
+    )
+    executable(
+        fakes["smlworld"],
+        f"#!/bin/sh\necho ours >> {runs}\nset -- {' '.join(map(str, ours))}\n"
+        f"shift $(( {count.format('ours')} - 1 ))\n"
+        'echo "{\\"vehicle_steps_per_second\\": $1}"\n',
+    )
+    done = run_script(root, fakes, "--vehicles", "30", "--rounds", "3")
+    assert done.returncode == 0, done.stderr[-2000:]
+    summary = json.loads(done.stdout.strip().splitlines()[-1])
+    assert summary["round_ratios"] == [200.0, 150.0, 25.0], summary
+    assert summary["round_ratio_median"] == 150.0
+    assert (summary["round_ratio_min"], summary["round_ratio_max"]) == (25.0, 200.0)
+    # The ratio of the medians pairs round 1's figure of ours with round 2's of SUMO's.
+    assert abs(summary["ratio"] - 100.0) < 1e-9
+    rounds = [line for line in done.stderr.splitlines() if line.startswith("round ")]
+    assert [line.rsplit("ratio ", 1)[1] for line in rounds] == ["200.00", "150.00", "25.00"], rounds
