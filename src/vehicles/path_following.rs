@@ -14,7 +14,7 @@ use super::lane_state::LaneChanger;
 use super::lanes::PREFETCH_AHEAD;
 use super::longitudinal::SteeringSystems;
 use crate::map::Path;
-use crate::map::path::{LANES, along_segment, groups_of_four, per_lane, walk_four};
+use crate::map::path::{LANES, Walked, along_segment, groups_of_four, per_lane, walk_four};
 use crate::sim::grid::{Pass, vectorised};
 use crate::sim::trig::{atan_polynomial, is_small, small_atan};
 use crate::sim::{Control, Parallelism, SimClock, SimSystems};
@@ -125,20 +125,85 @@ impl Pass for FollowPass<'_, '_> {
     fn run(self) {
         let FollowPass { table, start, followers, commands, dt } = self;
         let n = followers.len().min(commands.len());
-        for r in groups_of_four(n) {
-            // What a vehicle a few places on reads first: whether its lane changer has a
-            // manoeuvre under way (one byte of a large component, a line of its own per vehicle).
-            if let Some(changers) = table.changers {
-                for ahead in changers.iter().skip(start + r.start + PREFETCH_AHEAD).take(r.len()) {
-                    crate::world::prefetch(std::ptr::from_ref(&ahead.active).cast::<u8>());
-                }
+        // Two groups of four at a time, their stages taking turns ([`follow_two_fours`]); a last
+        // group of four or fewer alone.
+        let pairs = n / (2 * LANES) * (2 * LANES);
+        for k in (0..pairs).step_by(2 * LANES) {
+            prefetch_changers(table, start + k, 2 * LANES);
+            let (f, c) = (&mut followers[k..k + 2 * LANES], &mut commands[k..k + 2 * LANES]);
+            let ((f1, f2), (c1, c2)) = (f.split_at_mut(LANES), c.split_at_mut(LANES));
+            let (done1, done2) = follow_two_fours(table, start + k, (f1, c1), (f2, c2), dt);
+            if !done1 {
+                follow_one_by_one(table, start + k, f1, c1, dt);
             }
+            if !done2 {
+                follow_one_by_one(table, start + k + LANES, f2, c2, dt);
+            }
+        }
+        for r in groups_of_four(n - pairs) {
+            let r = pairs + r.start..pairs + r.end;
+            prefetch_changers(table, start + r.start, r.len());
             let (k, followers, commands) = (r.start, &mut followers[r.clone()], &mut commands[r]);
             if !follow_four(table, start + k, followers, commands, dt) {
                 follow_one_by_one(table, start + k, followers, commands, dt);
             }
         }
     }
+}
+
+/// What the `count` vehicles a few places on from item `at` read first: whether their lane
+/// changer has a manoeuvre under way (one byte of a large component, a line of its own per
+/// vehicle).
+#[inline(always)]
+fn prefetch_changers(table: FollowingTable<'_>, at: usize, count: usize) {
+    if let Some(changers) = table.changers {
+        for ahead in changers.iter().skip(at + PREFETCH_AHEAD).take(count) {
+            crate::world::prefetch(std::ptr::from_ref(&ahead.active).cast::<u8>());
+        }
+    }
+}
+
+/// [`follow_four`] for the two groups of four at items `start..start + 4` and
+/// `start + 4..start + 8`, stage by stage in turns: each group's tick is a chain of divisions
+/// and route-point loads longer than the processor looks ahead, so one group after the other
+/// waited on each link of the chain; in turns, the second group's links wait beside the first's.
+/// Each group gives the bits [`follow_four`] gives it (the same stages); returns which groups
+/// were done (the others wrote nothing).
+#[inline(always)]
+fn follow_two_fours(
+    table: FollowingTable<'_>,
+    start: usize,
+    (f1, c1): (&mut [PathFollower], &mut [ControlCommand]),
+    (f2, c2): (&mut [PathFollower], &mut [ControlCommand]),
+    dt: f64,
+) -> (bool, bool) {
+    let (Ok(f1), Ok(f2)): (Result<&mut [PathFollower; LANES], _>, Result<&mut [PathFollower; LANES], _>) =
+        (f1.try_into(), f2.try_into())
+    else {
+        return (false, false);
+    };
+    let (Ok(c1), Ok(c2)): (Result<&mut [ControlCommand; LANES], _>, Result<&mut [ControlCommand; LANES], _>) =
+        (c1.try_into(), c2.try_into())
+    else {
+        return (false, false);
+    };
+    let a1 = start_four(table, start, f1, dt);
+    let a2 = start_four(table, start + LANES, f2, dt);
+    let w1 = a1.as_ref().and_then(walk_from);
+    let w2 = a2.as_ref().and_then(walk_from);
+    let l1 = a1.as_ref().zip(w1).and_then(|(a, w)| look_ahead(a, w, f1));
+    let l2 = a2.as_ref().zip(w2).and_then(|(a, w)| look_ahead(a, w, f2));
+    let s1 = a1.as_ref().zip(l1.as_ref()).and_then(|(a, l)| steer_four(table, start, a, l));
+    let s2 = a2.as_ref().zip(l2.as_ref()).and_then(|(a, l)| steer_four(table, start + LANES, a, l));
+    let done1 = match (a1, l1, s1) {
+        (Some(a), Some(l), Some(steering)) => write_four(table, start, &a, &l, steering, f1, c1),
+        _ => false,
+    };
+    let done2 = match (a2, l2, s2) {
+        (Some(a), Some(l), Some(steering)) => write_four(table, start + LANES, &a, &l, steering, f2, c2),
+        _ => false,
+    };
+    (done1, done2)
 }
 
 /// [`follow_one_by_one`] for four vehicles at once, when all four take its common path: no
@@ -154,7 +219,9 @@ impl Pass for FollowPass<'_, '_> {
 /// points: one at a time it waits on the divider; in vector code four vehicles share each
 /// division, as in the kinematic steps ([`crate::sim::dynamics`]). The loads stay next to the
 /// arithmetic that needs them (a pass over the whole chunk for each stage was twice as slow:
-/// the points had left the cache by the second pass).
+/// the points had left the cache by the second pass). Its stages ([`start_four`],
+/// [`walk_from`], [`look_ahead`], [`steer_four`], [`write_four`]) also serve two groups in
+/// turns ([`follow_two_fours`]).
 #[inline(always)]
 fn follow_four(
     table: FollowingTable<'_>,
@@ -168,8 +235,36 @@ fn follow_four(
             (Ok(f), Ok(c)) => (f, c),
             _ => return false,
         };
-    let Some(states) = table.states.get(start..start + LANES) else { return false };
-    let Some(routes) = table.routes.get(start..start + LANES) else { return false };
+    let Some(a) = start_four(table, start, followers, dt) else { return false };
+    let Some(walked) = walk_from(&a) else { return false };
+    let Some(l) = look_ahead(&a, walked, followers) else { return false };
+    let Some(steering) = steer_four(table, start, &a, &l) else { return false };
+    write_four(table, start, &a, &l, steering, followers, commands)
+}
+
+/// What [`follow_four`]'s first stage ([`start_four`]) reads and works out for its four
+/// vehicles.
+struct Starting<'a> {
+    paths: [&'a Path; LANES],
+    facing: [DVec2; LANES],
+    position: [DVec2; LANES],
+    spacing: [f64; LANES],
+    speed: [f64; LANES],
+    window: [f64; LANES],
+    hint: [f64; LANES],
+}
+
+/// [`follow_four`]'s first stage: whether all four take the common path so far, and where
+/// their walks along the route start.
+#[inline(always)]
+fn start_four<'a>(
+    table: FollowingTable<'a>,
+    start: usize,
+    followers: &[PathFollower; LANES],
+    dt: f64,
+) -> Option<Starting<'a>> {
+    let states = table.states.get(start..start + LANES)?;
+    let routes = table.routes.get(start..start + LANES)?;
     let changing = |l: usize| table.changers.is_some_and(|c| c[start + l].active.is_some());
     let shift = |l: usize| table.shifts.map_or(0.0, |s| s[start + l].0);
     let paths: [&Path; LANES] = per_lane(|l| &*routes[l].0);
@@ -180,7 +275,7 @@ fn follow_four(
         common &= follower.tracking && !changing(l) && 0.0 + shift(l) == 0.0;
     }
     if !common {
-        return false;
+        return None;
     }
     let facing: [DVec2; LANES] = per_lane(|l| states[l].heading());
     let position: [DVec2; LANES] = per_lane(|l| states[l].position);
@@ -192,7 +287,32 @@ fn follow_four(
         window[l] = speed[l].abs() * dt + spacing[l];
         hint[l] = followers[l].s + speed[l] * dt;
     }
-    let Some(walked) = walk_four(paths, position, hint, window) else { return false };
+    Some(Starting { paths, facing, position, spacing, speed, window, hint })
+}
+
+/// [`follow_four`]'s second stage: the walks along the routes ([`walk_four`]).
+#[inline(always)]
+fn walk_from(a: &Starting<'_>) -> Option<Walked> {
+    walk_four(a.paths, a.position, a.hint, a.window)
+}
+
+/// What [`follow_four`]'s third stage ([`look_ahead`]) works out: where the vehicles are on
+/// their routes and the route segments their look-ahead points lie on.
+struct Aim {
+    s: [f64; LANES],
+    lateral: [f64; LANES],
+    sample: [f64; LANES],
+    index: [f64; LANES],
+    ax: [f64; LANES],
+    ay: [f64; LANES],
+    bx: [f64; LANES],
+    by: [f64; LANES],
+}
+
+/// [`follow_four`]'s third stage: the look-ahead samples along the routes.
+#[inline(always)]
+fn look_ahead(a: &Starting<'_>, walked: Walked, followers: &[PathFollower; LANES]) -> Option<Aim> {
+    let (paths, spacing, speed) = (&a.paths, &a.spacing, &a.speed);
     let (s, lateral) = (walked.s, walked.lateral);
     let mut ahead = [0.0; LANES];
     for l in 0..LANES {
@@ -211,7 +331,7 @@ fn follow_four(
         at[l] = sample[l] / spacing[l];
     }
     if within != [true; LANES] {
-        return false;
+        return None;
     }
     // The sampled segments' ends, coordinate by coordinate (so the arithmetic below runs four
     // lanes wide).
@@ -222,31 +342,50 @@ fn follow_four(
         let (a, b) = paths[l].segment(i);
         (index[l], ax[l], ay[l], bx[l], by[l]) = (i as f64, a.x, a.y, b.x, b.y);
     }
+    Some(Aim { s, lateral, sample, index, ax, ay, bx, by })
+}
+
+/// [`follow_four`]'s fourth stage: the pure-pursuit steering, if small enough for the
+/// polynomial in all four.
+#[inline(always)]
+fn steer_four(table: FollowingTable<'_>, start: usize, a: &Starting<'_>, aim: &Aim) -> Option<[f64; LANES]> {
     let wheelbase: [f64; LANES] = per_lane(|l| table.wheelbase(start + l));
     let mut steering = [0.0; LANES];
     let mut steers = [true; LANES];
     for l in 0..LANES {
-        let (a, b) = (DVec2::new(ax[l], ay[l]), DVec2::new(bx[l], by[l]));
-        let (target, _) = along_segment(sample[l], index[l], spacing[l], a, b);
-        let relative = target - position[l];
+        let (p, q) = (DVec2::new(aim.ax[l], aim.ay[l]), DVec2::new(aim.bx[l], aim.by[l]));
+        let (target, _) = along_segment(aim.sample[l], aim.index[l], a.spacing[l], p, q);
+        let relative = target - a.position[l];
         let distance2 = relative.length_squared();
-        let x = wheelbase[l] * 2.0 * facing[l].perp_dot(relative) / distance2;
+        let x = wheelbase[l] * 2.0 * a.facing[l].perp_dot(relative) / distance2;
         steers[l] = (distance2 > 1e-18) & is_small(x);
         steering[l] = atan_polynomial(x);
     }
-    if steers != [true; LANES] {
-        return false;
-    }
+    (steers == [true; LANES]).then_some(steering)
+}
+
+/// [`follow_four`]'s last stage: write the followers and commands; returns true.
+#[inline(always)]
+fn write_four(
+    table: FollowingTable<'_>,
+    start: usize,
+    a: &Starting<'_>,
+    aim: &Aim,
+    steering: [f64; LANES],
+    followers: &mut [PathFollower; LANES],
+    commands: &mut [ControlCommand; LANES],
+) -> bool {
+    let shift = |l: usize| table.shifts.map_or(0.0, |s| s[start + l].0);
     for l in 0..LANES {
         let follower = &mut followers[l];
         follower.tracking = true;
-        follower.s = s[l];
+        follower.s = aim.s[l];
         let planned = 0.0 + shift(l);
-        follower.max_offset = follower.max_offset.max((lateral[l] - planned).abs());
+        follower.max_offset = follower.max_offset.max((aim.lateral[l] - planned).abs());
         let acceleration = table.acceleration.map(|m| &m[start + l]);
         let (command, params) = (&mut commands[l], follower.params);
         command.steering = steering[l];
-        (command.speed, command.throttle) = speed_command(paths[l], &params, acceleration, s[l], speed[l]);
+        (command.speed, command.throttle) = speed_command(a.paths[l], &params, acceleration, aim.s[l], a.speed[l]);
     }
     true
 }
@@ -523,6 +662,37 @@ mod tests {
                 }
             }
             assert!(taken > n / LANES / 4 && taken < n / LANES, "{taken} of {} groups four at once", n / LANES);
+            // Two groups in turns: each group done exactly when `follow_four` does it, to the
+            // same bits, and left as it was otherwise, whatever the other group does.
+            let mut outcomes = std::collections::BTreeSet::new();
+            for g in 0..n / (2 * LANES) {
+                let r = g * 2 * LANES..(g + 1) * 2 * LANES;
+                let (mut f, mut c) = (followers[r.clone()].to_vec(), commands[r.clone()].to_vec());
+                let ((f1, f2), (c1, c2)) = (f.split_at_mut(LANES), c.split_at_mut(LANES));
+                let done = follow_two_fours(table, r.start, (f1, c1), (f2, c2), dt);
+                outcomes.insert(done);
+                for (k, done) in [done.0, done.1].into_iter().enumerate() {
+                    let group = r.start + k * LANES..r.start + (k + 1) * LANES;
+                    let (mut one_f, mut one_c) = (followers[group.clone()].to_vec(), commands[group.clone()].to_vec());
+                    assert_eq!(
+                        follow_four(table, group.start, &mut one_f, &mut one_c, dt),
+                        done,
+                        "group at {}",
+                        group.start
+                    );
+                    let got = bits(&f[k * LANES..(k + 1) * LANES], &c[k * LANES..(k + 1) * LANES]);
+                    if done {
+                        assert_eq!(got, want[group].to_vec(), "pair {g}, group {k}");
+                    } else {
+                        assert_eq!(
+                            got,
+                            bits(&followers[group.clone()], &commands[group]),
+                            "pair {g}, group {k} changed"
+                        );
+                    }
+                }
+            }
+            assert_eq!(outcomes.len(), 4, "every mix of done and not done seen: {outcomes:?}");
         }
     }
 }
