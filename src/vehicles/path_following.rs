@@ -196,11 +196,17 @@ fn follow_two_fours(
     let s1 = a1.as_ref().zip(l1.as_ref()).and_then(|(a, l)| steer_four(table, start, a, l));
     let s2 = a2.as_ref().zip(l2.as_ref()).and_then(|(a, l)| steer_four(table, start + LANES, a, l));
     let done1 = match (a1, l1, s1) {
-        (Some(a), Some(l), Some(steering)) => write_four(table, start, &a, &l, steering, f1, c1),
+        (Some(a), Some(l), Some(steering)) => {
+            write_four(table, start, &a, &l, steering, f1, c1);
+            true
+        }
         _ => false,
     };
     let done2 = match (a2, l2, s2) {
-        (Some(a), Some(l), Some(steering)) => write_four(table, start + LANES, &a, &l, steering, f2, c2),
+        (Some(a), Some(l), Some(steering)) => {
+            write_four(table, start + LANES, &a, &l, steering, f2, c2);
+            true
+        }
         _ => false,
     };
     (done1, done2)
@@ -239,7 +245,8 @@ fn follow_four(
     let Some(walked) = walk_from(&a) else { return false };
     let Some(l) = look_ahead(&a, walked, followers) else { return false };
     let Some(steering) = steer_four(table, start, &a, &l) else { return false };
-    write_four(table, start, &a, &l, steering, followers, commands)
+    write_four(table, start, &a, &l, steering, followers, commands);
+    true
 }
 
 /// What [`follow_four`]'s first stage ([`start_four`]) reads and works out for its four
@@ -364,7 +371,7 @@ fn steer_four(table: FollowingTable<'_>, start: usize, a: &Starting<'_>, aim: &A
     (steers == [true; LANES]).then_some(steering)
 }
 
-/// [`follow_four`]'s last stage: write the followers and commands; returns true.
+/// [`follow_four`]'s last stage: write the followers and commands.
 #[inline(always)]
 fn write_four(
     table: FollowingTable<'_>,
@@ -374,7 +381,7 @@ fn write_four(
     steering: [f64; LANES],
     followers: &mut [PathFollower; LANES],
     commands: &mut [ControlCommand; LANES],
-) -> bool {
+) {
     let shift = |l: usize| table.shifts.map_or(0.0, |s| s[start + l].0);
     for l in 0..LANES {
         let follower = &mut followers[l];
@@ -387,7 +394,6 @@ fn write_four(
         command.steering = steering[l];
         (command.speed, command.throttle) = speed_command(a.paths[l], &params, acceleration, aim.s[l], a.speed[l]);
     }
-    true
 }
 
 /// Target speed [m/s] and throttle of a vehicle at arc length `s` [m] of `path` driving at
