@@ -95,6 +95,21 @@ impl FollowingTable<'_> {
         let kinematic = self.kinematic.map(|m| m[i].wheelbase);
         kinematic.or(self.acceleration.map(|m| m[i].wheelbase)).unwrap_or(2.8)
     }
+
+    /// Vehicle `i`'s [`LateralShift`] [m] (0 without one).
+    #[inline(always)]
+    fn shift(&self, i: usize) -> f64 {
+        self.shifts.map_or(0.0, |s| s[i].0)
+    }
+}
+
+/// A group's followers and commands as arrays of [`LANES`], if there are exactly that many.
+#[inline(always)]
+fn group_of_four<'a>(
+    followers: &'a mut [PathFollower],
+    commands: &'a mut [ControlCommand],
+) -> Option<(&'a mut [PathFollower; LANES], &'a mut [ControlCommand; LANES])> {
+    Some((followers.try_into().ok()?, commands.try_into().ok()?))
 }
 
 /// Steer a contiguous chunk of vehicles (items `start..` of `table`); `dt` is the control
@@ -177,14 +192,7 @@ fn follow_two_fours(
     (f2, c2): (&mut [PathFollower], &mut [ControlCommand]),
     dt: f64,
 ) -> (bool, bool) {
-    let (Ok(f1), Ok(f2)): (Result<&mut [PathFollower; LANES], _>, Result<&mut [PathFollower; LANES], _>) =
-        (f1.try_into(), f2.try_into())
-    else {
-        return (false, false);
-    };
-    let (Ok(c1), Ok(c2)): (Result<&mut [ControlCommand; LANES], _>, Result<&mut [ControlCommand; LANES], _>) =
-        (c1.try_into(), c2.try_into())
-    else {
+    let (Some((f1, c1)), Some((f2, c2))) = (group_of_four(f1, c1), group_of_four(f2, c2)) else {
         return (false, false);
     };
     let a1 = start_four(table, start, f1, dt);
@@ -236,11 +244,7 @@ fn follow_four(
     commands: &mut [ControlCommand],
     dt: f64,
 ) -> bool {
-    let (followers, commands): (&mut [PathFollower; LANES], &mut [ControlCommand; LANES]) =
-        match (followers.try_into(), commands.try_into()) {
-            (Ok(f), Ok(c)) => (f, c),
-            _ => return false,
-        };
+    let Some((followers, commands)) = group_of_four(followers, commands) else { return false };
     let Some(a) = start_four(table, start, followers, dt) else { return false };
     let Some(walked) = walk_from(&a) else { return false };
     let Some(l) = look_ahead(&a, walked, followers) else { return false };
@@ -273,13 +277,12 @@ fn start_four<'a>(
     let states = table.states.get(start..start + LANES)?;
     let routes = table.routes.get(start..start + LANES)?;
     let changing = |l: usize| table.changers.is_some_and(|c| c[start + l].active.is_some());
-    let shift = |l: usize| table.shifts.map_or(0.0, |s| s[start + l].0);
     let paths: [&Path; LANES] = per_lane(|l| &*routes[l].0);
     let mut common = true;
     for (l, follower) in followers.iter().enumerate() {
         // What `follow_one_by_one` adds to the route's offset: the manoeuvre's (none) and the
         // shift. (A route too short to steer along fails `walk_four`.)
-        common &= follower.tracking && !changing(l) && 0.0 + shift(l) == 0.0;
+        common &= follower.tracking && !changing(l) && 0.0 + table.shift(start + l) == 0.0;
     }
     if !common {
         return None;
@@ -382,12 +385,11 @@ fn write_four(
     followers: &mut [PathFollower; LANES],
     commands: &mut [ControlCommand; LANES],
 ) {
-    let shift = |l: usize| table.shifts.map_or(0.0, |s| s[start + l].0);
     for l in 0..LANES {
         let follower = &mut followers[l];
         follower.tracking = true;
         follower.s = aim.s[l];
-        let planned = 0.0 + shift(l);
+        let planned = 0.0 + table.shift(start + l);
         follower.max_offset = follower.max_offset.max((aim.lateral[l] - planned).abs());
         let acceleration = table.acceleration.map(|m| &m[start + l]);
         let (command, params) = (&mut commands[l], follower.params);
@@ -434,8 +436,7 @@ fn follow_one_by_one(
         let (state, route) = (&table.states[i], &table.routes[i]);
         let acceleration = table.acceleration.map(|m| &m[i]);
         let changer = table.changers.map(|c| &c[i]);
-        let shift = table.shifts.map(|s| &s[i]);
-        let shift = shift.map_or(0.0, |s| s.0);
+        let shift = table.shift(i);
         let manoeuvre = changer.and_then(|c| c.active.as_ref());
         let path = &route.0;
         if path.points.len() < 2 {
