@@ -37,7 +37,7 @@ use crate::world::{
 
 use bevy_ecs::schedule::IntoScheduleConfigs;
 
-use super::grid::{Pass, pack, vectorised};
+use super::grid::{Pass, pack, vectorised, within_reach};
 use super::random::{key, mix, normal_half};
 use super::{Candidates, GridEntry, Parallelism, Sensors, SimClock, SimSeed, SimSystems, SpatialGrid};
 
@@ -490,17 +490,24 @@ impl Sight {
     /// One scalar pass, which wrote each key and counted it if seen, spent nearly all its time
     /// on the range and cone tests one neighbour at a time (perf: the flag arithmetic was the
     /// hottest instructions of the sensor tick); the vector pass does four at once.
+    ///
+    /// With `near` (a squared range [m²] and a mask, for lists of at most 64), the gather also
+    /// sets bit k of the mask when the k-th neighbour lies within that range ([`within_reach`]).
     fn consider_listed<'f>(
         &self,
         list: &[u32],
         everyone: Everyone<'_>,
         (xs, ys, keys): (&mut Vec<f64>, &mut Vec<f64>, &mut Vec<u64>),
+        near: Option<(f64, &mut u64)>,
         found: &'f mut Vec<u64>,
     ) -> &'f mut [u64] {
         let n = list.len();
         let (xs, ys, keys) = (first(xs, n), first(ys, n), first(keys, n));
         first(found, n);
-        gather_positions(everyone.states, list, xs, ys);
+        match near.filter(|_| n <= 64) {
+            Some((r2, mask)) => *mask = gather_positions::<true>(everyone.states, list, xs, ys, (self.position, r2)),
+            None => _ = gather_positions::<false>(everyone.states, list, xs, ys, (self.position, 0.0)),
+        }
         vectorised(ListKeysPass { sight: self, xs, ys, slots: list, keys });
         let seen = pack(keys, found, UNSEEN);
         &mut found[..seen]
@@ -514,16 +521,32 @@ impl Sight {
 /// ([`gather_positions_avx2`]): the key pass that follows loads the coordinates four at a time,
 /// and a load as wide as four separate 8-byte stores waits until they have all left the store
 /// buffer, where one store as wide as the load hands its value straight over.
+///
+/// With `NEAR` (lists of at most 64), it also returns which of them lie within `r2` [m²] of `p`
+/// (`near`: bit k for the k-th, [`within_reach`]'s test) for the wifi round ([`NearWanted`]),
+/// from the coordinates while they are in registers; else 0.
 #[inline]
-fn gather_positions(states: &[VehicleState], slots: &[u32], xs: &mut [f64], ys: &mut [f64]) {
+fn gather_positions<const NEAR: bool>(
+    states: &[VehicleState],
+    slots: &[u32],
+    xs: &mut [f64],
+    ys: &mut [f64],
+    near: (DVec2, f64),
+) -> u64 {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the processor has AVX2, checked just above.
-        let done = unsafe { gather_positions_avx2(states, slots, xs, ys) };
+        let (done, mask) = unsafe { gather_positions_avx2::<NEAR>(states, slots, xs, ys, near) };
         gather_positions_scalar(states, &slots[done..], &mut xs[done..], &mut ys[done..]);
-        return;
+        // (A whole list of 64 leaves no rest to shift by 64.)
+        return if NEAR {
+            mask | near_of(&xs[done..], &ys[done..], near).checked_shl(done as u32).unwrap_or(0)
+        } else {
+            0
+        };
     }
     gather_positions_scalar(states, slots, xs, ys);
+    if NEAR { near_of(xs, ys, near) } else { 0 }
 }
 
 /// [`gather_positions`] one vehicle at a time.
@@ -535,19 +558,42 @@ fn gather_positions_scalar(states: &[VehicleState], slots: &[u32], xs: &mut [f64
     }
 }
 
+/// [`gather_positions`]' `near` of the neighbours at (`xs`, `ys`): bit k for the k-th (of at
+/// most 64).
+fn near_of(xs: &[f64], ys: &[f64], (p, r2): (DVec2, f64)) -> u64 {
+    xs.iter()
+        .zip(ys)
+        .take(64)
+        .enumerate()
+        .fold(0, |mask, (k, (&x, &y))| mask | u64::from(within_reach(p, x, y, r2)) << k)
+}
+
 /// [`gather_positions`] for the whole groups of four at the front of `slots`, in AVX2 registers:
-/// returns how many it placed (the rest are left to [`gather_positions_scalar`]).
+/// returns how many it placed (the rest are left to [`gather_positions_scalar`]) and, with
+/// `NEAR`, the `near` of those (the same subtractions, products, sum and comparison as
+/// [`within_reach`], so the same bits; groups past the 64th not included).
 ///
 /// # Safety
 /// Only on a processor with AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn gather_positions_avx2(states: &[VehicleState], slots: &[u32], xs: &mut [f64], ys: &mut [f64]) -> usize {
-    use std::arch::x86_64::{_mm_loadu_pd, _mm256_set_m128d, _mm256_storeu_pd, _mm256_unpackhi_pd, _mm256_unpacklo_pd};
+unsafe fn gather_positions_avx2<const NEAR: bool>(
+    states: &[VehicleState],
+    slots: &[u32],
+    xs: &mut [f64],
+    ys: &mut [f64],
+    (p, r2): (DVec2, f64),
+) -> (usize, u64) {
+    use std::arch::x86_64::{
+        _CMP_LE_OQ, _mm_loadu_pd, _mm256_add_pd, _mm256_cmp_pd, _mm256_movemask_pd, _mm256_mul_pd, _mm256_set_m128d,
+        _mm256_set1_pd, _mm256_storeu_pd, _mm256_sub_pd, _mm256_unpackhi_pd, _mm256_unpacklo_pd,
+    };
     let n = slots.len().min(xs.len()).min(ys.len());
     let groups = n / 4 * 4;
-    for ((x4, y4), j4) in
-        xs[..groups].chunks_exact_mut(4).zip(ys[..groups].chunks_exact_mut(4)).zip(slots.chunks_exact(4))
+    let (px, py, limit) = (_mm256_set1_pd(p.x), _mm256_set1_pd(p.y), _mm256_set1_pd(r2));
+    let mut mask = 0u64;
+    for (g, ((x4, y4), j4)) in
+        xs[..groups].chunks_exact_mut(4).zip(ys[..groups].chunks_exact_mut(4)).zip(slots.chunks_exact(4)).enumerate()
     {
         // (x, y) of vehicle j: a `DVec2` is two f64 side by side (`#[repr(C)]`, x first).
         let at = |l: usize| {
@@ -557,13 +603,22 @@ unsafe fn gather_positions_avx2(states: &[VehicleState], slots: &[u32], xs: &mut
         };
         // (x0, y0, x2, y2) and (x1, y1, x3, y3), then their even and odd lanes interleaved.
         let (even, odd) = (_mm256_set_m128d(at(2), at(0)), _mm256_set_m128d(at(3), at(1)));
+        let (x, y) = (_mm256_unpacklo_pd(even, odd), _mm256_unpackhi_pd(even, odd));
         // SAFETY: `x4` and `y4` are four f64s each (chunks of 4); the stores need no alignment.
         unsafe {
-            _mm256_storeu_pd(x4.as_mut_ptr(), _mm256_unpacklo_pd(even, odd));
-            _mm256_storeu_pd(y4.as_mut_ptr(), _mm256_unpackhi_pd(even, odd));
+            _mm256_storeu_pd(x4.as_mut_ptr(), x);
+            _mm256_storeu_pd(y4.as_mut_ptr(), y);
+        }
+        if NEAR && g < 16 {
+            // `within_reach`: differences, then x² + y² (no fused multiply-add), then <= (false
+            // for NaN).
+            let (dx, dy) = (_mm256_sub_pd(x, px), _mm256_sub_pd(y, py));
+            let d2 = _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy));
+            let near = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(d2, limit));
+            mask |= u64::from(near as u32) << (4 * g);
         }
     }
-    groups
+    (groups, mask)
 }
 
 /// The keys of a neighbour list's vehicles at (`xs`, `ys`): the second pass of
@@ -932,6 +987,14 @@ struct NeighbourLists {
     max_drift: f64,
     /// Builds so far.
     builds: u64,
+    /// Which neighbours on each vehicle's list (bit k: the list's k-th; lists of at most 64)
+    /// lay within the wifi range (squared: `near_r2` [m²]) at the instant `near_at`, in query
+    /// order: noted by the sensor tick at the instant the wifi round asked for ([`NearWanted`])
+    /// from the coordinates its key pass gathered, for the round to take ([`SensorGrid::near`])
+    /// instead of testing every neighbour on the list again.
+    near: Vec<u64>,
+    near_at: Option<SimTime>,
+    near_r2: f64,
     /// The instant the sensors last found the lists to hold (or built them) for the vehicles'
     /// states then. States change only in the dynamics, at the end of an instant (after sensing,
     /// communication and control, see [`crate::vehicles::LanePositionsAt`]), so the lists hold
@@ -1009,6 +1072,13 @@ impl DriftPart {
 /// resource those modules set, so that sensing depends on none of them. 0: the sensors' needs.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
 pub struct ListFloor(pub f64);
+
+/// The instant the wifi round expects to run next (its last round plus the spacing of its last
+/// two, [`super::v2v`]): the sensor tick at that instant notes which neighbours on each list
+/// lie within the [`ListFloor`] ([`SensorGrid::near`]). A wrong guess costs only that the
+/// round tests the neighbours itself.
+#[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
+pub struct NearWanted(pub Option<SimTime>);
 
 /// The drift cells' side as a multiple of the widest list's radius (range plus skin): wider
 /// cells let vehicles move farther between builds (`max_drift`), narrower ones hold fewer
@@ -1216,6 +1286,19 @@ impl SensorGrid {
     }
 }
 
+impl SensorGrid {
+    /// Which neighbours on each vehicle's list lie within `range` [m] (bit k: the list's k-th,
+    /// for lists of at most 64), by place in the query, when the sensor tick at `now` noted
+    /// them ([`NearWanted`]) for that range: the same test as [`super::grid::within_reach`] on
+    /// the same coordinates (states change only in the dynamics, after every other module).
+    /// Only with the lists [`SensorGrid::lists_within`] gave at `now`.
+    pub(crate) fn near(&self, range: f64, now: SimTime) -> Option<&[u64]> {
+        let lists = &self.neighbours.lists;
+        let noted = lists.near_at == Some(now) && lists.held_at == Some(now) && lists.near_r2 == range * range;
+        (noted && lists.near.len() == lists.lists.len()).then_some(&lists.near[..])
+    }
+}
+
 impl NeighbourLists {
     /// Whether the lists still hold every vehicle within sensor range of each: the same
     /// vehicles in the same order, the same sensors, wifi range and skin, and the vehicles moved
@@ -1353,13 +1436,14 @@ enum Listing<'a> {
 }
 
 /// Fill the readings of a contiguous chunk of sensing vehicles (items `start..` of `table`,
-/// which is every vehicle, `everyone`) from their neighbour lists.
+/// which is every vehicle, `everyone`) from their neighbour lists; with `near_r2` [m²], also
+/// note in `near` which neighbours on each list lie that close ([`NearPass`]).
 fn sense_listed(
     input: SenseInput<'_>,
     table: SensingTable<'_>,
     everyone: Everyone<'_>,
-    listing: Listing<'_>,
-    (start, chunk): (usize, &mut [SensorReadings]),
+    (listing, near_r2): (Listing<'_>, Option<f64>),
+    (start, chunk, near): (usize, &mut [SensorReadings], &mut [u64]),
     s: &mut SenseScratch,
 ) {
     let grid = input.grid;
@@ -1394,7 +1478,12 @@ fn sense_listed(
             }
         };
         let sight = Sight::new(id, state, radar, velodyne, false, &mut s.half_cos);
-        let found = sight.consider_listed(list, everyone, (&mut s.xs, &mut s.ys, &mut s.list_keys), &mut s.found);
+        // (A list longer than a mask is left to the wifi round: its mask stays 0.)
+        let near = near_r2.map(|r2| {
+            near[k] = 0;
+            (r2, &mut near[k])
+        });
+        let found = sight.consider_listed(list, everyone, (&mut s.xs, &mut s.ys, &mut s.list_keys), near, &mut s.found);
         let errors = table.errors.map(|e| &e[i]);
         write_found(&sight, errors, input, &everyone, found, (&mut s.extents, &mut s.stats), readings);
     }
@@ -1454,6 +1543,7 @@ pub fn sense_vehicles(
     mut ranges: Local<Vec<f64>>,
     mut footprints: Local<Vec<Footprint>>,
     asked: Option<Res<ListFloor>>,
+    near_wanted: Option<Res<NearWanted>>,
 ) {
     let SensorGrid { grid, neighbours } = &mut *grid;
     if sensing.is_empty() {
@@ -1547,6 +1637,8 @@ pub fn sense_vehicles(
         let n = neighbours.shapes_now.len();
         let floor = asked.map_or(0.0, |f| f.0);
         let Neighbours { lists, shapes_now, drift, keys } = neighbours;
+        // The wifi round runs at this instant (as it expects): note who is within its range.
+        let near_r2 = (near_wanted.is_some_and(|w| w.0 == Some(clock.now)) && floor > 0.0).then_some(floor * floor);
         let build = !lists.hold(everyone, (summary.as_built, floor, skin), *parallelism, drift);
         if build {
             grid.rebuild_on(*parallelism, cell + skin, n, |i| entry(i, everyone.ids[i], &everyone.states[i]));
@@ -1571,9 +1663,18 @@ pub fn sense_vehicles(
             }
             let table = SensingTable { ids, states, radars, velodynes, omniscient, errors };
             let listing = if build { Listing::Build { skin, floor } } else { Listing::Kept(&lists.lists) };
-            parallelism.for_each_chunk_at(&mut readings, &mut scratch, |start, chunk, s| {
-                sense_listed(input, table, everyone, listing, (start, chunk), s)
-            });
+            // Longer only while the world grows; written only when asked for.
+            if lists.near.len() != n {
+                lists.near.resize(n, 0);
+            }
+            parallelism.for_each_chunk_pair_at(
+                &mut readings,
+                &mut lists.near,
+                &mut scratch,
+                |start, chunk, near, s| {
+                    sense_listed(input, table, everyone, (listing, near_r2), (start, chunk, near), s)
+                },
+            );
         }
         if build {
             // Each chunk's lists, in chunk order, into the one array.
@@ -1593,6 +1694,9 @@ pub fn sense_vehicles(
             debug_assert_eq!(starts.len(), n + 1);
         }
         lists.held_at = Some(clock.now);
+        if let Some(r2) = near_r2 {
+            (lists.near_at, lists.near_r2) = (Some(clock.now), r2);
+        }
     } else {
         match one_table {
             Some((ids, states, _)) => {
@@ -1980,7 +2084,7 @@ mod tests {
             let want: Vec<(f64, f64)> =
                 slots.iter().map(|&j| (states[j as usize].position.x, states[j as usize].position.y)).collect();
             let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
-            gather_positions(&states, &slots, &mut xs, &mut ys);
+            assert_eq!(gather_positions::<false>(&states, &slots, &mut xs, &mut ys, (DVec2::ZERO, 1e9)), 0);
             assert_eq!(xs.iter().copied().zip(ys.iter().copied()).collect::<Vec<_>>(), want, "{n} vehicles");
             let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
             gather_positions_scalar(&states, &slots, &mut xs, &mut ys);
@@ -1989,8 +2093,9 @@ mod tests {
             if std::arch::is_x86_feature_detected!("avx2") {
                 let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
                 // SAFETY: the processor has AVX2, checked just above.
-                let done = unsafe { gather_positions_avx2(&states, &slots, &mut xs, &mut ys) };
-                assert_eq!(done, n / 4 * 4);
+                let (done, near) =
+                    unsafe { gather_positions_avx2::<false>(&states, &slots, &mut xs, &mut ys, (DVec2::ZERO, 1e9)) };
+                assert_eq!((done, near), (n / 4 * 4, 0));
                 assert_eq!(
                     xs[..done].iter().copied().zip(ys[..done].iter().copied()).collect::<Vec<_>>(),
                     want[..done]
@@ -1998,6 +2103,36 @@ mod tests {
                 assert!(xs[done..].iter().all(|x| x.is_nan()), "the remainder is left to the scalar pass");
             }
         }
+    }
+
+    #[test]
+    fn the_gather_marks_the_neighbours_within_the_wifi_range_as_within_reach_tests_them() {
+        // Neighbours inside, outside and exactly on the circle (a 3-4-5 offset at r = 5 m:
+        // d² = 25 = r² exactly, inclusive), a NaN one (never within), lists of every length up
+        // to 64 (all bits of the mask) in an order that jumps about the states.
+        let p = DVec2::new(100.25, -40.5);
+        let offsets = [(3.0, 4.0), (-3.0, 4.0), (1.0, 1.0), (4.0, 3.1), (0.0, -5.0), (6.0, 0.0), (f64::NAN, 0.0)];
+        let states: Vec<VehicleState> = (0..97)
+            .map(|k| {
+                let (dx, dy) = offsets[k % offsets.len()];
+                VehicleState::new(p + DVec2::new(dx, dy) * (1.0 + (k / 50) as f64 * 1e-9), 0.0, 1.0)
+            })
+            .collect();
+        let r2 = 25.0;
+        let mut bits_seen = 0u64;
+        for n in 0..=64 {
+            let slots: Vec<u32> = (0..n).map(|k| ((k * 31 + 5) % 97) as u32).collect();
+            let want = slots.iter().enumerate().fold(0u64, |m, (k, &j)| {
+                m | u64::from(within_reach(p, states[j as usize].position.x, states[j as usize].position.y, r2)) << k
+            });
+            let (mut xs, mut ys) = (vec![0.0; n], vec![0.0; n]);
+            let near = gather_positions::<true>(&states, &slots, &mut xs, &mut ys, (p, r2));
+            assert_eq!(near, want, "{n} neighbours");
+            assert_eq!(near_of(&xs, &ys, (p, r2)), want, "{n} neighbours, one at a time");
+            bits_seen |= near;
+        }
+        // Both kinds at every length, up to the mask's last bit.
+        assert!((20..44).contains(&bits_seen.count_ones()) && bits_seen >> 63 == 1, "{bits_seen:#x}");
     }
 
     #[test]
@@ -2012,7 +2147,7 @@ mod tests {
         let mut buffers = (Vec::new(), Vec::new(), Vec::new());
         let mut listed = Vec::new();
         let listed =
-            sight.consider_listed(&list, everyone, (&mut buffers.0, &mut buffers.1, &mut buffers.2), &mut listed);
+            sight.consider_listed(&list, everyone, (&mut buffers.0, &mut buffers.1, &mut buffers.2), None, &mut listed);
         // The same targets, distances and reach bits as the grid scan's keys.
         let named = |keys: &[u64], id_of: &dyn Fn(u32) -> VehicleId| {
             let mut named: Vec<_> =

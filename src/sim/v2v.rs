@@ -41,7 +41,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::grid::within_reach;
 use super::parallel::{Padded, recycle};
-use super::sensors::{DriftScratch, ListFloor, Lists, SensorGrid};
+use super::sensors::{DriftScratch, ListFloor, Lists, NearWanted, SensorGrid};
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
@@ -750,6 +750,8 @@ pub struct WifiScratch {
     /// The last round's batch, kept so that its messages are dropped here, split over the
     /// threads ([`release`]), not by whichever in-box happened to hold it last.
     previous: Option<Arc<[Message]>>,
+    /// The instant of the last round (for [`NearWanted`]).
+    last_round: Option<SimTime>,
 }
 
 /// A vehicle that sends this wifi round.
@@ -896,8 +898,9 @@ struct WifiRound<'a> {
     grid: &'a SpatialGrid,
     /// The sensors' neighbour lists (each vehicle's, by place in the query) and where each
     /// vehicle is among the senders, when they hold everyone within the wifi range: then the
-    /// grid is not built.
-    nearby: Option<(&'a Lists, SenderOf<'a>)>,
+    /// grid is not built. With them, when the sensor tick of this instant noted it
+    /// ([`SensorGrid::near`]), which neighbours on each list lie within the range.
+    nearby: Option<(&'a Lists, SenderOf<'a>, Option<&'a [u64]>)>,
 }
 
 impl WifiRound<'_> {
@@ -929,10 +932,25 @@ impl WifiRound<'_> {
             let slot = (start + k) as u32;
             let owner = mailbox.owner();
             t.heard.clear();
-            if let Some((lists, sender_of)) = self.nearby {
+            let list = self.nearby.map(|(lists, ..)| lists.of(slot as usize));
+            let near = self.nearby.and_then(|(_, _, near)| near).filter(|_| list.is_some_and(|l| l.len() <= 64));
+            if let (Some((_, sender_of, _)), Some(list), Some(near)) = (self.nearby, list, near) {
+                // The neighbours the sensor tick found within range (a list never holds its own
+                // vehicle), by their bits.
+                let mut bits = near[slot as usize];
+                while bits != 0 {
+                    let j = list[bits.trailing_zeros() as usize];
+                    bits &= bits - 1;
+                    let i = sender_of.get(j);
+                    if i != NOT_SENDING {
+                        debug_assert_eq!(senders[i as usize].place, j, "the sender found is the neighbour's");
+                        t.heard.push(i);
+                    }
+                }
+            } else if let (Some((_, sender_of, _)), Some(list)) = (self.nearby, list) {
                 // The senders on its list within range: the test of `Candidates::within`.
                 let (p, r2) = (state.position, self.range * self.range);
-                for &j in lists.of(slot as usize) {
+                for &j in list {
                     let i = sender_of.get(j);
                     if i == NOT_SENDING {
                         continue;
@@ -1053,7 +1071,7 @@ pub fn deliver_wifi(
     registry: Option<Res<Vehicles>>,
     mut delayed: ResMut<DelayedMessages>,
     sensor_grid: Option<Res<SensorGrid>>,
-    floor: Option<ResMut<ListFloor>>,
+    (floor, near_wanted): (Option<ResMut<ListFloor>>, Option<ResMut<NearWanted>>),
     mut mailboxes: Query<(Entity, Option<&VehicleId>, &VehicleState, &mut Mailbox)>,
     mut scratch: Local<WifiScratch>,
 ) {
@@ -1162,7 +1180,7 @@ pub fn deliver_wifi(
                 Some(false) => SenderOf::Reversed(s.senders.len() as u32),
                 None => SenderOf::Table(&s.sender_of),
             };
-            (lists, sender_of)
+            (lists, sender_of, sensor_grid.as_deref().and_then(|g| g.near(config.wifi_range, now)))
         }),
     };
     // Receivers table by table, straight in the ECS tables' slices (contiguous access); a
@@ -1212,6 +1230,15 @@ pub fn deliver_wifi(
     if let Some(previous) = s.previous.replace(batch) {
         release(previous, parallelism);
     }
+    // The next round, if the rounds keep their spacing: the sensor tick then notes who is
+    // within range on each list (from the coordinates it gathers anyway).
+    if let Some(mut wanted) = near_wanted {
+        let next = s.last_round.filter(|&last| last < now).map(|last| SimTime(now.0 + (now.0 - last.0)));
+        if wanted.0 != next {
+            wanted.0 = next;
+        }
+    }
+    s.last_round = Some(now);
 }
 
 /// Let go of `batch`; if this was its last reference, drop its messages split over the
@@ -1477,6 +1504,9 @@ impl Plugin for V2vPlugin {
         sim.insert_resource(self.config);
         // The sensors' neighbour lists reach the wifi range all around, so a round reads them.
         sim.insert_resource(ListFloor(self.config.wifi_range));
+        if !sim.world_mut().contains_resource::<NearWanted>() {
+            sim.insert_resource(NearWanted::default());
+        }
         if sim.world_mut().contains_resource::<V2vInstalled>() {
             return;
         }
@@ -1511,6 +1541,65 @@ mod tests {
         let mut sim = b.build();
         sim.run_for(0.2);
         assert_eq!(sim.world().resource::<ListFloor>().0, 30.0);
+    }
+
+    #[test]
+    fn the_round_takes_who_is_in_range_from_the_sensor_tick_of_its_instant_and_tests_long_lists_itself() {
+        use crate::sim::sensors::SensorsPlugin;
+        use crate::sim::{Sensors, Wifi};
+        use crate::world::{Radar, SensorSet, VehicleModel, VehicleSpec, Velodyne};
+        use glam::DVec2;
+        let range = 50.0;
+        let mut b = SimBuilder::new();
+        b.set_rate(Sensors, 20.0).set_rate(Wifi, 20.0);
+        b.add_plugin(SensorsPlugin);
+        b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: range, ..V2vConfig::default() } });
+        // A crowd of 80 within 20 m (lists longer than a mask: the round tests them) and a line
+        // 12 m apart, some of them exactly 50 m from the crowd's corner (inclusive).
+        let mut places: Vec<DVec2> =
+            (0..80).map(|k| DVec2::new(f64::from(k % 9) * 2.5, f64::from(k / 9) * 2.5)).collect();
+        places.extend((0..40).map(|k| DVec2::new(f64::from(k) * 12.5 - 30.0, 50.0 + 20.0)));
+        places.push(DVec2::new(17.5, 20.0) + DVec2::new(30.0, 40.0)); // 50 m from the crowd's 80th
+        let ids: Vec<VehicleId> = (0..places.len()).map(|k| VehicleId(-1 - k as i32)).collect();
+        for (&id, &p) in ids.iter().zip(&places) {
+            let mut spec = VehicleSpec::new(id, VehicleState::new(p, 0.3, 0.0));
+            spec.model = VehicleModel::None;
+            spec.sensors =
+                SensorSet { radar: Some(Radar::default()), velodyne: Some(Velodyne::default()), omniscient: false };
+            b.spawn_vehicle(spec).expect("unique ids");
+        }
+        let mut sim = b.build();
+        let mut noted = 0;
+        for round in 0..6 {
+            let now = sim.now();
+            for &id in &ids {
+                let e = sim.entity(id).expect("vehicle");
+                sim.world_mut().get_mut::<Mailbox>(e).expect("mailbox").send_copy(Channel::Wifi, now, round);
+            }
+            sim.run_for(0.05);
+            let grid = sim.world().resource::<SensorGrid>();
+            // From the third round on the round knows when the next one comes.
+            let near = grid.near(range, now);
+            assert_eq!(near.is_some(), round >= 2, "round {round}");
+            if let Some(near) = near {
+                noted += 1;
+                // Both kinds of list: some left to the round (more than a mask holds).
+                assert!(near.contains(&0) && near.iter().any(|&m| m.count_ones() > 3), "round {round}");
+            }
+            for (k, &id) in ids.iter().enumerate() {
+                let e = sim.entity(id).expect("vehicle");
+                let inbox = sim.world().get::<Mailbox>(e).expect("mailbox").inbox(Channel::Wifi);
+                let mut heard: Vec<i32> = inbox.iter().filter(|m| m.sent_at == now).map(|m| m.sender.0).collect();
+                heard.sort_unstable();
+                let mut expected: Vec<i32> = (0..places.len())
+                    .filter(|&o| o != k && within_reach(places[k], places[o].x, places[o].y, range * range))
+                    .map(|o| ids[o].0)
+                    .collect();
+                expected.sort_unstable();
+                assert_eq!(heard, expected, "receiver {id:?}, round {round}");
+            }
+        }
+        assert_eq!(noted, 4);
     }
 
     #[test]
