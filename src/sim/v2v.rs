@@ -618,9 +618,10 @@ pub fn deliver_network(
         let (epoch, batch) = (epoch.0, &batch);
         let deliver = |boxes: &mut [Mailbox], Padded(t): &mut Padded<(u64, u64, u64)>| {
             let shared = BatchRef::new(batch);
+            let mut hint = 0;
             for mailbox in boxes {
                 let owner = mailbox.owner();
-                let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
+                let own = own_messages(batch, owner, &mut hint);
                 let n = (batch.len() - own.len()) as u64;
                 let own_age: u64 = batch[own].iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
                 // Attempted and delivered alike: nothing is lost.
@@ -727,6 +728,23 @@ pub fn deliver_network(
         delayed.keep(record);
     }
     stats.network_delivered += delivered;
+}
+
+/// The messages of `owner` in `batch` (sorted by sender): looked for first as one message
+/// beside `hint`, the start of the previous receiver's (receivers in query order are mostly the
+/// senders in id order, rising or falling, one beacon each), else by two binary searches over
+/// the batch (a probe per halving, most of them cache misses, per receiver: most of a perfect
+/// network round's time at 10,000 vehicles). Sets `hint` to the start found.
+fn own_messages(batch: &[Message], owner: VehicleId, hint: &mut usize) -> std::ops::Range<usize> {
+    let at = |i: usize| batch.get(i).map(|m| m.sender);
+    // One message of `owner` at i with others' (or nothing) either side: all of its messages.
+    let single = |i: usize| at(i) == Some(owner) && (i == 0 || at(i - 1) < Some(owner)) && at(i + 1) != Some(owner);
+    let own = match [*hint + 1, hint.wrapping_sub(1), *hint].into_iter().find(|&i| single(i)) {
+        Some(i) => i..i + 1,
+        None => batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner),
+    };
+    *hint = own.start;
+    own
 }
 
 /// Scratch buffers of the wifi round, kept between rounds.
@@ -1600,6 +1618,42 @@ mod tests {
             }
         }
         assert_eq!(noted, 4);
+    }
+
+    #[test]
+    fn a_receivers_own_messages_found_beside_the_last_ones_are_those_the_binary_searches_find() {
+        let message = |sender: i32| Message {
+            sender: VehicleId(sender),
+            sent_at: SimTime(0),
+            channel: Channel::Network,
+            payload: Payload::copied(0u8),
+        };
+        // One beacon each; some senders with two or three; gaps (receivers that sent nothing).
+        let layouts: [Vec<i32>; 4] = [
+            (0..40).collect(),
+            (0..40)
+                .flat_map(|k| std::iter::repeat_n(k, 1 + usize::from(k % 7 == 3) + usize::from(k % 11 == 5)))
+                .collect(),
+            (0..40).filter(|k| k % 5 != 2).collect(),
+            vec![3],
+        ];
+        for (n, layout) in layouts.iter().enumerate() {
+            let batch: Vec<Message> = layout.iter().map(|&k| message(k)).collect();
+            // Receivers in rising, falling and shuffled order, with ids beyond the senders'.
+            let rising: Vec<i32> = (-2..43).collect();
+            let falling: Vec<i32> = rising.iter().rev().copied().collect();
+            let shuffled: Vec<i32> = (0..45).map(|k| (k * 17 + 4) % 45 - 2).collect();
+            for receivers in [rising, falling, shuffled] {
+                let mut hint = 0;
+                for &r in &receivers {
+                    let owner = VehicleId(r);
+                    let want =
+                        batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
+                    assert_eq!(own_messages(&batch, owner, &mut hint), want, "layout {n}, receiver {r}");
+                    assert_eq!(hint, want.start);
+                }
+            }
+        }
     }
 
     #[test]
