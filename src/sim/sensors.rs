@@ -990,7 +990,7 @@ struct NeighbourLists {
     /// Which neighbours on each vehicle's list (bit k: the list's k-th; lists of at most 64)
     /// lay within the wifi range (squared: `near_r2` [m²]) at the instant `near_at`, in query
     /// order: noted by the sensor tick at the instant the wifi round asked for ([`NearWanted`])
-    /// from the coordinates its key pass gathered, for the round to take ([`SensorGrid::near`])
+    /// from the coordinates it gathered for its keys, for the round to take ([`SensorGrid::near`])
     /// instead of testing every neighbour on the list again.
     near: Vec<u64>,
     near_at: Option<SimTime>,
@@ -1437,7 +1437,7 @@ enum Listing<'a> {
 
 /// Fill the readings of a contiguous chunk of sensing vehicles (items `start..` of `table`,
 /// which is every vehicle, `everyone`) from their neighbour lists; with `near_r2` [m²], also
-/// note in `near` which neighbours on each list lie that close ([`NearPass`]).
+/// note in `near` which neighbours on each list lie that close ([`gather_positions`]).
 fn sense_listed(
     input: SenseInput<'_>,
     table: SensingTable<'_>,
