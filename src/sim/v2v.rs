@@ -548,9 +548,10 @@ impl LossyRound<'_> {
     fn deliver(&self, chunk: &mut [NetworkItem<'_>], Padded(t): &mut Padded<(u64, u64, u64)>) {
         let (batch, now) = (self.batch, self.now_us);
         let shared = BatchRef::new(batch);
+        let mut hint = 0;
         for mailbox in chunk.iter_mut() {
             let owner = mailbox.owner();
-            let own = batch.partition_point(|m| m.sender < owner)..batch.partition_point(|m| m.sender <= owner);
+            let own = own_messages(batch, owner, &mut hint);
             let others = (batch.len() - own.len()) as u32;
             let counter = key(self.seed, NETWORK_LOST_STREAM ^ mix(u64::from(owner.0 as u32)), self.round);
             let lost = OrderedSample::new(counter, binomial(others, self.p, uniform_at(counter, 0)), others);
@@ -570,7 +571,7 @@ impl LossyRound<'_> {
                     self.age_all - own_age - lost_age
                 }
             };
-            mailbox.network_in.deliver_all_but_lost(self.epoch, self.round, &shared, owner, lost);
+            mailbox.network_in.deliver_all_but_lost(self.epoch, self.round, &shared, (owner, others as usize), lost);
         }
     }
 }

@@ -329,19 +329,19 @@ impl Inbox {
     }
 
     /// Deliver the whole `batch` (sorted by sender) except the messages of `exclude` and the
-    /// positions `lost` yields, counted among the messages that are not `exclude`'s (the
-    /// network channel with constant loss). `lost` must sample from exactly that many messages.
+    /// positions `lost` yields, counted among the `others` messages that are not `exclude`'s
+    /// (the network channel with constant loss; the caller has found them). `lost` must sample
+    /// from exactly that many messages.
     pub(crate) fn deliver_all_but_lost(
         &mut self,
         epoch: u64,
         round: u64,
         batch: &BatchRef,
-        exclude: VehicleId,
+        (exclude, others): (VehicleId, usize),
         lost: OrderedSample,
     ) {
         self.begin(epoch, batch);
-        let own = batch.partition_point(|m| m.sender < exclude)..batch.partition_point(|m| m.sender <= exclude);
-        let kept = batch.len() - own.len() - lost.remaining() as usize;
+        let kept = others - lost.remaining() as usize;
         self.push(Delivery { round, batch: batch.lend(), exclude, selection: Selection::AllButLost { lost, kept } });
     }
 
@@ -665,7 +665,7 @@ mod tests {
                 .map(|(_, &i)| i)
                 .collect();
             let mut inbox = Inbox::default();
-            inbox.deliver_all_but_lost(1, 7, &b, me, lost);
+            inbox.deliver_all_but_lost(1, 7, &b, (me, others.len()), lost);
             let got: Vec<usize> =
                 inbox.iter().map(|m| *m.payload::<usize>().expect("every test message carries a usize")).collect();
             assert_eq!(got, expected, "{k} lost");
@@ -681,9 +681,9 @@ mod tests {
         let lost = OrderedSample::new(key(9, 9, 9), 3, 7);
         let lost_positions: Vec<u32> = lost.collect();
         let mut inbox = Inbox::default();
-        inbox.deliver_all_but_lost(1, 1, &b, me, lost);
+        inbox.deliver_all_but_lost(1, 1, &b, (me, 7), lost);
         inbox.deliver_picks(1, 2, &b, me, [1u32, 6].into_iter());
-        inbox.deliver_all_but_lost(1, 3, &b, me, lost);
+        inbox.deliver_all_but_lost(1, 3, &b, (me, 7), lost);
         inbox.deliver_all_but(1, 4, &b, me);
         let one_round: Vec<usize> =
             (0..7).filter(|p| !lost_positions.contains(&(*p as u32))).map(|p| if p < 4 { p } else { p + 1 }).collect();
