@@ -504,7 +504,7 @@ impl Sight {
         let n = list.len();
         let (xs, ys, keys) = (first(xs, n), first(ys, n), first(keys, n));
         first(found, n);
-        match near.filter(|_| n <= 64) {
+        match near.filter(|_| n <= NEAR_MASK_BITS) {
             Some((r2, mask)) => *mask = gather_positions::<true>(everyone.states, list, xs, ys, (self.position, r2)),
             None => _ = gather_positions::<false>(everyone.states, list, xs, ys, (self.position, 0.0)),
         }
@@ -563,7 +563,7 @@ fn gather_positions_scalar(states: &[VehicleState], slots: &[u32], xs: &mut [f64
 fn near_of(xs: &[f64], ys: &[f64], (p, r2): (DVec2, f64)) -> u64 {
     xs.iter()
         .zip(ys)
-        .take(64)
+        .take(NEAR_MASK_BITS)
         .enumerate()
         .fold(0, |mask, (k, (&x, &y))| mask | u64::from(within_reach(p, x, y, r2)) << k)
 }
@@ -609,7 +609,7 @@ unsafe fn gather_positions_avx2<const NEAR: bool>(
             _mm256_storeu_pd(x4.as_mut_ptr(), x);
             _mm256_storeu_pd(y4.as_mut_ptr(), y);
         }
-        if NEAR && g < 16 {
+        if NEAR && 4 * g < NEAR_MASK_BITS {
             // `within_reach`: differences, then x² + y² (no fused multiply-add), then <= (false
             // for NaN).
             let (dx, dy) = (_mm256_sub_pd(x, px), _mm256_sub_pd(y, py));
@@ -1079,6 +1079,10 @@ pub struct ListFloor(pub f64);
 /// round tests the neighbours itself.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
 pub struct NearWanted(pub Option<SimTime>);
+
+/// The longest neighbour list whose neighbours within the wifi range are noted ([`NearWanted`]):
+/// one bit each in a `u64`. A longer list's mask stays 0, and the wifi round tests it itself.
+pub(crate) const NEAR_MASK_BITS: usize = u64::BITS as usize;
 
 /// The drift cells' side as a multiple of the widest list's radius (range plus skin): wider
 /// cells let vehicles move farther between builds (`max_drift`), narrower ones hold fewer

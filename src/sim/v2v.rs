@@ -41,7 +41,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 
 use super::grid::within_reach;
 use super::parallel::{Padded, recycle};
-use super::sensors::{DriftScratch, ListFloor, Lists, NearWanted, SensorGrid};
+use super::sensors::{DriftScratch, ListFloor, Lists, NEAR_MASK_BITS, NearWanted, SensorGrid};
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
@@ -951,33 +951,37 @@ impl WifiRound<'_> {
             let slot = (start + k) as u32;
             let owner = mailbox.owner();
             t.heard.clear();
-            let list = self.nearby.map(|(lists, ..)| lists.of(slot as usize));
-            let near = self.nearby.and_then(|(_, _, near)| near).filter(|_| list.is_some_and(|l| l.len() <= 64));
-            if let (Some((_, sender_of, _)), Some(list), Some(near)) = (self.nearby, list, near) {
-                // The neighbours the sensor tick found within range (a list never holds its own
-                // vehicle), by their bits.
-                let mut bits = near[slot as usize];
-                while bits != 0 {
-                    let j = list[bits.trailing_zeros() as usize];
-                    bits &= bits - 1;
-                    let i = sender_of.get(j);
-                    if i != NOT_SENDING {
-                        debug_assert_eq!(senders[i as usize].place, j, "the sender found is the neighbour's");
-                        t.heard.push(i);
+            if let Some((lists, sender_of, near)) = self.nearby {
+                let list = lists.of(slot as usize);
+                match near.filter(|_| list.len() <= NEAR_MASK_BITS) {
+                    Some(near) => {
+                        // The neighbours the sensor tick found within range (a list never holds
+                        // its own vehicle), by their bits.
+                        let mut bits = near[slot as usize];
+                        while bits != 0 {
+                            let j = list[bits.trailing_zeros() as usize];
+                            bits &= bits - 1;
+                            let i = sender_of.get(j);
+                            if i != NOT_SENDING {
+                                debug_assert_eq!(senders[i as usize].place, j, "the sender found is the neighbour's");
+                                t.heard.push(i);
+                            }
+                        }
                     }
-                }
-            } else if let (Some((_, sender_of, _)), Some(list)) = (self.nearby, list) {
-                // The senders on its list within range: the test of `Candidates::within`.
-                let (p, r2) = (state.position, self.range * self.range);
-                for &j in list {
-                    let i = sender_of.get(j);
-                    if i == NOT_SENDING {
-                        continue;
-                    }
-                    let Sender { id, position, place, .. } = senders[i as usize];
-                    debug_assert_eq!(place, j, "the sender found is the neighbour's");
-                    if within_reach(p, position.x, position.y, r2) & (id != owner) {
-                        t.heard.push(i);
+                    None => {
+                        // The senders on its list within range: the test of `Candidates::within`.
+                        let (p, r2) = (state.position, self.range * self.range);
+                        for &j in list {
+                            let i = sender_of.get(j);
+                            if i == NOT_SENDING {
+                                continue;
+                            }
+                            let Sender { id, position, place, .. } = senders[i as usize];
+                            debug_assert_eq!(place, j, "the sender found is the neighbour's");
+                            if within_reach(p, position.x, position.y, r2) & (id != owner) {
+                                t.heard.push(i);
+                            }
+                        }
                     }
                 }
             } else {
