@@ -54,8 +54,13 @@ const WAIT_SPIN: Duration = Duration::from_micros(100);
 /// with 4, but at 100,000 vehicles 4 made the wifi round 10-30 % slower than 2 (0.98 -> 1.08 s
 /// and 0.83 -> 1.12 s), and wall time at 10,000 could not tell 2 and 4 apart; 8 was slower.
 /// Four of falling size ([`chunk_start`]) instead of two equal: paired, 2 threads, 0.99 of the
-/// wall time at 10,000 vehicles (plain and `--lane-change`) and at 100,000.
-pub const CHUNKS_PER_THREAD: usize = 4;
+/// wall time at 10,000 vehicles (plain and `--lane-change`) and at 100,000. Five halving ones
+/// (8, 4, 2, 1, 1 sixteenths of a share: the last chunk running when the other runs out a
+/// thirty-second of the section, not a twentieth) instead of those four: paired, 2 threads, 30
+/// turns, 0.976 of the wall time at 10,000 vehicles (the caller's wait for its helper at the
+/// ends of the sections, instrumented, was 3.5 % of the run), 0.993 with `--lane-change` (12
+/// turns) and 0.999 at 100,000 (8 turns); six of 6, 5, 4, 3, 2, 1 gave 0.980 and 1.018.
+pub const CHUNKS_PER_THREAD: usize = 5;
 
 /// One section's work as the helpers see it: call `run(data, chunk)` for their chunk.
 struct Job {
@@ -428,20 +433,22 @@ impl Parallelism {
 /// `chunks <= len` ([`Parallelism::chunks_for`]) no chunk is empty.
 pub(crate) fn chunk_start(len: usize, chunks: usize, k: usize) -> usize {
     let participants = chunks / CHUNKS_PER_THREAD;
-    // (Only where every chunk gets an item: a share of 10 or more.)
-    if chunks > 1 && chunks.is_multiple_of(CHUNKS_PER_THREAD) && len >= 10 * participants {
+    let total = CHUNK_SHARES[CHUNKS_PER_THREAD];
+    // (Only where every chunk gets an item: a share of `total` or more.)
+    if chunks > 1 && chunks.is_multiple_of(CHUNKS_PER_THREAD) && len >= total * participants {
         let (p, j) = (k / CHUNKS_PER_THREAD, k % CHUNKS_PER_THREAD);
         let from = p * len / participants;
         let share = (p + 1) * len / participants - from;
-        let total = CHUNK_SHARES[CHUNKS_PER_THREAD];
-        from + share * CHUNK_SHARES[j] / total
+        // What is left after the chunk's start rounded down, so the sizes fall even where the
+        // share is not a multiple of `total` (rounding the starts down gave 9, 5, 2, 1, 2).
+        from + share - share * (total - CHUNK_SHARES[j]) / total
     } else {
         k * len / chunks.max(1)
     }
 }
 
 /// The running sums of the chunk sizes within a participant's share ([`chunk_start`]).
-const CHUNK_SHARES: [usize; CHUNKS_PER_THREAD + 1] = [0, 4, 7, 9, 10];
+const CHUNK_SHARES: [usize; CHUNKS_PER_THREAD + 1] = [0, 8, 12, 14, 15, 16];
 
 /// The items and scratch values of one [`Parallelism::for_each_chunk_at`] call, cut into
 /// `chunks` chunks ([`chunk_start`]) without an allocation per call.
@@ -594,12 +601,12 @@ mod tests {
     fn each_participants_share_is_cut_into_falling_chunks_none_empty() {
         for threads in [2, 3, 4] {
             let p = Parallelism { threads, min_vehicles: 0 };
-            for len in [1, 2, 7, 8, 9, 12, 39, 40, 41, 100, 1001, 10_000] {
+            for len in [1, 2, 7, 8, 9, 12, 39, 40, 41, 47, 48, 49, 63, 64, 65, 100, 1001, 10_000, 10_007] {
                 let chunks = p.chunks_for(len);
                 let starts: Vec<usize> = (0..=chunks).map(|k| chunk_start(len, chunks, k)).collect();
                 assert_eq!((starts[0], starts[chunks]), (0, len), "{threads} threads, {len} items");
                 assert!(starts.windows(2).all(|w| w[0] < w[1]), "none empty: {starts:?}");
-                if len >= 10 * threads {
+                if len >= CHUNK_SHARES[CHUNKS_PER_THREAD] * threads {
                     // Each participant's chunks (as `Team::run` shares them out) fall in size,
                     // its last at most half its first.
                     for share in starts.windows(CHUNKS_PER_THREAD + 1).step_by(CHUNKS_PER_THREAD) {

@@ -442,11 +442,12 @@ fn slot_key(id: VehicleId) -> usize {
     ((id.0 << 1) ^ (id.0 >> 31)) as u32 as usize
 }
 
-/// Most chunks [`LaneIndex::rebuild`] counts and places the items in side by side.
-const SCATTER_CHUNKS: usize = 16;
+/// Most chunks [`LaneIndex::rebuild`] counts and places the items in side by side: those of
+/// four threads (the most [`Parallelism::default`] uses).
+const SCATTER_CHUNKS: usize = 4 * CHUNKS_PER_THREAD;
 
-/// Most groups of lanelets [`LaneIndex::rebuild`] sorts side by side.
-const SORT_GROUPS: usize = 16;
+/// Most groups of lanelets [`LaneIndex::rebuild`] sorts side by side (as many).
+const SORT_GROUPS: usize = 4 * CHUNKS_PER_THREAD;
 
 /// Consecutive lanelets of the [`LaneIndex`] that one thread sorts: their entries and where each
 /// lanelet's starts among them (plus the end), offset by the group's first entry.
@@ -797,7 +798,7 @@ mod tests {
 
     #[test]
     fn the_index_is_the_same_on_any_thread_count_and_leaves_out_entries_on_no_lanelet() {
-        // 40 lanelets, 3,000 entries in scrambled order, some on no lanelet; then fewer entries
+        // 40 lanelets, 3,300 entries in scrambled order, some on no lanelet; then fewer entries
         // (the buffers shrink) on fewer lanelets.
         let scrambled = |n: usize, lanelets: usize| -> Vec<IndexEntry> {
             (0..n)
@@ -811,7 +812,7 @@ mod tests {
                 .collect()
         };
         let mut many: Vec<LaneIndex> = vec![LaneIndex::default(); 4];
-        for (n, lanelets) in [(3000, 40), (500, 5), (3001, 1), (3000, 700)] {
+        for (n, lanelets) in [(3300, 40), (500, 5), (3001, 1), (3000, 700)] {
             let items = scrambled(n, lanelets);
             let mut one = LaneIndex::default();
             one.rebuild(Parallelism::single(), lanelets, &items);
