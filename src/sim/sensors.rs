@@ -308,6 +308,10 @@ pub struct SenseScratch {
     /// Counts of this thread's vehicles this tick.
     stats: SensorStats,
     half_cos: HalfCos,
+    /// With kept lists ([`sense_with_kept_lists`]): this chunk's displacements since the build
+    /// and whether its vehicles' sensors are the build's.
+    drift: DriftPart,
+    shapes_held: bool,
 }
 
 /// Cells each side a vehicle of sensor range `range` [m] must search on a grid of `cell` [m]:
@@ -937,8 +941,9 @@ fn write_found(
 /// in on each other by the skin since then, every vehicle within a sensor's range now is on
 /// its list, so a sensor tick tests only its list: no grid rebuild, no gather of the cells
 /// around, and a circle of candidates rather than a square of cells (about 18 instead of 30 on
-/// the benchmark's highway). A tick checks the displacements (one pass over the positions,
-/// [`NeighbourLists::moved_together`]) and rebuilds the lists over a grid when two neighbours'
+/// the benchmark's highway). A tick checks the displacements (in the pass that senses,
+/// [`sense_with_kept_lists`], or one of their own, [`NeighbourLists::moved_together`]) and
+/// rebuilds the lists over a grid when two neighbours'
 /// displacements differ by the skin or one moved far, when the vehicles or their sensors'
 /// ranges changed, or when the typical range did.
 ///
@@ -987,6 +992,8 @@ struct NeighbourLists {
     max_drift: f64,
     /// Builds so far.
     builds: u64,
+    /// Sensor ticks that kept the lists in one pass ([`sense_with_kept_lists`]).
+    kept_in_one_pass: u64,
     /// Which neighbours on each vehicle's list (bit k: the list's k-th; lists of at most 64)
     /// lay within the wifi range (squared: `near_r2` [m²]) at the instant `near_at`, in query
     /// order: noted by the sensor tick at the instant the wifi round asked for ([`NearWanted`])
@@ -1373,10 +1380,16 @@ impl NeighbourLists {
                 &self.cell_of[r],
             );
         });
+        self.drifted_together(parts.iter().take(chunks), boxes)
+    }
+
+    /// The second half of [`NeighbourLists::moved_together`]: whether the displacements every
+    /// chunk found (`parts`, in chunk order) keep the lists; `boxes` is scratch.
+    fn drifted_together<'p>(&self, parts: impl Iterator<Item = &'p DriftPart>, boxes: &mut Vec<DriftBox>) -> bool {
         boxes.clear();
         boxes.resize(self.cells, EMPTY_BOX);
         let (mut farthest, mut finite, mut turned) = (0.0f64, true, false);
-        for part in parts.iter().take(chunks) {
+        for part in parts {
             farthest = farthest.max(part.farthest);
             finite &= part.finite;
             turned |= part.turned;
@@ -1532,16 +1545,8 @@ pub fn sense_vehicles(
     clock: Res<SimClock>,
     seed: Option<Res<SimSeed>>,
     mut stats: ResMut<SensorStats>,
-    everyone: Query<(&VehicleId, &VehicleState, Option<&VehicleSize>)>,
-    mut sensing: Query<(
-        &VehicleId,
-        &VehicleState,
-        Option<&Radar>,
-        Option<&Velodyne>,
-        Has<Omniscient>,
-        Option<&SensorErrors>,
-        &mut SensorReadings,
-    )>,
+    everyone: EveryoneQuery,
+    mut sensing: SensingQuery,
     mut scratch: Local<Vec<SenseScratch>>,
     mut shape_parts: Local<Vec<ShapeSummary>>,
     mut ranges: Local<Vec<f64>>,
@@ -1553,6 +1558,147 @@ pub fn sense_vehicles(
     if sensing.is_empty() {
         return;
     }
+    let draws = Draws::new(seed.map_or(0, |s| s.0), clock.now.0);
+    let floor = asked.map_or(0.0, |f| f.0);
+    let near_r2 = (near_wanted.is_some_and(|w| w.0 == Some(clock.now)) && floor > 0.0).then_some(floor * floor);
+    let input = (&*grid, draws, floor, near_r2);
+    let kept =
+        sense_with_kept_lists(neighbours, input, (*parallelism, clock.now), &everyone, &mut sensing, &mut scratch);
+    if !kept {
+        sense_by_shapes(
+            (grid, neighbours),
+            (*parallelism, clock.now),
+            (draws, floor, near_r2),
+            (&everyone, &mut sensing),
+            (&mut scratch, &mut shape_parts, &mut ranges, &mut footprints),
+        );
+    }
+    for s in scratch.iter_mut() {
+        stats.add(&s.stats);
+        s.stats = SensorStats::default();
+    }
+}
+
+/// The query of the vehicles that sense ([`sense_vehicles`]).
+type SensingQuery<'w, 's> = Query<
+    'w,
+    's,
+    (
+        &'static VehicleId,
+        &'static VehicleState,
+        Option<&'static Radar>,
+        Option<&'static Velodyne>,
+        Has<Omniscient>,
+        Option<&'static SensorErrors>,
+        &'static mut SensorReadings,
+    ),
+>;
+
+/// The query of every vehicle (the targets, [`sense_vehicles`]).
+type EveryoneQuery<'w, 's> = Query<'w, 's, (&'static VehicleId, &'static VehicleState, Option<&'static VehicleSize>)>;
+
+/// The ids and states of the one non-empty ECS table of every vehicle, if they are all in one.
+fn one_table<'a>(everyone: &'a EveryoneQuery<'_, '_>) -> Option<(&'a [VehicleId], &'a [VehicleState])> {
+    let mut full = everyone.contiguous_iter().ok()?.filter(|(ids, _, _)| !ids.is_empty());
+    let (ids, states, _) = full.next()?;
+    full.next().is_none().then_some((ids, states))
+}
+
+/// A sensor tick over the neighbour lists as they are, in one pass: each chunk of vehicles
+/// senses from its lists and, beside that, adds up its displacements since the build and
+/// checks that its sensors are the build's; the lists are kept when all hold
+/// ([`NeighbourLists::drifted_together`]), else the tick is thrown away (nothing written but
+/// the readings, the wifi masks and the counts in `scratch`, which the tick made again
+/// overwrites and this resets) and `false` returned, for [`sense_by_shapes`] to build them.
+/// The same readings as that path bit for bit: where the lists hold, it senses from the same
+/// lists with the same sight.
+///
+/// That path finds the sensors' shapes and the displacements in two passes of their own over
+/// the threads before sensing: two hand-overs to the helpers per tick, each of a few
+/// microseconds' work per thousand vehicles, where the caller waited for a helper's late
+/// start and its last chunk (10,000 vehicles, 2 threads, instrumented: the two passes and the
+/// gaps before them were 7 % of a run). Lists are built every few seconds of simulated time;
+/// a tick thrown away costs one tick's sensing then.
+///
+/// `input`: the grid, the tick's draws, the wifi range the lists must reach and, at a wifi
+/// round's instant, its square ([`NearWanted`]).
+fn sense_with_kept_lists(
+    neighbours: &mut Neighbours,
+    (grid, draws, floor, near_r2): (&SpatialGrid, Draws, f64, Option<f64>),
+    (parallelism, now): (Parallelism, SimTime),
+    everyone: &EveryoneQuery<'_, '_>,
+    sensing: &mut SensingQuery<'_, '_>,
+    scratch: &mut Vec<SenseScratch>,
+) -> bool {
+    let lists = &mut neighbours.lists;
+    if lists.skin <= 0.0 || lists.floor != floor {
+        return false;
+    }
+    let Some((ids, states)) = one_table(everyone) else { return false };
+    let everyone = Everyone { ids, states };
+    let n = ids.len();
+    let built = |len: usize| len == n;
+    let as_built = built(lists.cell_of.len()) && built(lists.headings.len()) && built(lists.shapes.len());
+    if !as_built || !lists.of_vehicles(everyone) || lists.lists.len() != n {
+        return false;
+    }
+    let Ok(tables) = sensing.contiguous_iter_mut() else { return false };
+    let mut full = tables.filter(|t| !t.0.is_empty());
+    let Some((sensing_ids, sensing_states, radars, velodynes, omniscient, errors, mut readings)) = full.next() else {
+        return false;
+    };
+    // Occlusion needs every vehicle's footprint ([`sense_by_shapes`] gathers them).
+    let occludes = |e: &SensorErrors| e.radar.occlusion || e.velodyne.occlusion;
+    if full.next().is_some() || omniscient || sensing_ids != ids || errors.is_some_and(|e| e.iter().any(occludes)) {
+        return false;
+    }
+    let table = SensingTable { ids: sensing_ids, states: sensing_states, radars, velodynes, omniscient, errors };
+    let input = SenseInput { grid, footprints: &[], draws };
+    if lists.near.len() != n {
+        lists.near.resize(n, 0);
+    }
+    let NeighbourLists { lists: kept, anchors, headings, cell_of, shapes, near, .. } = &mut *lists;
+    let (kept, anchors, headings, cell_of, shapes) = (&*kept, &anchors[..], &headings[..], &cell_of[..], &shapes[..]);
+    parallelism.for_each_chunk_pair_at(&mut readings, near, scratch, |start, chunk, near, s| {
+        let r = start..start + chunk.len();
+        let drift = &mut s.drift;
+        drift.runs.clear();
+        (drift.farthest, drift.finite, drift.turned) = (0.0, true, false);
+        drift.add(&anchors[r.clone()], &headings[r.clone()], &states[r.clone()], &cell_of[r.clone()]);
+        let shape = |i: usize| Shape::of(radars.map(|x| &x[i]), velodynes.map(|v| &v[i]));
+        s.shapes_held = r.into_iter().all(|i| shape(i) == shapes[i]);
+        sense_listed(input, table, everyone, (Listing::Kept(kept), near_r2), (start, chunk, near), s);
+    });
+    let chunks = parallelism.chunks_for(n);
+    let held = scratch.iter().take(chunks).all(|s| s.shapes_held)
+        && lists.drifted_together(scratch.iter().take(chunks).map(|s| &s.drift), &mut neighbours.drift.boxes);
+    if !held {
+        scratch.iter_mut().for_each(|s| s.stats = SensorStats::default());
+        return false;
+    }
+    lists.held_at = Some(now);
+    if let Some(r2) = near_r2 {
+        (lists.near_at, lists.near_r2) = (Some(now), r2);
+    }
+    lists.kept_in_one_pass += 1;
+    true
+}
+
+/// A sensor tick that first finds every vehicle's sensors ([`Shape`]) and the typical range,
+/// then senses over the neighbour lists (kept if they hold, else built) or, where they cannot
+/// serve, over the grid.
+fn sense_by_shapes(
+    (grid, neighbours): (&mut SpatialGrid, &mut Neighbours),
+    (parallelism, now): (Parallelism, SimTime),
+    (draws, floor, near_r2): (Draws, f64, Option<f64>),
+    (everyone, sensing): (&EveryoneQuery<'_, '_>, &mut SensingQuery<'_, '_>),
+    (scratch, shape_parts, ranges, footprints): (
+        &mut Vec<SenseScratch>,
+        &mut Vec<ShapeSummary>,
+        &mut Vec<f64>,
+        &mut Vec<Footprint>,
+    ),
+) {
     ranges.clear();
     let mut occlusion = false;
     let occludes = |e: &SensorErrors| e.radar.occlusion || e.velodyne.occlusion;
@@ -1575,7 +1721,7 @@ pub fn sense_vehicles(
             }
             let chunks = parallelism.chunks_for(ids.len());
             shape_parts.iter_mut().for_each(|p| *p = ShapeSummary::default());
-            parallelism.for_each_chunk_at(&mut shapes_now[start..end], &mut shape_parts, |k0, chunk, part| {
+            parallelism.for_each_chunk_at(&mut shapes_now[start..end], shape_parts, |k0, chunk, part| {
                 let was = built.get(start + k0..).unwrap_or(&[]);
                 for (k, shape) in chunk.iter_mut().enumerate() {
                     *shape = Shape::of(radars.map(|r| &r[k0 + k]), velodynes.map(|v| &v[k0 + k]));
@@ -1609,7 +1755,7 @@ pub fn sense_vehicles(
             Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw: state.yaw }
         }));
     }
-    let cell = cell.unwrap_or_else(|| typical_range(&mut ranges));
+    let cell = cell.unwrap_or_else(|| typical_range(ranges));
     let entry = |i: usize, id: VehicleId, state: &VehicleState| GridEntry {
         position: state.position,
         velocity: state.velocity,
@@ -1619,13 +1765,9 @@ pub fn sense_vehicles(
     // Split over the threads when every vehicle lies in one ECS table (the common case; the
     // tables a vehicle left when a component was added stay, empty; the index of each vehicle
     // is its place in query order either way).
-    let one_table = everyone.contiguous_iter().ok().and_then(|tables| {
-        let mut full = tables.filter(|(ids, _, _)| !ids.is_empty());
-        let first = full.next()?;
-        full.next().is_none().then_some(first)
-    });
+    let one_table = one_table(everyone);
     // Neighbour lists when every vehicle senses, from that one table, with a bounded range.
-    let listed = one_table.and_then(|(ids, states, _)| {
+    let listed = one_table.and_then(|(ids, states)| {
         let readonly = sensing.as_readonly();
         let mut full = readonly.contiguous_iter().ok()?.filter(|t| !t.0.is_empty());
         let (sensing_ids, _, _, _, omniscient, _, _) = full.next()?;
@@ -1635,17 +1777,14 @@ pub fn sense_vehicles(
         // The shapes summed up above are this one table's.
         summary.finite.then_some(Everyone { ids, states })
     });
-    let draws = Draws::new(seed.map_or(0, |s| s.0), clock.now.0);
     if let Some(everyone) = listed {
         let skin = SKIN_SHARE * cell;
         let n = neighbours.shapes_now.len();
-        let floor = asked.map_or(0.0, |f| f.0);
         let Neighbours { lists, shapes_now, drift, keys } = neighbours;
-        // The wifi round runs at this instant (as it expects): note who is within its range.
-        let near_r2 = (near_wanted.is_some_and(|w| w.0 == Some(clock.now)) && floor > 0.0).then_some(floor * floor);
-        let build = !lists.hold(everyone, (summary.as_built, floor, skin), *parallelism, drift);
+        // (At a wifi round's instant, `near_r2` notes who is within its range.)
+        let build = !lists.hold(everyone, (summary.as_built, floor, skin), parallelism, drift);
         if build {
-            grid.rebuild_on(*parallelism, cell + skin, n, |i| entry(i, everyone.ids[i], &everyone.states[i]));
+            grid.rebuild_on(parallelism, cell + skin, n, |i| entry(i, everyone.ids[i], &everyone.states[i]));
             lists.ids.clear();
             lists.ids.extend_from_slice(everyone.ids);
             lists.anchors.clear();
@@ -1659,7 +1798,7 @@ pub fn sense_vehicles(
             lists.place_in_drift_cells(keys);
             lists.builds += 1;
         }
-        let input = SenseInput { grid, footprints: &footprints, draws };
+        let input = SenseInput { grid, footprints, draws };
         let tables = sensing.contiguous_iter_mut().ok().into_iter().flatten();
         for (ids, states, radars, velodynes, omniscient, errors, mut readings) in tables {
             if ids.is_empty() {
@@ -1671,14 +1810,9 @@ pub fn sense_vehicles(
             if lists.near.len() != n {
                 lists.near.resize(n, 0);
             }
-            parallelism.for_each_chunk_pair_at(
-                &mut readings,
-                &mut lists.near,
-                &mut scratch,
-                |start, chunk, near, s| {
-                    sense_listed(input, table, everyone, (listing, near_r2), (start, chunk, near), s)
-                },
-            );
+            parallelism.for_each_chunk_pair_at(&mut readings, &mut lists.near, scratch, |start, chunk, near, s| {
+                sense_listed(input, table, everyone, (listing, near_r2), (start, chunk, near), s)
+            });
         }
         if build {
             // Each chunk's lists, in chunk order, into the one array.
@@ -1697,22 +1831,22 @@ pub fn sense_vehicles(
             }
             debug_assert_eq!(starts.len(), n + 1);
         }
-        lists.held_at = Some(clock.now);
+        lists.held_at = Some(now);
         if let Some(r2) = near_r2 {
-            (lists.near_at, lists.near_r2) = (Some(clock.now), r2);
+            (lists.near_at, lists.near_r2) = (Some(now), r2);
         }
     } else {
         match one_table {
-            Some((ids, states, _)) => {
-                grid.rebuild_on(*parallelism, cell, ids.len().min(states.len()), |i| entry(i, ids[i], &states[i]))
+            Some((ids, states)) => {
+                grid.rebuild_on(parallelism, cell, ids.len().min(states.len()), |i| entry(i, ids[i], &states[i]))
             }
             None => grid.rebuild(cell, everyone.iter().enumerate().map(|(i, (&id, state, _))| entry(i, id, state))),
         }
-        let input = SenseInput { grid, footprints: &footprints, draws };
+        let input = SenseInput { grid, footprints, draws };
         if let Ok(tables) = sensing.contiguous_iter_mut() {
             for (ids, states, radars, velodynes, omniscient, errors, mut readings) in tables {
                 let table = SensingTable { ids, states, radars, velodynes, omniscient, errors };
-                parallelism.for_each_chunk_at(&mut readings, &mut scratch, |start, chunk, s| {
+                parallelism.for_each_chunk_at(&mut readings, scratch, |start, chunk, s| {
                     sense_chunk(input, table, start, chunk, s)
                 });
             }
@@ -1721,7 +1855,7 @@ pub fn sense_vehicles(
             if scratch.is_empty() {
                 scratch.push(SenseScratch::default());
             }
-            for (id, state, radar, velodyne, omniscient, errors, mut readings) in &mut sensing {
+            for (id, state, radar, velodyne, omniscient, errors, mut readings) in sensing.iter_mut() {
                 let table = SensingTable {
                     ids: std::slice::from_ref(id),
                     states: std::slice::from_ref(state),
@@ -1733,10 +1867,6 @@ pub fn sense_vehicles(
                 sense_chunk(input, table, 0, std::slice::from_mut(&mut *readings), &mut scratch[0]);
             }
         }
-    }
-    for s in scratch.iter_mut() {
-        stats.add(&s.stats);
-        s.stats = SensorStats::default();
     }
 }
 
@@ -1914,6 +2044,54 @@ mod tests {
                 sim.run_for(0.05);
                 assert_eq!(builds(&sim), 3, "{threads} threads, vehicle {changed}'s velodyne shorter");
             }
+        }
+    }
+
+    #[test]
+    fn kept_lists_sense_in_one_pass_and_a_tick_thrown_away_counts_its_detections_once() {
+        // A tick that finds the lists no longer hold (a vehicle closed in by the skin, a radar
+        // changed) throws its one pass away and senses again over lists built anew: its
+        // detections count once, as many as the readings hold.
+        for threads in [1, 2, 3] {
+            let mut b = SimBuilder::new();
+            b.add_plugin(SensorsPlugin);
+            b.insert_resource(Parallelism::split(threads));
+            for k in 0..60 {
+                b.spawn_vehicle(sensing_at(k, 30.0 * f64::from(k))).expect("unique ids");
+            }
+            let mut sim = b.build();
+            let counts = |sim: &crate::sim::Sim| {
+                let lists = &sim.world().resource::<SensorGrid>().neighbours.lists;
+                (lists.builds, lists.kept_in_one_pass)
+            };
+            let detections = |sim: &mut crate::sim::Sim| {
+                let counted = sim.world().resource::<SensorStats>().detections;
+                let world = sim.world_mut();
+                let read: usize = world.query::<&SensorReadings>().iter(world).map(|r| r.0.len()).sum();
+                (counted, read as u64)
+            };
+            sim.run_for(0.05);
+            assert_eq!(counts(&sim), (1, 0), "{threads} threads: the first tick builds");
+            let (mut last, read) = detections(&mut sim);
+            assert_eq!(last, read, "{threads} threads: the first tick");
+            for step in 0..8 {
+                match step {
+                    3 => {
+                        let e = sim.entity(VehicleId(7)).expect("vehicle 7");
+                        sim.world_mut().get_mut::<VehicleState>(e).expect("state").position.x += 21.0;
+                    }
+                    5 => {
+                        let e = sim.entity(VehicleId(40)).expect("vehicle 40");
+                        sim.world_mut().get_mut::<Radar>(e).expect("radar").range = 120.0;
+                    }
+                    _ => {}
+                }
+                sim.run_for(0.05);
+                let (counted, read) = detections(&mut sim);
+                assert_eq!(counted - last, read, "{threads} threads, step {step}");
+                last = counted;
+            }
+            assert_eq!(counts(&sim), (3, 6), "{threads} threads: built again twice, else kept in one pass");
         }
     }
 
