@@ -2018,19 +2018,25 @@ mod tests {
         assert_eq!(listed, [8, 9, 11, 12, 13, 14]);
     }
 
+    /// Sixty sensing vehicles 30 m apart in a row, on `threads` threads.
+    fn sixty_in_a_row(threads: usize) -> crate::sim::Sim {
+        let mut b = SimBuilder::new();
+        b.add_plugin(SensorsPlugin);
+        b.insert_resource(Parallelism::split(threads));
+        for k in 0..60 {
+            b.spawn_vehicle(sensing_at(k, 30.0 * f64::from(k))).expect("unique ids");
+        }
+        b.build()
+    }
+
     #[test]
     fn a_sensor_changed_in_any_chunk_builds_the_lists_again_on_any_thread_count() {
-        // The shapes pass tells whether this tick's sensors are the build's, chunk by chunk: a
-        // change in the first, a middle or the last chunk must be seen.
+        // The sensing pass over kept lists (or the shapes pass) tells whether this tick's
+        // sensors are the build's, chunk by chunk: a change in the first, a middle or the last
+        // chunk must be seen.
         for threads in [1, 2, 3] {
             for changed in [0, 31, 59] {
-                let mut b = SimBuilder::new();
-                b.add_plugin(SensorsPlugin);
-                b.insert_resource(Parallelism::split(threads));
-                for k in 0..60 {
-                    b.spawn_vehicle(sensing_at(k, 30.0 * f64::from(k))).expect("unique ids");
-                }
-                let mut sim = b.build();
+                let mut sim = sixty_in_a_row(threads);
                 let builds = |sim: &crate::sim::Sim| sim.world().resource::<SensorGrid>().neighbours.lists.builds;
                 sim.run_for(0.2);
                 assert_eq!(builds(&sim), 1, "{threads} threads: nobody moved");
@@ -2053,13 +2059,7 @@ mod tests {
         // changed) throws its one pass away and senses again over lists built anew: its
         // detections count once, as many as the readings hold.
         for threads in [1, 2, 3] {
-            let mut b = SimBuilder::new();
-            b.add_plugin(SensorsPlugin);
-            b.insert_resource(Parallelism::split(threads));
-            for k in 0..60 {
-                b.spawn_vehicle(sensing_at(k, 30.0 * f64::from(k))).expect("unique ids");
-            }
-            let mut sim = b.build();
+            let mut sim = sixty_in_a_row(threads);
             let counts = |sim: &crate::sim::Sim| {
                 let lists = &sim.world().resource::<SensorGrid>().neighbours.lists;
                 (lists.builds, lists.kept_in_one_pass)
