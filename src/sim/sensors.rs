@@ -992,8 +992,12 @@ struct NeighbourLists {
     max_drift: f64,
     /// Builds so far.
     builds: u64,
-    /// Sensor ticks that kept the lists in one pass ([`sense_with_kept_lists`]).
+    /// Sensor ticks that kept the lists in one pass ([`sense_with_kept_lists`]), and those whose
+    /// one pass was thrown away.
     kept_in_one_pass: u64,
+    thrown_away: u64,
+    /// Sensor ticks since the last build that kept the lists.
+    kept_since_build: u32,
     /// Which neighbours on each vehicle's list (bit k: the list's k-th; lists of at most 64)
     /// lay within the wifi range (squared: `near_r2` [m²]) at the instant `near_at`, in query
     /// order: noted by the sensor tick at the instant the wifi round asked for ([`NearWanted`])
@@ -1631,7 +1635,7 @@ fn sense_with_kept_lists(
     scratch: &mut Vec<SenseScratch>,
 ) -> bool {
     let lists = &mut neighbours.lists;
-    if lists.skin <= 0.0 || lists.floor != floor {
+    if lists.skin <= 0.0 || lists.floor != floor || lists.kept_since_build < ONE_PASS_AFTER {
         return false;
     }
     let Some((ids, states)) = one_table(everyone) else { return false };
@@ -1674,6 +1678,7 @@ fn sense_with_kept_lists(
         && lists.drifted_together(scratch.iter().take(chunks).map(|s| &s.drift), &mut neighbours.drift.boxes);
     if !held {
         scratch.iter_mut().for_each(|s| s.stats = SensorStats::default());
+        lists.thrown_away += 1;
         return false;
     }
     lists.held_at = Some(now);
@@ -1681,8 +1686,19 @@ fn sense_with_kept_lists(
         (lists.near_at, lists.near_r2) = (Some(now), r2);
     }
     lists.kept_in_one_pass += 1;
+    lists.kept_since_build += 1;
     true
 }
+
+/// Sensor ticks that must have kept the lists since their build before one tries to keep them
+/// in one pass ([`sense_with_kept_lists`]). A pass thrown away costs about a tick's sensing, a
+/// kept one saves about a tenth of it (the two passes of [`sense_by_shapes`] and the waits
+/// around them): where lists are built every few ticks (vehicles closing in fast, sensors
+/// changed often), trying every tick would sense twice as often as it saves. With this many
+/// first, builds every `ONE_PASS_AFTER` ticks or sooner never try, and the worst (one build
+/// every `ONE_PASS_AFTER + 1` ticks) throws away a pass in that many ticks; traffic that moves
+/// together builds every few seconds (hundreds of ticks) and loses only these first ticks.
+const ONE_PASS_AFTER: u32 = 8;
 
 /// A sensor tick that first finds every vehicle's sensors ([`Shape`]) and the typical range,
 /// then senses over the neighbour lists (kept if they hold, else built) or, where they cannot
@@ -1797,6 +1813,9 @@ fn sense_by_shapes(
             lists.around = shapes_now.iter().map(|s| s.around(floor)).fold(f64::INFINITY, f64::min);
             lists.place_in_drift_cells(keys);
             lists.builds += 1;
+            lists.kept_since_build = 0;
+        } else {
+            lists.kept_since_build = lists.kept_since_build.saturating_add(1);
         }
         let input = SenseInput { grid, footprints, draws };
         let tables = sensing.contiguous_iter_mut().ok().into_iter().flatten();
@@ -2055,14 +2074,15 @@ mod tests {
 
     #[test]
     fn kept_lists_sense_in_one_pass_and_a_tick_thrown_away_counts_its_detections_once() {
-        // A tick that finds the lists no longer hold (a vehicle closed in by the skin, a radar
-        // changed) throws its one pass away and senses again over lists built anew: its
-        // detections count once, as many as the readings hold.
+        // Lists kept for `ONE_PASS_AFTER` ticks are then kept in one pass; a tick that finds them
+        // no longer hold (a vehicle closed in by the skin, a radar changed) throws that pass
+        // away and senses again over lists built anew: its detections count once, as many as
+        // the readings hold. Right after a build, the two-pass path.
         for threads in [1, 2, 3] {
             let mut sim = sixty_in_a_row(threads);
             let counts = |sim: &crate::sim::Sim| {
                 let lists = &sim.world().resource::<SensorGrid>().neighbours.lists;
-                (lists.builds, lists.kept_in_one_pass)
+                (lists.builds, lists.kept_in_one_pass, lists.thrown_away)
             };
             let detections = |sim: &mut crate::sim::Sim| {
                 let counted = sim.world().resource::<SensorStats>().detections;
@@ -2071,16 +2091,16 @@ mod tests {
                 (counted, read as u64)
             };
             sim.run_for(0.05);
-            assert_eq!(counts(&sim), (1, 0), "{threads} threads: the first tick builds");
+            assert_eq!(counts(&sim), (1, 0, 0), "{threads} threads: the first tick builds");
             let (mut last, read) = detections(&mut sim);
             assert_eq!(last, read, "{threads} threads: the first tick");
-            for step in 0..8 {
+            for step in 0..30 {
                 match step {
-                    3 => {
+                    12 => {
                         let e = sim.entity(VehicleId(7)).expect("vehicle 7");
                         sim.world_mut().get_mut::<VehicleState>(e).expect("state").position.x += 21.0;
                     }
-                    5 => {
+                    24 => {
                         let e = sim.entity(VehicleId(40)).expect("vehicle 40");
                         sim.world_mut().get_mut::<Radar>(e).expect("radar").range = 120.0;
                     }
@@ -2091,7 +2111,9 @@ mod tests {
                 assert_eq!(counted - last, read, "{threads} threads, step {step}");
                 last = counted;
             }
-            assert_eq!(counts(&sim), (3, 6), "{threads} threads: built again twice, else kept in one pass");
+            // Ticks 0-7 after each build on two passes, then one (steps 8-11 and 21-23), the
+            // passes of steps 12 and 24 thrown away for builds.
+            assert_eq!(counts(&sim), (3, 7, 2), "{threads} threads: builds, kept in one pass, thrown away");
         }
     }
 
