@@ -540,3 +540,47 @@ fn a_perfect_wifi_round_ages_its_messages_whether_sent_at_one_instant_or_several
     assert_eq!(third, (80_000 * all, all));
     assert_eq!((stats.age_sum_us, stats.aged), (first.0 + second.0 + third.0, 3 * all));
 }
+
+#[test]
+fn a_network_round_over_several_tables_and_threads_delivers_by_sender_id_then_send_order() {
+    // Ids neither rising nor falling in query order, one to three messages a sender, and every
+    // fifth vehicle moved to a second ECS table: the round's out-boxes are emptied over the
+    // threads table by table, and every in-box gets the others' messages by sender id, each
+    // sender's in the order it sent them.
+    let n = 40;
+    let id = |i: i32| if i % 3 == 0 { 100 + i } else { -1 - i };
+    for threads in [1, 2, 3] {
+        let mut b = SimBuilder::new();
+        b.add_plugin(V2vPlugin::default());
+        b.insert_resource(Parallelism::split(threads));
+        for i in 0..n {
+            // Far apart: wifi is out of play, the network reaches everyone.
+            parked(&mut b, id(i), DVec2::new(f64::from(i) * 1000.0, 0.0));
+        }
+        let mut sim = b.build();
+        for i in (0..n).step_by(5) {
+            let e = sim.entity(VehicleId(id(i))).unwrap();
+            sim.world_mut().entity_mut(e).insert(smlworld::vehicles::LateralShift(0.0));
+        }
+        let now = sim.now();
+        let mut sent: Vec<(i32, u32)> = Vec::new();
+        for i in 0..n {
+            let e = sim.entity(VehicleId(id(i))).unwrap();
+            let mut mailbox = sim.world_mut().get_mut::<Mailbox>(e).unwrap();
+            for k in 0..(i % 3 + 1) as u32 {
+                mailbox.send(Channel::Network, now, Arc::new(k));
+                sent.push((id(i), k));
+            }
+        }
+        sim.run_for(0.25); // the round at t = 0
+        // By sender id (a stable sort keeps each sender's in send order).
+        sent.sort_by_key(|&(sender, _)| sender);
+        for i in 0..n {
+            let e = sim.entity(VehicleId(id(i))).unwrap();
+            let inbox = &sim.world().get::<Mailbox>(e).unwrap().network_in;
+            let got: Vec<(i32, u32)> = inbox.iter().map(|m| (m.sender.0, *m.payload::<u32>().unwrap())).collect();
+            let expected: Vec<(i32, u32)> = sent.iter().copied().filter(|&(sender, _)| sender != id(i)).collect();
+            assert_eq!(got, expected, "{threads} threads, receiver {}", id(i));
+        }
+    }
+}
