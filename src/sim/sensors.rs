@@ -1048,6 +1048,12 @@ impl Default for DriftPart {
 }
 
 impl DriftPart {
+    /// Empty again, as [`DriftPart::default`] (keeping the runs' allocation).
+    fn clear(&mut self) {
+        self.runs.clear();
+        (self.farthest, self.finite, self.turned) = (0.0, true, false);
+    }
+
     /// Add the displacements of the vehicles at `states` from their `anchors`, in drift cells
     /// `cells`, and whether one turned from its heading `headings` by [`TURN`]. Vehicles near
     /// each other are mostly next to each other in the query: a run of them in one cell is
@@ -1370,10 +1376,7 @@ impl NeighbourLists {
         // the threads, each chunk boxing its runs; the runs merged in chunk order.
         let DriftScratch { boxes, parts } = scratch;
         let chunks = parallelism.chunks_for(n);
-        for part in parts.iter_mut().take(chunks) {
-            part.runs.clear();
-            (part.farthest, part.finite, part.turned) = (0.0, true, false);
-        }
+        parts.iter_mut().take(chunks).for_each(DriftPart::clear);
         // (Parts made for this call start empty too: `DriftPart::default`.)
         parallelism.for_each_chunk_at(&mut vec![(); n], parts, |start, chunk, part| {
             let r = start..start + chunk.len();
@@ -1508,6 +1511,12 @@ fn sense_listed(
         let errors = table.errors.map(|e| &e[i]);
         write_found(&sight, errors, input, &everyone, found, (&mut s.extents, &mut s.stats), readings);
     }
+}
+
+/// Whether either sensor of `e` hides targets behind nearer ones (then every vehicle's
+/// [`Footprint`] is needed).
+fn occludes(e: &SensorErrors) -> bool {
+    e.radar.occlusion || e.velodyne.occlusion
 }
 
 /// Whether a sensor range `r` [m] bounds what the sensor sees (positive and finite): the ranges
@@ -1652,7 +1661,6 @@ fn sense_with_kept_lists(
         return false;
     };
     // Occlusion needs every vehicle's footprint ([`sense_by_shapes`] gathers them).
-    let occludes = |e: &SensorErrors| e.radar.occlusion || e.velodyne.occlusion;
     if full.next().is_some() || omniscient || sensing_ids != ids || errors.is_some_and(|e| e.iter().any(occludes)) {
         return false;
     }
@@ -1666,8 +1674,7 @@ fn sense_with_kept_lists(
     parallelism.for_each_chunk_pair_at(&mut readings, near, scratch, |start, chunk, near, s| {
         let r = start..start + chunk.len();
         let drift = &mut s.drift;
-        drift.runs.clear();
-        (drift.farthest, drift.finite, drift.turned) = (0.0, true, false);
+        drift.clear();
         drift.add(&anchors[r.clone()], &headings[r.clone()], &states[r.clone()], &cell_of[r.clone()]);
         let shape = |i: usize| Shape::of(radars.map(|x| &x[i]), velodynes.map(|v| &v[i]));
         s.shapes_held = r.into_iter().all(|i| shape(i) == shapes[i]);
@@ -1717,7 +1724,6 @@ fn sense_by_shapes(
 ) {
     ranges.clear();
     let mut occlusion = false;
-    let occludes = |e: &SensorErrors| e.radar.occlusion || e.velodyne.occlusion;
     // Every sensing vehicle's sensors in query order (what the neighbour lists keep), and the
     // bounded ranges (for the typical range).
     let mut summary = ShapeSummary::default();
