@@ -489,14 +489,14 @@ impl Sight {
     /// The detection keys of the neighbours `list` (places in `everyone`) it sees, in list
     /// order, at the front of `found`; returns that front.
     ///
-    /// Three passes, as [`Sight::consider_all`]: the neighbours' coordinates into arrays, every
-    /// neighbour's key (or [`UNSEEN`]) in vector code, then the seen keys packed to the front.
-    /// One scalar pass, which wrote each key and counted it if seen, spent nearly all its time
-    /// on the range and cone tests one neighbour at a time (perf: the flag arithmetic was the
-    /// hottest instructions of the sensor tick); the vector pass does four at once.
+    /// Where the processor has AVX2, one pass four neighbours at a time
+    /// ([`listed_keys_avx2`]: gather, keys and packing in registers). Else three passes: the
+    /// neighbours' coordinates into arrays ([`gather_positions`]), every neighbour's key (or
+    /// [`UNSEEN`], [`ListKeysPass`]), then the seen keys packed to the front. Both give the
+    /// same keys in the same order (the same operations on each neighbour).
     ///
-    /// With `near` (a squared range [m²] and a mask, for lists of at most 64), the gather also
-    /// sets bit k of the mask when the k-th neighbour lies within that range ([`within_reach`]).
+    /// With `near` (a squared range [m²] and a mask, for lists of at most 64), bit k of the mask
+    /// is set when the k-th neighbour lies within that range ([`within_reach`]).
     fn consider_listed<'f>(
         &self,
         list: &[u32],
@@ -506,11 +506,24 @@ impl Sight {
         found: &'f mut Vec<u64>,
     ) -> &'f mut [u64] {
         let n = list.len();
+        let near = near.filter(|_| n <= NEAR_MASK_BITS);
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // Room for the last group's four keys, stored whole.
+            let room = first(found, n.next_multiple_of(4));
+            let r2 = near.as_ref().map(|(r2, _)| *r2);
+            // SAFETY: the processor has AVX2, checked just above.
+            let (seen, mask) = unsafe { listed_keys_avx2(self, everyone.states, list, r2, room) };
+            if let Some((_, m)) = near {
+                *m = mask;
+            }
+            return &mut room[..seen];
+        }
         let (xs, ys, keys) = (first(xs, n), first(ys, n), first(keys, n));
         first(found, n);
-        match near.filter(|_| n <= NEAR_MASK_BITS) {
-            Some((r2, mask)) => *mask = gather_positions::<true>(everyone.states, list, xs, ys, (self.position, r2)),
-            None => _ = gather_positions::<false>(everyone.states, list, xs, ys, (self.position, 0.0)),
+        gather_positions(everyone.states, list, xs, ys);
+        if let Some((r2, mask)) = near {
+            *mask = near_of(xs, ys, (self.position, r2));
         }
         vectorised(ListKeysPass { sight: self, xs, ys, slots: list, keys });
         let seen = pack(keys, found, UNSEEN);
@@ -519,51 +532,17 @@ impl Sight {
 }
 
 /// The coordinates of the vehicles at places `slots` of `states` into `xs` and `ys`: the first
-/// pass of [`Sight::consider_listed`].
-///
-/// Where the processor has AVX2, four at a time, each four stored whole
-/// ([`gather_positions_avx2`]): the key pass that follows loads the coordinates four at a time,
-/// and a load as wide as four separate 8-byte stores waits until they have all left the store
-/// buffer, where one store as wide as the load hands its value straight over.
-///
-/// With `NEAR` (lists of at most 64), it also returns which of them lie within `r2` [m²] of `p`
-/// (`near`: bit k for the k-th, [`within_reach`]'s test) for the wifi round ([`NearWanted`]),
-/// from the coordinates while they are in registers; else 0.
+/// pass of [`Sight::consider_listed`] where the processor has no AVX2.
 #[inline]
-fn gather_positions<const NEAR: bool>(
-    states: &[VehicleState],
-    slots: &[u32],
-    xs: &mut [f64],
-    ys: &mut [f64],
-    near: (DVec2, f64),
-) -> u64 {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the processor has AVX2, checked just above.
-        let (done, mask) = unsafe { gather_positions_avx2::<NEAR>(states, slots, xs, ys, near) };
-        gather_positions_scalar(states, &slots[done..], &mut xs[done..], &mut ys[done..]);
-        // (A whole list of 64 leaves no rest to shift by 64.)
-        return if NEAR {
-            mask | near_of(&xs[done..], &ys[done..], near).checked_shl(done as u32).unwrap_or(0)
-        } else {
-            0
-        };
-    }
-    gather_positions_scalar(states, slots, xs, ys);
-    if NEAR { near_of(xs, ys, near) } else { 0 }
-}
-
-/// [`gather_positions`] one vehicle at a time.
-#[inline]
-fn gather_positions_scalar(states: &[VehicleState], slots: &[u32], xs: &mut [f64], ys: &mut [f64]) {
+fn gather_positions(states: &[VehicleState], slots: &[u32], xs: &mut [f64], ys: &mut [f64]) {
     for ((x, y), &j) in xs.iter_mut().zip(ys.iter_mut()).zip(slots) {
         let p = states[j as usize].position;
         (*x, *y) = (p.x, p.y);
     }
 }
 
-/// [`gather_positions`]' `near` of the neighbours at (`xs`, `ys`): bit k for the k-th (of at
-/// most 64).
+/// The `near` of [`Sight::consider_listed`] for neighbours at (`xs`, `ys`): bit k for the k-th
+/// (of at most 64) within `r2` [m²] of `p`.
 fn near_of(xs: &[f64], ys: &[f64], (p, r2): (DVec2, f64)) -> u64 {
     xs.iter()
         .zip(ys)
@@ -572,58 +551,131 @@ fn near_of(xs: &[f64], ys: &[f64], (p, r2): (DVec2, f64)) -> u64 {
         .fold(0, |mask, (k, (&x, &y))| mask | u64::from(within_reach(p, x, y, r2)) << k)
 }
 
-/// [`gather_positions`] for the whole groups of four at the front of `slots`, in AVX2 registers:
-/// returns how many it placed (the rest are left to [`gather_positions_scalar`]) and, with
-/// `NEAR`, the `near` of those (the same subtractions, products, sum and comparison as
-/// [`within_reach`], so the same bits; groups past the 64th not included).
+/// [`Sight::consider_listed`] in AVX2 registers, four neighbours at a time: each four's
+/// coordinates loaded from `states`, their detection keys worked out as [`Sight::key`] works
+/// them out (the same subtractions, products, sums and comparisons, no fused multiply-add, so
+/// the same bits; NaN compares as there), and the seen ones stored to the front of `found`
+/// (which must hold `slots.len()` rounded up to four) in list order, by a permutation
+/// ([`PACK_FOUR`]). Returns how many were seen and, with `near_r2`, which of the first 64 lie
+/// within it ([`within_reach`]: the same squared distance).
+///
+/// It replaced three passes (coordinates into arrays, keys into an array, packing) and
+/// their loop set-ups, alias checks and one-at-a-time remainders, for lists of about 14.
 ///
 /// # Safety
 /// Only on a processor with AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn gather_positions_avx2<const NEAR: bool>(
+unsafe fn listed_keys_avx2(
+    sight: &Sight,
     states: &[VehicleState],
     slots: &[u32],
-    xs: &mut [f64],
-    ys: &mut [f64],
-    (p, r2): (DVec2, f64),
+    near_r2: Option<f64>,
+    found: &mut [u64],
 ) -> (usize, u64) {
     use std::arch::x86_64::{
-        _CMP_LE_OQ, _mm_loadu_pd, _mm256_add_pd, _mm256_cmp_pd, _mm256_movemask_pd, _mm256_mul_pd, _mm256_set_m128d,
-        _mm256_set1_pd, _mm256_storeu_pd, _mm256_sub_pd, _mm256_unpackhi_pd, _mm256_unpacklo_pd,
+        _CMP_GE_OQ, _CMP_LE_OQ, _CMP_NEQ_UQ, _mm_castps_si128, _mm_loadu_pd, _mm_loadu_si128, _mm_set_epi32,
+        _mm256_add_pd, _mm256_and_pd, _mm256_and_si256, _mm256_castpd_si256, _mm256_cmp_pd, _mm256_cvtepu32_epi64,
+        _mm256_cvtpd_ps, _mm256_loadu_si256, _mm256_movemask_pd, _mm256_mul_pd, _mm256_or_pd, _mm256_or_si256,
+        _mm256_permutevar8x32_epi32, _mm256_set_m128d, _mm256_set1_epi64x, _mm256_set1_pd, _mm256_slli_epi64,
+        _mm256_storeu_si256, _mm256_sub_pd, _mm256_unpackhi_pd, _mm256_unpacklo_pd,
     };
-    let n = slots.len().min(xs.len()).min(ys.len());
-    let groups = n / 4 * 4;
-    let (px, py, limit) = (_mm256_set1_pd(p.x), _mm256_set1_pd(p.y), _mm256_set1_pd(r2));
-    let mut mask = 0u64;
-    for (g, ((x4, y4), j4)) in
-        xs[..groups].chunks_exact_mut(4).zip(ys[..groups].chunks_exact_mut(4)).zip(slots.chunks_exact(4)).enumerate()
-    {
+    let n = slots.len();
+    assert!(found.len() >= n.next_multiple_of(4), "room for whole groups of four");
+    let (p, cone) = (sight.position, &sight.cone);
+    let (px, py) = (_mm256_set1_pd(p.x), _mm256_set1_pd(p.y));
+    let (hx, hy) = (_mm256_set1_pd(cone.heading.x), _mm256_set1_pd(cone.heading.y));
+    let cos_half2 = _mm256_set1_pd(cone.cos_half2);
+    let (radar2, velodyne2) = (_mm256_set1_pd(sight.radar_range2), _mm256_set1_pd(sight.velodyne_range2));
+    let near2 = _mm256_set1_pd(near_r2.unwrap_or(f64::NEG_INFINITY));
+    let zero = _mm256_set1_pd(0.0);
+    let acute = cone.cos_half >= 0.0;
+    // Whole-lane masks for `everything` and `omniscient` (all ones or none).
+    let lanes = |on: bool| _mm256_set1_pd(f64::from_bits(if on { u64::MAX } else { 0 }));
+    let (everything, omniscient) = (lanes(sight.flags & 2 != 0), lanes(sight.omniscient()));
+    let (radar_bit, velodyne_bit) =
+        (_mm256_set1_epi64x(i64::from(RADAR_REACH)), _mm256_set1_epi64x(i64::from(VELODYNE_REACH)));
+    let (mut seen, mut near) = (0usize, 0u64);
+    for g in (0..n).step_by(4) {
+        // The group's four places; past the list's end, the last one again (masked out below).
+        let rest = n - g;
+        let four: [u32; 4] = std::array::from_fn(|l| slots[(g + l).min(n - 1)]);
+        let valid = if rest >= 4 { 0b1111 } else { (1 << rest) - 1 };
         // (x, y) of vehicle j: a `DVec2` is two f64 side by side (`#[repr(C)]`, x first).
         let at = |l: usize| {
-            let p: &DVec2 = &states[j4[l] as usize].position;
-            // SAFETY: `p` points at two initialised f64s (x, then y); the load needs no alignment.
-            unsafe { _mm_loadu_pd(std::ptr::from_ref(p).cast::<f64>()) }
+            let q: &DVec2 = &states[four[l] as usize].position;
+            // SAFETY: `q` points at two initialised f64s (x, then y); the load needs no alignment.
+            unsafe { _mm_loadu_pd(std::ptr::from_ref(q).cast::<f64>()) }
         };
         // (x0, y0, x2, y2) and (x1, y1, x3, y3), then their even and odd lanes interleaved.
         let (even, odd) = (_mm256_set_m128d(at(2), at(0)), _mm256_set_m128d(at(3), at(1)));
         let (x, y) = (_mm256_unpacklo_pd(even, odd), _mm256_unpackhi_pd(even, odd));
-        // SAFETY: `x4` and `y4` are four f64s each (chunks of 4); the stores need no alignment.
-        unsafe {
-            _mm256_storeu_pd(x4.as_mut_ptr(), x);
-            _mm256_storeu_pd(y4.as_mut_ptr(), y);
+        // `Sight::key`, lane by lane.
+        let (rx, ry) = (_mm256_sub_pd(x, px), _mm256_sub_pd(y, py));
+        let d2 = _mm256_add_pd(_mm256_mul_pd(rx, rx), _mm256_mul_pd(ry, ry));
+        let dot = _mm256_add_pd(_mm256_mul_pd(rx, hx), _mm256_mul_pd(ry, hy));
+        let ahead = _mm256_cmp_pd::<_CMP_GE_OQ>(dot, zero);
+        let (dot2, limit) = (_mm256_mul_pd(dot, dot), _mm256_mul_pd(d2, cos_half2));
+        let inside = if acute {
+            _mm256_and_pd(ahead, _mm256_cmp_pd::<_CMP_GE_OQ>(dot2, limit))
+        } else {
+            _mm256_or_pd(ahead, _mm256_cmp_pd::<_CMP_LE_OQ>(dot2, limit))
+        };
+        let in_cone = _mm256_or_pd(everything, _mm256_and_pd(_mm256_cmp_pd::<_CMP_NEQ_UQ>(d2, zero), inside));
+        let radar = _mm256_and_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(d2, radar2), in_cone);
+        let velodyne = _mm256_cmp_pd::<_CMP_LE_OQ>(d2, velodyne2);
+        let visible = _mm256_or_pd(omniscient, _mm256_or_pd(velodyne, radar));
+        let kept = (_mm256_movemask_pd(visible) as u32 & valid) as usize;
+        if near_r2.is_some() && g < NEAR_MASK_BITS {
+            let within = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(d2, near2)) as u32 & valid;
+            near |= u64::from(within) << g;
         }
-        if NEAR && 4 * g < NEAR_MASK_BITS {
-            // `within_reach`: differences, then x² + y² (no fused multiply-add), then <= (false
-            // for NaN).
-            let (dx, dy) = (_mm256_sub_pd(x, px), _mm256_sub_pd(y, py));
-            let d2 = _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy));
-            let near = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(d2, limit));
-            mask |= u64::from(near as u32) << (4 * g);
-        }
+        // Keys: the f32 bits of d² high, the place and the reach bits low (`detection_key`).
+        let high = _mm256_slli_epi64::<32>(_mm256_cvtepu32_epi64(_mm_castps_si128(_mm256_cvtpd_ps(d2))));
+        // The places from the list itself where it holds four more (a load of `four`, just
+        // written one by one, would wait for those stores to leave the store buffer).
+        let places = match slots.get(g..g + 4) {
+            // SAFETY: four u32s (16 bytes) in bounds; the load needs no alignment.
+            Some(whole) => unsafe { _mm_loadu_si128(whole.as_ptr().cast()) },
+            None => _mm_set_epi32(four[3] as i32, four[2] as i32, four[1] as i32, four[0] as i32),
+        };
+        let places = _mm256_cvtepu32_epi64(places);
+        let reach = _mm256_or_si256(
+            _mm256_and_si256(_mm256_castpd_si256(radar), radar_bit),
+            _mm256_and_si256(_mm256_castpd_si256(velodyne), velodyne_bit),
+        );
+        let keys = _mm256_or_si256(high, _mm256_or_si256(places, reach));
+        // SAFETY: `PACK_FOUR[kept]` is eight i32s (32 bytes); the load needs no alignment.
+        let order = unsafe { _mm256_loadu_si256(PACK_FOUR[kept].as_ptr().cast()) };
+        // SAFETY: `seen` <= `g` and `g + 4` <= `found.len()` (asserted): four u64s in bounds.
+        unsafe { _mm256_storeu_si256(found.as_mut_ptr().add(seen).cast(), _mm256_permutevar8x32_epi32(keys, order)) };
+        seen += kept.count_ones() as usize;
     }
-    (groups, mask)
+    (seen, near)
 }
+
+/// For each set of four lanes kept (bit l for lane l), the 32-bit halves of those 64-bit lanes
+/// moved to the front in order: the permutation [`listed_keys_avx2`] packs a group's seen keys
+/// with (the rest of the lanes repeat lane 0, never read).
+#[cfg(target_arch = "x86_64")]
+const PACK_FOUR: [[i32; 8]; 16] = {
+    let mut table = [[0; 8]; 16];
+    let mut kept = 0;
+    while kept < 16 {
+        let mut at = 0;
+        let mut lane = 0;
+        while lane < 4 {
+            if kept & (1 << lane) != 0 {
+                table[kept][2 * at] = 2 * lane;
+                table[kept][2 * at + 1] = 2 * lane + 1;
+                at += 1;
+            }
+            lane += 1;
+        }
+        kept += 1;
+    }
+    table
+};
 
 /// The keys of a neighbour list's vehicles at (`xs`, `ys`): the second pass of
 /// [`Sight::consider_listed`], [`Sight::key`] on each.
@@ -2280,38 +2332,74 @@ mod tests {
     }
 
     #[test]
-    fn neighbour_positions_are_gathered_four_at_a_time_as_one_at_a_time() {
-        // Lists of every length up to 13 (whole groups of four and every remainder), in an
-        // order that jumps about the states; both halves of each coordinate pair distinct.
-        let states: Vec<VehicleState> = (0..40)
+    fn listed_keys_four_at_a_time_are_the_keys_of_the_three_passes() {
+        // Neighbours all around at 0 m (on top of the sensor) to 130 m, one at NaN; lists of
+        // every length to 70 (every remainder of four, past the near mask's 64 bits) in an
+        // order that jumps about the states; an acute radar cone, one wider than a half turn,
+        // one all around, none; with and without a velodyne.
+        let p = DVec2::new(12.5, -3.25);
+        let states: Vec<VehicleState> = (0..101)
             .map(|k| {
-                let p = DVec2::new(k as f64 * 1.5 - 7.25, 3.0 - k as f64 * 0.375);
-                VehicleState::new(p, 0.1 * k as f64, 1.0)
+                let (a, r) = (k as f64 * 2.399_963, (k % 29) as f64 * 4.7);
+                let q = if k == 50 { DVec2::new(f64::NAN, 1.0) } else { p + DVec2::new(r * a.cos(), r * a.sin()) };
+                VehicleState::new(q, 0.0, 1.0)
             })
             .collect();
-        for n in 0..=13 {
-            let slots: Vec<u32> = (0..n).map(|k| ((k * 7 + 3) % 40) as u32).collect();
-            let want: Vec<(f64, f64)> =
-                slots.iter().map(|&j| (states[j as usize].position.x, states[j as usize].position.y)).collect();
-            let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
-            assert_eq!(gather_positions::<false>(&states, &slots, &mut xs, &mut ys, (DVec2::ZERO, 1e9)), 0);
-            assert_eq!(xs.iter().copied().zip(ys.iter().copied()).collect::<Vec<_>>(), want, "{n} vehicles");
-            let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
-            gather_positions_scalar(&states, &slots, &mut xs, &mut ys);
-            assert_eq!(xs.into_iter().zip(ys).collect::<Vec<_>>(), want, "{n} vehicles, one at a time");
-            #[cfg(target_arch = "x86_64")]
-            if std::arch::is_x86_feature_detected!("avx2") {
-                let (mut xs, mut ys) = (vec![f64::NAN; n], vec![f64::NAN; n]);
-                // SAFETY: the processor has AVX2, checked just above.
-                let (done, near) =
-                    unsafe { gather_positions_avx2::<false>(&states, &slots, &mut xs, &mut ys, (DVec2::ZERO, 1e9)) };
-                assert_eq!((done, near), (n / 4 * 4, 0));
-                assert_eq!(
-                    xs[..done].iter().copied().zip(ys[..done].iter().copied()).collect::<Vec<_>>(),
-                    want[..done]
+        let state = VehicleState::new(p, 0.7, 10.0);
+        let radars = [
+            Some(Radar::default()),
+            Some(Radar { angle: 4.0, range: 80.0 }),
+            Some(Radar { angle: TAU, range: 60.0 }),
+            None,
+        ];
+        let (mut lengths_compared, mut reach_seen) = (0, 0u32);
+        for radar in &radars {
+            for velodyne in [Some(Velodyne::default()), None] {
+                let sight = Sight::new(
+                    VehicleId(-1),
+                    &state,
+                    radar.as_ref(),
+                    velodyne.as_ref(),
+                    false,
+                    &mut HalfCos::default(),
                 );
-                assert!(xs[done..].iter().all(|x| x.is_nan()), "the remainder is left to the scalar pass");
+                for n in 0..=70 {
+                    let list: Vec<u32> = (0..n).map(|k| ((k * 37 + 11) % 101) as u32).collect();
+                    // The three passes, one neighbour at a time.
+                    let (mut xs, mut ys, mut keys) = (vec![0.0; n], vec![0.0; n], vec![0; n]);
+                    gather_positions(&states, &list, &mut xs, &mut ys);
+                    ListKeysPass { sight: &sight, xs: &xs, ys: &ys, slots: &list, keys: &mut keys }.run();
+                    let want: Vec<u64> = keys.iter().copied().filter(|&k| k != UNSEEN).collect();
+                    let want_near = near_of(&xs, &ys, (p, 900.0));
+                    reach_seen |= want.iter().fold(0, |r, &k| r | k as u32 & REACH);
+                    #[cfg(target_arch = "x86_64")]
+                    if std::arch::is_x86_feature_detected!("avx2") {
+                        for r2 in [None, Some(900.0)] {
+                            let mut found = vec![0; n.next_multiple_of(4)];
+                            // SAFETY: the processor has AVX2, checked just above.
+                            let (seen, near) = unsafe { listed_keys_avx2(&sight, &states, &list, r2, &mut found) };
+                            assert_eq!(
+                                found[..seen],
+                                want[..],
+                                "{n} neighbours, radar {radar:?}, velodyne {velodyne:?}"
+                            );
+                            assert_eq!(near, if r2.is_some() { want_near } else { 0 }, "{n} neighbours' near mask");
+                        }
+                        lengths_compared += 1;
+                    }
+                    if n == 70 {
+                        // Some seen, some not (none without a sensor).
+                        let blind = radar.is_none() && velodyne.is_none();
+                        assert!(blind == want.is_empty() && want.len() < n, "{} of {n} seen", want.len());
+                    }
+                }
             }
+        }
+        // Both reach bits turned up; every case compared where the processor has AVX2.
+        assert_eq!(reach_seen, REACH);
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            assert_eq!(lengths_compared, 4 * 2 * 71);
         }
     }
 
@@ -2329,15 +2417,28 @@ mod tests {
             })
             .collect();
         let r2 = 25.0;
+        let ids: Vec<VehicleId> = (0..97).map(VehicleId).collect();
+        let everyone = Everyone { ids: &ids, states: &states };
+        let sight =
+            Sight::new(VehicleId(-1), &VehicleState::new(p, 0.0, 1.0), None, None, false, &mut HalfCos::default());
         let mut bits_seen = 0u64;
         for n in 0..=64 {
             let slots: Vec<u32> = (0..n).map(|k| ((k * 31 + 5) % 97) as u32).collect();
             let want = slots.iter().enumerate().fold(0u64, |m, (k, &j)| {
                 m | u64::from(within_reach(p, states[j as usize].position.x, states[j as usize].position.y, r2)) << k
             });
-            let (mut xs, mut ys) = (vec![0.0; n], vec![0.0; n]);
-            let near = gather_positions::<true>(&states, &slots, &mut xs, &mut ys, (p, r2));
+            let mut near = u64::MAX;
+            let mut buffers = (Vec::new(), Vec::new(), Vec::new());
+            sight.consider_listed(
+                &slots,
+                everyone,
+                (&mut buffers.0, &mut buffers.1, &mut buffers.2),
+                Some((r2, &mut near)),
+                &mut Vec::new(),
+            );
             assert_eq!(near, want, "{n} neighbours");
+            let (mut xs, mut ys) = (vec![0.0; n], vec![0.0; n]);
+            gather_positions(&states, &slots, &mut xs, &mut ys);
             assert_eq!(near_of(&xs, &ys, (p, r2)), want, "{n} neighbours, one at a time");
             bits_seen |= near;
         }
@@ -2368,8 +2469,10 @@ mod tests {
         let from_list = named(listed, &|place| ids[place as usize]);
         assert_eq!(from_list, named(&found, &|slot| grid.get(slot).id));
         assert!(from_list.len() > 50 && from_list.len() < n as usize, "{} of {n} seen", from_list.len());
-        // The pass gives the same bits compiled as it is and with AVX2.
-        let (xs, ys) = (&buffers.0[..n as usize], &buffers.1[..n as usize]);
+        // The key pass gives the same bits compiled as it is and with AVX2.
+        let (mut xs, mut ys) = (vec![0.0; n as usize], vec![0.0; n as usize]);
+        gather_positions(&states, &list, &mut xs, &mut ys);
+        let (xs, ys) = (&xs[..], &ys[..]);
         let (mut plain, mut wide) = (vec![0; n as usize], vec![0; n as usize]);
         ListKeysPass { sight: &sight, xs, ys, slots: &list, keys: &mut plain }.run();
         #[cfg(target_arch = "x86_64")]
