@@ -597,10 +597,21 @@ unsafe fn listed_keys_avx2(
         (_mm256_set1_epi64x(i64::from(RADAR_REACH)), _mm256_set1_epi64x(i64::from(VELODYNE_REACH)));
     let (mut seen, mut near) = (0usize, 0u64);
     for g in (0..n).step_by(4) {
-        // The group's four places; past the list's end, the last one again (masked out below).
-        let rest = n - g;
-        let four: [u32; 4] = std::array::from_fn(|l| slots[(g + l).min(n - 1)]);
-        let valid = if rest >= 4 { 0b1111 } else { (1 << rest) - 1 };
+        // The group's four places (as an array and in a register); past the list's end, the
+        // last one again (masked out by `valid`). Where the list holds four more, the register
+        // is loaded from the list itself (a load of an array just written place by place would
+        // wait for those stores to leave the store buffer).
+        let (four, places, valid): ([u32; 4], _, u32) = match slots.get(g..g + 4) {
+            Some(&[a, b, c, d]) => {
+                // SAFETY: four u32s (16 bytes) in bounds; the load needs no alignment.
+                ([a, b, c, d], unsafe { _mm_loadu_si128(slots.as_ptr().add(g).cast()) }, 0b1111)
+            }
+            _ => {
+                let four: [u32; 4] = std::array::from_fn(|l| slots[(g + l).min(n - 1)]);
+                let places = _mm_set_epi32(four[3] as i32, four[2] as i32, four[1] as i32, four[0] as i32);
+                (four, places, (1 << (n - g)) - 1)
+            }
+        };
         // (x, y) of vehicle j: a `DVec2` is two f64 side by side (`#[repr(C)]`, x first).
         let at = |l: usize| {
             let q: &DVec2 = &states[four[l] as usize].position;
@@ -632,13 +643,6 @@ unsafe fn listed_keys_avx2(
         }
         // Keys: the f32 bits of d² high, the place and the reach bits low (`detection_key`).
         let high = _mm256_slli_epi64::<32>(_mm256_cvtepu32_epi64(_mm_castps_si128(_mm256_cvtpd_ps(d2))));
-        // The places from the list itself where it holds four more (a load of `four`, just
-        // written one by one, would wait for those stores to leave the store buffer).
-        let places = match slots.get(g..g + 4) {
-            // SAFETY: four u32s (16 bytes) in bounds; the load needs no alignment.
-            Some(whole) => unsafe { _mm_loadu_si128(whole.as_ptr().cast()) },
-            None => _mm_set_epi32(four[3] as i32, four[2] as i32, four[1] as i32, four[0] as i32),
-        };
         let places = _mm256_cvtepu32_epi64(places);
         let reach = _mm256_or_si256(
             _mm256_and_si256(_mm256_castpd_si256(radar), radar_bit),
