@@ -291,7 +291,8 @@ pub struct SenseScratch {
     /// sort keys, see [`detection_key`].
     keys: Vec<u64>,
     found: Vec<u64>,
-    /// A neighbour list's coordinates [m] and keys ([`Sight::consider_listed`]).
+    /// A neighbour list's coordinates [m] and keys where the processor has no AVX2
+    /// ([`Sight::consider_listed`]).
     xs: Vec<f64>,
     ys: Vec<f64>,
     list_keys: Vec<u64>,
@@ -682,7 +683,8 @@ const PACK_FOUR: [[i32; 8]; 16] = {
 };
 
 /// The keys of a neighbour list's vehicles at (`xs`, `ys`): the second pass of
-/// [`Sight::consider_listed`], [`Sight::key`] on each.
+/// [`Sight::consider_listed`] where the processor has no AVX2, [`Sight::key`] on each (and the
+/// reference [`listed_keys_avx2`] is tested against).
 struct ListKeysPass<'a> {
     sight: &'a Sight,
     xs: &'a [f64],
@@ -1517,7 +1519,7 @@ enum Listing<'a> {
 
 /// Fill the readings of a contiguous chunk of sensing vehicles (items `start..` of `table`,
 /// which is every vehicle, `everyone`) from their neighbour lists; with `near_r2` [m²], also
-/// note in `near` which neighbours on each list lie that close ([`gather_positions`]).
+/// note in `near` which neighbours on each list lie that close ([`Sight::consider_listed`]).
 fn sense_listed(
     input: SenseInput<'_>,
     table: SensingTable<'_>,
