@@ -603,9 +603,9 @@ unsafe fn listed_keys_avx2(
         // is loaded from the list itself (a load of an array just written place by place would
         // wait for those stores to leave the store buffer).
         let (four, places, valid): ([u32; 4], _, u32) = match slots.get(g..g + 4) {
-            Some(&[a, b, c, d]) => {
-                // SAFETY: four u32s (16 bytes) in bounds; the load needs no alignment.
-                ([a, b, c, d], unsafe { _mm_loadu_si128(slots.as_ptr().add(g).cast()) }, 0b1111)
+            Some(whole @ &[a, b, c, d]) => {
+                // SAFETY: `whole` is four u32s (16 bytes); the load needs no alignment.
+                ([a, b, c, d], unsafe { _mm_loadu_si128(whole.as_ptr().cast()) }, 0b1111)
             }
             _ => {
                 let four: [u32; 4] = std::array::from_fn(|l| slots[(g + l).min(n - 1)]);
@@ -1379,6 +1379,14 @@ impl SensorGrid {
 }
 
 impl NeighbourLists {
+    /// The wifi masks `near` sized for `n` vehicles: longer only while the world grows, and
+    /// written only when asked for.
+    fn size_near(&mut self, n: usize) {
+        if self.near.len() != n {
+            self.near.resize(n, 0);
+        }
+    }
+
     /// Whether the lists still hold every vehicle within sensor range of each: the same
     /// vehicles in the same order, the same sensors, wifi range and skin, and the vehicles moved
     /// together ([`NeighbourLists::moved_together`], on `parallelism`, with its `scratch`).
@@ -1668,6 +1676,18 @@ type SensingQuery<'w, 's> = Query<
 /// The query of every vehicle (the targets, [`sense_vehicles`]).
 type EveryoneQuery<'w, 's> = Query<'w, 's, (&'static VehicleId, &'static VehicleState, Option<&'static VehicleSize>)>;
 
+/// Whether the sensing vehicles are one non-empty ECS table holding every vehicle, `ids` (those
+/// of [`one_table`]), none of them omniscient: where the neighbour lists serve.
+fn senses_everyone(sensing: &SensingQuery<'_, '_>, ids: &[VehicleId]) -> bool {
+    let readonly = sensing.as_readonly();
+    let Ok(tables) = readonly.contiguous_iter() else { return false };
+    let mut full = tables.filter(|t| !t.0.is_empty());
+    match (full.next(), full.next()) {
+        (Some((sensing_ids, _, _, _, omniscient, _, _)), None) => !omniscient && sensing_ids == ids,
+        _ => false,
+    }
+}
+
 /// The ids and states of the one non-empty ECS table of every vehicle, if they are all in one.
 fn one_table<'a>(everyone: &'a EveryoneQuery<'_, '_>) -> Option<(&'a [VehicleId], &'a [VehicleState])> {
     let mut full = everyone.contiguous_iter().ok()?.filter(|(ids, _, _)| !ids.is_empty());
@@ -1713,20 +1733,22 @@ fn sense_with_kept_lists(
     if !as_built || !lists.of_vehicles(everyone) || lists.lists.len() != n {
         return false;
     }
-    let Ok(tables) = sensing.contiguous_iter_mut() else { return false };
-    let mut full = tables.filter(|t| !t.0.is_empty());
-    let Some((sensing_ids, sensing_states, radars, velodynes, omniscient, errors, mut readings)) = full.next() else {
+    if !senses_everyone(sensing, ids) {
+        return false;
+    }
+    let Ok(mut tables) = sensing.contiguous_iter_mut() else { return false };
+    let Some((sensing_ids, sensing_states, radars, velodynes, omniscient, errors, mut readings)) =
+        tables.find(|t| !t.0.is_empty())
+    else {
         return false;
     };
     // Occlusion needs every vehicle's footprint ([`sense_by_shapes`] gathers them).
-    if full.next().is_some() || omniscient || sensing_ids != ids || errors.is_some_and(|e| e.iter().any(occludes)) {
+    if errors.is_some_and(|e| e.iter().any(occludes)) {
         return false;
     }
     let table = SensingTable { ids: sensing_ids, states: sensing_states, radars, velodynes, omniscient, errors };
     let input = SenseInput { grid, footprints: &[], draws };
-    if lists.near.len() != n {
-        lists.near.resize(n, 0);
-    }
+    lists.size_near(n);
     let NeighbourLists { lists: kept, anchors, headings, cell_of, shapes, near, .. } = &mut *lists;
     let (kept, anchors, headings, cell_of, shapes) = (&*kept, &anchors[..], &headings[..], &cell_of[..], &shapes[..]);
     parallelism.for_each_chunk_pair_at(&mut readings, near, scratch, |start, chunk, near, s| {
@@ -1847,16 +1869,10 @@ fn sense_by_shapes(
     // is its place in query order either way).
     let one_table = one_table(everyone);
     // Neighbour lists when every vehicle senses, from that one table, with a bounded range.
-    let listed = one_table.and_then(|(ids, states)| {
-        let readonly = sensing.as_readonly();
-        let mut full = readonly.contiguous_iter().ok()?.filter(|t| !t.0.is_empty());
-        let (sensing_ids, _, _, _, omniscient, _, _) = full.next()?;
-        if full.next().is_some() || omniscient || sensing_ids != ids {
-            return None;
-        }
-        // The shapes summed up above are this one table's.
-        summary.finite.then_some(Everyone { ids, states })
-    });
+    // (The shapes summed up above are then this one table's.)
+    let listed = one_table
+        .filter(|&(ids, _)| summary.finite && senses_everyone(sensing, ids))
+        .map(|(ids, states)| Everyone { ids, states });
     if let Some(everyone) = listed {
         let skin = SKIN_SHARE * cell;
         let n = neighbours.shapes_now.len();
@@ -1882,6 +1898,7 @@ fn sense_by_shapes(
             lists.kept_since_build = lists.kept_since_build.saturating_add(1);
         }
         let input = SenseInput { grid, footprints, draws };
+        lists.size_near(n);
         let tables = sensing.contiguous_iter_mut().ok().into_iter().flatten();
         for (ids, states, radars, velodynes, omniscient, errors, mut readings) in tables {
             if ids.is_empty() {
@@ -1889,10 +1906,6 @@ fn sense_by_shapes(
             }
             let table = SensingTable { ids, states, radars, velodynes, omniscient, errors };
             let listing = if build { Listing::Build { skin, floor } } else { Listing::Kept(&lists.lists) };
-            // Longer only while the world grows; written only when asked for.
-            if lists.near.len() != n {
-                lists.near.resize(n, 0);
-            }
             parallelism.for_each_chunk_pair_at(&mut readings, &mut lists.near, scratch, |start, chunk, near, s| {
                 sense_listed(input, table, everyone, (listing, near_r2), (start, chunk, near), s)
             });
