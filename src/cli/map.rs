@@ -187,11 +187,58 @@ struct Info<'a> {
     utm_zone: String,
     tags: &'a BTreeMap<String, Vec<i64>>,
     lanelet_list: Vec<LaneletInfo<'a>>,
+    /// Junctions: links (lanelets), conflicts and control ([`smlworld::map::junctions`]).
+    junctions: Vec<JunctionInfo>,
     warnings: Vec<String>,
     /// CommonRoad files only: dynamic obstacles (every recorded state), static and environment
     /// obstacles, and planning problems.
     #[serde(skip_serializing_if = "Option::is_none")]
     commonroad: Option<serde_json::Value>,
+}
+
+#[derive(Serialize)]
+struct ConflictInfo {
+    a: i64,
+    b: i64,
+    kind: smlworld::map::junctions::ConflictKind,
+    s_a: f64,
+    s_b: f64,
+    yields: smlworld::map::junctions::Yield,
+}
+
+#[derive(Serialize)]
+struct JunctionInfo {
+    id: u32,
+    lanelets: Vec<i64>,
+    conflicts: Vec<ConflictInfo>,
+    control: &'static str,
+    centre: [f64; 2],
+}
+
+/// A length rounded to the millimetre (what the map's geometry is good for).
+fn mm(x: f64) -> f64 {
+    (x * 1000.0).round() / 1000.0
+}
+
+fn junction_info(j: &smlworld::map::Junction) -> JunctionInfo {
+    JunctionInfo {
+        id: j.id,
+        lanelets: j.links.iter().map(|l| l.lanelet.0).collect(),
+        conflicts: j
+            .conflicts
+            .iter()
+            .map(|c| ConflictInfo {
+                a: c.a.0,
+                b: c.b.0,
+                kind: c.kind,
+                s_a: mm(c.s_a),
+                s_b: mm(c.s_b),
+                yields: c.yields,
+            })
+            .collect(),
+        control: j.control.name(),
+        centre: [mm(j.centre.x), mm(j.centre.y)],
+    }
 }
 
 fn state_json(s: &CommonRoadState) -> serde_json::Value {
@@ -277,6 +324,7 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
                 tags: &l.tags,
             })
             .collect(),
+        junctions: map.junctions().list.iter().map(junction_info).collect(),
         warnings: map.warnings.iter().map(ToString::to_string).collect(),
         commonroad,
     };
@@ -306,6 +354,25 @@ fn info(a: InfoArgs) -> anyhow::Result<()> {
     println!("lanelets   id: length -> successors [left way | right way]");
     for l in &info.lanelet_list {
         println!("  {:>10}: {:>8.2} m -> {:?} [{} | {}]", l.id, l.length_m, l.successors, l.left, l.right);
+    }
+    if !info.junctions.is_empty() {
+        println!("junctions  id: control, links (lanelets; one signal character each, in this order), conflicts");
+        for j in &info.junctions {
+            let crossing =
+                j.conflicts.iter().filter(|c| c.kind == smlworld::map::junctions::ConflictKind::Crossing).count();
+            println!(
+                "  {:>4}: {}, {} links {:?}, {} conflicts ({} crossing, {} merging), centre ({:.1}, {:.1})",
+                j.id,
+                j.control,
+                j.lanelets.len(),
+                j.lanelets,
+                j.conflicts.len(),
+                crossing,
+                j.conflicts.len() - crossing,
+                j.centre[0],
+                j.centre[1]
+            );
+        }
     }
     if let Some(cr) = &info.commonroad {
         let n = |k: &str| cr[k].as_array().map_or(0, Vec::len);

@@ -926,6 +926,7 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
         lanelets,
         tag_index,
         warnings: Vec::new(),
+        regulatory: BTreeMap::new(),
         index,
         graph,
     })

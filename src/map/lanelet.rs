@@ -139,8 +139,30 @@ pub struct LaneletMap {
     pub tag_index: BTreeMap<String, Vec<i64>>,
     /// Recoverable problems found while loading.
     pub warnings: Vec<MapWarning>,
+    /// Regulatory elements (Lanelet2 `type=regulatory_element` relations: traffic lights,
+    /// right of way, speed limits, ...), by relation id; empty for formats without them.
+    pub regulatory: BTreeMap<i64, RegulatoryElement>,
     pub(crate) index: BTreeMap<LaneletId, usize>,
     pub(crate) graph: RoutingGraph,
+}
+
+/// A Lanelet2 regulatory element: what it is (`subtype`), the lanelets it names by role
+/// (`right_of_way`, `yield`) and the lanelets that refer to it (their `regulatory_element`
+/// members), so the junction rules can read who has right of way and which lanes a light controls.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct RegulatoryElement {
+    /// Relation id.
+    pub id: i64,
+    /// `subtype` tag (`traffic_light`, `right_of_way`, `traffic_sign`, `all_way_stop`, ...).
+    pub subtype: String,
+    /// All tags of the relation.
+    pub tags: Tags,
+    /// Lanelet members with their role (`right_of_way`, `yield`, ...), in file order.
+    pub lanelet_roles: Vec<(LaneletId, String)>,
+    /// Way members with their role (`refers`, `ref_line`, ...), in file order.
+    pub way_roles: Vec<(i64, String)>,
+    /// Lanelets that carry this element as a `regulatory_element` member, in id order.
+    pub lanelets: Vec<LaneletId>,
 }
 
 impl LaneletMap {

@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use super::error::{Location, MapError, MapWarning};
 use super::geometry_checks;
 use super::graph::{GraphLanelet, RoutingGraph};
-use super::lanelet::{KNOWN_LINE_TYPES, Lanelet, LaneletId, LaneletMap, MapNode, MapWay, Tags};
+use super::lanelet::{KNOWN_LINE_TYPES, Lanelet, LaneletId, LaneletMap, MapNode, MapWay, RegulatoryElement, Tags};
 use super::osm::{IdIndex, MemberType, OsmDocument, OsmNode, OsmObjects, OsmRelation, OsmWay, parse_objects};
 use super::polyline::{polyline_length, resample_count};
 use super::projection::Projector;
@@ -73,9 +73,9 @@ fn build(doc: OsmObjects) -> Result<LaneletMap, MapError> {
     let OsmObjects { source, nodes: osm_nodes, ways, relations, node_index } = doc;
     let ((nodes, tag_index), network) =
         rayon::join(|| node_map(osm_nodes, &positions), || network(&source, ways, relations, &positions, &node_index));
-    let Network { ways, lanelets, index, graph, warnings: network_warnings } = network?;
+    let Network { ways, lanelets, index, graph, regulatory, warnings: network_warnings } = network?;
     warnings.extend(network_warnings);
-    Ok(LaneletMap { projector, origin_node, nodes, ways, lanelets, tag_index, warnings, index, graph })
+    Ok(LaneletMap { projector, origin_node, nodes, ways, lanelets, tag_index, warnings, regulatory, index, graph })
 }
 
 /// The node map (tags moved in) and the index of node tag values.
@@ -102,6 +102,7 @@ struct Network {
     lanelets: Vec<Lanelet>,
     index: BTreeMap<LaneletId, usize>,
     graph: RoutingGraph,
+    regulatory: BTreeMap<i64, RegulatoryElement>,
     warnings: Vec<MapWarning>,
 }
 
@@ -144,12 +145,38 @@ fn network(
 
     let way_index = IdIndex::new(ways.iter().map(|w| w.way.id));
     let mut lanelets = Vec::new();
+    let mut regulatory: BTreeMap<i64, RegulatoryElement> = BTreeMap::new();
+    let mut refers_to: Vec<(i64, LaneletId)> = Vec::new();
     for r in relations {
         match r.tags.get("type").map(String::as_str) {
             Some("lanelet") => {
+                let id = LaneletId(r.id);
+                let refs: Vec<i64> = r
+                    .members
+                    .iter()
+                    .filter(|m| m.kind == MemberType::Relation && m.role == "regulatory_element")
+                    .map(|m| m.reference)
+                    .collect();
                 if let Some(l) = lanelet(&at, r, &mut ways, &way_index, &mut warnings)? {
                     lanelets.push(l);
+                    refers_to.extend(refs.into_iter().map(|re| (re, id)));
                 }
+            }
+            Some("regulatory_element") => {
+                let mut re = RegulatoryElement {
+                    id: r.id,
+                    subtype: r.tags.get("subtype").cloned().unwrap_or_default(),
+                    ..RegulatoryElement::default()
+                };
+                for m in &r.members {
+                    match m.kind {
+                        MemberType::Relation => re.lanelet_roles.push((LaneletId(m.reference), m.role.clone())),
+                        MemberType::Way => re.way_roles.push((m.reference, m.role.clone())),
+                        MemberType::Node => {}
+                    }
+                }
+                re.tags = r.tags;
+                regulatory.insert(re.id, re);
             }
             Some(_) => {}
             None if r.members.is_empty() => warnings.push(MapWarning {
@@ -166,12 +193,24 @@ fn network(
         }
     }
     link_successors(&mut lanelets);
+    refers_to.sort();
+    for (re, lanelet) in refers_to {
+        match regulatory.get_mut(&re) {
+            Some(r) => r.lanelets.push(lanelet),
+            None => warnings.push(MapWarning {
+                at: source.display().to_string(),
+                message: format!(
+                    "lanelet {lanelet} names regulatory element {re}, which the file does not hold; ignored"
+                ),
+            }),
+        }
+    }
     let index = lanelets.iter().enumerate().map(|(i, l)| (l.id, i)).collect();
     let (ways, graph) = rayon::join(
         || ways.into_iter().map(|w| (w.way.id, w.way)).collect(),
         || RoutingGraph::new(&lanelets.iter().map(Lanelet::graph_view).collect::<Vec<GraphLanelet<'_>>>()),
     );
-    Ok(Network { ways, lanelets, index, graph, warnings })
+    Ok(Network { ways, lanelets, index, graph, regulatory, warnings })
 }
 
 /// Southern and northern limits of UTM [deg]: beyond them the projection is not defined (polar

@@ -13,6 +13,7 @@ pub mod error;
 pub mod generate;
 mod geometry_checks;
 mod graph;
+pub mod junctions;
 pub mod lane_routing;
 pub mod lanelet;
 mod loader;
@@ -24,8 +25,9 @@ pub mod projection;
 pub mod routing;
 
 pub use error::{MapError, MapWarning};
+pub use junctions::{Junction, JunctionControl, Junctions};
 pub use lane_routing::{LaneChange, LaneChangeOptions, LaneChangeRoute};
-pub use lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay};
+pub use lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay, RegulatoryElement};
 pub use neighbours::Neighbours;
 pub use path::{Path, PathProjection};
 pub use projection::Projector;
