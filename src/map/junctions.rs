@@ -32,6 +32,9 @@ use super::polyline::project_polyline;
 const CELL: f64 = 10.0;
 /// Two centre lines closer than this [m] have come together: where a merge's conflict starts.
 const MERGE_DISTANCE: f64 = 2.5;
+/// Centre lines that pass closer than this [m] without crossing conflict all the same: two
+/// vehicles of 2 m width would touch (a left turn sweeping past the opposite right turn).
+const NEAR_MISS: f64 = 2.2;
 /// A crossing within this distance [m] of an end of both lanelets is a joint, not a conflict.
 const JOINT: f64 = 0.5;
 /// Heading changes under this [rad] (30°) count as straight on.
@@ -253,6 +256,32 @@ fn segment_crossing(p0: DVec2, p1: DVec2, q0: DVec2, q1: DVec2) -> Option<(f64, 
     ((0.0..=1.0).contains(&t) && (0.0..=1.0).contains(&u)).then_some((t, u))
 }
 
+/// Closest approach of two segments that do not cross: (distance [m], fraction along `p`,
+/// fraction along `q`), from the four end-to-segment distances.
+fn segment_distance(p0: DVec2, p1: DVec2, q0: DVec2, q1: DVec2) -> (f64, f64, f64) {
+    let onto = |a: DVec2, b: DVec2, x: DVec2| {
+        let d = b - a;
+        let len2 = d.length_squared();
+        if len2 < 1e-18 { 0.0 } else { ((x - a).dot(d) / len2).clamp(0.0, 1.0) }
+    };
+    let mut best = (f64::INFINITY, 0.0, 0.0);
+    for (t, x) in [(0.0, p0), (1.0, p1)] {
+        let u = onto(q0, q1, x);
+        let d = x.distance(q0 + (q1 - q0) * u);
+        if d < best.0 {
+            best = (d, t, u);
+        }
+    }
+    for (u, x) in [(0.0, q0), (1.0, q1)] {
+        let t = onto(p0, p1, x);
+        let d = x.distance(p0 + (p1 - p0) * t);
+        if d < best.0 {
+            best = (d, t, u);
+        }
+    }
+    best
+}
+
 /// Cumulative arc length at each point of a polyline [m].
 fn arc_lengths(points: &[DVec2]) -> Vec<f64> {
     let mut out = Vec::with_capacity(points.len());
@@ -339,7 +368,7 @@ fn raw_conflicts(map: &LaneletMap, predecessors: &[Vec<usize>], successors: &[Ve
     }
     let shares = |x: &[usize], y: &[usize]| x.iter().any(|v| y.contains(v));
     // First crossing (by arc length on the lower index) of every pair.
-    let mut crossings: BTreeMap<(usize, usize), RawConflict> = BTreeMap::new();
+    let mut crossings: BTreeMap<(usize, usize), (RawConflict, bool, f64)> = BTreeMap::new();
     for segments in grid.values() {
         for (m, &(i, ki)) in segments.iter().enumerate() {
             for &(j, kj) in &segments[m + 1..] {
@@ -360,26 +389,46 @@ fn raw_conflicts(map: &LaneletMap, predecessors: &[Vec<usize>], successors: &[Ve
                 let (li, lj) = (&lanelets[iu], &lanelets[ju]);
                 let (p0, p1) = (li.centre[ki as usize], li.centre[ki as usize + 1]);
                 let (q0, q1) = (lj.centre[kj as usize], lj.centre[kj as usize + 1]);
-                let Some((t, u)) = segment_crossing(p0, p1, q0, q1) else { continue };
+                let (t, u, crossed, dist) = match segment_crossing(p0, p1, q0, q1) {
+                    Some((t, u)) => (t, u, true, 0.0),
+                    None => {
+                        let (d, t, u) = segment_distance(p0, p1, q0, q1);
+                        if d >= NEAR_MISS {
+                            continue;
+                        }
+                        (t, u, false, d)
+                    }
+                };
                 let s_a = arcs[iu][ki as usize] + t * p0.distance(p1);
                 let s_b = arcs[ju][kj as usize] + u * q0.distance(q1);
                 let at_end = |s: f64, len: f64| s < JOINT || s > len - JOINT;
                 if at_end(s_a, li.length) && at_end(s_b, lj.length) {
                     continue;
                 }
-                let c = RawConflict { a: iu, b: ju, kind: ConflictKind::Crossing, s_a, s_b, point: p0 + (p1 - p0) * t };
-                crossings
-                    .entry((iu, ju))
-                    .and_modify(|old| {
-                        if s_a < old.s_a {
-                            *old = c
+                let point = p0 + (p1 - p0) * t;
+                let c = RawConflict { a: iu, b: ju, kind: ConflictKind::Crossing, s_a, s_b, point };
+                // A crossing (its first point) wins over a near miss; of near misses, the closest.
+                let key = (iu, ju);
+                match crossings.get(&key) {
+                    None => {
+                        crossings.insert(key, (c, crossed, dist));
+                    }
+                    Some(&(old, old_crossed, old_dist)) => {
+                        let better = match (crossed, old_crossed) {
+                            (true, false) => true,
+                            (false, true) => false,
+                            (true, true) => s_a < old.s_a,
+                            (false, false) => dist < old_dist,
+                        };
+                        if better {
+                            crossings.insert(key, (c, crossed, dist));
                         }
-                    })
-                    .or_insert(c);
+                    }
+                }
             }
         }
     }
-    let mut out: Vec<RawConflict> = crossings.into_values().collect();
+    let mut out: Vec<RawConflict> = crossings.into_values().map(|(c, _, _)| c).collect();
     // Merges: every pair of routable lanelets leading into the same one, met where their centre
     // lines come within MERGE_DISTANCE (else at their ends).
     let mut merges: BTreeMap<(usize, usize), RawConflict> = BTreeMap::new();
@@ -677,6 +726,7 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
 
 /// One phase of a signal program: a state (one character per link) held for `duration` [s].
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SignalPhase {
     /// One character per link in link order: `G` green with priority, `g` green yielding, `y`
     /// yellow, `r` red.

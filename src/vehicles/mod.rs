@@ -37,6 +37,7 @@ pub mod lanes;
 pub mod longitudinal;
 pub mod path_following;
 pub mod platoon;
+pub mod right_of_way;
 pub mod setup;
 
 pub use acc::{AccController, AccPlugin, AdaptiveCruise, control_acc};
@@ -65,6 +66,10 @@ pub use path_following::{LateralShift, PathFollower, PathFollowing, PathFollowin
 pub use platoon::{
     FALLBACK_WIFI_INTERVALS, Fallback, PlatoonBeacon, PlatoonMember, PlatoonPlugin, Platooning, control_platoon,
     send_platoon_beacons,
+};
+pub use right_of_way::{
+    JunctionDriver, JunctionNetwork, JunctionParams, JunctionStats, JunctionsPlugin, TrafficLights,
+    give_way_at_junctions,
 };
 pub use setup::{AccSetup, CruiseSetup, GcdcSetup, PlatoonRole, PlatoonSetup, SmartController};
 

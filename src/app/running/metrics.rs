@@ -143,6 +143,14 @@ pub struct MetricsSummary {
     /// order, aborts (only when a `gcdc` vehicle heard a merge zone).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub merge: Option<crate::vehicles::MergeSummary>,
+    /// Per junction: vehicles through, mean and longest wait, longest queue (maps with
+    /// junctions only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub junctions: Option<Vec<crate::vehicles::right_of_way::JunctionMetric>>,
+    /// Vehicles that passed a stop line showing red (maps with traffic lights only; 0 unless a
+    /// vehicle could not stop).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub red_light_crossings: Option<u64>,
 }
 
 /// `metrics.lane_change_summary` of `summary.json`.
@@ -372,6 +380,8 @@ impl Metrics {
             emergency: None,
             merge: None,
             sensors: None,
+            junctions: None,
+            red_light_crossings: None,
         }
     }
 }

@@ -154,6 +154,13 @@ impl RunSummary {
                 summary.merge =
                     world.get_resource::<crate::vehicles::MergeLog>().and_then(crate::vehicles::MergeLog::summary);
                 summary.sensors = world.get_resource::<crate::sim::SensorStats>().copied();
+                if let Some(j) = world.get_resource::<crate::vehicles::JunctionStats>() {
+                    summary.junctions = Some(j.summary());
+                    if world.get_resource::<crate::vehicles::TrafficLights>().is_some_and(|l| !l.controllers.is_empty())
+                    {
+                        summary.red_light_crossings = Some(j.red_crossings);
+                    }
+                }
                 summary
             }),
             lab: LabSummary::of(world),

@@ -110,6 +110,7 @@ impl Scenario {
         if let Some(map) = &self.map {
             b.add_plugin(LanesPlugin { map: Arc::clone(map) });
             b.add_plugin(LaneChangePlugin { points_per_meter: self.file.points_per_meter });
+            b.add_plugin(self.junctions_plugin(map));
             if self.file.vehicles.iter().any(|v| v.class == VehicleClass::Emergency) {
                 b.add_plugin(EmergencyVehiclePlugin { settings: self.file.emergency });
             }

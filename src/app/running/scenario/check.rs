@@ -47,6 +47,16 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
     }
     check_v2v(&c, &file.v2v)?;
     file.emergency.check().map_err(|e| c.invalid(format!("emergency.{}", e.key), &e.problem))?;
+    file.junctions.check().map_err(|e| c.invalid(format!("junctions.{}", e.key), &e.problem))?;
+    for (k, light) in file.traffic_lights.iter().enumerate() {
+        c.within(format!("traffic_lights[{k}].offset"), light.offset, Range::between(-MAX_TIME, MAX_TIME))?;
+        if light.program.is_empty() {
+            return Err(c.invalid(format!("traffic_lights[{k}].program"), "is empty; give at least one phase"));
+        }
+        for (i, phase) in light.program.iter().enumerate() {
+            c.within(format!("traffic_lights[{k}].program[{i}].duration"), phase.duration, Range::positive(MAX_TIME))?;
+        }
+    }
     if let Some(lab) = &file.lab {
         lab.check().map_err(|e| c.invalid(format!("lab.{}", e.key), &e.problem))?;
     }

@@ -95,6 +95,27 @@ pub struct ScenarioFile {
     /// Roadside units (`[[rsu]]`): fixed wifi senders, e.g. the GCDC merge zone.
     #[serde(default)]
     pub rsu: Vec<RsuConfig>,
+    /// `[junctions]`: the right-of-way rules' parameters ([`crate::vehicles::JunctionParams`]).
+    #[serde(default)]
+    pub junctions: crate::vehicles::JunctionParams,
+    /// `[[traffic_lights]]`: fixed-time signal programs of junctions.
+    #[serde(default)]
+    pub traffic_lights: Vec<TrafficLightConfig>,
+}
+
+/// One `[[traffic_lights]]`: `junction = ID`, `offset = 0.0`, `program = [{ state = "GGrr",
+/// duration = 30.0 }, ...]`, one state character per link in the order `map info` lists the
+/// junction's links.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrafficLightConfig {
+    /// Junction id, as `smlworld map info` lists it.
+    pub junction: u32,
+    /// Shift of the cycle [s]: the program is at its start at t = offset.
+    #[serde(default)]
+    pub offset: f64,
+    /// The phases, cycled.
+    pub program: Vec<crate::map::junctions::SignalPhase>,
 }
 
 /// One `[[rsu]]`: `at = { x, y }` or `at = { node = NODE }`, `range = 300.0`,

@@ -47,6 +47,7 @@ mod file;
 pub mod lab;
 pub mod overrides;
 
+use std::collections::BTreeMap;
 use std::path::{Path as FsPath, PathBuf};
 use std::sync::Arc;
 
@@ -173,6 +174,7 @@ impl Scenario {
         };
         let scenario = Scenario { path: path.into(), file, map, commonroad };
         scenario.check_commonroad()?;
+        scenario.check_traffic_lights()?;
         Ok(scenario)
     }
 
@@ -206,6 +208,56 @@ impl Scenario {
             }
         }
         Ok(())
+    }
+
+    /// Every `[[traffic_lights]]` names a junction of the map and gives each phase one valid
+    /// character per link.
+    fn check_traffic_lights(&self) -> Result<(), ScenarioError> {
+        if self.file.traffic_lights.is_empty() {
+            return Ok(());
+        }
+        let Some(map) = &self.map else {
+            return Err(self.invalid("traffic_lights".into(), "needs a `map` with junctions"));
+        };
+        let junctions = self.junctions_plugin(map).junctions();
+        let ids = || {
+            let list: Vec<String> = junctions.list.iter().map(|j| j.id.to_string()).collect();
+            if list.is_empty() { "none: the map has no junction".to_string() } else { list.join(", ") }
+        };
+        let mut seen = BTreeMap::new();
+        for (k, light) in self.file.traffic_lights.iter().enumerate() {
+            let key = format!("traffic_lights[{k}].junction");
+            let Some(j) = junctions.get(light.junction) else {
+                return Err(self.invalid(
+                    key,
+                    format!(
+                        "{} is not a junction of the map (`smlworld map info` lists them; ids: {})",
+                        light.junction,
+                        ids()
+                    ),
+                ));
+            };
+            if let Some(first) = seen.insert(light.junction, k) {
+                return Err(self.invalid(
+                    key,
+                    format!("junction {} already has a program in traffic_lights[{first}]", light.junction),
+                ));
+            }
+            for (i, phase) in light.program.iter().enumerate() {
+                crate::vehicles::right_of_way::check_state(&phase.state, j.links.len())
+                    .map_err(|p| self.invalid(format!("traffic_lights[{k}].program[{i}].state"), p))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The junction rules of this scenario on `map`.
+    pub fn junctions_plugin(&self, map: &Arc<LaneletMap>) -> crate::vehicles::JunctionsPlugin {
+        crate::vehicles::JunctionsPlugin {
+            map: Arc::clone(map),
+            params: self.file.junctions,
+            programs: self.file.traffic_lights.iter().map(|l| (l.junction, l.program.clone(), l.offset)).collect(),
+        }
     }
 
     fn invalid(&self, key: String, problem: impl Into<String>) -> ScenarioError {

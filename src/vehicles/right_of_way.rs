@@ -1,0 +1,1075 @@
+//! Right of way at junctions and traffic lights, for every vehicle that uses the longitudinal
+//! pipeline ([`super::longitudinal`]): a limiter in [`LongitudinalSystems::Limit`], so IDM,
+//! cruise, ACC, CACC, GCDC and student controllers get it without a change.
+//!
+//! Each control tick, for every vehicle whose route reaches a junction ([`crate::map::junctions`])
+//! within [`JunctionParams::look_ahead`]:
+//! - **curves**: its speed is limited before and on the junction's links so that the lateral
+//!   acceleration stays under [`JunctionParams::lateral_accel`] (`v = √(a_lat / κ)`);
+//! - **signals**: on red it stops at the stop line (the start of its link) if it can at
+//!   [`JunctionParams::red_decel`]; on yellow it stops if it can at
+//!   [`JunctionParams::yellow_decel`] (SUMO's rule, [`stops_at_yellow`]), else drives on;
+//! - **keep clear**: it does not pass the stop line while the lanelet after the junction has no
+//!   room for it (a slow vehicle's rear closer than its length, counting those already driving
+//!   in), so junctions do not gridlock;
+//! - **conflicts**: for every conflict of its links, every foe on the other link (ground truth of
+//!   the vehicles approaching within the look-ahead, as SUMO's junction model knows them): a foe
+//!   that is already driving through must have cleared the conflict point [`JunctionParams::time_gap`]
+//!   before it arrives, or arrive after it has cleared it by the same gap; a foe with priority
+//!   (major road, the vehicle on the right, a `G` against its `g`, the first to arrive) that is
+//!   moving must reach the conflict point later than this vehicle clears it plus the gap
+//!   ([`accepts_gap`]; SUMO's `jmTimegapMinor`, 1 s, on exact arrival estimates). Otherwise it
+//!   stops at the stop line; once it could no longer stop, it goes.
+//!
+//! Decisions are made one vehicle after another in a fixed order (those inside the junction,
+//! then by distance to the stop line, then id), each seeing the decisions before it, so two
+//! vehicles never take the same gap in the same tick and the result is the same on any number
+//! of threads. Vehicles with a V2V [`CrossingNegotiator`] keep their own negotiation and are
+//! only foes here. Traffic-light programs are a resource ([`TrafficLights`]) advanced by their
+//! own system before the decisions.
+
+use std::sync::Arc;
+
+use bevy_ecs::prelude::{Commands, Component, Entity, Local, Query, Res, ResMut, Resource, With, Without};
+use bevy_ecs::schedule::IntoScheduleConfigs;
+
+use crate::map::junctions::{ConflictKind, Fallback, JunctionRules, Junctions, SignalPhase, Turn, find_junctions};
+use crate::map::{JunctionControl, LaneletMap, Path};
+use crate::sim::params::{ParamError, Range, check_all};
+use crate::sim::{Control, Plugin, SimBuilder, SimClock};
+use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
+
+use super::PathFollower;
+use super::crossing::{CrossingNegotiator, stop_before};
+use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
+
+/// Half the extent of a conflict area along each link [m]: a vehicle "reaches" a conflict
+/// point this far before it and has "cleared" it with its rear this far after.
+pub const CLEAR: f64 = 2.5;
+/// Distance kept between the front bumper and the stop line when stopping [m].
+const STOP_MARGIN: f64 = 0.5;
+/// Acceleration assumed for a vehicle's own arrival and a foe's earliest arrival [m/s²].
+const ACCEL_FAST: f64 = 1.5;
+/// Acceleration assumed for a foe that drives through (its latest clearing) [m/s²].
+const ACCEL_SLOW: f64 = 1.0;
+/// Speed under which a vehicle is waiting [m/s] (SUMO's waiting-time threshold).
+pub const WAITING_SPEED: f64 = 0.1;
+/// A foe slower than this [m/s] that has not decided to go is waiting and will see us go.
+const STANDING: f64 = 0.5;
+/// Comfortable deceleration used to stop at a stop line [m/s²].
+const STOP_DECEL: f64 = 3.0;
+/// No signal on a link.
+pub const NO_SIGNAL: u8 = b'-';
+
+/// `[junctions]` of a scenario: the junction rules' parameters.
+#[derive(Resource, Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct JunctionParams {
+    /// Rule between equal approaches where the map says nothing: `"right_before_left"`
+    /// (default) or `"first_come"`.
+    pub default: Fallback,
+    /// Time gap a vehicle keeps to a foe at a conflict point [s] (SUMO's `jmTimegapMinor`, 1 s).
+    /// More: fewer vehicles take a gap, longer waits.
+    pub time_gap: f64,
+    /// Largest lateral acceleration on a junction's links [m/s²] (2 m/s², comfortable driving).
+    pub lateral_accel: f64,
+    /// A vehicle stops for yellow if it can at this deceleration [m/s²] (the 3 m/s²;
+    /// SUMO uses the vehicle's `decel`).
+    pub yellow_decel: f64,
+    /// A vehicle stops for red if it can at this deceleration [m/s²].
+    pub red_decel: f64,
+    /// How far before a junction a vehicle starts to look at it [m].
+    pub look_ahead: f64,
+}
+
+impl Default for JunctionParams {
+    fn default() -> Self {
+        JunctionParams {
+            default: Fallback::RightBeforeLeft,
+            time_gap: 1.0,
+            lateral_accel: 2.0,
+            yellow_decel: 3.0,
+            red_decel: 7.5,
+            look_ahead: 80.0,
+        }
+    }
+}
+
+impl JunctionParams {
+    /// Check the values (keys relative to `[junctions]`).
+    pub fn check(&self) -> Result<(), ParamError> {
+        check_all([
+            ("time_gap", self.time_gap, Range::non_negative(60.0)),
+            ("lateral_accel", self.lateral_accel, Range::positive(20.0)),
+            ("yellow_decel", self.yellow_decel, Range::positive(20.0)),
+            ("red_decel", self.red_decel, Range::positive(20.0)),
+            ("look_ahead", self.look_ahead, Range::positive(1000.0)),
+        ])
+    }
+}
+
+/// Time [s] to cover `d` [m] from speed `v` [m/s] accelerating at `a` [m/s²] up to `v_max`
+/// [m/s] (0 for `d <= 0`; a vehicle that cannot move never arrives).
+pub fn time_to_cover(d: f64, v: f64, a: f64, v_max: f64) -> f64 {
+    if d <= 0.0 {
+        return 0.0;
+    }
+    let v = v.max(0.0);
+    let v_max = v_max.max(v);
+    if v_max <= 1e-6 {
+        return f64::INFINITY;
+    }
+    if a <= 1e-9 || v >= v_max {
+        return if v > 1e-6 { d / v } else { f64::INFINITY };
+    }
+    let t1 = (v_max - v) / a;
+    let d1 = 0.5 * (v + v_max) * t1;
+    if d <= d1 { ((v * v + 2.0 * a * d).sqrt() - v) / a } else { t1 + (d - d1) / v_max }
+}
+
+/// Gap acceptance: a vehicle that clears the conflict point at `t_clear` [s] from now may go
+/// before a foe with priority that reaches it at `t_foe` [s] when `t_foe > t_clear + gap`.
+pub fn accepts_gap(t_clear: f64, t_foe: f64, gap: f64) -> bool {
+    t_foe > t_clear + gap
+}
+
+/// SUMO's yellow rule: stop when the stop line `distance` [m] ahead can be reached from speed
+/// `v` [m/s] decelerating at no more than `max_decel` [m/s²]; else drive on.
+pub fn stops_at_yellow(v: f64, distance: f64, max_decel: f64) -> bool {
+    if distance <= 0.0 {
+        return v <= 0.0;
+    }
+    v * v / (2.0 * distance) <= max_decel
+}
+
+/// The phase of a cyclic `program` at time `t` [s] with the cycle shifted by `offset` [s]
+/// (SUMO's `offset`: the program is at its start at t = offset).
+pub fn phase_at(program: &[SignalPhase], offset: f64, t: f64) -> usize {
+    let cycle: f64 = program.iter().map(|p| p.duration).sum();
+    if program.is_empty() || cycle <= 0.0 {
+        return 0;
+    }
+    let mut into = (t - offset).rem_euclid(cycle);
+    for (k, p) in program.iter().enumerate() {
+        if into < p.duration {
+            return k;
+        }
+        into -= p.duration;
+    }
+    program.len() - 1
+}
+
+/// One conflict seen from a link.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FoeConflict {
+    /// The other link (global link index).
+    pub foe: u32,
+    /// Arc length of the meeting point on this link [m].
+    pub s_mine: f64,
+    /// Arc length of the meeting point on the foe's link [m].
+    pub s_foe: f64,
+    /// Crossing or merging.
+    pub kind: ConflictKind,
+    /// Whether this link yields (None: first come).
+    pub yields: Option<bool>,
+}
+
+/// One link as the right-of-way system uses it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinkInfo {
+    /// Junction index (in [`Junctions::list`]).
+    pub junction: u32,
+    /// Its conflicts.
+    pub conflicts: Vec<FoeConflict>,
+    /// Highest speed for the lateral acceleration limit on it [m/s].
+    pub curve_speed: f64,
+    /// Its turn.
+    pub turn: Turn,
+}
+
+/// The map's junctions indexed for the per-tick decisions.
+#[derive(Resource, Debug, Clone)]
+pub struct JunctionNetwork {
+    /// The junctions.
+    pub junctions: Arc<Junctions>,
+    /// Every link of every junction, junction by junction (global link index).
+    pub links: Vec<LinkInfo>,
+    /// Global index of each junction's first link.
+    pub first_link: Vec<u32>,
+    /// Lanelet index -> global link index (`u32::MAX`: not a link).
+    pub link_of_lanelet: Vec<u32>,
+    /// Lanelet index -> whether it is the lanelet after some link (an exit).
+    pub is_exit: Vec<bool>,
+    /// Lanelet lengths [m], by lanelet index.
+    pub lengths: Vec<f64>,
+    /// The map.
+    pub map: Arc<LaneletMap>,
+}
+
+/// Largest curvature [1/m] of a polyline, over chords of at least 2 m on each side.
+fn max_curvature(points: &[glam::DVec2]) -> f64 {
+    let mut best: f64 = 0.0;
+    for k in 0..points.len() {
+        let p = points[k];
+        let Some(a) = points[..k].iter().rev().find(|q| q.distance(p) >= 2.0) else { continue };
+        let Some(b) = points[k + 1..].iter().find(|q| q.distance(p) >= 2.0) else { continue };
+        // Circumscribed circle of (a, p, b): κ = 4·area / (|ab| |ap| |pb|).
+        let area2 = (p - *a).perp_dot(*b - *a).abs();
+        let denom = a.distance(p) * p.distance(*b) * a.distance(*b);
+        if denom > 1e-9 {
+            best = best.max(2.0 * area2 / denom);
+        }
+    }
+    best
+}
+
+impl JunctionNetwork {
+    /// Index the junctions of `map` (O(links + conflicts + lanelets)).
+    pub fn new(map: Arc<LaneletMap>, junctions: Arc<Junctions>, lateral_accel: f64) -> JunctionNetwork {
+        let n = map.lanelets.len();
+        let mut links = Vec::new();
+        let mut first_link = Vec::with_capacity(junctions.list.len());
+        let mut link_of_lanelet = vec![u32::MAX; n];
+        for (j, junction) in junctions.list.iter().enumerate() {
+            first_link.push(links.len() as u32);
+            for l in &junction.links {
+                let i = map.lanelet_index(l.lanelet).unwrap_or(usize::MAX);
+                let kappa = map.lanelets.get(i).map_or(0.0, |x| max_curvature(&x.centre));
+                let curve_speed = if kappa > 1e-6 { (lateral_accel / kappa).sqrt() } else { f64::INFINITY };
+                if i < n {
+                    link_of_lanelet[i] = links.len() as u32;
+                }
+                links.push(LinkInfo { junction: j as u32, conflicts: Vec::new(), curve_speed, turn: l.turn });
+            }
+        }
+        for (j, junction) in junctions.list.iter().enumerate() {
+            let base = first_link[j];
+            for c in &junction.conflicts {
+                let (Some(ka), Some(kb)) = (junction.link_index(c.a), junction.link_index(c.b)) else { continue };
+                let (ga, gb) = (base + ka as u32, base + kb as u32);
+                links[ga as usize].conflicts.push(FoeConflict {
+                    foe: gb,
+                    s_mine: c.s_a,
+                    s_foe: c.s_b,
+                    kind: c.kind,
+                    yields: c.yields_from(c.a),
+                });
+                links[gb as usize].conflicts.push(FoeConflict {
+                    foe: ga,
+                    s_mine: c.s_b,
+                    s_foe: c.s_a,
+                    kind: c.kind,
+                    yields: c.yields_from(c.b),
+                });
+            }
+        }
+        let mut is_exit = vec![false; n];
+        for (i, l) in map.lanelets.iter().enumerate() {
+            if link_of_lanelet[i] == u32::MAX {
+                continue;
+            }
+            for s in &l.successors {
+                if let Some(k) = map.lanelet_index(*s).filter(|&k| link_of_lanelet[k] == u32::MAX) {
+                    is_exit[k] = true;
+                }
+            }
+        }
+        let lengths = map.lanelets.iter().map(|l| l.length).collect();
+        JunctionNetwork { junctions, links, first_link, link_of_lanelet, is_exit, lengths, map }
+    }
+}
+
+/// A junction's light: its program and what it shows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LightController {
+    /// Junction index (in [`Junctions::list`]).
+    pub junction: u32,
+    /// The phases, cycled.
+    pub program: Vec<SignalPhase>,
+    /// Cycle shift [s].
+    pub offset: f64,
+    /// A state set from outside ([`TrafficLights::set_state`]), held until set again.
+    pub manual: Option<String>,
+    /// Index of the phase shown (in `program`; meaningless while `manual` holds).
+    pub phase: usize,
+}
+
+/// Every traffic light and the state of every link (one character each, [`NO_SIGNAL`] where
+/// none).
+#[derive(Resource, Debug, Clone, Default)]
+pub struct TrafficLights {
+    /// The lights, in junction order.
+    pub controllers: Vec<LightController>,
+    /// Signal of every global link.
+    pub state: Vec<u8>,
+    /// Global index of each junction's first link (a copy of [`JunctionNetwork::first_link`]).
+    pub first_link: Vec<u32>,
+    /// Phase changes so far.
+    pub changes: u64,
+}
+
+impl TrafficLights {
+    /// Lights for `programs` (junction index, program, offset) over `links` links.
+    pub fn new(programs: Vec<(u32, Vec<SignalPhase>, f64)>, network: &JunctionNetwork) -> TrafficLights {
+        let mut lights = TrafficLights {
+            controllers: programs
+                .into_iter()
+                .map(|(junction, program, offset)| LightController {
+                    junction,
+                    program,
+                    offset,
+                    manual: None,
+                    phase: 0,
+                })
+                .collect(),
+            state: vec![NO_SIGNAL; network.links.len()],
+            first_link: network.first_link.clone(),
+            changes: 0,
+        };
+        lights.advance(0.0);
+        lights.changes = 0;
+        lights
+    }
+
+    /// Show what every program shows at `t` [s].
+    pub fn advance(&mut self, t: f64) {
+        for c in &mut self.controllers {
+            let text = match &c.manual {
+                Some(m) => m.as_bytes(),
+                None => {
+                    let k = phase_at(&c.program, c.offset, t);
+                    if k != c.phase {
+                        self.changes += 1;
+                    }
+                    c.phase = k;
+                    match c.program.get(k) {
+                        Some(p) => p.state.as_bytes(),
+                        None => continue,
+                    }
+                }
+            };
+            let first = self.first_link[c.junction as usize] as usize;
+            for (k, ch) in text.iter().enumerate() {
+                if let Some(s) = self.state.get_mut(first + k) {
+                    *s = *ch;
+                }
+            }
+        }
+    }
+
+    /// The state a junction shows (one character per link), if it has a light.
+    pub fn state_of(&self, junction: u32) -> Option<String> {
+        let c = self.controllers.iter().find(|c| c.junction == junction)?;
+        let first = self.first_link[c.junction as usize] as usize;
+        let n = c.program.first().map_or(0, |p| p.state.len());
+        Some(String::from_utf8_lossy(&self.state[first..first + n]).into_owned())
+    }
+
+    /// Hold `state` at the junction with index `junction` from now on (Python's
+    /// `Sim.set_phase`); an error names what is wrong.
+    pub fn set_state(&mut self, junction: u32, state: &str) -> Result<(), String> {
+        let c = self
+            .controllers
+            .iter_mut()
+            .find(|c| c.junction == junction)
+            .ok_or_else(|| format!("junction {} has no traffic light", junction + 1))?;
+        let n = c.program.first().map_or(0, |p| p.state.len());
+        check_state(state, n)?;
+        c.manual = Some(state.to_string());
+        let first = self.first_link[junction as usize] as usize;
+        for (k, ch) in state.bytes().enumerate() {
+            self.state[first + k] = ch;
+        }
+        self.changes += 1;
+        Ok(())
+    }
+}
+
+/// Whether `state` is a valid signal state for `links` links; the error says why not. Signal
+/// characters: `G` green with priority, `g` green yielding, `y` yellow, `r` red, and SUMO's `s`
+/// (treated as red: stop), `o` (off, blinking: yield as `g`), `O` (off: as `G`).
+pub fn check_state(state: &str, links: usize) -> Result<(), String> {
+    if state.chars().count() != links {
+        return Err(format!(
+            "`{state}` has {} characters; the junction has {links} links (one character each)",
+            state.chars().count()
+        ));
+    }
+    if let Some(c) = state.chars().find(|c| !"GgyrsoO".contains(*c)) {
+        return Err(format!("`{state}` has `{c}`; use G (green, priority), g (green, yield), y (yellow), r (red)"));
+    }
+    Ok(())
+}
+
+/// One passage of a route through a junction: consecutive links of one junction.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Passage {
+    /// Junction index.
+    pub junction: u32,
+    /// Route arc length of the stop line (the first link's start) [m].
+    pub entry: f64,
+    /// Route arc length of the last link's end [m].
+    pub exit: f64,
+    /// Global link indices with the route arc length of each link's start [m].
+    pub links: Vec<(u32, f64)>,
+    /// Lanelet index after the passage (`u32::MAX`: the route ends in the junction).
+    pub exit_lanelet: u32,
+    /// Lanelet index before it on the route (`u32::MAX`: the route starts in the junction).
+    pub entry_lanelet: u32,
+}
+
+/// The junctions on `path`, in order (a closed loop: its first lap).
+pub fn passages(path: &Path, map: &LaneletMap, network: &JunctionNetwork) -> Vec<Passage> {
+    let Some(first) = path.lanelets.first().and_then(|id| map.lanelet_index(*id)) else { return Vec::new() };
+    let start = path.points.first().copied().unwrap_or_default();
+    let (along, _) = crate::map::polyline::project_polyline(&map.lanelets[first].centre, start);
+    let mut s = -along;
+    let mut out: Vec<Passage> = Vec::new();
+    let mut before = u32::MAX;
+    for (k, id) in path.lanelets.iter().enumerate() {
+        let Some(i) = map.lanelet_index(*id) else { break };
+        let len = network.lengths[i];
+        let g = network.link_of_lanelet[i];
+        if g != u32::MAX {
+            let j = network.links[g as usize].junction;
+            match out.last_mut() {
+                Some(p) if p.junction == j && p.exit_lanelet == u32::MAX && (p.exit - s).abs() < 1e-6 => {
+                    p.links.push((g, s));
+                    p.exit = s + len;
+                }
+                _ => out.push(Passage {
+                    junction: j,
+                    entry: s,
+                    exit: s + len,
+                    links: vec![(g, s)],
+                    exit_lanelet: u32::MAX,
+                    entry_lanelet: before,
+                }),
+            }
+        } else if let Some(p) = out.last_mut().filter(|p| p.exit_lanelet == u32::MAX && k > 0) {
+            p.exit_lanelet = i as u32;
+        }
+        before = if g == u32::MAX { i as u32 } else { u32::MAX };
+        s += len;
+    }
+    out
+}
+
+/// Per-vehicle state of the junction rules.
+#[derive(Component, Debug, Clone, PartialEq, Default)]
+pub struct JunctionDriver {
+    /// The route the passages were found on (its address).
+    route: usize,
+    /// Its junctions.
+    passages: Vec<Passage>,
+    /// Index of the next (or current) passage.
+    next: usize,
+    /// Whether it has decided to drive through the next junction.
+    pub going: bool,
+    /// When it came near the next junction [s] (first come, first served).
+    arrived_at: f64,
+    /// Whether it has stopped at the stop line (all-way stops).
+    stopped: bool,
+    /// Waiting time at the next junction so far [s].
+    pub waited: f64,
+    /// Waiting time of the current stop so far [s].
+    pub waiting_now: f64,
+}
+
+/// What happened at each junction (`metrics.junctions`).
+#[derive(Resource, Debug, Clone, Default)]
+pub struct JunctionStats {
+    /// Per junction (index): vehicles through, sum of their waits [s], longest wait [s], most
+    /// vehicles waiting at once.
+    pub per_junction: Vec<JunctionCounts>,
+    /// Vehicles that passed a stop line while it showed red (should stay 0).
+    pub red_crossings: u64,
+}
+
+/// One junction in `metrics.junctions` of `summary.json`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct JunctionMetric {
+    /// Junction id (as `map info` lists it).
+    pub id: u32,
+    /// Vehicles that drove through it.
+    pub vehicles_through: u64,
+    /// Mean waiting time (speed under 0.1 m/s) before it of the vehicles through [s].
+    pub mean_wait_s: f64,
+    /// Longest waiting time of one vehicle before it [s].
+    pub max_wait_s: f64,
+    /// Most vehicles waiting before it at once.
+    pub max_queue: u32,
+}
+
+/// A time rounded to the centisecond (the precision of the control ticks that measure it).
+fn cs(t: f64) -> f64 {
+    (t * 100.0).round() / 100.0
+}
+
+impl JunctionStats {
+    /// `metrics.junctions`: every junction a vehicle came to, in id order.
+    pub fn summary(&self) -> Vec<JunctionMetric> {
+        self.per_junction
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.through > 0 || c.max_queue > 0)
+            .map(|(j, c)| JunctionMetric {
+                id: j as u32 + 1,
+                vehicles_through: c.through,
+                mean_wait_s: cs(if c.through > 0 { c.wait_sum / c.through as f64 } else { 0.0 }),
+                max_wait_s: cs(c.wait_max),
+                max_queue: c.max_queue,
+            })
+            .collect()
+    }
+}
+
+/// Counts of one junction.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct JunctionCounts {
+    /// Vehicles that drove through.
+    pub through: u64,
+    /// Sum of their waiting times [s].
+    pub wait_sum: f64,
+    /// Longest waiting time of one vehicle [s].
+    pub wait_max: f64,
+    /// Most vehicles waiting before it at once.
+    pub max_queue: u32,
+}
+
+/// One vehicle near a junction this tick.
+#[derive(Debug, Clone, Copy)]
+struct Approach {
+    entity: Entity,
+    id: VehicleId,
+    front: f64,
+    length: f64,
+    speed: f64,
+    v_max: f64,
+    inside: bool,
+    going: bool,
+    decides: bool,
+    arrived_at: f64,
+    stopped: bool,
+    junction: u32,
+    /// Range of its links in the shared buffer.
+    links: (u32, u32),
+    exit: u32,
+    entry: f64,
+    limit: f64,
+    /// Lanelet it comes from (the one before the junction).
+    entry_lanelet: u32,
+    /// Behind another vehicle waiting on the same lanelet: it neither decides nor counts as a
+    /// foe (the one in front speaks for the lane).
+    queued: bool,
+}
+
+/// Per-tick buffers of [`give_way_at_junctions`], kept between ticks.
+#[derive(Default)]
+pub struct Scratch {
+    approaches: Vec<Approach>,
+    links: Vec<(u32, f64)>,
+    by_link: Vec<Vec<u32>>,
+    touched: Vec<u32>,
+    exit_rear: Vec<(f64, f64)>,
+    exit_touched: Vec<u32>,
+    reserved: Vec<f64>,
+    order: Vec<u32>,
+}
+
+/// Give every vehicle without junction state one (the next tick uses it).
+#[allow(clippy::type_complexity)]
+pub fn attach_junction_drivers(
+    mut commands: Commands,
+    new: Query<Entity, (With<Longitudinal>, With<Route>, With<PathFollower>, Without<JunctionDriver>)>,
+) {
+    for e in &new {
+        commands.entity(e).insert(JunctionDriver::default());
+    }
+}
+
+/// Show what every light's program shows now.
+pub fn advance_traffic_lights(clock: Res<SimClock>, mut lights: ResMut<TrafficLights>) {
+    lights.advance(clock.now.as_secs());
+}
+
+/// Decide, for every vehicle near a junction, whether it may drive through, and limit its
+/// acceleration to stop at the stop line when not (see the module documentation).
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
+pub fn give_way_at_junctions(
+    clock: Res<SimClock>,
+    params: Res<JunctionParams>,
+    network: Res<JunctionNetwork>,
+    lights: Option<Res<TrafficLights>>,
+    mut stats: ResMut<JunctionStats>,
+    mut vehicles: Query<(
+        Entity,
+        &VehicleId,
+        &VehicleState,
+        &VehicleSize,
+        &Route,
+        &PathFollower,
+        &mut Longitudinal,
+        &mut JunctionDriver,
+        Option<&CrossingNegotiator>,
+    )>,
+    positions: Query<(&super::LanePosition, &VehicleSize, &VehicleState)>,
+    mut scratch: Local<Scratch>,
+) {
+    let now = clock.now.as_secs();
+    let dt = clock.dt;
+    let net = &*network;
+    let sc = &mut *scratch;
+    let n_links = net.links.len();
+    if sc.by_link.len() != n_links {
+        sc.by_link = vec![Vec::new(); n_links];
+    }
+    if sc.exit_rear.len() != net.is_exit.len() {
+        sc.exit_rear = vec![(f64::INFINITY, 0.0); net.is_exit.len()];
+        sc.reserved = vec![0.0; net.is_exit.len()];
+    }
+    if stats.per_junction.len() != net.junctions.list.len() {
+        stats.per_junction = vec![JunctionCounts::default(); net.junctions.list.len()];
+    }
+    for g in sc.touched.drain(..) {
+        sc.by_link[g as usize].clear();
+    }
+    for i in sc.exit_touched.drain(..) {
+        sc.exit_rear[i as usize] = (f64::INFINITY, 0.0);
+        sc.reserved[i as usize] = 0.0;
+    }
+    sc.approaches.clear();
+    sc.links.clear();
+    // Where the rear of the last vehicle on every exit lanelet is, and how fast it goes.
+    for (pos, size, state) in &positions {
+        let i = pos.index as usize;
+        if net.is_exit.get(i).copied().unwrap_or(false) {
+            let rear = pos.s - 0.5 * size.length;
+            let slot = &mut sc.exit_rear[i];
+            if slot.0 == f64::INFINITY {
+                sc.exit_touched.push(i as u32);
+            }
+            if rear < slot.0 {
+                *slot = (rear, state.speed());
+            }
+        }
+    }
+    let signal = |g: u32| lights.as_deref().map_or(NO_SIGNAL, |l| l.state[g as usize]);
+    // Who is near a junction.
+    let mut queue_at: Vec<(u32, u32)> = Vec::new();
+    for (entity, &id, state, size, route, follower, _, mut driver, negotiator) in &mut vehicles {
+        let key = Arc::as_ptr(&route.0) as usize;
+        let driver: &mut JunctionDriver = &mut driver;
+        if driver.route != key {
+            *driver =
+                JunctionDriver { route: key, passages: passages(&route.0, &net.map, net), ..JunctionDriver::default() };
+        }
+        let front = follower.s + 0.5 * size.length;
+        let rear = follower.s - 0.5 * size.length;
+        // Passages left behind.
+        while let Some(p) = driver.passages.get(driver.next) {
+            if rear <= p.exit {
+                break;
+            }
+            let c = &mut stats.per_junction[p.junction as usize];
+            c.through += 1;
+            c.wait_sum += driver.waited;
+            c.wait_max = c.wait_max.max(driver.waited);
+            let next = driver.next + 1;
+            *driver = JunctionDriver {
+                route: key,
+                passages: std::mem::take(&mut driver.passages),
+                next,
+                ..JunctionDriver::default()
+            };
+        }
+        let Some(p) = driver.passages.get(driver.next) else { continue };
+        if p.entry - front > params.look_ahead {
+            continue;
+        }
+        let speed = state.speed();
+        let inside = front >= p.entry;
+        if !inside {
+            if speed < WAITING_SPEED {
+                driver.waited += dt;
+                driver.waiting_now += dt;
+                queue_at.push((p.junction, 1));
+                if p.entry - front < 3.0 {
+                    driver.stopped = true;
+                }
+            } else {
+                driver.waiting_now = 0.0;
+            }
+            if driver.arrived_at == 0.0 && p.entry - front < 20.0 {
+                driver.arrived_at = now.max(1e-9);
+            }
+        } else if !driver.going && signal(p.links[0].0) == b'r' {
+            // Passed the stop line without having decided to go, on red.
+            stats.red_crossings += 1;
+            driver.going = true;
+        }
+        let start = sc.links.len() as u32;
+        sc.links.extend_from_slice(&p.links);
+        let k = sc.approaches.len() as u32;
+        for &(g, _) in &p.links {
+            if sc.by_link[g as usize].is_empty() {
+                sc.touched.push(g);
+            }
+            sc.by_link[g as usize].push(k);
+        }
+        sc.approaches.push(Approach {
+            entity,
+            id,
+            front,
+            length: size.length,
+            speed,
+            v_max: follower.params.speed.max(speed),
+            inside,
+            going: driver.going || inside,
+            decides: negotiator.is_none(),
+            arrived_at: if driver.arrived_at > 0.0 { driver.arrived_at } else { f64::INFINITY },
+            stopped: driver.stopped,
+            junction: p.junction,
+            links: (start, sc.links.len() as u32),
+            exit: p.exit_lanelet,
+            entry: p.entry,
+            limit: f64::INFINITY,
+            entry_lanelet: p.entry_lanelet,
+            queued: false,
+        });
+    }
+    // Only the first vehicle before the stop line of each lanelet decides.
+    sc.order.clear();
+    sc.order.extend((0..sc.approaches.len() as u32).filter(|&k| {
+        let a = &sc.approaches[k as usize];
+        !a.inside && a.entry_lanelet != u32::MAX
+    }));
+    let approaches = &sc.approaches;
+    sc.order.sort_by(|&a, &b| {
+        let (x, y) = (&approaches[a as usize], &approaches[b as usize]);
+        x.entry_lanelet
+            .cmp(&y.entry_lanelet)
+            .then((x.entry - x.front).total_cmp(&(y.entry - y.front)))
+            .then(x.id.cmp(&y.id))
+    });
+    for w in 1..sc.order.len() {
+        let (prev, k) = (sc.order[w - 1] as usize, sc.order[w] as usize);
+        if sc.approaches[prev].entry_lanelet == sc.approaches[k].entry_lanelet {
+            let a = &mut sc.approaches[k];
+            a.queued = true;
+            a.going = false;
+        }
+    }
+    // Most vehicles waiting at once before each junction.
+    queue_at.sort_unstable();
+    let mut k = 0;
+    while k < queue_at.len() {
+        let j = queue_at[k].0;
+        let n = queue_at[k..].iter().take_while(|q| q.0 == j).count();
+        let c = &mut stats.per_junction[j as usize];
+        c.max_queue = c.max_queue.max(n as u32);
+        k += n;
+    }
+    // Decide in a fixed order: inside first, then nearest to its stop line, then id.
+    sc.order.clear();
+    sc.order.extend(0..sc.approaches.len() as u32);
+    let approaches = &sc.approaches;
+    sc.order.sort_by(|&a, &b| {
+        let (x, y) = (&approaches[a as usize], &approaches[b as usize]);
+        (!x.inside).cmp(&!y.inside).then((x.entry - x.front).total_cmp(&(y.entry - y.front))).then(x.id.cmp(&y.id))
+    });
+    for o in 0..sc.order.len() {
+        let me = sc.order[o] as usize;
+        decide(me, sc, net, &params, &signal);
+    }
+    // Write back.
+    for a in &sc.approaches {
+        let Ok((.., mut lon, mut driver, _)) = vehicles.get_mut(a.entity) else { continue };
+        driver.going = a.going;
+        if a.limit.is_finite() {
+            lon.limit(a.limit);
+        }
+    }
+}
+
+/// Decide for approach `me` (see [`give_way_at_junctions`]); sets its `going` and `limit`, and
+/// reserves room on its exit.
+fn decide(me: usize, sc: &mut Scratch, net: &JunctionNetwork, params: &JunctionParams, signal: &dyn Fn(u32) -> u8) {
+    let a = sc.approaches[me];
+    let links = &sc.links[a.links.0 as usize..a.links.1 as usize];
+    let v = a.speed.max(0.0);
+    let mut limit = f64::INFINITY;
+    // Curves: reach each link at its curve speed, hold it on the link.
+    let mut v_through = a.v_max;
+    for &(g, start) in links {
+        let vc = net.links[g as usize].curve_speed;
+        v_through = v_through.min(vc);
+        if v > vc {
+            let d = start - a.front;
+            let acc = if d > 0.5 { (vc * vc - v * v) / (2.0 * d) } else { (vc - v) / 0.5 };
+            limit = limit.min(acc);
+        }
+    }
+    let v_through = v_through.max(1.0);
+    let stop_room = a.entry - a.front - STOP_MARGIN;
+    let needed = if stop_room > 0.01 { v * v / (2.0 * stop_room) } else { f64::INFINITY };
+    let mut go = true;
+    if a.queued {
+        // Behind the vehicle that decides for the lane: car following keeps it there.
+    } else if !a.inside && a.decides {
+        let first = links[0].0;
+        match signal(first) {
+            b'r' | b's' => go = needed > params.red_decel,
+            b'y' => go = !stops_at_yellow(v, stop_room, params.yellow_decel),
+            _ => {}
+        }
+        let control = net.junctions.list[a.junction as usize].control;
+        if go && control == JunctionControl::AllWayStop && !a.stopped {
+            go = false;
+        }
+        // Keep clear: room on the lanelet after the junction.
+        if go && a.exit != u32::MAX {
+            let (rear, speed) = sc.exit_rear[a.exit as usize];
+            let room = if rear.is_finite() && speed < 3.0 { rear } else { f64::INFINITY };
+            if room - sc.reserved[a.exit as usize] < a.length + 1.0 {
+                go = false;
+            }
+        }
+        if go {
+            go = conflicts_allow(me, sc, net, params, signal, v_through);
+        }
+        // Too late to stop comfortably: drive on.
+        if !go && needed > params.red_decel.max(STOP_DECEL * 2.0) {
+            go = true;
+        }
+        if !go {
+            limit = limit.min(stop_before(v, stop_room, STOP_DECEL));
+        }
+    } else if a.inside {
+        // Inside: brake only for a foe standing in a conflict area ahead.
+        if let Some(room) = occupied_ahead(me, sc, net) {
+            limit = limit.min(stop_before(v, room, STOP_DECEL));
+        }
+    }
+    let ap = &mut sc.approaches[me];
+    ap.going = go || a.inside;
+    ap.limit = limit;
+    if ap.going && a.exit != u32::MAX {
+        sc.reserved[a.exit as usize] += a.length + 2.0;
+    }
+}
+
+/// Whether every conflict of approach `me` lets it drive through now.
+fn conflicts_allow(
+    me: usize,
+    sc: &Scratch,
+    net: &JunctionNetwork,
+    params: &JunctionParams,
+    signal: &dyn Fn(u32) -> u8,
+    v_through: f64,
+) -> bool {
+    let a = &sc.approaches[me];
+    let v = a.speed.max(0.0);
+    let my_signal = signal(sc.links[a.links.0 as usize].0);
+    for &(g, start) in &sc.links[a.links.0 as usize..a.links.1 as usize] {
+        for fc in &net.links[g as usize].conflicts {
+            let d_me = start + fc.s_mine - a.front;
+            if d_me + a.length + CLEAR < 0.0 {
+                continue;
+            }
+            let t_me_arrive = time_to_cover(d_me - CLEAR, v, ACCEL_FAST, v_through);
+            let t_me_clear = time_to_cover(d_me + a.length + CLEAR, v, ACCEL_FAST, v_through);
+            for &q in &sc.by_link[fc.foe as usize] {
+                let q = q as usize;
+                let f = &sc.approaches[q];
+                if q == me || f.queued {
+                    continue;
+                }
+                let Some(&(_, f_start)) =
+                    sc.links[f.links.0 as usize..f.links.1 as usize].iter().find(|(x, _)| *x == fc.foe)
+                else {
+                    continue;
+                };
+                let d_foe = f_start + fc.s_foe - f.front;
+                if d_foe + f.length + CLEAR < 0.0 {
+                    continue;
+                }
+                let f_signal = signal(sc.links[f.links.0 as usize].0);
+                let foe_priority = match (my_signal, f_signal) {
+                    (b'g' | b'o', b'G' | b'O') => true,
+                    (b'G' | b'O', b'g' | b'o') => false,
+                    _ => fc
+                        .yields
+                        .unwrap_or(f.arrived_at < a.arrived_at || (f.arrived_at == a.arrived_at && f.id < a.id)),
+                };
+                let f_v = f.speed.max(0.0);
+                let t_foe_arrive = time_to_cover(d_foe - CLEAR, f_v, ACCEL_FAST, f.v_max.max(f_v));
+                if f.going || f.inside {
+                    // A merge behind a foe that is already past the merge point is car following.
+                    if fc.kind == ConflictKind::Merging && d_foe < 0.0 && d_me > 0.0 {
+                        continue;
+                    }
+                    let t_foe_clear = time_to_cover(d_foe + f.length + CLEAR, f_v, ACCEL_SLOW, f.v_max.max(f_v));
+                    let after = t_me_arrive > t_foe_clear + params.time_gap;
+                    let gap = if foe_priority { params.time_gap.max(1.0) } else { params.time_gap };
+                    let before = !f.inside && accepts_gap(t_me_clear, t_foe_arrive, gap);
+                    if !(after || before) {
+                        return false;
+                    }
+                } else {
+                    let red = matches!(f_signal, b'r' | b's' | b'y');
+                    if red || f.speed < STANDING || !f.decides && !f.going {
+                        continue;
+                    }
+                    if foe_priority && !accepts_gap(t_me_clear, t_foe_arrive, params.time_gap) {
+                        return false;
+                    }
+                }
+            }
+        }
+    }
+    true
+}
+
+/// Room [m] before the first conflict area ahead of approach `me` (inside the junction) that a
+/// foe further through it stands in, if any.
+fn occupied_ahead(me: usize, sc: &Scratch, net: &JunctionNetwork) -> Option<f64> {
+    let a = &sc.approaches[me];
+    let mut room: Option<f64> = None;
+    for &(g, start) in &sc.links[a.links.0 as usize..a.links.1 as usize] {
+        for fc in &net.links[g as usize].conflicts {
+            if fc.kind == ConflictKind::Merging {
+                continue;
+            }
+            let d_me = start + fc.s_mine - a.front;
+            if d_me <= 0.0 {
+                continue;
+            }
+            for &q in &sc.by_link[fc.foe as usize] {
+                let f = &sc.approaches[q as usize];
+                if q as usize == me || !f.inside {
+                    continue;
+                }
+                let Some(&(_, f_start)) =
+                    sc.links[f.links.0 as usize..f.links.1 as usize].iter().find(|(x, _)| *x == fc.foe)
+                else {
+                    continue;
+                };
+                let d_foe = f_start + fc.s_foe - f.front;
+                let in_area = d_foe < CLEAR && d_foe + f.length + CLEAR > 0.0;
+                // Of two in each other's way, the one further from the point waits.
+                if in_area && (d_foe < d_me || (d_foe == d_me && f.id < a.id)) {
+                    let r = d_me - CLEAR - STOP_MARGIN;
+                    room = Some(room.map_or(r, |x: f64| x.min(r)));
+                }
+            }
+        }
+    }
+    room
+}
+
+/// Junction rules for a map: its junctions (under `params.default`), lights from `programs`
+/// (junction id, program, offset) and from the map (a default program where a junction has
+/// lights but no program), the decisions in [`LongitudinalSystems::Limit`].
+#[derive(Debug, Clone)]
+pub struct JunctionsPlugin {
+    /// The map.
+    pub map: Arc<LaneletMap>,
+    /// Parameters.
+    pub params: JunctionParams,
+    /// Programs given by the scenario: junction id (from 1), phases, offset [s].
+    pub programs: Vec<(u32, Vec<SignalPhase>, f64)>,
+}
+
+impl JunctionsPlugin {
+    /// The junctions of the map under these rules.
+    pub fn junctions(&self) -> Junctions {
+        find_junctions(&self.map, &JunctionRules { fallback: self.params.default, left_hand: None })
+    }
+}
+
+impl Plugin for JunctionsPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        let junctions = Arc::new(self.junctions());
+        if junctions.is_empty() {
+            return;
+        }
+        install_longitudinal(sim);
+        let network = JunctionNetwork::new(Arc::clone(&self.map), Arc::clone(&junctions), self.params.lateral_accel);
+        let left_hand = self.map.left_hand_traffic();
+        let mut programs: Vec<(u32, Vec<SignalPhase>, f64)> =
+            self.programs.iter().map(|(id, p, o)| (id - 1, p.clone(), *o)).collect();
+        for (j, junction) in junctions.list.iter().enumerate() {
+            if junction.control == JunctionControl::TrafficLight && !programs.iter().any(|p| p.0 == j as u32) {
+                programs.push((j as u32, crate::map::junctions::default_program(junction, left_hand), 0.0));
+            }
+        }
+        programs.sort_by_key(|p| p.0);
+        let lights = TrafficLights::new(programs, &network);
+        sim.insert_resource(self.params);
+        sim.insert_resource(network);
+        sim.insert_resource(lights);
+        sim.insert_resource(JunctionStats::default());
+        sim.add_systems(
+            Control,
+            (
+                attach_junction_drivers,
+                advance_traffic_lights.before(LongitudinalSystems::Limit),
+                give_way_at_junctions.in_set(LongitudinalSystems::Limit),
+            ),
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn time_to_cover_accelerates_then_cruises() {
+        // 20 m/s for 2 s is 40 m.
+        assert!((time_to_cover(40.0, 20.0, 1.0, 20.0) - 2.0).abs() < 1e-12);
+        // From rest at 2 m/s²: 16 m in 4 s (below the top speed).
+        assert!((time_to_cover(16.0, 0.0, 2.0, 100.0) - 4.0).abs() < 1e-12);
+        // From rest at 2 m/s² to 4 m/s (2 s, 4 m), then 4 m/s for 10 m more: 4.5 s.
+        assert!((time_to_cover(14.0, 0.0, 2.0, 4.0) - 4.5).abs() < 1e-12);
+        assert_eq!(time_to_cover(-1.0, 0.0, 1.0, 10.0), 0.0);
+        assert!(time_to_cover(5.0, 0.0, 1.0, 0.0).is_infinite());
+    }
+
+    #[test]
+    fn a_gap_is_taken_only_when_the_foe_arrives_after_clearing_plus_the_gap() {
+        assert!(accepts_gap(3.0, 4.5, 1.0));
+        assert!(!accepts_gap(3.0, 4.0, 1.0));
+        assert!(!accepts_gap(3.0, 3.5, 1.0));
+    }
+
+    #[test]
+    fn yellow_stops_only_when_the_line_is_reachable_at_the_allowed_deceleration() {
+        // 15 m/s needs 37.5 m at 3 m/s².
+        assert!(stops_at_yellow(15.0, 40.0, 3.0));
+        assert!(!stops_at_yellow(15.0, 30.0, 3.0));
+        assert!(stops_at_yellow(0.0, 0.0, 3.0));
+        assert!(!stops_at_yellow(5.0, 0.0, 3.0));
+    }
+
+    #[test]
+    fn programs_cycle_with_their_offset() {
+        let p = |s: &str, d| SignalPhase { state: s.into(), duration: d };
+        let program = vec![p("Gr", 30.0), p("yr", 3.0), p("rG", 30.0), p("ry", 3.0)];
+        assert_eq!(phase_at(&program, 0.0, 0.0), 0);
+        assert_eq!(phase_at(&program, 0.0, 29.9), 0);
+        assert_eq!(phase_at(&program, 0.0, 30.0), 1);
+        assert_eq!(phase_at(&program, 0.0, 33.0), 2);
+        assert_eq!(phase_at(&program, 0.0, 65.0), 3);
+        assert_eq!(phase_at(&program, 0.0, 66.0), 0);
+        assert_eq!(phase_at(&program, 10.0, 5.0), 2);
+    }
+
+    #[test]
+    fn states_are_checked_for_length_and_characters() {
+        assert!(check_state("GGrr", 4).is_ok());
+        assert!(check_state("GGr", 4).unwrap_err().contains("3 characters"));
+        assert!(check_state("GGxr", 4).unwrap_err().contains("`x`"));
+    }
+}
