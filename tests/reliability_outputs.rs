@@ -46,7 +46,7 @@ fn a_successful_run_leaves_only_its_final_files() {
     let _ = std::fs::remove_dir_all(&out);
     let (ok, err) = run(&out, &[]);
     assert!(ok, "{err}");
-    assert_eq!(names(&out), ["summary.json", "trajectories.csv"]);
+    assert_eq!(names(&out), ["summary.json", "trajectories.csv", "trips.csv"]);
     let csv = std::fs::read_to_string(out.join("trajectories.csv")).unwrap();
     assert!(csv.starts_with("t,id,x,y,yaw,vx,vy,lanelet,lane_offset\n") && csv.lines().count() > 12, "{csv}");
 }

@@ -1,6 +1,6 @@
 //! One call that does what `smlworld run` does: [`run_scenario`] loads a scenario (with the
 //! controllers your plugins register), runs it headless or in real time, and writes
-//! `trajectories.csv`, `summary.json` and optional frames, GIF and UDP stream.
+//! `trajectories.csv`, `trips.csv`, `summary.json` and optional frames, GIF and UDP stream.
 //!
 //! ```no_run
 //! use smlworld::prelude::*;
@@ -58,7 +58,7 @@ impl From<Scenario> for ScenarioSource {
 
 /// How to run a scenario and what to write; the defaults are those of `smlworld run`.
 pub struct RunOptions {
-    /// Output folder for `trajectories.csv` and `summary.json` (created if missing).
+    /// Output folder for `trajectories.csv`, `trips.csv` and `summary.json` (created if missing).
     pub out: PathBuf,
     /// Sim time to run [s] (default: the scenario's `duration`).
     pub duration: Option<f64>,
@@ -227,7 +227,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     let csv_path = options.out.join("trajectories.csv");
     let csv_tmp = options.out.join(".trajectories.csv.partial");
     let csv = std::fs::File::create(&csv_tmp).map_err(|source| RunError::Io { path: csv_tmp.clone(), source })?;
-    let outputs = PendingOutputs(vec![csv_tmp.clone()]);
+    let mut outputs = PendingOutputs(vec![csv_tmp.clone()]);
     if let Some(addr) = options.stream {
         let plugin = VizStreamPlugin::new(addr, DEFAULT_VIZ_RATE_HZ)
             .map_err(|e| RunError::Stream(e.to_string()))?
@@ -276,11 +276,19 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     summary.replay = Some(super::running::summary::ReplayInfo::of(sim.world_mut(), map_path, log_rate));
     let summary_path = options.out.join("summary.json");
     let summary_tmp = options.out.join(".summary.json.partial");
+    outputs.0.push(summary_tmp.clone());
     let json = serde_json::to_string_pretty(&summary)
         .map_err(|e| RunError::Io { path: summary_path.clone(), source: std::io::Error::other(e) })?;
     std::fs::write(&summary_tmp, format!("{json}\n"))
         .map_err(|source| RunError::Io { path: summary_tmp.clone(), source })?;
-    for (tmp, path) in [(&csv_tmp, &csv_path), (&summary_tmp, &summary_path)] {
+    // One row per vehicle that drove a route (SUMO's tripinfo), from the same records as
+    // `metrics.trips`.
+    let trips_path = options.out.join("trips.csv");
+    let trips_tmp = options.out.join(".trips.csv.partial");
+    outputs.0.push(trips_tmp.clone());
+    let trips = super::running::trips::trips_csv(&super::running::trips::trip_records(sim.world()));
+    std::fs::write(&trips_tmp, trips).map_err(|source| RunError::Io { path: trips_tmp.clone(), source })?;
+    for (tmp, path) in [(&csv_tmp, &csv_path), (&trips_tmp, &trips_path), (&summary_tmp, &summary_path)] {
         std::fs::rename(tmp, path).map_err(|source| RunError::Io { path: path.clone(), source })?;
     }
     outputs.keep();

@@ -130,6 +130,9 @@ pub enum MapError {
     /// The node is not on any routable lanelet bound.
     #[error("node {0} does not lie on any routable lanelet")]
     NodeNotOnLanelet(i64),
+    /// A lanelet given by the caller is not a drivable lanelet of the map.
+    #[error("lanelet {0} is no drivable lanelet of the map (see `smlworld map info`)")]
+    UnknownLanelet(i64),
     /// An option given by the user is out of range.
     #[error("{0}")]
     InvalidOption(String),

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use glam::DVec2;
 
 use super::error::MapError;
-use super::lanelet::LaneletMap;
+use super::lanelet::{LaneletId, LaneletMap};
 use super::polyline::{polyline_length, project_polyline, sub_polyline};
 
 pub use super::path::{Path, PathProjection};
@@ -482,6 +482,55 @@ impl LaneletMap {
             to_node: start.node,
             note: self.fallback_note(&[start]),
         })
+    }
+
+    /// Shortest route from the start of lanelet `from` to the end of lanelet `to`, both driven
+    /// in their own direction, through successors only (no lane change): what random trips
+    /// drive. `from == to` is that one lanelet. Unlike [`Self::route_places`] it starts on
+    /// exactly `from`, not on whichever lanelet at its start node is best.
+    pub fn route_lanelets(&self, from: LaneletId, to: LaneletId, opts: &RouteOptions) -> Result<Path, MapError> {
+        check_options(opts)?;
+        let state = |id: LaneletId| {
+            self.lanelet_index(id)
+                .filter(|&i| self.lanelets[i].routable)
+                .map(|i| (2 * i) as u32)
+                .ok_or(MapError::UnknownLanelet(id.0))
+        };
+        let (first, last) = (state(from)?, state(to)?);
+        let mut states = vec![first];
+        if first != last {
+            let successors = |step: &Step| -> Vec<(Step, u64)> {
+                match *step {
+                    Step::Start => vec![(Step::Exit(first), mm(self.state_length(first)))],
+                    Step::Exit(s) => self.graph.successors[s as usize]
+                        .iter()
+                        .map(|&next| {
+                            if next == last {
+                                (Step::Final(0), 0)
+                            } else {
+                                (Step::Exit(next), mm(self.state_length(next)))
+                            }
+                        })
+                        .collect(),
+                    Step::Final(_) => Vec::new(),
+                }
+            };
+            // The search ends on entering `to`, so the straight line runs to where `to` starts.
+            let target = [self.lanelets[last as usize / 2].centre[0]];
+            let shortest = self.lanelets.iter().map(|l| l.length).fold(f64::INFINITY, f64::min) * 1000.0;
+            let shrink = if shortest > 1.0 { 1.0 - 0.5 / shortest } else { 0.0 };
+            let heuristic = |s: &Step| match *s {
+                Step::Exit(state) => Self::distance_bound(self.state_end(state), &target, shrink),
+                Step::Start | Step::Final(_) => 0,
+            };
+            let no_route = || MapError::NoRoute { from: format!("lanelet {from}"), to: format!("lanelet {to}") };
+            let (steps, _) = self.astar(1, successors, heuristic).ok_or_else(no_route)?;
+            states = steps.iter().filter_map(|s| if let Step::Exit(x) = s { Some(*x) } else { None }).collect();
+            states.push(last);
+        }
+        let points = self.stitch(&states);
+        let lanelets = states.iter().map(|&s| self.lanelets[s as usize / 2].id).collect();
+        Ok(Path::from_points(lanelets, resample(&points, opts.points_per_meter), false))
     }
 
     /// Number of (i, j) lanelet pairs where j follows i.

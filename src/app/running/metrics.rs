@@ -128,6 +128,10 @@ pub struct MetricsSummary {
     /// Vehicles that left at their route's end (with `[[traffic]]` only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub throughput: Option<super::traffic::Throughput>,
+    /// Trips of the vehicles on routes: inserted, arrived, travel and waiting times, stops
+    /// (with [`super::trips::TripsPlugin`] only; every row of `trips.csv` counts).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub trips: Option<super::trips::TripsSummary>,
     /// What each V2V channel sent, delivered and lost, per receiver (set by the run summary).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub v2v: Option<V2vMetrics>,
@@ -376,6 +380,7 @@ impl Metrics {
             lane_change_summary: None,
             traffic: None,
             throughput: None,
+            trips: None,
             v2v: None,
             emergency: None,
             merge: None,

@@ -147,6 +147,9 @@ impl RunSummary {
                     let per_hour = if hours > 0.0 { t.removed as f64 / hours } else { 0.0 };
                     summary.throughput = Some(Throughput { vehicles_out: t.removed, per_hour });
                 }
+                if world.contains_resource::<super::trips::TripLog>() {
+                    summary.trips = Some(super::trips::TripsSummary::of(&super::trips::trip_records(world)));
+                }
                 summary.v2v = world.get_resource::<crate::sim::V2vChannelStats>().map(super::metrics::V2vMetrics::of);
                 summary.emergency = world
                     .get_resource::<crate::vehicles::EmergencyLog>()

@@ -3,13 +3,20 @@
 //! registry) when they reach the end of an open route. Every random choice (desired speed, class,
 //! lane, arrival time) is a counter-based draw of (seed, table, vehicle, draw)
 //! ([`crate::sim::random::uniform`]), so a run depends on the seed only.
+//!
+//! A table with `route = "random"` has no lanes of its own: each vehicle draws a trip
+//! ([`super::random_trips`]) when it arrives and waits at the start of its origin lanelet until
+//! that entry is free; vehicles waiting at different entries do not hold each other up.
 
 use std::sync::Arc;
 
-use bevy_ecs::prelude::{Component, Mut, Resource, World};
+use bevy_ecs::prelude::{Component, Entity, Mut, Resource, World};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
+use glam::DVec2;
 
-use crate::map::Path;
+use super::random_trips::{RandomTrip, RandomTrips};
+use super::trips::{Trip, end_trip};
+use crate::map::{LaneletId, LaneletMap, Path, Place};
 use crate::sim::random::uniform;
 use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::vehicles::lane_changing::{LaneChangeSystems, LaneIndex};
@@ -89,6 +96,11 @@ pub struct TrafficSource {
     pub next_time: f64,
     /// Arrivals waiting for a free entry.
     pub queue: u64,
+    /// Random routes (`route = "random"`): the lanelets trips are drawn from; `lanes` is then
+    /// empty and `goal` unused (each vehicle heads for its own destination).
+    pub random: Option<Arc<RandomTrips>>,
+    /// Random-route arrivals waiting for their entry, in arrival order: (vehicle index, trip).
+    pub pending: Vec<(u64, RandomTrip)>,
 }
 
 /// A traffic vehicle (its table index).
@@ -141,7 +153,8 @@ fn draw(seed: u64, src: &TrafficSource, k: u64) -> (f64, VehicleClass, usize) {
 }
 
 /// Spawn one traffic vehicle of table `index` on `lane` at arc length `s` [m] with initial speed
-/// `v` [m/s] and desired speed `v0` [m/s].
+/// `v` [m/s] and desired speed `v0` [m/s], heading for `goal` (where its lane changes may lead);
+/// its [`Trip`] departs now.
 #[allow(clippy::too_many_arguments)]
 pub fn spawn_traffic_vehicle(
     world: &mut World,
@@ -149,11 +162,13 @@ pub fn spawn_traffic_vehicle(
     index: usize,
     id: VehicleId,
     lane: &TrafficLane,
+    goal: &RouteGoal,
     s: f64,
     v: f64,
     v0: f64,
     class: VehicleClass,
 ) -> Result<(), WorldError> {
+    let now = world.get_resource::<SimClock>().map_or(0.0, |c| c.now.as_secs());
     let (p, heading) = lane.path.sample(s);
     let state = VehicleState::new(p, heading, v);
     let mut spec = VehicleSpec::new(id, state);
@@ -176,7 +191,8 @@ pub fn spawn_traffic_vehicle(
     let follow = PathFollowing { speed: v0, stop_deceleration: 50.0, ..PathFollowing::default() };
     let lane_pos = world.get_resource::<LaneMap>().map(|lanes| LanePosition::of(lanes, &state));
     let mut e = world.entity_mut(entity);
-    e.insert((PathFollower::starting_at(follow, s), TrafficVehicle(index)));
+    let route_length = if lane.path.closed { lane.path.length } else { (lane.path.length - s).max(0.0) };
+    e.insert((PathFollower::starting_at(follow, s), TrafficVehicle(index), Trip::new(now, route_length, v)));
     if let Some(l) = lane_pos {
         e.insert(l);
     }
@@ -186,7 +202,7 @@ pub fn spawn_traffic_vehicle(
             SmartController::Idm(p) => FollowLaw::Idm(p),
             _ => FollowLaw::Idm(Idm { speed: v0.max(0.1), ..Idm::default() }),
         };
-        e.insert(LaneChanger::new(params, law, src.goal.clone()));
+        e.insert(LaneChanger::new(params, law, goal.clone()));
     }
     if src.yield_to_emergency && e.world().contains_resource::<EmergencySettings>() {
         e.insert(YieldToEmergency::default());
@@ -244,7 +260,8 @@ pub fn place(world: &mut World, traffic: &mut Traffic, index: usize, count: usiz
             let v = v0.min(((gap - MIN_GAP) / TIME_GAP).max(0.0));
             let id = VehicleId(src.next_id);
             src.next_id += 1;
-            spawn_traffic_vehicle(world, src, index, id, lane, s, v, v0, class).map_err(|e| e.to_string())?;
+            spawn_traffic_vehicle(world, src, index, id, lane, &src.goal, s, v, v0, class)
+                .map_err(|e| e.to_string())?;
             s += half + gap;
         }
     }
@@ -257,27 +274,34 @@ pub fn place(world: &mut World, traffic: &mut Traffic, index: usize, count: usiz
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct TrafficSystems;
 
-/// Remove vehicles at the end of their route, then insert the arrivals whose entry is free.
+/// Remove vehicles at the end of their route (ending their trips), then insert the arrivals
+/// whose entry is free.
 pub fn run_traffic(world: &mut World) {
     let t = world.resource::<SimClock>().now.as_secs();
-    let mut leaving: Vec<VehicleId> = Vec::new();
-    let mut q = world.query::<(&VehicleId, &Route, &PathFollower, &TrafficVehicle, Option<&LaneChanger>)>();
-    for (id, route, follower, _, changer) in q.iter(world) {
+    let mut leaving: Vec<(VehicleId, Entity)> = Vec::new();
+    let mut q = world.query::<(Entity, &VehicleId, &Route, &PathFollower, &TrafficVehicle, Option<&LaneChanger>)>();
+    for (entity, id, route, follower, _, changer) in q.iter(world) {
         let mandatory = changer.is_some_and(|c| c.lane_end.is_some() || c.active.is_some());
         if !route.0.closed && route.0.length - follower.s < LEAVE_AT && !mandatory {
-            leaving.push(*id);
+            leaving.push((*id, entity));
         }
     }
     leaving.sort();
     world.resource_scope(|world, mut traffic: Mut<Traffic>| {
-        for id in leaving {
+        for (id, entity) in leaving {
+            end_trip(world, id, entity, t);
             if despawn_vehicle(world, id).is_ok() {
                 traffic.removed += 1;
             }
         }
         let seed = traffic.seed;
-        for index in 0..traffic.sources.len() {
-            let mut src = traffic.sources[index].clone();
+        let Traffic { sources, inserted, waiting_max, .. } = &mut *traffic;
+        for (index, src) in sources.iter_mut().enumerate() {
+            if src.random.is_some() {
+                *inserted += insert_random(world, seed, index, src, t);
+                *waiting_max = (*waiting_max).max(src.queue);
+                continue;
+            }
             if src.rate_per_s > 0.0 {
                 while src.next_time <= t && src.next_time <= src.until {
                     src.queue += 1;
@@ -289,7 +313,7 @@ pub fn run_traffic(world: &mut World) {
             let mut used = [false; 16];
             while src.queue > 0 {
                 let k = src.drawn;
-                let (v0, class, first) = draw(seed, &src, k);
+                let (v0, class, first) = draw(seed, src, k);
                 let length = class_size(class).length;
                 let mut placed = false;
                 for n in 0..src.lanes.len() {
@@ -300,11 +324,11 @@ pub fn run_traffic(world: &mut World) {
                     let lane = src.lanes[l].clone();
                     let Some(v) = entry_speed(world, &lane, v0, length) else { continue };
                     let id = VehicleId(src.next_id);
-                    if spawn_traffic_vehicle(world, &src, index, id, &lane, 0.0, v, v0, class).is_ok() {
+                    if spawn_traffic_vehicle(world, src, index, id, &lane, &src.goal, 0.0, v, v0, class).is_ok() {
                         src.next_id += 1;
                         src.drawn += 1;
                         src.queue -= 1;
-                        traffic.inserted += 1;
+                        *inserted += 1;
                         used[l.min(15)] = true;
                         placed = true;
                     }
@@ -314,10 +338,136 @@ pub fn run_traffic(world: &mut World) {
                     break;
                 }
             }
-            traffic.waiting_max = traffic.waiting_max.max(src.queue);
-            traffic.sources[index] = src;
+            *waiting_max = (*waiting_max).max(src.queue);
         }
     });
+}
+
+/// Where the lane changes of a vehicle on a trip to `destination` may lead: lanes that reach
+/// the end of that lanelet (the last node of its right bound).
+fn trip_goal(map: &LaneletMap, destination: LaneletId) -> RouteGoal {
+    map.lanelet_index(destination)
+        .and_then(|i| map.lanelets[i].right_nodes.last().copied())
+        .map_or(RouteGoal::Loop, |node| RouteGoal::To(Place::Node(node)))
+}
+
+/// The lane a random trip enters on: the start of its origin lanelet.
+fn trip_lane(map: &LaneletMap, trip: &RandomTrip) -> Option<TrafficLane> {
+    let lanelet = map.lanelet_index(trip.origin)? as u32;
+    Some(TrafficLane { lanelet, entry_s: 0.0, path: Arc::clone(&trip.path) })
+}
+
+/// The arrivals of random table `index` (`src`) up to `t` [s]: each draws its trip and waits at
+/// the start of its origin lanelet; every waiting vehicle whose entry is free enters (one per
+/// origin lanelet and tick: the lane index does not show this tick's insertions yet), the others
+/// keep waiting without holding anyone up. Returns how many entered.
+fn insert_random(world: &mut World, seed: u64, index: usize, src: &mut TrafficSource, t: f64) -> u64 {
+    let (Some(trips), Some(map)) = (src.random.clone(), world.get_resource::<LaneMap>().map(|l| Arc::clone(&l.map)))
+    else {
+        return 0;
+    };
+    if src.rate_per_s > 0.0 {
+        while src.next_time <= t && src.next_time <= src.until {
+            let k = src.drawn;
+            src.drawn += 1;
+            src.next_time += -(1.0 - uniform(seed, src.stream, k, 3)).ln() / src.rate_per_s;
+            match trips.trip(&map, seed, src.stream, k) {
+                Some(trip) => src.pending.push((k, trip)),
+                None => tracing::warn!(
+                    "traffic[{index}]: vehicle {k} found no route of at least {} m in {} random origin and destination pairs; skipped",
+                    super::random_trips::MIN_TRIP_M,
+                    super::random_trips::TRIES
+                ),
+            }
+        }
+    }
+    let mut pending = std::mem::take(&mut src.pending);
+    let mut used: Vec<u32> = Vec::new();
+    let mut entered = 0;
+    pending.retain(|(k, trip)| {
+        let Some(lane) = trip_lane(&map, trip) else { return false };
+        if used.contains(&lane.lanelet) {
+            return true;
+        }
+        let (v0, class, _) = draw(seed, src, *k);
+        let Some(v) = entry_speed(world, &lane, v0, class_size(class).length) else { return true };
+        let goal = trip_goal(&map, trip.destination);
+        let id = VehicleId(src.next_id);
+        if spawn_traffic_vehicle(world, src, index, id, &lane, &goal, 0.0, v, v0, class).is_err() {
+            return true;
+        }
+        src.next_id += 1;
+        entered += 1;
+        used.push(lane.lanelet);
+        false
+    });
+    src.pending = pending;
+    src.queue = src.pending.len() as u64;
+    entered
+}
+
+/// Place `count` vehicles of random table `index` at t = 0: each on its own random trip at a
+/// random point of its origin lanelet, at least [`MIN_GAP`] + 2 m (bumper to bumper, in a
+/// straight line) from every other, at a speed it can stop from in the distance to the nearest
+/// ([`TIME_GAP`]). `Err` says how many fit.
+pub fn place_random(world: &mut World, traffic: &mut Traffic, index: usize, count: usize) -> Result<(), String> {
+    let seed = traffic.seed;
+    let src = &mut traffic.sources[index];
+    let (Some(trips), Some(map)) = (src.random.clone(), world.get_resource::<LaneMap>().map(|l| Arc::clone(&l.map)))
+    else {
+        return Err("random routes need a map".into());
+    };
+    // (trip, lane, s [m], position [m], half length [m], desired speed [m/s], class)
+    let mut chosen: Vec<(RandomTrip, TrafficLane, f64, DVec2, f64, f64, VehicleClass)> = Vec::with_capacity(count);
+    // The map is full when this many draws in a row find no room.
+    const MISSES: u64 = 500;
+    let mut misses = 0;
+    let mut k = src.drawn;
+    while chosen.len() < count {
+        if misses >= MISSES {
+            return Err(format!(
+                "{count} random vehicles do not fit on the map with {MIN_GAP} m + 2 m between them: {} did before {MISSES} draws in a row found no room; lower `count`",
+                chosen.len()
+            ));
+        }
+        misses += 1;
+        let Some((trip, lane)) =
+            trips.trip(&map, seed, src.stream, k).and_then(|t| trip_lane(&map, &t).map(|l| (t, l)))
+        else {
+            k += 1;
+            continue;
+        };
+        let (v0, class, _) = draw(seed, src, k);
+        let half = 0.5 * class_size(class).length;
+        let first = map.lanelets[lane.lanelet as usize].length.min(trip.path.length);
+        let s = if first > 2.0 * half {
+            half + uniform(seed, src.stream, k, 4) * (first - 2.0 * half)
+        } else {
+            0.5 * first
+        };
+        let (p, _) = trip.path.sample(s);
+        k += 1;
+        if chosen.iter().all(|c| p.distance(c.3) >= half + c.4 + MIN_GAP + 2.0) {
+            chosen.push((trip, lane, s, p, half, v0, class));
+            misses = 0;
+        }
+    }
+    for (n, (trip, lane, s, p, half, v0, class)) in chosen.iter().enumerate() {
+        let nearest = chosen
+            .iter()
+            .enumerate()
+            .filter(|(m, _)| *m != n)
+            .map(|(_, c)| p.distance(c.3) - half - c.4)
+            .fold(f64::INFINITY, f64::min);
+        let v = v0.min(((nearest - MIN_GAP) / TIME_GAP).max(0.0));
+        let id = VehicleId(src.next_id);
+        src.next_id += 1;
+        let goal = trip_goal(&map, trip.destination);
+        spawn_traffic_vehicle(world, src, index, id, lane, &goal, *s, v, *v0, *class).map_err(|e| e.to_string())?;
+    }
+    src.drawn = k;
+    traffic.inserted += count as u64;
+    Ok(())
 }
 
 /// The speed [m/s] a vehicle of `length` [m] wanting `v0` [m/s] may enter `lane` at, or `None`

@@ -9,13 +9,15 @@ use glam::DVec2;
 use super::commonroad::{GoalMonitor, add_goal_monitor, spawn_obstacles};
 use super::file::{
     BuiltInController, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RouteConfig, SensorsConfig, StartConfig,
-    TrafficLanes, VehicleConfig,
+    TrafficLanes, TrafficRoute, VehicleConfig,
 };
 use super::lab::add_lab_plugins;
 use super::{Scenario, ScenarioError};
 use crate::app::running::metrics::MetricsPlugin;
-use crate::app::running::traffic::{Traffic, TrafficLane, TrafficPlugin, TrafficSource, place};
-use crate::map::{Path, RouteOptions};
+use crate::app::running::random_trips::RandomTrips;
+use crate::app::running::traffic::{Traffic, TrafficLane, TrafficPlugin, TrafficSource, place, place_random};
+use crate::app::running::trips::{Trip, TripsPlugin};
+use crate::map::{LaneletId, Path, RouteOptions};
 use crate::sim::{
     Control, Dynamics, Network, Sensors, SimBuilder, SimSeed, V2vConfig, V2vPlugin, Wifi, default_plugins,
 };
@@ -106,7 +108,7 @@ impl Scenario {
             config: V2vConfig { wifi_range: v2v.range(), wifi: v2v.wifi.model(), network: v2v.network.model() },
         });
         b.add_plugin(PathFollowingPlugin);
-        b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default());
+        b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default()).add_plugin(TripsPlugin);
         if let Some(map) = &self.map {
             b.add_plugin(LanesPlugin { map: Arc::clone(map) });
             b.add_plugin(LaneChangePlugin { points_per_meter: self.file.points_per_meter });
@@ -190,7 +192,17 @@ impl Scenario {
         let route_err = |e| ScenarioError::Route { path: self.path.clone(), key: key("route"), source: Box::new(e) };
         let p = Arc::new(match (&r.closed_loop, &r.from, &r.to) {
             (Some(n), _, _) => map.closed_loop_at(&n.place(), &opts).map_err(route_err)?,
-            (None, Some(a), Some(b)) => map.route_places(&a.place(), &b.place(), &opts).map_err(route_err)?,
+            (None, Some(a), Some(b)) if r.via.is_empty() => {
+                map.route_places(&a.place(), &b.place(), &opts).map_err(route_err)?
+            }
+            (None, Some(a), Some(b)) => {
+                let stops: Vec<&NodeRef> = std::iter::once(a).chain(&r.via).chain(std::iter::once(b)).collect();
+                let mut legs = Vec::with_capacity(stops.len() - 1);
+                for w in stops.windows(2) {
+                    legs.push(map.route_places(&w[0].place(), &w[1].place(), &opts).map_err(route_err)?);
+                }
+                join_legs(&legs, opts.points_per_meter)
+            }
             _ => return Err(self.invalid(key("route"), "needs `loop` or both `from` and `to`")),
         });
         routes.insert(name, Arc::clone(&p));
@@ -214,8 +226,13 @@ impl Scenario {
         spec.sensors = sensors_of(&v.sensors);
         spec.sensor_errors = sensor_errors_of(&v.sensors);
         spec.mailbox = v.mailbox;
+        let trip =
+            route.as_deref().filter(|r| !r.closed).map(|r| Trip::new(0.0, (r.length - along).max(0.0), state.speed()));
         spec.route = route;
         let entity = b.spawn_vehicle(spec).map_err(|e| self.invalid(key("id"), e.to_string()))?;
+        if let Some(trip) = trip {
+            b.world_mut().entity_mut(entity).insert(trip);
+        }
         match &v.controller {
             Some(ControllerConfig::BuiltIn(BuiltInController::PathFollowing {
                 speed,
@@ -313,45 +330,19 @@ impl Scenario {
         let mut next_default: i64 = 1000;
         for (k, t) in self.file.traffic.iter().enumerate() {
             let key = |s: &str| format!("traffic[{k}].{s}");
-            let route = self.route(&t.route, routes, &key)?;
-            let goal = match (&t.route.closed_loop, &t.route.to) {
-                (None, Some(to)) => RouteGoal::To(to.place()),
-                _ => RouteGoal::Loop,
-            };
-            let locate = |p: &Path| lanes.locate(p.points[0], None, 0.0).map(|(i, s, _)| (i, s));
-            let Some((start, start_s)) = locate(&route) else {
-                return Err(self.invalid(key("route"), "starts off every lanelet of the map"));
-            };
             let mut lane_list = Vec::new();
-            match &t.lanes {
-                TrafficLanes::All => {
-                    lane_list.push(TrafficLane { lanelet: start, entry_s: start_s, path: Arc::clone(&route) });
-                    for side in [Side::Left, Side::Right] {
-                        let mut i = start;
-                        while let Some(j) = side_of(&lanes, i, side) {
-                            if lane_list.iter().any(|l| l.lanelet == j) {
-                                break;
-                            }
-                            let path = paths.path(&lanes, j, &goal).ok_or_else(|| {
-                                self.invalid(key("lanes"), "a lane beside the route's has no path to drive")
-                            })?;
-                            lane_list.push(TrafficLane { lanelet: j, entry_s: 0.0, path });
-                            i = j;
-                        }
+            let mut goal = RouteGoal::Loop;
+            let mut random = None;
+            match &t.route {
+                TrafficRoute::Random => {
+                    let trips = RandomTrips::new(&lanes.map, self.file.points_per_meter);
+                    if trips.is_empty() {
+                        return Err(self.invalid(key("route"), "is \"random\" but the map has no drivable lanelet"));
                     }
+                    random = Some(Arc::new(trips));
                 }
-                TrafficLanes::Tags(tags) => {
-                    for tag in tags {
-                        let r = match &t.route.closed_loop {
-                            Some(_) => RouteConfig { closed_loop: Some(tag.clone()), from: None, to: None },
-                            None => RouteConfig { closed_loop: None, from: Some(tag.clone()), to: t.route.to.clone() },
-                        };
-                        let path = self.route(&r, routes, &|_| key("lanes"))?;
-                        let Some((i, s)) = locate(&path) else {
-                            return Err(self.invalid(key("lanes"), "a lane starts off every lanelet of the map"));
-                        };
-                        lane_list.push(TrafficLane { lanelet: i, entry_s: s, path });
-                    }
+                TrafficRoute::Fixed(r) => {
+                    goal = self.traffic_lanes(t, r, &lanes, &mut paths, routes, &mut lane_list, &key)?;
                 }
             }
             let total: f64 = t.classes.values().sum();
@@ -409,13 +400,83 @@ impl Scenario {
                 drawn: 0,
                 next_time: 0.0,
                 queue: 0,
+                random,
+                pending: Vec::new(),
             });
             if t.count > 0 {
-                place(b.world_mut(), &mut traffic, k, t.count).map_err(|e| self.invalid(key("count"), e))?;
+                let placed = if t.route == TrafficRoute::Random {
+                    place_random(b.world_mut(), &mut traffic, k, t.count)
+                } else {
+                    place(b.world_mut(), &mut traffic, k, t.count)
+                };
+                placed.map_err(|e| self.invalid(key("count"), e))?;
             }
         }
         b.insert_resource(traffic);
         Ok(())
+    }
+
+    /// The start lanes of traffic table `t` on the fixed route `r` (into `lanes_out`), and where
+    /// its vehicles head for.
+    #[allow(clippy::too_many_arguments)]
+    fn traffic_lanes(
+        &self,
+        t: &super::file::TrafficConfig,
+        r: &RouteConfig,
+        lanes: &LaneMap,
+        paths: &mut LanePaths,
+        routes: &mut BTreeMap<String, Arc<Path>>,
+        lanes_out: &mut Vec<TrafficLane>,
+        key: &dyn Fn(&str) -> String,
+    ) -> Result<RouteGoal, ScenarioError> {
+        let route = self.route(r, routes, key)?;
+        let goal = match (&r.closed_loop, &r.to) {
+            (None, Some(to)) => RouteGoal::To(to.place()),
+            _ => RouteGoal::Loop,
+        };
+        let locate = |p: &Path| lanes.locate(p.points[0], None, 0.0).map(|(i, s, _)| (i, s));
+        let Some((start, start_s)) = locate(&route) else {
+            return Err(self.invalid(key("route"), "starts off every lanelet of the map"));
+        };
+        match &t.lanes {
+            TrafficLanes::All => {
+                lanes_out.push(TrafficLane { lanelet: start, entry_s: start_s, path: Arc::clone(&route) });
+                for side in [Side::Left, Side::Right] {
+                    let mut i = start;
+                    while let Some(j) = side_of(lanes, i, side) {
+                        if lanes_out.iter().any(|l| l.lanelet == j) {
+                            break;
+                        }
+                        let path = paths.path(lanes, j, &goal).ok_or_else(|| {
+                            self.invalid(key("lanes"), "a lane beside the route's has no path to drive")
+                        })?;
+                        lanes_out.push(TrafficLane { lanelet: j, entry_s: 0.0, path });
+                        i = j;
+                    }
+                }
+            }
+            TrafficLanes::Tags(tags) => {
+                for tag in tags {
+                    let lane_route = match &r.closed_loop {
+                        Some(_) => {
+                            RouteConfig { closed_loop: Some(tag.clone()), from: None, to: None, via: Vec::new() }
+                        }
+                        None => RouteConfig {
+                            closed_loop: None,
+                            from: Some(tag.clone()),
+                            to: r.to.clone(),
+                            via: r.via.clone(),
+                        },
+                    };
+                    let path = self.route(&lane_route, routes, &|_| key("lanes"))?;
+                    let Some((i, s)) = locate(&path) else {
+                        return Err(self.invalid(key("lanes"), "a lane starts off every lanelet of the map"));
+                    };
+                    lanes_out.push(TrafficLane { lanelet: i, entry_s: s, path });
+                }
+            }
+        }
+        Ok(goal)
     }
 
     /// Project vehicle `v`'s start point `p` on its route `r`, warning at load time when it lies
@@ -500,4 +561,21 @@ impl Scenario {
         };
         Ok((VehicleState::new(position, yaw, v.speed), along))
     }
+}
+
+/// One path through the legs of a route with `via` places, each leg starting where the last
+/// ended, resampled at `points_per_meter` [points per metre] (a path's points are equally spaced).
+fn join_legs(legs: &[Path], points_per_meter: f64) -> Path {
+    let mut points: Vec<DVec2> = Vec::new();
+    let mut lanelets: Vec<LaneletId> = Vec::new();
+    for leg in legs {
+        let skip = usize::from(points.last().zip(leg.points.first()).is_some_and(|(p, q)| p.distance(*q) < 1e-6));
+        points.extend_from_slice(&leg.points[skip.min(leg.points.len())..]);
+        for &l in &leg.lanelets {
+            if lanelets.last() != Some(&l) {
+                lanelets.push(l);
+            }
+        }
+    }
+    Path::from_points(lanelets, crate::map::routing::resample(&points, points_per_meter), false)
 }

@@ -6,7 +6,8 @@ use std::path::Path as FsPath;
 
 use super::ScenarioError;
 use super::file::{
-    BuiltInController, ControllerConfig, LossConfig, ModelConfig, ScenarioFile, V2vSection, VehicleConfig,
+    BuiltInController, ControllerConfig, LossConfig, ModelConfig, ScenarioFile, TrafficLanes, TrafficRoute, V2vSection,
+    VehicleConfig,
 };
 use crate::sim::ControllerRegistry;
 use crate::sim::params::{MAX_DISTANCE, MAX_GAIN, MAX_SPEED, MAX_TIME, MAX_VEHICLE_SIZE, Range};
@@ -93,9 +94,24 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
 /// The checks of one `[[traffic]]` table (index `k`).
 fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> Result<(), ScenarioError> {
     let key = |s: &str| format!("traffic[{k}].{s}");
-    match (&t.route.closed_loop, &t.route.from, &t.route.to) {
-        (Some(_), None, None) | (None, Some(_), Some(_)) => {}
-        _ => return Err(c.invalid(key("route"), "needs either `loop = NODE` or both `from = NODE` and `to = NODE`")),
+    match &t.route {
+        TrafficRoute::Fixed(r) => match (&r.closed_loop, &r.from, &r.to) {
+            (Some(_), None, None) if r.via.is_empty() => {}
+            (None, Some(_), Some(_)) => {}
+            (Some(_), None, None) => return Err(c.invalid(key("route.via"), "needs `from` and `to`, not `loop`")),
+            _ => {
+                return Err(c.invalid(
+                    key("route"),
+                    "needs either `loop = NODE` or both `from = NODE` and `to = NODE`, or is \"random\"",
+                ));
+            }
+        },
+        TrafficRoute::Random if t.lanes != TrafficLanes::All => {
+            return Err(
+                c.invalid(key("lanes"), "names start lanes of a fixed route; random traffic starts on any lane")
+            );
+        }
+        TrafficRoute::Random => {}
     }
     c.within(key("rate"), t.rate, Range::non_negative(1e6))?;
     if t.count == 0 && t.rate == 0.0 {
@@ -212,7 +228,9 @@ fn check_vehicle(
     }
     if let Some(route) = &v.route {
         match (&route.closed_loop, &route.from, &route.to) {
-            (Some(_), None, None) | (None, Some(_), Some(_)) => {}
+            (Some(_), None, None) if route.via.is_empty() => {}
+            (None, Some(_), Some(_)) => {}
+            (Some(_), None, None) => return Err(c.invalid(key("route.via"), "needs `from` and `to`, not `loop`")),
             _ => {
                 return Err(c.invalid(
                     key("route"),

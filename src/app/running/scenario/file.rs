@@ -174,17 +174,65 @@ impl<'de> Deserialize<'de> for TrafficLanes {
     }
 }
 
+/// Where a `[[traffic]]` table's vehicles drive: `route = "random"` or a route table.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TrafficRoute {
+    /// `"random"`: every vehicle draws its own origin and destination lanelet (weighted by
+    /// length) and drives the shortest route between them (see
+    /// [`crate::app::running::random_trips`]).
+    Random,
+    /// `{ loop = NODE }` or `{ from = NODE, to = NODE, via = [NODE, ...] }`: all on one route.
+    Fixed(RouteConfig),
+}
+
+impl TrafficRoute {
+    /// The route table, `None` for random routes.
+    pub fn fixed(&self) -> Option<&RouteConfig> {
+        match self {
+            TrafficRoute::Fixed(r) => Some(r),
+            TrafficRoute::Random => None,
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for TrafficRoute {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<TrafficRoute, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = TrafficRoute;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("`route = \"random\"` or a table `{ loop = NODE }` / `{ from = NODE, to = NODE }`")
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<TrafficRoute, E> {
+                if v == "random" {
+                    Ok(TrafficRoute::Random)
+                } else {
+                    Err(E::custom(format!(
+                        "`route` must be \"random\" or a table `{{ loop = NODE }}` / `{{ from = NODE, to = NODE, via = [NODE, ...] }}`, got \"{v}\""
+                    )))
+                }
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<TrafficRoute, A::Error> {
+                RouteConfig::deserialize(serde::de::value::MapAccessDeserializer::new(map)).map(TrafficRoute::Fixed)
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
 /// One `[[traffic]]` table: background vehicles on a route, placed at the start and/or inserted
 /// at a rate, everything random drawn from the scenario's `seed`.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrafficConfig {
-    /// `{ loop = NODE }` or `{ from = NODE, to = NODE }`.
-    pub route: RouteConfig,
-    /// Vehicles placed at t = 0 (evenly over the lanes, safe spacing for their speed).
+    /// `"random"`, `{ loop = NODE }` or `{ from = NODE, to = NODE, via = [NODE, ...] }`.
+    pub route: TrafficRoute,
+    /// Vehicles placed at t = 0 (evenly over the lanes, safe spacing for their speed; on random
+    /// routes: each on its origin lanelet, spaced apart).
     #[serde(default)]
     pub count: usize,
-    /// Vehicles inserted at the route start per hour [veh/h] (Poisson arrivals; a blocked entry waits).
+    /// Vehicles inserted at the route start per hour [veh/h] (Poisson arrivals; a blocked entry
+    /// waits). On random routes the total over the map, each at the start of its origin lanelet.
     #[serde(default)]
     pub rate: f64,
     /// No insertion after this sim time [s] (default: the whole run), so that every inserted
@@ -524,7 +572,7 @@ fn default_drag() -> f64 {
     AccelerationUnicycle::default().drag
 }
 
-/// `route = { loop = NODE }` or `route = { from = NODE, to = NODE }`.
+/// `route = { loop = NODE }` or `route = { from = NODE, to = NODE, via = [NODE, ...] }`.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RouteConfig {
@@ -537,6 +585,9 @@ pub struct RouteConfig {
     /// Route end.
     #[serde(default)]
     pub to: Option<NodeRef>,
+    /// Places an open route passes, in order, between `from` and `to` (each leg the shortest).
+    #[serde(default)]
+    pub via: Vec<NodeRef>,
 }
 
 /// `start = { offset }`, `{ at, offset }` or `{ x, y, yaw }`.

@@ -57,8 +57,8 @@ use crate::sim::{ControllerRegistry, Rates};
 
 pub use file::{
     BuiltInController, BurstConfig, ChannelSection, ControllerConfig, LossConfig, ModelConfig, NodeRef, ObstaclesMode,
-    RadarConfig, RatesConfig, RouteConfig, RsuAt, RsuConfig, ScenarioFile, SensorsConfig, StartConfig, V2vSection,
-    VehicleConfig, VelodyneConfig,
+    RadarConfig, RatesConfig, RouteConfig, RsuAt, RsuConfig, ScenarioFile, SensorsConfig, StartConfig, TrafficRoute,
+    V2vSection, VehicleConfig, VelodyneConfig,
 };
 pub use lab::{LabConfig, LabError, MocapConfig, TrucksConfig, add_lab_plugins, scenario_script};
 pub use overrides::{apply_override, load_with_overrides, parse_override};

@@ -1,0 +1,147 @@
+//! Random trips (`[[traffic]] route = "random"`): an origin and a destination lanelet drawn with
+//! probability proportional to their length (so every metre of road is equally likely, as
+//! SUMO's `randomTrips.py` weighs edges by length), joined by the shortest route over the map's
+//! routing graph ([`LaneletMap::route_lanelets`]); pairs that no route joins, or whose route is
+//! shorter than [`MIN_TRIP_M`], are redrawn up to [`TRIES`] times. Every draw is counter-based
+//! ([`crate::sim::random::uniform`] of (seed, stream, vehicle, draw)), so the trip of vehicle
+//! `k` depends on nothing else: a bench can give an arriving vehicle a fresh one by drawing the
+//! next `k`.
+
+use std::sync::Arc;
+
+use crate::map::{LaneletId, LaneletMap, Path, RouteOptions};
+use crate::sim::random::uniform;
+
+/// Shortest route a random trip may have [m]: shorter ones (a lanelet to its own successor)
+/// are redrawn, as they measure nothing but the insertion.
+pub const MIN_TRIP_M: f64 = 50.0;
+/// Draws of an origin and destination pair before a vehicle is given up.
+pub const TRIES: u64 = 20;
+/// Draw index of the first try's origin; try `t` draws `FIRST_DRAW + 2t` (origin) and
+/// `FIRST_DRAW + 2t + 1` (destination). The traffic tables use draws 0 to 3 for speed, class,
+/// lane and arrival time.
+const FIRST_DRAW: u64 = 8;
+
+/// One random trip.
+#[derive(Debug, Clone)]
+pub struct RandomTrip {
+    /// Where it starts (at the lanelet's start).
+    pub origin: LaneletId,
+    /// Where it ends (at the lanelet's end).
+    pub destination: LaneletId,
+    /// The route, from the start of `origin` to the end of `destination`.
+    pub path: Arc<Path>,
+    /// Pairs drawn before this one was found (0: the first pair).
+    pub redraws: u64,
+}
+
+/// The lanelets a trip may start and end on (the routable ones, in map order) with their
+/// cumulative lengths: built once per map, then each draw is a binary search.
+#[derive(Debug, Clone)]
+pub struct RandomTrips {
+    lanelets: Vec<LaneletId>,
+    /// `cumulative[i]` = summed centre-line length of `lanelets[..=i]` [m].
+    cumulative: Vec<f64>,
+    opts: RouteOptions,
+}
+
+impl RandomTrips {
+    /// The table of `map`; routes are resampled at `points_per_meter` [points per metre].
+    pub fn new(map: &LaneletMap, points_per_meter: f64) -> RandomTrips {
+        let mut total = 0.0;
+        let (mut lanelets, mut cumulative) = (Vec::new(), Vec::new());
+        for l in map.lanelets.iter().filter(|l| l.routable && l.length > 0.0) {
+            total += l.length;
+            lanelets.push(l.id);
+            cumulative.push(total);
+        }
+        RandomTrips { lanelets, cumulative, opts: RouteOptions { points_per_meter } }
+    }
+
+    /// Number of lanelets a trip may start or end on.
+    pub fn len(&self) -> usize {
+        self.lanelets.len()
+    }
+
+    /// Whether the map has no routable lanelet (no trip can be drawn).
+    pub fn is_empty(&self) -> bool {
+        self.lanelets.is_empty()
+    }
+
+    /// The lanelet a uniform number `u` in [0, 1) stands for, weighted by length.
+    pub fn pick(&self, u: f64) -> Option<LaneletId> {
+        weighted_index(&self.cumulative, u).map(|i| self.lanelets[i])
+    }
+
+    /// The trip of vehicle `k` of random stream `stream` under `seed`, routed on `map` (the map
+    /// the table was built from); `None` when [`TRIES`] pairs all failed (no route, the same
+    /// lanelet twice, or a route shorter than [`MIN_TRIP_M`]).
+    pub fn trip(&self, map: &LaneletMap, seed: u64, stream: u64, k: u64) -> Option<RandomTrip> {
+        for t in 0..TRIES {
+            let origin = self.pick(uniform(seed, stream, k, FIRST_DRAW + 2 * t))?;
+            let destination = self.pick(uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1))?;
+            if origin == destination {
+                continue;
+            }
+            if let Ok(path) = map.route_lanelets(origin, destination, &self.opts)
+                && path.length >= MIN_TRIP_M
+            {
+                return Some(RandomTrip { origin, destination, path: Arc::new(path), redraws: t });
+            }
+        }
+        None
+    }
+}
+
+/// The random route of vehicle `k` of stream `stream` under `seed` on `map`, resampled at 5
+/// points per metre; `None` when no route was found in [`TRIES`] draws. Builds the lanelet table
+/// on every call (O(lanelets)): for many draws keep a [`RandomTrips`] and call
+/// [`RandomTrips::trip`].
+pub fn random_route(map: &LaneletMap, seed: u64, stream: u64, k: u64) -> Option<Arc<Path>> {
+    RandomTrips::new(map, RouteOptions::default().points_per_meter).trip(map, seed, stream, k).map(|t| t.path)
+}
+
+/// Index `i` with `cumulative[i - 1] <= u * total < cumulative[i]` (`total` the last entry) for
+/// rising `cumulative` sums of non-negative weights: item `i` is drawn with probability
+/// `weight_i / total`. `None` when there is nothing to draw (empty or all zero); `u` is clamped
+/// to [0, 1).
+pub fn weighted_index(cumulative: &[f64], u: f64) -> Option<usize> {
+    let total = *cumulative.last()?;
+    if total <= 0.0 || !u.is_finite() {
+        return None;
+    }
+    let x = u.clamp(0.0, 1.0) * total;
+    let i = cumulative.partition_point(|&c| c <= x);
+    Some(i.min(cumulative.len() - 1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_weighted_draw_picks_each_item_by_its_share() {
+        // Weights 1, 0, 3: item 1 never, item 2 three times as often as item 0.
+        let cumulative = [1.0, 1.0, 4.0];
+        assert_eq!(weighted_index(&cumulative, 0.0), Some(0));
+        assert_eq!(weighted_index(&cumulative, 0.2499), Some(0));
+        assert_eq!(weighted_index(&cumulative, 0.25), Some(2));
+        assert_eq!(weighted_index(&cumulative, 0.9999), Some(2));
+        assert_eq!(weighted_index(&cumulative, 1.0), Some(2), "u = 1 stays on the last item");
+        let mut counts = [0u32; 3];
+        let n = 40_000;
+        for k in 0..n {
+            counts[weighted_index(&cumulative, uniform(1, 2, k, 0)).expect("weights above 0")] += 1;
+        }
+        assert_eq!(counts[1], 0, "a zero weight is never drawn");
+        let share = f64::from(counts[2]) / f64::from(n as u32);
+        assert!((share - 0.75).abs() < 0.01, "share of the weight-3 item: {share}");
+    }
+
+    #[test]
+    fn nothing_is_drawn_from_no_weight() {
+        assert_eq!(weighted_index(&[], 0.5), None);
+        assert_eq!(weighted_index(&[0.0, 0.0], 0.5), None);
+        assert_eq!(weighted_index(&[2.0], f64::NAN), None);
+    }
+}
