@@ -78,6 +78,23 @@ pub struct GenerateArgs {
     /// Lane drop only: where the left lane ends [m from the start] (default 300.0).
     #[arg(long, value_name = "M", value_parser = super::range::positive)]
     pub drop_at: Option<f64>,
+    /// Intersections and grid: traffic lights at every junction of 3 or more arms (turn lanelets
+    /// tagged `traffic_light=yes`; a fixed-time program runs unless a scenario gives one).
+    #[arg(long)]
+    pub traffic_lights: bool,
+    /// Intersections and grid: the road along this axis is major and the other yields (turn
+    /// lanelets tagged `priority=major|minor`); default: all arms equal (right before left).
+    #[arg(long, value_enum, value_name = "AXIS")]
+    pub major_road: Option<MajorRoad>,
+}
+
+/// `--major-road`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MajorRoad {
+    /// The east and west arms.
+    EastWest,
+    /// The north and south arms.
+    NorthSouth,
 }
 
 /// Run `map generate`: one match arm per generator, each a few lines of argument checks (81
@@ -95,7 +112,24 @@ pub fn main(a: GenerateArgs) -> anyhow::Result<()> {
         ("--length", a.length.is_some(), a.kind == MapKind::LaneDrop),
         ("--drop-at", a.drop_at.is_some(), a.kind == MapKind::LaneDrop),
         ("--lanes", a.lanes.is_some(), a.kind != MapKind::LaneDrop),
+        (
+            "--traffic-lights",
+            a.traffic_lights,
+            matches!(a.kind, MapKind::Intersection3 | MapKind::Intersection4 | MapKind::Grid),
+        ),
+        (
+            "--major-road",
+            a.major_road.is_some(),
+            matches!(a.kind, MapKind::Intersection3 | MapKind::Intersection4 | MapKind::Grid),
+        ),
     ];
+    let control = generate::JunctionMarks {
+        traffic_lights: a.traffic_lights,
+        major: a.major_road.map(|m| match m {
+            MajorRoad::EastWest => generate::Axis::EastWest,
+            MajorRoad::NorthSouth => generate::Axis::NorthSouth,
+        }),
+    };
     for (flag, set, applies) in given {
         if set && !applies {
             anyhow::bail!("{flag} does not apply to `{kind_name}` maps; see `smlworld map generate --help`");
@@ -126,6 +160,7 @@ pub fn main(a: GenerateArgs) -> anyhow::Result<()> {
                 lane_width: a.lane_width.unwrap_or(d.lane_width),
                 corner_radius: a.corner_radius.unwrap_or(d.corner_radius),
                 node_spacing: a.node_spacing.unwrap_or(d.node_spacing),
+                control,
             };
             generate::write_intersection(&p, file)
         }
@@ -139,6 +174,7 @@ pub fn main(a: GenerateArgs) -> anyhow::Result<()> {
                 lane_width: a.lane_width.unwrap_or(d.lane_width),
                 corner_radius: a.corner_radius.unwrap_or(d.corner_radius),
                 node_spacing: a.node_spacing.unwrap_or(d.node_spacing),
+                control,
             };
             generate::write_grid_city(&p, file)
         }

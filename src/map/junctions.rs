@@ -7,7 +7,8 @@
 //! - A **junction** is a connected group of conflicting lanelets (its **links**, listed in id
 //!   order: a traffic-light state has one character per link in that order).
 //! - Its **control** comes from the map where it says so: a Lanelet2 `traffic_light` regulatory
-//!   element on a link or on the lanelet leading into it makes a `traffic_light` junction;
+//!   element (or a lanelet tag `traffic_light = yes`, as `map generate --traffic-lights` writes)
+//!   on a link or on the lanelets leading into it makes a `traffic_light` junction;
 //!   Lanelet2 `right_of_way` elements (roles `right_of_way`/`yield`) or a lanelet tag
 //!   `priority = major|minor` make a `priority` junction; a Lanelet2 `all_way_stop` element an
 //!   `all_way_stop` one. Otherwise the documented default: the approaches with the most lanes
@@ -627,7 +628,16 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
             out
         };
         let on_link_or_from = |i: usize, f: &dyn Fn(usize) -> Option<bool>| upstream(i).into_iter().find_map(|k| f(k));
-        let signal = |i: usize| upstream(i).into_iter().find_map(|k| signal_of.get(&map.lanelets[k].id).copied());
+        // A Lanelet2 light's id, or 0 for a lanelet tagged `traffic_light = yes` (generated maps).
+        let signal = |i: usize| {
+            upstream(i).into_iter().find_map(|k| {
+                let l = &map.lanelets[k];
+                signal_of
+                    .get(&l.id)
+                    .copied()
+                    .or_else(|| (l.tags.get("traffic_light").is_some_and(|v| v == "yes")).then_some(0))
+            })
+        };
         let mut links: Vec<Link> = members
             .iter()
             .map(|&i| {

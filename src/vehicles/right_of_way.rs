@@ -559,8 +559,8 @@ struct Approach {
     limit: f64,
     /// Lanelet it comes from (the one before the junction).
     entry_lanelet: u32,
-    /// Behind another vehicle waiting on the same lanelet: it neither decides nor counts as a
-    /// foe (the one in front speaks for the lane).
+    /// Behind another vehicle before the stop line of the same lanelet: it obeys signals and
+    /// keeps clear but does not take gaps or hold the right to go (the one in front decides).
     queued: bool,
 }
 
@@ -814,9 +814,7 @@ fn decide(me: usize, sc: &mut Scratch, net: &JunctionNetwork, params: &JunctionP
     let stop_room = a.entry - a.front - STOP_MARGIN;
     let needed = if stop_room > 0.01 { v * v / (2.0 * stop_room) } else { f64::INFINITY };
     let mut go = true;
-    if a.queued {
-        // Behind the vehicle that decides for the lane: car following keeps it there.
-    } else if !a.inside && a.decides {
+    if !a.inside && a.decides {
         let first = links[0].0;
         match signal(first) {
             b'r' | b's' => go = needed > params.red_decel,
@@ -824,7 +822,7 @@ fn decide(me: usize, sc: &mut Scratch, net: &JunctionNetwork, params: &JunctionP
             _ => {}
         }
         let control = net.junctions.list[a.junction as usize].control;
-        if go && control == JunctionControl::AllWayStop && !a.stopped {
+        if go && control == JunctionControl::AllWayStop && !a.stopped && !a.queued {
             go = false;
         }
         // Keep clear: room on the lanelet after the junction.
@@ -832,10 +830,13 @@ fn decide(me: usize, sc: &mut Scratch, net: &JunctionNetwork, params: &JunctionP
             let (rear, speed) = sc.exit_rear[a.exit as usize];
             let room = if rear.is_finite() && speed < 3.0 { rear } else { f64::INFINITY };
             if room - sc.reserved[a.exit as usize] < a.length + 1.0 {
+                tracing::trace!(target: "junctions", "{} keeps clear: room {room:.1} m, reserved {:.1} m", a.id, sc.reserved[a.exit as usize]);
                 go = false;
             }
         }
-        if go {
+        // Behind the vehicle that decides for its lane, only signals and room count: car
+        // following keeps it behind, and it decides on the conflicts once it is first.
+        if go && !a.queued {
             go = conflicts_allow(me, sc, net, params, signal, v_through);
         }
         // Too late to stop comfortably: drive on.
@@ -851,6 +852,8 @@ fn decide(me: usize, sc: &mut Scratch, net: &JunctionNetwork, params: &JunctionP
             limit = limit.min(stop_before(v, room, STOP_DECEL));
         }
     }
+    // A queued vehicle never holds the right to go: standing, it would block every foe.
+    let go = go && !a.queued;
     let ap = &mut sc.approaches[me];
     ap.going = go || a.inside;
     ap.limit = limit;
@@ -882,7 +885,7 @@ fn conflicts_allow(
             for &q in &sc.by_link[fc.foe as usize] {
                 let q = q as usize;
                 let f = &sc.approaches[q];
-                if q == me || f.queued {
+                if q == me {
                     continue;
                 }
                 let Some(&(_, f_start)) =
@@ -914,6 +917,7 @@ fn conflicts_allow(
                     let gap = if foe_priority { params.time_gap.max(1.0) } else { params.time_gap };
                     let before = !f.inside && accepts_gap(t_me_clear, t_foe_arrive, gap);
                     if !(after || before) {
+                        tracing::trace!(target: "junctions", "{} waits for {} driving through (arrive {t_me_arrive:.1} s, it clears {t_foe_clear:.1} s)", a.id, f.id);
                         return false;
                     }
                 } else {
@@ -922,6 +926,7 @@ fn conflicts_allow(
                         continue;
                     }
                     if foe_priority && !accepts_gap(t_me_clear, t_foe_arrive, params.time_gap) {
+                        tracing::trace!(target: "junctions", "{} gives way to {} (clears {t_me_clear:.1} s, it arrives {t_foe_arrive:.1} s)", a.id, f.id);
                         return false;
                     }
                 }

@@ -50,7 +50,9 @@ impl RandomTrips {
     pub fn new(map: &LaneletMap, points_per_meter: f64) -> RandomTrips {
         let mut total = 0.0;
         let (mut lanelets, mut cumulative) = (Vec::new(), Vec::new());
-        for l in map.lanelets.iter().filter(|l| l.routable && l.length > 0.0) {
+        // Not a junction's own lanelets: a vehicle would appear in the middle of crossing traffic.
+        let junctions = map.junctions();
+        for l in map.lanelets.iter().filter(|l| l.routable && l.length > 0.0 && junctions.of_lanelet(l.id).is_none()) {
             total += l.length;
             lanelets.push(l.id);
             cumulative.push(total);

@@ -20,6 +20,7 @@ use crate::map::{LaneletId, LaneletMap, Path, Place};
 use crate::sim::random::uniform;
 use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::vehicles::lane_changing::{LaneChangeSystems, LaneIndex};
+use crate::vehicles::lane_state::Found;
 use crate::vehicles::{
     AccSetup, CruiseSetup, EmergencySettings, FollowLaw, Idm, LaneChangeParams, LaneChanger, LaneMap, LanePosition,
     PathFollower, PathFollowing, RouteGoal, SmartController, YieldToEmergency,
@@ -296,9 +297,13 @@ pub fn run_traffic(world: &mut World) {
         }
         let seed = traffic.seed;
         let Traffic { sources, inserted, waiting_max, .. } = &mut *traffic;
+        // One vehicle per entry lanelet and tick, over all tables: the lane index does not show
+        // this tick's insertions yet (two tables starting on one lanelet would insert on top of
+        // each other).
+        let mut used: Vec<u32> = Vec::new();
         for (index, src) in sources.iter_mut().enumerate() {
             if src.random.is_some() {
-                *inserted += insert_random(world, seed, index, src, t);
+                *inserted += insert_random(world, seed, index, src, t, &mut used);
                 *waiting_max = (*waiting_max).max(src.queue);
                 continue;
             }
@@ -309,8 +314,6 @@ pub fn run_traffic(world: &mut World) {
                     src.next_time += -(1.0 - u).ln() / src.rate_per_s;
                 }
             }
-            // One vehicle per lane and tick: the lane index does not show this tick's insertions yet.
-            let mut used = [false; 16];
             while src.queue > 0 {
                 let k = src.drawn;
                 let (v0, class, first) = draw(seed, src, k);
@@ -318,7 +321,7 @@ pub fn run_traffic(world: &mut World) {
                 let mut placed = false;
                 for n in 0..src.lanes.len() {
                     let l = (first + n) % src.lanes.len();
-                    if used[l.min(15)] {
+                    if used.contains(&src.lanes[l].lanelet) {
                         continue;
                     }
                     let lane = src.lanes[l].clone();
@@ -329,7 +332,7 @@ pub fn run_traffic(world: &mut World) {
                         src.drawn += 1;
                         src.queue -= 1;
                         *inserted += 1;
-                        used[l.min(15)] = true;
+                        used.push(lane.lanelet);
                         placed = true;
                     }
                     break;
@@ -361,7 +364,14 @@ fn trip_lane(map: &LaneletMap, trip: &RandomTrip) -> Option<TrafficLane> {
 /// the start of its origin lanelet; every waiting vehicle whose entry is free enters (one per
 /// origin lanelet and tick: the lane index does not show this tick's insertions yet), the others
 /// keep waiting without holding anyone up. Returns how many entered.
-fn insert_random(world: &mut World, seed: u64, index: usize, src: &mut TrafficSource, t: f64) -> u64 {
+fn insert_random(
+    world: &mut World,
+    seed: u64,
+    index: usize,
+    src: &mut TrafficSource,
+    t: f64,
+    used: &mut Vec<u32>,
+) -> u64 {
     let (Some(trips), Some(map)) = (src.random.clone(), world.get_resource::<LaneMap>().map(|l| Arc::clone(&l.map)))
     else {
         return 0;
@@ -382,7 +392,6 @@ fn insert_random(world: &mut World, seed: u64, index: usize, src: &mut TrafficSo
         }
     }
     let mut pending = std::mem::take(&mut src.pending);
-    let mut used: Vec<u32> = Vec::new();
     let mut entered = 0;
     pending.retain(|(k, trip)| {
         let Some(lane) = trip_lane(&map, trip) else { return false };
@@ -485,10 +494,24 @@ fn entry_speed(world: &World, lane: &TrafficLane, v0: f64, length: f64) -> Optio
         }
         v = v.min(((gap - MIN_GAP) / TIME_GAP).max(a.speed));
     }
-    if let Some(b) = index.behind(lanes, lane.lanelet, lane.entry_s, nobody) {
+    let blocks = |b: Found, v: f64| {
         let gap = b.distance - 0.5 * (b.length + length);
-        if gap < MIN_GAP + TIME_GAP * (b.speed - v).max(0.0) + 0.5 * b.speed {
-            return None;
+        gap < MIN_GAP + TIME_GAP * (b.speed - v).max(0.0) + 0.5 * b.speed
+    };
+    let own = index.behind(lanes, lane.lanelet, lane.entry_s, nobody);
+    if own.is_some_and(|b| blocks(b, v)) {
+        return None;
+    }
+    // Behind the entry on every lanelet leading into it, not only the first: at a junction's
+    // exit, the vehicles turning in from each arm.
+    if own.is_none_or(|b| b.distance > lane.entry_s) {
+        // Positions may lie a little past a lanelet's end (the index keeps them there): look
+        // from 1 m beyond it.
+        for &p in &lanes.predecessors[lane.lanelet as usize] {
+            let found = index.behind(lanes, p, lanes.length(p) + 1.0, nobody);
+            if found.is_some_and(|b| blocks(Found { distance: b.distance - 1.0 + lane.entry_s, ..b }, v)) {
+                return None;
+            }
         }
     }
     Some(v.max(0.0))

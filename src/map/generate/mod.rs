@@ -195,6 +195,39 @@ pub struct IntersectionParams {
     pub corner_radius: f64,
     /// Largest distance between consecutive nodes [m] (> 0).
     pub node_spacing: f64,
+    /// Junction control written on the turn lanelets.
+    pub control: JunctionMarks,
+}
+
+/// What a generator writes on the turn lanelets of its junctions: traffic lights
+/// (`traffic_light = yes`) and a major road (`priority = major|minor`), both read back by
+/// [`crate::map::junctions::find_junctions`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct JunctionMarks {
+    /// Every junction of 3 or more arms has traffic lights.
+    pub traffic_lights: bool,
+    /// The road along this axis is major (turns from its arms `priority = major`, from the
+    /// others `minor`).
+    pub major: Option<Axis>,
+}
+
+/// A direction of roads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Axis {
+    /// The east and west arms.
+    EastWest,
+    /// The north and south arms.
+    NorthSouth,
+}
+
+impl Axis {
+    /// Whether `arm` lies on this axis.
+    pub fn holds(self, arm: Arm) -> bool {
+        match self {
+            Axis::EastWest => matches!(arm, Arm::East | Arm::West),
+            Axis::NorthSouth => matches!(arm, Arm::North | Arm::South),
+        }
+    }
 }
 
 impl Default for IntersectionParams {
@@ -207,6 +240,7 @@ impl Default for IntersectionParams {
             lane_width: 3.5,
             corner_radius: 6.0,
             node_spacing: 1.0,
+            control: JunctionMarks::default(),
         }
     }
 }
@@ -304,7 +338,7 @@ pub fn write_intersection<W: Write>(params: &IntersectionParams, out: W) -> Resu
         b.tag(far[2 * p.lanes], "destination", intersection_start_tag(*arm));
         b.tag(far[0], "destination", intersection_end_tag(*arm));
     }
-    road.turns(&mut b, centre, &ends);
+    road.turns(&mut b, centre, &ends, p.control);
     Ok(b.write(out)?)
 }
 
@@ -326,12 +360,23 @@ pub struct GridParams {
     pub corner_radius: f64,
     /// Largest distance between consecutive nodes [m] (> 0). Smaller = bigger file.
     pub node_spacing: f64,
+    /// Junction control written on the turn lanelets (lights at junctions of 3 and 4 arms).
+    pub control: JunctionMarks,
 }
 
 impl Default for GridParams {
     /// 3 x 3 blocks of 50 m, one 3.5 m lane each way, 6 m corners, nodes every 2 m.
     fn default() -> Self {
-        GridParams { rows: 3, cols: 3, block: 50.0, lanes: 1, lane_width: 3.5, corner_radius: 6.0, node_spacing: 2.0 }
+        GridParams {
+            rows: 3,
+            cols: 3,
+            block: 50.0,
+            lanes: 1,
+            lane_width: 3.5,
+            corner_radius: 6.0,
+            node_spacing: 2.0,
+            control: JunctionMarks::default(),
+        }
     }
 }
 
@@ -409,7 +454,7 @@ pub fn write_grid_city<W: Write>(params: &GridParams, out: W) -> Result<MapStats
     }
     for (r, row) in ends.iter().enumerate() {
         for (c, junction) in row.iter().enumerate() {
-            road.turns(&mut b, centre(r, c), junction);
+            road.turns(&mut b, centre(r, c), junction, p.control);
         }
     }
     Ok(b.write(out)?)
@@ -482,7 +527,7 @@ impl RoadParams {
     }
 
     /// Every legal turn at a junction: from each arm to each other arm, lane `i` to lane `i`.
-    fn turns(&self, b: &mut Builder, centre: DVec2, arms: &Junction) {
+    fn turns(&self, b: &mut Builder, centre: DVec2, arms: &Junction, marks: JunctionMarks) {
         let lanes = self.lanes as isize;
         for (from, from_ends) in arms {
             for (to, to_ends) in arms {
@@ -512,8 +557,15 @@ impl RoadParams {
                         b.way(nodes, VIRTUAL)
                     })
                     .collect();
+                let mut tags = Vec::new();
+                if marks.traffic_lights && arms.len() >= 3 {
+                    tags.push(("traffic_light", "yes"));
+                }
+                if let Some(axis) = marks.major {
+                    tags.push(("priority", if axis.holds(*from) { "major" } else { "minor" }));
+                }
                 for i in 0..self.lanes {
-                    b.lanelet(ways[i], ways[i + 1]);
+                    b.lanelet_tagged(ways[i], ways[i + 1], tags.clone());
                 }
             }
         }

@@ -25,8 +25,8 @@ pub(super) struct Builder {
     node_tags: Vec<Option<(&'static str, String)>>,
     /// Node indices and the one tag of each way.
     ways: Vec<(Vec<usize>, WayTag)>,
-    /// (left way, right way).
-    lanelets: Vec<(usize, usize)>,
+    /// (left way, right way, extra tags).
+    lanelets: Vec<(usize, usize, Vec<(&'static str, &'static str)>)>,
 }
 
 impl Builder {
@@ -58,7 +58,12 @@ impl Builder {
 
     /// Adds a lanelet relation between the ways `left` and `right` (indices).
     pub(super) fn lanelet(&mut self, left: usize, right: usize) {
-        self.lanelets.push((left, right));
+        self.lanelets.push((left, right, Vec::new()));
+    }
+
+    /// Adds a lanelet relation with extra tags (`priority`, `traffic_light`).
+    pub(super) fn lanelet_tagged(&mut self, left: usize, right: usize, tags: Vec<(&'static str, &'static str)>) {
+        self.lanelets.push((left, right, tags));
     }
 
     /// Writes JOSM-style XML. Ids: nodes -1, -2, ..., then ways, then relations, so every id is
@@ -85,15 +90,19 @@ impl Builder {
             }
             write!(w, "    <tag k='{key}' v='{value}' />\n  </way>\n")?;
         }
-        for (i, &(left, right)) in self.lanelets.iter().enumerate() {
+        for (i, (left, right, tags)) in self.lanelets.iter().enumerate() {
             write!(
                 w,
                 "  <relation id='{}'>\n    <member type='way' ref='{}' role='left' />\n    \
-                 <member type='way' ref='{}' role='right' />\n    <tag k='type' v='lanelet' />\n  </relation>\n",
+                 <member type='way' ref='{}' role='right' />\n",
                 relation_id(i),
-                way_id(left),
-                way_id(right)
+                way_id(*left),
+                way_id(*right)
             )?;
+            for (k, v) in tags {
+                writeln!(w, "    <tag k='{k}' v='{v}' />")?;
+            }
+            w.write_all(b"    <tag k='type' v='lanelet' />\n  </relation>\n")?;
         }
         w.write_all(b"</osm>\n")?;
         w.flush()?;
