@@ -58,6 +58,8 @@ pub const WAITING_SPEED: f64 = 0.1;
 const STANDING: f64 = 0.5;
 /// Comfortable deceleration used to stop at a stop line [m/s²].
 const STOP_DECEL: f64 = 3.0;
+/// A route that leaves a junction and enters it again within this distance [m] passes it once.
+const REJOIN: f64 = 20.0;
 /// No signal on a link.
 pub const NO_SIGNAL: u8 = b'-';
 
@@ -80,6 +82,8 @@ pub struct JunctionParams {
     pub red_decel: f64,
     /// How far before a junction a vehicle starts to look at it [m].
     pub look_ahead: f64,
+    /// Waiting time [s] over which the accepted gap shrinks from `time_gap` to 0 (0: never).
+    pub impatience: f64,
 }
 
 impl Default for JunctionParams {
@@ -91,6 +95,7 @@ impl Default for JunctionParams {
             yellow_decel: 3.0,
             red_decel: 7.5,
             look_ahead: 80.0,
+            impatience: 60.0,
         }
     }
 }
@@ -104,6 +109,7 @@ impl JunctionParams {
             ("yellow_decel", self.yellow_decel, Range::positive(20.0)),
             ("red_decel", self.red_decel, Range::positive(20.0)),
             ("look_ahead", self.look_ahead, Range::positive(1000.0)),
+            ("impatience", self.impatience, Range::non_negative(3600.0)),
         ])
     }
 }
@@ -131,6 +137,18 @@ pub fn time_to_cover(d: f64, v: f64, a: f64, v_max: f64) -> f64 {
 /// before a foe with priority that reaches it at `t_foe` [s] when `t_foe > t_clear + gap`.
 pub fn accepts_gap(t_clear: f64, t_foe: f64, gap: f64) -> bool {
     t_foe > t_clear + gap
+}
+
+/// The gap a vehicle that has stood `waiting` [s] before a junction accepts in front of a foe
+/// with priority [s]: [`JunctionParams::time_gap`], shrinking linearly to nothing over
+/// [`JunctionParams::impatience`] s of waiting (SUMO's `impatience`: drivers who have waited long
+/// take smaller gaps). The arrival estimates stay conservative (the foe accelerating, this vehicle
+/// clearing the conflict area with its whole length), so a gap of 0 is still one it clears.
+pub fn impatient_gap(params: &JunctionParams, waiting: f64) -> f64 {
+    if params.impatience <= 0.0 {
+        return params.time_gap;
+    }
+    params.time_gap * (1.0 - waiting / params.impatience).clamp(0.0, 1.0)
 }
 
 /// SUMO's yellow rule: stop when the stop line `distance` [m] ahead can be reached from speed
@@ -433,9 +451,13 @@ pub fn passages(path: &Path, map: &LaneletMap, network: &JunctionNetwork) -> Vec
         if g != u32::MAX {
             let j = network.links[g as usize].junction;
             match out.last_mut() {
-                Some(p) if p.junction == j && p.exit_lanelet == u32::MAX && (p.exit - s).abs() < 1e-6 => {
+                // The same junction again within a few metres (Lanelet2 junctions drawn as
+                // several groups with short lanelets between): one passage, decided once at its
+                // first stop line.
+                Some(p) if p.junction == j && s - p.exit < REJOIN => {
                     p.links.push((g, s));
                     p.exit = s + len;
+                    p.exit_lanelet = u32::MAX;
                 }
                 _ => out.push(Passage {
                     junction: j,
@@ -562,6 +584,12 @@ struct Approach {
     /// Behind another vehicle before the stop line of the same lanelet: it obeys signals and
     /// keeps clear but does not take gaps or hold the right to go (the one in front decides).
     queued: bool,
+    /// A junction it has entered (one of up to two besides the one it decides on next).
+    trailing: bool,
+    /// How long it has stood before this junction without a break [s] (impatience).
+    waiting_now: f64,
+    /// The first vehicle before the stop line of its lanelet (itself when not queued).
+    head: u32,
 }
 
 /// Per-tick buffers of [`give_way_at_junctions`], kept between ticks.
@@ -666,10 +694,17 @@ pub fn give_way_at_junctions(
         }
         let front = follower.s + 0.5 * size.length;
         let rear = follower.s - 0.5 * size.length;
-        // Passages left behind.
+        let speed = state.speed();
+        // Passages the front has entered: decided; the next one is decided on from before its
+        // stop line even while the vehicle is still inside the one before (junctions back to back).
         while let Some(p) = driver.passages.get(driver.next) {
-            if rear <= p.exit {
+            if front < p.entry {
                 break;
+            }
+            if !driver.going && signal(p.links[0].0) == b'r' {
+                // Told to stop and could not: passed the stop line on red.
+                tracing::debug!(target: "junctions", "{id} passed a red stop line at {now:.2} s (junction {}, {speed:.1} m/s)", p.junction + 1);
+                stats.red_crossings += 1;
             }
             let c = &mut stats.per_junction[p.junction as usize];
             c.through += 1;
@@ -683,30 +718,58 @@ pub fn give_way_at_junctions(
                 ..JunctionDriver::default()
             };
         }
+        // The passages it is in: there as a foe that others must let clear (at most the last two).
+        let inside_from = driver.next.saturating_sub(2);
+        for p in driver.passages[inside_from..driver.next].iter().filter(|p| rear < p.exit) {
+            let start = sc.links.len() as u32;
+            sc.links.extend_from_slice(&p.links);
+            let k = sc.approaches.len() as u32;
+            for &(g, _) in &p.links {
+                if sc.by_link[g as usize].is_empty() {
+                    sc.touched.push(g);
+                }
+                sc.by_link[g as usize].push(k);
+            }
+            sc.approaches.push(Approach {
+                entity,
+                id,
+                front,
+                length: size.length,
+                speed,
+                v_max: follower.params.speed.max(speed),
+                inside: true,
+                going: true,
+                decides: negotiator.is_none(),
+                arrived_at: f64::INFINITY,
+                stopped: false,
+                junction: p.junction,
+                links: (start, sc.links.len() as u32),
+                exit: p.exit_lanelet,
+                entry: p.entry,
+                limit: f64::INFINITY,
+                entry_lanelet: p.entry_lanelet,
+                queued: false,
+                trailing: true,
+                waiting_now: 0.0,
+                head: k,
+            });
+        }
         let Some(p) = driver.passages.get(driver.next) else { continue };
         if p.entry - front > params.look_ahead {
             continue;
         }
-        let speed = state.speed();
-        let inside = front >= p.entry;
-        if !inside {
-            if speed < WAITING_SPEED {
-                driver.waited += dt;
-                driver.waiting_now += dt;
-                queue_at.push((p.junction, 1));
-                if p.entry - front < 3.0 {
-                    driver.stopped = true;
-                }
-            } else {
-                driver.waiting_now = 0.0;
+        if speed < WAITING_SPEED {
+            driver.waited += dt;
+            driver.waiting_now += dt;
+            queue_at.push((p.junction, 1));
+            if p.entry - front < 3.0 {
+                driver.stopped = true;
             }
-            if driver.arrived_at == 0.0 && p.entry - front < 20.0 {
-                driver.arrived_at = now.max(1e-9);
-            }
-        } else if !driver.going && signal(p.links[0].0) == b'r' {
-            // Passed the stop line without having decided to go, on red.
-            stats.red_crossings += 1;
-            driver.going = true;
+        } else {
+            driver.waiting_now = 0.0;
+        }
+        if driver.arrived_at == 0.0 && p.entry - front < 20.0 {
+            driver.arrived_at = now.max(1e-9);
         }
         let start = sc.links.len() as u32;
         sc.links.extend_from_slice(&p.links);
@@ -724,8 +787,8 @@ pub fn give_way_at_junctions(
             length: size.length,
             speed,
             v_max: follower.params.speed.max(speed),
-            inside,
-            going: driver.going || inside,
+            inside: false,
+            going: driver.going,
             decides: negotiator.is_none(),
             arrived_at: if driver.arrived_at > 0.0 { driver.arrived_at } else { f64::INFINITY },
             stopped: driver.stopped,
@@ -736,6 +799,9 @@ pub fn give_way_at_junctions(
             limit: f64::INFINITY,
             entry_lanelet: p.entry_lanelet,
             queued: false,
+            trailing: false,
+            waiting_now: driver.waiting_now,
+            head: k,
         });
     }
     // Only the first vehicle before the stop line of each lanelet decides.
@@ -755,9 +821,11 @@ pub fn give_way_at_junctions(
     for w in 1..sc.order.len() {
         let (prev, k) = (sc.order[w - 1] as usize, sc.order[w] as usize);
         if sc.approaches[prev].entry_lanelet == sc.approaches[k].entry_lanelet {
+            let head = sc.approaches[prev].head;
             let a = &mut sc.approaches[k];
             a.queued = true;
             a.going = false;
+            a.head = head;
         }
     }
     // Most vehicles waiting at once before each junction.
@@ -785,7 +853,9 @@ pub fn give_way_at_junctions(
     // Write back.
     for a in &sc.approaches {
         let Ok((.., mut lon, mut driver, _)) = vehicles.get_mut(a.entity) else { continue };
-        driver.going = a.going;
+        if !a.trailing {
+            driver.going = a.going;
+        }
         if a.limit.is_finite() {
             lon.limit(a.limit);
         }
@@ -821,6 +891,7 @@ fn decide(me: usize, sc: &mut Scratch, net: &JunctionNetwork, params: &JunctionP
             b'y' => go = !stops_at_yellow(v, stop_room, params.yellow_decel),
             _ => {}
         }
+        tracing::trace!(target: "junctions", "{} signal {} at {stop_room:.1} m, {v:.1} m/s, queued {}, go {go}", a.id, signal(first) as char, a.queued);
         let control = net.junctions.list[a.junction as usize].control;
         if go && control == JunctionControl::AllWayStop && !a.stopped && !a.queued {
             go = false;
@@ -914,7 +985,7 @@ fn conflicts_allow(
                     }
                     let t_foe_clear = time_to_cover(d_foe + f.length + CLEAR, f_v, ACCEL_SLOW, f.v_max.max(f_v));
                     let after = t_me_arrive > t_foe_clear + params.time_gap;
-                    let gap = if foe_priority { params.time_gap.max(1.0) } else { params.time_gap };
+                    let gap = if foe_priority { impatient_gap(params, a.waiting_now) } else { params.time_gap };
                     let before = !f.inside && accepts_gap(t_me_clear, t_foe_arrive, gap);
                     if !(after || before) {
                         tracing::trace!(target: "junctions", "{} waits for {} driving through (arrive {t_me_arrive:.1} s, it clears {t_foe_clear:.1} s)", a.id, f.id);
@@ -922,10 +993,12 @@ fn conflicts_allow(
                     }
                 } else {
                     let red = matches!(f_signal, b'r' | b's' | b'y');
-                    if red || f.speed < STANDING || !f.decides && !f.going {
+                    // Behind a first vehicle that does not go, a queued foe cannot come.
+                    let held = f.queued && !sc.approaches[f.head as usize].going;
+                    if red || held || f.speed < STANDING || !f.decides && !f.going {
                         continue;
                     }
-                    if foe_priority && !accepts_gap(t_me_clear, t_foe_arrive, params.time_gap) {
+                    if foe_priority && !accepts_gap(t_me_clear, t_foe_arrive, impatient_gap(params, a.waiting_now)) {
                         tracing::trace!(target: "junctions", "{} gives way to {} (clears {t_me_clear:.1} s, it arrives {t_foe_arrive:.1} s)", a.id, f.id);
                         return false;
                     }

@@ -43,21 +43,90 @@ pub struct RandomTrips {
     /// `cumulative[i]` = summed centre-line length of `lanelets[..=i]` [m].
     cumulative: Vec<f64>,
     opts: RouteOptions,
+    /// By map index: whether a trip may end there (routable, not a junction's link).
+    destination: Vec<bool>,
+    /// By map index: routable successors (map indices).
+    successors: Vec<Vec<u32>>,
 }
+
+/// A trip does not start closer than this to a junction [m]: a vehicle inserted at speed just
+/// before a stop line could not stop for a red light.
+pub const CLEAR_OF_JUNCTIONS_M: f64 = 40.0;
 
 impl RandomTrips {
     /// The table of `map`; routes are resampled at `points_per_meter` [points per metre].
     pub fn new(map: &LaneletMap, points_per_meter: f64) -> RandomTrips {
-        let mut total = 0.0;
-        let (mut lanelets, mut cumulative) = (Vec::new(), Vec::new());
+        let n = map.lanelets.len();
         // Not a junction's own lanelets: a vehicle would appear in the middle of crossing traffic.
         let junctions = map.junctions();
-        for l in map.lanelets.iter().filter(|l| l.routable && l.length > 0.0 && junctions.of_lanelet(l.id).is_none()) {
-            total += l.length;
-            lanelets.push(l.id);
+        let link: Vec<bool> = map.lanelets.iter().map(|l| junctions.of_lanelet(l.id).is_some()).collect();
+        let successors: Vec<Vec<u32>> = map
+            .lanelets
+            .iter()
+            .map(|l| {
+                l.successors
+                    .iter()
+                    .filter_map(|id| map.lanelet_index(*id))
+                    .filter(|&j| map.lanelets[j].routable)
+                    .map(|j| j as u32)
+                    .collect()
+            })
+            .collect();
+        // Distance from each lanelet's start to the nearest junction ahead [m], up to the limit.
+        let near_junction = |i: usize| {
+            let mut stack = vec![(i, 0.0)];
+            let mut steps = 0;
+            while let Some((k, d)) = stack.pop() {
+                steps += 1;
+                if steps > 64 {
+                    break;
+                }
+                let reach = d + map.lanelets[k].length;
+                for &j in &successors[k] {
+                    if link[j as usize] {
+                        return true;
+                    }
+                    if reach < CLEAR_OF_JUNCTIONS_M {
+                        stack.push((j as usize, reach));
+                    }
+                }
+            }
+            false
+        };
+        let mut total = 0.0;
+        let (mut lanelets, mut cumulative) = (Vec::new(), Vec::new());
+        let destination: Vec<bool> =
+            map.lanelets.iter().zip(&link).map(|(l, &is_link)| l.routable && l.length > 0.0 && !is_link).collect();
+        for i in (0..n).filter(|&i| destination[i] && (junctions.is_empty() || !near_junction(i))) {
+            total += map.lanelets[i].length;
+            lanelets.push(map.lanelets[i].id);
             cumulative.push(total);
         }
-        RandomTrips { lanelets, cumulative, opts: RouteOptions { points_per_meter } }
+        RandomTrips { lanelets, cumulative, opts: RouteOptions { points_per_meter }, destination, successors }
+    }
+
+    /// The lanelets reachable from `origin` (map index) whose end lies at least [`MIN_TRIP_M`]
+    /// along the way, with the cumulative lengths of those lanelets (a breadth-first search over
+    /// successors, O(lanelets)).
+    fn reachable(&self, map: &LaneletMap, origin: usize) -> (Vec<usize>, Vec<f64>) {
+        let mut seen = vec![false; map.lanelets.len()];
+        let mut queue = std::collections::VecDeque::from([(origin, map.lanelets[origin].length)]);
+        seen[origin] = true;
+        let (mut out, mut cumulative, mut total) = (Vec::new(), Vec::new(), 0.0);
+        while let Some((k, end)) = queue.pop_front() {
+            if k != origin && self.destination[k] && end >= MIN_TRIP_M {
+                total += map.lanelets[k].length;
+                out.push(k);
+                cumulative.push(total);
+            }
+            for &j in &self.successors[k] {
+                if !seen[j as usize] {
+                    seen[j as usize] = true;
+                    queue.push_back((j as usize, end + map.lanelets[j as usize].length));
+                }
+            }
+        }
+        (out, cumulative)
     }
 
     /// Number of lanelets a trip may start or end on.
@@ -81,10 +150,14 @@ impl RandomTrips {
     pub fn trip(&self, map: &LaneletMap, seed: u64, stream: u64, k: u64) -> Option<RandomTrip> {
         for t in 0..TRIES {
             let origin = self.pick(uniform(seed, stream, k, FIRST_DRAW + 2 * t))?;
-            let destination = self.pick(uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1))?;
-            if origin == destination {
+            let Some(o) = map.lanelet_index(origin) else { continue };
+            // Among the lanelets this origin reaches: a map in several pieces (Lanelet2's
+            // example) would otherwise waste most draws on pairs no route joins.
+            let (reach, cumulative) = self.reachable(map, o);
+            let Some(d) = weighted_index(&cumulative, uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1)) else {
                 continue;
-            }
+            };
+            let destination = map.lanelets[reach[d]].id;
             if let Ok(path) = map.route_lanelets(origin, destination, &self.opts)
                 && path.length >= MIN_TRIP_M
             {

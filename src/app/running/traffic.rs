@@ -281,8 +281,12 @@ pub fn run_traffic(world: &mut World) {
     let t = world.resource::<SimClock>().now.as_secs();
     let mut leaving: Vec<(VehicleId, Entity)> = Vec::new();
     let mut q = world.query::<(Entity, &VehicleId, &Route, &PathFollower, &TrafficVehicle, Option<&LaneChanger>)>();
-    for (entity, id, route, follower, _, changer) in q.iter(world) {
-        let mandatory = changer.is_some_and(|c| c.lane_end.is_some() || c.active.is_some());
+    let random: Vec<bool> = world.resource::<Traffic>().sources.iter().map(|s| s.random.is_some()).collect();
+    for (entity, id, route, follower, table, changer) in q.iter(world) {
+        // A lane that ends holds a vehicle back for its change, except on a random trip, whose
+        // route ends at its destination (it has arrived, with or without a lane beside it).
+        let trip = random.get(table.0).copied().unwrap_or(false);
+        let mandatory = changer.is_some_and(|c| (c.lane_end.is_some() && !trip) || c.active.is_some());
         if !route.0.closed && route.0.length - follower.s < LEAVE_AT && !mandatory {
             leaving.push((*id, entity));
         }
