@@ -49,6 +49,14 @@ pub struct BenchArgs {
     /// `mb_per_second` (of the median load).
     #[arg(long, value_name = "MAP", conflicts_with_all = ["soak", "lane_change", "degraded"])]
     pub map_load: Option<std::path::PathBuf>,
+    /// A town at full stack: a generated 20 x 20 grid (200 m blocks, 2 lanes each way, traffic
+    /// lights) with --vehicles cars (default 10,000 here) on random trips, each drawing a new
+    /// trip when it arrives. Prints the real-time factor as JSON.
+    #[arg(long, conflicts_with_all = ["soak", "lane_change", "degraded", "routing", "map_load", "render"])]
+    pub city: bool,
+    /// --city: blocks per side of the grid.
+    #[arg(long, default_value_t = 20, requires = "city", value_parser = super::range::count::<usize>(2, 200))]
+    pub city_rows: usize,
     /// After the simulation bench, draw its world at WIDTHxHEIGHT px (e.g. 1920x1080) 10 times
     /// with the bird's-eye renderer (whole-map view) and add `render_ms_per_frame` (the median)
     /// and `render` (every frame's time, the adapter) to the JSON.
@@ -71,6 +79,23 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
     if let Some(map) = &args.routing {
         let report = smlworld::app::bench_map::bench_routing(map, args.routes, args.seed)?;
+        println!("{}", serde_json::to_string(&report)?);
+        return Ok(());
+    }
+    if args.city {
+        // --vehicles keeps its default of 1,000 for the ring; the town's default is 10,000.
+        let vehicles = if std::env::args().any(|a| a == "--vehicles" || a.starts_with("--vehicles=")) {
+            args.vehicles
+        } else {
+            10_000
+        };
+        let bench =
+            smlworld::app::running::bench_city::CityBench { rows: args.city_rows, vehicles, ..Default::default() };
+        eprintln!(
+            "bench --city: {} x {} blocks, {} vehicles, {} s of sim time (set-up first: map, junctions, routes)",
+            bench.rows, bench.rows, bench.vehicles, args.duration
+        );
+        let report = bench.run(args.duration, args.threads.map(Parallelism::split))?;
         println!("{}", serde_json::to_string(&report)?);
         return Ok(());
     }

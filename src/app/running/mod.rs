@@ -2,6 +2,7 @@
 //! sessions, per-run metrics, background traffic, benchmarks and the run's summary.
 
 pub mod bench;
+pub mod bench_city;
 pub mod bench_map;
 pub mod bench_render;
 pub mod interrupt;

@@ -15,6 +15,9 @@ use crate::sim::random::uniform;
 /// Shortest route a random trip may have [m]: shorter ones (a lanelet to its own successor)
 /// are redrawn, as they measure nothing but the insertion.
 pub const MIN_TRIP_M: f64 = 50.0;
+/// Draws whose destination is any lanelet; later draws pick among the lanelets the origin
+/// reaches (a search over the whole map, so only where direct draws keep failing).
+const DIRECT_TRIES: u64 = 4;
 /// Draws of an origin and destination pair before a vehicle is given up.
 pub const TRIES: u64 = 20;
 /// Draw index of the first try's origin; try `t` draws `FIRST_DRAW + 2t` (origin) and
@@ -49,9 +52,10 @@ pub struct RandomTrips {
     successors: Vec<Vec<u32>>,
 }
 
-/// A trip does not start closer than this to a junction [m]: a vehicle inserted at speed just
+/// A trip does not start closer than this to a junction [m] (a car at 12 m/s stops in 24 m at
+/// 3 m/s²): a vehicle inserted at speed just
 /// before a stop line could not stop for a red light.
-pub const CLEAR_OF_JUNCTIONS_M: f64 = 40.0;
+pub const CLEAR_OF_JUNCTIONS_M: f64 = 25.0;
 
 impl RandomTrips {
     /// The table of `map`; routes are resampled at `points_per_meter` [points per metre].
@@ -82,13 +86,14 @@ impl RandomTrips {
                     break;
                 }
                 let reach = d + map.lanelets[k].length;
+                if reach >= CLEAR_OF_JUNCTIONS_M {
+                    continue;
+                }
                 for &j in &successors[k] {
                     if link[j as usize] {
                         return true;
                     }
-                    if reach < CLEAR_OF_JUNCTIONS_M {
-                        stack.push((j as usize, reach));
-                    }
+                    stack.push((j as usize, reach));
                 }
             }
             false
@@ -151,13 +156,47 @@ impl RandomTrips {
         for t in 0..TRIES {
             let origin = self.pick(uniform(seed, stream, k, FIRST_DRAW + 2 * t))?;
             let Some(o) = map.lanelet_index(origin) else { continue };
-            // Among the lanelets this origin reaches: a map in several pieces (Lanelet2's
-            // example) would otherwise waste most draws on pairs no route joins.
-            let (reach, cumulative) = self.reachable(map, o);
-            let Some(d) = weighted_index(&cumulative, uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1)) else {
-                continue;
+            let u = uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1);
+            let destination = if t < DIRECT_TRIES {
+                // Any lanelet: on a connected map (a grid) almost every pair has a route.
+                match self.pick(u) {
+                    Some(d) if d != origin => d,
+                    _ => continue,
+                }
+            } else {
+                // Among the lanelets this origin reaches: a map in several pieces (Lanelet2's
+                // example) would otherwise waste most draws on pairs no route joins.
+                let (reach, cumulative) = self.reachable(map, o);
+                let Some(d) = weighted_index(&cumulative, u) else { continue };
+                map.lanelets[reach[d]].id
             };
-            let destination = map.lanelets[reach[d]].id;
+            if let Ok(path) = map.route_lanelets(origin, destination, &self.opts)
+                && path.length >= MIN_TRIP_M
+            {
+                return Some(RandomTrip { origin, destination, path: Arc::new(path), redraws: t });
+            }
+        }
+        None
+    }
+}
+
+impl RandomTrips {
+    /// A trip of vehicle `k` that starts on `origin` (where a vehicle arrived): destinations are
+    /// drawn as in [`RandomTrips::trip`].
+    pub fn trip_from(&self, map: &LaneletMap, origin: LaneletId, seed: u64, stream: u64, k: u64) -> Option<RandomTrip> {
+        let o = map.lanelet_index(origin)?;
+        for t in 0..TRIES {
+            let u = uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1);
+            let destination = if t < DIRECT_TRIES {
+                match self.pick(u) {
+                    Some(d) if d != origin => d,
+                    _ => continue,
+                }
+            } else {
+                let (reach, cumulative) = self.reachable(map, o);
+                let Some(d) = weighted_index(&cumulative, u) else { continue };
+                map.lanelets[reach[d]].id
+            };
             if let Ok(path) = map.route_lanelets(origin, destination, &self.opts)
                 && path.length >= MIN_TRIP_M
             {

@@ -102,6 +102,9 @@ pub struct TrafficSource {
     pub random: Option<Arc<RandomTrips>>,
     /// Random-route arrivals waiting for their entry, in arrival order: (vehicle index, trip).
     pub pending: Vec<(u64, RandomTrip)>,
+    /// Random trips only: at its destination a vehicle draws a new trip from there instead of
+    /// leaving (`on_arrival = "new_trip"`).
+    pub renew: bool,
 }
 
 /// A traffic vehicle (its table index).
@@ -282,14 +285,24 @@ pub fn run_traffic(world: &mut World) {
     let mut leaving: Vec<(VehicleId, Entity)> = Vec::new();
     let mut q = world.query::<(Entity, &VehicleId, &Route, &PathFollower, &TrafficVehicle, Option<&LaneChanger>)>();
     let random: Vec<bool> = world.resource::<Traffic>().sources.iter().map(|s| s.random.is_some()).collect();
+    let renew: Vec<bool> = world.resource::<Traffic>().sources.iter().map(|s| s.renew).collect();
+    let mut renewing: Vec<(VehicleId, Entity, usize)> = Vec::new();
     for (entity, id, route, follower, table, changer) in q.iter(world) {
         // A lane that ends holds a vehicle back for its change, except on a random trip, whose
         // route ends at its destination (it has arrived, with or without a lane beside it).
         let trip = random.get(table.0).copied().unwrap_or(false);
         let mandatory = changer.is_some_and(|c| (c.lane_end.is_some() && !trip) || c.active.is_some());
         if !route.0.closed && route.0.length - follower.s < LEAVE_AT && !mandatory {
-            leaving.push((*id, entity));
+            if renew.get(table.0).copied().unwrap_or(false) {
+                renewing.push((*id, entity, table.0));
+            } else {
+                leaving.push((*id, entity));
+            }
         }
+    }
+    renewing.sort();
+    for (id, entity, table) in renewing {
+        renew_trip(world, id, entity, table, t);
     }
     leaving.sort();
     world.resource_scope(|world, mut traffic: Mut<Traffic>| {
@@ -348,6 +361,42 @@ pub fn run_traffic(world: &mut World) {
             *waiting_max = (*waiting_max).max(src.queue);
         }
     });
+}
+
+/// A vehicle of random table `table` at its destination: its trip ends (trips.csv) and it
+/// drives on along a new random trip drawn from its destination lanelet (the table's next
+/// vehicle index, so the draws stay counter-based); removed like any arrival when none is found.
+fn renew_trip(world: &mut World, id: VehicleId, entity: Entity, table: usize, t: f64) {
+    end_trip(world, id, entity, t);
+    let (seed, stream, k, trips) = {
+        let mut traffic = world.resource_mut::<Traffic>();
+        let seed = traffic.seed;
+        let src = &mut traffic.sources[table];
+        let k = src.drawn;
+        src.drawn += 1;
+        (seed, src.stream, k, src.random.clone())
+    };
+    let (Some(trips), Some(map)) = (trips, world.get_resource::<LaneMap>().map(|l| Arc::clone(&l.map))) else { return };
+    let (Some(route), Some(follower)) = (world.get::<Route>(entity), world.get::<PathFollower>(entity).copied()) else {
+        return;
+    };
+    let old = Arc::clone(&route.0);
+    let Some(&last) = old.lanelets.last() else { return };
+    let Some(trip) = trips.trip_from(&map, last, seed, stream, k) else {
+        if despawn_vehicle(world, id).is_ok() {
+            world.resource_mut::<Traffic>().removed += 1;
+        }
+        return;
+    };
+    // Where the vehicle is on the new route: as far before its first lanelet's end as it was
+    // before the old route's end.
+    let first_len = map.lanelet_index(last).map_or(0.0, |i| map.lanelets[i].length);
+    let s = (first_len - (old.length - follower.s)).clamp(0.0, trip.path.length);
+    let speed = world.get::<VehicleState>(entity).map_or(0.0, VehicleState::speed);
+    let length = trip.path.length - s;
+    let mut e = world.entity_mut(entity);
+    e.insert((Route(trip.path), PathFollower::starting_at(follower.params, s), Trip::new(t, length, speed)));
+    world.resource_mut::<Traffic>().removed += 1;
 }
 
 /// Where the lane changes of a vehicle on a trip to `destination` may lead: lanes that reach

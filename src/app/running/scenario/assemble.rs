@@ -402,6 +402,7 @@ impl Scenario {
                 queue: 0,
                 random,
                 pending: Vec::new(),
+                renew: t.on_arrival == super::file::OnArrival::NewTrip,
             });
             if t.count > 0 {
                 let placed = if t.route == TrafficRoute::Random {

@@ -266,6 +266,22 @@ pub struct TrafficConfig {
     /// First id [-]; ids count up from it (default: 1000, or after the previous table's).
     #[serde(default)]
     pub id_start: Option<i32>,
+    /// What a vehicle on a random trip does at its destination: `"leave"` (the default: it is
+    /// removed) or `"new_trip"` (it draws a new random trip from there, so a town's traffic
+    /// never thins; `smlworld bench --city` drives this way).
+    #[serde(default)]
+    pub on_arrival: OnArrival,
+}
+
+/// `[[traffic]] on_arrival`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OnArrival {
+    /// Removed at the route's end.
+    #[default]
+    Leave,
+    /// A random trip draws its next trip from its destination.
+    NewTrip,
 }
 
 fn default_traffic_speed() -> [f64; 2] {
