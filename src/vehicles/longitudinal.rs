@@ -140,7 +140,16 @@ pub fn leader_on_path_with(
         // On the path: within half a lane of its centre line, or three half lanes for a vehicle
         // crossing into or out of it.
         let reach = if crossing(d.id) { lane_half_width.max(3.0 * lane_half_width) } else { lane_half_width };
-        let Some(p) = path.project_near_within(d.position, s + r, 0.3 * r + 5.0, reach) else { continue };
+        let window = 0.3 * r + 5.0;
+        // Every path point of the window lies within `window` (its arc length) of the point at
+        // s + r, so a detection farther than that plus `reach` from it projects onto none: an
+        // exact test that skips the projection for the vehicles on crossing streets of a town.
+        let centre = path.sample_point(s + r);
+        let bound = window + reach + 2.0 * path.spacing();
+        if d.position.distance_squared(centre) > bound * bound {
+            continue;
+        }
+        let Some(p) = path.project_near_within(d.position, s + r, window, reach) else { continue };
         let mut ahead = p.s - s;
         if path.closed {
             ahead = ahead.rem_euclid(path.length);
