@@ -234,6 +234,10 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
             .with_format(options.stream_format);
         builder.add_plugin(plugin);
         builder.add_systems(crate::io::lab::Stream, signal_lane_changes.before(crate::io::lab::stream_vehicles));
+        builder.add_systems(
+            crate::io::lab::Stream,
+            super::results::lights::stream_lights.before(crate::io::lab::stream_vehicles),
+        );
         tracing::info!(
             "streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)"
         );

@@ -1,5 +1,6 @@
 //! Traffic lights in a run's outputs and pictures: `lights.csv` (written while the run goes, read
-//! back by `smlworld replay`) and the stop lines that frames draw in their signals' colours.
+//! back by `smlworld replay`), the stop lines that frames draw in their signals' colours, and
+//! the states the visualisation stream carries ([`stream_lights`]).
 //!
 //! `lights.csv` has the header `t,junction,state` [s, id, one character per link]: one row per
 //! signalised junction at the first control tick (t = 0) and one more each time a junction's
@@ -15,6 +16,8 @@ use bevy_ecs::prelude::{Res, ResMut, Resource, World};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
+use crate::io::lab::VizStream;
+use crate::io::viz::VizLight;
 use crate::map::LaneletMap;
 use crate::render::{SignalLine, stop_lines};
 use crate::sim::{Control, Plugin, SimBuilder, SimClock};
@@ -78,6 +81,19 @@ pub fn log_light_changes(clock: Res<SimClock>, lights: Option<Res<TrafficLights>
 fn shown_bytes<'a>(state: &'a [u8], first_link: &[u32], junction: u32, links: usize) -> &'a [u8] {
     let first = first_link.get(junction as usize).map_or(0, |&f| f as usize);
     state.get(first..first + links).unwrap_or(&[])
+}
+
+/// Copy what every signalised junction shows into the visualisation stream's
+/// [`VizStream::lights`] (sent before each frame in our format), reusing its strings.
+pub fn stream_lights(lights: Option<Res<TrafficLights>>, stream: Option<ResMut<VizStream>>) {
+    let (Some(lights), Some(mut stream)) = (lights, stream) else { return };
+    let out = &mut stream.lights;
+    out.resize_with(lights.controllers.len(), || VizLight { junction: 0, state: String::new() });
+    for (c, l) in lights.controllers.iter().zip(out.iter_mut()) {
+        l.junction = c.junction + 1;
+        l.state.clear();
+        l.state.extend(shown(&lights, c.junction, links_of(c)).iter().map(|&b| char::from(b)));
+    }
 }
 
 /// Collects `lights.csv` during a run: a [`LightLog`] and [`log_light_changes`] in the Control

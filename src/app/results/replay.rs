@@ -9,7 +9,8 @@
 //!   rate draws the run's frames (stop lines in their signals' colours from `lights.csv`, when
 //!   the run had traffic lights);
 //! - the UDP visualisation stream at 50 Hz of sim time from t = 0 (the times of `run --stream`),
-//!   paced to the wall clock times `speed`, so `smlworld view` shows a recorded run live.
+//!   paced to the wall clock times `speed`, so `smlworld view` shows a recorded run live (with
+//!   the light states of `lights.csv` in our stream format).
 //!
 //! A time that falls on a logged row uses that row exactly; a time between two rows interpolates
 //! linearly (position, and yaw along the shorter arc). Outputs end at the last logged row: the
@@ -23,7 +24,9 @@ use std::time::{Duration, Instant};
 
 use glam::DVec2;
 
-use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, StreamFormat, VizIndicator, VizSender, VizSenderConfig, VizVehicle};
+use crate::io::viz::{
+    DEFAULT_VIZ_RATE_HZ, StreamFormat, VizIndicator, VizLight, VizSender, VizSenderConfig, VizVehicle,
+};
 use crate::map::LaneletMap;
 use crate::render::{FrameOutput, FrameRecorder, Indicator, RenderError, VehicleSprite};
 use crate::world::SimTime;
@@ -364,6 +367,14 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     } else {
         None
     };
+    // The stream sends the run's light states too (our format only), without the map check.
+    let mut stream_lights = match options.stream {
+        Some(_) if options.stream_format == StreamFormat::Smlworld => {
+            LightTimeline::read(&out_dir.join("lights.csv"), None)?
+        }
+        _ => None,
+    };
+    let mut viz_lights: Vec<VizLight> = Vec::new();
     let mut sender = match options.stream {
         Some(target) => Some(
             VizSender::new(&VizSenderConfig { target, ..Default::default() })
@@ -464,6 +475,14 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                 let due = wall_start + Duration::from_secs_f64(SimTime(next_datagram).as_secs() / options.speed);
                 if let Some(wait) = due.checked_duration_since(Instant::now()) {
                     std::thread::sleep(wait);
+                }
+                if let Some(timeline) = stream_lights.as_mut() {
+                    timeline.advance_to(t);
+                    viz_lights.clear();
+                    viz_lights.extend(
+                        timeline.states().map(|(junction, state)| VizLight { junction, state: state.to_string() }),
+                    );
+                    s.send_lights(&viz_lights).map_err(|e| ReplayError::Stream(e.to_string()))?;
                 }
                 s.send(&viz).map_err(|e| ReplayError::Stream(e.to_string()))?;
                 report.datagram_frames += 1;
