@@ -79,3 +79,19 @@ def test_a_scenario_without_lights_has_none(root):
     assert sim.traffic_lights() == {}
     with pytest.raises(ValueError, match=r"has no traffic lights"):
         sim.set_phase(1, "G")
+
+
+def test_frames_draw_stop_lines_in_the_signal_colours(lights_scenario):
+    sim = smlworld.Sim.from_scenario(lights_scenario)
+    n = len(sim.traffic_lights()[1]["lanelets"])
+
+    def count(frame, rgb):
+        return int(np.all(frame[:, :, :3] == np.array(rgb, dtype=np.uint8), axis=2).sum())
+
+    red, green = (230, 30, 30), (40, 210, 60)  # smlworld::render::SIGNAL_RED, SIGNAL_GREEN
+    sim.set_phase(1, "r" * n)
+    f = sim.frame(640, 640)
+    assert count(f, red) > 20 and count(f, green) == 0
+    sim.set_phase(1, "G" * n)
+    f = sim.frame(640, 640)
+    assert count(f, green) > 20 and count(f, red) == 0
