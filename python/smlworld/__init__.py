@@ -227,6 +227,32 @@ class Sim:
         """The scenario's map, if it names one."""
         return self._core.map()
 
+    def traffic_lights(self) -> Dict[int, dict]:
+        """What every signalised junction shows now, keyed by junction id (from 1, as
+        ``smlworld map info`` lists them; empty without traffic lights)::
+
+            {3: {"state": "GGgrrr", "phase": 0, "lanelets": [101, 102, 103, 201, 202, 203]}}
+
+        ``state`` has one character per link: ``G`` green with priority, ``g`` green yielding to
+        a ``G``, ``y`` yellow, ``r`` red. ``lanelets`` gives each character's link (the lanelet
+        that crosses the junction, its start is the stop line), so queues can be measured per
+        signal. ``phase`` is the index of the program's phase shown (0-based), ``None`` while a
+        state set by :meth:`set_phase` is held. A learning agent reads this as its observation
+        of the signals and acts with :meth:`set_phase`."""
+        return self._core.traffic_lights()
+
+    def set_phase(self, junction: int, state: str) -> None:
+        """Show ``state`` at ``junction`` (its id) from now on, instead of its program, until set
+        again; vehicles see it at the next control tick (the yellow rule applies to ``y``, so
+        put a ``y`` state before a ``r`` one as a program does). ``state`` needs one character
+        per link (see :meth:`traffic_lights`). Raises ``ValueError`` naming the problem for a
+        junction without a light, a state of the wrong length or an unknown character."""
+        if isinstance(junction, bool) or not isinstance(junction, (int, np.integer)):
+            raise ValueError(f"set_phase: junction must be an integer id, got {junction!r}")
+        if not isinstance(state, str):
+            raise ValueError(f"set_phase: state must be a str such as 'GGrr', got {state!r}")
+        self._core.set_phase(int(junction), state)
+
 
 def run(path, out=None, seed: Optional[int] = None, **overrides) -> dict:
     """Do what ``smlworld run PATH --out OUT`` does (``out`` defaults to ``out``): write

@@ -406,6 +406,33 @@ impl Core {
         controllers::add(&mut *self.session(py)?, ids, call, name, rate)
     }
 
+    /// Every signalised junction: `{id: {"state": str, "phase": int | None, "lanelets": [int]}}`
+    /// (see `smlworld.Sim.traffic_lights`).
+    fn traffic_lights<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let lights = self.session(py)?.traffic_lights();
+        let out = PyDict::new(py);
+        for l in lights {
+            let d = PyDict::new(py);
+            d.set_item("state", l.state)?;
+            d.set_item("phase", l.phase)?;
+            d.set_item("lanelets", l.lanelets)?;
+            out.set_item(l.junction, d)?;
+        }
+        Ok(out)
+    }
+
+    /// Hold `state` at junction `junction` (id from 1) until set again (see
+    /// `smlworld.Sim.set_phase`).
+    fn set_phase(&self, py: Python<'_>, junction: i64, state: &str) -> PyResult<()> {
+        let id = u32::try_from(junction).ok().filter(|&j| j >= 1).ok_or_else(|| {
+            PyValueError::new_err(format!(
+                "set_phase: junction {junction} is not a junction id (ids count from 1, as `smlworld map info` \
+                 lists them)"
+            ))
+        })?;
+        self.session(py)?.set_phase(id, state).map_err(session_err)
+    }
+
     /// Whether Python controllers are added.
     #[getter]
     fn has_controllers(&self, py: Python<'_>) -> PyResult<bool> {

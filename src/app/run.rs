@@ -234,6 +234,10 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
             .with_format(options.stream_format);
         builder.add_plugin(plugin);
         builder.add_systems(crate::io::lab::Stream, signal_lane_changes.before(crate::io::lab::stream_vehicles));
+        builder.add_systems(
+            crate::io::lab::Stream,
+            super::results::lights::stream_lights.before(crate::io::lab::stream_vehicles),
+        );
         tracing::info!(
             "streaming the vehicles to udp://{addr} at {DEFAULT_VIZ_RATE_HZ} Hz (watch with `smlworld view`)"
         );
@@ -243,6 +247,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     }
     builder.insert_resource(TrajectoryLog::new(Box::new(std::io::BufWriter::new(csv))));
     builder.add_plugin(TrajectoryLogPlugin { rate: log_rate });
+    builder.add_plugin(super::results::lights::LightLogPlugin);
     let mut sim = builder.build();
     if let Some(id) = options.frame_output.follow.filter(|_| recorder.is_some()) {
         let vehicles = sim.world().resource::<crate::world::Vehicles>();
@@ -288,7 +293,26 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     outputs.0.push(trips_tmp.clone());
     let trips = super::running::trips::trips_csv(&super::running::trips::trip_records(sim.world()));
     std::fs::write(&trips_tmp, trips).map_err(|source| RunError::Io { path: trips_tmp.clone(), source })?;
-    for (tmp, path) in [(&csv_tmp, &csv_path), (&trips_tmp, &trips_path), (&summary_tmp, &summary_path)] {
+    // Every signal change (`smlworld replay` draws the stop lines from it); a run without lights
+    // removes an earlier run's file, so a replay never draws lights that were not there.
+    let lights_path = options.out.join("lights.csv");
+    let lights_tmp = options.out.join(".lights.csv.partial");
+    let lights = sim.world().get_resource::<super::results::lights::LightLog>().and_then(|l| l.csv());
+    let mut renames = vec![(&csv_tmp, &csv_path), (&trips_tmp, &trips_path), (&summary_tmp, &summary_path)];
+    match &lights {
+        Some(text) => {
+            outputs.0.push(lights_tmp.clone());
+            std::fs::write(&lights_tmp, text).map_err(|source| RunError::Io { path: lights_tmp.clone(), source })?;
+            renames.insert(2, (&lights_tmp, &lights_path));
+        }
+        None => match std::fs::remove_file(&lights_path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(RunError::Io { path: lights_path.clone(), source: e });
+            }
+            _ => {}
+        },
+    }
+    for (tmp, path) in renames {
         std::fs::rename(tmp, path).map_err(|source| RunError::Io { path: path.clone(), source })?;
     }
     outputs.keep();
@@ -420,6 +444,8 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
 #[derive(Default)]
 struct FrameMarks {
     sprites: Vec<VehicleSprite>,
+    /// Stop lines in their signals' colours.
+    signals: super::results::lights::SignalLines,
     /// Collisions of [`super::running::metrics::Metrics`] already handed to the recorder.
     collisions_seen: usize,
 }
@@ -463,6 +489,7 @@ impl FrameMarks {
                 }
             }
         }
+        rec.set_signals(self.signals.from_world(world));
         rec.record_sprites(&self.sprites, t)
     }
 }

@@ -4,8 +4,10 @@
 //! renderer over the map's environment layer, and are shown in an X11 window (winit) by copying
 //! the image into it with softbuffer, which needs no Vulkan surface (so it works under Xvfb and
 //! with software rendering). The window is redrawn whenever a newer frame has arrived, checked
-//! every [`POLL`]. Without a display (no `DISPLAY`, or the window cannot open) it says so and,
-//! with `--frames DIR`, writes every new frame as a PNG instead.
+//! every [`POLL`]. With `--map`, the stop lines of signalised junctions are drawn in the colours
+//! of the stream's light states (our format's lights extension). Without a display (no
+//! `DISPLAY`, or the window cannot open) it says so and, with `--frames DIR`, writes every new
+//! frame as a PNG instead.
 
 use std::collections::BTreeSet;
 use std::net::SocketAddr;
@@ -16,6 +18,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use image::RgbaImage;
+use smlworld::app::results::lights::SignalLines;
 use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizIndicator, VizReceiver, viewer_body};
 use smlworld::map::LaneletMap;
 use smlworld::render::{Environment, FrameOutput, FrameRecorder, Indicator, Overlay, VehicleSprite};
@@ -58,6 +61,9 @@ struct Scene {
     recorder: FrameRecorder,
     args: ViewArgs,
     sprites: Vec<VehicleSprite>,
+    /// The map's stop lines, drawn in the colours the stream's light states give (none without
+    /// a map).
+    signals: Option<SignalLines>,
     /// Pairs of vehicles whose footprints overlapped in the last frame (a new pair is a
     /// collision: a red ring for 2 s).
     touching: BTreeSet<(i32, i32)>,
@@ -94,6 +100,7 @@ impl Scene {
                 None,
             ),
         };
+        let signals = map.as_ref().map(SignalLines::of_map);
         let receiver =
             VizReceiver::bind(args.listen).with_context(|| format!("cannot listen on udp://{}", args.listen))?;
         let recorder = FrameRecorder::with_environment(env, map_box, &args.frame_output)?;
@@ -103,6 +110,7 @@ impl Scene {
             recorder,
             args,
             sprites: Vec::new(),
+            signals,
             touching: BTreeSet::new(),
             drawn: None,
             start: None,
@@ -151,6 +159,9 @@ impl Scene {
             }
             self.touching = touching.into_iter().map(|(a, b, _)| (a, b)).collect();
             self.drawn = Some(f.counter);
+            if let Some(signals) = self.signals.as_mut() {
+                self.recorder.set_signals(signals.from_states(f.lights.iter().map(|l| (l.junction, l.state.as_str()))));
+            }
         }
         self.recorder.draw(&self.sprites, t)?;
         if frame.is_some() && self.args.frame_output.any() && now >= self.next_write {

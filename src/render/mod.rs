@@ -29,6 +29,7 @@ mod output;
 mod overlay;
 mod patterns;
 mod recorder;
+mod signals;
 mod sprites;
 mod triangulate;
 mod view;
@@ -44,6 +45,7 @@ pub use output::{GifWriter, frame_path, write_gif, write_image, write_image_with
 pub use overlay::{FONT_TTF, OVERLAY_BACKGROUND, OVERLAY_TEXT_PX, draw_collision_ring, draw_overlay};
 pub use patterns::{PATTERN_SIZE, Pattern, PatternKind, PatternSet};
 pub use recorder::{COLLISION_RING_SECONDS, FrameRecorder, check_frame_rate, sprites_from_world};
+pub use signals::{SIGNAL_GREEN, SIGNAL_RED, SIGNAL_YELLOW, SignalLine, draw_signal_lines, signal_color, stop_lines};
 pub use sprites::{
     Indicator, Overlays, RadarCone, VehicleSprite, class_color, label_boxes, overlapping_pairs, vehicle_color,
 };

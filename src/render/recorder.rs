@@ -14,7 +14,8 @@ use image::RgbaImage;
 use super::camera::{Camera, FrameOutput, Overlay};
 use super::output::{GifWriter, frame_path, write_error};
 use super::{
-    BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, VehicleSprite,
+    BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, SignalLine,
+    VehicleSprite,
 };
 use crate::map::LaneletMap;
 use crate::sim::SimClock;
@@ -39,6 +40,8 @@ pub struct FrameRecorder {
     image: RgbaImage,
     /// Collisions drawn as red rings: place [m] and sim time [s].
     collisions: Vec<(DVec2, f64)>,
+    /// Stop lines drawn in their signal's colour ([`FrameRecorder::set_signals`]).
+    signals: Vec<SignalLine>,
     frames: u64,
 }
 
@@ -97,6 +100,7 @@ impl FrameRecorder {
             sprites: Vec::new(),
             image: RgbaImage::new(1, 1),
             collisions: Vec::new(),
+            signals: Vec::new(),
             frames: 0,
         })
     }
@@ -113,6 +117,13 @@ impl FrameRecorder {
         if place.is_finite() && t.is_finite() {
             self.collisions.push((place, t));
         }
+    }
+
+    /// Draw `lines` (stop lines and what their signals show now) in the frames from now on,
+    /// until set again; an empty slice draws none.
+    pub fn set_signals(&mut self, lines: &[SignalLine]) {
+        self.signals.clear();
+        self.signals.extend_from_slice(lines);
     }
 
     /// The graphics adapter drawing the frames.
@@ -154,7 +165,8 @@ impl FrameRecorder {
         self.write_drawn(sprites, t)
     }
 
-    /// Render `sprites` at sim time `t` [s] (with collision rings, without the overlay) and
+    /// Render `sprites` at sim time `t` [s] (with the stop lines of [`FrameRecorder::set_signals`]
+    /// and collision rings, without the overlay) and
     /// return the image, writing nothing.
     pub fn draw(&mut self, sprites: &[VehicleSprite], t: f64) -> Result<&RgbaImage, RenderError> {
         let view = self.camera.view(sprites)?;
@@ -164,6 +176,7 @@ impl FrameRecorder {
         }
         let Some(layer) = &self.layer else { return Err(RenderError::InvalidView("no environment layer".into())) };
         self.renderer.render_frame_into(layer, sprites, &mut self.image)?;
+        super::draw_signal_lines(&mut self.image, &view, &self.signals);
         self.collisions.retain(|(_, t0)| t - t0 <= COLLISION_RING_SECONDS);
         for (place, t0) in &self.collisions {
             if *t0 <= t + 1e-9 {

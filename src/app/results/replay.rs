@@ -6,9 +6,11 @@
 //! at the output's times:
 //! - frames and GIF at `k / frame_rate` for k = 1, 2, ... (the times at which `run --frames`
 //!   draws), through the map of `summary.json` at the same view, so a replay at the run's frame
-//!   rate draws the run's frames;
+//!   rate draws the run's frames (stop lines in their signals' colours from `lights.csv`, when
+//!   the run had traffic lights);
 //! - the UDP visualisation stream at 50 Hz of sim time from t = 0 (the times of `run --stream`),
-//!   paced to the wall clock times `speed`, so `smlworld view` shows a recorded run live.
+//!   paced to the wall clock times `speed`, so `smlworld view` shows a recorded run live (with
+//!   the light states of `lights.csv` in our stream format).
 //!
 //! A time that falls on a logged row uses that row exactly; a time between two rows interpolates
 //! linearly (position, and yaw along the shorter arc). Outputs end at the last logged row: the
@@ -22,11 +24,14 @@ use std::time::{Duration, Instant};
 
 use glam::DVec2;
 
-use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, StreamFormat, VizIndicator, VizSender, VizSenderConfig, VizVehicle};
+use crate::io::viz::{
+    DEFAULT_VIZ_RATE_HZ, StreamFormat, VizIndicator, VizLight, VizSender, VizSenderConfig, VizVehicle,
+};
 use crate::map::LaneletMap;
 use crate::render::{FrameOutput, FrameRecorder, Indicator, RenderError, VehicleSprite};
 use crate::world::SimTime;
 
+use super::lights::{LightTimeline, SignalLines};
 use crate::app::running::summary::{ReplayInfo, ReplayVehicle};
 
 /// What `smlworld replay` writes or sends, and how.
@@ -136,6 +141,16 @@ pub enum ReplayError {
     /// A row of `trajectories.csv` is malformed.
     #[error("{path}:{line}: {message} (expected `t,id,x,y,yaw,vx,vy`, rows in time order)")]
     Row {
+        /// The CSV file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// A row of `lights.csv` is malformed or does not fit the run's map.
+    #[error("{path}:{line}: {message} (expected `t,junction,state` rows in time order, as `smlworld run` writes them)")]
+    Lights {
         /// The CSV file.
         path: PathBuf,
         /// 1-based line number.
@@ -335,6 +350,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     }
     let marks = if drawing { read_replay_marks(out_dir)? } else { ReplayMarks::default() };
     let mut collisions_due = marks.collisions.iter().peekable();
+    let mut lights: Option<(LightTimeline, SignalLines)> = None;
     let mut recorder = if drawing {
         let Some(map_path) = &info.map else {
             return Err(ReplayError::Option(format!(
@@ -344,10 +360,21 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         };
         let map = LaneletMap::load(map_path)
             .map_err(|e| ReplayError::Map { path: map_path.clone(), message: e.to_string() })?;
+        // The run's signal changes, if it had lights, drawn on the stop lines.
+        lights = LightTimeline::read(&out_dir.join("lights.csv"), Some(&map))?
+            .map(|timeline| (timeline, SignalLines::of_map(&map)));
         Some(FrameRecorder::new(&map, frames)?)
     } else {
         None
     };
+    // The stream sends the run's light states too (our format only), without the map check.
+    let mut stream_lights = match options.stream {
+        Some(_) if options.stream_format == StreamFormat::Smlworld => {
+            LightTimeline::read(&out_dir.join("lights.csv"), None)?
+        }
+        _ => None,
+    };
+    let mut viz_lights: Vec<VizLight> = Vec::new();
     let mut sender = match options.stream {
         Some(target) => Some(
             VizSender::new(&VizSenderConfig { target, ..Default::default() })
@@ -404,6 +431,10 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                             rec.add_collision((pa + pb) * 0.5, *tc);
                         }
                     }
+                    if let Some((timeline, lines)) = lights.as_mut() {
+                        timeline.advance_to(t);
+                        rec.set_signals(lines.from_states(timeline.states()));
+                    }
                     rec.record_sprites(&sprites, t)?;
                 }
                 report.frames += 1;
@@ -444,6 +475,14 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                 let due = wall_start + Duration::from_secs_f64(SimTime(next_datagram).as_secs() / options.speed);
                 if let Some(wait) = due.checked_duration_since(Instant::now()) {
                     std::thread::sleep(wait);
+                }
+                if let Some(timeline) = stream_lights.as_mut() {
+                    timeline.advance_to(t);
+                    viz_lights.clear();
+                    viz_lights.extend(
+                        timeline.states().map(|(junction, state)| VizLight { junction, state: state.to_string() }),
+                    );
+                    s.send_lights(&viz_lights).map_err(|e| ReplayError::Stream(e.to_string()))?;
                 }
                 s.send(&viz).map_err(|e| ReplayError::Stream(e.to_string()))?;
                 report.datagram_frames += 1;

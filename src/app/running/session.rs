@@ -26,7 +26,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use crate::map::LaneletMap;
 use crate::render::{FrameOutput, FrameRecorder, Overlay};
 use crate::sim::{Control, Sim, SimClock, SimSystems};
-use crate::vehicles::{Longitudinal, LongitudinalSystems};
+use crate::vehicles::{JunctionNetwork, Longitudinal, LongitudinalSystems, TrafficLights};
 use crate::world::{
     AccelerationUnicycle, Channel, ControlCommand, Inbox, KinematicUnicycle, Mailbox, SensorReadings, SimTime,
     VehicleId, VehicleState, Vehicles,
@@ -212,12 +212,29 @@ pub fn load_scenario_with_overrides(
     Ok(super::scenario::load_with_overrides(path, seed, overrides, &Default::default())?)
 }
 
+/// What one signalised junction shows ([`Session::traffic_lights`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LightState {
+    /// Junction id (from 1, as `smlworld map info` lists them).
+    pub junction: u32,
+    /// One character per link in link order: `G` green with priority, `g` green yielding, `y`
+    /// yellow, `r` red.
+    pub state: String,
+    /// Index of the program's phase shown (0-based); `None` while a state set by
+    /// [`Session::set_phase`] is held.
+    pub phase: Option<usize>,
+    /// The lanelet of each link, in the order of `state`'s characters.
+    pub lanelets: Vec<i64>,
+}
+
 /// A scenario's simulation, stepped by the caller.
 pub struct Session {
     sim: Sim,
     /// The off-screen renderer of [`Session::frame`], made at the first call (and again when the
     /// size changes).
     renderer: Option<(u32, u32, FrameRecorder)>,
+    /// The stop lines [`Session::frame`] draws in their signals' colours.
+    signals: crate::app::results::lights::SignalLines,
     scenario: Scenario,
     wall_seconds: f64,
     start: SimTime,
@@ -246,7 +263,7 @@ impl Session {
         );
         let sim = b.build();
         let start = sim.now();
-        Ok(Session { sim, renderer: None, scenario, wall_seconds: 0.0, start })
+        Ok(Session { sim, renderer: None, signals: Default::default(), scenario, wall_seconds: 0.0, start })
     }
 
     /// The simulation.
@@ -361,8 +378,59 @@ impl Session {
         let Some((_, _, rec)) = self.renderer.as_mut() else {
             return arg("renderer: not available".to_string());
         };
+        rec.set_signals(self.signals.from_world(self.sim.world()));
         let image = rec.render(self.sim.world()).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
         Ok(image.into_raw())
+    }
+
+    /// What every signalised junction shows now, by junction id (empty without traffic lights).
+    pub fn traffic_lights(&self) -> Vec<LightState> {
+        let world = self.sim.world();
+        let (Some(lights), Some(network)) =
+            (world.get_resource::<TrafficLights>(), world.get_resource::<JunctionNetwork>())
+        else {
+            return Vec::new();
+        };
+        lights
+            .controllers
+            .iter()
+            .map(|c| LightState {
+                junction: c.junction + 1,
+                state: lights.state_of(c.junction).unwrap_or_default(),
+                phase: c.manual.is_none().then_some(c.phase),
+                lanelets: network
+                    .junctions
+                    .list
+                    .get(c.junction as usize)
+                    .map_or_else(Vec::new, |j| j.links.iter().map(|l| l.lanelet.0).collect()),
+            })
+            .collect()
+    }
+
+    /// Show `state` (one character per link: `G`, `g`, `y`, `r`) at the junction with id
+    /// `junction` (from 1) from now on, instead of its program, until set again; the vehicles
+    /// see it at the next control tick. An error names the junction or the state's problem and
+    /// what is allowed (the signalised junctions, the number of links, the characters).
+    pub fn set_phase(&mut self, junction: u32, state: &str) -> Result<(), SessionError> {
+        let signalised: Vec<u32> = self.traffic_lights().iter().map(|l| l.junction).collect();
+        let Some(mut lights) =
+            self.sim.world_mut().get_resource_mut::<TrafficLights>().filter(|_| !signalised.is_empty())
+        else {
+            return arg(format!(
+                "set_phase: {} has no traffic lights (its map has no signalised junction and no \
+                 `[[traffic_lights]]` table)",
+                self.scenario.path.display()
+            ));
+        };
+        if !signalised.contains(&junction) {
+            return arg(format!(
+                "set_phase: junction {junction} has no traffic light; the signalised junctions are {}",
+                signalised.iter().map(u32::to_string).collect::<Vec<_>>().join(", ")
+            ));
+        }
+        lights
+            .set_state(junction - 1, state)
+            .map_err(|m| SessionError::Argument(format!("set_phase: junction {junction}: {m}")))
     }
 
     /// Advance by `duration` [s] and summarise everything run so far as `summary.json` does.

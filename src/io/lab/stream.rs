@@ -8,7 +8,8 @@ use bevy_ecs::prelude::{Query, ResMut, Resource, Without};
 use bevy_ecs::schedule::ScheduleLabel;
 
 use crate::io::viz::{
-    DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, StreamFormat, VizError, VizIndicator, VizSender, VizSenderConfig, VizVehicle,
+    DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, StreamFormat, VizError, VizIndicator, VizLight, VizSender, VizSenderConfig,
+    VizVehicle,
 };
 use crate::io::{WarnLimiter, lock};
 use crate::sim::Phase;
@@ -27,6 +28,10 @@ pub struct VizStream {
     warn: WarnLimiter,
     /// Class names and reference point of the datagrams.
     pub format: StreamFormat,
+    /// What every signalised junction shows, sent before each frame in our format (the lights
+    /// extension, see [`crate::io::viz`]); whoever owns the lights fills it before
+    /// [`stream_vehicles`] runs (empty: no lights datagram).
+    pub lights: Vec<VizLight>,
     /// Frames sent so far.
     pub frames_sent: u64,
     /// Frames that could not be sent (nobody listening is not an error on UDP, but a full
@@ -43,6 +48,7 @@ impl VizStream {
             frame: Vec::new(),
             warn: WarnLimiter::new(Duration::from_secs(5)),
             format: StreamFormat::default(),
+            lights: Vec::new(),
             frames_sent: 0,
             send_errors: 0,
         })
@@ -98,6 +104,14 @@ pub fn stream_vehicles(mut stream: ResMut<VizStream>, vehicles: Query<StreamedVe
         n += 1;
     }
     stream.frame.truncate(n);
+    // The 2015 viewers know no lights: only our format carries them.
+    if format == StreamFormat::Smlworld
+        && !stream.lights.is_empty()
+        && let Err(e) = stream.sender.send_lights(&stream.lights)
+    {
+        stream.send_errors += 1;
+        stream.warn.warn(&format!("visualisation stream (lights): {e}"));
+    }
     match stream.sender.send(&stream.frame) {
         Ok(_) => stream.frames_sent += 1,
         Err(e) => {

@@ -54,6 +54,16 @@ impl std::str::FromStr for VizIndicator {
     }
 }
 
+/// What one signalised junction shows, as the lights extension carries it (see the module docs
+/// of [`crate::io::viz`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VizLight {
+    /// Junction id (from 1, as `smlworld map info` lists them).
+    pub junction: u32,
+    /// One signal character per link in link order (`G`, `g`, `y`, `r`, ...).
+    pub state: String,
+}
+
 /// Which part of a split frame a datagram holds (the split extension).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct VizPart {
@@ -285,6 +295,73 @@ fn write_record(out: &mut String, v: &VizVehicle) {
         Some(VizIndicator::Right) => out.push_str(";indicator=right"),
         None => {}
     }
+}
+
+/// First byte of a lights datagram (the lights extension): `L<counter>#<id>=<state>;...`.
+pub const LIGHTS_PREFIX: u8 = b'L';
+
+/// Whether `bytes` is a lights datagram (starts with [`LIGHTS_PREFIX`]).
+pub fn is_lights_datagram(bytes: &[u8]) -> bool {
+    bytes.first() == Some(&LIGHTS_PREFIX)
+}
+
+/// Encode the states of `lights` for the frame with `counter` into lights datagrams
+/// (`L<counter>#<id>=<state>;<id>=<state>...`), each at most [`MAX_DATAGRAM_LEN`] bytes and each
+/// complete on its own (a receiver merges them by junction id, so a lost one only delays those
+/// junctions to the next frame). States are cut to the characters a state may hold (ASCII
+/// letters); an empty list gives no datagram.
+pub fn encode_lights(counter: u64, lights: &[VizLight], out: &mut Vec<Vec<u8>>) {
+    out.clear();
+    let mut buf = Vec::with_capacity(MAX_DATAGRAM_LEN);
+    let mut record = String::new();
+    for l in lights {
+        record.clear();
+        let _ = write!(record, "{}=", l.junction);
+        record.extend(l.state.chars().filter(char::is_ascii_alphabetic).take(MAX_DATAGRAM_LEN / 2));
+        if !buf.is_empty() && buf.len() + 1 + record.len() > MAX_DATAGRAM_LEN {
+            out.push(std::mem::replace(&mut buf, Vec::with_capacity(MAX_DATAGRAM_LEN)));
+        }
+        if buf.is_empty() {
+            let _ = write!(buf, "L{counter}#");
+        } else {
+            buf.push(b';');
+        }
+        buf.extend_from_slice(record.as_bytes());
+    }
+    if !buf.is_empty() {
+        out.push(buf);
+    }
+}
+
+/// Decode a lights datagram: its counter and the states it carries. Never panics; anything
+/// malformed is an error naming the problem.
+pub fn decode_lights(bytes: &[u8]) -> Result<(u64, Vec<VizLight>), VizError> {
+    let text = std::str::from_utf8(bytes).map_err(|e| VizError::NotText { at: e.valid_up_to() })?;
+    let Some((head, body)) = text.strip_prefix(LIGHTS_PREFIX as char).and_then(|t| t.split_once('#')) else {
+        return Err(VizError::MissingHash { head: quote(text) });
+    };
+    let counter: u64 = head.trim().parse().map_err(|_| VizError::BadCounter { text: quote(head) })?;
+    let mut lights = Vec::new();
+    for (record, field) in body.split(';').enumerate() {
+        if field.trim().is_empty() {
+            continue;
+        }
+        let Some((id, state)) = field.split_once('=') else {
+            return Err(VizError::MalformedField { record, field: quote(field) });
+        };
+        let junction = parse_value(record, "junction", id, "junction id")?;
+        let state = state.trim();
+        if state.is_empty() || !state.chars().all(|c| c.is_ascii_alphabetic()) {
+            return Err(VizError::BadValue {
+                record,
+                key: "state",
+                value: quote(state),
+                expected: "signal state (letters such as GGrr)",
+            });
+        }
+        lights.push(VizLight { junction, state: state.to_string() });
+    }
+    Ok((counter, lights))
 }
 
 /// Encode one frame into freshly allocated datagrams (convenience over [`VizEncoder`]).

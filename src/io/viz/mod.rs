@@ -29,6 +29,18 @@
 //! in one datagram is sent exactly as in 2015, without the extra fields. Unknown keys are ignored
 //! by the decoder, so later extensions stay compatible too.
 //!
+//! # Lights extension (our format only)
+//! Traffic-light states travel in datagrams of their own, sent just before the frame they
+//! belong to: `L<counter>#<junction>=<state>;<junction>=<state>...`, e.g. `L17#1=GGgrrr;2=rrrGGg`
+//! (junction ids and link order as `smlworld map info` lists them, one signal character per
+//! link), with the counter of that frame, split over several datagrams of at most
+//! [`MAX_DATAGRAM_LEN`] bytes when needed (each complete on its own: a receiver merges them by
+//! junction id). A new receiver ([`VizReassembler`]) keeps the latest state of every junction and
+//! hands it out with every frame ([`VizFrame::lights`]). Why it is backward compatible: an older
+//! receiver reads `L17` as a counter that is not a number and drops the datagram as undecodable
+//! (counted, logged at debug level), so it goes on showing the vehicles; the vehicle datagrams
+//! are unchanged. Only [`StreamFormat::Smlworld`] streams send them (never the 2015 format).
+//!
 //! Which class names and reference point a stream carries: [`format`] (ours by default, the
 //! 2015 viewers' with `--stream-format 2015`).
 //!
@@ -42,11 +54,12 @@ pub mod reassembly;
 pub mod sockets;
 
 pub use codec::{
-    MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder, VizError,
-    VizIndicator, VizPart, VizVehicle, decode_datagram, encode_frame,
+    LIGHTS_PREFIX, MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder,
+    VizError, VizIndicator, VizLight, VizPart, VizVehicle, decode_datagram, decode_lights, encode_frame, encode_lights,
+    is_lights_datagram,
 };
 pub use format::{REAR_AXLE_FROM_REAR, StreamFormat, class_name_2015, viewer_body, viewer_footprint};
 pub use reassembly::{
-    MAX_VEHICLES_PER_DATAGRAM, MAX_VEHICLES_PER_FRAME, RESTART_AFTER, VizFrame, VizReassembler, VizStats,
+    MAX_LIGHTS, MAX_VEHICLES_PER_DATAGRAM, MAX_VEHICLES_PER_FRAME, RESTART_AFTER, VizFrame, VizReassembler, VizStats,
 };
 pub use sockets::{DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, RECV_BUFFER_LEN, VizReceiver, VizSender, VizSenderConfig};

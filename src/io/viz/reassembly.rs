@@ -1,7 +1,9 @@
 //! Reassembly of the visualisation stream: drops stale counters and joins the parts of split
 //! frames into whole frames.
 
-use super::codec::{VizDatagram, VizVehicle, decode_datagram};
+use std::collections::BTreeMap;
+
+use super::codec::{VizDatagram, VizLight, VizVehicle, decode_datagram, decode_lights, is_lights_datagram};
 
 /// One complete frame, as a receiver delivers it.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -10,6 +12,9 @@ pub struct VizFrame {
     pub counter: u64,
     /// All vehicles of the frame, in the order they were sent.
     pub vehicles: Vec<VizVehicle>,
+    /// The latest state of every junction the stream's lights extension has reported, by
+    /// junction id (empty for a stream without lights).
+    pub lights: Vec<VizLight>,
 }
 
 /// Counters of what a receiver saw.
@@ -68,7 +73,12 @@ pub struct VizReassembler {
     stale_run: (u32, u64),
     /// Whether the caps' warning was logged (once per receiver; later drops are counted).
     warned_cap: bool,
+    /// Latest state of each junction (the lights extension), by id.
+    lights: BTreeMap<u32, String>,
 }
+
+/// Most junctions a receiver keeps states of (bounds the memory a hostile sender can claim).
+pub const MAX_LIGHTS: usize = 100_000;
 
 impl VizReassembler {
     /// A receiver state that has seen nothing yet.
@@ -79,6 +89,22 @@ impl VizReassembler {
     /// Decode raw bytes and feed them in; decode errors are counted and logged at debug level.
     pub fn push_bytes(&mut self, bytes: &[u8]) -> Option<VizFrame> {
         self.stats.datagrams += 1;
+        if is_lights_datagram(bytes) {
+            match decode_lights(bytes) {
+                Ok((_, lights)) => {
+                    for l in lights {
+                        if self.lights.len() < MAX_LIGHTS || self.lights.contains_key(&l.junction) {
+                            self.lights.insert(l.junction, l.state);
+                        }
+                    }
+                }
+                Err(e) => {
+                    self.stats.decode_errors += 1;
+                    tracing::debug!("dropping visualisation lights datagram: {e}");
+                }
+            }
+            return None;
+        }
         match decode_datagram(bytes) {
             Ok(d) => self.push_decoded(d),
             Err(e) => {
@@ -172,7 +198,8 @@ impl VizReassembler {
     fn deliver(&mut self, counter: u64, vehicles: Vec<VizVehicle>) -> VizFrame {
         self.last = Some(counter);
         self.stats.frames += 1;
-        VizFrame { counter, vehicles }
+        let lights = self.lights.iter().map(|(&junction, state)| VizLight { junction, state: state.clone() }).collect();
+        VizFrame { counter, vehicles, lights }
     }
 
     /// What was seen so far.

@@ -7,7 +7,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use super::codec::{VizEncoder, VizError, VizVehicle};
+use super::codec::{VizEncoder, VizError, VizLight, VizVehicle, encode_lights};
 use super::reassembly::{VizFrame, VizReassembler, VizStats};
 use crate::io::lock;
 
@@ -40,6 +40,8 @@ pub struct VizSender {
     socket: UdpSocket,
     target: SocketAddr,
     encoder: VizEncoder,
+    /// Datagrams of the last [`VizSender::send_lights`].
+    lights_buf: Vec<Vec<u8>>,
     counter: u64,
     period_us: i64,
     next_due_us: Option<i64>,
@@ -61,6 +63,7 @@ impl VizSender {
             socket,
             target: config.target,
             encoder: VizEncoder::new(),
+            lights_buf: Vec::new(),
             counter: 0,
             period_us: ((1e6 / config.rate_hz).round() as i64).max(1),
             next_due_us: None,
@@ -79,6 +82,19 @@ impl VizSender {
                 .map_err(|source| VizError::Io { what: format!("send to {}", self.target), source })?;
         }
         Ok(parts.len())
+    }
+
+    /// Send the states of `lights` for the next frame (the lights extension: call it just
+    /// before [`VizSender::send`]; the counter does not advance); returns the number of
+    /// datagrams sent (none for no lights).
+    pub fn send_lights(&mut self, lights: &[VizLight]) -> Result<usize, VizError> {
+        encode_lights(self.counter, lights, &mut self.lights_buf);
+        for datagram in &self.lights_buf {
+            self.socket
+                .send_to(datagram, self.target)
+                .map_err(|source| VizError::Io { what: format!("send to {}", self.target), source })?;
+        }
+        Ok(self.lights_buf.len())
     }
 
     /// Send a frame if one period (1 / rate) has passed since the last one sent by this method,
