@@ -295,12 +295,12 @@ fn no_vehicle_passes_a_red_stop_line() {
                     .map(|i| network.link_of_lanelet[i])
                     .filter(|g| *g != u32::MAX)
             };
-            if let (Some(g), None) = (link(pos.lanelet), link(before)) {
-                if before.is_some() {
-                    entries += 1;
-                    if lights.state[g as usize] == b'r' {
-                        red += 1;
-                    }
+            if let (Some(g), None) = (link(pos.lanelet), link(before))
+                && before.is_some()
+            {
+                entries += 1;
+                if lights.state[g as usize] == b'r' {
+                    red += 1;
                 }
             }
         }

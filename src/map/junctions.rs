@@ -533,11 +533,11 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
             continue;
         }
         for s in &l.successors {
-            if let Some(j) = map.lanelet_index(*s).filter(|&j| map.lanelets[j].routable) {
-                if !successors[i].contains(&j) {
-                    successors[i].push(j);
-                    predecessors[j].push(i);
-                }
+            if let Some(j) = map.lanelet_index(*s).filter(|&j| map.lanelets[j].routable)
+                && !successors[i].contains(&j)
+            {
+                successors[i].push(j);
+                predecessors[j].push(i);
             }
         }
     }
@@ -627,7 +627,7 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
             }
             out
         };
-        let on_link_or_from = |i: usize, f: &dyn Fn(usize) -> Option<bool>| upstream(i).into_iter().find_map(|k| f(k));
+        let on_link_or_from = |i: usize, f: &dyn Fn(usize) -> Option<bool>| upstream(i).into_iter().find_map(f);
         // A Lanelet2 light's id, or 0 for a lanelet tagged `traffic_light = yes` (generated maps).
         let signal = |i: usize| {
             upstream(i).into_iter().find_map(|k| {

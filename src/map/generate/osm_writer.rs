@@ -17,6 +17,9 @@ pub(super) const INTERIOR: WayTag = ("line_type", "interior");
 /// Unpainted bound of a turn inside a junction (Lanelet2's line-string type).
 pub(super) const VIRTUAL: WayTag = ("type", "virtual");
 
+/// Extra tags of a generated lanelet relation, key and value.
+pub(super) type LaneletTags = Vec<(&'static str, &'static str)>;
+
 /// A map under construction, in metres; node 0 is the origin.
 pub(super) struct Builder {
     /// Node positions [m], by index.
@@ -26,7 +29,7 @@ pub(super) struct Builder {
     /// Node indices and the one tag of each way.
     ways: Vec<(Vec<usize>, WayTag)>,
     /// (left way, right way, extra tags).
-    lanelets: Vec<(usize, usize, Vec<(&'static str, &'static str)>)>,
+    lanelets: Vec<(usize, usize, LaneletTags)>,
 }
 
 impl Builder {
@@ -62,7 +65,7 @@ impl Builder {
     }
 
     /// Adds a lanelet relation with extra tags (`priority`, `traffic_light`).
-    pub(super) fn lanelet_tagged(&mut self, left: usize, right: usize, tags: Vec<(&'static str, &'static str)>) {
+    pub(super) fn lanelet_tagged(&mut self, left: usize, right: usize, tags: LaneletTags) {
         self.lanelets.push((left, right, tags));
     }
 
