@@ -605,6 +605,30 @@ pub struct Scratch {
     order: Vec<u32>,
 }
 
+impl Scratch {
+    /// Add `a` near passage `p`: its links go to the shared buffer, it to each link's list.
+    fn register(&mut self, p: &Passage, a: Approach) {
+        let start = self.links.len() as u32;
+        self.links.extend_from_slice(&p.links);
+        let k = self.approaches.len() as u32;
+        for &(g, _) in &p.links {
+            if self.by_link[g as usize].is_empty() {
+                self.touched.push(g);
+            }
+            self.by_link[g as usize].push(k);
+        }
+        self.approaches.push(Approach {
+            junction: p.junction,
+            links: (start, self.links.len() as u32),
+            exit: p.exit_lanelet,
+            entry: p.entry,
+            entry_lanelet: p.entry_lanelet,
+            head: k,
+            ..a
+        });
+    }
+}
+
 /// Give every vehicle without junction state one (the next tick uses it).
 #[allow(clippy::type_complexity)]
 pub fn attach_junction_drivers(
@@ -720,39 +744,31 @@ pub fn give_way_at_junctions(
         }
         // The passages it is in: there as a foe that others must let clear (at most the last two).
         let inside_from = driver.next.saturating_sub(2);
+        let seen = Approach {
+            entity,
+            id,
+            front,
+            length: size.length,
+            speed,
+            v_max: follower.params.speed.max(speed),
+            inside: true,
+            going: true,
+            decides: negotiator.is_none(),
+            arrived_at: f64::INFINITY,
+            stopped: false,
+            junction: 0,
+            links: (0, 0),
+            exit: u32::MAX,
+            entry: 0.0,
+            limit: f64::INFINITY,
+            entry_lanelet: u32::MAX,
+            queued: false,
+            trailing: true,
+            waiting_now: 0.0,
+            head: 0,
+        };
         for p in driver.passages[inside_from..driver.next].iter().filter(|p| rear < p.exit) {
-            let start = sc.links.len() as u32;
-            sc.links.extend_from_slice(&p.links);
-            let k = sc.approaches.len() as u32;
-            for &(g, _) in &p.links {
-                if sc.by_link[g as usize].is_empty() {
-                    sc.touched.push(g);
-                }
-                sc.by_link[g as usize].push(k);
-            }
-            sc.approaches.push(Approach {
-                entity,
-                id,
-                front,
-                length: size.length,
-                speed,
-                v_max: follower.params.speed.max(speed),
-                inside: true,
-                going: true,
-                decides: negotiator.is_none(),
-                arrived_at: f64::INFINITY,
-                stopped: false,
-                junction: p.junction,
-                links: (start, sc.links.len() as u32),
-                exit: p.exit_lanelet,
-                entry: p.entry,
-                limit: f64::INFINITY,
-                entry_lanelet: p.entry_lanelet,
-                queued: false,
-                trailing: true,
-                waiting_now: 0.0,
-                head: k,
-            });
+            sc.register(p, seen);
         }
         let Some(p) = driver.passages.get(driver.next) else { continue };
         if p.entry - front > params.look_ahead {
@@ -771,38 +787,9 @@ pub fn give_way_at_junctions(
         if driver.arrived_at == 0.0 && p.entry - front < 20.0 {
             driver.arrived_at = now.max(1e-9);
         }
-        let start = sc.links.len() as u32;
-        sc.links.extend_from_slice(&p.links);
-        let k = sc.approaches.len() as u32;
-        for &(g, _) in &p.links {
-            if sc.by_link[g as usize].is_empty() {
-                sc.touched.push(g);
-            }
-            sc.by_link[g as usize].push(k);
-        }
-        sc.approaches.push(Approach {
-            entity,
-            id,
-            front,
-            length: size.length,
-            speed,
-            v_max: follower.params.speed.max(speed),
-            inside: false,
-            going: driver.going,
-            decides: negotiator.is_none(),
-            arrived_at: if driver.arrived_at > 0.0 { driver.arrived_at } else { f64::INFINITY },
-            stopped: driver.stopped,
-            junction: p.junction,
-            links: (start, sc.links.len() as u32),
-            exit: p.exit_lanelet,
-            entry: p.entry,
-            limit: f64::INFINITY,
-            entry_lanelet: p.entry_lanelet,
-            queued: false,
-            trailing: false,
-            waiting_now: driver.waiting_now,
-            head: k,
-        });
+        let arrived_at = if driver.arrived_at > 0.0 { driver.arrived_at } else { f64::INFINITY };
+        let (going, stopped, waiting_now) = (driver.going, driver.stopped, driver.waiting_now);
+        sc.register(p, Approach { inside: false, going, arrived_at, stopped, trailing: false, waiting_now, ..seen });
     }
     // Only the first vehicle before the stop line of each lanelet decides.
     sc.order.clear();

@@ -155,25 +155,8 @@ impl RandomTrips {
     pub fn trip(&self, map: &LaneletMap, seed: u64, stream: u64, k: u64) -> Option<RandomTrip> {
         for t in 0..TRIES {
             let origin = self.pick(uniform(seed, stream, k, FIRST_DRAW + 2 * t))?;
-            let Some(o) = map.lanelet_index(origin) else { continue };
-            let u = uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1);
-            let destination = if t < DIRECT_TRIES {
-                // Any lanelet: on a connected map (a grid) almost every pair has a route.
-                match self.pick(u) {
-                    Some(d) if d != origin => d,
-                    _ => continue,
-                }
-            } else {
-                // Among the lanelets this origin reaches: a map in several pieces (Lanelet2's
-                // example) would otherwise waste most draws on pairs no route joins.
-                let (reach, cumulative) = self.reachable(map, o);
-                let Some(d) = weighted_index(&cumulative, u) else { continue };
-                map.lanelets[reach[d]].id
-            };
-            if let Ok(path) = map.route_lanelets(origin, destination, &self.opts)
-                && path.length >= MIN_TRIP_M
-            {
-                return Some(RandomTrip { origin, destination, path: Arc::new(path), redraws: t });
+            if let Some(trip) = self.try_from(map, origin, (seed, stream, k), t) {
+                return Some(trip);
             }
         }
         None
@@ -184,26 +167,27 @@ impl RandomTrips {
     /// A trip of vehicle `k` that starts on `origin` (where a vehicle arrived): destinations are
     /// drawn as in [`RandomTrips::trip`].
     pub fn trip_from(&self, map: &LaneletMap, origin: LaneletId, seed: u64, stream: u64, k: u64) -> Option<RandomTrip> {
+        (0..TRIES).find_map(|t| self.try_from(map, origin, (seed, stream, k), t))
+    }
+
+    /// Draw `t` of a destination for a trip from `origin` ((seed, stream, vehicle) keys the
+    /// draw): any lanelet for the first [`DIRECT_TRIES`], then one the origin reaches; the trip
+    /// when a route of at least [`MIN_TRIP_M`] joins them.
+    fn try_from(&self, map: &LaneletMap, origin: LaneletId, key: (u64, u64, u64), t: u64) -> Option<RandomTrip> {
+        let (seed, stream, k) = key;
         let o = map.lanelet_index(origin)?;
-        for t in 0..TRIES {
-            let u = uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1);
-            let destination = if t < DIRECT_TRIES {
-                match self.pick(u) {
-                    Some(d) if d != origin => d,
-                    _ => continue,
-                }
-            } else {
-                let (reach, cumulative) = self.reachable(map, o);
-                let Some(d) = weighted_index(&cumulative, u) else { continue };
-                map.lanelets[reach[d]].id
-            };
-            if let Ok(path) = map.route_lanelets(origin, destination, &self.opts)
-                && path.length >= MIN_TRIP_M
-            {
-                return Some(RandomTrip { origin, destination, path: Arc::new(path), redraws: t });
-            }
-        }
-        None
+        let u = uniform(seed, stream, k, FIRST_DRAW + 2 * t + 1);
+        let destination = if t < DIRECT_TRIES {
+            // Any lanelet: on a connected map (a grid) almost every pair has a route.
+            self.pick(u).filter(|d| *d != origin)?
+        } else {
+            // Among the lanelets this origin reaches: a map in several pieces (Lanelet2's
+            // example) would otherwise waste most draws on pairs no route joins.
+            let (reach, cumulative) = self.reachable(map, o);
+            map.lanelets[reach[weighted_index(&cumulative, u)?]].id
+        };
+        let path = map.route_lanelets(origin, destination, &self.opts).ok().filter(|p| p.length >= MIN_TRIP_M)?;
+        Some(RandomTrip { origin, destination, path: Arc::new(path), redraws: t })
     }
 }
 
