@@ -42,7 +42,7 @@ fn assert_same_xml(expected: &str, actual: &str, what: &str) {
 
 #[test]
 fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
-    let cases: [(&str, String); 7] = [
+    let cases: [(&str, String); 9] = [
         ("maps/highway_ring.osm", ring_highway(&RingParams::default()).expect("defaults are valid")),
         (
             "maps/two_lane_ring.osm",
@@ -57,6 +57,27 @@ fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
             intersection(&IntersectionParams { arms: 4, ..IntersectionParams::default() }).expect("valid"),
         ),
         ("maps/grid_3x3.osm", grid_city(&GridParams::default()).expect("defaults are valid")),
+        (
+            "maps/grid_5x5_lights.osm",
+            grid_city(&GridParams {
+                rows: 5,
+                cols: 5,
+                block: 100.0,
+                lanes: 2,
+                control: generate::JunctionMarks { traffic_lights: true, major: None },
+                ..GridParams::default()
+            })
+            .expect("valid"),
+        ),
+        (
+            "maps/intersection4_major.osm",
+            intersection(&IntersectionParams {
+                arm_length: 100.0,
+                control: generate::JunctionMarks { traffic_lights: false, major: Some(generate::Axis::EastWest) },
+                ..IntersectionParams::default()
+            })
+            .expect("valid"),
+        ),
         (
             "maps/emergency_ring.osm",
             ring_highway(&RingParams { radius: 250.0, ..RingParams::default() }).expect("valid"),
