@@ -23,8 +23,6 @@ use crate::render::{SignalLine, stop_lines};
 use crate::sim::{Control, Plugin, SimBuilder, SimClock};
 use crate::vehicles::{JunctionNetwork, LongitudinalSystems, TrafficLights};
 
-use super::replay::ReplayError;
-
 /// Header of `lights.csv`.
 pub const LIGHTS_CSV_HEADER: &str = "t,junction,state";
 
@@ -158,6 +156,29 @@ fn push_lines(out: &mut Vec<SignalLine>, geometry: &[Vec<(DVec2, DVec2)>], junct
     out.extend(links.iter().zip(state).map(|(&(a, b), &signal)| SignalLine { a, b, signal }));
 }
 
+/// What stops reading a run's `lights.csv` (a replay reports it as its own error).
+#[derive(Debug, thiserror::Error)]
+pub enum LightsError {
+    /// The file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A row is malformed or does not fit the run's map.
+    #[error("{path}:{line}: {message} (expected `t,junction,state` rows in time order, as `smlworld run` writes them)")]
+    Row {
+        /// The CSV file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+}
+
 /// A run's `lights.csv`, replayed in time order.
 #[derive(Debug, Clone, Default)]
 pub struct LightTimeline {
@@ -171,11 +192,11 @@ impl LightTimeline {
     /// Read `path` (see the module docs); `Ok(None)` when there is no such file (a run without
     /// lights, or one older than `lights.csv`). When `map` is given, every junction must be one
     /// of its junctions and every state as long as its links.
-    pub fn read(path: &Path, map: Option<&LaneletMap>) -> Result<Option<LightTimeline>, ReplayError> {
+    pub fn read(path: &Path, map: Option<&LaneletMap>) -> Result<Option<LightTimeline>, LightsError> {
         let text = match std::fs::read_to_string(path) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(source) => return Err(ReplayError::Io { path: path.to_path_buf(), source }),
+            Err(source) => return Err(LightsError::Io { path: path.to_path_buf(), source }),
         };
         let links: Option<Vec<usize>> = map.map(|m| m.junctions().list.iter().map(|j| j.links.len()).collect());
         parse_lights(&text, path, links.as_deref()).map(Some)
@@ -205,8 +226,8 @@ impl LightTimeline {
     }
 }
 
-fn parse_lights(text: &str, path: &Path, links: Option<&[usize]>) -> Result<LightTimeline, ReplayError> {
-    let err = |line: usize, message: String| ReplayError::Lights { path: PathBuf::from(path), line, message };
+fn parse_lights(text: &str, path: &Path, links: Option<&[usize]>) -> Result<LightTimeline, LightsError> {
+    let err = |line: usize, message: String| LightsError::Row { path: PathBuf::from(path), line, message };
     let mut lines = text.lines().enumerate();
     match lines.next() {
         Some((_, h)) if h.trim() == LIGHTS_CSV_HEADER => {}

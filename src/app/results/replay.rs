@@ -148,16 +148,9 @@ pub enum ReplayError {
         /// What is wrong.
         message: String,
     },
-    /// A row of `lights.csv` is malformed or does not fit the run's map.
-    #[error("{path}:{line}: {message} (expected `t,junction,state` rows in time order, as `smlworld run` writes them)")]
-    Lights {
-        /// The CSV file.
-        path: PathBuf,
-        /// 1-based line number.
-        line: usize,
-        /// What is wrong.
-        message: String,
-    },
+    /// `lights.csv` cannot be read, or a row is malformed or does not fit the run's map.
+    #[error(transparent)]
+    Lights(#[from] super::lights::LightsError),
     /// The map named in `summary.json` could not be loaded.
     #[error("map {path} (named in summary.json): {message}")]
     Map {

@@ -577,7 +577,10 @@ pub struct TrafficPlugin;
 impl Plugin for TrafficPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.world_mut().init_resource::<Traffic>();
-        sim.configure_sets(Control, TrafficSystems.in_set(SimSystems::Control).before(LaneChangeSystems));
+        sim.configure_sets(
+            Control,
+            TrafficSystems.in_set(SimSystems::Control).before(LaneChangeSystems).before(super::trips::TripsSystems),
+        );
         sim.add_systems(Control, run_traffic.in_set(TrafficSystems));
     }
 }

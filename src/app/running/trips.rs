@@ -11,7 +11,7 @@
 //! the times the speed went below the threshold).
 
 use bevy_ecs::prelude::{Component, Entity, Query, Res, Resource, World};
-use bevy_ecs::schedule::IntoScheduleConfigs;
+use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 
 use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::vehicles::PathFollower;
@@ -215,6 +215,11 @@ pub fn trips_csv(records: &[TripRecord]) -> String {
     out
 }
 
+/// The set [`track_trips`] runs in; the traffic plugin orders its insertions and removals before
+/// it (they depart and arrive at that tick).
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct TripsSystems;
+
 /// Trip counting: the [`TripLog`] and [`track_trips`] at every control tick, after the traffic
 /// systems (whose insertions depart and whose removals arrive at that tick).
 #[derive(Debug, Clone, Copy, Default)]
@@ -223,7 +228,8 @@ pub struct TripsPlugin;
 impl Plugin for TripsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.world_mut().init_resource::<TripLog>();
-        sim.add_systems(Control, track_trips.in_set(SimSystems::Control).after(super::traffic::TrafficSystems));
+        sim.configure_sets(Control, TripsSystems.in_set(SimSystems::Control));
+        sim.add_systems(Control, track_trips.in_set(TripsSystems));
     }
 }
 
