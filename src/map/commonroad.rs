@@ -927,6 +927,7 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
         tag_index,
         warnings: Vec::new(),
         regulatory: BTreeMap::new(),
+        junctions: Default::default(),
         index,
         graph,
     })

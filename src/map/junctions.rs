@@ -805,9 +805,12 @@ pub fn default_program(junction: &Junction, left_hand: bool) -> Vec<SignalPhase>
 }
 
 impl LaneletMap {
-    /// The map's junctions under the default rules ([`find_junctions`]).
-    pub fn junctions(&self) -> Junctions {
-        find_junctions(self, &JunctionRules::default())
+    /// The map's junctions under the default rules ([`find_junctions`]), found once and shared
+    /// by everything that asks (the right-of-way plugin, random trips, the light log, `map info`).
+    pub fn junctions(&self) -> std::sync::Arc<Junctions> {
+        std::sync::Arc::clone(
+            self.junctions.get_or_init(|| std::sync::Arc::new(find_junctions(self, &JunctionRules::default()))),
+        )
     }
 
     /// Whether any lanelet is tagged `driving_side = left`.

@@ -142,6 +142,8 @@ pub struct LaneletMap {
     /// Regulatory elements (Lanelet2 `type=regulatory_element` relations: traffic lights,
     /// right of way, speed limits, ...), by relation id; empty for formats without them.
     pub regulatory: BTreeMap<i64, RegulatoryElement>,
+    /// The junctions under the default rules, found on first use ([`LaneletMap::junctions`]).
+    pub(crate) junctions: std::sync::OnceLock<std::sync::Arc<super::junctions::Junctions>>,
     pub(crate) index: BTreeMap<LaneletId, usize>,
     pub(crate) graph: RoutingGraph,
 }

@@ -75,7 +75,19 @@ fn build(doc: OsmObjects) -> Result<LaneletMap, MapError> {
         rayon::join(|| node_map(osm_nodes, &positions), || network(&source, ways, relations, &positions, &node_index));
     let Network { ways, lanelets, index, graph, regulatory, warnings: network_warnings } = network?;
     warnings.extend(network_warnings);
-    Ok(LaneletMap { projector, origin_node, nodes, ways, lanelets, tag_index, warnings, regulatory, index, graph })
+    Ok(LaneletMap {
+        projector,
+        origin_node,
+        nodes,
+        ways,
+        lanelets,
+        tag_index,
+        warnings,
+        regulatory,
+        junctions: Default::default(),
+        index,
+        graph,
+    })
 }
 
 /// The node map (tags moved in) and the index of node tag values.

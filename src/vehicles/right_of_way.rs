@@ -606,6 +606,11 @@ pub struct Scratch {
 }
 
 impl Scratch {
+    /// Route arc length [m] where approach `a`'s link `g` starts, if `g` is one of its links.
+    fn link_start(&self, a: &Approach, g: u32) -> Option<f64> {
+        self.links[a.links.0 as usize..a.links.1 as usize].iter().find(|(x, _)| *x == g).map(|&(_, s)| s)
+    }
+
     /// Add `a` near passage `p`: its links go to the shared buffer, it to each link's list.
     fn register(&mut self, p: &Passage, a: Approach) {
         let start = self.links.len() as u32;
@@ -946,11 +951,7 @@ fn conflicts_allow(
                 if q == me {
                     continue;
                 }
-                let Some(&(_, f_start)) =
-                    sc.links[f.links.0 as usize..f.links.1 as usize].iter().find(|(x, _)| *x == fc.foe)
-                else {
-                    continue;
-                };
+                let Some(f_start) = sc.link_start(f, fc.foe) else { continue };
                 let d_foe = f_start + fc.s_foe - f.front;
                 if d_foe + f.length + CLEAR < 0.0 {
                     continue;
@@ -1015,11 +1016,7 @@ fn occupied_ahead(me: usize, sc: &Scratch, net: &JunctionNetwork) -> Option<f64>
                 if q as usize == me || !f.inside {
                     continue;
                 }
-                let Some(&(_, f_start)) =
-                    sc.links[f.links.0 as usize..f.links.1 as usize].iter().find(|(x, _)| *x == fc.foe)
-                else {
-                    continue;
-                };
+                let Some(f_start) = sc.link_start(f, fc.foe) else { continue };
                 let d_foe = f_start + fc.s_foe - f.front;
                 let in_area = d_foe < CLEAR && d_foe + f.length + CLEAR > 0.0;
                 // Of two in each other's way, the one further from the point waits.
@@ -1047,15 +1044,18 @@ pub struct JunctionsPlugin {
 }
 
 impl JunctionsPlugin {
-    /// The junctions of the map under these rules.
-    pub fn junctions(&self) -> Junctions {
-        find_junctions(&self.map, &JunctionRules { fallback: self.params.default, left_hand: None })
+    /// The junctions of the map under these rules (the map's own under the default ones).
+    pub fn junctions(&self) -> Arc<Junctions> {
+        match self.params.default {
+            Fallback::RightBeforeLeft => self.map.junctions(),
+            fallback => Arc::new(find_junctions(&self.map, &JunctionRules { fallback, left_hand: None })),
+        }
     }
 }
 
 impl Plugin for JunctionsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
-        let junctions = Arc::new(self.junctions());
+        let junctions = self.junctions();
         if junctions.is_empty() {
             return;
         }
