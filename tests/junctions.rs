@@ -394,3 +394,52 @@ fn map_info_json_lists_junctions_with_links_conflicts_and_control() {
     let text = String::from_utf8_lossy(&text.stdout);
     assert_eq!(text.lines().filter(|l| l.contains(": traffic_light,")).count(), 32, "{text}");
 }
+
+/// Random traffic never starts within 25 m of a stop line: a car placed at speed just before
+/// one could not stop for a red light or a foe (a 10 x 10 town had two placed there, 2 m and
+/// 3 m before a red light, which crept over it and collided turning into the same street). Long
+/// lanelets that end at a junction are origins; only their last 25 m are not.
+#[test]
+fn random_traffic_starts_clear_of_stop_lines() {
+    let dir = std::env::temp_dir().join(format!("smlworld-junctions-clear-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let map_path = dir.join("town.osm");
+    let params = GridParams {
+        rows: 3,
+        cols: 3,
+        block: 200.0,
+        lanes: 2,
+        control: JunctionMarks { traffic_lights: true, major: None },
+        ..GridParams::default()
+    };
+    std::fs::write(&map_path, generate::grid_city(&params).unwrap()).unwrap();
+    let text = format!(
+        "seed = 3\nduration = 1\nmap = \"{}\"\n\n[[traffic]]\nroute = \"random\"\ncount = 600\nspeed = [10.0, 14.0]\nclasses = {{ car = 1.0 }}\nlane_change = false\n",
+        map_path.display()
+    );
+    let scenario = Scenario::parse_str(&text, &dir.join("clear.toml")).expect("scenario parses");
+    let map = LaneletMap::load(&map_path).unwrap();
+    let junctions = map.junctions();
+    let mut sim = scenario.builder().expect("scenario builds").build();
+    let world = sim.world_mut();
+    let mut query = world.query::<(&VehicleId, &VehicleState, &Route)>();
+    let (mut checked, mut long_before_junction) = (0, 0);
+    for (id, state, route) in query.iter(world) {
+        let origin = map.lanelet(route.0.lanelets[0]).expect("the origin is on the map");
+        let to_junction = origin.successors.iter().any(|&next| junctions.of_lanelet(next).is_some());
+        if !to_junction {
+            continue;
+        }
+        let s = route.0.project(state.position).s;
+        assert!(
+            s <= origin.length - 25.0 + 1e-6,
+            "vehicle {id:?} starts {:.1} m before the end of lanelet {:?}, which ends at a junction",
+            origin.length - s,
+            origin.id
+        );
+        checked += 1;
+        long_before_junction += usize::from(origin.length > 100.0);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(checked > 50 && long_before_junction > 50, "too few vehicles on lanelets up to a junction: {checked}");
+}

@@ -30,7 +30,7 @@ pub use builder::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use controllers::{AttachController, BUILT_IN_CONTROLLERS, ControllerRegistry, ScenarioController};
 pub use dynamics::{DynamicsPlugin, step_acceleration_unicycle, step_kinematic_unicycle};
 pub use grid::{Candidates, GridEntry, GridPoint, SpatialGrid};
-pub use parallel::Parallelism;
+pub use parallel::{Padded, Parallelism};
 pub use recorded::{RecordedSample, RecordedTrajectory, recorded_trajectories};
 pub use schedule::{
     Control, ControlEpoch, DuplicateModule, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, SimSystems,

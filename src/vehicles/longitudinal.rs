@@ -149,8 +149,10 @@ pub fn leader_on_path_with(
         if d.position.distance_squared(centre) > bound * bound {
             continue;
         }
-        let Some(p) = path.project_near_within(d.position, s + r, window, reach) else { continue };
-        let mut ahead = p.s - s;
+        // Walked from s + r to the nearest segment (a few segments: along a lane the distance
+        // has one minimum near there), the window searched only when the walk leaves it.
+        let Some((p_s, _, _, direction)) = path.near_within(d.position, s + r, window, reach) else { continue };
+        let mut ahead = p_s - s;
         if path.closed {
             ahead = ahead.rem_euclid(path.length);
             if ahead > 0.5 * path.length {
@@ -160,7 +162,7 @@ pub fn leader_on_path_with(
         if ahead <= 0.0 {
             continue;
         }
-        let speed = d.velocity.dot(DVec2::from_angle(p.heading));
+        let speed = d.velocity.dot(direction);
         return Some(LeaderGap { id: d.id, distance: ahead, gap: ahead - own_length, speed, acceleration: 0.0 });
     }
     None

@@ -50,6 +50,8 @@ pub struct RandomTrips {
     destination: Vec<bool>,
     /// By map index: routable successors (map indices).
     successors: Vec<Vec<u32>>,
+    /// By map index: whether a successor is a junction's link (the lanelet ends at a stop line).
+    before_junction: Vec<bool>,
 }
 
 /// A trip does not start closer than this to a junction [m] (a car at 12 m/s stops in 24 m at
@@ -107,7 +109,27 @@ impl RandomTrips {
             lanelets.push(map.lanelets[i].id);
             cumulative.push(total);
         }
-        RandomTrips { lanelets, cumulative, opts: RouteOptions { points_per_meter }, destination, successors }
+        let before_junction = successors.iter().map(|next| next.iter().any(|&j| link[j as usize])).collect();
+        RandomTrips {
+            lanelets,
+            cumulative,
+            opts: RouteOptions { points_per_meter },
+            destination,
+            successors,
+            before_junction,
+        }
+    }
+
+    /// How much of lanelet `i` (map index) a trip may start on, from its start [m]: all of it,
+    /// less the last [`CLEAR_OF_JUNCTIONS_M`] where it ends at a junction (a long lanelet up to
+    /// a stop line is an origin, but a car placed at speed just before the line could not stop
+    /// for a red light or a foe: two were, and collided, in a 10 x 10 town).
+    pub fn start_room(&self, i: usize, length: f64) -> f64 {
+        if self.before_junction.get(i).copied().unwrap_or(false) {
+            (length - CLEAR_OF_JUNCTIONS_M).max(0.0)
+        } else {
+            length
+        }
     }
 
     /// The lanelets reachable from `origin` (map index) whose end lies at least [`MIN_TRIP_M`]

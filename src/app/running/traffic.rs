@@ -485,7 +485,22 @@ pub fn place_random(world: &mut World, traffic: &mut Traffic, index: usize, coun
     const MISSES: u64 = 500;
     let mut misses = 0;
     let mut k = src.drawn;
+    // Draw k's trip depends on k alone: routed in batches over the cores (rayon), then taken in
+    // order of k as one at a time would (10,000 trips on a 20 x 20 town were most of its
+    // set-up); a batch's trips past the last one placed are dropped.
+    let mut batch: std::collections::VecDeque<Option<(RandomTrip, TrafficLane)>> = Default::default();
     while chosen.len() < count {
+        if batch.is_empty() {
+            use rayon::prelude::*;
+            let size = (count - chosen.len()).clamp(16, 1024) as u64;
+            let (stream, map) = (src.stream, &map);
+            batch = (k..k + size)
+                .into_par_iter()
+                .map(|k| trips.trip(map, seed, stream, k).and_then(|t| trip_lane(map, &t).map(|l| (t, l))))
+                .collect::<Vec<_>>()
+                .into();
+        }
+        let drawn = batch.pop_front().flatten();
         if misses >= MISSES {
             return Err(format!(
                 "{count} random vehicles do not fit on the map with {MIN_GAP} m + 2 m between them: {} did before {MISSES} draws in a row found no room; lower `count`",
@@ -493,15 +508,14 @@ pub fn place_random(world: &mut World, traffic: &mut Traffic, index: usize, coun
             ));
         }
         misses += 1;
-        let Some((trip, lane)) =
-            trips.trip(&map, seed, src.stream, k).and_then(|t| trip_lane(&map, &t).map(|l| (t, l)))
-        else {
+        let Some((trip, lane)) = drawn else {
             k += 1;
             continue;
         };
         let (v0, class, _) = draw(seed, src, k);
         let half = 0.5 * class_size(class).length;
-        let first = map.lanelets[lane.lanelet as usize].length.min(trip.path.length);
+        let room = trips.start_room(lane.lanelet as usize, map.lanelets[lane.lanelet as usize].length);
+        let first = room.min(trip.path.length);
         let s = if first > 2.0 * half {
             half + uniform(seed, src.stream, k, 4) * (first - 2.0 * half)
         } else {
