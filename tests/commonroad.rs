@@ -228,3 +228,83 @@ fn commonroad_keys_need_a_commonroad_map_and_known_problems() {
     let err = Scenario::parse_str(&bad, &path).unwrap_err().to_string();
     assert!(err.contains("replay"), "{err}");
 }
+
+/// The generated 4-way junction written as a CommonRoad 2020a file (ids 1.., bounds and
+/// successors as generated), with `extra(lanelet, heading at its end)` added inside each
+/// lanelet element, and `root_extra` after the lanelets.
+fn intersection_as_commonroad(extra: &dyn Fn(&smlworld::map::Lanelet, f64) -> String, root_extra: &str) -> String {
+    use smlworld::map::generate::{self, IntersectionParams};
+    let text = generate::intersection(&IntersectionParams::default()).unwrap();
+    let map = LaneletMap::parse_str(&text, Path::new("x.osm")).unwrap();
+    let id = |l: LaneletId| map.lanelets.iter().position(|m| m.id == l).unwrap() + 1;
+    let points =
+        |ps: &[DVec2]| ps.iter().map(|p| format!("<point><x>{}</x><y>{}</y></point>", p.x, p.y)).collect::<String>();
+    let mut out = String::from(
+        r#"<?xml version="1.0" encoding="UTF-8"?>
+<commonRoad timeStepSize="0.1" commonRoadVersion="2020a" author="t" affiliation="t" source="t" benchmarkID="ZAM_Junction-1_1_T-1" date="2026-12-05">
+"#,
+    );
+    for l in &map.lanelets {
+        let n = l.centre.len();
+        let d = l.centre[n - 1] - l.centre[n - 2];
+        let successors: String = l.successors.iter().map(|s| format!("<successor ref=\"{}\"/>", id(*s))).collect();
+        out += &format!(
+            "<lanelet id=\"{}\"><leftBound>{}</leftBound><rightBound>{}</rightBound>{successors}<laneletType>urban</laneletType>{}</lanelet>\n",
+            id(l.id),
+            points(&l.left),
+            points(&l.right),
+            extra(l, d.y.atan2(d.x))
+        );
+    }
+    out + root_extra + "</commonRoad>\n"
+}
+
+/// CommonRoad's traffic lights and signs decide a junction's control (issue 53 item 2 and 4):
+/// lights referenced by the incoming lanelets make it signalled, stop signs (206) on two arms
+/// make those arms minor and the others major; without either the equal arms are
+/// right-before-left. Counted by hand: the generated junction has 12 links, 3 per arm.
+#[test]
+fn traffic_lights_and_signs_of_a_commonroad_file_set_the_junction_control() {
+    use smlworld::map::junctions::JunctionControl;
+    let load = |text: String| CommonRoadScenario::parse_str(&text, Path::new("junction.xml")).unwrap().map;
+    let is_incoming = |l: &smlworld::map::Lanelet| l.successors.len() > 1;
+    let north_south = |heading: f64| heading.sin().abs() > 0.7;
+
+    let plain = load(intersection_as_commonroad(&|_, _| String::new(), ""));
+    let j = plain.junctions();
+    assert_eq!(j.list.len(), 1);
+    assert_eq!(j.list[0].links.len(), 12);
+    assert_eq!(j.list[0].control, JunctionControl::RightBeforeLeft);
+
+    let light = r#"<trafficLight id="900"><cycle><cycleElement><duration>300</duration><color>green</color></cycleElement><cycleElement><duration>300</duration><color>red</color></cycleElement></cycle></trafficLight>"#;
+    let lit = load(intersection_as_commonroad(
+        &|l, _| if is_incoming(l) { "<trafficLightRef ref=\"900\"/>".into() } else { String::new() },
+        light,
+    ));
+    let j = lit.junctions();
+    assert_eq!(j.list[0].control, JunctionControl::TrafficLight);
+    assert!(j.list[0].links.iter().all(|l| l.signal.is_some()));
+    let incoming = lit.lanelets.iter().find(|l| is_incoming(l)).unwrap();
+    assert_eq!(incoming.tags.get("commonroad:traffic_light").map(String::as_str), Some("900"));
+
+    let stop = r#"<trafficSign id="800"><trafficSignElement><trafficSignID>206</trafficSignID></trafficSignElement></trafficSign>"#;
+    let signed = load(intersection_as_commonroad(
+        &|l, h| if is_incoming(l) && north_south(h) { "<trafficSignRef ref=\"800\"/>".into() } else { String::new() },
+        stop,
+    ));
+    let j = signed.junctions();
+    assert_eq!(j.list[0].control, JunctionControl::Priority);
+    let majors: Vec<bool> = j.list[0].links.iter().map(|l| l.major).collect();
+    assert_eq!(majors.iter().filter(|m| **m).count(), 6, "east and west arms major: {majors:?}");
+    for link in &j.list[0].links {
+        assert_eq!(link.major, !north_south(link.heading_in), "link {:?} heading {}", link.lanelet, link.heading_in);
+    }
+
+    // A reference to a light or sign the file does not have is a warning, not a silent tag.
+    let dangling = load(intersection_as_commonroad(
+        &|l, _| if is_incoming(l) { "<trafficLightRef ref=\"901\"/>".into() } else { String::new() },
+        "",
+    ));
+    assert_eq!(dangling.junctions().list[0].control, JunctionControl::RightBeforeLeft);
+    assert!(dangling.warnings.iter().any(|w| w.message.contains("trafficLightRef 901")), "{:?}", dangling.warnings);
+}

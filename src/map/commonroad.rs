@@ -37,7 +37,7 @@
 //! `obstacle_role=static|environment` and `obstacle_id=<id>`, so maps draw them; these ways and
 //! their nodes have negative ids (-1, -2, ... in file order).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path as FsPath;
 
 use glam::DVec2;
@@ -635,6 +635,22 @@ impl CommonRoadScenario {
     }
 }
 
+/// The right of way a lanelet's traffic signs give its arm of the next junction: `minor`
+/// behind a stop or yield sign, `major` on a priority road (German sign numbers, which
+/// CommonRoad's `trafficSignID` uses for every country it converts: 205 yield, 206 stop, 301
+/// right of way at the next junction, 306 priority road; or the sign's name in other files).
+/// A stop or yield sign wins over a priority sign on the same lanelet.
+pub fn sign_priority(signs: &[String]) -> Option<&'static str> {
+    let is = |names: &[&str]| signs.iter().any(|s| names.iter().any(|n| s.eq_ignore_ascii_case(n)));
+    if is(&["205", "206", "yield", "stop", "give_way"]) {
+        Some("minor")
+    } else if is(&["301", "306", "priority", "priority_road", "right_of_way"]) {
+        Some("major")
+    } else {
+        None
+    }
+}
+
 /// `e` with `what` (an obstacle named by id) in front of its message.
 fn about(e: MapError, what: &str) -> MapError {
     match e {
@@ -831,6 +847,21 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
         }
     }
 
+    // Traffic lights and signs by id, for the lanelets that refer to them: a light makes the
+    // junction the lanelet leads into signalled, a stop or yield sign makes its arm minor, a
+    // priority-road sign major ([`super::junctions`] reads the tags up to 30 m upstream).
+    let lights: BTreeSet<i64> = root.children("trafficLight").filter_map(|t| cx.id(t).ok()).collect();
+    let mut signs: BTreeMap<i64, Vec<String>> = BTreeMap::new();
+    for sign in root.children("trafficSign") {
+        let Ok(id) = cx.id(sign) else { continue };
+        let ids = sign
+            .children("trafficSignElement")
+            .filter_map(|e| e.child("trafficSignID"))
+            .map(|t| t.text.trim().to_string())
+            .collect();
+        signs.insert(id, ids);
+    }
+
     let projector = Projector::new(0.0, 0.0);
     let mut nodes = BTreeMap::new();
     let mut ways = BTreeMap::new();
@@ -889,6 +920,39 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
                     tags.insert(format!("{key}_driving_dir"), d.to_string());
                 }
             }
+        }
+        let light_refs: Vec<i64> =
+            r.el.children("trafficLightRef").map(|t| cx.reference(t)).collect::<Result<_, _>>()?;
+        for &light in &light_refs {
+            if !lights.contains(&light) {
+                warnings.push(MapWarning {
+                    at: cx.at(r.el),
+                    message: format!("lanelet {}: trafficLightRef {light} is not in the file; ignored", r.id),
+                });
+            }
+        }
+        let light_refs: Vec<String> =
+            light_refs.into_iter().filter(|l| lights.contains(l)).map(|l| l.to_string()).collect();
+        if !light_refs.is_empty() {
+            tags.insert("traffic_light".into(), "yes".into());
+            tags.insert("commonroad:traffic_light".into(), light_refs.join(";"));
+        }
+        let mut sign_ids = Vec::new();
+        for t in r.el.children("trafficSignRef") {
+            let sign = cx.reference(t)?;
+            match signs.get(&sign) {
+                Some(ids) => sign_ids.extend(ids.iter().cloned()),
+                None => warnings.push(MapWarning {
+                    at: cx.at(t),
+                    message: format!("lanelet {}: trafficSignRef {sign} is not in the file; ignored", r.id),
+                }),
+            }
+        }
+        if let Some(priority) = sign_priority(&sign_ids) {
+            tags.insert("priority".into(), priority.into());
+        }
+        if !sign_ids.is_empty() {
+            tags.insert("commonroad:traffic_sign".into(), sign_ids.join(";"));
         }
         let not_for_vehicles = !types.is_empty() && types.iter().all(|t| NON_VEHICLE_TYPES.contains(&t.as_str()));
         let (mut left, mut right) = (r.left.clone(), r.right.clone());

@@ -672,8 +672,12 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
         let mut control = control;
         match control {
             JunctionControl::Priority => {
+                // An arm the map says nothing of is major where the others are only marked
+                // minor (stop or yield signs on the side roads, as CommonRoad and OSM maps
+                // mark them), else minor.
+                let unmarked = !roles.contains(&Some(true));
                 for (l, r) in links.iter_mut().zip(&roles) {
-                    l.major = r.unwrap_or(false);
+                    l.major = r.unwrap_or(unmarked);
                 }
             }
             JunctionControl::RightBeforeLeft | JunctionControl::TrafficLight => {
