@@ -173,3 +173,64 @@ fn gif_frames_match_the_png_frames_of_the_same_time() {
         assert!(share < 0.01, "frame {k}: {:.2} % of the channel values differ by more than 48", share * 100.0);
     }
 }
+
+/// Issue 61: frame 300 of the overtaking GIF had grey smears along the ring where labels had
+/// passed, while the PNG frame of the same time was clean (each GIF frame had its own palette,
+/// and pixels a label left were written back in the new palette's nearest colour). Now one
+/// colour of a PNG frame is one colour of the GIF everywhere, in every frame: checked on the
+/// first, mid and last frames of the overtaking run, together with a small mean error.
+#[test]
+fn overtaking_gif_has_no_ghost_trails() {
+    use image::AnimationDecoder;
+    let dir = tmp("overtaking-ghosts");
+    let (frames, gif) = (dir.join("frames"), dir.join("run.gif"));
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/overtaking.toml");
+    smlworld(&[
+        "run",
+        scenario.to_str().unwrap(),
+        "--duration",
+        "30",
+        "--frames",
+        frames.to_str().unwrap(),
+        "--gif",
+        gif.to_str().unwrap(),
+        "--frame-rate",
+        "4",
+        "--width",
+        "640",
+        "--height",
+        "360",
+        "--overlay",
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    let file = std::io::BufReader::new(std::fs::File::open(&gif).unwrap());
+    let decoded: Vec<image::RgbaImage> = image::codecs::gif::GifDecoder::new(file)
+        .unwrap()
+        .into_frames()
+        .collect_frames()
+        .unwrap()
+        .into_iter()
+        .map(|f| f.into_buffer())
+        .collect();
+    let mut pngs: Vec<PathBuf> = std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().path()).collect();
+    pngs.sort();
+    assert_eq!(decoded.len(), pngs.len(), "one GIF frame per PNG frame");
+    let mut shown_as: std::collections::HashMap<[u8; 3], [u8; 3]> = std::collections::HashMap::new();
+    for k in [0, decoded.len() / 2, decoded.len() - 1] {
+        let png = image::open(&pngs[k]).unwrap().to_rgba8();
+        let mut total = 0u64;
+        for (x, y, q) in png.enumerate_pixels() {
+            let p = decoded[k].get_pixel(x, y);
+            let (want, got) = ([q.0[0], q.0[1], q.0[2]], [p.0[0], p.0[1], p.0[2]]);
+            total += want.iter().zip(&got).map(|(a, b)| u64::from(a.abs_diff(*b))).sum::<u64>();
+            let first = *shown_as.entry(want).or_insert(got);
+            assert_eq!(
+                first, got,
+                "frame {k} pixel {x},{y}: PNG colour {want:?} shown as {got:?} here, {first:?} elsewhere (a ghost)"
+            );
+        }
+        let mean = total as f64 / (640.0 * 360.0 * 3.0);
+        assert!(mean < 4.0, "frame {k}: mean channel error {mean:.2}");
+    }
+}

@@ -33,6 +33,7 @@ pub struct FrameRecorder {
     layer: Option<EnvironmentLayer>,
     frames_dir: Option<PathBuf>,
     gif: Option<GifWriter>,
+    gif_path: Option<PathBuf>,
     gif_size: (u32, u32),
     sensor_ranges: bool,
     overlay: Overlay,
@@ -94,6 +95,7 @@ impl FrameRecorder {
             layer: None,
             frames_dir: frames.frames.clone(),
             gif,
+            gif_path: frames.gif.clone(),
             gif_size: (frames.width, frames.height),
             sensor_ranges: false,
             overlay: frames.overlay,
@@ -251,11 +253,12 @@ impl FrameRecorder {
 
     /// Finish the outputs: the GIF is completed and renamed into place (frames are written one by
     /// one as they come). A recorder dropped without this leaves an earlier GIF of the same name.
+    /// Logs the GIF's size: a followed view's moving ground makes every frame new.
     pub fn finish(self) -> Result<(), RenderError> {
-        match self.gif {
-            Some(gif) => gif.finish(),
-            None => Ok(()),
-        }
+        let (Some(gif), Some(path)) = (self.gif, self.gif_path) else { return Ok(()) };
+        let bytes = gif.finish()?;
+        tracing::info!("wrote {} ({} frames, {:.1} MB)", path.display(), self.frames, bytes as f64 / 1e6);
+        Ok(())
     }
 
     /// Number of frames recorded so far.

@@ -106,6 +106,12 @@ pub fn read_replay_marks(out_dir: &FsPath) -> Result<ReplayMarks, ReplayError> {
     Ok(marks)
 }
 
+/// The sim time a run covered [s] (`sim_seconds` of `OUT_DIR/summary.json`), if it says.
+fn run_sim_seconds(out_dir: &FsPath) -> Option<f64> {
+    let text = std::fs::read_to_string(out_dir.join("summary.json")).ok()?;
+    serde_json::from_str::<serde_json::Value>(&text).ok()?["sim_seconds"].as_f64()
+}
+
 /// What a replay did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct ReplayReport {
@@ -389,7 +395,13 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     let mut report = ReplayReport::default();
     let wall_start = Instant::now();
     let mut first = true;
+    // Progress on a terminal as `run` shows it, over the run's sim time (summary.json).
+    let total = run_sim_seconds(out_dir);
+    let bar = total.and_then(|total| crate::app::progress::sim_time_bar(total, true));
     while reader.next_group(&mut next)? {
+        if let (Some(bar), Some(total)) = (&bar, total) {
+            crate::app::progress::set_progress(bar, SimTime(next.t_us).as_secs(), total);
+        }
         if crate::app::running::interrupt::requested().is_some() {
             report.interrupted = true;
             break;
@@ -484,6 +496,9 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         }
         std::mem::swap(&mut prev, &mut next);
         next.t_us = prev.t_us;
+    }
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
     }
     if let Some(rec) = recorder {
         rec.finish()?;
