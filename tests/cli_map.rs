@@ -98,8 +98,17 @@ fn route_json_numbers_are_millimetres() {
 fn map_render_prints_rounded_figures() {
     let map = common::shared("sml2015/HighwaySML.xml");
     let out = std::env::temp_dir().join(format!("smlworld-render-figures-{}.png", std::process::id()));
-    let (ok, stdout, stderr) =
-        smlworld(&["map", "render", map.to_str().unwrap(), "--out", out.to_str().unwrap(), "--width", "320", "--height", "240"]);
+    let (ok, stdout, stderr) = smlworld(&[
+        "map",
+        "render",
+        map.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--width",
+        "320",
+        "--height",
+        "240",
+    ]);
     let _ = std::fs::remove_file(&out);
     let _ = std::fs::remove_file(out.with_extension("meta"));
     assert!(ok, "{stderr}");

@@ -63,15 +63,15 @@ fn recording_writes_frames_and_gif_without_changing_results() {
     let b = std::fs::read(rec.join("trajectories.csv")).unwrap();
     assert_eq!(a, b, "recording must not change the trajectories");
 
-    // 2 s at 5 Hz: frames at 0.2, 0.4, ..., 2.0 s.
+    // 2 s at 5 Hz: frame k at t = k / 5 Hz from t = 0 (issue 61: the first frame showed 0.2 s).
     let mut names: Vec<_> = std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().file_name()).collect();
     names.sort();
-    assert_eq!(names.len(), 10, "{names:?}");
+    assert_eq!(names.len(), 11, "{names:?}");
     assert_eq!(names[0], "frame_000000.png");
     let decoder =
         image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
     let gif_frames = image::AnimationDecoder::into_frames(decoder).collect_frames().unwrap();
-    assert_eq!(gif_frames.len(), 10);
+    assert_eq!(gif_frames.len(), 11);
     assert_eq!(gif_frames[0].buffer().dimensions(), (640, 360));
 
     // In the last frame (t = 2 s), each vehicle's centre pixel differs from the bare map, and a
@@ -90,7 +90,7 @@ fn recording_writes_frames_and_gif_without_changing_results() {
         "360",
     ]);
     let env = image::open(&env_png).unwrap().to_rgba8();
-    let last = image::open(frames.join("frame_000009.png")).unwrap().to_rgba8();
+    let last = image::open(frames.join("frame_000010.png")).unwrap().to_rgba8();
     let view = BirdseyeView::fit_map(640, 360, &LaneletMap::load(&map_path).unwrap()).unwrap();
     let positions = positions_at(&rec.join("trajectories.csv"), 2.0);
     assert_eq!(positions.len(), 12);
@@ -105,7 +105,7 @@ fn recording_writes_frames_and_gif_without_changing_results() {
 
     // The GIF stores only what changed between frames; composed, its last frame is the last PNG
     // frame up to palette quantisation (256 colours per frame): mean channel error below 6.
-    let composed = gif_frames[9].buffer();
+    let composed = gif_frames[10].buffer();
     let total: u64 = composed
         .pixels()
         .zip(last.pixels())
@@ -233,4 +233,31 @@ fn overtaking_gif_has_no_ghost_trails() {
         let mean = total as f64 / (640.0 * 360.0 * 3.0);
         assert!(mean < 4.0, "frame {k}: mean channel error {mean:.2}");
     }
+}
+
+/// Issue 61: `replay RUN --gif out.gif --follow -2` of the overtaking run wrote 459 MB silently
+/// (600 frames of 1280x720, each new: the ground moves). A followed GIF takes at most 5 Hz at
+/// 640 px wide unless --full-gif, and the size written is printed.
+#[test]
+fn a_followed_gif_stays_small_and_says_its_size() {
+    let dir = tmp("follow-gif");
+    let (out, gif) = (dir.join("out"), dir.join("follow.gif"));
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/overtaking.toml");
+    smlworld(&["run", scenario.to_str().unwrap(), "--duration", "10", "--out", out.to_str().unwrap()]);
+    let o = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["replay", out.to_str().unwrap(), "--gif", gif.to_str().unwrap(), "--follow", "-2"])
+        .output()
+        .expect("runs smlworld");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let bytes = std::fs::metadata(&gif).unwrap().len();
+    assert!(stderr.contains(&format!("{:.1} MB)", bytes as f64 / 1e6)), "the size written is printed: {stderr}");
+    let decoder =
+        image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    let (w, h) = image::ImageDecoder::dimensions(&decoder);
+    assert_eq!((w, h), (640, 360), "a followed GIF at most 640 px wide");
+    let frames = image::AnimationDecoder::into_frames(decoder).collect_frames().unwrap();
+    // 0 .. 10 s at 10 Hz drawn, every second frame kept: 0, 0.2, ..., 10 s.
+    assert_eq!(frames.len(), 51, "5 Hz of 10 s from t = 0");
+    assert!(bytes < 15_000_000, "{bytes} bytes for 10 s");
 }

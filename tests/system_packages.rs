@@ -78,7 +78,6 @@ fn ci_run_calls_the_test_command_and_installs_nothing_itself() {
     let ci = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(".ci/run")).unwrap();
     assert!(ci.contains("bash scripts/test.sh"), "{ci}");
     assert!(!ci.contains("apt-get install"), ".ci/run installs nothing test.sh needs: {ci}");
-    let test_sh =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/test.sh")).unwrap();
+    let test_sh = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/test.sh")).unwrap();
     assert!(test_sh.contains("bash scripts/system_packages.sh"), "{test_sh}");
 }

@@ -399,6 +399,13 @@ fn drive(
     let chunk = if recorder.is_some() { 1.0 / options.frame_output.frame_rate } else { 1.0 };
     let mut marks = FrameMarks::default();
     let bar = super::progress::sim_time_bar(duration, options.progress && duration >= 30.0);
+    // Frame k shows the state at t = k / frame rate from t = 0 (issue 61: frame 0 showed the
+    // first chunk's end, and no frame the start).
+    if let Some(rec) = recorder.as_mut()
+        && let Err(e) = marks.record(rec, sim.world(), options.sensor_ranges)
+    {
+        record_error = Some(e);
+    }
     let progress = |sim: &Sim| {
         if let Some(rec) = recorder.as_mut().filter(|_| record_error.is_none())
             && let Err(e) = marks.record(rec, sim.world(), options.sensor_ranges)

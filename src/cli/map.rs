@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
-use smlworld::map::commonroad::{CommonRoadScenario, CommonRoadState, is_commonroad};
 use smlworld::app::results::output::{LENGTH_DECIMALS, rounded};
+use smlworld::map::commonroad::{CommonRoadScenario, CommonRoadState, is_commonroad};
 use smlworld::map::{LaneChange, LaneChangeOptions, LaneletMap, MapError, Place, RouteOptions, Routed};
 
 use super::{map_generate, map_render};

@@ -215,8 +215,8 @@ impl GifWriter {
         if self.palette.is_none() {
             let palette = GifPalette::learn(&image);
             let out = self.out.take().ok_or_else(|| write_error(&self.path, "GIF already finished"))?;
-            let mut encoder =
-                gif::Encoder::new(out, self.size.0, self.size.1, &palette.table()).map_err(|e| write_error(&self.path, e))?;
+            let mut encoder = gif::Encoder::new(out, self.size.0, self.size.1, &palette.table())
+                .map_err(|e| write_error(&self.path, e))?;
             encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(&self.path, e))?;
             self.encoder = Some(encoder);
             self.palette = Some(palette);
