@@ -222,7 +222,7 @@ impl FrameRecorder {
             }
         }
         let (every, gif_w, gif_h) = self.gif_sampling;
-        if let Some(gif) = self.gif.as_mut().filter(|_| self.frames % every == 0) {
+        if let Some(gif) = self.gif.as_mut().filter(|_| self.frames.is_multiple_of(every)) {
             if self.image.dimensions() != self.gif_size {
                 tracing::warn!(
                     "a {}x{} px frame does not fit the {}x{} px GIF: left out of it",
