@@ -13,6 +13,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# System packages the tests need (Mesa's software Vulkan, Xvfb, xwd, the X11 libraries winit
+# loads, python3-venv): installed with apt-get when missing and run as root, else the script
+# stops with a message naming them (scripts/system_packages.sh).
+bash scripts/system_packages.sh
+
 VENV=.venv
 if [ ! -x "$VENV/bin/python" ]; then
   python3 -m venv "$VENV"
@@ -57,10 +62,9 @@ rust=0
 if cargo nextest --version >/dev/null 2>&1; then
   # cargo-nextest (on machines of this kind) runs the test binaries side by side, not one after
   # another. It does not run doc-tests; cargo test does those.
+  # The doc-tests run even when a test failed, so one failure does not hide them.
   cargo nextest run --release --workspace --no-fail-fast || rust=$?
-  if [ "$rust" -eq 0 ]; then
-    cargo test --release --workspace --doc || rust=$?
-  fi
+  cargo test --release --workspace --doc || rust=$?
 else
   cargo test --release --workspace || rust=$?
 fi

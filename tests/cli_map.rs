@@ -65,6 +65,57 @@ fn loop_and_route_json() {
     assert!(route_len > 10.0 && route_len < 374.4, "{route_len}");
 }
 
+/// The most decimals of any number in `text` (digits after a `.` that follows a digit).
+fn most_decimals(text: &str) -> usize {
+    let b = text.as_bytes();
+    let mut most = 0;
+    for i in 1..b.len() {
+        if b[i] == b'.' && b[i - 1].is_ascii_digit() {
+            most = most.max(b[i + 1..].iter().take_while(|c| c.is_ascii_digit()).count());
+        }
+    }
+    most
+}
+
+/// Issue 61: `map route --json` printed ~2,500 points of 17 digits; lengths and points are in
+/// millimetres, as the trajectory CSV.
+#[test]
+fn route_json_numbers_are_millimetres() {
+    let map = common::shared("sml2015/HighwaySML.xml");
+    let m = map.to_str().unwrap();
+    for args in [
+        vec!["map", "route", m, "--from-tag", "right_lane_node", "--to", "-138", "--json"],
+        vec!["map", "loop", m, "--tag", "center_lane_node", "--json"],
+    ] {
+        let (ok, stdout, stderr) = smlworld(&args);
+        assert!(ok, "{stderr}");
+        assert!(most_decimals(&stdout) <= 3, "{args:?}: more than 3 decimals in {}", &stdout[..stdout.len().min(400)]);
+    }
+}
+
+/// Issue 61: `map render` printed `12.428076922573725 px/m, centre 0.0000016964040696620941, ...`.
+#[test]
+fn map_render_prints_rounded_figures() {
+    let map = common::shared("sml2015/HighwaySML.xml");
+    let out = std::env::temp_dir().join(format!("smlworld-render-figures-{}.png", std::process::id()));
+    let (ok, stdout, stderr) = smlworld(&[
+        "map",
+        "render",
+        map.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--width",
+        "320",
+        "--height",
+        "240",
+    ]);
+    let _ = std::fs::remove_file(&out);
+    let _ = std::fs::remove_file(out.with_extension("meta"));
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("px/m, centre "), "{stdout}");
+    assert!(most_decimals(&stdout) <= 3, "more than 3 decimals: {stdout}");
+}
+
 #[test]
 fn errors_are_messages_not_panics() {
     let map = common::shared("sml2015/HighwaySML.xml");

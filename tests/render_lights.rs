@@ -78,8 +78,8 @@ fn stop_lines_show_their_signals_in_run_and_replay_frames() {
     let program = default_program(&map.junctions().list[0], false);
     let (first, second) = (&program[0].state, &program[3].state);
     assert!(first.contains('G') && first.contains('r'), "{first}");
-    let at_10 = stop_line_colours(&frames.join("frame_000000.png"), &map);
-    let at_40 = stop_line_colours(&frames.join("frame_000003.png"), &map);
+    let at_10 = stop_line_colours(&frames.join("frame_000001.png"), &map);
+    let at_40 = stop_line_colours(&frames.join("frame_000004.png"), &map);
     assert_eq!(at_10, expected(first), "t = 10 s shows {first}");
     assert_eq!(at_40, expected(second), "t = 40 s shows {second}");
     assert!(at_10.iter().zip(&at_40).any(|(a, b)| *a == SIGNAL_RED && *b == SIGNAL_GREEN), "a red line turned green");
@@ -88,17 +88,17 @@ fn stop_lines_show_their_signals_in_run_and_replay_frames() {
     let csv = std::fs::read_to_string(out.join("lights.csv")).unwrap();
     let rows: Vec<&str> = csv.lines().collect();
     assert_eq!(rows[0], "t,junction,state");
-    assert_eq!(rows[1], format!("0.000000,1,{first}"));
+    assert_eq!(rows[1], format!("0,1,{first}"), "t with trailing zeros dropped (README)");
     assert_eq!(rows.len(), 5, "{csv}");
-    assert!(rows[4].starts_with("32.000000,1,"), "{csv}");
+    assert!(rows[4].starts_with("32,1,"), "{csv}");
 
     // The replay draws the same colours from lights.csv.
     let replayed = dir.join("replayed");
     let mut args = vec!["replay", out.to_str().unwrap(), "--frames", replayed.to_str().unwrap(), "--frame-rate", "0.1"];
     args.extend(VIEW);
     smlworld(&args);
-    assert_eq!(stop_line_colours(&replayed.join("frame_000000.png"), &map), at_10);
-    assert_eq!(stop_line_colours(&replayed.join("frame_000003.png"), &map), at_40);
+    assert_eq!(stop_line_colours(&replayed.join("frame_000001.png"), &map), at_10);
+    assert_eq!(stop_line_colours(&replayed.join("frame_000004.png"), &map), at_40);
 
     // A run without lights removes an earlier run's lights.csv (a replay would draw them).
     let plain = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/highway.toml");

@@ -63,15 +63,15 @@ fn recording_writes_frames_and_gif_without_changing_results() {
     let b = std::fs::read(rec.join("trajectories.csv")).unwrap();
     assert_eq!(a, b, "recording must not change the trajectories");
 
-    // 2 s at 5 Hz: frames at 0.2, 0.4, ..., 2.0 s.
+    // 2 s at 5 Hz: frame k at t = k / 5 Hz from t = 0 (issue 61: the first frame showed 0.2 s).
     let mut names: Vec<_> = std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().file_name()).collect();
     names.sort();
-    assert_eq!(names.len(), 10, "{names:?}");
+    assert_eq!(names.len(), 11, "{names:?}");
     assert_eq!(names[0], "frame_000000.png");
     let decoder =
         image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
     let gif_frames = image::AnimationDecoder::into_frames(decoder).collect_frames().unwrap();
-    assert_eq!(gif_frames.len(), 10);
+    assert_eq!(gif_frames.len(), 11);
     assert_eq!(gif_frames[0].buffer().dimensions(), (640, 360));
 
     // In the last frame (t = 2 s), each vehicle's centre pixel differs from the bare map, and a
@@ -90,7 +90,7 @@ fn recording_writes_frames_and_gif_without_changing_results() {
         "360",
     ]);
     let env = image::open(&env_png).unwrap().to_rgba8();
-    let last = image::open(frames.join("frame_000009.png")).unwrap().to_rgba8();
+    let last = image::open(frames.join("frame_000010.png")).unwrap().to_rgba8();
     let view = BirdseyeView::fit_map(640, 360, &LaneletMap::load(&map_path).unwrap()).unwrap();
     let positions = positions_at(&rec.join("trajectories.csv"), 2.0);
     assert_eq!(positions.len(), 12);
@@ -105,7 +105,7 @@ fn recording_writes_frames_and_gif_without_changing_results() {
 
     // The GIF stores only what changed between frames; composed, its last frame is the last PNG
     // frame up to palette quantisation (256 colours per frame): mean channel error below 6.
-    let composed = gif_frames[9].buffer();
+    let composed = gif_frames[10].buffer();
     let total: u64 = composed
         .pixels()
         .zip(last.pixels())
@@ -172,4 +172,92 @@ fn gif_frames_match_the_png_frames_of_the_same_time() {
         let share = off as f64 / all as f64;
         assert!(share < 0.01, "frame {k}: {:.2} % of the channel values differ by more than 48", share * 100.0);
     }
+}
+
+/// Issue 61: frame 300 of the overtaking GIF had grey smears along the ring where labels had
+/// passed, while the PNG frame of the same time was clean (each GIF frame had its own palette,
+/// and pixels a label left were written back in the new palette's nearest colour). Now one
+/// colour of a PNG frame is one colour of the GIF everywhere, in every frame: checked on the
+/// first, mid and last frames of the overtaking run, together with a small mean error.
+#[test]
+fn overtaking_gif_has_no_ghost_trails() {
+    use image::AnimationDecoder;
+    let dir = tmp("overtaking-ghosts");
+    let (frames, gif) = (dir.join("frames"), dir.join("run.gif"));
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/overtaking.toml");
+    smlworld(&[
+        "run",
+        scenario.to_str().unwrap(),
+        "--duration",
+        "30",
+        "--frames",
+        frames.to_str().unwrap(),
+        "--gif",
+        gif.to_str().unwrap(),
+        "--frame-rate",
+        "4",
+        "--width",
+        "640",
+        "--height",
+        "360",
+        "--overlay",
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    let file = std::io::BufReader::new(std::fs::File::open(&gif).unwrap());
+    let decoded: Vec<image::RgbaImage> = image::codecs::gif::GifDecoder::new(file)
+        .unwrap()
+        .into_frames()
+        .collect_frames()
+        .unwrap()
+        .into_iter()
+        .map(|f| f.into_buffer())
+        .collect();
+    let mut pngs: Vec<PathBuf> = std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().path()).collect();
+    pngs.sort();
+    assert_eq!(decoded.len(), pngs.len(), "one GIF frame per PNG frame");
+    let mut shown_as: std::collections::HashMap<[u8; 3], [u8; 3]> = std::collections::HashMap::new();
+    for k in [0, decoded.len() / 2, decoded.len() - 1] {
+        let png = image::open(&pngs[k]).unwrap().to_rgba8();
+        let mut total = 0u64;
+        for (x, y, q) in png.enumerate_pixels() {
+            let p = decoded[k].get_pixel(x, y);
+            let (want, got) = ([q.0[0], q.0[1], q.0[2]], [p.0[0], p.0[1], p.0[2]]);
+            total += want.iter().zip(&got).map(|(a, b)| u64::from(a.abs_diff(*b))).sum::<u64>();
+            let first = *shown_as.entry(want).or_insert(got);
+            assert_eq!(
+                first, got,
+                "frame {k} pixel {x},{y}: PNG colour {want:?} shown as {got:?} here, {first:?} elsewhere (a ghost)"
+            );
+        }
+        let mean = total as f64 / (640.0 * 360.0 * 3.0);
+        assert!(mean < 4.0, "frame {k}: mean channel error {mean:.2}");
+    }
+}
+
+/// Issue 61: `replay RUN --gif out.gif --follow -2` of the overtaking run wrote 459 MB silently
+/// (600 frames of 1280x720, each new: the ground moves). A followed GIF takes at most 5 Hz at
+/// 640 px wide unless --full-gif, and the size written is printed.
+#[test]
+fn a_followed_gif_stays_small_and_says_its_size() {
+    let dir = tmp("follow-gif");
+    let (out, gif) = (dir.join("out"), dir.join("follow.gif"));
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/overtaking.toml");
+    smlworld(&["run", scenario.to_str().unwrap(), "--duration", "10", "--out", out.to_str().unwrap()]);
+    let o = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["replay", out.to_str().unwrap(), "--gif", gif.to_str().unwrap(), "--follow", "-2"])
+        .output()
+        .expect("runs smlworld");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let bytes = std::fs::metadata(&gif).unwrap().len();
+    assert!(stderr.contains(&format!("{:.1} MB)", bytes as f64 / 1e6)), "the size written is printed: {stderr}");
+    let decoder =
+        image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    let (w, h) = image::ImageDecoder::dimensions(&decoder);
+    assert_eq!((w, h), (640, 360), "a followed GIF at most 640 px wide");
+    let frames = image::AnimationDecoder::into_frames(decoder).collect_frames().unwrap();
+    // 0 .. 10 s at 10 Hz drawn, every second frame kept: 0, 0.2, ..., 10 s.
+    assert_eq!(frames.len(), 51, "5 Hz of 10 s from t = 0");
+    assert!(bytes < 15_000_000, "{bytes} bytes for 10 s");
 }

@@ -143,7 +143,8 @@ fn every_vehicle_in_view_has_its_label_at_640x360_on_the_platoon() {
     let frames = dir.join("frames");
     smlworld(&["run", PLATOON, "--duration", "3", "--out", s(&dir)]);
     smlworld(&["replay", s(&dir), "--frames", s(&frames), "--width", "640", "--height", "360"]);
-    // Frame 19 is t = 2.0 s, a logged time: the replay draws the logged positions exactly.
+    // Frame 20 is t = 2.0 s (frame k at k / 10 Hz from t = 0), a logged time: the replay draws
+    // the logged positions exactly.
     let at = positions(&dir.join("trajectories.csv"), 2.0);
     assert_eq!(at.len(), 5);
     let map = LaneletMap::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("maps/highway_ring.osm")).unwrap();
@@ -154,7 +155,7 @@ fn every_vehicle_in_view_has_its_label_at_640x360_on_the_platoon() {
     let mut ids: Vec<i32> = boxes.iter().map(|b| b.0).collect();
     ids.sort_unstable();
     assert_eq!(ids, vec![-5, -4, -3, -2, -1], "a label for each of the five trucks");
-    let img = frame(&frames, 19);
+    let img = frame(&frames, 20);
     for (id, [x0, y0, x1, y1]) in boxes {
         // White glyph pixels and their outline in the vehicle's colour inside the box.
         let c = smlworld::render::vehicle_color(id);
@@ -209,8 +210,8 @@ fn a_replayed_collision_is_a_red_ring_for_two_seconds() {
             })
             .count()
     };
-    // Frames k are at (k + 1) / 10 s: 0.5 s before, 1 s and 2.7 s after the collision.
-    assert_eq!(red_near(&frame(&frames, 4)), 0, "no ring before the collision");
-    assert!(red_near(&frame(&frames, 17)) > 30, "a ring 1 s after it");
-    assert_eq!(red_near(&frame(&frames, 34)), 0, "gone 2.7 s after it");
+    // Frames k are at k / 10 s: 0.3 s before, 1 s and 2.7 s after the collision.
+    assert_eq!(red_near(&frame(&frames, 5)), 0, "no ring before the collision");
+    assert!(red_near(&frame(&frames, 18)) > 30, "a ring 1 s after it");
+    assert_eq!(red_near(&frame(&frames, 35)), 0, "gone 2.7 s after it");
 }

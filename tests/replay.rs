@@ -64,16 +64,16 @@ fn replay_draws_the_frames_of_the_run() {
 
     let run = frames_in(&run_frames);
     let replay = frames_in(&replay_frames);
-    // Frames at 0.2, 0.4, ..., 2.0 s; the log (10 Hz) also holds the final state at 2.0 s, so the
-    // replay draws the same ten frames.
-    assert_eq!(run.len(), 10);
-    assert_eq!(replay.len(), 10);
+    // Frames at 0, 0.2, ..., 2.0 s (frame k at t = k / 5 Hz, issue 61); the log (10 Hz) also
+    // holds the final state at 2.0 s, so the replay draws the same eleven frames.
+    assert_eq!(run.len(), 11);
+    assert_eq!(replay.len(), 11);
     for (k, (a, b)) in run.iter().zip(&replay).enumerate() {
         let d = differing(a, b, TOLERANCE.channel);
         assert!(d <= TOLERANCE.fraction, "replay frame {k} differs from the run's in {:.3} % of pixels", d * 100.0);
     }
     // The vehicles move: consecutive frames differ, so equal frames above mean equal positions.
-    assert!(differing(&run[0], &run[1], TOLERANCE.channel) > TOLERANCE.fraction);
+    assert!(differing(&run[1], &run[2], TOLERANCE.channel) > TOLERANCE.fraction);
 
     // At 20 Hz (twice the log rate) every other frame is interpolated; the frame at 0.4 s lies on
     // a logged row and is the run's second 5 Hz frame.
@@ -81,11 +81,11 @@ fn replay_draws_the_frames_of_the_run() {
     args.extend(size);
     ok(&args);
     let fine = frames_in(&fine);
-    assert_eq!(fine.len(), 40, "0.05 .. 2.0 s at 20 Hz (the log ends with the final state at 2.0 s)");
-    assert!(differing(&fine[7], &run[1], TOLERANCE.channel) <= TOLERANCE.fraction);
+    assert_eq!(fine.len(), 41, "0, 0.05 .. 2.0 s at 20 Hz (the log ends with the final state at 2.0 s)");
+    assert!(differing(&fine[8], &run[2], TOLERANCE.channel) <= TOLERANCE.fraction);
     // An interpolated frame (0.45 s) lies between its neighbours, equal to neither.
-    assert!(differing(&fine[8], &fine[7], TOLERANCE.channel) > 0.0);
-    assert!(differing(&fine[8], &fine[9], TOLERANCE.channel) > 0.0);
+    assert!(differing(&fine[9], &fine[8], TOLERANCE.channel) > 0.0);
+    assert!(differing(&fine[9], &fine[10], TOLERANCE.channel) > 0.0);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -1,7 +1,7 @@
 //! `smlworld view` for real under Xvfb: start a virtual X server on a free display, open the
 //! viewer with the ring map as background, stream a known scene, screenshot the root window
 //! with `xwd`, and check the vehicles are drawn where the view puts them; then move them and
-//! check the window follows. Fails (never skips) when Xvfb or xwd is missing: `.ci/run`
+//! check the window follows. Fails (never skips) when Xvfb or xwd is missing: `scripts/test.sh`
 //! installs them (Debian packages `xvfb` and `x11-apps`).
 
 mod view_support;

@@ -441,7 +441,7 @@ impl Core {
 }
 
 fn serde_json_string(summary: &smlworld::app::RunSummary) -> PyResult<String> {
-    serde_json::to_string(summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    serde_json::to_string(&summary.to_json()).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
 
 /// `smlworld run`: run a scenario file (with overrides) and write trajectories.csv and

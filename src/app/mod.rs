@@ -35,6 +35,7 @@
 //! controller at time t sees sensor readings and messages of time t, and its command drives the
 //! dynamics step that starts at t.
 
+pub mod progress;
 pub mod results;
 mod run;
 pub mod running;

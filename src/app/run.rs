@@ -282,7 +282,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     let summary_path = options.out.join("summary.json");
     let summary_tmp = options.out.join(".summary.json.partial");
     outputs.0.push(summary_tmp.clone());
-    let json = serde_json::to_string_pretty(&summary)
+    let json = serde_json::to_string_pretty(&summary.to_json())
         .map_err(|e| RunError::Io { path: summary_path.clone(), source: std::io::Error::other(e) })?;
     std::fs::write(&summary_tmp, format!("{json}\n"))
         .map_err(|source| RunError::Io { path: summary_tmp.clone(), source })?;
@@ -338,8 +338,8 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         .map_or(String::new(), |l| format!(", lane changes {} ({} aborted)", l.count, l.aborted));
     let collisions = summary.metrics.as_ref().map_or(0, |m| m.collision_count);
     tracing::info!(
-        "{} vehicles, {:.1} sim s in {:.2} wall s ({:.1}x real time), {}, seed {}, max distance to centre line {:.3} m{lane_changes}; wrote {} and {}",
-        summary.vehicles,
+        "{}, {:.1} sim s in {:.2} wall s ({:.1}x real time), {}, seed {}, max distance to centre line {:.3} m{lane_changes}; wrote {} and {}",
+        vehicles_text(&summary),
         summary.sim_seconds,
         summary.wall_seconds,
         summary.real_time_factor,
@@ -350,6 +350,15 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         summary_path.display()
     );
     Ok(summary)
+}
+
+/// `N vehicles` for the closing line; with background traffic `N vehicles inserted, M still
+/// present` (a lane-drop run whose vehicles all left said `0 vehicles`).
+pub fn vehicles_text(summary: &RunSummary) -> String {
+    match summary.metrics.as_ref().and_then(|m| m.traffic) {
+        Some(t) => format!("{} traffic vehicles inserted, {} vehicles still present", t.inserted, summary.vehicles),
+        None => format!("{} vehicles", summary.vehicles),
+    }
 }
 
 /// `collisions N` for the closing line; in bold red when there were any and `colour` (stderr is
@@ -389,14 +398,14 @@ fn drive(
     let mut record_error = None;
     let chunk = if recorder.is_some() { 1.0 / options.frame_output.frame_rate } else { 1.0 };
     let mut marks = FrameMarks::default();
-    let bar = (options.progress && std::io::stderr().is_terminal() && duration >= 30.0).then(|| {
-        let bar = indicatif::ProgressBar::new((duration * 1000.0).round() as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {msg} sim s, {elapsed} elapsed, eta {eta}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        bar
-    });
+    let bar = super::progress::sim_time_bar(duration, options.progress && duration >= 30.0);
+    // Frame k shows the state at t = k / frame rate from t = 0 (issue 61: frame 0 showed the
+    // first chunk's end, and no frame the start).
+    if let Some(rec) = recorder.as_mut()
+        && let Err(e) = marks.record(rec, sim.world(), options.sensor_ranges)
+    {
+        record_error = Some(e);
+    }
     let progress = |sim: &Sim| {
         if let Some(rec) = recorder.as_mut().filter(|_| record_error.is_none())
             && let Err(e) = marks.record(rec, sim.world(), options.sensor_ranges)
@@ -404,9 +413,7 @@ fn drive(
             record_error = Some(e);
         }
         if let Some(bar) = &bar {
-            let t = sim.now().as_secs();
-            bar.set_position((t * 1000.0).round() as u64);
-            bar.set_message(format!("{t:.0}/{duration:.0}"));
+            super::progress::set_progress(bar, sim.now().as_secs(), duration);
         }
     };
     let report = if realtime {

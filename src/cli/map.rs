@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde::Serialize;
+use smlworld::app::results::output::{LENGTH_DECIMALS, rounded};
 use smlworld::map::commonroad::{CommonRoadScenario, CommonRoadState, is_commonroad};
 use smlworld::map::{LaneChange, LaneChangeOptions, LaneletMap, MapError, Place, RouteOptions, Routed};
 
@@ -427,13 +428,17 @@ fn print_path_with_changes(routed: &Routed, changes: Option<&[LaneChange]>, json
     let path = &routed.path;
     let out = PathJson {
         lanelets: path.lanelets.iter().map(|l| l.0).collect(),
-        length_m: path.length,
+        length_m: rounded(path.length, LENGTH_DECIMALS),
         from_node: routed.from_node,
         to_node: routed.to_node,
         note: routed.note.as_deref(),
-        points: path.points.iter().map(|p| [p.x, p.y]).collect(),
-        lane_changes: changes
-            .map(|c| c.iter().map(|c| LaneChangeJson { from: c.from.0, to: c.to.0, at_m: c.at_m }).collect()),
+        // Millimetres, as the trajectory CSV: 17 digits of float noise made 2,500 points unreadable.
+        points: path.points.iter().map(|p| [rounded(p.x, LENGTH_DECIMALS), rounded(p.y, LENGTH_DECIMALS)]).collect(),
+        lane_changes: changes.map(|c| {
+            c.iter()
+                .map(|c| LaneChangeJson { from: c.from.0, to: c.to.0, at_m: rounded(c.at_m, LENGTH_DECIMALS) })
+                .collect()
+        }),
     };
     if json {
         println!("{}", serde_json::to_string(&out).context("writing JSON")?);

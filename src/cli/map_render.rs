@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use glam::DVec2;
+use smlworld::app::results::output::{Fixed, LENGTH_DECIMALS};
 use smlworld::map::LaneletMap;
 use smlworld::render::{BirdseyeView, Environment, PatternSet, Renderer, write_image_with_meta};
 
@@ -58,9 +59,9 @@ pub fn main(args: RenderArgs) -> anyhow::Result<()> {
         args.out.display(),
         view.width,
         view.height,
-        view.pixels_per_meter,
-        view.center.x,
-        view.center.y,
+        Fixed(view.pixels_per_meter, 3),
+        Fixed(view.center.x, LENGTH_DECIMALS),
+        Fixed(view.center.y, LENGTH_DECIMALS),
         meta.display()
     );
     Ok(())

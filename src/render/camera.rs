@@ -62,7 +62,17 @@ pub struct FrameOutput {
     /// World point at the image centre, `X,Y` [m] (needs --pixels-per-meter).
     #[arg(long, value_parser = crate::range::point, allow_hyphen_values = true, requires = "pixels_per_meter")]
     pub center: Option<DVec2>,
+    /// With --follow, write the GIF at every frame and the full size too (by default a followed
+    /// GIF takes frames at most [`FOLLOW_GIF_RATE`] Hz, at most [`FOLLOW_GIF_WIDTH`] px wide:
+    /// its ground moves in every frame, so each frame is stored whole).
+    #[arg(long)]
+    pub full_gif: bool,
 }
+
+/// Most frames per second of sim time of a followed view's GIF unless --full-gif [Hz].
+pub const FOLLOW_GIF_RATE: f64 = 5.0;
+/// Widest followed view's GIF unless --full-gif [px] (the height keeps the aspect ratio).
+pub const FOLLOW_GIF_WIDTH: u32 = 640;
 
 impl Default for FrameOutput {
     fn default() -> Self {
@@ -76,11 +86,27 @@ impl Default for FrameOutput {
             follow: None,
             pixels_per_meter: None,
             center: None,
+            full_gif: false,
         }
     }
 }
 
 impl FrameOutput {
+    /// How the GIF samples the frames: every `n`-th frame, at `width` x `height` px. A followed
+    /// view without --full-gif takes at most [`FOLLOW_GIF_RATE`] Hz and [`FOLLOW_GIF_WIDTH`] px
+    /// (a 60 s followed run at 10 Hz and 1280x720 wrote 459 MB); otherwise every frame, full size.
+    pub fn gif_sampling(&self) -> (u64, u32, u32) {
+        if self.follow.is_none() || self.full_gif {
+            return (1, self.width, self.height);
+        }
+        let every = (self.frame_rate / FOLLOW_GIF_RATE).ceil().max(1.0) as u64;
+        if self.width <= FOLLOW_GIF_WIDTH {
+            return (every, self.width, self.height);
+        }
+        let height = (f64::from(self.height) * f64::from(FOLLOW_GIF_WIDTH) / f64::from(self.width)).round().max(1.0);
+        (every, FOLLOW_GIF_WIDTH, height as u32)
+    }
+
     /// Whether frames or a GIF are asked for.
     pub fn any(&self) -> bool {
         self.frames.is_some() || self.gif.is_some()

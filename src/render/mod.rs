@@ -36,7 +36,7 @@ mod view;
 
 use std::path::PathBuf;
 
-pub use camera::{Camera, FOLLOW_PPM, FrameOutput, MIN_AUTO_FIT_PPM, Overlay};
+pub use camera::{Camera, FOLLOW_GIF_RATE, FOLLOW_GIF_WIDTH, FOLLOW_PPM, FrameOutput, MIN_AUTO_FIT_PPM, Overlay};
 pub use environment::{
     Area, Environment, Fill, Line, LineStyle, RoadStrip, lanelet2_lines, obstacle_color, subtype_tint,
 };

@@ -84,22 +84,96 @@ pub fn write_gif(path: &Path, frames: &[RgbaImage], frame_rate: f64) -> Result<(
     for f in frames {
         gif.push(f.clone())?;
     }
-    gif.finish()
+    gif.finish().map(|_| ())
 }
 
 /// An animated GIF written frame by frame, under a temporary name until [`GifWriter::finish`]
 /// renames it into place (dropped unfinished, the temporary file is removed and an earlier GIF
-/// of the same name stays). Each frame after the first stores only what changed
-/// since the previous one (the bounding box of the changed pixels, unchanged pixels transparent,
-/// `Keep` disposal), so a static ground costs nothing after the first frame: GIFs of a run are
-/// tens of times smaller and faster to write than with full frames.
+/// of the same name stays).
+///
+/// One palette serves every frame (the GIF's global colour table, learnt from the first frame
+/// plus the colours vehicles, rings, signals and the overlay are drawn in), and each pixel's
+/// colour always maps to the same entry. Each frame after the first stores only the pixels
+/// whose palette entry changed (the bounding box of the changes, unchanged pixels transparent,
+/// `Keep` disposal), so a static ground costs nothing after the first frame, and what a viewer
+/// shows is always the frame's own colours: with a palette per frame, a pixel a label had
+/// passed over came back in the next frame's palette, not the ground's, and left grey trails
+/// (issue 61), and a small legend swatch could take a neighbouring grey.
 pub struct GifWriter {
     path: std::path::PathBuf,
     file: AtomicFile,
-    encoder: gif::Encoder<std::io::BufWriter<std::fs::File>>,
+    /// The file until the first frame has given the palette.
+    out: Option<std::io::BufWriter<std::fs::File>>,
+    encoder: Option<gif::Encoder<std::io::BufWriter<std::fs::File>>>,
+    size: (u16, u16),
+    palette: Option<GifPalette>,
+    /// The previous frame as pushed (to skip the palette lookup of unchanged pixels).
     previous: Option<RgbaImage>,
+    /// Palette index of every pixel the viewer shows now.
+    shown: Vec<u8>,
     /// Frame delay [1/100 s].
     delay: u16,
+}
+
+/// Palette index that stands for "unchanged" (transparent) in delta frames.
+const TRANSPARENT: u8 = 255;
+
+/// Colours the frames draw that a first frame may lack (vehicle classes, id labels, rings,
+/// signals, indicator, overlay text and box), learnt into the palette with the first frame.
+fn drawn_colours() -> Vec<[u8; 4]> {
+    let mut colours = vec![
+        [255, 255, 255, 255],
+        [0, 0, 0, 255],
+        [245, 245, 245, 255],
+        [235, 20, 20, 255],
+        super::SIGNAL_GREEN,
+        super::SIGNAL_YELLOW,
+        super::SIGNAL_RED,
+        [255, 176, 0, 255],
+    ];
+    for class in ["Car", "Truck", "Bus", "Bicycle", "Emergency", "Tractor", "Pedestrian", "Van"] {
+        colours.push(super::class_color(class));
+    }
+    colours.extend((0..12).map(super::vehicle_color));
+    colours
+}
+
+/// The one palette of a GIF and the index of each colour seen so far.
+struct GifPalette {
+    quant: color_quant::NeuQuant,
+    /// RGBA (as one `u32`) to palette index; a `HashMap` because only lookups are made.
+    index: std::collections::HashMap<u32, u8>,
+}
+
+impl GifPalette {
+    /// 255 colours learnt from `first` and [`drawn_colours`] (index 255 is [`TRANSPARENT`]).
+    fn learn(first: &RgbaImage) -> GifPalette {
+        let mut pixels: Vec<u8> = first.as_raw().clone();
+        // Each drawn colour as a block big enough for the network to give it an entry.
+        let block = (first.as_raw().len() / 4 / 200).max(64);
+        for c in drawn_colours() {
+            for _ in 0..block {
+                pixels.extend_from_slice(&c);
+            }
+        }
+        for p in pixels.chunks_exact_mut(4) {
+            p[3] = 255;
+        }
+        GifPalette { quant: color_quant::NeuQuant::new(10, 255, &pixels), index: std::collections::HashMap::new() }
+    }
+
+    /// The global colour table: 256 RGB entries (the last one, transparent, black).
+    fn table(&self) -> Vec<u8> {
+        let mut rgb = self.quant.color_map_rgb();
+        rgb.resize(256 * 3, 0);
+        rgb
+    }
+
+    fn index_of(&mut self, p: [u8; 4]) -> u8 {
+        let key = u32::from_le_bytes([p[0], p[1], p[2], 255]);
+        let quant = &self.quant;
+        *self.index.entry(key).or_insert_with(|| quant.index_of(&[p[0], p[1], p[2], 255]).min(254) as u8)
+    }
 }
 
 impl GifWriter {
@@ -111,42 +185,59 @@ impl GifWriter {
         let side = |px: u32| {
             u16::try_from(px).map_err(|_| write_error(path, format!("{px} px is too large for a GIF (at most 65535)")))
         };
-        let (w, h) = (side(width)?, side(height)?);
+        let size = (side(width)?, side(height)?);
         let file = AtomicFile::new(path).map_err(|e| write_error(path, e))?;
         let out = std::fs::File::create(file.path()).map_err(|e| write_error(path, e))?;
-        let mut encoder =
-            gif::Encoder::new(std::io::BufWriter::new(out), w, h, &[]).map_err(|e| write_error(path, e))?;
-        encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(path, e))?;
         // GIF delays are in hundredths of a second; 2 is the shortest most viewers honour.
         let delay = (100.0 / frame_rate).round().clamp(2.0, f64::from(u16::MAX)) as u16;
-        Ok(GifWriter { path: path.to_path_buf(), file, encoder, previous: None, delay })
+        Ok(GifWriter {
+            path: path.to_path_buf(),
+            file,
+            out: Some(std::io::BufWriter::new(out)),
+            encoder: None,
+            size,
+            palette: None,
+            previous: None,
+            shown: Vec::new(),
+            delay,
+        })
     }
 
     /// Append a frame (of the size given to [`GifWriter::create`]).
     pub fn push(&mut self, image: RgbaImage) -> Result<(), RenderError> {
-        let frame = delta_frame(self.previous.as_ref(), &image, self.delay);
-        self.encoder.write_frame(&frame).map_err(|e| write_error(&self.path, e))?;
-        self.previous = Some(image);
-        Ok(())
-    }
-
-    /// End the GIF (its trailer written, the file flushed) and rename it into place.
-    pub fn finish(self) -> Result<(), RenderError> {
-        let GifWriter { path, file, encoder, .. } = self;
-        let out = encoder.into_inner().map_err(|e| write_error(&path, e))?;
-        out.into_inner().map_err(|e| write_error(&path, e.error().to_string()))?;
-        file.commit().map_err(|e| write_error(&path, e))
-    }
-}
-
-/// A GIF frame holding only what changed since `prev` (the whole image when there is none).
-fn delta_frame(prev: Option<&RgbaImage>, next: &RgbaImage, delay: u16) -> gif::Frame<'static> {
-    let (w, h) = next.dimensions();
-    let (mut x0, mut y0, mut x1, mut y1) = (0, 0, w - 1, h - 1);
-    if let Some(prev) = prev {
-        (x0, y0, x1, y1) = (w, h, 0, 0);
-        for (x, y, p) in next.enumerate_pixels() {
-            if prev.get_pixel(x, y) != p {
+        let (w, h) = (u32::from(self.size.0), u32::from(self.size.1));
+        if image.dimensions() != (w, h) {
+            return Err(write_error(
+                &self.path,
+                format!("a {}x{} px frame in a {w}x{h} px GIF", image.width(), image.height()),
+            ));
+        }
+        if self.palette.is_none() {
+            let palette = GifPalette::learn(&image);
+            let out = self.out.take().ok_or_else(|| write_error(&self.path, "GIF already finished"))?;
+            let mut encoder = gif::Encoder::new(out, self.size.0, self.size.1, &palette.table())
+                .map_err(|e| write_error(&self.path, e))?;
+            encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(&self.path, e))?;
+            self.encoder = Some(encoder);
+            self.palette = Some(palette);
+            self.shown = vec![TRANSPARENT; (w * h) as usize];
+        }
+        let (Some(palette), Some(encoder)) = (self.palette.as_mut(), self.encoder.as_mut()) else {
+            return Err(write_error(&self.path, "GIF encoder missing"));
+        };
+        // The palette index of every pixel; those equal to the previous frame's keep theirs.
+        let mut next = self.shown.clone();
+        let (mut x0, mut y0, mut x1, mut y1) = (w, h, 0, 0);
+        for (i, (p, shown)) in image.pixels().zip(next.iter_mut()).enumerate() {
+            let same = *shown != TRANSPARENT
+                && self.previous.as_ref().is_some_and(|prev| prev.as_raw()[i * 4..i * 4 + 4] == p.0);
+            if same {
+                continue;
+            }
+            let k = palette.index_of(p.0);
+            if k != *shown {
+                *shown = k;
+                let (x, y) = (i as u32 % w, i as u32 / w);
                 (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
             }
         }
@@ -154,20 +245,48 @@ fn delta_frame(prev: Option<&RgbaImage>, next: &RgbaImage, delay: u16) -> gif::F
             // Nothing changed: one transparent pixel keeps the frame's place in time.
             (x0, y0, x1, y1) = (0, 0, 0, 0);
         }
-    }
-    let mut sub: Vec<u8> = Vec::with_capacity(((x1 - x0 + 1) * (y1 - y0 + 1) * 4) as usize);
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            let p = next.get_pixel(x, y);
-            let same = prev.is_some_and(|prev| prev.get_pixel(x, y) == p);
-            sub.extend_from_slice(if same { &[0, 0, 0, 0] } else { &p.0 });
+        let mut sub: Vec<u8> = Vec::with_capacity(((x1 - x0 + 1) * (y1 - y0 + 1)) as usize);
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let i = (y * w + x) as usize;
+                sub.push(if next[i] == self.shown[i] { TRANSPARENT } else { next[i] });
+            }
         }
+        let frame = gif::Frame {
+            left: x0 as u16,
+            top: y0 as u16,
+            width: (x1 - x0 + 1) as u16,
+            height: (y1 - y0 + 1) as u16,
+            buffer: std::borrow::Cow::Owned(sub),
+            transparent: Some(TRANSPARENT),
+            delay: self.delay,
+            dispose: gif::DisposalMethod::Keep,
+            ..gif::Frame::default()
+        };
+        encoder.write_frame(&frame).map_err(|e| write_error(&self.path, e))?;
+        self.shown = next;
+        self.previous = Some(image);
+        Ok(())
     }
-    // Speed 10 of 1..30: good colours at a tolerable encoding time.
-    let mut frame = gif::Frame::from_rgba_speed((x1 - x0 + 1) as u16, (y1 - y0 + 1) as u16, &mut sub, 10);
-    frame.left = x0 as u16;
-    frame.top = y0 as u16;
-    frame.delay = delay;
-    frame.dispose = gif::DisposalMethod::Keep;
-    frame
+
+    /// End the GIF (its trailer written, the file flushed) and rename it into place; returns
+    /// the size written [bytes].
+    pub fn finish(self) -> Result<u64, RenderError> {
+        let GifWriter { path, file, encoder, out, size, .. } = self;
+        let out = match (encoder, out) {
+            (Some(encoder), _) => encoder.into_inner().map_err(|e| write_error(&path, e))?,
+            // No frame: an empty GIF of the size asked for.
+            (None, Some(out)) => {
+                let mut encoder = gif::Encoder::new(out, size.0, size.1, &[]).map_err(|e| write_error(&path, e))?;
+                encoder.set_repeat(gif::Repeat::Infinite).map_err(|e| write_error(&path, e))?;
+                encoder.into_inner().map_err(|e| write_error(&path, e))?
+            }
+            (None, None) => return Err(write_error(&path, "GIF output missing")),
+        };
+        let out = out.into_inner().map_err(|e| write_error(&path, e.error().to_string()))?;
+        let bytes = out.metadata().map_or(0, |m| m.len());
+        drop(out);
+        file.commit().map_err(|e| write_error(&path, e))?;
+        Ok(bytes)
+    }
 }

@@ -33,7 +33,10 @@ pub struct FrameRecorder {
     layer: Option<EnvironmentLayer>,
     frames_dir: Option<PathBuf>,
     gif: Option<GifWriter>,
+    gif_path: Option<PathBuf>,
     gif_size: (u32, u32),
+    /// The GIF takes every `n`-th frame, scaled to this size ([`FrameOutput::gif_sampling`]).
+    gif_sampling: (u64, u32, u32),
     sensor_ranges: bool,
     overlay: Overlay,
     sprites: Vec<VehicleSprite>,
@@ -82,8 +85,18 @@ impl FrameRecorder {
         if let Some(dir) = &frames.frames {
             std::fs::create_dir_all(dir).map_err(|e| write_error(dir, e))?;
         }
+        let gif_sampling = frames.gif_sampling();
         let gif = match &frames.gif {
-            Some(path) => Some(GifWriter::create(path, frames.width, frames.height, frames.frame_rate)?),
+            Some(path) => {
+                let (every, w, h) = gif_sampling;
+                if gif_sampling != (1, frames.width, frames.height) {
+                    tracing::info!(
+                        "following a vehicle: the GIF takes {} Hz at {w}x{h} px to stay small (its ground moves in every frame); --full-gif for every frame at full size",
+                        frames.frame_rate / every as f64
+                    );
+                }
+                Some(GifWriter::create(path, w, h, frames.frame_rate / every as f64)?)
+            }
             None => None,
         };
         Ok(FrameRecorder {
@@ -94,7 +107,9 @@ impl FrameRecorder {
             layer: None,
             frames_dir: frames.frames.clone(),
             gif,
+            gif_path: frames.gif.clone(),
             gif_size: (frames.width, frames.height),
+            gif_sampling,
             sensor_ranges: false,
             overlay: frames.overlay,
             sprites: Vec::new(),
@@ -206,7 +221,8 @@ impl FrameRecorder {
                 super::write_image(&path, &self.image)?;
             }
         }
-        if let Some(gif) = &mut self.gif {
+        let (every, gif_w, gif_h) = self.gif_sampling;
+        if let Some(gif) = self.gif.as_mut().filter(|_| self.frames.is_multiple_of(every)) {
             if self.image.dimensions() != self.gif_size {
                 tracing::warn!(
                     "a {}x{} px frame does not fit the {}x{} px GIF: left out of it",
@@ -220,6 +236,11 @@ impl FrameRecorder {
                     Some(image) => image,
                     None if self.overlay != Overlay::None => overlaid(&self.image),
                     None => self.image.clone(),
+                };
+                let image = if image.dimensions() == (gif_w, gif_h) {
+                    image
+                } else {
+                    image::imageops::resize(&image, gif_w, gif_h, image::imageops::FilterType::Triangle)
                 };
                 gif.push(image)?;
             }
@@ -251,11 +272,13 @@ impl FrameRecorder {
 
     /// Finish the outputs: the GIF is completed and renamed into place (frames are written one by
     /// one as they come). A recorder dropped without this leaves an earlier GIF of the same name.
+    /// Logs the GIF's size: a followed view's moving ground makes every frame new.
     pub fn finish(self) -> Result<(), RenderError> {
-        match self.gif {
-            Some(gif) => gif.finish(),
-            None => Ok(()),
-        }
+        let (Some(gif), Some(path)) = (self.gif, self.gif_path) else { return Ok(()) };
+        let bytes = gif.finish()?;
+        let frames = self.frames.div_ceil(self.gif_sampling.0);
+        tracing::info!("wrote {} ({frames} frames, {:.1} MB)", path.display(), bytes as f64 / 1e6);
+        Ok(())
     }
 
     /// Number of frames recorded so far.
@@ -269,10 +292,21 @@ impl FrameRecorder {
 /// and reused.
 pub fn sprites_from_world(world: &World, sensor_ranges: bool, out: &mut Vec<VehicleSprite>) {
     out.clear();
-    let Some(mut query) = world.try_query_filtered::<(Entity, &VehicleId, &VehicleState), Without<Stationary>>() else {
-        return;
+    // Before any schedule has run (the frame at t = 0) `Stationary` may not be registered yet:
+    // then no vehicle is stationary, and the filter would make the query fail.
+    let stationary_known = world.components().component_id::<Stationary>().is_some();
+    let vehicles: Vec<(Entity, &VehicleId, &VehicleState)> = if stationary_known {
+        match world.try_query_filtered::<(Entity, &VehicleId, &VehicleState), Without<Stationary>>() {
+            Some(mut query) => query.iter(world).collect(),
+            None => return,
+        }
+    } else {
+        match world.try_query::<(Entity, &VehicleId, &VehicleState)>() {
+            Some(mut query) => query.iter(world).collect(),
+            None => return,
+        }
     };
-    for (entity, id, state) in query.iter(world) {
+    for (entity, id, state) in vehicles {
         let size = world.get::<VehicleSize>(entity).copied().unwrap_or_default();
         let class = world.get::<VehicleClass>(entity).copied().unwrap_or_default();
         let mut sprite = VehicleSprite::new(id.0, state.position, state.yaw, size.length, size.width, class.name());

@@ -16,6 +16,7 @@ use bevy_ecs::prelude::{Res, ResMut, Resource, World};
 use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
+use super::output::{Fixed, TIME_DECIMALS};
 use crate::io::lab::VizStream;
 use crate::io::viz::VizLight;
 use crate::map::LaneletMap;
@@ -68,7 +69,7 @@ pub fn log_light_changes(clock: Res<SimClock>, lights: Option<Res<TrafficLights>
         let now = shown(&lights, c.junction, n);
         let before = shown_bytes(last, &lights.first_link, c.junction, n);
         if first_time || now != before {
-            let _ = writeln!(text, "{t:.6},{},{}", c.junction + 1, String::from_utf8_lossy(now));
+            let _ = writeln!(text, "{},{},{}", Fixed(t, TIME_DECIMALS), c.junction + 1, String::from_utf8_lossy(now));
         }
     }
     last.clone_from(&lights.state);

@@ -15,8 +15,8 @@ use crate::world::{VehicleState, Vehicles};
 pub struct Log;
 
 /// Where trajectory rows go: `t,id,x,y,yaw,vx,vy,lanelet,lane_offset` [s, -, m, m, rad, m/s,
-/// m/s, -, m], vehicles in id order, each number with the precision of its unit (`t` to the
-/// clock's 1 µs; the rest [`Fixed`]: 1 mm, 1e-5 rad, 1 mm/s); `lanelet` is the id of the lanelet
+/// m/s, -, m], vehicles in id order, each number with the precision of its unit ([`Fixed`]: `t`
+/// to the clock's 1 µs, then 1 mm, 1e-5 rad, 1 mm/s; trailing zeros dropped: `0.1`, `12`); `lanelet` is the id of the lanelet
 /// under the reference point and `lane_offset` the signed offset from its centre line (left
 /// positive), both empty off-road or without a map.
 #[derive(Resource)]
@@ -67,6 +67,19 @@ impl std::fmt::Display for Fixed {
     }
 }
 
+/// `x` rounded to `decimals` decimals, as the nearest `f64` (which JSON writes in the fewest
+/// digits: `0.1`, not `0.09999999999999999`); `-0` becomes `0`; a non-finite `x` is returned as is.
+pub fn rounded(x: f64, decimals: usize) -> f64 {
+    if !x.is_finite() {
+        return x;
+    }
+    let r: f64 = format!("{:.*}", decimals, x).parse().unwrap_or(x);
+    if r == 0.0 { 0.0 } else { r }
+}
+
+/// Decimals of times [s] in outputs: the clock's 1 µs.
+pub const TIME_DECIMALS: usize = 6;
+
 /// Append every vehicle's state at this tick to the [`TrajectoryLog`].
 pub fn log_trajectories(
     clock: Res<SimClock>,
@@ -87,7 +100,8 @@ pub fn log_trajectories(
         if let Ok((s, lane)) = states.get(e) {
             let r = write!(
                 log.writer,
-                "{t:.6},{id},{},{},{},{},{}",
+                "{},{id},{},{},{},{},{}",
+                Fixed(t, TIME_DECIMALS),
                 Fixed(s.position.x, LENGTH_DECIMALS),
                 Fixed(s.position.y, LENGTH_DECIMALS),
                 Fixed(s.yaw, ANGLE_DECIMALS),

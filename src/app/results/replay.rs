@@ -4,9 +4,9 @@
 //! [`replay_run`] reads the rows time by time (streaming: memory grows with the vehicle count,
 //! not with the run's length) and, for each output asked for, takes the state of every vehicle
 //! at the output's times:
-//! - frames and GIF at `k / frame_rate` for k = 1, 2, ... (the times at which `run --frames`
-//!   draws), through the map of `summary.json` at the same view, so a replay at the run's frame
-//!   rate draws the run's frames (stop lines in their signals' colours from `lights.csv`, when
+//! - frames and GIF at `k / frame_rate` for k = 0, 1, 2, ... (frame k is the state at
+//!   t = k / frame_rate, the times at which `run --frames` draws), through the map of
+//!   `summary.json` at the same view, so a replay at the run's frame rate draws the run's frames (stop lines in their signals' colours from `lights.csv`, when
 //!   the run had traffic lights);
 //! - the UDP visualisation stream at 50 Hz of sim time from t = 0 (the times of `run --stream`),
 //!   paced to the wall clock times `speed`, so `smlworld view` shows a recorded run live (with
@@ -104,6 +104,12 @@ pub fn read_replay_marks(out_dir: &FsPath) -> Result<ReplayMarks, ReplayError> {
         }
     }
     Ok(marks)
+}
+
+/// The sim time a run covered [s] (`sim_seconds` of `OUT_DIR/summary.json`), if it says.
+fn run_sim_seconds(out_dir: &FsPath) -> Option<f64> {
+    let text = std::fs::read_to_string(out_dir.join("summary.json")).ok()?;
+    serde_json::from_str::<serde_json::Value>(&text).ok()?["sim_seconds"].as_f64()
 }
 
 /// What a replay did.
@@ -379,7 +385,8 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
 
     let frame_step = SimTime::from_secs(1.0 / frames.frame_rate).0.max(1);
     let stream_step = SimTime::from_secs(1.0 / DEFAULT_VIZ_RATE_HZ).0.max(1);
-    let mut next_frame = frame_step;
+    // Frame k at t = k / frame rate, from t = 0 (as `run` draws them).
+    let mut next_frame = 0;
     let mut next_datagram = 0u64;
     let mut reader = TrajectoryReader::open(out_dir.join("trajectories.csv"))?;
     let (mut prev, mut next) = (Group::default(), Group::default());
@@ -389,7 +396,13 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     let mut report = ReplayReport::default();
     let wall_start = Instant::now();
     let mut first = true;
+    // Progress on a terminal as `run` shows it, over the run's sim time (summary.json).
+    let total = run_sim_seconds(out_dir);
+    let bar = total.and_then(|total| crate::app::progress::sim_time_bar(total, true));
     while reader.next_group(&mut next)? {
+        if let (Some(bar), Some(total)) = (&bar, total) {
+            crate::app::progress::set_progress(bar, SimTime(next.t_us).as_secs(), total);
+        }
         if crate::app::running::interrupt::requested().is_some() {
             report.interrupted = true;
             break;
@@ -401,37 +414,41 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         }
         // Every output time in (prev.t, next.t] (and t = 0 for the stream's first frame).
         while recorder.is_some() && next_frame <= next.t_us {
+            // Frame k is always t = k / frame rate: before the first row (traffic not yet
+            // inserted) it shows no vehicle.
             if next_frame >= prev.t_us {
                 states_at(&prev, &next, next_frame, &mut states);
-                sprites.clear();
-                let t = SimTime(next_frame).as_secs();
-                for r in states.iter().filter(|r| !by_id.get(&r.id).is_some_and(|v| v.stationary)) {
-                    let (class, length, width) =
-                        by_id.get(&r.id).map_or(("Car", 4.12, 1.7), |v| (v.class.name(), v.length, v.width));
-                    let mut sprite = VehicleSprite::new(r.id, r.position, r.yaw, length, width, class);
-                    sprite.overlays.indicator = marks
-                        .lane_changes
-                        .iter()
-                        .find(|(id, t0, t1, _)| *id == r.id && (*t0..=*t1).contains(&t))
-                        .map(|l| l.3);
-                    sprites.push(sprite);
-                }
-                if let Some(rec) = recorder.as_mut() {
-                    // Each collision once its time has come, where the pair is in this frame.
-                    while let Some((a, b, tc)) = collisions_due.next_if(|c| c.2 <= t + 1e-9) {
-                        let at = |id: i32| states.binary_search_by_key(&id, |r| r.id).ok().map(|i| states[i].position);
-                        if let (Some(pa), Some(pb)) = (at(*a), at(*b)) {
-                            rec.add_collision((pa + pb) * 0.5, *tc);
-                        }
-                    }
-                    if let Some((timeline, lines)) = lights.as_mut() {
-                        timeline.advance_to(t);
-                        rec.set_signals(lines.from_states(timeline.states()));
-                    }
-                    rec.record_sprites(&sprites, t)?;
-                }
-                report.frames += 1;
+            } else {
+                states.clear();
             }
+            sprites.clear();
+            let t = SimTime(next_frame).as_secs();
+            for r in states.iter().filter(|r| !by_id.get(&r.id).is_some_and(|v| v.stationary)) {
+                let (class, length, width) =
+                    by_id.get(&r.id).map_or(("Car", 4.12, 1.7), |v| (v.class.name(), v.length, v.width));
+                let mut sprite = VehicleSprite::new(r.id, r.position, r.yaw, length, width, class);
+                sprite.overlays.indicator = marks
+                    .lane_changes
+                    .iter()
+                    .find(|(id, t0, t1, _)| *id == r.id && (*t0..=*t1).contains(&t))
+                    .map(|l| l.3);
+                sprites.push(sprite);
+            }
+            if let Some(rec) = recorder.as_mut() {
+                // Each collision once its time has come, where the pair is in this frame.
+                while let Some((a, b, tc)) = collisions_due.next_if(|c| c.2 <= t + 1e-9) {
+                    let at = |id: i32| states.binary_search_by_key(&id, |r| r.id).ok().map(|i| states[i].position);
+                    if let (Some(pa), Some(pb)) = (at(*a), at(*b)) {
+                        rec.add_collision((pa + pb) * 0.5, *tc);
+                    }
+                }
+                if let Some((timeline, lines)) = lights.as_mut() {
+                    timeline.advance_to(t);
+                    rec.set_signals(lines.from_states(timeline.states()));
+                }
+                rec.record_sprites(&sprites, t)?;
+            }
+            report.frames += 1;
             next_frame += frame_step;
         }
         while let Some(s) = sender.as_mut().filter(|_| next_datagram <= next.t_us) {
@@ -484,6 +501,9 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         }
         std::mem::swap(&mut prev, &mut next);
         next.t_us = prev.t_us;
+    }
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
     }
     if let Some(rec) = recorder {
         rec.finish()?;

@@ -32,7 +32,8 @@ pub struct RunSummary {
     pub wall_seconds: f64,
     /// Sim seconds per wall second.
     pub real_time_factor: f64,
-    /// Number of vehicles.
+    /// Number of vehicles in the world at the end (background traffic that left is counted in
+    /// `metrics.traffic.removed`).
     pub vehicles: usize,
     /// V2V deliveries per channel.
     pub messages_delivered: MessagesDelivered,
@@ -40,7 +41,8 @@ pub struct RunSummary {
     pub rate_warnings: u64,
     /// The scenario's seed.
     pub seed: u64,
-    /// Per vehicle id (JSON keys are strings), for every vehicle with a route: largest distance
+    /// Per vehicle id (JSON keys are strings), for every vehicle with a route, those removed
+    /// during the run (background traffic at its route's end) included: largest distance
     /// to its route's centre line [m], seen by its path follower at every control tick, or for a
     /// vehicle without one (driven from Python, by a student's controller, by nothing) after
     /// every dynamics step.
@@ -105,20 +107,104 @@ impl ReplayInfo {
     }
 }
 
+/// Decimals a figure of `summary.json` keeps, from its key (the unit its name gives), as the CSV
+/// keeps the precision of its unit: times [s] the clock's 1 µs (`t`, `t_*`, `*_s`, `*seconds*`,
+/// `*time*`, ...), milliseconds 1 µs too, angles 1e-5 rad, dimensionless ratios and rates
+/// 1e-6; everything else (lengths [m], speeds [m/s], accelerations [m/s²], per-hour counts)
+/// 1 mm, 1 mm/s, 1 mm/s².
+pub fn figure_decimals(key: &str) -> usize {
+    let k = key.to_ascii_lowercase();
+    let words: Vec<&str> = k.split('_').collect();
+    let has = |w: &str| words.contains(&w);
+    if has("ms") {
+        3
+    } else if has("t")
+        || has("s")
+        || has("time")
+        || has("seconds")
+        || has("wait")
+        || has("waited")
+        || has("depart")
+        || has("until")
+        || has("warmup")
+        || has("duration")
+        || has("age")
+    {
+        crate::app::results::output::TIME_DECIMALS
+    } else if has("yaw") || has("angle") || has("rad") || has("heading") {
+        crate::app::results::output::ANGLE_DECIMALS
+    } else if has("factor")
+        || has("rate")
+        || has("ratio")
+        || has("fraction")
+        || has("share")
+        || has("loss")
+        || has("probability")
+        || has("amplification")
+        || has("stops")
+        || has("impatience")
+    {
+        6
+    } else {
+        crate::app::results::output::LENGTH_DECIMALS
+    }
+}
+
+/// Round every float of `value` to [`figure_decimals`] of the key it stands under (numbers in
+/// arrays and maps keyed by ids take the key of the array or map), so `summary.json` holds `0.1`
+/// and `4.4`, not `0.09999999999999999` and `4.3999999999999995`. Integers stay as they are.
+pub fn round_figures(value: &mut serde_json::Value) {
+    fn walk(value: &mut serde_json::Value, key: &str) {
+        match value {
+            serde_json::Value::Object(map) => {
+                for (k, v) in map.iter_mut() {
+                    // Maps keyed by vehicle ids (`max_distance_to_centre_line`) keep their name.
+                    let by_id = k.parse::<i64>().is_ok();
+                    walk(v, if by_id { key } else { k });
+                }
+            }
+            serde_json::Value::Array(items) => items.iter_mut().for_each(|v| walk(v, key)),
+            serde_json::Value::Number(n) if n.is_f64() => {
+                if let Some(x) = n.as_f64()
+                    && let Some(r) =
+                        serde_json::Number::from_f64(crate::app::results::output::rounded(x, figure_decimals(key)))
+                {
+                    *n = r;
+                }
+            }
+            _ => {}
+        }
+    }
+    walk(value, "");
+}
+
 impl RunSummary {
+    /// The summary as `summary.json` holds it: every figure rounded to its unit's precision
+    /// ([`round_figures`]).
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut value = serde_json::to_value(self).unwrap_or(serde_json::Value::Null);
+        round_figures(&mut value);
+        value
+    }
+
     /// Summarise `sim` after a run described by `report`.
     pub fn new(sim: &Sim, report: &RunReport) -> RunSummary {
         let world = sim.world();
         let stats = world.get_resource::<V2vStats>().copied().unwrap_or_default();
         let vehicles = world.resource::<Vehicles>();
         let deviation = world.get_resource::<super::metrics::Metrics>().map(|m| &m.route_deviation);
-        let max_distance_to_centre_line = vehicles
+        let mut max_distance_to_centre_line: BTreeMap<i32, f64> = vehicles
             .iter()
             .filter_map(|(id, e)| match world.get::<PathFollower>(e) {
                 Some(f) => Some((id.0, f.max_offset)),
                 None => Some((id.0, deviation?.get(&id)?.max_offset)),
             })
             .collect();
+        // Background traffic that left the world drove too (issue 61: a lane-drop run reported
+        // `{}` after 73 vehicles drove).
+        if let Some(t) = world.get_resource::<super::traffic::Traffic>() {
+            max_distance_to_centre_line.extend(t.departed_max_offset.iter().map(|(&id, &d)| (id, d)));
+        }
         RunSummary {
             sim_seconds: report.sim_seconds,
             interrupted: report.interrupted,

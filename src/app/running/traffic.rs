@@ -124,6 +124,16 @@ pub struct Traffic {
     pub removed: u64,
     /// Most arrivals waiting at once for a free entry.
     pub waiting_max: u64,
+    /// Largest distance to its route's centre line [m] of every vehicle removed so far, by id
+    /// (ids are never reused in a run): `summary.json` reports every vehicle that drove.
+    pub departed_max_offset: std::collections::BTreeMap<i32, f64>,
+}
+
+/// Keep the largest distance to the centre line of vehicle `id` (`entity`), about to be removed.
+fn remember_departure(world: &World, traffic: &mut Traffic, id: VehicleId, entity: Entity) {
+    if let Some(f) = world.get::<PathFollower>(entity) {
+        traffic.departed_max_offset.insert(id.0, f.max_offset);
+    }
 }
 
 /// `metrics.traffic` of `summary.json`.
@@ -308,6 +318,7 @@ pub fn run_traffic(world: &mut World) {
     world.resource_scope(|world, mut traffic: Mut<Traffic>| {
         for (id, entity) in leaving {
             end_trip(world, id, entity, t);
+            remember_departure(world, &mut traffic, id, entity);
             if despawn_vehicle(world, id).is_ok() {
                 traffic.removed += 1;
             }
@@ -383,6 +394,7 @@ fn renew_trip(world: &mut World, id: VehicleId, entity: Entity, table: usize, t:
     let old = Arc::clone(&route.0);
     let Some(&last) = old.lanelets.last() else { return };
     let Some(trip) = trips.trip_from(&map, last, seed, stream, k) else {
+        world.resource_scope(|world, mut traffic: Mut<Traffic>| remember_departure(world, &mut traffic, id, entity));
         if despawn_vehicle(world, id).is_ok() {
             world.resource_mut::<Traffic>().removed += 1;
         }
