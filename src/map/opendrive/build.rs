@@ -435,6 +435,10 @@ fn mark_tags(marks: Option<&[RoadMark]>, side: Side, s: f64) -> Tags {
 /// The sampled reference line of a section: `s` values with position, heading and lane offset.
 struct Samples {
     s: Vec<f64>,
+    /// Where the records in force are looked up: the middle of the sample's interval between
+    /// record starts, so a sample on a record start belongs to the interval it closes (a lane
+    /// section's last sample uses the section's own records, not the next section's).
+    pick: Vec<f64>,
     points: Vec<DVec2>,
     normals: Vec<DVec2>,
     offsets: Vec<f64>,
@@ -444,12 +448,15 @@ impl Samples {
     /// The points of border `id` (0 the centre lane, k > 0 the outer border of left lane k,
     /// k < 0 of right lane -k), in order of `s`.
     fn border(&self, section: &LaneSection, id: i32) -> Vec<DVec2> {
-        (0..self.s.len()).map(|k| self.points[k] + self.normals[k] * border_t(section, id, self.s[k], self.offsets[k])).collect()
+        (0..self.s.len())
+            .map(|k| self.points[k] + self.normals[k] * border_t(section, id, self.s[k], self.pick[k], self.offsets[k]))
+            .collect()
     }
 }
 
-/// Lateral position `t` [m] of border `id` at `s`, given the lane offset there.
-fn border_t(section: &LaneSection, id: i32, s: f64, offset: f64) -> f64 {
+/// Lateral position `t` [m] of border `id` at `s` with the records in force at `pick`, given
+/// the lane offset there.
+fn border_t(section: &LaneSection, id: i32, s: f64, pick: f64, offset: f64) -> f64 {
     if id == 0 {
         return offset;
     }
@@ -457,9 +464,9 @@ fn border_t(section: &LaneSection, id: i32, s: f64, offset: f64) -> f64 {
     let sign = f64::from(id.signum());
     let mut t = offset;
     for lane in side.iter().take(id.unsigned_abs() as usize) {
-        if let Some(w) = record_at(&lane.widths, s) {
+        if let Some(w) = record_at(&lane.widths, pick) {
             t += sign * w.value(s);
-        } else if let Some(b) = record_at(&lane.borders, s) {
+        } else if let Some(b) = record_at(&lane.borders, pick) {
             // A `border` gives the lane's outer border from the centre lane directly.
             t = offset + sign * b.value(s);
         }
@@ -483,7 +490,11 @@ fn sample_section(road: &Road, section: &LaneSection) -> Samples {
     }
     breaks.sort_by(f64::total_cmp);
     breaks.dedup_by(|x, y| (*x - *y).abs() < 1e-6);
-    let mut s_values = vec![a];
+    if breaks.len() < 2 {
+        // A section of (next to) no length still gets its two ends.
+        breaks.push(b);
+    }
+    let mut s_values = vec![(a, 0.5 * (breaks[0] + breaks[1]))];
     for w in breaks.windows(2) {
         let (s0, s1) = (w[0], w[1]);
         let kappa = road.geometries_in(s0, s1).map(|g| g.max_curvature()).fold(0.0, f64::max);
@@ -502,19 +513,23 @@ fn sample_section(road: &Road, section: &LaneSection) -> Samples {
         let step = if curvature > 0.0 { (8.0 * CHORD_ERROR / curvature).sqrt().min(MAX_STEP) } else { MAX_STEP };
         let n = ((s1 - s0) / step).ceil().max(1.0) as usize;
         for k in 1..=n {
-            s_values.push(s0 + (s1 - s0) * k as f64 / n as f64);
+            s_values.push((s0 + (s1 - s0) * k as f64 / n as f64, mid));
         }
     }
-    if s_values.len() < 2 {
-        s_values.push(b);
-    }
-    let mut out = Samples { s: Vec::with_capacity(s_values.len()), points: Vec::new(), normals: Vec::new(), offsets: Vec::new() };
-    for s in s_values {
-        let (p, h) = road.reference(s);
+    let mut out = Samples {
+        s: Vec::with_capacity(s_values.len()),
+        pick: Vec::with_capacity(s_values.len()),
+        points: Vec::with_capacity(s_values.len()),
+        normals: Vec::with_capacity(s_values.len()),
+        offsets: Vec::with_capacity(s_values.len()),
+    };
+    for (s, pick) in s_values {
+        let (p, h) = road.reference_at(s, pick);
         out.s.push(s);
+        out.pick.push(pick);
         out.points.push(p);
         out.normals.push(DVec2::new(-h.sin(), h.cos()));
-        out.offsets.push(road.offset(s));
+        out.offsets.push(record_at(&road.lane_offsets, pick).map_or(0.0, |o| o.value(s)));
     }
     out
 }

@@ -165,7 +165,13 @@ pub struct Road {
 impl Road {
     /// Reference-line position [m] and heading [rad] at `s` [m].
     pub fn reference(&self, s: f64) -> (DVec2, f64) {
-        let k = self.geometries.partition_point(|g| g.s <= s + 1e-9).saturating_sub(1);
+        self.reference_at(s, s)
+    }
+
+    /// Reference-line position and heading at `s` on the geometry in force at `pick` (so a
+    /// point where two geometries meet can be read at the end of the first).
+    pub fn reference_at(&self, s: f64, pick: f64) -> (DVec2, f64) {
+        let k = self.geometries.partition_point(|g| g.s <= pick + 1e-9).saturating_sub(1);
         let g = &self.geometries[k];
         g.eval(s - g.s)
     }
@@ -546,18 +552,21 @@ impl<'a> Reader<'a> {
         let mut connections = Vec::new();
         for c in el.children("connection") {
             self.others(c, &["laneLink"]);
-            let field = |name: &str| {
-                c.attr(name)
+            // A direct junction (OpenDRIVE 1.7) names `linkedRoad` instead of `connectingRoad`.
+            let field = |names: &[&str]| {
+                names
+                    .iter()
+                    .find_map(|n| c.attr(n))
                     .map(|v| v.trim().to_string())
-                    .ok_or_else(|| self.err(c, format!("{what}: <connection> has no `{name}`")))
+                    .ok_or_else(|| self.err(c, format!("{what}: <connection> has no `{}`", names[0])))
             };
             let mut lane_links = Vec::new();
             for l in c.children("laneLink") {
                 lane_links.push((self.integer(l, "from", &what)?, self.integer(l, "to", &what)?));
             }
             connections.push(Connection {
-                incoming: field("incomingRoad")?,
-                connecting: field("connectingRoad")?,
+                incoming: field(&["incomingRoad"])?,
+                connecting: field(&["connectingRoad", "linkedRoad"])?,
                 contact: self.contact(c, &what)?,
                 lane_links,
                 line: c.line,
