@@ -185,10 +185,9 @@ pub(crate) fn build(doc: &Document, root: &Element, source: &FsPath, mut warning
                 let (left, right) = (pos(&left_nodes), pos(&right_nodes));
                 let centre: Vec<DVec2> = left.iter().zip(&right).map(|(l, r)| (*l + *r) * 0.5).collect();
                 let id = LaneletId(lanelets.len() as i64 + 1);
-                let name = format!("{}:{si}:{}", road.id, lane.id);
                 for (node, key, value) in [
-                    (right_nodes[0], "opendrive:start", format!("start:{name}")),
-                    (right_nodes[right_nodes.len() - 1], "opendrive:end", format!("end:{name}")),
+                    (right_nodes[0], "opendrive:start", super::lane_tag(&road.id, si, lane.id, false)),
+                    (right_nodes[right_nodes.len() - 1], "opendrive:end", super::lane_tag(&road.id, si, lane.id, true)),
                 ] {
                     if let Some(n) = nodes.get_mut(&node) {
                         n.tags.insert(key.into(), value.clone());

@@ -25,7 +25,8 @@
 //!   when there is none.
 //!
 //! The first and last node of each lanelet's right bound carry the tag values
-//! `start:ROAD:SECTION:LANE` and `end:ROAD:SECTION:LANE`, so `map route --from-tag` reaches them.
+//! `start:ROAD:SECTION:LANE` and `end:ROAD:SECTION:LANE` ([`lane_tag`]), so `map route
+//! --from-lane ROAD:LANE --to-lane ROAD:LANE` and a scenario's `{ road = "5", lane = -1 }` reach them.
 //!
 //! Everything else (elevation, lateral profile, objects, signals, user data, road mark line
 //! details, ...) gives one warning per element name with its first line. Missing `planView`,
@@ -75,4 +76,33 @@ pub fn parse_str(text: &str, source: &FsPath) -> Result<LaneletMap, MapError> {
 pub fn parse_document(text: &str, source: &FsPath) -> Result<road::Document, MapError> {
     let root = xml::parse_tree(text, source)?;
     road::Reader::new(source).document(&root)
+}
+
+/// The node tag value at the start (or, with `end`, the end) of the lanelet of lane `lane` in
+/// lane section `section` (0-based) of road `road`: what `map route --from-lane` and a
+/// scenario's `{ road, lane }` route to.
+pub fn lane_tag(road: &str, section: usize, lane: i32, end: bool) -> String {
+    format!("{}:{road}:{section}:{lane}", if end { "end" } else { "start" })
+}
+
+/// Parse `ROAD:LANE` or `ROAD:SECTION:LANE` (section 0-based; without it the road's first lane
+/// section) into the node tag value of the lane's start (or end).
+pub fn lane_spec_tag(spec: &str, end: bool) -> Result<String, MapError> {
+    let bad = || {
+        MapError::InvalidOption(format!(
+            "lane `{spec}`: expected ROAD:LANE or ROAD:SECTION:LANE (an OpenDRIVE road id, a lane section index from 0, a lane id such as -1)"
+        ))
+    };
+    let parts: Vec<&str> = spec.split(':').collect();
+    let (road, section, lane) = match parts.as_slice() {
+        [road, lane] => (*road, "0", *lane),
+        [road, section, lane] => (*road, *section, *lane),
+        _ => return Err(bad()),
+    };
+    let section: usize = section.trim().parse().map_err(|_| bad())?;
+    let lane: i32 = lane.trim().parse().map_err(|_| bad())?;
+    if road.trim().is_empty() || lane == 0 {
+        return Err(bad());
+    }
+    Ok(lane_tag(road.trim(), section, lane, end))
 }
