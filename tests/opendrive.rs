@@ -41,7 +41,11 @@ fn tag<'a>(l: &'a Lanelet, key: &str) -> &'a str {
 fn lane<'a>(map: &'a LaneletMap, road: &str, section: usize, lane: i32) -> &'a Lanelet {
     map.lanelets
         .iter()
-        .find(|l| tag(l, "opendrive:road") == road && tag(l, "opendrive:section") == section.to_string() && tag(l, "opendrive:lane") == lane.to_string())
+        .find(|l| {
+            tag(l, "opendrive:road") == road
+                && tag(l, "opendrive:section") == section.to_string()
+                && tag(l, "opendrive:lane") == lane.to_string()
+        })
         .unwrap_or_else(|| panic!("no lanelet for road {road} section {section} lane {lane}"))
 }
 
@@ -56,7 +60,8 @@ fn every_shared_file_loads_and_its_farthest_connected_lanelets_route() {
         let drivable: Vec<usize> = (0..map.lanelets.len()).filter(|&i| map.lanelets[i].routable).collect();
         assert!(!drivable.is_empty(), "{}: no drivable lanelet", path.display());
         for l in &map.lanelets {
-            for key in ["opendrive:road", "opendrive:section", "opendrive:lane", "opendrive:type", "opendrive:junction"] {
+            for key in ["opendrive:road", "opendrive:section", "opendrive:lane", "opendrive:type", "opendrive:junction"]
+            {
                 tag(l, key);
             }
             assert_eq!(l.left.len(), l.right.len());
@@ -91,7 +96,12 @@ fn every_shared_file_loads_and_its_farthest_connected_lanelets_route() {
             .route_lanelets(from, to, &RouteOptions::default())
             .unwrap_or_else(|e| panic!("{}: no route {from} -> {to}: {e}", path.display()));
         assert!(route.lanelets.first() == Some(&from) && route.lanelets.last() == Some(&to));
-        assert!(route.length + 1.0 >= distance * 0.5, "{}: route of {} m for {distance} m", path.display(), route.length);
+        assert!(
+            route.length + 1.0 >= distance * 0.5,
+            "{}: route of {} m for {distance} m",
+            path.display(),
+            route.length
+        );
     }
 }
 
@@ -112,7 +122,10 @@ fn every_shared_file_renders() {
         assert!(run.status.success(), "{}: {}", path.display(), String::from_utf8_lossy(&run.stderr));
         let img = image::open(&out).unwrap().to_rgba8();
         // Some asphalt: grey pixels (the background is green forest).
-        let grey = img.pixels().filter(|p| p[0].abs_diff(p[1]) < 12 && p[1].abs_diff(p[2]) < 12 && p[0] > 30 && p[0] < 170).count();
+        let grey = img
+            .pixels()
+            .filter(|p| p[0].abs_diff(p[1]) < 12 && p[1].abs_diff(p[2]) < 12 && p[0] > 30 && p[0] < 170)
+            .count();
         assert!(grey > 50, "{}: {grey} road pixels", path.display());
     }
     std::fs::remove_dir_all(&out_dir).ok();
@@ -445,7 +458,12 @@ fn junction_connections_link_incoming_and_connecting_roads() {
 }
 
 /// A lanelet of `lane` on `road` in any section (first match).
-fn lane_end<'a>(map: &'a LaneletMap, road: &str, lane_id: i32, _doc: &smlworld::map::opendrive::road::Document) -> Option<&'a Lanelet> {
+fn lane_end<'a>(
+    map: &'a LaneletMap,
+    road: &str,
+    lane_id: i32,
+    _doc: &smlworld::map::opendrive::road::Document,
+) -> Option<&'a Lanelet> {
     map.lanelets.iter().find(|l| tag(l, "opendrive:road") == road && tag(l, "opendrive:lane") == lane_id.to_string())
 }
 
@@ -463,16 +481,27 @@ fn malformed_files_are_refused_with_line_and_id() {
             "<OpenDRIVE>\n<header/>\n<road id=\"9\" length=\"10\" junction=\"-1\">\n{extra}{body}\n<lanes><laneSection s=\"0\"><center><lane id=\"0\"/></center></laneSection></lanes>\n</road>\n</OpenDRIVE>"
         )
     };
-    let plan = |g: &str| format!("<planView>\n<geometry s=\"0\" x=\"0\" y=\"0\" hdg=\"0\" length=\"10\">{g}</geometry>\n</planView>");
+    let plan = |g: &str| {
+        format!("<planView>\n<geometry s=\"0\" x=\"0\" y=\"0\" hdg=\"0\" length=\"10\">{g}</geometry>\n</planView>")
+    };
     refused(&road("", ""), &["test.xodr:3", "road 9", "planView"]);
     refused(&road(&plan("<clothoid/>"), ""), &["test.xodr:5", "road 9", "unknown geometry <clothoid>"]);
     refused(
-        &road("<planView>\n<geometry s=\"0\" x=\"0\" y=\"0\" hdg=\"0\" length=\"-4\"><line/></geometry>\n</planView>", ""),
+        &road(
+            "<planView>\n<geometry s=\"0\" x=\"0\" y=\"0\" hdg=\"0\" length=\"-4\"><line/></geometry>\n</planView>",
+            "",
+        ),
         &["test.xodr:5", "road 9", "negative length"],
     );
-    refused(&road(&plan("<line/>"), "").replace("length=\"10\" junction", "length=\"-10\" junction"), &["test.xodr:3", "road 9", "negative length"]);
     refused(
-        &road(&plan("<line/>"), "<link><successor elementType=\"road\" elementId=\"77\" contactPoint=\"start\"/></link>\n"),
+        &road(&plan("<line/>"), "").replace("length=\"10\" junction", "length=\"-10\" junction"),
+        &["test.xodr:3", "road 9", "negative length"],
+    );
+    refused(
+        &road(
+            &plan("<line/>"),
+            "<link><successor elementType=\"road\" elementId=\"77\" contactPoint=\"start\"/></link>\n",
+        ),
         &["test.xodr:4", "road 9", "road 77"],
     );
     refused(&road(&plan("<arc curvature=\"x\"/>"), ""), &["test.xodr:5", "road 9", "curvature"]);
@@ -499,6 +528,80 @@ fn unsupported_elements_warn_once_per_name_with_a_line() {
     unique.sort();
     unique.dedup();
     assert_eq!(names.len(), unique.len(), "one warning per element name: {names:?}");
-    assert!(names.iter().any(|n| n.ends_with("/signals") || n.ends_with("/objects") || n.ends_with("/elevationProfile")), "{names:?}");
+    assert!(
+        names.iter().any(|n| n.ends_with("/signals") || n.ends_with("/objects") || n.ends_with("/elevationProfile")),
+        "{names:?}"
+    );
     assert!(map.warnings.iter().all(|w| w.at.contains("fabriksgatan.xodr:")));
+}
+
+fn smlworld(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld")).args(args).output().expect("runs smlworld");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn map_route_takes_opendrive_lanes() {
+    let file = opendrive_dir().join("multi_lanesections.xodr");
+    let file = file.to_str().unwrap();
+    let map = load("multi_lanesections.xodr");
+    // From the first section's lane -1 to the last section's lane -1, through every section.
+    let last = map
+        .lanelets
+        .iter()
+        .filter(|l| tag(l, "opendrive:road") == "0")
+        .map(|l| tag(l, "opendrive:section").parse::<usize>().unwrap())
+        .max()
+        .unwrap();
+    let (a, b) = (lane(&map, "0", 0, -1), lane(&map, "0", last, -1));
+    let (ok, out, err) =
+        smlworld(&["map", "route", file, "--from-lane", "0:-1", "--to-lane", &format!("0:{last}:-1"), "--json"]);
+    assert!(ok, "{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let lanelets: Vec<i64> = json["lanelets"].as_array().unwrap().iter().map(|v| v.as_i64().unwrap()).collect();
+    assert_eq!(lanelets.first(), Some(&a.id.0));
+    assert_eq!(lanelets.last(), Some(&b.id.0));
+    assert_eq!(lanelets.len(), last + 1, "one lanelet per lane section: {lanelets:?}");
+    let (ok, _, err) = smlworld(&["map", "route", file, "--from-lane", "0:x", "--to-lane", "0:-1"]);
+    assert!(!ok && err.contains("ROAD:LANE"), "{err}");
+    let (ok, _, err) = smlworld(&["map", "route", file, "--from-lane", "99:-1", "--to-lane", "0:-1"]);
+    assert!(!ok && err.contains("start:99:0:-1"), "{err}");
+}
+
+#[test]
+fn scenario_routes_name_opendrive_lanes() {
+    let dir = std::env::temp_dir().join(format!("smlworld-opendrive-scenario-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let map = opendrive_dir().join("multi_lanesections.xodr");
+    let scenario = dir.join("lanes.toml");
+    std::fs::write(
+        &scenario,
+        format!(
+            r#"seed = 1
+duration = 8.0
+map = {map:?}
+
+[[vehicles]]
+id = -1
+class = "car"
+model = {{ type = "acceleration" }}
+route = {{ from = {{ road = "0", lane = -1 }}, to = {{ road = 0, section = 2, lane = -1 }} }}
+start = {{ offset = 5.0 }}
+speed = 10.0
+controller = {{ type = "cruise_control", speed = 10.0 }}
+"#
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let (ok, _, err) = smlworld(&["run", scenario.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["metrics"]["collision_count"], 0);
+    std::fs::remove_dir_all(&dir).ok();
 }

@@ -59,7 +59,12 @@ struct SectionNodes {
 }
 
 /// Builds the map.
-pub(crate) fn build(doc: &Document, root: &Element, source: &FsPath, mut warnings: Vec<MapWarning>) -> Result<LaneletMap, MapError> {
+pub(crate) fn build(
+    doc: &Document,
+    root: &Element,
+    source: &FsPath,
+    mut warnings: Vec<MapWarning>,
+) -> Result<LaneletMap, MapError> {
     let at = |line: usize| Location { file: source.to_path_buf(), line };
     let mut road_index: BTreeMap<&str, usize> = BTreeMap::new();
     for (k, r) in doc.roads.iter().enumerate() {
@@ -70,7 +75,8 @@ pub(crate) fn build(doc: &Document, root: &Element, source: &FsPath, mut warning
             });
         }
     }
-    let junction_index: BTreeMap<&str, usize> = doc.junctions.iter().enumerate().map(|(k, j)| (j.id.as_str(), k)).collect();
+    let junction_index: BTreeMap<&str, usize> =
+        doc.junctions.iter().enumerate().map(|(k, j)| (j.id.as_str(), k)).collect();
     // Links to roads and junctions that do not exist are errors: the file is inconsistent.
     for r in &doc.roads {
         for link in [&r.predecessor, &r.successor].into_iter().flatten() {
@@ -250,17 +256,37 @@ pub(crate) fn build(doc: &Document, root: &Element, source: &FsPath, mut warning
             let (a, b) = (&road.sections[si], &road.sections[si + 1]);
             for lane in a.left.iter().chain(&a.right) {
                 if let Some(next) = lane.successor {
-                    match (by_key.get(&LaneKey { road: ri, section: si, lane: lane.id }), by_key.get(&LaneKey { road: ri, section: si + 1, lane: next })) {
+                    match (
+                        by_key.get(&LaneKey { road: ri, section: si, lane: lane.id }),
+                        by_key.get(&LaneKey { road: ri, section: si + 1, lane: next }),
+                    ) {
                         (Some(&x), Some(&y)) => contacts.push(((x, End::End), (y, End::Start))),
-                        _ => missing_lane(&mut warnings, lane.line, format!("road {} lane {}: successor lane {next} is not in the next lane section; link ignored", road.id, lane.id)),
+                        _ => missing_lane(
+                            &mut warnings,
+                            lane.line,
+                            format!(
+                                "road {} lane {}: successor lane {next} is not in the next lane section; link ignored",
+                                road.id, lane.id
+                            ),
+                        ),
                     }
                 }
             }
             for lane in b.left.iter().chain(&b.right) {
                 if let Some(prev) = lane.predecessor {
-                    match (by_key.get(&LaneKey { road: ri, section: si + 1, lane: lane.id }), by_key.get(&LaneKey { road: ri, section: si, lane: prev })) {
+                    match (
+                        by_key.get(&LaneKey { road: ri, section: si + 1, lane: lane.id }),
+                        by_key.get(&LaneKey { road: ri, section: si, lane: prev }),
+                    ) {
                         (Some(&y), Some(&x)) => contacts.push(((x, End::End), (y, End::Start))),
-                        _ => missing_lane(&mut warnings, lane.line, format!("road {} lane {}: predecessor lane {prev} is not in the previous lane section; link ignored", road.id, lane.id)),
+                        _ => missing_lane(
+                            &mut warnings,
+                            lane.line,
+                            format!(
+                                "road {} lane {}: predecessor lane {prev} is not in the previous lane section; link ignored",
+                                road.id, lane.id
+                            ),
+                        ),
                     }
                 }
             }
@@ -276,9 +302,19 @@ pub(crate) fn build(doc: &Document, root: &Element, source: &FsPath, mut warning
             let osec = if *contact == Contact::Start { 0 } else { other.sections.len() - 1 };
             for lane in road.sections[section].left.iter().chain(&road.sections[section].right) {
                 let Some(to) = pick(lane) else { continue };
-                match (by_key.get(&LaneKey { road: ri, section, lane: lane.id }), by_key.get(&LaneKey { road: oi, section: osec, lane: to })) {
+                match (
+                    by_key.get(&LaneKey { road: ri, section, lane: lane.id }),
+                    by_key.get(&LaneKey { road: oi, section: osec, lane: to }),
+                ) {
                     (Some(&x), Some(&y)) => contacts.push(((x, end), (y, *contact))),
-                    _ => missing_lane(&mut warnings, lane.line, format!("road {} lane {}: linked lane {to} is not on road {id}; link ignored", road.id, lane.id)),
+                    _ => missing_lane(
+                        &mut warnings,
+                        lane.line,
+                        format!(
+                            "road {} lane {}: linked lane {to} is not on road {id}; link ignored",
+                            road.id, lane.id
+                        ),
+                    ),
                 }
             }
         }
@@ -294,7 +330,8 @@ pub(crate) fn build(doc: &Document, root: &Element, source: &FsPath, mut warning
                 (false, true) => End::End,
                 _ => {
                     // Not linked (or linked at both ends): the end nearer the connecting road's contact.
-                    let target = connecting.reference(if c.contact == Contact::Start { 0.0 } else { connecting.length }).0;
+                    let target =
+                        connecting.reference(if c.contact == Contact::Start { 0.0 } else { connecting.length }).0;
                     let d0 = incoming.reference(0.0).0.distance(target);
                     let d1 = incoming.reference(incoming.length).0.distance(target);
                     if d0 <= d1 { End::Start } else { End::End }
@@ -303,9 +340,19 @@ pub(crate) fn build(doc: &Document, root: &Element, source: &FsPath, mut warning
             let isec = if inc_end == End::Start { 0 } else { incoming.sections.len() - 1 };
             let csec = if c.contact == Contact::Start { 0 } else { connecting.sections.len() - 1 };
             for &(from, to) in &c.lane_links {
-                match (by_key.get(&LaneKey { road: ii, section: isec, lane: from }), by_key.get(&LaneKey { road: ci, section: csec, lane: to })) {
+                match (
+                    by_key.get(&LaneKey { road: ii, section: isec, lane: from }),
+                    by_key.get(&LaneKey { road: ci, section: csec, lane: to }),
+                ) {
                     (Some(&x), Some(&y)) => contacts.push(((x, inc_end), (y, c.contact))),
-                    _ => missing_lane(&mut warnings, c.line, format!("junction {}: lane link {from} -> {to} names a lane missing on road {} or {}; ignored", j.id, c.incoming, c.connecting)),
+                    _ => missing_lane(
+                        &mut warnings,
+                        c.line,
+                        format!(
+                            "junction {}: lane link {from} -> {to} names a lane missing on road {} or {}; ignored",
+                            j.id, c.incoming, c.connecting
+                        ),
+                    ),
                 }
             }
         }
@@ -333,7 +380,10 @@ pub(crate) fn build(doc: &Document, root: &Element, source: &FsPath, mut warning
     let graph_lanelets: Vec<GraphLanelet<'_>> = lanelets.iter().map(Lanelet::graph_view).collect();
     let graph = RoutingGraph::with_successors(&graph_lanelets, &successors);
     if doc.roads.is_empty() {
-        warnings.push(MapWarning { at: at(root.line).to_string(), message: "the file has no <road>: nothing to drive on".into() });
+        warnings.push(MapWarning {
+            at: at(root.line).to_string(),
+            message: "the file has no <road>: nothing to drive on".into(),
+        });
     }
     Ok(LaneletMap {
         projector,

@@ -215,7 +215,8 @@ impl Geometry {
     pub fn eval(&self, ds: f64) -> (DVec2, f64) {
         let ds = ds.clamp(0.0, self.length);
         let (sin, cos) = self.hdg.sin_cos();
-        let to_world = |local: DVec2| self.start + DVec2::new(cos * local.x - sin * local.y, sin * local.x + cos * local.y);
+        let to_world =
+            |local: DVec2| self.start + DVec2::new(cos * local.x - sin * local.y, sin * local.x + cos * local.y);
         match &self.shape {
             Shape::Line => (to_world(DVec2::new(ds, 0.0)), self.hdg),
             Shape::Arc { curvature: k } if k.abs() < 1e-12 => (to_world(DVec2::new(ds, 0.0)), self.hdg),
@@ -289,13 +290,8 @@ mod tests {
         // a (C(t/a), S(t/a)) with a = sqrt(π / c) (the standard Fresnel form).
         let (length, k_end) = (120.0, 0.02);
         let c = k_end / length;
-        let g = Geometry {
-            s: 0.0,
-            start: DVec2::ZERO,
-            hdg: 0.0,
-            length,
-            shape: Shape::Spiral { start: 0.0, end: k_end },
-        };
+        let g =
+            Geometry { s: 0.0, start: DVec2::ZERO, hdg: 0.0, length, shape: Shape::Spiral { start: 0.0, end: k_end } };
         let a = (std::f64::consts::PI / c).sqrt();
         for ds in [0.0, 10.0, 37.5, 80.0, 120.0] {
             let (p, h) = g.eval(ds);

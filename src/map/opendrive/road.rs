@@ -271,7 +271,8 @@ impl<'a> Reader<'a> {
     }
 
     fn number(&self, el: &Element, name: &str, what: &str) -> Result<f64, MapError> {
-        let v = el.attr(name).ok_or_else(|| self.err(el, format!("{what}: <{}> has no `{name}` attribute", el.name)))?;
+        let v =
+            el.attr(name).ok_or_else(|| self.err(el, format!("{what}: <{}> has no `{name}` attribute", el.name)))?;
         let x: f64 = v
             .trim()
             .parse()
@@ -295,7 +296,8 @@ impl<'a> Reader<'a> {
     }
 
     fn integer(&self, el: &Element, name: &str, what: &str) -> Result<i32, MapError> {
-        let v = el.attr(name).ok_or_else(|| self.err(el, format!("{what}: <{}> has no `{name}` attribute", el.name)))?;
+        let v =
+            el.attr(name).ok_or_else(|| self.err(el, format!("{what}: <{}> has no `{name}` attribute", el.name)))?;
         v.trim().parse().map_err(|_| self.err(el, format!("{what}: <{}> `{name}` = {v:?} is not an integer", el.name)))
     }
 
@@ -368,7 +370,10 @@ impl<'a> Reader<'a> {
         self.others(lanes, &["laneOffset", "laneSection"]);
         let mut lane_offsets = Vec::new();
         for o in lanes.children("laneOffset") {
-            lane_offsets.push(Poly { s: self.number_or(o, "s", 0.0, &what)?, c: self.coefficients(o, ["a", "b", "c", "d"], &what)? });
+            lane_offsets.push(Poly {
+                s: self.number_or(o, "s", 0.0, &what)?,
+                c: self.coefficients(o, ["a", "b", "c", "d"], &what)?,
+            });
         }
         lane_offsets.sort_by(|a, b| a.s.total_cmp(&b.s));
         let mut sections = Vec::new();
@@ -384,15 +389,31 @@ impl<'a> Reader<'a> {
             if sections[k].end < sections[k].s {
                 return Err(MapError::OpenDrive {
                     at: self.at(sections[k].line),
-                    message: format!("{what}: lane section at s = {} starts after the road's end {length}", sections[k].s),
+                    message: format!(
+                        "{what}: lane section at s = {} starts after the road's end {length}",
+                        sections[k].s
+                    ),
                 });
             }
         }
-        Ok(Road { id, length, junction, left_hand, predecessor, successor, geometries, lane_offsets, sections, speeds, line: el.line })
+        Ok(Road {
+            id,
+            length,
+            junction,
+            left_hand,
+            predecessor,
+            successor,
+            geometries,
+            lane_offsets,
+            sections,
+            speeds,
+            line: el.line,
+        })
     }
 
     fn road_link(&mut self, el: &Element, what: &str) -> Result<RoadLink, MapError> {
-        let id = el.attr("elementId").ok_or_else(|| self.err(el, format!("{what}: <{}> has no `elementId`", el.name)))?;
+        let id =
+            el.attr("elementId").ok_or_else(|| self.err(el, format!("{what}: <{}> has no `elementId`", el.name)))?;
         match el.attr("elementType").map(str::trim).unwrap_or("road") {
             "road" => Ok(RoadLink::Road { id: id.trim().to_string(), contact: self.contact(el, what)?, line: el.line }),
             "junction" => Ok(RoadLink::Junction { id: id.trim().to_string() }),
@@ -409,7 +430,8 @@ impl<'a> Reader<'a> {
             return Err(self.err(el, format!("{what}: geometry at s = {s} has negative length {length}")));
         }
         let Some(shape_el) = el.children.first() else {
-            return Err(self.err(el, format!("{what}: geometry at s = {s} has no shape (line, arc, spiral, poly3, paramPoly3)")));
+            return Err(self
+                .err(el, format!("{what}: geometry at s = {s} has no shape (line, arc, spiral, poly3, paramPoly3)")));
         };
         self.others(el, &["line", "arc", "spiral", "poly3", "paramPoly3"]);
         let shape = match shape_el.name.as_str() {
@@ -427,7 +449,10 @@ impl<'a> Reader<'a> {
                     "arcLength" => length,
                     "normalized" => 1.0,
                     other => {
-                        return Err(self.err(shape_el, format!("{what}: pRange {other:?} is neither `arcLength` nor `normalized`")));
+                        return Err(self.err(
+                            shape_el,
+                            format!("{what}: pRange {other:?} is neither `arcLength` nor `normalized`"),
+                        ));
                     }
                 };
                 Shape::Cubic(Cubic::param(u, v, p_end, length))
@@ -435,7 +460,9 @@ impl<'a> Reader<'a> {
             other => {
                 return Err(self.err(
                     shape_el,
-                    format!("{what}: unknown geometry <{other}> at s = {s} (known: line, arc, spiral, poly3, paramPoly3)"),
+                    format!(
+                        "{what}: unknown geometry <{other}> at s = {s} (known: line, arc, spiral, poly3, paramPoly3)"
+                    ),
                 ));
             }
         };
@@ -489,7 +516,10 @@ impl<'a> Reader<'a> {
                 if lane.id.unsigned_abs() as usize != k + 1 {
                     return Err(MapError::OpenDrive {
                         at: self.at(lane.line),
-                        message: format!("{what}: lane ids of the section at s = {s} are not 1, 2, ... from the centre out (lane {})", lane.id),
+                        message: format!(
+                            "{what}: lane ids of the section at s = {s} are not 1, 2, ... from the centre out (lane {})",
+                            lane.id
+                        ),
                     });
                 }
             }
@@ -546,7 +576,8 @@ impl<'a> Reader<'a> {
     }
 
     fn junction(&mut self, el: &Element) -> Result<Junction, MapError> {
-        let id = el.attr("id").ok_or_else(|| self.err(el, "<junction> has no `id` attribute".into()))?.trim().to_string();
+        let id =
+            el.attr("id").ok_or_else(|| self.err(el, "<junction> has no `id` attribute".into()))?.trim().to_string();
         let what = format!("junction {id}");
         self.others(el, &["connection", "controller"]);
         let mut connections = Vec::new();

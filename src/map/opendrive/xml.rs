@@ -60,20 +60,18 @@ pub(crate) fn parse_tree(text: &str, source: &FsPath) -> Result<Element, MapErro
         }
         line
     };
-    let xml_error = |line: usize, message: String| MapError::Xml { at: Location { file: source.to_path_buf(), line }, message };
+    let xml_error =
+        |line: usize, message: String| MapError::Xml { at: Location { file: source.to_path_buf(), line }, message };
     let mut stack: Vec<Element> = vec![Element::default()];
     loop {
         let start = reader.buffer_position() as usize;
-        let event = reader.read_event().map_err(|e| xml_error(line_at(reader.error_position() as usize), e.to_string()))?;
+        let event =
+            reader.read_event().map_err(|e| xml_error(line_at(reader.error_position() as usize), e.to_string()))?;
         let skip = text.get(start..).and_then(|rest| rest.find('<')).unwrap_or(0);
         let elem_line = line_at(start + skip);
         match event {
             Event::Start(ref e) | Event::Empty(ref e) => {
-                let mut el = Element {
-                    name: e.name().as_ref().to_string(),
-                    line: elem_line,
-                    ..Default::default()
-                };
+                let mut el = Element { name: e.name().as_ref().to_string(), line: elem_line, ..Default::default() };
                 for a in e.attributes().with_checks(false) {
                     let a = a.map_err(|err| xml_error(elem_line, err.to_string()))?;
                     let v = a
@@ -114,7 +112,8 @@ pub(crate) fn parse_tree(text: &str, source: &FsPath) -> Result<Element, MapErro
         return Err(xml_error(open.line, format!("<{}> is never closed (the file ends early)", open.name)));
     }
     let mut root = stack.swap_remove(0);
-    root.children.pop().filter(|r| r.name == "OpenDRIVE").ok_or_else(|| {
-        xml_error(0, "no <OpenDRIVE> root element; this is not an OpenDRIVE (.xodr) file".into())
-    })
+    root.children
+        .pop()
+        .filter(|r| r.name == "OpenDRIVE")
+        .ok_or_else(|| xml_error(0, "no <OpenDRIVE> root element; this is not an OpenDRIVE (.xodr) file".into()))
 }

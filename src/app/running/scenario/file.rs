@@ -40,14 +40,18 @@ impl NodeRef {
         match self {
             NodeRef::Id(id) => Place::Node(*id),
             NodeRef::Tag(t) => Place::Tag(t.clone()),
-            NodeRef::Lane { road, section, lane } => Place::Tag(crate::map::opendrive::lane_tag(road, *section, *lane, false)),
+            NodeRef::Lane { road, section, lane } => {
+                Place::Tag(crate::map::opendrive::lane_tag(road, *section, *lane, false))
+            }
         }
     }
 
     /// Where a route ends: a lane's end (the same as [`NodeRef::place`] for nodes and tags).
     pub(crate) fn end_place(&self) -> Place {
         match self {
-            NodeRef::Lane { road, section, lane } => Place::Tag(crate::map::opendrive::lane_tag(road, *section, *lane, true)),
+            NodeRef::Lane { road, section, lane } => {
+                Place::Tag(crate::map::opendrive::lane_tag(road, *section, *lane, true))
+            }
             other => other.place(),
         }
     }
@@ -91,7 +95,8 @@ impl<'de> Deserialize<'de> for NodeRef {
                     Some(_) => return Err(A::Error::custom("`road` must be a road id (string or integer)")),
                     None => return Err(A::Error::custom("a lane needs `road` (an OpenDRIVE road id)")),
                 };
-                let lane = lane.ok_or_else(|| A::Error::custom("a lane needs `lane` (an OpenDRIVE lane id, e.g. -1)"))?;
+                let lane =
+                    lane.ok_or_else(|| A::Error::custom("a lane needs `lane` (an OpenDRIVE lane id, e.g. -1)"))?;
                 Ok(NodeRef::Lane { road, section, lane })
             }
         }
