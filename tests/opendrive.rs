@@ -605,3 +605,29 @@ controller = {{ type = "cruise_control", speed = 10.0 }}
     assert_eq!(summary["metrics"]["collision_count"], 0);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// scenarios/town04_platoon.toml: a CACC platoon of 8 on Town04's highway loop with background
+/// traffic, 10 simulated minutes without a collision, every follower kept a gap.
+#[test]
+fn town04_platoon_runs_ten_minutes_without_collision() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let out = std::env::temp_dir().join(format!("smlworld-town04-platoon-{}", std::process::id()));
+    let (ok, _, err) = smlworld(&[
+        "run",
+        root.join("scenarios/town04_platoon.toml").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    std::fs::remove_dir_all(&out).ok();
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "collisions: {}", m["collisions"]);
+    let followers = m["followers"].as_array().unwrap();
+    let platoon: Vec<&serde_json::Value> = followers.iter().filter(|f| f["id"].as_i64().unwrap() < 0).collect();
+    assert_eq!(platoon.len(), 7, "7 platoon followers measured");
+    for f in platoon {
+        assert!(f["min_gap"].as_f64().unwrap() > 1.0, "follower {} came within {} m", f["id"], f["min_gap"]);
+    }
+}
