@@ -506,6 +506,11 @@ fn malformed_files_are_refused_with_line_and_id() {
     );
     refused(&road(&plan("<arc curvature=\"x\"/>"), ""), &["test.xodr:5", "road 9", "curvature"]);
     refused("<osm></osm>", &["OpenDRIVE"]);
+    // A huge length in a small file is refused, not sampled into billions of points.
+    refused(
+        &road(&plan("<line/>"), "").replace("length=\"10\" junction", "length=\"1e12\" junction"),
+        &["test.xodr:3", "road 9", "beyond"],
+    );
 }
 
 #[test]
@@ -625,9 +630,32 @@ fn town04_platoon_runs_ten_minutes_without_collision() {
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "collisions: {}", m["collisions"]);
     let followers = m["followers"].as_array().unwrap();
-    let platoon: Vec<&serde_json::Value> = followers.iter().filter(|f| f["id"].as_i64().unwrap() < 0).collect();
+    // Followers -2 ... -8 behind leader -1 (on the loop the leader is measured too, behind -8).
+    let platoon: Vec<&serde_json::Value> =
+        followers.iter().filter(|f| (-8..=-2).contains(&f["id"].as_i64().unwrap())).collect();
     assert_eq!(platoon.len(), 7, "7 platoon followers measured");
     for f in platoon {
         assert!(f["min_gap"].as_f64().unwrap() > 1.0, "follower {} came within {} m", f["id"], f["min_gap"]);
+    }
+}
+
+/// highway_example_with_merge_and_split: lane 3 of road 1 ends (the on-ramp merges), so from
+/// the ramp (road 8) to road 0 there is no route in lane, and the route with lane changes
+/// changes lanes exactly where the neighbours' shared border lets it.
+#[test]
+fn the_merge_needs_a_lane_change_and_the_road_marks_allow_one() {
+    use smlworld::map::{LaneChangeOptions, MapError, Place};
+    let map = load("highway_example_with_merge_and_split.xodr");
+    let from = Place::Tag("start:8:0:1".into());
+    let to = Place::Tag("end:0:0:1".into());
+    assert!(matches!(map.route_places(&from, &to, &RouteOptions::default()), Err(MapError::NoRoute { .. })));
+    let route = map.route_with_lane_changes(&from, &to, &LaneChangeOptions::default()).unwrap();
+    assert!(!route.lane_changes.is_empty());
+    let n = map.neighbours();
+    for c in &route.lane_changes {
+        let nb = n[map.lanelet_index(c.from).unwrap()];
+        assert!((nb.left == Some(c.to) && nb.change_left) || (nb.right == Some(c.to) && nb.change_right));
+        let (a, b) = (map.lanelet(c.from).unwrap(), map.lanelet(c.to).unwrap());
+        assert_eq!(tag(a, "opendrive:road"), tag(b, "opendrive:road"), "a change stays on its road");
     }
 }

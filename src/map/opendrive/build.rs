@@ -18,6 +18,9 @@ use crate::map::projection::Projector;
 pub const CHORD_ERROR: f64 = 0.02;
 /// Longest step between two samples, even on a straight road [m].
 pub const MAX_STEP: f64 = 10.0;
+/// Shortest step [m]: below it a border bends with a radius under 2 cm ([`CHORD_ERROR`] cannot
+/// hold there anyway), and a wild curvature in a file must not ask for unbounded points.
+pub const MIN_STEP: f64 = 0.05;
 
 /// Lane types a car may drive (OpenDRIVE 1.8 §11.7.3's types for motorised traffic).
 pub const DRIVABLE: [&str; 7] = ["driving", "entry", "exit", "onRamp", "offRamp", "connectingRamp", "bidirectional"];
@@ -559,7 +562,8 @@ fn sample_section(road: &Road, section: &LaneSection) -> Samples {
         }
         t_max += road.offset(s0).abs().max(road.offset(s1).abs());
         let curvature = kappa / (1.0 - kappa * t_max).max(0.2) + bend;
-        let step = if curvature > 0.0 { (8.0 * CHORD_ERROR / curvature).sqrt().min(MAX_STEP) } else { MAX_STEP };
+        let step =
+            if curvature > 0.0 { (8.0 * CHORD_ERROR / curvature).sqrt().clamp(MIN_STEP, MAX_STEP) } else { MAX_STEP };
         let n = ((s1 - s0) / step).ceil().max(1.0) as usize;
         for k in 1..=n {
             s_values.push((s0 + (s1 - s0) * k as f64 / n as f64, mid));

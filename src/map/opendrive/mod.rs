@@ -44,7 +44,7 @@ mod xml;
 
 use std::path::Path as FsPath;
 
-pub use build::{CHORD_ERROR, DRIVABLE, MAX_STEP};
+pub use build::{CHORD_ERROR, DRIVABLE, MAX_STEP, MIN_STEP};
 
 use super::error::MapError;
 use super::lanelet::LaneletMap;

@@ -14,6 +14,10 @@ use super::geometry::{Cubic, Geometry, Shape};
 use super::xml::Element;
 use crate::map::error::{Location, MapError, MapWarning};
 
+/// Longest road or geometry accepted [m]: sampling is proportional to length, so a typo such as
+/// `length="1e12"` in a small file would otherwise ask for billions of points.
+pub const MAX_LENGTH: f64 = 100_000.0;
+
 /// A cubic polynomial record (`laneOffset`, `width`, `border`) starting at `s`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Poly {
@@ -335,6 +339,9 @@ impl<'a> Reader<'a> {
         if length < 0.0 {
             return Err(self.err(el, format!("{what}: negative length {length}")));
         }
+        if length > MAX_LENGTH {
+            return Err(self.err(el, format!("{what}: length {length} m is beyond {MAX_LENGTH} m; split the road")));
+        }
         self.others(el, &["link", "planView", "lanes", "type"]);
         let junction = el.attr("junction").unwrap_or("-1").trim().to_string();
         let left_hand = el.attr("rule").map(str::trim) == Some("LHT");
@@ -428,6 +435,11 @@ impl<'a> Reader<'a> {
         let length = self.number(el, "length", what)?;
         if length < 0.0 {
             return Err(self.err(el, format!("{what}: geometry at s = {s} has negative length {length}")));
+        }
+        if length > MAX_LENGTH || s.abs() > MAX_LENGTH {
+            return Err(
+                self.err(el, format!("{what}: geometry at s = {s} of length {length} m lies beyond {MAX_LENGTH} m"))
+            );
         }
         let Some(shape_el) = el.children.first() else {
             return Err(self
