@@ -33,9 +33,10 @@
 //! an unknown geometry, a negative length or a link to a missing road or junction are
 //! [`MapError::OpenDrive`] errors naming the line and id.
 //!
-//! No crate was used for parsing: the Rust OpenDRIVE crates (`opendrive`, `xodr`) pull in a
-//! DOM or serde XML stack beside our quick-xml and give no line numbers for errors; the tree in
-//! [`xml`] is the same small reader the CommonRoad module uses.
+//! No crate was used for parsing: the package lists this project may install from showed no
+//! Rust OpenDRIVE crate (only Python ones: `pyxodr`, ...), and errors and warnings here must name
+//! the file's line, which quick-xml gives us; the tree in [`xml`] is the same small reader the
+//! CommonRoad module uses.
 
 mod build;
 pub mod geometry;
