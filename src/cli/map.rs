@@ -32,7 +32,7 @@ pub enum MapCommand {
 /// `smlworld map info MAP [--json]`.
 #[derive(Debug, Args)]
 pub struct InfoArgs {
-    /// Map file (.osm or .xml, as saved by JOSM, or a CommonRoad scenario .xml).
+    /// Map file (.osm or .xml, as saved by JOSM, a CommonRoad scenario .xml, or OpenDRIVE .xodr).
     pub map: PathBuf,
     /// Print JSON instead of text.
     #[arg(long)]
@@ -42,20 +42,27 @@ pub struct InfoArgs {
 /// `smlworld map route MAP (--from ID | --from-tag T) (--to ID | --to-tag T)`.
 #[derive(Debug, Args)]
 pub struct RouteArgs {
-    /// Map file (.osm or .xml).
+    /// Map file (.osm or .xml, or OpenDRIVE .xodr).
     pub map: PathBuf,
     /// Start node id (negative ids are fine: `--from -142`).
-    #[arg(long, required_unless_present = "from_tag", conflicts_with = "from_tag")]
+    #[arg(long, required_unless_present_any = ["from_tag", "from_lane"], conflicts_with_all = ["from_tag", "from_lane"])]
     pub from: Option<i64>,
     /// Start node tag value (e.g. `right_lane_node` for `destination=right_lane_node`).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "from_lane")]
     pub from_tag: Option<String>,
+    /// OpenDRIVE maps: start at the start of lane `ROAD:LANE` (the road's first lane section)
+    /// or `ROAD:SECTION:LANE` (section index from 0), e.g. `--from-lane 5:-1`.
+    #[arg(long, allow_hyphen_values = true)]
+    pub from_lane: Option<String>,
     /// End node id.
-    #[arg(long, required_unless_present = "to_tag", conflicts_with = "to_tag")]
+    #[arg(long, required_unless_present_any = ["to_tag", "to_lane"], conflicts_with_all = ["to_tag", "to_lane"])]
     pub to: Option<i64>,
     /// End node tag value.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "to_lane")]
     pub to_tag: Option<String>,
+    /// OpenDRIVE maps: end at the end of lane `ROAD:LANE` or `ROAD:SECTION:LANE`.
+    #[arg(long, allow_hyphen_values = true)]
+    pub to_lane: Option<String>,
     /// Resampling density of the path [points per metre].
     #[arg(long, default_value_t = 5.0, value_parser = super::range::positive)]
     pub points_per_meter: f64,
@@ -96,8 +103,8 @@ pub fn main(command: MapCommand) -> anyhow::Result<()> {
         MapCommand::Info(a) => info(a),
         MapCommand::Route(a) => {
             let map = load(&a.map)?;
-            let from = place(a.from, a.from_tag);
-            let to = place(a.to, a.to_tag);
+            let from = lane_place(a.from_lane.as_deref(), false)?.unwrap_or_else(|| place(a.from, a.from_tag));
+            let to = lane_place(a.to_lane.as_deref(), true)?.unwrap_or_else(|| place(a.to, a.to_tag));
             if a.lane_changes {
                 let opts = LaneChangeOptions {
                     points_per_meter: a.points_per_meter,
@@ -150,6 +157,14 @@ fn load(path: &std::path::Path) -> anyhow::Result<LaneletMap> {
         tracing::warn!("{w}");
     }
     Ok(map)
+}
+
+/// An OpenDRIVE lane given as `ROAD:LANE` or `ROAD:SECTION:LANE`: the tag at its start (or end).
+fn lane_place(spec: Option<&str>, end: bool) -> anyhow::Result<Option<Place>> {
+    Ok(match spec {
+        Some(s) => Some(Place::Tag(smlworld::map::opendrive::lane_spec_tag(s, end)?)),
+        None => None,
+    })
 }
 
 /// clap guarantees exactly one of the two is given.

@@ -96,6 +96,15 @@ pub enum MapError {
         /// What is wrong and what is allowed.
         message: String,
     },
+    /// An OpenDRIVE element is missing something, has a value that cannot be used, or links to
+    /// something the file does not define.
+    #[error("{at}: OpenDRIVE: {message}")]
+    OpenDrive {
+        /// Where the element is.
+        at: Location,
+        /// What is wrong, which road/lane/junction, and what is allowed.
+        message: String,
+    },
     /// A way lists a node that the file does not define.
     #[error("{at}: way {way} references node {node}, which is not in the file; add the node or remove it from the way")]
     MissingNode {

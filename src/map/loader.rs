@@ -16,10 +16,14 @@ use super::polyline::{polyline_length, resample_count};
 use super::projection::Projector;
 
 impl LaneletMap {
-    /// Load a JOSM/OSM map (`.osm` or `.xml`), or the road network of a CommonRoad scenario
-    /// file (root element `<commonRoad>`, see [`super::commonroad`]).
+    /// Load a JOSM/OSM map (`.osm` or `.xml`), the road network of a CommonRoad scenario
+    /// file (root element `<commonRoad>`, see [`super::commonroad`]), or an OpenDRIVE file
+    /// (`.xodr`, or root element `<OpenDRIVE>`, see [`super::opendrive`]).
     pub fn load(path: &FsPath) -> Result<LaneletMap, MapError> {
         let text = std::fs::read_to_string(path).map_err(|source| MapError::Io { path: path.to_path_buf(), source })?;
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("xodr")) || super::opendrive::is_opendrive(&text) {
+            return super::opendrive::parse_str(&text, path);
+        }
         if super::commonroad::is_commonroad(&text) {
             return Ok(super::commonroad::CommonRoadScenario::parse_str(&text, path)?.map);
         }
@@ -28,8 +32,12 @@ impl LaneletMap {
         build(objects)
     }
 
-    /// Parse OSM XML text; `name` stands for the file in messages.
+    /// Parse OSM XML text (or OpenDRIVE text, root element `<OpenDRIVE>`); `name` stands for
+    /// the file in messages.
     pub fn parse_str(text: &str, name: &FsPath) -> Result<LaneletMap, MapError> {
+        if super::opendrive::is_opendrive(text) {
+            return super::opendrive::parse_str(text, name);
+        }
         build(parse_objects(text, name)?)
     }
 

@@ -5,7 +5,7 @@
 //! centre lines, successors, tags) and builds its routing graph from plain lanelet data;
 //! [`routing`] searches that map and never touches XML; [`polyline`] and [`path`] hold the
 //! geometry every layer shares; [`commonroad`] reads CommonRoad scenario XML (lanelets, obstacles,
-//! planning problems) into the same [`LaneletMap`]; [`generate`] writes parametric maps back as JOSM-compatible XML.
+//! planning problems) into the same [`LaneletMap`], and [`opendrive`] reads OpenDRIVE (`.xodr`) roads; [`generate`] writes parametric maps back as JOSM-compatible XML.
 //! Nothing here knows about the ECS or rendering.
 
 pub mod commonroad;
@@ -18,6 +18,7 @@ pub mod lane_routing;
 pub mod lanelet;
 mod loader;
 pub mod neighbours;
+pub mod opendrive;
 pub mod osm;
 pub mod path;
 pub mod polyline;

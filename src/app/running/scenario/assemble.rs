@@ -193,13 +193,15 @@ impl Scenario {
         let p = Arc::new(match (&r.closed_loop, &r.from, &r.to) {
             (Some(n), _, _) => map.closed_loop_at(&n.place(), &opts).map_err(route_err)?,
             (None, Some(a), Some(b)) if r.via.is_empty() => {
-                map.route_places(&a.place(), &b.place(), &opts).map_err(route_err)?
+                map.route_places(&a.place(), &b.end_place(), &opts).map_err(route_err)?
             }
             (None, Some(a), Some(b)) => {
                 let stops: Vec<&NodeRef> = std::iter::once(a).chain(&r.via).chain(std::iter::once(b)).collect();
                 let mut legs = Vec::with_capacity(stops.len() - 1);
-                for w in stops.windows(2) {
-                    legs.push(map.route_places(&w[0].place(), &w[1].place(), &opts).map_err(route_err)?);
+                for (k, w) in stops.windows(2).enumerate() {
+                    // Each leg starts where the last one ended (an OpenDRIVE lane's end).
+                    let start = if k == 0 { w[0].place() } else { w[0].end_place() };
+                    legs.push(map.route_places(&start, &w[1].end_place(), &opts).map_err(route_err)?);
                 }
                 join_legs(&legs, opts.points_per_meter)
             }
@@ -296,7 +298,7 @@ impl Scenario {
                 _ => FollowLaw::Idm(Idm { speed: speed.max(0.1), ..Idm::default() }),
             };
             let goal = match &r.to {
-                Some(to) if r.closed_loop.is_none() => RouteGoal::To(to.place()),
+                Some(to) if r.closed_loop.is_none() => RouteGoal::To(to.end_place()),
                 _ => RouteGoal::Loop,
             };
             b.world_mut().entity_mut(entity).insert(LaneChanger::new(params, law, goal));
@@ -432,7 +434,7 @@ impl Scenario {
     ) -> Result<RouteGoal, ScenarioError> {
         let route = self.route(r, routes, key)?;
         let goal = match (&r.closed_loop, &r.to) {
-            (None, Some(to)) => RouteGoal::To(to.place()),
+            (None, Some(to)) => RouteGoal::To(to.end_place()),
             _ => RouteGoal::Loop,
         };
         let locate = |p: &Path| lanes.locate(p.points[0], None, 0.0).map(|(i, s, _)| (i, s));

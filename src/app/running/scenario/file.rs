@@ -14,20 +14,45 @@ use crate::vehicles::{
 };
 use crate::world::{AccelerationUnicycle, KinematicUnicycle, Radar, VehicleClass, Velodyne};
 
-/// A node of the map: an id (integer) or a node tag value (string).
+/// A node of the map: an id (integer), a node tag value (string), or on an OpenDRIVE map a
+/// lane, `{ road = "5", lane = -1 }` (optionally `section = 1`, else the road's first lane
+/// section): the start of its lanelet where a route starts, its end where a route ends.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
 pub enum NodeRef {
     /// A node id.
     Id(i64),
     /// A node tag value (`destination=left_lane_node` -> `"left_lane_node"`).
     Tag(String),
+    /// An OpenDRIVE lane.
+    Lane {
+        /// Road id.
+        road: String,
+        /// Lane section index in the road (0: the first).
+        section: usize,
+        /// Lane id.
+        lane: i32,
+    },
 }
 
 impl NodeRef {
+    /// Where a route starts or passes: a lane's start.
     pub(crate) fn place(&self) -> Place {
         match self {
             NodeRef::Id(id) => Place::Node(*id),
             NodeRef::Tag(t) => Place::Tag(t.clone()),
+            NodeRef::Lane { road, section, lane } => {
+                Place::Tag(crate::map::opendrive::lane_tag(road, *section, *lane, false))
+            }
+        }
+    }
+
+    /// Where a route ends: a lane's end (the same as [`NodeRef::place`] for nodes and tags).
+    pub(crate) fn end_place(&self) -> Place {
+        match self {
+            NodeRef::Lane { road, section, lane } => {
+                Place::Tag(crate::map::opendrive::lane_tag(road, *section, *lane, true))
+            }
+            other => other.place(),
         }
     }
 }
@@ -35,10 +60,10 @@ impl NodeRef {
 impl<'de> Deserialize<'de> for NodeRef {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<NodeRef, D::Error> {
         struct V;
-        impl serde::de::Visitor<'_> for V {
+        impl<'v> serde::de::Visitor<'v> for V {
             type Value = NodeRef;
             fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-                f.write_str("a node id (integer) or a node tag value (string)")
+                f.write_str("a node id (integer), a node tag value (string) or an OpenDRIVE lane { road, lane }")
             }
             fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<NodeRef, E> {
                 Ok(NodeRef::Id(v))
@@ -48,6 +73,31 @@ impl<'de> Deserialize<'de> for NodeRef {
             }
             fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<NodeRef, E> {
                 Ok(NodeRef::Tag(v.to_string()))
+            }
+            fn visit_map<A: serde::de::MapAccess<'v>>(self, mut m: A) -> Result<NodeRef, A::Error> {
+                use serde::de::Error;
+                let (mut road, mut section, mut lane) = (None, 0usize, None);
+                while let Some(key) = m.next_key::<String>()? {
+                    match key.as_str() {
+                        "road" => road = Some(m.next_value::<toml::Value>()?),
+                        "section" => section = m.next_value()?,
+                        "lane" => lane = Some(m.next_value::<i32>()?),
+                        other => {
+                            return Err(A::Error::custom(format!(
+                                "unknown key `{other}` in a lane (expected `road`, `lane`, `section`)"
+                            )));
+                        }
+                    }
+                }
+                let road = match road {
+                    Some(toml::Value::String(s)) => s,
+                    Some(toml::Value::Integer(i)) => i.to_string(),
+                    Some(_) => return Err(A::Error::custom("`road` must be a road id (string or integer)")),
+                    None => return Err(A::Error::custom("a lane needs `road` (an OpenDRIVE road id)")),
+                };
+                let lane =
+                    lane.ok_or_else(|| A::Error::custom("a lane needs `lane` (an OpenDRIVE lane id, e.g. -1)"))?;
+                Ok(NodeRef::Lane { road, section, lane })
             }
         }
         d.deserialize_any(V)

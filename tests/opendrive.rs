@@ -1,0 +1,661 @@
+//! OpenDRIVE maps (issue 56): the shared esmini and CARLA files load, route and render;
+//! lane geometry against closed forms; links, neighbours, left-hand traffic; bad files refused.
+
+mod render_support;
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use glam::DVec2;
+use render_support::data_dir;
+use smlworld::map::opendrive::geometry::Shape;
+use smlworld::map::opendrive::{parse_document, parse_str};
+use smlworld::map::{Lanelet, LaneletMap, RouteOptions};
+
+fn opendrive_dir() -> PathBuf {
+    data_dir().join("opendrive")
+}
+
+fn shared_files() -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(opendrive_dir())
+        .expect("the shared OpenDRIVE folder ../shared/data/opendrive")
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "xodr"))
+        .collect();
+    files.sort();
+    assert!(files.len() >= 16, "expected the 16 shared .xodr files, found {}", files.len());
+    files
+}
+
+fn load(name: &str) -> LaneletMap {
+    let path = opendrive_dir().join(name);
+    LaneletMap::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn tag<'a>(l: &'a Lanelet, key: &str) -> &'a str {
+    l.tags.get(key).map(String::as_str).unwrap_or_else(|| panic!("lanelet {} has no tag {key}", l.id))
+}
+
+/// The lanelet of road `road`, section `section`, lane `lane`.
+fn lane<'a>(map: &'a LaneletMap, road: &str, section: usize, lane: i32) -> &'a Lanelet {
+    map.lanelets
+        .iter()
+        .find(|l| {
+            tag(l, "opendrive:road") == road
+                && tag(l, "opendrive:section") == section.to_string()
+                && tag(l, "opendrive:lane") == lane.to_string()
+        })
+        .unwrap_or_else(|| panic!("no lanelet for road {road} section {section} lane {lane}"))
+}
+
+fn parse(text: &str) -> Result<LaneletMap, smlworld::map::MapError> {
+    parse_str(text, Path::new("test.xodr"))
+}
+
+#[test]
+fn every_shared_file_loads_and_its_farthest_connected_lanelets_route() {
+    for path in shared_files() {
+        let map = LaneletMap::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let drivable: Vec<usize> = (0..map.lanelets.len()).filter(|&i| map.lanelets[i].routable).collect();
+        assert!(!drivable.is_empty(), "{}: no drivable lanelet", path.display());
+        for l in &map.lanelets {
+            for key in ["opendrive:road", "opendrive:section", "opendrive:lane", "opendrive:type", "opendrive:junction"]
+            {
+                tag(l, key);
+            }
+            assert_eq!(l.left.len(), l.right.len());
+            assert!(l.left.len() >= 2);
+        }
+        // Breadth-first search from every drivable lanelet; keep the farthest pair (by the
+        // distance between their centre lines' middles) that connects.
+        let index: BTreeMap<_, _> = map.lanelets.iter().enumerate().map(|(i, l)| (l.id, i)).collect();
+        let middle = |i: usize| map.lanelets[i].centre[map.lanelets[i].centre.len() / 2];
+        let mut best: Option<(f64, usize, usize)> = None;
+        for &a in &drivable {
+            let mut seen = vec![false; map.lanelets.len()];
+            let mut queue = VecDeque::from([a]);
+            seen[a] = true;
+            while let Some(i) = queue.pop_front() {
+                let d = middle(a).distance(middle(i));
+                if best.is_none_or(|(bd, ..)| d > bd) {
+                    best = Some((d, a, i));
+                }
+                for s in &map.lanelets[i].successors {
+                    let j = index[s];
+                    if map.lanelets[j].routable && !seen[j] {
+                        seen[j] = true;
+                        queue.push_back(j);
+                    }
+                }
+            }
+        }
+        let (distance, a, b) = best.unwrap();
+        let (from, to) = (map.lanelets[a].id, map.lanelets[b].id);
+        let route = map
+            .route_lanelets(from, to, &RouteOptions::default())
+            .unwrap_or_else(|e| panic!("{}: no route {from} -> {to}: {e}", path.display()));
+        assert!(route.lanelets.first() == Some(&from) && route.lanelets.last() == Some(&to));
+        assert!(
+            route.length + 1.0 >= distance * 0.5,
+            "{}: route of {} m for {distance} m",
+            path.display(),
+            route.length
+        );
+    }
+}
+
+#[test]
+fn every_shared_file_renders() {
+    let out_dir = std::env::temp_dir().join(format!("smlworld-opendrive-render-{}", std::process::id()));
+    std::fs::create_dir_all(&out_dir).unwrap();
+    for path in shared_files() {
+        let out = out_dir.join(path.file_stem().unwrap()).with_extension("png");
+        let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+            .args(["map", "render"])
+            .arg(&path)
+            .arg("--out")
+            .arg(&out)
+            .args(["--width", "320", "--height", "240"])
+            .output()
+            .expect("runs smlworld");
+        assert!(run.status.success(), "{}: {}", path.display(), String::from_utf8_lossy(&run.stderr));
+        let img = image::open(&out).unwrap().to_rgba8();
+        // Some asphalt: grey pixels (the background is green forest).
+        let grey = img
+            .pixels()
+            .filter(|p| p[0].abs_diff(p[1]) < 12 && p[1].abs_diff(p[2]) < 12 && p[0] > 30 && p[0] < 170)
+            .count();
+        assert!(grey > 50, "{}: {grey} road pixels", path.display());
+    }
+    std::fs::remove_dir_all(&out_dir).ok();
+}
+
+/// Analytic lane lengths: a lane whose centre lies at lateral offset t_c (the sum of the widths
+/// inside it plus half its own, signed: + left) runs Σ_g L_g (1 - κ_g t_c) over the reference
+/// line's geometries (L_g the length, κ_g the curvature: 0 for lines, 1/R for arcs): a lane
+/// at t_c on an arc of radius R turning left has radius R - t_c and turns by L_g / R.
+#[test]
+fn driving_lane_lengths_match_the_analytic_lengths() {
+    for name in ["straight_500m.xodr", "curve_r100.xodr", "circle_300m.xodr"] {
+        let path = opendrive_dir().join(name);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let doc = parse_document(&text, &path).unwrap();
+        let map = load(name);
+        let mut checked = 0;
+        for road in &doc.roads {
+            assert!(road.lane_offsets.iter().all(|o| o.c == [0.0; 4]), "{name}: the formula assumes no lane offset");
+            for (si, section) in road.sections.iter().enumerate() {
+                for side in [&section.left, &section.right] {
+                    let mut inner = 0.0;
+                    for l in side.iter() {
+                        assert_eq!(l.widths.len(), 1, "{name}: the formula assumes constant widths");
+                        let w = l.widths[0].c;
+                        assert_eq!(&w[1..], &[0.0; 3]);
+                        let t_c = f64::from(l.id.signum()) * (inner + 0.5 * w[0]);
+                        inner += w[0];
+                        if l.kind != "driving" {
+                            continue;
+                        }
+                        let expected: f64 = road
+                            .geometries
+                            .iter()
+                            .map(|g| {
+                                let kappa = match g.shape {
+                                    Shape::Line => 0.0,
+                                    Shape::Arc { curvature } => curvature,
+                                    _ => panic!("{name}: only lines and arcs expected"),
+                                };
+                                g.length * (1.0 - kappa * t_c)
+                            })
+                            .sum();
+                        let got = lane(&map, &road.id, si, l.id).length;
+                        assert!(
+                            (got - expected).abs() <= 1e-3 * expected,
+                            "{name} lane {}: {got} m, analytic {expected} m",
+                            l.id
+                        );
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        assert!(checked >= 2, "{name}: {checked} driving lanes checked");
+    }
+}
+
+/// Bound points on the arc of curve_r100 (from (500, 0), heading 0, curvature 0.01: centre
+/// (500, 100)) lie on circles about that centre, and the middle of every chord strays at most
+/// 2 cm from its circle.
+#[test]
+fn bounds_on_an_arc_keep_the_chord_error_under_2_cm() {
+    let map = load("curve_r100.xodr");
+    let centre = DVec2::new(500.0, 100.0);
+    let mut chords = 0;
+    for l in &map.lanelets {
+        for bound in [&l.left, &l.right] {
+            for w in bound.windows(2) {
+                let on_arc = |p: DVec2| p.x > 500.0 + 1e-6 && p.y < 100.0 - 1e-6;
+                if !(on_arc(w[0]) && on_arc(w[1])) {
+                    continue;
+                }
+                let (r0, r1) = (w[0].distance(centre), w[1].distance(centre));
+                assert!((r0 - r1).abs() < 1e-6, "bound points off a circle: {r0} vs {r1}");
+                let sagitta = r0 - ((w[0] + w[1]) * 0.5).distance(centre);
+                assert!(sagitta <= 0.02 + 1e-9, "chord error {sagitta} m");
+                chords += 1;
+            }
+        }
+    }
+    assert!(chords > 50, "{chords} chords on the arc");
+}
+
+/// Successive drivable lanelets (across lane sections, road links and junctions) start where
+/// their predecessor ends: both bounds within 1 cm. (Lanes that are never driven are left out:
+/// multi_intersections links a 20 m wide filler lane of type `none` to a narrower one.)
+#[test]
+fn bounds_are_continuous_across_sections_and_links() {
+    for path in shared_files() {
+        let map = LaneletMap::load(&path).unwrap();
+        let mut links = 0;
+        for l in map.lanelets.iter().filter(|l| l.routable) {
+            for s in &l.successors {
+                let n = map.lanelet(*s).unwrap();
+                if !n.routable {
+                    continue;
+                }
+                let (end_l, end_r) = (*l.left.last().unwrap(), *l.right.last().unwrap());
+                let gap = if end_l.distance(end_r) < 0.01 {
+                    // A lane that merges by narrowing to no width ends on its successor's start line.
+                    segment_distance(end_l, n.left[0], n.right[0])
+                } else if n.left[0].distance(n.right[0]) < 0.01 {
+                    // A lane that opens from no width starts on its predecessor's end line.
+                    segment_distance(n.left[0], end_l, end_r)
+                } else {
+                    end_l.distance(n.left[0]).max(end_r.distance(n.right[0]))
+                };
+                assert!(
+                    gap <= 0.01,
+                    "{}: lanelet {} (road {} lane {}) -> {} (road {} lane {}): gap {gap} m",
+                    path.display(),
+                    l.id,
+                    tag(l, "opendrive:road"),
+                    tag(l, "opendrive:lane"),
+                    n.id,
+                    tag(n, "opendrive:road"),
+                    tag(n, "opendrive:lane")
+                );
+                links += 1;
+            }
+        }
+        let name = path.file_name().unwrap().to_string_lossy();
+        if ["Town01.xodr", "Town04.xodr", "multi_lanesections.xodr", "fabriksgatan.xodr"].contains(&name.as_ref()) {
+            assert!(links > 0, "{name}: no successor links");
+        }
+    }
+}
+
+/// Distance from `p` to the segment from `a` to `b` [m].
+fn segment_distance(p: DVec2, a: DVec2, b: DVec2) -> f64 {
+    let ab = b - a;
+    let t = if ab.length_squared() > 0.0 { ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+    p.distance(a + ab * t)
+}
+
+/// A straight road along x with one right lane whose width is a cubic and a lane offset.
+const WIDTH_FILE: &str = r#"<?xml version="1.0"?>
+<OpenDRIVE>
+  <header revMajor="1" revMinor="6"/>
+  <road id="7" length="100" junction="-1">
+    <planView>
+      <geometry s="0" x="10" y="20" hdg="0" length="100"><line/></geometry>
+    </planView>
+    <lanes>
+      <laneOffset s="0" a="0.5" b="0" c="0" d="0"/>
+      <laneSection s="0">
+        <center><lane id="0" type="none"/></center>
+        <right>
+          <lane id="-1" type="driving">
+            <width sOffset="0" a="3" b="0.01" c="0.0004" d="-0.000002"/>
+            <speed max="50" unit="km/h"/>
+          </lane>
+          <lane id="-2" type="sidewalk"><width sOffset="0" a="2" b="0" c="0" d="0"/></lane>
+        </right>
+      </laneSection>
+    </lanes>
+  </road>
+</OpenDRIVE>"#;
+
+#[test]
+fn width_polynomials_and_lane_offset_shape_the_bounds() {
+    let map = parse(WIDTH_FILE).unwrap();
+    let width = |s: f64| 3.0 + 0.01 * s + 0.0004 * s * s - 0.000002 * s * s * s;
+    let l = lane(&map, "7", 0, -1);
+    assert_eq!(tag(l, "opendrive:type"), "driving");
+    assert_eq!(tag(l, "speed_limit"), "50");
+    assert!(l.routable);
+    for (left, right) in l.left.iter().zip(&l.right) {
+        let s = left.x - 10.0;
+        assert!((left.y - 20.5).abs() < 1e-9, "left bound follows the lane offset 0.5 m");
+        assert!((right.x - left.x).abs() < 1e-9);
+        assert!((left.y - right.y - width(s)).abs() < 1e-9, "width at s = {s}");
+    }
+    let walk = lane(&map, "7", 0, -2);
+    assert!(!walk.routable, "a sidewalk is kept but not routed through");
+    assert_eq!(tag(walk, "subtype"), "walkway");
+    assert_eq!(walk.left, l.right, "neighbouring lanes share their border");
+    assert!((map.lanelets.iter().map(|l| l.length).fold(0.0, f64::max) - 100.0).abs() < 0.1);
+}
+
+#[test]
+fn left_hand_traffic_drives_the_left_lanes_along_the_reference_line() {
+    for (name, along_lane, against_lane) in [("e6mini.xodr", -1, 1), ("e6mini-lht.xodr", 1, -1)] {
+        let path = opendrive_dir().join(name);
+        let doc = parse_document(&std::fs::read_to_string(&path).unwrap(), &path).unwrap();
+        let road = &doc.roads[0];
+        let map = load(name);
+        let start = road.reference(0.0).0;
+        let a = lane(&map, &road.id, 0, along_lane);
+        let b = lane(&map, &road.id, 0, against_lane);
+        assert!(a.centre[0].distance(start) < 20.0, "{name}: lane {along_lane} starts at s = 0");
+        assert!(b.centre.last().unwrap().distance(start) < 20.0, "{name}: lane {against_lane} ends at s = 0");
+        // Driving direction: the left bound is on the left of the centre line.
+        for l in [a, b] {
+            let d = l.centre[1] - l.centre[0];
+            let to_left = l.left[0] - l.centre[0];
+            assert!(d.perp_dot(to_left) > 0.0, "{name}: lanelet {} left bound on its left", l.id);
+        }
+        assert_eq!(a.tags.get("driving_side").map(String::as_str), (name == "e6mini-lht.xodr").then_some("left"));
+    }
+}
+
+/// Three lanes on the right of a straight road with the marks between them.
+fn marks_file(mark_12: &str, mark_23: &str) -> String {
+    format!(
+        r#"<OpenDRIVE><header/>
+  <road id="1" length="50" junction="-1">
+    <planView><geometry s="0" x="0" y="0" hdg="0" length="50"><line/></geometry></planView>
+    <lanes><laneSection s="0">
+      <center><lane id="0" type="none"><roadMark sOffset="0" type="solid"/></lane></center>
+      <right>
+        <lane id="-1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/>{mark_12}</lane>
+        <lane id="-2" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/>{mark_23}</lane>
+        <lane id="-3" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane>
+      </right>
+    </laneSection></lanes>
+  </road>
+</OpenDRIVE>"#
+    )
+}
+
+#[test]
+fn road_marks_decide_lane_changes() {
+    let changes = |m12: &str, m23: &str| {
+        let map = parse(&marks_file(m12, m23)).unwrap();
+        let n = map.neighbours();
+        let at = |lane_id: i32| n[map.lanelet_index(lane(&map, "1", 0, lane_id).id).unwrap()];
+        let (l1, l2, l3) = (at(-1), at(-2), at(-3));
+        assert_eq!(l1.right, Some(lane(&map, "1", 0, -2).id));
+        assert_eq!(l3.left, Some(lane(&map, "1", 0, -2).id));
+        // (from -1 to -2, from -2 to -1, from -2 to -3, from -3 to -2)
+        (l1.change_right, l2.change_left, l2.change_right, l3.change_left)
+    };
+    let broken = r#"<roadMark sOffset="0" type="broken"/>"#;
+    let solid = r#"<roadMark sOffset="0" type="solid"/>"#;
+    assert_eq!(changes(broken, solid), (true, true, false, false));
+    // `solid broken` reads from the centre outwards: solid on the inner (-1) side, broken on the
+    // outer side, so only the outer lane may cross.
+    let solid_broken = r#"<roadMark sOffset="0" type="solid broken"/>"#;
+    let broken_solid = r#"<roadMark sOffset="0" type="broken solid"/>"#;
+    assert_eq!(changes(solid_broken, broken_solid), (false, true, true, false));
+    // laneChange overrides the paint.
+    let solid_both = r#"<roadMark sOffset="0" type="solid" laneChange="both"/>"#;
+    let broken_none = r#"<roadMark sOffset="0" type="broken" laneChange="none"/>"#;
+    assert_eq!(changes(solid_both, broken_none), (true, true, false, false));
+    // `increase`: towards higher lane ids only (from -2 to -1 across the first line).
+    let increase = r#"<roadMark sOffset="0" type="solid" laneChange="increase"/>"#;
+    let decrease = r#"<roadMark sOffset="0" type="solid" laneChange="decrease"/>"#;
+    assert_eq!(changes(increase, decrease), (false, true, true, false));
+}
+
+/// Road 1 runs east and ends where road 2 also ends (`contactPoint="end"`): road 2 runs back
+/// west, so lane -1 of road 1 continues on lane 1 of road 2 (driven against road 2's s). A
+/// second lane section on road 1 links lanes by id.
+const LINK_FILE: &str = r#"<OpenDRIVE><header/>
+  <road id="1" length="40" junction="-1">
+    <link><successor elementType="road" elementId="2" contactPoint="end"/></link>
+    <planView><geometry s="0" x="0" y="0" hdg="0" length="40"><line/></geometry></planView>
+    <lanes>
+      <laneSection s="0">
+        <center><lane id="0" type="none"/></center>
+        <right><lane id="-1" type="driving"><link><successor id="-1"/></link><width sOffset="0" a="3" b="0" c="0" d="0"/></lane></right>
+      </laneSection>
+      <laneSection s="25">
+        <center><lane id="0" type="none"/></center>
+        <right><lane id="-1" type="driving"><link><predecessor id="-1"/><successor id="1"/></link><width sOffset="0" a="3" b="0" c="0" d="0"/></lane></right>
+      </laneSection>
+    </lanes>
+  </road>
+  <road id="2" length="30" junction="-1">
+    <link><successor elementType="road" elementId="1" contactPoint="end"/></link>
+    <planView><geometry s="0" x="70" y="0" hdg="3.141592653589793" length="30"><line/></geometry></planView>
+    <lanes><laneSection s="0">
+      <center><lane id="0" type="none"/></center>
+      <left><lane id="1" type="driving"><link><successor id="-1"/></link><width sOffset="0" a="3" b="0" c="0" d="0"/></lane></left>
+    </laneSection></lanes>
+  </road>
+</OpenDRIVE>"#;
+
+#[test]
+fn lane_links_follow_sections_and_contact_points() {
+    let map = parse(LINK_FILE).unwrap();
+    let (a, b, c) = (lane(&map, "1", 0, -1), lane(&map, "1", 1, -1), lane(&map, "2", 0, 1));
+    assert_eq!(a.successors, vec![b.id]);
+    assert_eq!(b.successors, vec![c.id]);
+    assert!(c.successors.is_empty());
+    // Lane 1 of road 2 runs against road 2's s: from x = 40 to x = 70.
+    assert!((c.centre[0].x - 40.0).abs() < 1e-9 && (c.centre.last().unwrap().x - 70.0).abs() < 1e-9);
+    let route = map.route_lanelets(a.id, c.id, &RouteOptions::default()).unwrap();
+    assert!((route.length - 70.0).abs() < 0.5, "route {} m", route.length);
+}
+
+#[test]
+fn carla_geo_reference_sets_the_origin() {
+    let map = load("Town04.xodr");
+    assert_eq!((map.projector.origin_lat, map.projector.origin_lon), (49.0, 8.0));
+    let n = map.nodes.values().next().unwrap();
+    let back = map.projector.forward(n.lat, n.lon);
+    assert!(back.distance(n.position) < 1e-3);
+}
+
+#[test]
+fn junction_connections_link_incoming_and_connecting_roads() {
+    let path = opendrive_dir().join("fabriksgatan.xodr");
+    let doc = parse_document(&std::fs::read_to_string(&path).unwrap(), &path).unwrap();
+    let map = load("fabriksgatan.xodr");
+    let mut checked = 0;
+    for j in &doc.junctions {
+        for c in &j.connections {
+            for &(from, to) in &c.lane_links {
+                let (a, b) = (lane_end(&map, &c.incoming, from, &doc), lane_end(&map, &c.connecting, to, &doc));
+                let (Some(a), Some(b)) = (a, b) else { continue };
+                if !(a.routable && b.routable) {
+                    continue;
+                }
+                assert!(
+                    a.successors.contains(&b.id) || b.successors.contains(&a.id),
+                    "junction {}: lane {from} of road {} and lane {to} of road {} not linked",
+                    j.id,
+                    c.incoming,
+                    c.connecting
+                );
+                assert_eq!(tag(b, "opendrive:junction"), j.id);
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 4, "{checked} lane links checked");
+}
+
+/// A lanelet of `lane` on `road` in any section (first match).
+fn lane_end<'a>(
+    map: &'a LaneletMap,
+    road: &str,
+    lane_id: i32,
+    _doc: &smlworld::map::opendrive::road::Document,
+) -> Option<&'a Lanelet> {
+    map.lanelets.iter().find(|l| tag(l, "opendrive:road") == road && tag(l, "opendrive:lane") == lane_id.to_string())
+}
+
+fn refused(text: &str, expect: &[&str]) {
+    let err = parse(text).expect_err("the file must be refused").to_string();
+    for e in expect {
+        assert!(err.contains(e), "error {err:?} lacks {e:?}");
+    }
+}
+
+#[test]
+fn malformed_files_are_refused_with_line_and_id() {
+    let road = |body: &str, extra: &str| {
+        format!(
+            "<OpenDRIVE>\n<header/>\n<road id=\"9\" length=\"10\" junction=\"-1\">\n{extra}{body}\n<lanes><laneSection s=\"0\"><center><lane id=\"0\"/></center></laneSection></lanes>\n</road>\n</OpenDRIVE>"
+        )
+    };
+    let plan = |g: &str| {
+        format!("<planView>\n<geometry s=\"0\" x=\"0\" y=\"0\" hdg=\"0\" length=\"10\">{g}</geometry>\n</planView>")
+    };
+    refused(&road("", ""), &["test.xodr:3", "road 9", "planView"]);
+    refused(&road(&plan("<clothoid/>"), ""), &["test.xodr:5", "road 9", "unknown geometry <clothoid>"]);
+    refused(
+        &road(
+            "<planView>\n<geometry s=\"0\" x=\"0\" y=\"0\" hdg=\"0\" length=\"-4\"><line/></geometry>\n</planView>",
+            "",
+        ),
+        &["test.xodr:5", "road 9", "negative length"],
+    );
+    refused(
+        &road(&plan("<line/>"), "").replace("length=\"10\" junction", "length=\"-10\" junction"),
+        &["test.xodr:3", "road 9", "negative length"],
+    );
+    refused(
+        &road(
+            &plan("<line/>"),
+            "<link><successor elementType=\"road\" elementId=\"77\" contactPoint=\"start\"/></link>\n",
+        ),
+        &["test.xodr:4", "road 9", "road 77"],
+    );
+    refused(&road(&plan("<arc curvature=\"x\"/>"), ""), &["test.xodr:5", "road 9", "curvature"]);
+    refused("<osm></osm>", &["OpenDRIVE"]);
+    // A huge length in a small file is refused, not sampled into billions of points.
+    refused(
+        &road(&plan("<line/>"), "").replace("length=\"10\" junction", "length=\"1e12\" junction"),
+        &["test.xodr:3", "road 9", "beyond"],
+    );
+}
+
+#[test]
+fn truncated_and_mangled_files_never_panic() {
+    let text = std::fs::read_to_string(opendrive_dir().join("fabriksgatan.xodr")).unwrap();
+    let n = text.len();
+    for k in 1..60 {
+        let cut = (n * k / 60..n).find(|&i| text.is_char_boundary(i)).unwrap_or(n);
+        let _ = parse(&text[..cut]);
+        let mangled = text.replacen("length=", "length=\"-1\" x=", k);
+        let _ = parse(&mangled);
+    }
+}
+
+#[test]
+fn unsupported_elements_warn_once_per_name_with_a_line() {
+    let map = load("fabriksgatan.xodr");
+    let names: Vec<&str> = map.warnings.iter().filter_map(|w| w.message.split('<').nth(1)?.split('>').next()).collect();
+    let mut unique = names.clone();
+    unique.sort();
+    unique.dedup();
+    assert_eq!(names.len(), unique.len(), "one warning per element name: {names:?}");
+    assert!(
+        names.iter().any(|n| n.ends_with("/signals") || n.ends_with("/objects") || n.ends_with("/elevationProfile")),
+        "{names:?}"
+    );
+    assert!(map.warnings.iter().all(|w| w.at.contains("fabriksgatan.xodr:")));
+}
+
+fn smlworld(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld")).args(args).output().expect("runs smlworld");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn map_route_takes_opendrive_lanes() {
+    let file = opendrive_dir().join("multi_lanesections.xodr");
+    let file = file.to_str().unwrap();
+    let map = load("multi_lanesections.xodr");
+    // From the first section's lane -1 to the last section's lane -1, through every section.
+    let last = map
+        .lanelets
+        .iter()
+        .filter(|l| tag(l, "opendrive:road") == "0")
+        .map(|l| tag(l, "opendrive:section").parse::<usize>().unwrap())
+        .max()
+        .unwrap();
+    let (a, b) = (lane(&map, "0", 0, -1), lane(&map, "0", last, -1));
+    let (ok, out, err) =
+        smlworld(&["map", "route", file, "--from-lane", "0:-1", "--to-lane", &format!("0:{last}:-1"), "--json"]);
+    assert!(ok, "{err}");
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let lanelets: Vec<i64> = json["lanelets"].as_array().unwrap().iter().map(|v| v.as_i64().unwrap()).collect();
+    assert_eq!(lanelets.first(), Some(&a.id.0));
+    assert_eq!(lanelets.last(), Some(&b.id.0));
+    assert_eq!(lanelets.len(), last + 1, "one lanelet per lane section: {lanelets:?}");
+    let (ok, _, err) = smlworld(&["map", "route", file, "--from-lane", "0:x", "--to-lane", "0:-1"]);
+    assert!(!ok && err.contains("ROAD:LANE"), "{err}");
+    let (ok, _, err) = smlworld(&["map", "route", file, "--from-lane", "99:-1", "--to-lane", "0:-1"]);
+    assert!(!ok && err.contains("start:99:0:-1"), "{err}");
+}
+
+#[test]
+fn scenario_routes_name_opendrive_lanes() {
+    let dir = std::env::temp_dir().join(format!("smlworld-opendrive-scenario-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let map = opendrive_dir().join("multi_lanesections.xodr");
+    let scenario = dir.join("lanes.toml");
+    std::fs::write(
+        &scenario,
+        format!(
+            r#"seed = 1
+duration = 8.0
+map = {map:?}
+
+[[vehicles]]
+id = -1
+class = "car"
+model = {{ type = "acceleration" }}
+route = {{ from = {{ road = "0", lane = -1 }}, to = {{ road = 0, section = 2, lane = -1 }} }}
+start = {{ offset = 5.0 }}
+speed = 10.0
+controller = {{ type = "cruise_control", speed = 10.0 }}
+"#
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let (ok, _, err) = smlworld(&["run", scenario.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["metrics"]["collision_count"], 0);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// scenarios/town04_platoon.toml: a CACC platoon of 8 on Town04's highway loop with background
+/// traffic, 10 simulated minutes without a collision, every follower kept a gap.
+#[test]
+fn town04_platoon_runs_ten_minutes_without_collision() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let out = std::env::temp_dir().join(format!("smlworld-town04-platoon-{}", std::process::id()));
+    let (ok, _, err) = smlworld(&[
+        "run",
+        root.join("scenarios/town04_platoon.toml").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    std::fs::remove_dir_all(&out).ok();
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "collisions: {}", m["collisions"]);
+    let followers = m["followers"].as_array().unwrap();
+    // Followers -2 ... -8 behind leader -1 (on the loop the leader is measured too, behind -8).
+    let platoon: Vec<&serde_json::Value> =
+        followers.iter().filter(|f| (-8..=-2).contains(&f["id"].as_i64().unwrap())).collect();
+    assert_eq!(platoon.len(), 7, "7 platoon followers measured");
+    for f in platoon {
+        assert!(f["min_gap"].as_f64().unwrap() > 1.0, "follower {} came within {} m", f["id"], f["min_gap"]);
+    }
+}
+
+/// highway_example_with_merge_and_split: lane 3 of road 1 ends (the on-ramp merges), so from
+/// the ramp (road 8) to road 0 there is no route in lane, and the route with lane changes
+/// changes lanes exactly where the neighbours' shared border lets it.
+#[test]
+fn the_merge_needs_a_lane_change_and_the_road_marks_allow_one() {
+    use smlworld::map::{LaneChangeOptions, MapError, Place};
+    let map = load("highway_example_with_merge_and_split.xodr");
+    let from = Place::Tag("start:8:0:1".into());
+    let to = Place::Tag("end:0:0:1".into());
+    assert!(matches!(map.route_places(&from, &to, &RouteOptions::default()), Err(MapError::NoRoute { .. })));
+    let route = map.route_with_lane_changes(&from, &to, &LaneChangeOptions::default()).unwrap();
+    assert!(!route.lane_changes.is_empty());
+    let n = map.neighbours();
+    for c in &route.lane_changes {
+        let nb = n[map.lanelet_index(c.from).unwrap()];
+        assert!((nb.left == Some(c.to) && nb.change_left) || (nb.right == Some(c.to) && nb.change_right));
+        let (a, b) = (map.lanelet(c.from).unwrap(), map.lanelet(c.to).unwrap());
+        assert_eq!(tag(a, "opendrive:road"), tag(b, "opendrive:road"), "a change stays on its road");
+    }
+}
