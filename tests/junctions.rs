@@ -443,3 +443,52 @@ fn random_traffic_starts_clear_of_stop_lines() {
     let _ = std::fs::remove_dir_all(&dir);
     assert!(checked > 50 && long_before_junction > 50, "too few vehicles on lanelets up to a junction: {checked}");
 }
+
+/// Lanelet2 `traffic_sign` regulatory elements rank the arms that carry them (issue 53 item 2):
+/// a stop sign (`subtype=de206`) on the north and south approaches of the generated 4-way
+/// junction makes those 6 links minor and the east-west ones major; a sign the rules do not
+/// know (a speed limit) leaves the equal arms right-before-left.
+#[test]
+fn lanelet2_traffic_sign_elements_make_their_arms_minor() {
+    let text = generate::intersection(&IntersectionParams::default()).unwrap();
+    let plain = map_of(&text);
+    let is_incoming = |l: &smlworld::map::Lanelet| l.successors.len() > 1;
+    let north_south = |l: &smlworld::map::Lanelet| {
+        let n = l.centre.len();
+        let d = l.centre[n - 1] - l.centre[n - 2];
+        d.y.abs() > d.x.abs()
+    };
+    let signed_ids: Vec<i64> =
+        plain.lanelets.iter().filter(|l| is_incoming(l) && north_south(l)).map(|l| l.id.0).collect();
+    assert_eq!(signed_ids.len(), 2, "one approach lanelet each from north and south");
+    let with_sign = |subtype: &str| {
+        let mut t = text.clone();
+        for id in &signed_ids {
+            let head = format!("<relation id='{id}'>");
+            assert!(t.contains(&head), "lanelet relation {id} in the generated text");
+            t = t.replace(
+                &head,
+                &format!("{head}\n    <member type='relation' ref='-90002' role='regulatory_element' />"),
+            );
+        }
+        let sign = format!(
+            "  <node id='-90010' lat='0.0001' lon='0.0001' />\n  <node id='-90011' lat='0.0001' lon='0.00012' />\n  \
+             <way id='-90001'>\n    <nd ref='-90010' />\n    <nd ref='-90011' />\n    <tag k='type' v='traffic_sign' />\n    \
+             <tag k='subtype' v='{subtype}' />\n  </way>\n  <relation id='-90002'>\n    \
+             <member type='way' ref='-90001' role='refers' />\n    <tag k='type' v='regulatory_element' />\n    \
+             <tag k='subtype' v='traffic_sign' />\n  </relation>\n</osm>"
+        );
+        map_of(&t.replace("</osm>", &sign))
+    };
+    assert_eq!(plain.junctions().list[0].control, JunctionControl::RightBeforeLeft);
+    let stop = with_sign("de206");
+    let j = stop.junctions();
+    assert_eq!(j.list[0].control, JunctionControl::Priority);
+    for link in &j.list[0].links {
+        let from = stop.lanelet(link.from.expect("every link has an approach")).unwrap();
+        assert_eq!(link.major, !north_south(from), "link {:?} from {:?}", link.lanelet, from.id);
+    }
+    assert_eq!(j.list[0].links.iter().filter(|l| l.major).count(), 6);
+    let speed = with_sign("de274");
+    assert_eq!(speed.junctions().list[0].control, JunctionControl::RightBeforeLeft);
+}

@@ -635,22 +635,6 @@ impl CommonRoadScenario {
     }
 }
 
-/// The right of way a lanelet's traffic signs give its arm of the next junction: `minor`
-/// behind a stop or yield sign, `major` on a priority road (German sign numbers, which
-/// CommonRoad's `trafficSignID` uses for every country it converts: 205 yield, 206 stop, 301
-/// right of way at the next junction, 306 priority road; or the sign's name in other files).
-/// A stop or yield sign wins over a priority sign on the same lanelet.
-pub fn sign_priority(signs: &[String]) -> Option<&'static str> {
-    let is = |names: &[&str]| signs.iter().any(|s| names.iter().any(|n| s.eq_ignore_ascii_case(n)));
-    if is(&["205", "206", "yield", "stop", "give_way"]) {
-        Some("minor")
-    } else if is(&["301", "306", "priority", "priority_road", "right_of_way"]) {
-        Some("major")
-    } else {
-        None
-    }
-}
-
 /// `e` with `what` (an obstacle named by id) in front of its message.
 fn about(e: MapError, what: &str) -> MapError {
     match e {
@@ -948,7 +932,7 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
                 }),
             }
         }
-        if let Some(priority) = sign_priority(&sign_ids) {
+        if let Some(priority) = super::junctions::sign_priority(&sign_ids) {
             tags.insert("priority".into(), priority.into());
         }
         if !sign_ids.is_empty() {

@@ -523,6 +523,31 @@ fn equal_rank_yield(a: &Link, a_start: DVec2, b: &Link, b_start: DVec2, left_han
     if b_from_right != left_hand { Yield::A } else { Yield::B }
 }
 
+/// The right of way a lanelet's traffic signs give its arm of the next junction: `minor`
+/// behind a stop or yield sign, `major` on a priority road. Signs by German number, which
+/// CommonRoad's `trafficSignID` uses for every country it converts and Lanelet2 tags as
+/// `subtype=de206`: 205 yield, 206 stop, 301 right of way at the next junction, 306 priority
+/// road; or by name. A stop or yield sign wins over a priority sign on the same lanelet.
+pub fn sign_priority<S: AsRef<str>>(signs: &[S]) -> Option<&'static str> {
+    let is = |names: &[&str]| {
+        signs.iter().any(|s| {
+            let s = s.as_ref().trim();
+            let s = match s.get(..2) {
+                Some(country) if s.len() > 2 && country.eq_ignore_ascii_case("de") => &s[2..],
+                _ => s,
+            };
+            names.iter().any(|n| s.eq_ignore_ascii_case(n))
+        })
+    };
+    if is(&["205", "206", "yield", "stop", "give_way"]) {
+        Some("minor")
+    } else if is(&["301", "306", "priority", "priority_road", "right_of_way"]) {
+        Some("major")
+    } else {
+        None
+    }
+}
+
 /// Every junction of `map` with its links, conflicts, control and who yields.
 pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
     let n = map.lanelets.len();
@@ -589,6 +614,25 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
                         }
                         _ => {}
                     }
+                }
+            }
+            // A Lanelet2 sign element: the signs it refers to (ways tagged `subtype=de206`, ...)
+            // rank the lanelets that carry it, as `right_of_way` roles do.
+            "traffic_sign" => {
+                let kinds: Vec<&str> = re
+                    .way_roles
+                    .iter()
+                    .filter(|(_, role)| role == "refers")
+                    .filter_map(|(w, _)| map.ways.get(w)?.tags.get("subtype").map(String::as_str))
+                    .collect();
+                match sign_priority(&kinds) {
+                    Some("major") => re.lanelets.iter().for_each(|l| {
+                        role_of.insert(*l, true);
+                    }),
+                    Some(_) => re.lanelets.iter().for_each(|l| {
+                        role_of.entry(*l).or_insert(false);
+                    }),
+                    None => {}
                 }
             }
             "all_way_stop" => {
