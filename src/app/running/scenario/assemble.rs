@@ -403,7 +403,7 @@ impl Scenario {
                 sensor_errors: sensor_errors_of(&t.sensors),
                 yield_to_emergency: t.yield_to_emergency,
                 next_id: start as i32,
-                id_step: step as i32,
+                id_step: step,
                 drawn: 0,
                 next_time: 0.0,
                 queue: 0,
