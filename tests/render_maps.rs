@@ -94,6 +94,7 @@ fn projector_view_of_the_highway_matches_the_reference() {
         .min_by(|a, b| a.0.distance(target).total_cmp(&b.0.distance(target)))
         .unwrap();
     let mut truck = VehicleSprite::new(4, p, yaw, 8.0, 2.5, "Truck");
+    truck.real = true;
     truck.overlays.radar = Some(RadarCone { range: 15.0, angle: PI / 4.0 });
     let img = r.render_frame(&layer, &[truck]).unwrap();
     // The rectangle's corners are the image's corners.

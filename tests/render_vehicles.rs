@@ -32,6 +32,7 @@ fn road_env() -> Environment {
 
 fn three_vehicles() -> Vec<VehicleSprite> {
     let mut truck = VehicleSprite::new(1, DVec2::new(-12.0, -1.75), 0.0, 8.0, 2.5, "Truck");
+    truck.real = true;
     truck.overlays.radar = Some(RadarCone { range: 20.0, angle: PI / 3.0 });
     truck.overlays.route = Some(Arc::from(vec![
         DVec2::new(-12.0, -1.75),
@@ -42,6 +43,7 @@ fn three_vehicles() -> Vec<VehicleSprite> {
     let mut car = VehicleSprite::new(-2, DVec2::new(12.0, 1.75), PI, 4.5, 1.8, "Car");
     car.overlays.velodyne = Some(6.0);
     let mut bus = VehicleSprite::new(23, DVec2::new(0.0, -10.0), PI / 2.0, 12.0, 2.55, "Bus");
+    bus.real = true;
     bus.overlays.wifi = Some(9.0);
     vec![truck, car, bus]
 }
@@ -74,7 +76,8 @@ fn a_vehicle_covers_exactly_its_posed_rectangle_with_the_windscreen_in_front() {
     let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
     let empty = r.render_frame(&layer, &[]).unwrap();
     let yaw = 30f64.to_radians();
-    let v = VehicleSprite::new(7, DVec2::new(3.0, -2.0), yaw, 10.0, 3.0, "Truck");
+    let mut v = VehicleSprite::new(7, DVec2::new(3.0, -2.0), yaw, 10.0, 3.0, "Truck");
+    v.real = true;
     let frame = r.render_frame(&layer, std::slice::from_ref(&v)).unwrap();
     let centre_px = view.world_to_pixel(v.position);
     // Half the screen width of the rotated body [px]: the label starts right of it.
@@ -120,8 +123,9 @@ fn real_and_virtual_vehicles_look_different() {
     let mut r = renderer();
     let view = BirdseyeView::centered_on_origin(200, 200, 10.0).unwrap();
     let layer = r.environment_layer(&road_env(), &view, &PatternSet::builtin()).unwrap();
-    let real = VehicleSprite::new(5, DVec2::ZERO, 0.0, 8.0, 3.0, "Car");
-    let virt = VehicleSprite { id: -5, ..real.clone() };
+    let mut real = VehicleSprite::new(5, DVec2::ZERO, 0.0, 8.0, 3.0, "Car");
+    real.real = true;
+    let virt = VehicleSprite { id: -5, real: false, ..real.clone() };
     let a = r.render_frame(&layer, std::slice::from_ref(&real)).unwrap();
     let b = r.render_frame(&layer, &[virt]).unwrap();
     // The outline on the left side: dark for real, light for virtual.

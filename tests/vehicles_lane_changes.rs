@@ -349,6 +349,37 @@ fn traffic_error(table: &str) -> String {
     }
 }
 
+/// Ids of the vehicles `table` (a `[[traffic]]` table, or two) adds to the ring, sorted.
+fn traffic_ids(table: &str) -> Vec<i32> {
+    let text = format!("{TRAFFIC_RING}{table}\n");
+    let scenario = Scenario::parse_str(&text, &root().join("scenarios/test.toml")).expect("parses");
+    let sim = scenario.builder().expect("assembles").build();
+    let mut ids: Vec<i32> = sim
+        .world()
+        .resource::<smlworld::world::Vehicles>()
+        .iter()
+        .map(|(id, _)| id.0)
+        .filter(|id| *id != 1005)
+        .collect();
+    ids.sort_unstable();
+    ids
+}
+
+#[test]
+fn traffic_ids_are_negative_unless_id_start_is_given() {
+    // Issue 61 §1: background traffic is virtual, so its ids default to negative numbers.
+    let ids = traffic_ids("[[traffic]]\nroute = { loop = \"right_lane_node\" }\ncount = 3");
+    assert_eq!(ids, vec![-1002, -1001, -1000]);
+    // A second table takes the next thousand down; an explicit id_start counts up as given.
+    let two = traffic_ids(
+        "[[traffic]]\nroute = { loop = \"right_lane_node\" }\ncount = 2\n\
+         [[traffic]]\nroute = { loop = \"right_lane_node\" }\ncount = 2",
+    );
+    assert_eq!(two, vec![-2001, -2000, -1001, -1000]);
+    let given = traffic_ids("[[traffic]]\nroute = { loop = \"right_lane_node\" }\ncount = 3\nid_start = 2000");
+    assert_eq!(given, vec![2000, 2001, 2002]);
+}
+
 #[test]
 fn bad_traffic_tables_are_refused_naming_the_key() {
     let cases = [

@@ -142,6 +142,9 @@ impl Scene {
             self.sprites.extend(f.vehicles.iter().map(|v| {
                 let (centre, yaw, length, width) = viewer_body(format, v);
                 let mut sprite = VehicleSprite::new(v.id, centre, yaw, length, width, &v.class_name);
+                // The stream says nothing of where a state comes from: the lab's convention
+                // (its bridges drive ids >= 0) is all the viewer has.
+                sprite.real = v.id >= 0;
                 // A lane change in progress (our stream format sends it).
                 sprite.overlays.indicator = v.indicator.map(|i| match i {
                     VizIndicator::Left => Indicator::Left,

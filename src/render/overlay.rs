@@ -83,10 +83,10 @@ pub fn draw_overlay(img: &mut RgbaImage, t: f64, sprites: &[VehicleSprite]) -> [
     classes.dedup();
     let mut lines: Vec<(Option<[u8; 4]>, String)> = vec![(None, format!("t = {t:.1} s"))];
     lines.extend(classes.iter().map(|c| (Some(class_color(c)), (*c).to_string())));
-    if sprites.iter().any(|s| s.id >= 0) {
+    if sprites.iter().any(|s| s.real) {
         lines.push((None, "solid: real".into()));
     }
-    if sprites.iter().any(|s| s.id < 0) {
+    if sprites.iter().any(|s| !s.real) {
         lines.push((None, "hatched: virtual".into()));
     }
     let px = text_px(img.height());
@@ -140,7 +140,11 @@ mod tests {
         let sprites: Vec<VehicleSprite> = ["Truck", "Car", "Bus", "Emergency", "Bicycle"]
             .iter()
             .enumerate()
-            .map(|(i, c)| VehicleSprite::new(i as i32 - 2, glam::DVec2::ZERO, 0.0, 4.0, 2.0, c))
+            .map(|(i, c)| {
+                let mut s = VehicleSprite::new(i as i32 - 2, glam::DVec2::ZERO, 0.0, 4.0, 2.0, c);
+                s.real = i % 2 == 0;
+                s
+            })
             .collect();
         let mut small = RgbaImage::new(640, 360);
         let [x, _, w, _] = draw_overlay(&mut small, 1234.5, &sprites);

@@ -19,7 +19,7 @@ use super::{
 };
 use crate::map::LaneletMap;
 use crate::sim::SimClock;
-use crate::world::{Radar, Stationary, VehicleClass, VehicleId, VehicleSize, VehicleState, Velodyne};
+use crate::world::{LabDriven, Radar, Stationary, VehicleClass, VehicleId, VehicleSize, VehicleState, Velodyne};
 
 /// How long a collision's red ring stays in the frames [s of sim time].
 pub const COLLISION_RING_SECONDS: f64 = 2.0;
@@ -310,6 +310,7 @@ pub fn sprites_from_world(world: &World, sensor_ranges: bool, out: &mut Vec<Vehi
         let size = world.get::<VehicleSize>(entity).copied().unwrap_or_default();
         let class = world.get::<VehicleClass>(entity).copied().unwrap_or_default();
         let mut sprite = VehicleSprite::new(id.0, state.position, state.yaw, size.length, size.width, class.name());
+        sprite.real = world.get::<LabDriven>(entity).is_some();
         if sensor_ranges {
             sprite.overlays = Overlays {
                 radar: world.get::<Radar>(entity).map(|r| RadarCone { range: r.range, angle: r.angle }),
@@ -320,4 +321,24 @@ pub fn sprites_from_world(world: &World, sensor_ranges: bool, out: &mut Vec<Vehi
         out.push(sprite);
     }
     out.sort_by_key(|s| s.id);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn real_is_where_the_state_comes_from_not_the_id_sign() {
+        // Issue 61 §1: a vehicle of id >= 0 that no lab bridge drives is virtual; one the lab
+        // drives (motion capture, a truck) is real whatever its id.
+        let mut world = World::new();
+        world.spawn((VehicleId(1000), VehicleState::default()));
+        world.spawn((VehicleId(-3), VehicleState::default(), LabDriven));
+        world.spawn((VehicleId(2), VehicleState::default(), LabDriven));
+        let mut sprites = Vec::new();
+        sprites_from_world(&world, false, &mut sprites);
+        let mut real: Vec<(i32, bool)> = sprites.iter().map(|s| (s.id, s.real)).collect();
+        real.sort_unstable();
+        assert_eq!(real, vec![(-3, true), (2, true), (1000, false)]);
+    }
 }

@@ -44,8 +44,12 @@ pub enum Indicator {
 /// One vehicle as the renderer sees it (plain data, no ECS).
 #[derive(Debug, Clone, PartialEq)]
 pub struct VehicleSprite {
-    /// Vehicle id: >= 0 real (drawn solid with a dark outline), < 0 virtual (hatched, light outline).
+    /// Vehicle id (the label).
     pub id: i32,
+    /// Whether its state comes from the lab (motion capture, a real truck): drawn solid with a
+    /// dark outline; otherwise virtual, hatched with a light outline. [`VehicleSprite::new`]
+    /// makes it virtual; the id's sign says nothing.
+    pub real: bool,
     /// Centre of the body [m].
     pub position: DVec2,
     /// Heading [rad], counter-clockwise from east.
@@ -63,7 +67,16 @@ pub struct VehicleSprite {
 impl VehicleSprite {
     /// A sprite without overlays.
     pub fn new(id: i32, position: DVec2, yaw: f64, length: f64, width: f64, class: &str) -> VehicleSprite {
-        VehicleSprite { id, position, yaw, length, width, class: class.to_string(), overlays: Overlays::default() }
+        VehicleSprite {
+            id,
+            position,
+            yaw,
+            length,
+            width,
+            real: false,
+            class: class.to_string(),
+            overlays: Overlays::default(),
+        }
     }
 }
 
@@ -316,7 +329,7 @@ impl FrameBatches {
                 dir,
                 size: [s.length as f32, s.width as f32],
                 color,
-                real: u32::from(s.id >= 0)
+                real: u32::from(s.real)
                     | if s.class.eq_ignore_ascii_case("emergency") { LIGHT_BAR } else { 0 }
                     | indicator,
             });
@@ -486,14 +499,16 @@ mod tests {
     #[test]
     fn only_emergency_vehicles_carry_a_light_bar() {
         let view = BirdseyeView::new(200, 100, 10.0, DVec2::ZERO).expect("a valid view");
-        let sprites = [
-            VehicleSprite::new(-1, DVec2::ZERO, 0.0, 5.5, 2.0, "Emergency"),
-            VehicleSprite::new(2, DVec2::new(8.0, 0.0), 0.0, 4.0, 1.7, "Car"),
-        ];
+        let mut real_car = VehicleSprite::new(2, DVec2::new(8.0, 0.0), 0.0, 4.0, 1.7, "Car");
+        real_car.real = true;
+        let sprites = [VehicleSprite::new(-1, DVec2::ZERO, 0.0, 5.5, 2.0, "Emergency"), real_car];
         let mut batches = FrameBatches::default();
         batches.build(&view, &sprites);
         assert_eq!(batches.vehicles[0].real, LIGHT_BAR, "virtual emergency vehicle: light bar, not real");
         assert_eq!(batches.vehicles[1].real, 1, "real car: no light bar");
+        // The id's sign says nothing: a vehicle of id >= 0 the lab does not drive is virtual.
+        batches.build(&view, &[VehicleSprite::new(1000, DVec2::ZERO, 0.0, 4.0, 1.7, "Car")]);
+        assert_eq!(batches.vehicles[0].real, 0, "traffic of a positive id is virtual");
         assert_ne!(class_color("Emergency"), class_color("Car"));
     }
 

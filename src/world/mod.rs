@@ -21,7 +21,9 @@ pub use models::{AccelerationUnicycle, KinematicUnicycle, VehicleModel};
 pub use registry::{SensorSet, VehicleSpec, Vehicles, WorldError, despawn_vehicle, spawn_vehicle};
 pub use sensors::{Detection, Omniscient, Radar, SensorError, SensorErrors, SensorReadings, Velodyne};
 pub use time::SimTime;
-pub use vehicle::{ControlCommand, Route, Stationary, TurnSignal, VehicleClass, VehicleId, VehicleSize, VehicleState};
+pub use vehicle::{
+    ControlCommand, LabDriven, Route, Stationary, TurnSignal, VehicleClass, VehicleId, VehicleSize, VehicleState,
+};
 
 /// Hint to the processor that the memory at `p` will be read soon (no effect off x86-64): the
 /// per-vehicle loops ask for what a vehicle a few places on will read (its centre line, its

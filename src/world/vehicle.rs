@@ -24,6 +24,12 @@ impl VehicleId {
     }
 }
 
+/// A vehicle whose state comes from the lab (a motion-capture body or a real truck): the
+/// renderer draws it "real" (solid, dark outline), every other vehicle "virtual" (hatched),
+/// whatever the sign of its id.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LabDriven;
+
 impl std::fmt::Display for VehicleId {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{}", self.0)

@@ -427,6 +427,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                 let (class, length, width) =
                     by_id.get(&r.id).map_or(("Car", 4.12, 1.7), |v| (v.class.name(), v.length, v.width));
                 let mut sprite = VehicleSprite::new(r.id, r.position, r.yaw, length, width, class);
+                sprite.real = by_id.get(&r.id).is_some_and(|v| v.lab);
                 sprite.overlays.indicator = marks
                     .lane_changes
                     .iter()

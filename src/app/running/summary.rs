@@ -8,7 +8,7 @@ use bevy_ecs::prelude::{Has, World};
 use crate::io::lab::LabSummary;
 use crate::sim::{Sim, SimSeed, V2vStats};
 use crate::vehicles::PathFollower;
-use crate::world::{Stationary, VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
+use crate::world::{LabDriven, Stationary, VehicleClass, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 use super::runner::RunReport;
 
@@ -89,18 +89,28 @@ pub struct ReplayVehicle {
     /// sprite for it. Absent (false) for every other vehicle.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub stationary: bool,
+    /// Its state came from the lab (motion capture, a real truck): replays draw it "real".
+    /// Absent (false) for every virtual vehicle.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub lab: bool,
 }
 
 impl ReplayInfo {
     /// The vehicles of `world` (in the stream's query order), with the run's `map` and `log_rate` [Hz].
     pub fn of(world: &mut World, map: Option<std::path::PathBuf>, log_rate: f64) -> ReplayInfo {
-        let mut query =
-            world.query::<(&VehicleId, &VehicleState, &VehicleClass, Option<&VehicleSize>, Has<Stationary>)>();
+        let mut query = world.query::<(
+            &VehicleId,
+            &VehicleState,
+            &VehicleClass,
+            Option<&VehicleSize>,
+            Has<Stationary>,
+            Has<LabDriven>,
+        )>();
         let vehicles = query
             .iter(world)
-            .map(|(id, _, class, size, stationary)| {
+            .map(|(id, _, class, size, stationary, lab)| {
                 let size = size.copied().unwrap_or_default();
-                ReplayVehicle { id: id.0, class: *class, length: size.length, width: size.width, stationary }
+                ReplayVehicle { id: id.0, class: *class, length: size.length, width: size.width, stationary, lab }
             })
             .collect();
         ReplayInfo { map, log_rate, vehicles }

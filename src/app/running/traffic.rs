@@ -91,6 +91,9 @@ pub struct TrafficSource {
     pub yield_to_emergency: bool,
     /// Next id to give.
     pub next_id: i32,
+    /// What `next_id` moves by after each vehicle: -1 for the default negative (virtual) ids,
+    /// which count down from -1000, +1 for ids counting up from an explicit `id_start`.
+    pub id_step: i32,
     /// Vehicles drawn so far (the random index).
     pub drawn: u64,
     /// Next arrival time [s].
@@ -273,7 +276,7 @@ pub fn place(world: &mut World, traffic: &mut Traffic, index: usize, count: usiz
             s += half;
             let v = v0.min(((gap - MIN_GAP) / TIME_GAP).max(0.0));
             let id = VehicleId(src.next_id);
-            src.next_id += 1;
+            src.next_id += src.id_step;
             spawn_traffic_vehicle(world, src, index, id, lane, &src.goal, s, v, v0, class)
                 .map_err(|e| e.to_string())?;
             s += half + gap;
@@ -356,7 +359,7 @@ pub fn run_traffic(world: &mut World) {
                     let Some(v) = entry_speed(world, &lane, v0, length) else { continue };
                     let id = VehicleId(src.next_id);
                     if spawn_traffic_vehicle(world, src, index, id, &lane, &src.goal, 0.0, v, v0, class).is_ok() {
-                        src.next_id += 1;
+                        src.next_id += src.id_step;
                         src.drawn += 1;
                         src.queue -= 1;
                         *inserted += 1;
@@ -470,7 +473,7 @@ fn insert_random(
         if spawn_traffic_vehicle(world, src, index, id, &lane, &goal, 0.0, v, v0, class).is_err() {
             return true;
         }
-        src.next_id += 1;
+        src.next_id += src.id_step;
         entered += 1;
         used.push(lane.lanelet);
         false
@@ -549,7 +552,7 @@ pub fn place_random(world: &mut World, traffic: &mut Traffic, index: usize, coun
             .fold(f64::INFINITY, f64::min);
         let v = v0.min(((nearest - MIN_GAP) / TIME_GAP).max(0.0));
         let id = VehicleId(src.next_id);
-        src.next_id += 1;
+        src.next_id += src.id_step;
         let goal = trip_goal(&map, trip.destination);
         spawn_traffic_vehicle(world, src, index, id, lane, &goal, *s, v, *v0, *class).map_err(|e| e.to_string())?;
     }

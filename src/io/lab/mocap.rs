@@ -127,7 +127,7 @@ impl Plugin for MocapPlugin {
         let world = sim.world_mut();
         for id in &self.ids {
             let Some(e) = world.resource::<Vehicles>().get(*id) else { continue };
-            world.entity_mut(e).insert(MocapTrack { stale: true, ..Default::default() });
+            world.entity_mut(e).insert((MocapTrack { stale: true, ..Default::default() }, crate::world::LabDriven));
         }
         sim.insert_resource(bridge);
         sim.add_systems(Dynamics, apply_mocap.in_set(SimSystems::Integrate));

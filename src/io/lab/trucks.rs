@@ -242,7 +242,7 @@ impl Plugin for TruckPlugin {
         let ids: Vec<i32> = bridge.server.ids().collect();
         for id in ids {
             let Some(e) = world.resource::<Vehicles>().get(VehicleId(id)) else { continue };
-            world.entity_mut(e).insert(TruckLine::default());
+            world.entity_mut(e).insert((TruckLine::default(), crate::world::LabDriven));
         }
         if let Some(lanes) = &self.lanes {
             sim.insert_resource(lanes.clone());

@@ -329,7 +329,10 @@ impl Scenario {
         let mut paths = LanePaths::new(self.file.points_per_meter);
         let mut traffic = Traffic { seed: self.file.seed, ..Traffic::default() };
         let mut ranges: Vec<(i64, i64, usize)> = Vec::new();
-        let mut next_default: i64 = 1000;
+        // Traffic is virtual: by default its ids count down from -1000, below every vehicle's
+        // id (so the default never clashes), each later table a thousand lower.
+        let lowest = self.file.vehicles.iter().map(|v| i64::from(v.id)).min().unwrap_or(0);
+        let mut next_default: i64 = (-1000_i64).min((lowest - 1).div_euclid(1000) * 1000);
         for (k, t) in self.file.traffic.iter().enumerate() {
             let key = |s: &str| format!("traffic[{k}].{s}");
             let mut lane_list = Vec::new();
@@ -361,9 +364,10 @@ impl Scenario {
             let controller = t.controller.as_ref().and_then(ControllerConfig::smart);
             let duration = t.until.unwrap_or(self.file.duration).min(self.file.duration);
             let most = t.count as i64 + (t.rate * duration / 3600.0 * 3.0).ceil() as i64 + 20;
-            let first = t.id_start.map_or(next_default, i64::from);
-            let last = first + most;
-            if last > i64::from(i32::MAX) {
+            // Ids `start`, `start + step`, ...: the range [first, last) holds every one.
+            let (start, step) = t.id_start.map_or((next_default, -1), |s| (i64::from(s), 1));
+            let (first, last) = if step > 0 { (start, start + most) } else { (start - most + 1, start + 1) };
+            if last > i64::from(i32::MAX) || first < i64::from(i32::MIN) {
                 return Err(self.invalid(key("id_start"), "leaves no room for the ids this table needs; lower it"));
             }
             if let Some(v) = self.file.vehicles.iter().find(|v| (first..last).contains(&i64::from(v.id))) {
@@ -383,7 +387,7 @@ impl Scenario {
                 ));
             }
             ranges.push((first, last, k));
-            next_default = (last / 1000 + 1) * 1000;
+            next_default = next_default.min((first - 1).div_euclid(1000) * 1000);
             traffic.sources.push(TrafficSource {
                 stream: k as u64,
                 lanes: lane_list,
@@ -398,7 +402,8 @@ impl Scenario {
                 sensors: sensors_of(&t.sensors),
                 sensor_errors: sensor_errors_of(&t.sensors),
                 yield_to_emergency: t.yield_to_emergency,
-                next_id: first as i32,
+                next_id: start as i32,
+                id_step: step,
                 drawn: 0,
                 next_time: 0.0,
                 queue: 0,

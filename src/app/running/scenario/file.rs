@@ -313,7 +313,9 @@ pub struct TrafficConfig {
     /// Whether these vehicles make way for emergency vehicles (see [`crate::vehicles::emergency_vehicle`]).
     #[serde(default = "yes")]
     pub yield_to_emergency: bool,
-    /// First id [-]; ids count up from it (default: 1000, or after the previous table's).
+    /// First id [-]; ids count up from it. By default traffic is virtual: its ids are negative and
+    /// count down from -1000 (or from the next thousand below every vehicle's and the previous
+    /// table's ids).
     #[serde(default)]
     pub id_start: Option<i32>,
     /// What a vehicle on a random trip does at its destination: `"leave"` (the default: it is
