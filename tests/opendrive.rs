@@ -659,3 +659,110 @@ fn the_merge_needs_a_lane_change_and_the_road_marks_allow_one() {
         assert_eq!(tag(a, "opendrive:road"), tag(b, "opendrive:road"), "a change stays on its road");
     }
 }
+
+/// A lanelet's place in the OpenDRIVE file: (road, section, lane), as its tags give it.
+fn lane_key(l: &Lanelet) -> (String, String, String) {
+    (
+        tag(l, "opendrive:road").to_string(),
+        tag(l, "opendrive:section").to_string(),
+        tag(l, "opendrive:lane").to_string(),
+    )
+}
+
+/// Every lanelet's key, length and successors' keys.
+fn by_lane_key(map: &LaneletMap) -> BTreeMap<(String, String, String), (f64, Vec<(String, String, String)>)> {
+    let key_of: BTreeMap<_, _> = map.lanelets.iter().map(|l| (l.id, lane_key(l))).collect();
+    map.lanelets
+        .iter()
+        .map(|l| {
+            let mut next: Vec<_> = l.successors.iter().map(|id| key_of[id].clone()).collect();
+            next.sort();
+            (lane_key(l), (l.length, next))
+        })
+        .collect()
+}
+
+#[test]
+fn map_convert_writes_osm_that_loads_back_with_the_same_lanelets() {
+    let dir = std::env::temp_dir().join(format!("smlworld-opendrive-convert-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // multi_intersections is left out: its nodes south of the equator (origin 0, 0) do not
+    // project back to lat/lon yet (Projector::reverse diverges there).
+    for name in ["straight_500m.xodr", "Town01.xodr"] {
+        let out = dir.join(name.replace(".xodr", ".osm"));
+        let input = opendrive_dir().join(name);
+        let (ok, stdout, stderr) =
+            smlworld(&["map", "convert", input.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        assert!(ok, "{name}: {stdout}{stderr}");
+        // Links whose bounds lie apart are reported, not joined (none in these files).
+        let unjoined: usize = stderr
+            .lines()
+            .find(|l| l.contains("not joined"))
+            .and_then(|l| l.split("WARN ").nth(1)?.split_whitespace().next()?.parse().ok())
+            .unwrap_or(0);
+        assert_eq!(unjoined, 0, "{name}: {stderr}");
+        let text = std::fs::read_to_string(&out).unwrap();
+        assert!(!smlworld::map::opendrive::is_opendrive(&text));
+        let xodr = load(name);
+        let osm = LaneletMap::load(&out).unwrap_or_else(|e| panic!("{name}: the OSM map loads: {e}"));
+        // The origin: one node tagged origin=true, at the file's origin.
+        assert_eq!(osm.origin_node, Some(-1), "{name}");
+        assert!((osm.projector.origin_lat - xodr.projector.origin_lat).abs() < 1e-9, "{name}");
+        assert!((osm.projector.origin_lon - xodr.projector.origin_lon).abs() < 1e-9, "{name}");
+        assert_eq!(osm.lanelets.len(), xodr.lanelets.len(), "{name}: lanelet count");
+        let (a, b) = (by_lane_key(&xodr), by_lane_key(&osm));
+        assert_eq!(a.len(), xodr.lanelets.len(), "{name}: one lanelet per (road, section, lane)");
+        let (mut links, mut missing) = (0, 0);
+        for (key, (len, next)) in &a {
+            let (len2, next2) = b.get(key).unwrap_or_else(|| panic!("{name}: lanelet {key:?} is missing"));
+            assert!((len - len2).abs() <= 0.01, "{name} {key:?}: length {len} -> {len2}");
+            assert!(next2.iter().all(|n| next.contains(n)), "{name} {key:?}: successors {next:?} -> {next2:?}");
+            missing += next.len() - next2.len();
+            links += next.len();
+        }
+        assert_eq!(missing, unjoined, "{name}: successors lost are exactly the links reported");
+        // straight_500m is one road of one section: nothing to link.
+        assert_eq!(links > 0, name != "straight_500m.xodr", "{name}: links to compare");
+        // Positions survive the lat/lon round trip, routability and neighbours' lines too.
+        for l in &xodr.lanelets {
+            let l2 = osm.lanelets.iter().find(|m| lane_key(m) == lane_key(l)).unwrap();
+            assert_eq!(l.routable, l2.routable, "{name} {:?}", lane_key(l));
+            let (p, q) = (l.centre[l.centre.len() / 2], l2.centre[l2.centre.len() / 2]);
+            assert!(p.distance(q) < 0.01, "{name} {:?}: centre {p} -> {q}", lane_key(l));
+        }
+        // A lane named in the file is still a place a route can start.
+        let start = osm.tag_index.keys().filter(|k| k.starts_with("start:")).count();
+        assert_eq!(start, xodr.lanelets.len(), "{name}: every lanelet's start tag survives");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn map_convert_refuses_to_overwrite_its_input_and_non_opendrive_files() {
+    let dir = std::env::temp_dir().join(format!("smlworld-opendrive-convert-refuse-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let copy = dir.join("straight.xodr");
+    std::fs::copy(opendrive_dir().join("straight_500m.xodr"), &copy).unwrap();
+    let before = std::fs::read(&copy).unwrap();
+    let c = copy.to_str().unwrap();
+    let (ok, _, stderr) = smlworld(&["map", "convert", c, "--out", c]);
+    assert!(!ok && stderr.contains("refusing to overwrite"), "{stderr}");
+    // The same file by another path.
+    let other = dir.join(".").join("straight.xodr");
+    let (ok, _, stderr) = smlworld(&["map", "convert", c, "--out", other.to_str().unwrap()]);
+    assert!(!ok && stderr.contains("refusing to overwrite"), "{stderr}");
+    assert_eq!(std::fs::read(&copy).unwrap(), before, "the input is untouched");
+    // An OSM map is not converted, and the target is not created.
+    let osm = Path::new(env!("CARGO_MANIFEST_DIR")).join("maps/lane_drop.osm");
+    let target = dir.join("out.osm");
+    let (ok, _, stderr) = smlworld(&["map", "convert", osm.to_str().unwrap(), "--out", target.to_str().unwrap()]);
+    assert!(!ok && stderr.contains("not an OpenDRIVE file"), "{stderr}");
+    assert!(!target.exists());
+    // A broken file: an error naming it, no panic, no output.
+    let bad = dir.join("bad.xodr");
+    std::fs::write(&bad, "<OpenDRIVE><header/><road id='1' length='10'><lanes/></road></OpenDRIVE>").unwrap();
+    let (ok, _, stderr) = smlworld(&["map", "convert", bad.to_str().unwrap(), "--out", target.to_str().unwrap()]);
+    assert!(!ok && stderr.contains("bad.xodr") && !stderr.contains("panicked"), "{stderr}");
+    assert!(!target.exists());
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -27,6 +27,18 @@ pub enum MapCommand {
     Generate(map_generate::GenerateArgs),
     /// Render the environment image of a map (PNG or BMP plus the original's .meta file).
     Render(map_render::RenderArgs),
+    /// Convert an OpenDRIVE map (.xodr) to a Lanelet2 OSM map (origin node with its UTM zone).
+    Convert(ConvertArgs),
+}
+
+/// `smlworld map convert MAP.xodr --out MAP.osm`.
+#[derive(Debug, Args)]
+pub struct ConvertArgs {
+    /// OpenDRIVE file (.xodr).
+    pub map: PathBuf,
+    /// Output Lanelet2 OSM file (.osm), overwritten if it exists; never the input.
+    #[arg(long)]
+    pub out: PathBuf,
 }
 
 /// `smlworld map info MAP [--json]`.
@@ -133,7 +145,42 @@ pub fn main(command: MapCommand) -> anyhow::Result<()> {
         }
         MapCommand::Generate(a) => map_generate::main(a),
         MapCommand::Render(a) => map_render::main(a),
+        MapCommand::Convert(a) => convert(&a),
     }
+}
+
+/// `map convert`: refuses to write over its input and to convert what is not OpenDRIVE; writes
+/// beside the target and renames, so a failure leaves no truncated map.
+fn convert(a: &ConvertArgs) -> anyhow::Result<()> {
+    use smlworld::files::AtomicFile;
+    let same = a.out == a.map
+        || matches!((std::fs::canonicalize(&a.map), std::fs::canonicalize(&a.out)), (Ok(x), Ok(y)) if x == y);
+    if same {
+        anyhow::bail!("--out {} is the input file; refusing to overwrite it (name another file)", a.out.display());
+    }
+    let text = std::fs::read_to_string(&a.map).with_context(|| format!("cannot read {}", a.map.display()))?;
+    if !smlworld::map::opendrive::is_opendrive(&text) {
+        anyhow::bail!(
+            "{} is not an OpenDRIVE file (no <OpenDRIVE> root element); `map convert` reads .xodr only",
+            a.map.display()
+        );
+    }
+    let map = load(&a.map)?;
+    let partial = AtomicFile::new(&a.out).with_context(|| format!("cannot write {}", a.out.display()))?;
+    let file =
+        std::fs::File::create(partial.path()).with_context(|| format!("cannot create {}", partial.path().display()))?;
+    let stats = smlworld::map::opendrive::osm_out::write_osm(&map, file)
+        .with_context(|| format!("writing {}", a.out.display()))?;
+    partial.commit().with_context(|| format!("cannot move the new map to {}", a.out.display()))?;
+    if stats.unmerged_links > 0 {
+        tracing::warn!(
+            "{} lane link(s) join bounds more than {} m apart; they are not joined in the OSM map",
+            stats.unmerged_links,
+            smlworld::map::opendrive::osm_out::MERGE_DISTANCE
+        );
+    }
+    println!("wrote {}: {} nodes, {} ways, {} lanelets", a.out.display(), stats.nodes, stats.ways, stats.lanelets);
+    Ok(())
 }
 
 /// The error of a route that does not exist in lane: when one with lane changes does, say so

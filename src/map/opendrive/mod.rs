@@ -28,6 +28,8 @@
 //! `start:ROAD:SECTION:LANE` and `end:ROAD:SECTION:LANE` ([`lane_tag`]), so `map route
 //! --from-lane ROAD:LANE --to-lane ROAD:LANE` and a scenario's `{ road = "5", lane = -1 }` reach them.
 //!
+//! [`osm_out::write_osm`] writes the built map as Lanelet2 OSM (`smlworld map convert`).
+//!
 //! Everything else (elevation, lateral profile, objects, signals, user data, road mark line
 //! details, ...) gives one warning per element name with its first line. Missing `planView`,
 //! an unknown geometry, a negative length or a link to a missing road or junction are
@@ -40,6 +42,7 @@
 
 mod build;
 pub mod geometry;
+pub mod osm_out;
 pub mod road;
 mod xml;
 
