@@ -33,7 +33,7 @@ fn run_plots_writes_every_figure_and_the_speed_curve_follows_the_data() {
     let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/platoon_brake.toml");
     smlworld(&["run", scenario, "--duration", "20", "--out", s(&dir), "--plots"]);
     let plots = dir.join("plots");
-    for name in ["speed", "gaps", "platoon_-1", "lateral", "trace"] {
+    for name in ["speed", "gaps", "platoon_-1", "lateral", "time_space", "trace"] {
         let png = image::open(plots.join(format!("{name}.png"))).unwrap().to_rgb8();
         assert_eq!(png.dimensions(), smlworld::app::FIGURE_SIZE);
         // Not blank: white background plus axes, text and curves in many colours.
@@ -44,7 +44,8 @@ fn run_plots_writes_every_figure_and_the_speed_curve_follows_the_data() {
         let non_white = png.pixels().filter(|p| p.0 != [255, 255, 255]).count();
         assert!(non_white > 20_000, "{name}.png: {non_white} drawn pixels");
         let svg = std::fs::read_to_string(plots.join(format!("{name}.svg"))).unwrap();
-        assert!(svg.starts_with("<svg") && svg.contains("<polyline"), "{name}.svg");
+        let drawn = if name == "time_space" { "<circle" } else { "<polyline" };
+        assert!(svg.starts_with("<svg") && svg.contains(drawn), "{name}.svg");
     }
     // Axis labels carry units and a legend names the vehicles (the SVG keeps the text).
     let svg = std::fs::read_to_string(plots.join("speed.svg")).unwrap();
@@ -52,10 +53,10 @@ fn run_plots_writes_every_figure_and_the_speed_curve_follows_the_data() {
         assert!(svg.contains(text), "speed.svg lacks {text:?}");
     }
 
-    // One colour per vehicle in every figure, its label's colour in the view: vehicle -5's curve
-    // is in speed, platoon, lateral and trace.
-    let c = smlworld::render::vehicle_color(-5);
-    let colour = [c[0], c[1], c[2]];
+    // One colour per vehicle in every figure: vehicle -5, the first in id order, has the first
+    // colour in speed, platoon, lateral, trace and no other vehicle has it.
+    let colour = smlworld::app::PALETTE[0];
+    assert_eq!(smlworld::app::pen(0).color, colour);
     for name in ["speed", "platoon_-1", "lateral", "trace"] {
         let (_, n) = curve_rows(&image::open(plots.join(format!("{name}.png"))).unwrap().to_rgb8(), colour);
         assert!(n > 300, "{name}.png: {n} px of vehicle -5's colour");
@@ -118,6 +119,13 @@ fn titles_name_the_disturbance_lanes_are_plotted_and_runs_compare() {
         &svg[..svg.len().min(3000)]
     );
 
+    // Cut off as the brake begins, the run's only change is the followers settling their gaps
+    // in the first second (about 7 % of their speed): no event to name.
+    let short = tmp("brake-short");
+    smlworld(&["run", scenario, "--duration", "29", "--out", s(&short), "--plots"]);
+    let svg = std::fs::read_to_string(short.join("plots/speed.svg")).unwrap();
+    assert!(svg.contains("Speed: steady speeds"), "speed.svg title: {}", &svg[..svg.len().min(3000)]);
+
     let lanes = tmp("lanes");
     let overtaking = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/overtaking.toml");
     smlworld(&["run", overtaking, "--out", s(&lanes), "--plots"]);
@@ -141,7 +149,30 @@ fn titles_name_the_disturbance_lanes_are_plotted_and_runs_compare() {
     assert!(out.join("compare_gaps.png").exists() && out.join("compare_lateral.png").exists());
     let one = Command::new(env!("CARGO_BIN_EXE_smlworld")).args(["plot", s(&brake), s(&slow)]).output().unwrap();
     assert!(!one.status.success() && String::from_utf8_lossy(&one.stderr).contains("--compare"));
-    for d in [brake, lanes, slow, out] {
+    for d in [brake, short, lanes, slow, out] {
         let _ = std::fs::remove_dir_all(d);
     }
+}
+
+/// The GCDC merge's time-space diagram has a panel per lane, and the mergers' dots leave lane 2
+/// (position along the 2 km road rising, speeds coloured): the figure draws the run's data.
+#[test]
+fn the_time_space_diagram_has_a_panel_per_lane_coloured_by_speed() {
+    let dir = tmp("gcdc");
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/gcdc_merge.toml");
+    smlworld(&["run", scenario, "--out", s(&dir), "--plots"]);
+    let svg = std::fs::read_to_string(dir.join("plots/time_space.svg")).unwrap();
+    for text in ["lane 1 (rightmost)", "lane 2", "position [m]", "speed [m/s]"] {
+        assert!(svg.contains(text), "time_space.svg lacks {text:?}");
+    }
+    // Dots in the colours of a range of speeds, not one.
+    let mut fills: Vec<&str> =
+        svg.split("<circle").skip(1).filter_map(|c| c.split("fill=\"").nth(1)?.split('"').next()).collect();
+    fills.sort_unstable();
+    fills.dedup();
+    assert!(fills.len() > 20, "{} dot colours", fills.len());
+    // The long road: the trace's axes are not to scale, and it says so.
+    let trace = std::fs::read_to_string(dir.join("plots/trace.svg")).unwrap();
+    assert!(trace.contains("axes not to scale"), "trace.svg title");
+    let _ = std::fs::remove_dir_all(&dir);
 }

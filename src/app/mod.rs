@@ -43,7 +43,7 @@ pub mod running;
 // The old flat paths (`crate::app::session`, `crate::app::metrics`, ...) stay valid.
 pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use results::output::{Log, TrajectoryLog, TrajectoryLogPlugin, log_trajectories};
-pub use results::plot::{FIGURE_SIZE, MAX_LEGEND, plot_compare, plot_run};
+pub use results::plot::{FIGURE_SIZE, MAX_LEGEND, PALETTE, Pen, pen, plot_compare, plot_run};
 pub use results::replay::{
     ReplayError, ReplayMarks, ReplayOptions, ReplayReport, read_replay_info, read_replay_marks, replay_run,
 };
