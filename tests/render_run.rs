@@ -116,7 +116,7 @@ fn recording_writes_frames_and_gif_without_changing_results() {
 }
 
 /// Issue 23 item 2: every GIF frame shows what the PNG frame of the same time shows (no ghosts,
-/// smears or stale pixels from frame differencing): on a run with 105 moving vehicles and the
+/// smears or stale pixels from frame differencing): on a run with 45 moving vehicles and the
 /// overlay on both, fewer than 1 % of the channel values differ by more than 48 (the palette's
 /// quantisation moves colours a little; a ghost or a stale vehicle moves whole patches).
 #[test]
