@@ -12,6 +12,11 @@ use super::{RenderError, VehicleSprite};
 
 /// Scale below which a whole-map view is unreadable [px/m]: auto-fit frames the vehicles instead.
 pub const MIN_AUTO_FIT_PPM: f64 = 1.0;
+/// Shortest a vehicle may be drawn by the default view [px] (issue 61: the fitted 500 m lane
+/// drop and 2 km GCDC road drew cars 2-3 px wide, their labels covering the road). When the
+/// whole map would draw the shortest vehicle shorter, the view frames the vehicles; when even
+/// that is too small, it follows the traffic (their mean position) at this size.
+pub const MIN_VEHICLE_PX: f64 = 6.0;
 /// Scale of `--follow` without `--pixels-per-meter` [px/m] (or the whole map's, if larger).
 pub const FOLLOW_PPM: f64 = 5.0;
 
@@ -149,11 +154,21 @@ impl FrameOutput {
 enum Mode {
     /// One view for every frame.
     Fixed(BirdseyeView),
-    /// The whole map would be below [`MIN_AUTO_FIT_PPM`]: fit the vehicles of the first frame
-    /// that has any, then keep that view (`map` until then).
-    FitVehicles { map: BirdseyeView, fitted: Option<BirdseyeView> },
+    /// No window asked for: the whole map (`map`) if it draws every vehicle at least
+    /// [`MIN_VEHICLE_PX`] long (and is at least [`MIN_AUTO_FIT_PPM`]), else the vehicles' extent
+    /// in the first frame that has any, else the traffic followed; chosen at that frame and kept.
+    Auto { map: BirdseyeView, chosen: Option<Auto> },
     /// Centre every frame on vehicle `id` at `ppm` [px/m]; where it is absent, the last centre.
     Follow { id: i32, ppm: f64, last: DVec2 },
+}
+
+/// What [`Mode::Auto`] chose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Auto {
+    /// The same view in every frame (the whole map or the vehicles' extent).
+    Fixed(BirdseyeView),
+    /// Centred on the vehicles' mean position in every frame at this scale [px/m].
+    Traffic(f64),
 }
 
 /// Picks the view of each frame (see [`FrameOutput`]).
@@ -180,9 +195,7 @@ impl Camera {
             (None, Some(ppm)) => {
                 Mode::Fixed(BirdseyeView::new(width, height, ppm, frames.center.unwrap_or(whole.center))?)
             }
-            (None, None) if map_box.is_some() && whole.pixels_per_meter < MIN_AUTO_FIT_PPM => {
-                Mode::FitVehicles { map: whole, fitted: None }
-            }
+            (None, None) if map_box.is_some() => Mode::Auto { map: whole, chosen: None },
             (None, None) => Mode::Fixed(whole),
         };
         if let Mode::Follow { ppm, .. } = mode {
@@ -197,9 +210,13 @@ impl Camera {
         let resize = |v: &BirdseyeView| BirdseyeView::new(width, height, v.pixels_per_meter, v.center);
         let mode = match &self.mode {
             Mode::Fixed(v) => Mode::Fixed(resize(v)?),
-            Mode::FitVehicles { map, fitted } => {
-                Mode::FitVehicles { map: resize(map)?, fitted: fitted.as_ref().map(resize).transpose()? }
-            }
+            Mode::Auto { map, chosen } => Mode::Auto {
+                map: resize(map)?,
+                chosen: match chosen {
+                    Some(Auto::Fixed(v)) => Some(Auto::Fixed(resize(v)?)),
+                    other => *other,
+                },
+            },
             Mode::Follow { .. } => self.mode,
         };
         Ok(Camera { width, height, mode })
@@ -232,27 +249,53 @@ impl Camera {
                 }
                 BirdseyeView::new(width, height, *ppm, *last)
             }
-            Mode::FitVehicles { map, fitted } => {
-                if let Some(v) = fitted {
-                    return Ok(*v);
-                }
+            Mode::Auto { map, chosen } => {
                 let mut points = sprites.iter().map(|s| s.position).filter(|p| p.is_finite());
+                match chosen {
+                    Some(Auto::Fixed(v)) => return Ok(*v),
+                    Some(Auto::Traffic(ppm)) => {
+                        let (sum, n) = points.fold((DVec2::ZERO, 0.0), |(s, n), p| (s + p, n + 1.0));
+                        let center = if n > 0.0 { sum / n } else { map.center };
+                        return BirdseyeView::new(width, height, *ppm, center);
+                    }
+                    None => {}
+                }
                 let Some(first) = points.next() else { return Ok(*map) };
+                let shortest = sprites
+                    .iter()
+                    .map(|s| s.length)
+                    .filter(|l| l.is_finite() && *l > 0.0)
+                    .fold(f64::INFINITY, f64::min);
+                let needed = (MIN_VEHICLE_PX / shortest).max(MIN_AUTO_FIT_PPM);
+                if map.pixels_per_meter >= needed {
+                    *chosen = Some(Auto::Fixed(*map));
+                    return Ok(*map);
+                }
                 let (min, max) = points.fold((first, first), |(lo, hi), p| (lo.min(p), hi.max(p)));
                 let margin = (0.15 * (max - min).max_element()).max(20.0);
                 let v = BirdseyeView::fit(width, height, min, max, margin)?;
-                tracing::info!(
-                    "the whole map would be drawn at {:.2} px/m (below {MIN_AUTO_FIT_PPM} px/m, unreadable): framing the \
-                     {} vehicles' bounding box instead ({:.2} px/m around ({:.1}, {:.1}) m); give --pixels-per-meter \
-                     and --center, or --follow ID, to choose the window",
-                    map.pixels_per_meter,
-                    sprites.len(),
-                    v.pixels_per_meter,
-                    v.center.x,
-                    v.center.y
+                let why = format!(
+                    "the whole map would be drawn at {:.2} px/m, vehicles under {MIN_VEHICLE_PX} px long",
+                    map.pixels_per_meter
                 );
-                *fitted = Some(v);
-                Ok(v)
+                if v.pixels_per_meter >= needed {
+                    tracing::info!(
+                        "{why}: framing the {} vehicles' extent instead ({:.2} px/m around ({:.1}, {:.1}) m); give \
+                         --pixels-per-meter and --center, or --follow ID, to choose the window",
+                        sprites.len(),
+                        v.pixels_per_meter,
+                        v.center.x,
+                        v.center.y
+                    );
+                    *chosen = Some(Auto::Fixed(v));
+                    return Ok(v);
+                }
+                tracing::info!(
+                    "{why}, and so would the vehicles' extent: following the traffic (their mean position) at {needed:.2} \
+                     px/m; give --pixels-per-meter and --center, or --follow ID, to choose the window"
+                );
+                *chosen = Some(Auto::Traffic(needed));
+                self.view(sprites)
             }
         }
     }
@@ -296,5 +339,36 @@ mod tests {
         let mut small =
             Camera::new(&frames, Some((DVec2::ZERO, DVec2::splat(100.0)))).expect("a camera over a 100 m map");
         assert!(small.view(&[sprite(1, 5.0, 5.0)]).expect("a view of the sprites").pixels_per_meter > 3.0);
+    }
+
+    /// Issue 61: a 500 m road fitted into 640 px drew 4.5 m cars under 6 px long. The default
+    /// view frames the vehicles when they are close enough, and follows the traffic when not.
+    #[test]
+    fn the_default_view_draws_every_vehicle_at_least_6_px_long() {
+        let road = Some((DVec2::ZERO, DVec2::new(500.0, 7.0)));
+        let frames = FrameOutput { width: 640, height: 360, ..FrameOutput::default() };
+        let car = |id, x| VehicleSprite::new(id, DVec2::new(x, 3.5), 0.0, 4.5, 1.8, "Car");
+        // Ten cars within 100 m: their extent is framed, each car at least 6 px long.
+        let mut cam = Camera::new(&frames, road).unwrap();
+        let near: Vec<VehicleSprite> = (0..10).map(|k| car(-k - 1, 100.0 + 10.0 * k as f64)).collect();
+        let v = cam.view(&near).unwrap();
+        assert!(v.pixels_per_meter * 4.5 >= MIN_VEHICLE_PX, "{v:?}");
+        for s in &near {
+            let p = v.world_to_pixel(s.position);
+            assert!(p.x > 0.0 && p.x < 640.0, "{p}");
+        }
+        assert_eq!(cam.view(&near[..2]).unwrap(), v, "the framed view is kept");
+        // Cars spread over the whole 500 m: followed at 6 px per car, centred on their mean.
+        let mut cam = Camera::new(&frames, road).unwrap();
+        let spread = [car(-1, 0.0), car(-2, 500.0)];
+        let v = cam.view(&spread).unwrap();
+        assert!((v.pixels_per_meter * 4.5 - MIN_VEHICLE_PX).abs() < 1e-9, "{v:?}");
+        assert_eq!(v.center, DVec2::new(250.0, 3.5));
+        let later = cam.view(&[car(-1, 300.0), car(-2, 400.0)]).unwrap();
+        assert_eq!(later.center, DVec2::new(350.0, 3.5), "the view follows the traffic");
+        // A map that draws them big enough is shown whole, as before.
+        let mut small = Camera::new(&frames, Some((DVec2::ZERO, DVec2::new(100.0, 50.0)))).unwrap();
+        let whole = small.view(&near[..1]).unwrap();
+        assert!(whole.pixels_per_meter > 3.0 && (whole.center - DVec2::new(50.0, 25.0)).length() < 1e-9, "{whole:?}");
     }
 }
