@@ -131,7 +131,7 @@ fn auto_fit_frames_the_vehicles_when_the_map_would_be_under_one_pixel_per_metre(
         "--height",
         "36",
     ]);
-    // The platoon's extent in 64 px would be under 1 px/m too: the view follows the traffic.
+    // The ring in 64 px is under 1 px/m: the view follows the traffic.
     assert!(stderr.contains("following the traffic"), "{stderr}");
     let img = frame(&frames, 0);
     let trucks = img.pixels().filter(|p| orange(p)).count();
