@@ -1,0 +1,1 @@
+//! SUMO demand (`.rou.xml`).
