@@ -566,7 +566,9 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
             }
         }
     }
-    let raw = raw_conflicts(map, &predecessors, &successors);
+    let mut raw = raw_conflicts(map, &predecessors, &successors);
+    // Links the file says are no foes (SUMO `<request foes>`) pass each other.
+    raw.retain(|c| !stated_no_foes(&map.lanelets[c.a].tags, &map.lanelets[c.b].tags));
     if raw.is_empty() {
         return Junctions::default();
     }
@@ -822,6 +824,26 @@ fn stated_yield(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> Option<Yi
         (true, false) => Some(Yield::A),
         (false, true) => Some(Yield::B),
         _ => None,
+    }
+}
+
+/// Whether two links of one SUMO junction are no foes by its `<request>` rows (tag
+/// `sumo:foes` of each: bit j set where link j is a foe, read from the right).
+fn stated_no_foes(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> bool {
+    let Some(junction) = a.get("sumo:junction") else { return false };
+    if b.get("sumo:junction") != Some(junction) {
+        return false;
+    }
+    let index = |t: &super::lanelet::Tags| t.get("sumo:link_index")?.parse::<usize>().ok();
+    let foe = |t: &super::lanelet::Tags, to: usize| {
+        t.get("sumo:foes").map(|r| {
+            let r = r.as_bytes();
+            to < r.len() && r[r.len() - 1 - to] == b'1'
+        })
+    };
+    match (index(a), index(b)) {
+        (Some(ia), Some(ib)) => foe(a, ib) == Some(false) && foe(b, ia) == Some(false),
+        _ => false,
     }
 }
 

@@ -429,13 +429,14 @@ pub fn parse_str(text: &str, source: &FsPath) -> Result<LaneletMap, MapError> {
     }
 
     // Junctions: type and request row of every internal lane, tlLogic programs.
-    let mut link_of: BTreeMap<&str, (&str, usize, Option<&str>, &str)> = BTreeMap::new();
+    type Request<'a> = (&'a str, &'a str);
+    let mut link_of: BTreeMap<&str, (&str, usize, Option<Request<'_>>, &str)> = BTreeMap::new();
     for j in root.children("junction") {
         let jid = cx.attr(j, "id")?;
         let kind = j.attr("type").unwrap_or("");
-        let requests: BTreeMap<usize, &str> = j
+        let requests: BTreeMap<usize, Request<'_>> = j
             .children("request")
-            .filter_map(|r| Some((r.attr("index")?.trim().parse().ok()?, r.attr("response")?)))
+            .filter_map(|r| Some((r.attr("index")?.trim().parse().ok()?, (r.attr("response")?, r.attr("foes")?))))
             .collect();
         for (k, lane) in j.attr("intLanes").unwrap_or("").split_whitespace().enumerate() {
             link_of.insert(lane, (jid, k, requests.get(&k).copied(), kind));
@@ -587,8 +588,9 @@ pub fn parse_str(text: &str, source: &FsPath) -> Result<LaneletMap, MapError> {
         if let Some((junction, k, response, kind)) = link_of.get(first_via) {
             tags.insert("sumo:junction".into(), junction.to_string());
             tags.insert("sumo:link_index".into(), k.to_string());
-            if let Some(r) = response {
-                tags.insert("sumo:response".into(), r.to_string());
+            if let Some((response, foes)) = response {
+                tags.insert("sumo:response".into(), response.to_string());
+                tags.insert("sumo:foes".into(), foes.to_string());
             }
             if let Some(control) = control_of(kind) {
                 tags.insert("junction_control".into(), control.into());
