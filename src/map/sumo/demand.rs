@@ -299,6 +299,9 @@ impl EdgeIndex {
     }
 }
 
+/// Reads an optional number attribute of an element, or says which and why not.
+type NumberAttr<'a> = dyn Fn(&Element, &str) -> Result<Option<f64>, MapError> + 'a;
+
 /// Reads demand files against one network.
 struct Reader<'m> {
     map: &'m LaneletMap,
@@ -394,7 +397,7 @@ impl Reader<'_> {
                         }
                     }
                     match self.types.get(&id) {
-                        Some(&k) if k == 0 => self.demand.types[0] = t,
+                        Some(0) => self.demand.types[0] = t,
                         Some(_) => return Err(err(el, format!("vType {id} is defined twice"))),
                         None => {
                             self.types.insert(id, self.demand.types.len());
@@ -429,7 +432,7 @@ impl Reader<'_> {
         &mut self,
         el: &Element,
         at: &dyn Fn(&Element) -> Location,
-        num: &dyn Fn(&Element, &str) -> Result<Option<f64>, MapError>,
+        num: &NumberAttr<'_>,
         id_of: &dyn Fn(&Element) -> Result<String, MapError>,
     ) -> Result<(), MapError> {
         let err = |message: String| MapError::Sumo { at: at(el), message };

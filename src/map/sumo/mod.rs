@@ -449,11 +449,10 @@ pub fn parse_str(text: &str, source: &FsPath) -> Result<LaneletMap, MapError> {
             warnings.push(MapWarning {
                 at: cx.at(t.line).to_string(),
                 message: format!(
-                    "tlLogic {id}: a second program ({}) for this light; the first is run",
+                    "tlLogic {id}: another program ({}) for this light; the last one in the file is run, as SUMO does",
                     t.attr("programID").unwrap_or("?")
                 ),
             });
-            continue;
         }
         let kind = t.attr("type").unwrap_or("static");
         if kind != "static" {
