@@ -319,3 +319,35 @@ fn two_way_single_intersection_runs_its_vhvh_demand_without_collisions() {
     assert!(early > 100, "{early} vehicles inserted in the first 200 s");
     std::fs::remove_dir_all(&out).ok();
 }
+
+#[test]
+fn resco_grid4x4_runs_from_its_sumocfg_like_sumo() {
+    let cfg = net("RESCO/grid4x4/grid4x4.sumocfg");
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-grid4x4-{}", std::process::id()));
+    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .arg("run")
+        .arg(&cfg)
+        .args(["--duration", "600", "--out"])
+        .arg(&out)
+        .output()
+        .expect("runs smlworld");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    assert_eq!(m["red_light_crossings"], 0);
+    // SUMO 1.28 (`sumo -c grid4x4.sumocfg --end 600`): 141 inserted, 94 arrived, mean duration
+    // 181.59 s. Ours must insert as many and match the travel time within 15 %.
+    assert_eq!(m["traffic"]["inserted"], 141);
+    let trips = std::fs::read_to_string(out.join("trips.csv")).unwrap();
+    let times: Vec<f64> = trips
+        .lines()
+        .skip(1)
+        .filter_map(|row| row.split(',').nth(4).filter(|t| !t.is_empty()).map(|t| t.parse().unwrap()))
+        .collect();
+    assert!(times.len() >= 85, "{} arrived", times.len());
+    let mean = times.iter().sum::<f64>() / times.len() as f64;
+    assert!((mean / 181.59 - 1.0).abs() < 0.15, "mean travel time {mean:.1} s against SUMO's 181.59 s");
+    std::fs::remove_dir_all(&out).ok();
+}

@@ -314,8 +314,10 @@ struct Reader<'m> {
 
 impl Demand {
     /// Read `files` (in order: a type or route defined in one is seen by the later ones) for
-    /// the SUMO network `map`; departures after `until` [s] are dropped.
-    pub fn load(files: &[PathBuf], map: &LaneletMap, until: f64) -> Result<Demand, MapError> {
+    /// the SUMO network `map`, with the clock starting at SUMO time `begin` [s] (a `.sumocfg`'s
+    /// `begin`: departures before it are dropped, the others move `begin` earlier); departures
+    /// more than `until` [s] after `begin` are dropped.
+    pub fn load(files: &[PathBuf], map: &LaneletMap, begin: f64, until: f64) -> Result<Demand, MapError> {
         let mut r = Reader {
             map,
             index: EdgeIndex::new(map),
@@ -324,9 +326,24 @@ impl Demand {
             types: BTreeMap::from([("DEFAULT_VEHTYPE".to_string(), 0)]),
             routes: BTreeMap::new(),
         };
+        r.until = begin + until;
         for f in files {
             let text = std::fs::read_to_string(f).map_err(|source| MapError::Io { path: f.clone(), source })?;
             r.file(&text, f)?;
+        }
+        if begin != 0.0 {
+            for g in &mut r.demand.groups {
+                match &mut g.departures {
+                    Departures::Times(t) => {
+                        t.retain(|&x| x >= begin);
+                        t.iter_mut().for_each(|x| *x -= begin);
+                    }
+                    Departures::Probability { begin: b, end, .. } | Departures::Poisson { begin: b, end, .. } => {
+                        *b = (*b - begin).max(0.0);
+                        *end -= begin;
+                    }
+                }
+            }
         }
         Ok(r.demand)
     }

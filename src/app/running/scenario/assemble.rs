@@ -646,7 +646,22 @@ fn sumo_demand(
     };
     let seed = traffic.seed;
     let mut next_id = start;
+    let first = traffic.sources.len();
+    // Vehicles of one type on one route entering alike share a table (a duarouter file has a
+    // `<vehicle>` per trip; tables are visited every tick).
+    let mut shared: BTreeMap<(usize, Vec<Vec<LaneletId>>, Option<u64>), usize> = BTreeMap::new();
     for g in &demand.groups {
+        let depart_speed = match g.depart_speed {
+            DepartSpeed::Given(v) => Some(v),
+            DepartSpeed::Desired => None,
+        };
+        let key = (g.vtype, g.routes.clone(), depart_speed.map(f64::to_bits));
+        if let (Departures::Times(times), Some(&k)) = (&g.departures, shared.get(&key)) {
+            let src = &mut traffic.sources[k];
+            src.schedule.extend_from_slice(times);
+            src.schedule.sort_by(f64::total_cmp);
+            continue;
+        }
         let stream = traffic.sources.len() as u64;
         let vt = &demand.types[g.vtype];
         let schedule: Vec<f64> = match &g.departures {
@@ -682,7 +697,6 @@ fn sumo_demand(
         let v0 = vt.max_speed.min(g.first_speed_limit).max(0.1);
         let idm =
             Idm { speed: v0, time_gap: vt.tau, min_gap: vt.min_gap, accel: vt.accel, decel: vt.decel, delta: vt.delta };
-        let count = schedule.len() as i64;
         traffic.sources.push(TrafficSource {
             stream,
             lanes,
@@ -709,11 +723,15 @@ fn sumo_demand(
             schedule,
             scheduled: 0,
             length: Some(vt.length),
-            depart_speed: match g.depart_speed {
-                DepartSpeed::Given(v) => Some(v),
-                DepartSpeed::Desired => None,
-            },
+            depart_speed,
         });
-        next_id -= count;
+        if matches!(g.departures, Departures::Times(_)) {
+            shared.insert(key, traffic.sources.len() - 1);
+        }
+    }
+    // Ids once every table has its whole schedule: each counts down from where the last ended.
+    for src in &mut traffic.sources[first..] {
+        src.next_id = next_id as i32;
+        next_id -= src.schedule.len() as i64;
     }
 }

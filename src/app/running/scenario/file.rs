@@ -156,6 +156,10 @@ pub struct ScenarioFile {
     /// ([`crate::map::sumo::demand`]).
     #[serde(default)]
     pub demand: Vec<PathBuf>,
+    /// SUMO time at which this run starts [s] (a `.sumocfg`'s `begin`): demand departing
+    /// earlier is dropped, later departures come `demand_begin` s earlier.
+    #[serde(default)]
+    pub demand_begin: f64,
 }
 
 /// One `[[traffic_lights]]`: `junction = ID`, `offset = 0.0`, `program = [{ state = "GGrr",

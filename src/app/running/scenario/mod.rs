@@ -46,6 +46,7 @@ pub mod commonroad;
 mod file;
 pub mod lab;
 pub mod overrides;
+pub mod sumocfg;
 
 use std::collections::BTreeMap;
 use std::path::{Path as FsPath, PathBuf};
@@ -194,7 +195,7 @@ impl Scenario {
             (Some(m), false) => {
                 let files: Vec<PathBuf> =
                     file.demand.iter().map(|d| path.parent().unwrap_or(FsPath::new("")).join(d)).collect();
-                let demand = crate::map::sumo::demand::Demand::load(&files, m, file.duration)
+                let demand = crate::map::sumo::demand::Demand::load(&files, m, file.demand_begin, file.duration)
                     .map_err(|e| ScenarioError::Demand { path: path.into(), source: Box::new(e) })?;
                 for w in &demand.warnings {
                     tracing::warn!("{w}");
