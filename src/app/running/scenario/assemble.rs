@@ -605,6 +605,10 @@ fn join_legs(legs: &[Path], points_per_meter: f64) -> Path {
     Path::from_points(lanelets, crate::map::routing::resample(&points, points_per_meter), false)
 }
 
+/// What makes SUMO vehicles alike enough to share a traffic table: vType index, routes by start
+/// lane, departure speed (its bits; `None`: the desired speed).
+type DemandKey = (usize, Vec<Vec<LaneletId>>, Option<u64>);
+
 /// SUMO's vehicle class as ours (`passenger` and anything we do not model: a car).
 fn class_of_sumo(class: &str) -> VehicleClass {
     match class {
@@ -649,7 +653,7 @@ fn sumo_demand(
     let first = traffic.sources.len();
     // Vehicles of one type on one route entering alike share a table (a duarouter file has a
     // `<vehicle>` per trip; tables are visited every tick).
-    let mut shared: BTreeMap<(usize, Vec<Vec<LaneletId>>, Option<u64>), usize> = BTreeMap::new();
+    let mut shared: BTreeMap<DemandKey, usize> = BTreeMap::new();
     for g in &demand.groups {
         let depart_speed = match g.depart_speed {
             DepartSpeed::Given(v) => Some(v),
