@@ -351,3 +351,31 @@ fn resco_grid4x4_runs_from_its_sumocfg_like_sumo() {
     assert!((mean / 181.59 - 1.0).abs() < 0.15, "mean travel time {mean:.1} s against SUMO's 181.59 s");
     std::fs::remove_dir_all(&out).ok();
 }
+
+#[test]
+fn map_route_and_render_take_a_sumo_net() {
+    let path = net("2way-single-intersection/single-intersection.net.xml");
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["map", "route"])
+        .arg(&path)
+        .args(["--from-tag", "start:n_t_0", "--to-tag", "end:t_s_0", "--json"])
+        .output()
+        .expect("runs smlworld");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // n_t_0, the straight link :t_1_0, t_s_0: 141.95 + 16.10 + 141.95 m.
+    assert_eq!(v["lanelets"].as_array().unwrap().len(), 3);
+    assert!((v["length_m"].as_f64().unwrap() - 300.0).abs() < 0.5, "{}", v["length_m"]);
+    let png = std::env::temp_dir().join(format!("smlworld-sumo-render-{}.png", std::process::id()));
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["map", "render"])
+        .arg(&path)
+        .arg("--out")
+        .arg(&png)
+        .output()
+        .expect("runs smlworld");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    std::fs::remove_file(&png).ok();
+    std::fs::remove_file(png.with_extension("meta")).ok();
+}
