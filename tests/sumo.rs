@@ -92,9 +92,12 @@ fn count(path: &Path) -> FileCounts {
 }
 
 fn check_counts(rel: &str) -> LaneletMap {
-    let path = net(rel);
-    let map = load(rel);
-    let file = count(&path);
+    check_counts_at(&net(rel), rel)
+}
+
+fn check_counts_at(path: &Path, rel: &str) -> LaneletMap {
+    let map = LaneletMap::load(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let file = count(path);
     let lanes = map.lanelets.iter().filter(|l| !l.tags.contains_key("sumo:function")).count();
     let links = map.lanelets.iter().filter(|l| l.tags.contains_key("sumo:function")).count();
     assert_eq!(lanes, file.lanes, "{rel}: lanes");
@@ -378,4 +381,41 @@ fn map_route_and_render_take_a_sumo_net() {
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
     std::fs::remove_file(&png).ok();
     std::fs::remove_file(png.with_extension("meta")).ok();
+}
+
+#[test]
+fn a_netgenerate_grid_loads_with_its_counts() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let home = Command::new(root.join(".venv/bin/python"))
+        .args(["-c", "import sumo;print(sumo.SUMO_HOME)"])
+        .output()
+        .expect("runs .venv/bin/python");
+    assert!(
+        home.status.success(),
+        "eclipse-sumo is not installed in .venv: `.venv/bin/pip install eclipse-sumo` (python/requirements-test.txt): {}",
+        String::from_utf8_lossy(&home.stderr)
+    );
+    let home = PathBuf::from(String::from_utf8_lossy(&home.stdout).trim());
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-grid-{}.net.xml", std::process::id()));
+    let generated = Command::new(home.join("bin/netgenerate"))
+        .env("SUMO_HOME", &home)
+        .args([
+            "--grid",
+            "--grid.number",
+            "4",
+            "--grid.length",
+            "150",
+            "--default.lanenumber",
+            "2",
+            "--tls.guess",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .expect("runs netgenerate");
+    assert!(generated.status.success(), "{}", String::from_utf8_lossy(&generated.stderr));
+    let map = check_counts_at(&out, "netgenerate 4 x 4 grid");
+    // 4 x 4 nodes: the 12 with three or four arms get lights, the 4 corners none.
+    assert_eq!(map.signal_programs.len(), 12);
+    std::fs::remove_file(&out).ok();
 }
