@@ -45,7 +45,6 @@ use quick_xml::Reader;
 use quick_xml::events::Event;
 
 use super::error::{Location, MapError, MapWarning};
-use super::graph::{GraphLanelet, RoutingGraph};
 use super::lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay, Tags};
 use super::polyline::{polyline_length, resample_count};
 use super::projection::Projector;
@@ -962,21 +961,5 @@ fn build_map(root: &Element, cx: &Ctx, warnings: &mut Vec<MapWarning>) -> Result
             tags,
         });
     }
-    let graph_lanelets: Vec<GraphLanelet<'_>> = lanelets.iter().map(Lanelet::graph_view).collect();
-    let explicit: Vec<Vec<usize>> =
-        lanelets.iter().map(|l| l.successors.iter().filter_map(|s| index.get(s).copied()).collect()).collect();
-    let graph = RoutingGraph::with_successors(&graph_lanelets, &explicit);
-    Ok(LaneletMap {
-        projector,
-        origin_node: None,
-        nodes,
-        ways,
-        lanelets,
-        tag_index,
-        warnings: Vec::new(),
-        regulatory: BTreeMap::new(),
-        junctions: Default::default(),
-        index,
-        graph,
-    })
+    Ok(LaneletMap::from_parts(projector, nodes, ways, lanelets, tag_index, Vec::new()))
 }

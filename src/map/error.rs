@@ -105,6 +105,15 @@ pub enum MapError {
         /// What is wrong, which road/lane/junction, and what is allowed.
         message: String,
     },
+    /// A SUMO network or demand element is missing something, has a value that cannot be used,
+    /// or names a lane, edge, route or type the files do not define.
+    #[error("{at}: SUMO: {message}")]
+    Sumo {
+        /// Where the element is.
+        at: Location,
+        /// What is wrong, which element id, and what is allowed.
+        message: String,
+    },
     /// A way lists a node that the file does not define.
     #[error("{at}: way {way} references node {node}, which is not in the file; add the node or remove it from the way")]
     MissingNode {

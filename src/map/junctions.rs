@@ -566,7 +566,9 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
             }
         }
     }
-    let raw = raw_conflicts(map, &predecessors, &successors);
+    let mut raw = raw_conflicts(map, &predecessors, &successors);
+    // Links the file says are no foes (SUMO `<request foes>`) pass each other.
+    raw.retain(|c| !stated_no_foes(&map.lanelets[c.a].tags, &map.lanelets[c.b].tags));
     if raw.is_empty() {
         return Junctions::default();
     }
@@ -713,7 +715,10 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
         } else {
             JunctionControl::RightBeforeLeft
         };
-        let mut control = control;
+        // A file that states each junction's type (SUMO `<junction type>`, as the tag
+        // `junction_control` on its links) is taken at its word.
+        let stated = members.iter().find_map(|&i| stated_control(&map.lanelets[i].tags));
+        let mut control = stated.unwrap_or(control);
         match control {
             JunctionControl::Priority => {
                 // An arm the map says nothing of is major where the others are only marked
@@ -724,6 +729,7 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
                     l.major = r.unwrap_or(unmarked);
                 }
             }
+            JunctionControl::RightBeforeLeft | JunctionControl::TrafficLight if stated.is_some() => {}
             JunctionControl::RightBeforeLeft | JunctionControl::TrafficLight => {
                 // The documented default: approaches with more lanes, then a higher speed limit,
                 // are major when some approach has less.
@@ -754,7 +760,10 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
         for c in raw.iter().filter(|c| index_of.get(&c.a).is_some_and(|&(g, _)| g == j)) {
             let (ka, kb) = (index_of[&c.a].1, index_of[&c.b].1);
             let (la, lb) = (&links[ka], &links[kb]);
-            let yields = if matches!(control, JunctionControl::FirstCome | JunctionControl::AllWayStop) {
+            let (ta, tb) = (&map.lanelets[c.a].tags, &map.lanelets[c.b].tags);
+            let yields = if let Some(y) = stated_yield(ta, tb) {
+                y
+            } else if matches!(control, JunctionControl::FirstCome | JunctionControl::AllWayStop) {
                 Yield::FirstCome
             } else if la.major != lb.major {
                 if la.major { Yield::B } else { Yield::A }
@@ -780,6 +789,110 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
         list.push(Junction { id: j as u32 + 1, links, conflicts, control, centre });
     }
     Junctions { list, by_lanelet }
+}
+
+/// The control a link's tag `junction_control` states (SUMO nets, [`super::sumo`]).
+fn stated_control(tags: &super::lanelet::Tags) -> Option<JunctionControl> {
+    match tags.get("junction_control")?.as_str() {
+        "priority" => Some(JunctionControl::Priority),
+        "traffic_light" => Some(JunctionControl::TrafficLight),
+        "all_way_stop" => Some(JunctionControl::AllWayStop),
+        "right_before_left" => Some(JunctionControl::RightBeforeLeft),
+        "first_come" => Some(JunctionControl::FirstCome),
+        _ => None,
+    }
+}
+
+/// Who yields between two links of one SUMO junction, from its `<request>` rows (tags
+/// `sumo:junction`, `sumo:link_index`, `sumo:response`): link i yields to link j where bit j of
+/// i's `response` is set, bits read from the right (SUMO_Road_Networks.md, "Requests"). `None`
+/// where the links are not of one such junction or neither yields to the other.
+fn stated_yield(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> Option<Yield> {
+    let junction = a.get("sumo:junction")?;
+    if b.get("sumo:junction") != Some(junction) {
+        return None;
+    }
+    let index = |t: &super::lanelet::Tags| t.get("sumo:link_index")?.parse::<usize>().ok();
+    let responds = |t: &super::lanelet::Tags, to: usize| {
+        t.get("sumo:response").is_some_and(|r| {
+            let r = r.as_bytes();
+            to < r.len() && r[r.len() - 1 - to] == b'1'
+        })
+    };
+    let (ia, ib) = (index(a)?, index(b)?);
+    match (responds(a, ib), responds(b, ia)) {
+        (true, false) => Some(Yield::A),
+        (false, true) => Some(Yield::B),
+        _ => None,
+    }
+}
+
+/// Whether two links of one SUMO junction are no foes by its `<request>` rows (tag
+/// `sumo:foes` of each: bit j set where link j is a foe, read from the right).
+fn stated_no_foes(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> bool {
+    let Some(junction) = a.get("sumo:junction") else { return false };
+    if b.get("sumo:junction") != Some(junction) {
+        return false;
+    }
+    let index = |t: &super::lanelet::Tags| t.get("sumo:link_index")?.parse::<usize>().ok();
+    let foe = |t: &super::lanelet::Tags, to: usize| {
+        t.get("sumo:foes").map(|r| {
+            let r = r.as_bytes();
+            to < r.len() && r[r.len() - 1 - to] == b'1'
+        })
+    };
+    match (index(a), index(b)) {
+        (Some(ia), Some(ib)) => foe(a, ib) == Some(false) && foe(b, ia) == Some(false),
+        _ => false,
+    }
+}
+
+/// A signal program stated by the map file (a SUMO `<tlLogic>`): phases whose states have one
+/// character per signal index (the `signal_index` tag of the links it controls).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapSignalProgram {
+    /// The phases in file order.
+    pub phases: Vec<SignalPhase>,
+    /// Cycle shift [s].
+    pub offset: f64,
+}
+
+/// The program of `junction` from the map's own signal programs: every link names the same
+/// program (tag `signal_program`) and its character (tag `signal_index`); each phase's state is
+/// then re-ordered into the junction's link order. `None` where a link has no such tags (the
+/// default program applies). SUMO's `u` (red-yellow) shows red, `s` and `o` (green with a stop,
+/// blinking yield) the yielding green `g`, `O` (off) `G`.
+pub fn map_program(map: &LaneletMap, junction: &Junction) -> Option<(Vec<SignalPhase>, f64)> {
+    let mut program: Option<&str> = None;
+    let mut indices = Vec::with_capacity(junction.links.len());
+    for link in &junction.links {
+        let tags = &map.lanelet(link.lanelet)?.tags;
+        let id = tags.get("signal_program")?;
+        if program.is_some_and(|p| p != id) {
+            return None;
+        }
+        program = Some(id);
+        indices.push(tags.get("signal_index")?.parse::<usize>().ok()?);
+    }
+    let p = map.signal_programs.get(program?)?;
+    let phases = p
+        .phases
+        .iter()
+        .map(|ph| {
+            let chars = ph.state.as_bytes();
+            let state = indices
+                .iter()
+                .map(|&k| match chars.get(k).copied().unwrap_or(b'r') {
+                    b'G' | b'O' => 'G',
+                    b'g' | b's' | b'o' => 'g',
+                    b'y' | b'Y' => 'y',
+                    _ => 'r',
+                })
+                .collect();
+            SignalPhase { state, duration: ph.duration }
+        })
+        .collect();
+    Some((phases, p.offset))
 }
 
 /// One phase of a signal program: a state (one character per link) held for `duration` [s].

@@ -142,6 +142,10 @@ pub struct LaneletMap {
     /// Regulatory elements (Lanelet2 `type=regulatory_element` relations: traffic lights,
     /// right of way, speed limits, ...), by relation id; empty for formats without them.
     pub regulatory: BTreeMap<i64, RegulatoryElement>,
+    /// Signal programs the map file gives (SUMO `<tlLogic>`), by program id; a junction link
+    /// lanelet names its program and its character in the states with the tags
+    /// `signal_program` and `signal_index` ([`super::junctions::map_program`]).
+    pub signal_programs: BTreeMap<String, super::junctions::MapSignalProgram>,
     /// The junctions under the default rules, found on first use ([`LaneletMap::junctions`]).
     pub(crate) junctions: std::sync::OnceLock<std::sync::Arc<super::junctions::Junctions>>,
     pub(crate) index: BTreeMap<LaneletId, usize>,
@@ -168,6 +172,40 @@ pub struct RegulatoryElement {
 }
 
 impl LaneletMap {
+    /// A map from lanelets whose successors the source file states (CommonRoad, OpenDRIVE,
+    /// SUMO): the id index and the routing graph are built here from each lanelet's
+    /// `successors` (successors naming no lanelet are dropped from the graph). No origin node,
+    /// no regulatory elements and no signal programs; set those fields after where a format has them.
+    pub fn from_parts(
+        projector: Projector,
+        nodes: BTreeMap<i64, MapNode>,
+        ways: BTreeMap<i64, MapWay>,
+        lanelets: Vec<Lanelet>,
+        tag_index: BTreeMap<String, Vec<i64>>,
+        warnings: Vec<MapWarning>,
+    ) -> LaneletMap {
+        let index: BTreeMap<LaneletId, usize> = lanelets.iter().enumerate().map(|(i, l)| (l.id, i)).collect();
+        let explicit: Vec<Vec<usize>> =
+            lanelets.iter().map(|l| l.successors.iter().filter_map(|s| index.get(s).copied()).collect()).collect();
+        let graph_lanelets: Vec<GraphLanelet<'_>> = lanelets.iter().map(Lanelet::graph_view).collect();
+        let graph = RoutingGraph::with_successors(&graph_lanelets, &explicit);
+        drop(graph_lanelets);
+        LaneletMap {
+            projector,
+            origin_node: None,
+            nodes,
+            ways,
+            lanelets,
+            tag_index,
+            warnings,
+            regulatory: BTreeMap::new(),
+            signal_programs: BTreeMap::new(),
+            junctions: Default::default(),
+            index,
+            graph,
+        }
+    }
+
     /// The lanelet with this id.
     pub fn lanelet(&self, id: LaneletId) -> Option<&Lanelet> {
         self.index.get(&id).map(|&i| &self.lanelets[i])

@@ -18,7 +18,8 @@ use super::projection::Projector;
 impl LaneletMap {
     /// Load a JOSM/OSM map (`.osm` or `.xml`), the road network of a CommonRoad scenario
     /// file (root element `<commonRoad>`, see [`super::commonroad`]), or an OpenDRIVE file
-    /// (`.xodr`, or root element `<OpenDRIVE>`, see [`super::opendrive`]).
+    /// (`.xodr`, or root element `<OpenDRIVE>`, see [`super::opendrive`]), or a SUMO network
+    /// (root element `<net>`, `x.net.xml`, see [`super::sumo`]).
     pub fn load(path: &FsPath) -> Result<LaneletMap, MapError> {
         let text = std::fs::read_to_string(path).map_err(|source| MapError::Io { path: path.to_path_buf(), source })?;
         if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("xodr")) || super::opendrive::is_opendrive(&text) {
@@ -26,6 +27,9 @@ impl LaneletMap {
         }
         if super::commonroad::is_commonroad(&text) {
             return Ok(super::commonroad::CommonRoadScenario::parse_str(&text, path)?.map);
+        }
+        if super::sumo::is_sumo_net(&text) {
+            return super::sumo::parse_str(&text, path);
         }
         let objects = parse_objects(&text, path)?;
         drop(text);
@@ -37,6 +41,9 @@ impl LaneletMap {
     pub fn parse_str(text: &str, name: &FsPath) -> Result<LaneletMap, MapError> {
         if super::opendrive::is_opendrive(text) {
             return super::opendrive::parse_str(text, name);
+        }
+        if super::sumo::is_sumo_net(text) {
+            return super::sumo::parse_str(text, name);
         }
         build(parse_objects(text, name)?)
     }
@@ -92,6 +99,7 @@ fn build(doc: OsmObjects) -> Result<LaneletMap, MapError> {
         tag_index,
         warnings,
         regulatory,
+        signal_programs: BTreeMap::new(),
         junctions: Default::default(),
         index,
         graph,

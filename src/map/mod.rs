@@ -5,7 +5,7 @@
 //! centre lines, successors, tags) and builds its routing graph from plain lanelet data;
 //! [`routing`] searches that map and never touches XML; [`polyline`] and [`path`] hold the
 //! geometry every layer shares; [`commonroad`] reads CommonRoad scenario XML (lanelets, obstacles,
-//! planning problems) into the same [`LaneletMap`], and [`opendrive`] reads OpenDRIVE (`.xodr`) roads; [`generate`] writes parametric maps back as JOSM-compatible XML.
+//! planning problems) into the same [`LaneletMap`], [`opendrive`] reads OpenDRIVE (`.xodr`) roads and [`sumo`] SUMO networks (`.net.xml`) and demand; [`generate`] writes parametric maps back as JOSM-compatible XML.
 //! Nothing here knows about the ECS or rendering.
 
 pub mod commonroad;
@@ -24,6 +24,7 @@ pub mod path;
 pub mod polyline;
 pub mod projection;
 pub mod routing;
+pub mod sumo;
 
 pub use error::{MapError, MapWarning};
 pub use junctions::{Junction, JunctionControl, Junctions};

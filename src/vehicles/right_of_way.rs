@@ -1066,7 +1066,9 @@ impl Plugin for JunctionsPlugin {
             self.programs.iter().map(|(id, p, o)| (id - 1, p.clone(), *o)).collect();
         for (j, junction) in junctions.list.iter().enumerate() {
             if junction.control == JunctionControl::TrafficLight && !programs.iter().any(|p| p.0 == j as u32) {
-                programs.push((j as u32, crate::map::junctions::default_program(junction, left_hand), 0.0));
+                let (program, offset) = crate::map::junctions::map_program(&self.map, junction)
+                    .unwrap_or_else(|| (crate::map::junctions::default_program(junction, left_hand), 0.0));
+                programs.push((j as u32, program, offset));
             }
         }
         programs.sort_by_key(|p| p.0);

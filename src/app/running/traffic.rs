@@ -108,6 +108,23 @@ pub struct TrafficSource {
     /// Random trips only: at its destination a vehicle draws a new trip from there instead of
     /// leaving (`on_arrival = "new_trip"`).
     pub renew: bool,
+    /// Departure times [s], sorted (SUMO demand, [`crate::map::sumo::demand`]): a vehicle
+    /// arrives at each, besides the `rate` arrivals.
+    pub schedule: Vec<f64>,
+    /// Departures of `schedule` that have arrived so far.
+    pub scheduled: usize,
+    /// Body length [m] in place of the class's (a SUMO `vType` length).
+    pub length: Option<f64>,
+    /// Speed on entry [m/s] at most this (a SUMO `departSpeed`); `None`: the desired speed.
+    pub depart_speed: Option<f64>,
+}
+
+impl TrafficSource {
+    /// Footprint of a vehicle of class `c` of this table [m].
+    pub fn size(&self, c: VehicleClass) -> VehicleSize {
+        let size = class_size(c);
+        VehicleSize { length: self.length.unwrap_or(size.length), ..size }
+    }
 }
 
 /// A traffic vehicle (its table index).
@@ -190,7 +207,7 @@ pub fn spawn_traffic_vehicle(
     let state = VehicleState::new(p, heading, v);
     let mut spec = VehicleSpec::new(id, state);
     spec.class = class;
-    spec.size = class_size(class);
+    spec.size = src.size(class);
     spec.model = src.model;
     spec.sensors = src.sensors;
     spec.sensor_errors = src.sensor_errors;
@@ -338,6 +355,10 @@ pub fn run_traffic(world: &mut World) {
                 *waiting_max = (*waiting_max).max(src.queue);
                 continue;
             }
+            while src.schedule.get(src.scheduled).is_some_and(|&d| d <= t) {
+                src.scheduled += 1;
+                src.queue += 1;
+            }
             if src.rate_per_s > 0.0 {
                 while src.next_time <= t && src.next_time <= src.until {
                     src.queue += 1;
@@ -348,7 +369,7 @@ pub fn run_traffic(world: &mut World) {
             while src.queue > 0 {
                 let k = src.drawn;
                 let (v0, class, first) = draw(seed, src, k);
-                let length = class_size(class).length;
+                let length = src.size(class).length;
                 let mut placed = false;
                 for n in 0..src.lanes.len() {
                     let l = (first + n) % src.lanes.len();
@@ -357,6 +378,7 @@ pub fn run_traffic(world: &mut World) {
                     }
                     let lane = src.lanes[l].clone();
                     let Some(v) = entry_speed(world, &lane, v0, length) else { continue };
+                    let v = src.depart_speed.map_or(v, |d| v.min(d));
                     let id = VehicleId(src.next_id);
                     if spawn_traffic_vehicle(world, src, index, id, &lane, &src.goal, 0.0, v, v0, class).is_ok() {
                         src.next_id += src.id_step;

@@ -9,7 +9,6 @@ use glam::DVec2;
 use super::road::{Contact, Document, Lane, LaneSection, Road, RoadLink, RoadMark, record_at};
 use super::xml::Element;
 use crate::map::error::{Location, MapError, MapWarning};
-use crate::map::graph::{GraphLanelet, RoutingGraph};
 use crate::map::lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay, Tags};
 use crate::map::polyline::polyline_length;
 use crate::map::projection::Projector;
@@ -379,28 +378,13 @@ pub(crate) fn build(
         l.successors = next.iter().map(|&k| LaneletId(k as i64 + 1)).collect();
     }
 
-    let index: BTreeMap<LaneletId, usize> = lanelets.iter().enumerate().map(|(i, l)| (l.id, i)).collect();
-    let graph_lanelets: Vec<GraphLanelet<'_>> = lanelets.iter().map(Lanelet::graph_view).collect();
-    let graph = RoutingGraph::with_successors(&graph_lanelets, &successors);
     if doc.roads.is_empty() {
         warnings.push(MapWarning {
             at: at(root.line).to_string(),
             message: "the file has no <road>: nothing to drive on".into(),
         });
     }
-    Ok(LaneletMap {
-        projector,
-        origin_node: None,
-        nodes,
-        ways,
-        lanelets,
-        tag_index,
-        warnings,
-        regulatory: BTreeMap::new(),
-        junctions: Default::default(),
-        index,
-        graph,
-    })
+    Ok(LaneletMap::from_parts(projector, nodes, ways, lanelets, tag_index, warnings))
 }
 
 impl Lane {

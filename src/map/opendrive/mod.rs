@@ -44,7 +44,7 @@ mod build;
 pub mod geometry;
 pub mod osm_out;
 pub mod road;
-mod xml;
+pub(crate) mod xml;
 
 use std::path::Path as FsPath;
 

@@ -46,6 +46,15 @@ impl Element {
 
 /// Parse `text` into its root element (which must be `<OpenDRIVE>`).
 pub(crate) fn parse_tree(text: &str, source: &FsPath) -> Result<Element, MapError> {
+    parse_root(text, source)?.filter(|r| r.name == "OpenDRIVE").ok_or_else(|| MapError::Xml {
+        at: Location { file: source.to_path_buf(), line: 0 },
+        message: "no <OpenDRIVE> root element; this is not an OpenDRIVE (.xodr) file".into(),
+    })
+}
+
+/// Parse `text` into its root element, whatever its name (`None` for a file without one); the
+/// SUMO reader ([`crate::map::sumo`]) shares this tree.
+pub(crate) fn parse_root(text: &str, source: &FsPath) -> Result<Option<Element>, MapError> {
     let mut reader = Reader::from_str(text);
     reader.config_mut().trim_text(true);
     let bytes = text.as_bytes();
@@ -112,8 +121,5 @@ pub(crate) fn parse_tree(text: &str, source: &FsPath) -> Result<Element, MapErro
         return Err(xml_error(open.line, format!("<{}> is never closed (the file ends early)", open.name)));
     }
     let mut root = stack.swap_remove(0);
-    root.children
-        .pop()
-        .filter(|r| r.name == "OpenDRIVE")
-        .ok_or_else(|| xml_error(0, "no <OpenDRIVE> root element; this is not an OpenDRIVE (.xodr) file".into()))
+    Ok(root.children.pop())
 }

@@ -319,7 +319,7 @@ impl Scenario {
 
     /// Resolve the `[[traffic]]` tables and place their `count` vehicles (after the vehicles).
     fn traffic(&self, b: &mut SimBuilder, routes: &mut BTreeMap<String, Arc<Path>>) -> Result<(), ScenarioError> {
-        if self.file.traffic.is_empty() {
+        if self.file.traffic.is_empty() && self.demand.is_none() {
             return Ok(());
         }
         let Some(lanes) = b.world_mut().get_resource::<LaneMap>().cloned() else {
@@ -410,6 +410,10 @@ impl Scenario {
                 random,
                 pending: Vec::new(),
                 renew: t.on_arrival == super::file::OnArrival::NewTrip,
+                schedule: Vec::new(),
+                scheduled: 0,
+                length: None,
+                depart_speed: None,
             });
             if t.count > 0 {
                 let placed = if t.route == TrafficRoute::Random {
@@ -419,6 +423,19 @@ impl Scenario {
                 };
                 placed.map_err(|e| self.invalid(key("count"), e))?;
             }
+        }
+        if let Some(demand) = &self.demand {
+            let start = next_default;
+            if let Some(v) = self.file.vehicles.iter().find(|v| i64::from(v.id) <= start) {
+                return Err(self.invalid(
+                    "demand".into(),
+                    format!(
+                        "vehicle id {} lies in the ids of the SUMO demand (from {start} down); use ids above it",
+                        v.id
+                    ),
+                ));
+            }
+            sumo_demand(demand, &lanes.map, &mut traffic, start, self.file.points_per_meter);
         }
         b.insert_resource(traffic);
         Ok(())
@@ -586,4 +603,139 @@ fn join_legs(legs: &[Path], points_per_meter: f64) -> Path {
         }
     }
     Path::from_points(lanelets, crate::map::routing::resample(&points, points_per_meter), false)
+}
+
+/// What makes SUMO vehicles alike enough to share a traffic table: vType index, routes by start
+/// lane, departure speed (its bits; `None`: the desired speed).
+type DemandKey = (usize, Vec<Vec<LaneletId>>, Option<u64>);
+
+/// SUMO's vehicle class as ours (`passenger` and anything we do not model: a car).
+fn class_of_sumo(class: &str) -> VehicleClass {
+    match class {
+        "truck" | "trailer" | "delivery" => VehicleClass::Truck,
+        "bus" | "coach" | "tram" => VehicleClass::Bus,
+        "motorcycle" | "moped" => VehicleClass::Motorcycle,
+        "bicycle" => VehicleClass::Bicycle,
+        "emergency" => VehicleClass::Emergency,
+        _ => VehicleClass::Car,
+    }
+}
+
+/// One traffic table per SUMO vehicle, flow or trip of `demand` (after the `[[traffic]]`
+/// tables, so their random streams stay as they were): its start lanes with their routes, its
+/// departure times (probability and Poisson flows drawn from the seed), and an IDM with its
+/// `vType`'s parameters; ids count down from `start`.
+fn sumo_demand(
+    demand: &crate::map::sumo::demand::Demand,
+    map: &crate::map::LaneletMap,
+    traffic: &mut Traffic,
+    start: i64,
+    points_per_meter: f64,
+) {
+    use crate::map::sumo::demand::{DepartSpeed, Departures};
+    let mut paths: BTreeMap<Vec<LaneletId>, Arc<Path>> = BTreeMap::new();
+    let mut path_of = |lanelets: &[LaneletId]| -> Arc<Path> {
+        Arc::clone(paths.entry(lanelets.to_vec()).or_insert_with(|| {
+            let mut points: Vec<DVec2> = Vec::new();
+            for l in lanelets.iter().filter_map(|l| map.lanelet(*l)) {
+                let skip = usize::from(points.last().zip(l.centre.first()).is_some_and(|(p, q)| p.distance(*q) < 1e-6));
+                points.extend_from_slice(&l.centre[skip.min(l.centre.len())..]);
+            }
+            Arc::new(Path::from_points(
+                lanelets.to_vec(),
+                crate::map::polyline::resample(&points, points_per_meter),
+                false,
+            ))
+        }))
+    };
+    let seed = traffic.seed;
+    let mut next_id = start;
+    let first = traffic.sources.len();
+    // Vehicles of one type on one route entering alike share a table (a duarouter file has a
+    // `<vehicle>` per trip; tables are visited every tick).
+    let mut shared: BTreeMap<DemandKey, usize> = BTreeMap::new();
+    for g in &demand.groups {
+        let depart_speed = match g.depart_speed {
+            DepartSpeed::Given(v) => Some(v),
+            DepartSpeed::Desired => None,
+        };
+        let key = (g.vtype, g.routes.clone(), depart_speed.map(f64::to_bits));
+        if let (Departures::Times(times), Some(&k)) = (&g.departures, shared.get(&key)) {
+            let src = &mut traffic.sources[k];
+            src.schedule.extend_from_slice(times);
+            src.schedule.sort_by(f64::total_cmp);
+            continue;
+        }
+        let stream = traffic.sources.len() as u64;
+        let vt = &demand.types[g.vtype];
+        let schedule: Vec<f64> = match &g.departures {
+            Departures::Times(t) => t.clone(),
+            Departures::Probability { begin, end, p } => {
+                let n = (end - begin).max(0.0).ceil() as u64;
+                (0..n)
+                    .filter(|&k| crate::world::random::uniform(seed, stream, k, 5) < *p)
+                    .map(|k| begin + k as f64)
+                    .collect()
+            }
+            Departures::Poisson { begin, end, rate } => {
+                let mut out = Vec::new();
+                let mut t = *begin;
+                for k in 0.. {
+                    t += -(1.0 - crate::world::random::uniform(seed, stream, k, 5)).ln() / rate;
+                    if t >= *end {
+                        break;
+                    }
+                    out.push(t);
+                }
+                out
+            }
+        };
+        let lanes: Vec<TrafficLane> = g
+            .routes
+            .iter()
+            .filter_map(|r| {
+                let lanelet = map.lanelet_index(*r.first()?)? as u32;
+                Some(TrafficLane { lanelet, entry_s: 0.0, path: path_of(r) })
+            })
+            .collect();
+        let v0 = vt.max_speed.min(g.first_speed_limit).max(0.1);
+        let idm =
+            Idm { speed: v0, time_gap: vt.tau, min_gap: vt.min_gap, accel: vt.accel, decel: vt.decel, delta: vt.delta };
+        traffic.sources.push(TrafficSource {
+            stream,
+            lanes,
+            goal: RouteGoal::Loop,
+            rate_per_s: 0.0,
+            until: f64::INFINITY,
+            speed: [v0, v0],
+            classes: vec![(class_of_sumo(&vt.class), 1.0)],
+            controller: Some(SmartController::Idm(idm)),
+            lane_change: None,
+            model: VehicleModel::default(),
+            // As a `[[traffic]]` table's default: a radar to find the leader.
+            sensors: sensors_of(&super::file::default_traffic_sensors()),
+            sensor_errors: SensorErrors::default(),
+            yield_to_emergency: false,
+            next_id: next_id as i32,
+            id_step: -1,
+            drawn: 0,
+            next_time: f64::INFINITY,
+            queue: 0,
+            random: None,
+            pending: Vec::new(),
+            renew: false,
+            schedule,
+            scheduled: 0,
+            length: Some(vt.length),
+            depart_speed,
+        });
+        if matches!(g.departures, Departures::Times(_)) {
+            shared.insert(key, traffic.sources.len() - 1);
+        }
+    }
+    // Ids once every table has its whole schedule: each counts down from where the last ended.
+    for src in &mut traffic.sources[first..] {
+        src.next_id = next_id as i32;
+        next_id -= src.schedule.len() as i64;
+    }
 }

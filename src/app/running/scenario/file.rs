@@ -151,6 +151,15 @@ pub struct ScenarioFile {
     /// `[[traffic_lights]]`: fixed-time signal programs of junctions.
     #[serde(default)]
     pub traffic_lights: Vec<TrafficLightConfig>,
+    /// SUMO demand files (`.rou.xml`, relative to this file) for a SUMO network `map`: their
+    /// vehicles, flows and trips enter at their depart times and leave at their route's end
+    /// ([`crate::map::sumo::demand`]).
+    #[serde(default)]
+    pub demand: Vec<PathBuf>,
+    /// SUMO time at which this run starts [s] (a `.sumocfg`'s `begin`): demand departing
+    /// earlier is dropped, later departures come `demand_begin` s earlier.
+    #[serde(default)]
+    pub demand_begin: f64,
 }
 
 /// One `[[traffic_lights]]`: `junction = ID`, `offset = 0.0`, `program = [{ state = "GGrr",
@@ -345,7 +354,7 @@ fn default_traffic_classes() -> std::collections::BTreeMap<VehicleClass, f64> {
 fn default_traffic_lane_change() -> LaneChangeSetting {
     LaneChangeSetting(Some(LaneChangeParams::default()))
 }
-fn default_traffic_sensors() -> SensorsConfig {
+pub(crate) fn default_traffic_sensors() -> SensorsConfig {
     SensorsConfig { radar: Some(RadarConfig::default()), velodyne: None, omniscient: false }
 }
 

@@ -46,6 +46,7 @@ pub mod commonroad;
 mod file;
 pub mod lab;
 pub mod overrides;
+pub mod sumocfg;
 
 use std::collections::BTreeMap;
 use std::path::{Path as FsPath, PathBuf};
@@ -102,6 +103,14 @@ pub enum ScenarioError {
         /// Why.
         source: Box<MapError>,
     },
+    /// A SUMO demand file could not be read or routed.
+    #[error("{path}: demand: {source}")]
+    Demand {
+        /// The scenario file.
+        path: PathBuf,
+        /// Why (names the demand file, line and element).
+        source: Box<MapError>,
+    },
     /// A vehicle's route or start could not be found on the map.
     #[error("{path}: `{key}`: {source}")]
     Route {
@@ -126,6 +135,8 @@ pub struct Scenario {
     /// The whole CommonRoad scenario when the map is a CommonRoad file (obstacles, planning
     /// problems).
     pub commonroad: Option<Arc<CommonRoadScenario>>,
+    /// The SUMO demand of `demand = [...]`, routed on the map.
+    pub demand: Option<Arc<crate::map::sumo::demand::Demand>>,
 }
 
 impl Scenario {
@@ -172,7 +183,27 @@ impl Scenario {
             }
             None => (None, None),
         };
-        let scenario = Scenario { path: path.into(), file, map, commonroad };
+        let demand = match (&map, file.demand.is_empty()) {
+            (_, true) => None,
+            (None, false) => {
+                return Err(ScenarioError::Invalid {
+                    path: path.into(),
+                    key: "demand".into(),
+                    problem: "needs a SUMO network (`.net.xml`) as `map`".into(),
+                });
+            }
+            (Some(m), false) => {
+                let files: Vec<PathBuf> =
+                    file.demand.iter().map(|d| path.parent().unwrap_or(FsPath::new("")).join(d)).collect();
+                let demand = crate::map::sumo::demand::Demand::load(&files, m, file.demand_begin, file.duration)
+                    .map_err(|e| ScenarioError::Demand { path: path.into(), source: Box::new(e) })?;
+                for w in &demand.warnings {
+                    tracing::warn!("{w}");
+                }
+                Some(Arc::new(demand))
+            }
+        };
+        let scenario = Scenario { path: path.into(), file, map, commonroad, demand };
         scenario.check_commonroad()?;
         scenario.check_traffic_lights()?;
         Ok(scenario)

@@ -175,6 +175,12 @@ pub fn load_with_overrides(
     controllers: &ControllerRegistry,
 ) -> Result<Scenario, ScenarioError> {
     let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io { path: path.into(), source })?;
+    // A SUMO configuration runs as the scenario it describes.
+    let text = if path.extension().is_some_and(|e| e == "sumocfg") {
+        super::sumocfg::scenario_text(&text, path)?
+    } else {
+        text
+    };
     if seed.is_none() && overrides.is_empty() {
         return Scenario::parse_str_with(&text, path, controllers);
     }

@@ -1,0 +1,421 @@
+//! SUMO networks and demand (issue 54 §1) on sumo-rl's nets (PyPI `sumo-rl`, installed into
+//! `.venv` by `scripts/test.sh`): lane, link and light counts against the files, right of way
+//! and signal programs from the file, bad input named by file, line and id, and a run of
+//! `2way-single-intersection` with its `vhvh` demand.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use smlworld::map::junctions::map_program;
+use smlworld::map::sumo::demand::Demand;
+use smlworld::map::{JunctionControl, LaneletMap};
+
+/// sumo-rl's `nets` folder: `$SUMO_RL_NETS`, else asked of `.venv/bin/python` (without importing
+/// sumo_rl, which needs SUMO_HOME). Fails, never skips, when neither finds it.
+fn nets() -> PathBuf {
+    if let Some(dir) = std::env::var_os("SUMO_RL_NETS") {
+        return PathBuf::from(dir);
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let python = root.join(".venv/bin/python");
+    let out = Command::new(&python)
+        .args([
+            "-c",
+            "import importlib.util;print(importlib.util.find_spec('sumo_rl').submodule_search_locations[0]+'/nets')",
+        ])
+        .output()
+        .unwrap_or_else(|e| {
+            panic!(
+                "cannot run {} ({e}): the SUMO tests need sumo-rl's nets; run `bash scripts/test.sh` once (it installs python/requirements-test.txt into .venv) or set SUMO_RL_NETS",
+                python.display()
+            )
+        });
+    let dir = PathBuf::from(String::from_utf8_lossy(&out.stdout).trim());
+    assert!(
+        out.status.success() && dir.is_dir(),
+        "sumo-rl is not installed in .venv ({}): `.venv/bin/pip install sumo-rl` (python/requirements-test.txt) or set SUMO_RL_NETS",
+        String::from_utf8_lossy(&out.stderr).trim()
+    );
+    dir
+}
+
+fn net(rel: &str) -> PathBuf {
+    let p = nets().join(rel);
+    assert!(p.is_file(), "{} is missing from sumo-rl's nets", p.display());
+    p
+}
+
+fn load(rel: &str) -> LaneletMap {
+    let p = net(rel);
+    LaneletMap::load(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+/// What the file says, counted from its text alone (not by our reader): normal vehicle lanes,
+/// connections with a `via` from a normal lane, lights (`tlLogic` ids), and junctions of type
+/// `traffic_light*`.
+struct FileCounts {
+    lanes: usize,
+    links: usize,
+    lights: usize,
+    light_junctions: usize,
+}
+
+fn attr<'a>(line: &'a str, name: &str) -> Option<&'a str> {
+    let key = format!(" {name}=\"");
+    let start = line.find(&key)? + key.len();
+    line[start..].split('"').next()
+}
+
+fn count(path: &Path) -> FileCounts {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut c = FileCounts { lanes: 0, links: 0, lights: 0, light_junctions: 0 };
+    let mut lights = std::collections::BTreeSet::new();
+    let mut in_pedestrian = false;
+    for line in text.lines().map(str::trim) {
+        if line.starts_with("<edge ") {
+            in_pedestrian = matches!(attr(line, "function"), Some("crossing" | "walkingarea"));
+        } else if line.starts_with("<lane ") && !in_pedestrian && !attr(line, "id").unwrap().starts_with(':') {
+            c.lanes += 1;
+        } else if line.starts_with("<connection ")
+            && attr(line, "via").is_some()
+            && !attr(line, "from").unwrap().starts_with(':')
+        {
+            c.links += 1;
+        } else if line.starts_with("<tlLogic ") {
+            lights.insert(attr(line, "id").unwrap().to_string());
+        } else if line.starts_with("<junction ") && attr(line, "type").is_some_and(|t| t.starts_with("traffic_light")) {
+            c.light_junctions += 1;
+        }
+    }
+    c.lights = lights.len();
+    c
+}
+
+fn check_counts(rel: &str) -> LaneletMap {
+    check_counts_at(&net(rel), rel)
+}
+
+fn check_counts_at(path: &Path, rel: &str) -> LaneletMap {
+    let map = LaneletMap::load(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let file = count(path);
+    let lanes = map.lanelets.iter().filter(|l| !l.tags.contains_key("sumo:function")).count();
+    let links = map.lanelets.iter().filter(|l| l.tags.contains_key("sumo:function")).count();
+    assert_eq!(lanes, file.lanes, "{rel}: lanes");
+    assert_eq!(links, file.links, "{rel}: connections through a junction");
+    assert_eq!(map.signal_programs.len(), file.lights, "{rel}: tlLogic programs");
+    let junctions = map.junctions();
+    let lit = junctions.list.iter().filter(|j| j.control == JunctionControl::TrafficLight).count();
+    assert_eq!(lit, file.light_junctions, "{rel}: signalled junctions");
+    for l in &map.lanelets {
+        assert!(l.tags.contains_key("sumo:lane") && l.tags.contains_key("sumo:edge"), "{rel}: lanelet {} tags", l.id);
+    }
+    // Every signalled junction runs the file's program, not the default one.
+    for j in junctions.list.iter().filter(|j| j.control == JunctionControl::TrafficLight) {
+        assert!(map_program(&map, j).is_some(), "{rel}: junction {} has no program from the file", j.id);
+    }
+    map
+}
+
+#[test]
+fn two_way_single_intersection_loads_with_its_lanes_links_and_light() {
+    let map = check_counts("2way-single-intersection/single-intersection.net.xml");
+    assert_eq!(map.lanelets.len(), 16 + 16);
+    let by_lane = |id: &str| map.lanelets.iter().find(|l| l.tags["sumo:lane"] == id).unwrap();
+    // Lane n_t_0 (index 0, the right one) has n_t_1 on its left; 13.90 m/s is 50.04 km/h.
+    let n0 = by_lane("n_t_0");
+    let n1 = by_lane("n_t_1");
+    let neighbours = map.neighbours_of(n0.id).unwrap();
+    assert_eq!(neighbours.left, Some(n1.id));
+    assert!(neighbours.change_left);
+    assert_eq!(n0.tags["speed_limit"], "50.04");
+    assert!((n0.length - 141.95).abs() < 0.05, "length {}", n0.length);
+    // Its width is SUMO's default 3.2 m on the outside; the border it shares with n_t_1 (3.3 m
+    // apart) lies midway: 1.6 + 1.65 m.
+    assert!((n0.left[0].distance(n0.right[0]) - 3.25).abs() < 1e-6, "{}", n0.left[0].distance(n0.right[0]));
+    // n_t_0 leads through :t_0_0 (right) and :t_1_0 (straight) to t_w_0 and t_s_0.
+    let via: Vec<&str> = n0.successors.iter().map(|s| map.lanelet(*s).unwrap().tags["sumo:lane"].as_str()).collect();
+    assert_eq!(via, [":t_0_0", ":t_1_0"]);
+    assert_eq!(map.lanelet(map.lanelet(n0.successors[1]).unwrap().successors[0]).unwrap().tags["sumo:lane"], "t_s_0");
+
+    let junctions = map.junctions();
+    assert_eq!(junctions.len(), 1);
+    let j = &junctions.list[0];
+    assert_eq!(j.control, JunctionControl::TrafficLight);
+    assert_eq!(j.links.len(), 12);
+    // The program is the file's, each state re-ordered into link order: link with internal
+    // lane :t_k_0 shows character k of the tlLogic state.
+    let (program, offset) = map_program(&map, j).unwrap();
+    assert_eq!(offset, 0.0);
+    let file_states = ["GGrrrrGGrrrr", "yyrrrryyrrrr", "rrGrrrrrGrrr", "rryrrrrryrrr"];
+    assert_eq!(program.len(), 8);
+    assert_eq!(program.iter().map(|p| p.duration).collect::<Vec<_>>(), [33.0, 2.0, 6.0, 2.0, 33.0, 2.0, 6.0, 2.0]);
+    for (phase, file) in program.iter().zip(file_states) {
+        for (link, c) in j.links.iter().zip(phase.state.chars()) {
+            let lane = &map.lanelet(link.lanelet).unwrap().tags["sumo:lane"];
+            let k: usize = lane[3..lane.len() - 2].parse().unwrap();
+            assert_eq!(c, file.as_bytes()[k] as char, "link {lane}");
+        }
+    }
+    // Right of way from the file's <request>: the left turn from the east (:t_5_0, request 5,
+    // response 011110000110) yields to the straight link from the west (:t_10_0, bit 10).
+    let id_of = |lane: &str| by_lane(lane).id;
+    let (left, straight) = (id_of(":t_5_0"), id_of(":t_10_0"));
+    let c = j.conflicts.iter().find(|c| (c.a, c.b) == (left.min(straight), left.max(straight))).unwrap();
+    assert_eq!(c.yields_from(left), Some(true));
+    // The opposite left turns (:t_2_0 and :t_8_0) are no foes in the file: no conflict here.
+    let (a, b) = (id_of(":t_2_0"), id_of(":t_8_0"));
+    assert!(!j.conflicts.iter().any(|c| (c.a == a && c.b == b) || (c.a == b && c.b == a)));
+}
+
+#[test]
+fn four_by_four_lucas_and_resco_grid4x4_load_with_their_counts() {
+    check_counts("4x4-Lucas/4x4.net.xml");
+    let grid = check_counts("RESCO/grid4x4/grid4x4.net.xml");
+    assert_eq!(grid.signal_programs.len(), 16);
+}
+
+#[test]
+fn map_info_json_lists_the_sumo_tags_and_the_light() {
+    let path = net("2way-single-intersection/single-intersection.net.xml");
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["map", "info", "--json"])
+        .arg(&path)
+        .output()
+        .expect("runs smlworld");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let lanelets = v["lanelet_list"].as_array().unwrap();
+    assert!(lanelets.iter().any(|l| l["tags"]["sumo:lane"] == "w_t_1" && l["tags"]["sumo:edge"] == "w_t"));
+    assert_eq!(v["junctions"][0]["control"], "traffic_light");
+}
+
+/// The 2way-single-intersection net with `from` replaced by `to`.
+fn edited_net(from: &str, to: &str) -> (String, PathBuf) {
+    let path = net("2way-single-intersection/single-intersection.net.xml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.contains(from), "the net no longer has `{from}`");
+    (text.replacen(from, to, 1), path)
+}
+
+#[test]
+fn a_connection_to_an_unknown_lane_is_refused_with_file_line_and_ids() {
+    let (text, path) = edited_net(
+        r#"to="t_w" fromLane="0" toLane="0" via=":t_4_0""#,
+        r#"to="t_w" fromLane="0" toLane="7" via=":t_4_0""#,
+    );
+    let line = text.lines().position(|l| l.contains(r#"toLane="7""#)).unwrap() + 1;
+    let e = LaneletMap::parse_str(&text, &path).unwrap_err().to_string();
+    assert!(e.contains(&format!("single-intersection.net.xml:{line}")), "{e}");
+    assert!(e.contains("lane 7 of edge t_w") && e.contains("from e_t lane 0"), "{e}");
+}
+
+#[test]
+fn bad_demand_is_refused_with_file_line_and_id() {
+    let map = load("2way-single-intersection/single-intersection.net.xml");
+    let file = Path::new("bad.rou.xml");
+    let cases = [
+        // n_t leads to t_s, not back into the north (t_n) from n_t.
+        (
+            r#"<routes><route id="r" edges="n_t t_n"/><vehicle id="v1" depart="0" route="r"/></routes>"#,
+            "vehicle v1",
+            "no connection leads from edge n_t to edge t_n",
+        ),
+        (
+            r#"<routes>
+<flow id="f1" begin="0" end="100">
+<route edges="n_t t_s"/></flow></routes>"#,
+            "flow f1",
+            "needs a rate",
+        ),
+        (
+            r#"<routes><trip id="t1" depart="0" from="n_t" to="nowhere"/></routes>"#,
+            "trip t1",
+            "edge nowhere is not in the network",
+        ),
+        (
+            r#"<routes><vehicle id="v2" depart="0" route="missing"/></routes>"#,
+            "vehicle v2",
+            "route missing is not defined",
+        ),
+    ];
+    for (text, id, why) in cases {
+        let e = Demand::parse_str(text, file, &map, 3600.0).unwrap_err().to_string();
+        let line = text.lines().position(|l| l.contains(id.split(' ').nth(1).unwrap())).unwrap() + 1;
+        assert!(e.contains(&format!("bad.rou.xml:{line}")), "{e}");
+        assert!(e.contains(id) && e.contains(why), "{e}");
+    }
+}
+
+#[test]
+fn demand_reads_types_flows_and_trips() {
+    let map = load("2way-single-intersection/single-intersection.net.xml");
+    let text = r#"<routes>
+  <vType id="idm" carFollowModel="IDM" length="4.5" minGap="2" accel="1.5" decel="3" maxSpeed="20" tau="1.2" delta="4"/>
+  <flow id="f" type="idm" begin="10" end="70" vehsPerHour="120" departSpeed="max"><route edges="w_t t_e"/></flow>
+  <flow id="n" begin="0" end="100" number="4" departLane="1" departSpeed="5"><route edges="n_t t_e"/></flow>
+  <trip id="t" depart="3" from="s_t" to="t_n"/>
+</routes>"#;
+    let d = Demand::parse_str(text, Path::new("ok.rou.xml"), &map, 3600.0).unwrap();
+    assert_eq!(d.types[1].length, 4.5);
+    assert_eq!(d.types[1].tau, 1.2);
+    let times = |k: usize| match &d.groups[k].departures {
+        smlworld::map::sumo::demand::Departures::Times(t) => t.clone(),
+        other => panic!("{other:?}"),
+    };
+    // 120 veh/h from 10 s to 70 s: every 30 s.
+    assert_eq!(times(0), [10.0, 40.0]);
+    // 4 vehicles over 100 s: every 25 s.
+    assert_eq!(times(1), [0.0, 25.0, 50.0, 75.0]);
+    assert_eq!(times(2), [3.0]);
+    // The straight flow may start on either lane from which t_e is reached: only lane 0 of w_t.
+    assert_eq!(d.groups[0].routes.len(), 1);
+    // The trip was routed s_t -> t_n: lane, junction link, lane.
+    assert_eq!(d.groups[2].routes[0].len(), 3);
+}
+
+#[test]
+fn two_way_single_intersection_runs_its_vhvh_demand_without_collisions() {
+    let dir = nets().join("2way-single-intersection");
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-vhvh-{}", std::process::id()));
+    std::fs::create_dir_all(&out).unwrap();
+    let scenario = out.join("vhvh.toml");
+    let end = 1000.0;
+    std::fs::write(
+        &scenario,
+        format!(
+            "map = {:?}\ndemand = [{:?}]\nduration = {end}\n",
+            dir.join("single-intersection.net.xml"),
+            dir.join("single-intersection-vhvh.rou.xml")
+        ),
+    )
+    .unwrap();
+    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .arg("run")
+        .arg(&scenario)
+        .arg("--out")
+        .arg(out.join("out"))
+        .output()
+        .expect("runs smlworld");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("out/summary.json")).unwrap()).unwrap();
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    assert_eq!(m["red_light_crossings"], 0);
+    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
+    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    // SUMO 1.28 on the same files inserts 396 of the 422 vehicles due in 600 s; the left
+    // turns (300 veh/h for 6 s of green in 86 s) queue in both.
+    assert!(inserted > 450 && removed > 400, "inserted {inserted}, arrived {removed}");
+    // Every vehicle that had time to finish arrived: those inserted in the first 200 s (the
+    // longest left-turn queue takes under 800 s to clear).
+    let trips = std::fs::read_to_string(out.join("out/trips.csv")).unwrap();
+    let mut early = 0;
+    for row in trips.lines().skip(1) {
+        let cols: Vec<&str> = row.split(',').collect();
+        let depart: f64 = cols[1].parse().unwrap();
+        if depart < 200.0 {
+            early += 1;
+            assert!(!cols[2].is_empty(), "vehicle {} inserted at {depart} s has not arrived by {end} s", cols[0]);
+        }
+    }
+    assert!(early > 100, "{early} vehicles inserted in the first 200 s");
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn resco_grid4x4_runs_from_its_sumocfg_like_sumo() {
+    let cfg = net("RESCO/grid4x4/grid4x4.sumocfg");
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-grid4x4-{}", std::process::id()));
+    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .arg("run")
+        .arg(&cfg)
+        .args(["--duration", "600", "--out"])
+        .arg(&out)
+        .output()
+        .expect("runs smlworld");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    assert_eq!(m["red_light_crossings"], 0);
+    // SUMO 1.28 (`sumo -c grid4x4.sumocfg --end 600`): 141 inserted, 94 arrived, mean duration
+    // 181.59 s. Ours must insert as many and match the travel time within 15 %.
+    assert_eq!(m["traffic"]["inserted"], 141);
+    let trips = std::fs::read_to_string(out.join("trips.csv")).unwrap();
+    let times: Vec<f64> = trips
+        .lines()
+        .skip(1)
+        .filter_map(|row| row.split(',').nth(4).filter(|t| !t.is_empty()).map(|t| t.parse().unwrap()))
+        .collect();
+    assert!(times.len() >= 85, "{} arrived", times.len());
+    let mean = times.iter().sum::<f64>() / times.len() as f64;
+    assert!((mean / 181.59 - 1.0).abs() < 0.15, "mean travel time {mean:.1} s against SUMO's 181.59 s");
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn map_route_and_render_take_a_sumo_net() {
+    let path = net("2way-single-intersection/single-intersection.net.xml");
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["map", "route"])
+        .arg(&path)
+        .args(["--from-tag", "start:n_t_0", "--to-tag", "end:t_s_0", "--json"])
+        .output()
+        .expect("runs smlworld");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // n_t_0, the straight link :t_1_0, t_s_0: 141.95 + 16.10 + 141.95 m.
+    assert_eq!(v["lanelets"].as_array().unwrap().len(), 3);
+    assert!((v["length_m"].as_f64().unwrap() - 300.0).abs() < 0.5, "{}", v["length_m"]);
+    let png = std::env::temp_dir().join(format!("smlworld-sumo-render-{}.png", std::process::id()));
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["map", "render"])
+        .arg(&path)
+        .arg("--out")
+        .arg(&png)
+        .output()
+        .expect("runs smlworld");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    std::fs::remove_file(&png).ok();
+    std::fs::remove_file(png.with_extension("meta")).ok();
+}
+
+#[test]
+fn a_netgenerate_grid_loads_with_its_counts() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let home = Command::new(root.join(".venv/bin/python"))
+        .args(["-c", "import sumo;print(sumo.SUMO_HOME)"])
+        .output()
+        .expect("runs .venv/bin/python");
+    assert!(
+        home.status.success(),
+        "eclipse-sumo is not installed in .venv: `.venv/bin/pip install eclipse-sumo` (python/requirements-test.txt): {}",
+        String::from_utf8_lossy(&home.stderr)
+    );
+    let home = PathBuf::from(String::from_utf8_lossy(&home.stdout).trim());
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-grid-{}.net.xml", std::process::id()));
+    let generated = Command::new(home.join("bin/netgenerate"))
+        .env("SUMO_HOME", &home)
+        .args([
+            "--grid",
+            "--grid.number",
+            "4",
+            "--grid.length",
+            "150",
+            "--default.lanenumber",
+            "2",
+            "--tls.guess",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .expect("runs netgenerate");
+    assert!(generated.status.success(), "{}", String::from_utf8_lossy(&generated.stderr));
+    let map = check_counts_at(&out, "netgenerate 4 x 4 grid");
+    // 4 x 4 nodes: the 12 with three or four arms get lights, the 4 corners none.
+    assert_eq!(map.signal_programs.len(), 12);
+    std::fs::remove_file(&out).ok();
+}
