@@ -202,3 +202,38 @@ def test_live_foxglove_server_streams_vehicles(cli, root, tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_ros2_profile_reads_with_rosbags(cli, root, tmp_path):
+    pytest.importorskip("rosbags")
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+    out, mcap = run(cli, root, tmp_path, "lane_drop.toml", 20, "--mcap-profile", "ros2")
+    rows = rows_by_time(out / "trajectories.csv")
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    counts = defaultdict(int)
+    with Reader(mcap) as reader:
+        kinds = {c.topic: c.msgtype for c in reader.connections}
+        assert kinds["/tf"] == "tf2_msgs/msg/TFMessage"
+        assert kinds["/clock"] == "rosgraph_msgs/msg/Clock"
+        assert kinds["/vehicles"] == kinds["/map"] == "visualization_msgs/msg/MarkerArray"
+        odoms = [t for t in kinds if t.endswith("/odom")]
+        assert odoms and all(kinds[t] == "nav_msgs/msg/Odometry" for t in odoms)
+        for c in reader.connections:
+            # The embedded definitions parse (what `ros2 bag play` and rosbags read them by).
+            assert get_types_from_msg(c.msgdef.data, c.msgtype), c.topic
+        for conn, t_ns, raw in reader.messages():
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            counts[conn.topic.split("/")[-1] if conn.topic.endswith("/odom") else conn.topic] += 1
+            if conn.topic.endswith("/odom"):
+                vid = int(conn.topic.split("/")[2])
+                x, y = rows[t_ns // 1000][vid]
+                assert msg.child_frame_id == f"vehicle/{vid}"
+                assert abs(msg.pose.pose.position.x - x) <= 1e-3 and abs(msg.pose.pose.position.y - y) <= 1e-3
+            elif conn.topic == "/clock":
+                assert msg.clock.sec * 10**9 + msg.clock.nanosec == t_ns
+            elif conn.topic == "/tf":
+                assert {tr.child_frame_id for tr in msg.transforms} == {f"vehicle/{i}" for i in rows.get(t_ns // 1000, {})}
+    assert counts["odom"] == sum(len(r) for r in rows.values())
+    assert counts["/map"] == 1 and counts["/vehicles"] == counts["/clock"] == counts["/tf"]

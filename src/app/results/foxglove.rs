@@ -8,7 +8,8 @@
 //! `/vehicle/<id>/state` (JSON), `/v2v` (JSON), `/events` (`foxglove.Log`), `/metrics` (the
 //! final `summary.json`), `/camera/birdseye` (`foxglove.CompressedImage`, PNG, with
 //! `--mcap-images HZ`) and `/gps/<id>` (`foxglove.LocationFix`, maps with a geographic origin).
-//! Log time = sim time [ns].
+//! Log time = sim time [ns]. With `--mcap-profile ros2` the file holds ROS 2 messages in CDR
+//! instead ([`super::ros2`]).
 //!
 //! Nothing is built for a channel no sink listens to (`has_sinks`), so a live server without a
 //! client costs a check per channel and tick; without `--mcap` and `--foxglove` there is no
@@ -30,6 +31,7 @@ use foxglove::messages::{
 use foxglove::{Channel, Context, RawChannel, Schema};
 use glam::DVec2;
 
+use super::output::{ANGLE_DECIMALS, Fixed, LENGTH_DECIMALS, TIME_DECIMALS};
 use crate::map::{LaneletMap, Projector};
 use crate::sim::{Phase, Plugin, Sim, SimBuilder, SimClock};
 use crate::vehicles::{LaneChanger, LanePosition, Longitudinal, TrafficLights};
@@ -38,16 +40,30 @@ use crate::world::{LabDriven, TurnSignal, VehicleClass, VehicleSize, VehicleStat
 /// Default address of `--foxglove` (loopback: nothing outside this machine can connect).
 pub const DEFAULT_FOXGLOVE_ADDR: &str = "127.0.0.1:8765";
 
+/// What an MCAP recording holds: Foxglove's protobuf schemas, or ROS 2 messages in CDR.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum McapProfile {
+    /// Foxglove protobuf schemas and JSON (Foxglove, Lichtblick).
+    #[default]
+    Foxglove,
+    /// ROS 2 messages in CDR (`ros2 bag play`, rosbags).
+    Ros2,
+}
+
 /// The recording and live-view arguments `smlworld run` and `replay` share.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct FoxgloveOutput {
-    /// Write the run as an MCAP file (zstd chunks, indexed; Foxglove schemas) to FILE,
-    /// replacing the scenario's `[output] mcap`.
+    /// Write the run as an MCAP file (zstd chunks, indexed; Foxglove schemas, or ROS 2 with
+    /// --mcap-profile ros2) to FILE, replacing the scenario's `[output] mcap`.
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
     /// Add the bird's-eye view as PNG images on /camera/birdseye at HZ [Hz of sim time].
     #[arg(long, value_name = "HZ", value_parser = crate::range::rate_hz)]
     pub mcap_images: Option<f64>,
+    /// Message set of --mcap: `foxglove` (protobuf schemas) or `ros2` (CDR, ROS 2 Humble
+    /// messages: /tf, /clock, /vehicles and /map as MarkerArray, /vehicle/<id>/odom).
+    #[arg(long, value_name = "PROFILE", value_enum, default_value_t = McapProfile::Foxglove)]
+    pub mcap_profile: McapProfile,
     /// Serve the run live over the Foxglove WebSocket protocol on ADDR (default 127.0.0.1:8765;
     /// another interface only when given, with a warning). Open it in Foxglove or Lichtblick.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_FOXGLOVE_ADDR)]
@@ -164,31 +180,223 @@ const STATE_SCHEMA: &str = r#"{"type":"object","properties":{"t":{"type":"number
 const V2V_SCHEMA: &str = r#"{"type":"object","properties":{"t":{"type":"number","description":"sim time [s]"},"wifi":{"type":"object"},"network":{"type":"object"}}}"#;
 const METRICS_SCHEMA: &str = r#"{"type":"object","description":"summary.json of the run"}"#;
 
-/// The sinks and channels of a run's recording and live view.
+/// The recorder as the simulation sees it: it gathers each log tick's [`Snapshot`] and events
+/// and hands them to a thread of its own that encodes and writes them (the MCAP file, the live
+/// server), so the simulation goes on meanwhile. At most [`RECORDER_QUEUE`] ticks wait: a
+/// file sink that falls further behind holds the simulation back (the file must be complete);
+/// a slow live client never does (the server drops its oldest messages).
 #[derive(Resource)]
 pub struct FoxgloveRecorder {
+    jobs: Option<std::sync::mpsc::SyncSender<Job>>,
+    worker: Option<std::thread::JoinHandle<RecorderCore>>,
+    /// Snapshots the thread is done with (a `Mutex` only to make the resource `Sync`).
+    recycled: std::sync::Mutex<std::sync::mpsc::Receiver<Snapshot>>,
+    camera: Option<Arc<RawChannel>>,
+    live_port: Option<u16>,
+    /// Ids of the last tick's vehicles and whether each was changing lanes / braking hard.
+    previous: Vec<(i32, TurnSignal, bool)>,
+    /// Sim time of the last tick recorded [µs].
+    last_t: Option<u64>,
+    ticks: u64,
+    collisions_seen: usize,
+    lights_seen: Option<u64>,
+    light_states: Vec<String>,
+    v2v_seen: (u64, u64),
+}
+
+/// Ticks handed to the recorder thread that may wait there before the simulation waits.
+pub const RECORDER_QUEUE: usize = 8;
+
+/// Work for the recorder thread.
+enum Job {
+    Tick(Snapshot, Vec<Event>),
+    V2v { t_us: u64, rounds: (u64, u64), wifi: (u64, u64), network: (u64, u64) },
+    Image(Vec<u8>, u64),
+}
+
+impl FoxgloveRecorder {
+    /// Open the sinks `output` asks for: the MCAP file at `mcap` (already resolved: the CLI's, or
+    /// the scenario's `[output] mcap`) and the live server; `map` draws `/map` and gives the
+    /// geographic origin of `/gps/<id>`.
+    pub fn open(
+        output: &FoxgloveOutput,
+        mcap: Option<&FsPath>,
+        map: Option<Arc<LaneletMap>>,
+    ) -> Result<FoxgloveRecorder, FoxgloveError> {
+        let mut core = RecorderCore::open(output, mcap, map)?;
+        let camera = core.channels.as_ref().map(|c| c.camera_raw.clone());
+        let live_port = core.server.as_ref().map(|s| s.port());
+        let (jobs, queue) = std::sync::mpsc::sync_channel::<Job>(RECORDER_QUEUE);
+        let (recycle, recycled) = std::sync::mpsc::channel::<Snapshot>();
+        let worker = std::thread::Builder::new()
+            .name("mcap-recorder".into())
+            .spawn(move || {
+                for job in queue {
+                    match job {
+                        Job::Tick(snapshot, events) => {
+                            core.record(&snapshot, &events);
+                            let _ = recycle.send(snapshot);
+                        }
+                        Job::V2v { t_us, rounds, wifi, network } => core.record_v2v(t_us, rounds, wifi, network),
+                        Job::Image(png, t_us) => core.record_image(png, t_us),
+                    }
+                }
+                core
+            })
+            .map_err(|e| FoxgloveError::Option(format!("cannot start the recorder thread: {e}")))?;
+        Ok(FoxgloveRecorder {
+            jobs: Some(jobs),
+            worker: Some(worker),
+            recycled: std::sync::Mutex::new(recycled),
+            camera,
+            live_port,
+            previous: Vec::new(),
+            last_t: None,
+            ticks: 0,
+            collisions_seen: 0,
+            lights_seen: None,
+            light_states: Vec::new(),
+            v2v_seen: (0, 0),
+        })
+    }
+
+    fn send(&self, job: Job) {
+        if let Some(jobs) = &self.jobs {
+            // An error means the thread ended (it panicked): `finish` reports it.
+            let _ = jobs.send(job);
+        }
+    }
+
+    /// Log ticks recorded so far.
+    pub fn ticks(&self) -> u64 {
+        self.ticks
+    }
+
+    /// The port the live server listens on (the one asked for, or the one picked for port 0).
+    pub fn live_port(&self) -> Option<u16> {
+        self.live_port
+    }
+
+    /// A snapshot to fill (one the recorder thread is done with, when there is one).
+    pub fn take_snapshot(&self) -> Snapshot {
+        self.recycled.lock().ok().and_then(|r| r.try_recv().ok()).unwrap_or_default()
+    }
+
+    /// Record one log tick: `snapshot` and the `events` since the last one. A tick at the time
+    /// of the last one is skipped (the final state is logged once, as in `trajectories.csv`).
+    pub fn record(&mut self, snapshot: Snapshot, events: Vec<Event>) {
+        if self.last_t == Some(snapshot.t_us) {
+            return;
+        }
+        self.last_t = Some(snapshot.t_us);
+        self.ticks += 1;
+        self.previous.clear();
+        self.previous.extend(snapshot.vehicles.iter().map(|v| (v.id, v.signal, v.mode == "emergency_braking")));
+        self.send(Job::Tick(snapshot, events));
+    }
+
+    /// Log a `/camera/birdseye` image (PNG bytes) at `t_us`.
+    pub fn record_image(&mut self, png: Vec<u8>, t_us: u64) {
+        self.send(Job::Image(png, t_us));
+    }
+
+    /// Log a V2V round summary on `/v2v` when a wifi or network round ran since the last call:
+    /// round counts (wifi, network) and (sent, delivered) so far of each channel.
+    pub fn record_v2v(&mut self, t_us: u64, rounds: (u64, u64), wifi: (u64, u64), network: (u64, u64)) {
+        if rounds != self.v2v_seen {
+            self.v2v_seen = rounds;
+            self.send(Job::V2v { t_us, rounds, wifi, network });
+        }
+    }
+
+    /// Whether `/camera/birdseye` has a sink (a file, or a subscribed client).
+    pub fn wants_images(&self) -> bool {
+        self.camera.as_ref().is_some_and(|c| c.has_sinks())
+    }
+
+    /// End the recording: log `summary` on `/metrics` at `t_us`, close the MCAP file and rename
+    /// it into place, stop the live server. Returns the file written, if any.
+    pub fn finish(mut self, summary: Option<&serde_json::Value>, t_us: u64) -> Result<Option<PathBuf>, FoxgloveError> {
+        self.jobs = None;
+        let worker = self.worker.take();
+        match worker.map(std::thread::JoinHandle::join) {
+            Some(Ok(core)) => core.finish(summary, t_us),
+            Some(Err(_)) => {
+                Err(FoxgloveError::Option("the MCAP recorder thread failed; the file is incomplete".into()))
+            }
+            None => Ok(None),
+        }
+    }
+}
+
+impl Drop for FoxgloveRecorder {
+    /// A run that fails: the thread ends, the temporary file is removed.
+    fn drop(&mut self) {
+        self.jobs = None;
+        if let Some(worker) = self.worker.take() {
+            let _ = worker.join();
+        }
+    }
+}
+
+/// The sinks and channels of a run's recording and live view, on the recorder thread.
+struct RecorderCore {
     context: Arc<Context>,
     mcap: Option<McapFile>,
     server: Option<foxglove::WebSocketServerHandle>,
-    channels: FoxgloveChannels,
+    channels: Option<FoxgloveChannels>,
+    ros2: Option<super::ros2::Ros2Channels>,
+    map: Option<Arc<LaneletMap>>,
     /// The `/map` scene, logged at the first tick (and again when a live client subscribes).
     map_scene: Option<SceneUpdate>,
     /// Set by the live server when a client subscribes to `/map`.
     map_wanted: Arc<AtomicBool>,
     projector: Option<Projector>,
-    /// Ids of the last tick's vehicles and whether each was changing lanes / braking hard.
+    /// Ids of the last tick's vehicles (the deletions of `/vehicles`).
     previous: Vec<(i32, TurnSignal, bool)>,
-    /// Sim time of the last tick recorded [µs].
     last_t: Option<u64>,
-    snapshot: Snapshot,
-    events: Vec<Event>,
-    collisions_seen: usize,
-    lights_seen: Option<u64>,
-    light_states: Vec<String>,
-    v2v_seen: (u64, u64),
     v2v_last: [(u64, u64); 2],
     json: String,
     ticks: u64,
+    /// Per vehicle, where `/gps/<id>` last projected exactly (see [`GpsAnchor`]).
+    gps_anchors: BTreeMap<i32, GpsAnchor>,
+}
+
+/// A point projected exactly to latitude and longitude, with the derivatives there: positions
+/// within [`GPS_ANCHOR_RANGE`] of it are projected to first order (well under a millimetre of
+/// error), so the exact inverse projection (a Newton iteration) runs once per vehicle every
+/// `GPS_ANCHOR_RANGE` metres driven, not at every tick.
+#[derive(Debug, Clone, Copy)]
+struct GpsAnchor {
+    at: DVec2,
+    lat: f64,
+    lon: f64,
+    /// d(lat)/d(x, y) and d(lon)/d(x, y) [deg/m].
+    dlat: DVec2,
+    dlon: DVec2,
+}
+
+/// Largest distance [m] from a [`GpsAnchor`] at which it is used.
+const GPS_ANCHOR_RANGE: f64 = 20.0;
+
+impl GpsAnchor {
+    fn new(projector: &Projector, at: DVec2) -> GpsAnchor {
+        let (lat, lon) = projector.reverse(at);
+        let (lat_x, lon_x) = projector.reverse(at + DVec2::X);
+        let (lat_y, lon_y) = projector.reverse(at + DVec2::Y);
+        GpsAnchor {
+            at,
+            lat,
+            lon,
+            dlat: DVec2::new(lat_x - lat, lat_y - lat),
+            dlon: DVec2::new(lon_x - lon, lon_y - lon),
+        }
+    }
+
+    fn lat_lon(&self, p: DVec2) -> (f64, f64) {
+        let d = p - self.at;
+        (self.lat + self.dlat.dot(d), self.lon + self.dlon.dot(d))
+    }
 }
 
 /// The Foxglove-profile channels.
@@ -200,6 +408,8 @@ struct FoxgloveChannels {
     v2v: Arc<RawChannel>,
     metrics: Arc<RawChannel>,
     camera: Channel<CompressedImage>,
+    /// The same channel, for [`FoxgloveRecorder::wants_images`] on the simulation's side.
+    camera_raw: Arc<RawChannel>,
     states: BTreeMap<i32, Arc<RawChannel>>,
     gps: BTreeMap<i32, Channel<LocationFix>>,
 }
@@ -243,27 +453,42 @@ impl foxglove::websocket::ServerListener for MapSubscriber {
     }
 }
 
-impl FoxgloveRecorder {
-    /// Open the sinks `output` asks for: the MCAP file at `mcap` (already resolved: the CLI's, or
-    /// the scenario's `[output] mcap`) and the live server; `map` draws `/map` and gives the
-    /// geographic origin of `/gps/<id>`.
-    pub fn open(
+impl RecorderCore {
+    fn open(
         output: &FoxgloveOutput,
         mcap: Option<&FsPath>,
         map: Option<Arc<LaneletMap>>,
-    ) -> Result<FoxgloveRecorder, FoxgloveError> {
+    ) -> Result<RecorderCore, FoxgloveError> {
         let context = Context::new();
         let map_wanted = Arc::new(AtomicBool::new(false));
+        let ros2 = output.mcap_profile == McapProfile::Ros2;
+        if ros2 && output.foxglove.is_some() {
+            return Err(FoxgloveError::Option(
+                "--mcap-profile ros2 records ROS 2 messages, which the Foxglove live server does not serve; \
+                 drop --foxglove or record the foxglove profile"
+                    .into(),
+            ));
+        }
+        if ros2 && output.mcap_images.is_some() {
+            return Err(FoxgloveError::Option(
+                "--mcap-images records foxglove.CompressedImage; use it with --mcap-profile foxglove".into(),
+            ));
+        }
         let mcap = match mcap {
             Some(path) => {
                 let tmp = partial_path(path);
+                // zstd level 1: a third of the default level's time for a slightly larger file.
+                let options = foxglove::McapWriteOptions::new()
+                    .compression(Some(foxglove::McapCompression::Zstd))
+                    .compression_level(1)
+                    .profile(if ros2 { "ros2" } else { "" });
                 let handle = context
-                    .mcap_writer()
+                    .mcap_writer_with_options(options.clone())
                     .create_new_buffered_file(&tmp)
                     .or_else(|_| {
                         // A stale partial file from a run that was killed: start over.
                         let _ = std::fs::remove_file(&tmp);
-                        context.mcap_writer().create_new_buffered_file(&tmp)
+                        context.mcap_writer_with_options(options).create_new_buffered_file(&tmp)
                     })
                     .map_err(|e| FoxgloveError::Mcap { path: path.to_path_buf(), message: e.to_string() })?;
                 Some(McapFile { handle: Some(handle), tmp, path: path.to_path_buf() })
@@ -296,43 +521,35 @@ impl FoxgloveRecorder {
             None => None,
         };
         let projector = map.as_ref().map(|m| m.projector).filter(|p| p.origin_lat != 0.0 || p.origin_lon != 0.0);
-        let channels = FoxgloveChannels::new(&context)?;
+        let (channels, ros2) = if ros2 {
+            let channels = super::ros2::Ros2Channels::new(&context)
+                .ok_or_else(|| FoxgloveError::Option("--mcap-profile ros2: the channels could not be made".into()))?;
+            (None, Some(channels))
+        } else {
+            (Some(FoxgloveChannels::new(&context)?), None)
+        };
         let map_scene = map.as_deref().map(map_scene);
-        Ok(FoxgloveRecorder {
+        Ok(RecorderCore {
             context,
             mcap,
             server,
             channels,
+            ros2,
             map_scene,
+            map,
             map_wanted,
             projector,
             previous: Vec::new(),
             last_t: None,
-            snapshot: Snapshot::default(),
-            events: Vec::new(),
-            collisions_seen: 0,
-            lights_seen: None,
-            light_states: Vec::new(),
-            v2v_seen: (0, 0),
             v2v_last: [(0, 0); 2],
             json: String::new(),
             ticks: 0,
+            gps_anchors: BTreeMap::new(),
         })
     }
 
-    /// Log ticks recorded so far.
-    pub fn ticks(&self) -> u64 {
-        self.ticks
-    }
-
-    /// The port the live server listens on (the one asked for, or the one picked for port 0).
-    pub fn live_port(&self) -> Option<u16> {
-        self.server.as_ref().map(|s| s.port())
-    }
-
-    /// Record one log tick: `snapshot` and the `events` since the last one. A tick at the time
-    /// of the last one is skipped (the final state is logged once, as in `trajectories.csv`).
-    pub fn record(&mut self, snapshot: &Snapshot, events: &[Event]) {
+    /// Record one log tick.
+    fn record(&mut self, snapshot: &Snapshot, events: &[Event]) {
         if self.last_t == Some(snapshot.t_us) {
             return;
         }
@@ -343,7 +560,14 @@ impl FoxgloveRecorder {
             server.broadcast_time(t_ns);
         }
         let first = self.ticks == 1;
-        let ch = &mut self.channels;
+        if let Some(ros2) = self.ros2.as_mut() {
+            if first && let Some(map) = self.map.as_deref() {
+                ros2.record_map(map);
+            }
+            ros2.record(snapshot);
+            return;
+        }
+        let Some(ch) = self.channels.as_mut() else { return };
         let resend = self.map_wanted.swap(false, Ordering::Relaxed);
         if (first || resend)
             && let Some(scene) = &self.map_scene
@@ -392,16 +616,18 @@ impl FoxgloveRecorder {
             };
             if channel.has_sinks() {
                 self.json.clear();
+                // Numbers with the precision of trajectories.csv (1 mm, 1e-5 rad, 1 µs).
                 let _ = write!(
                     self.json,
-                    r#"{{"t":{t},"x":{},"y":{},"yaw":{},"speed":{},"accel":{},"lanelet":{},"lane_offset":{},"mode":"{}"}}"#,
-                    JsonNum(v.position.x),
-                    JsonNum(v.position.y),
-                    JsonNum(v.yaw),
-                    JsonNum(v.velocity.length()),
-                    JsonNum(v.accel),
+                    r#"{{"t":{},"x":{},"y":{},"yaw":{},"speed":{},"accel":{},"lanelet":{},"lane_offset":{},"mode":"{}"}}"#,
+                    JsonNum(t, TIME_DECIMALS),
+                    JsonNum(v.position.x, LENGTH_DECIMALS),
+                    JsonNum(v.position.y, LENGTH_DECIMALS),
+                    JsonNum(v.yaw, ANGLE_DECIMALS),
+                    JsonNum(v.velocity.length(), LENGTH_DECIMALS),
+                    JsonNum(v.accel, LENGTH_DECIMALS),
                     v.lanelet.map_or("null".to_string(), |l| l.to_string()),
-                    JsonNum(v.lane_offset.unwrap_or(f64::NAN)),
+                    JsonNum(v.lane_offset.unwrap_or(f64::NAN), LENGTH_DECIMALS),
                     v.mode
                 );
                 channel.log_with_meta(self.json.as_bytes(), foxglove::PartialMetadata::with_log_time(t_ns));
@@ -412,7 +638,15 @@ impl FoxgloveRecorder {
                     .entry(v.id)
                     .or_insert_with(|| self.context.channel_builder(format!("/gps/{}", v.id)).build::<LocationFix>());
                 if gps.has_sinks() {
-                    let (lat, lon) = projector.reverse(v.position);
+                    let anchor = match self.gps_anchors.get(&v.id) {
+                        Some(a) if a.at.distance(v.position) <= GPS_ANCHOR_RANGE => *a,
+                        _ => {
+                            let a = GpsAnchor::new(projector, v.position);
+                            self.gps_anchors.insert(v.id, a);
+                            a
+                        }
+                    };
+                    let (lat, lon) = anchor.lat_lon(v.position);
                     gps.log_with_time(
                         &LocationFix {
                             timestamp: Some(ts),
@@ -450,11 +684,7 @@ impl FoxgloveRecorder {
     /// Log a V2V round summary on `/v2v` (cumulative counts and those since the last message,
     /// per channel) when a wifi or network round ran since the last call.
     fn record_v2v(&mut self, t_us: u64, rounds: (u64, u64), wifi: (u64, u64), network: (u64, u64)) {
-        if rounds == self.v2v_seen {
-            return;
-        }
-        self.v2v_seen = rounds;
-        let ch = &self.channels;
+        let Some(ch) = self.channels.as_ref() else { return };
         let last = self.v2v_last;
         self.v2v_last = [wifi, network];
         if !ch.v2v.has_sinks() {
@@ -481,9 +711,11 @@ impl FoxgloveRecorder {
     }
 
     /// Log a `/camera/birdseye` image (PNG bytes) at `t_us`.
-    pub fn record_image(&mut self, png: Vec<u8>, t_us: u64) {
-        if self.channels.camera.has_sinks() {
-            self.channels.camera.log_with_time(
+    fn record_image(&mut self, png: Vec<u8>, t_us: u64) {
+        if let Some(ch) = self.channels.as_ref()
+            && ch.camera.has_sinks()
+        {
+            ch.camera.log_with_time(
                 &CompressedImage {
                     timestamp: Some(stamp(t_us)),
                     frame_id: "world".into(),
@@ -495,19 +727,14 @@ impl FoxgloveRecorder {
         }
     }
 
-    /// Whether `/camera/birdseye` has a sink (a file, or a subscribed client).
-    pub fn wants_images(&self) -> bool {
-        self.channels.camera.has_sinks()
-    }
-
-    /// End the recording: log `summary` on `/metrics` at `t_us`, close the MCAP file and rename
-    /// it into place, stop the live server. Returns the file written, if any.
-    pub fn finish(mut self, summary: Option<&serde_json::Value>, t_us: u64) -> Result<Option<PathBuf>, FoxgloveError> {
-        if let Some(summary) = summary
-            && self.channels.metrics.has_sinks()
+    /// Log `summary` on `/metrics` at `t_us`, close the MCAP file and rename it into place, stop
+    /// the live server.
+    fn finish(mut self, summary: Option<&serde_json::Value>, t_us: u64) -> Result<Option<PathBuf>, FoxgloveError> {
+        if let (Some(summary), Some(ch)) = (summary, self.channels.as_ref())
+            && ch.metrics.has_sinks()
         {
             let text = summary.to_string();
-            self.channels.metrics.log_with_meta(text.as_bytes(), foxglove::PartialMetadata::with_log_time(t_us * 1000));
+            ch.metrics.log_with_meta(text.as_bytes(), foxglove::PartialMetadata::with_log_time(t_us * 1000));
         }
         if let Some(server) = self.server.take() {
             server.stop().wait_blocking();
@@ -523,12 +750,12 @@ impl FoxgloveRecorder {
     }
 }
 
-/// A number as JSON: `null` when not finite.
-struct JsonNum(f64);
+/// A number as JSON with at most `.1` decimals ([`Fixed`]): `null` when not finite.
+struct JsonNum(f64, usize);
 
 impl std::fmt::Display for JsonNum {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        if self.0.is_finite() { write!(f, "{}", self.0) } else { f.write_str("null") }
+        if self.0.is_finite() { Fixed(self.0, self.1).fmt(f) } else { f.write_str("null") }
     }
 }
 
@@ -542,6 +769,7 @@ impl FoxgloveChannels {
                 .build_raw()
                 .map_err(|e| FoxgloveError::Option(format!("channel {topic}: {e}")))
         };
+        let camera = context.channel_builder("/camera/birdseye").build::<CompressedImage>().into_inner();
         Ok(FoxgloveChannels {
             map: context.channel_builder("/map").build(),
             vehicles: context.channel_builder("/vehicles").build(),
@@ -549,7 +777,8 @@ impl FoxgloveChannels {
             events: context.channel_builder("/events").build(),
             v2v: json("/v2v", "smlworld.V2vRound", V2V_SCHEMA)?,
             metrics: json("/metrics", "smlworld.Summary", METRICS_SCHEMA)?,
-            camera: context.channel_builder("/camera/birdseye").build(),
+            camera: Channel::from_raw_channel(camera.clone()),
+            camera_raw: camera,
             states: BTreeMap::new(),
             gps: BTreeMap::new(),
         })
@@ -873,8 +1102,8 @@ pub fn record_tick(
         return;
     }
     let rec = &mut *rec;
-    let mut snapshot = std::mem::take(&mut rec.snapshot);
-    let mut events = std::mem::take(&mut rec.events);
+    let mut snapshot = rec.take_snapshot();
+    let mut events = Vec::new();
     snapshot.t_us = t_us;
     snapshot.vehicles.clear();
     events.clear();
@@ -996,9 +1225,7 @@ pub fn record_tick(
             (ch.network.sent, ch.network.delivered),
         );
     }
-    rec.record(&snapshot, &events);
-    rec.snapshot = snapshot;
-    rec.events = events;
+    rec.record(snapshot, events);
 }
 
 /// Record the state at the end of a run (unless the log's own tick already did), as
@@ -1110,7 +1337,7 @@ pub fn replay_mcap(out_dir: &FsPath, path: &FsPath) -> Result<u64, super::replay
                 }
             }
         }
-        rec.record(snapshot, events);
+        rec.record(std::mem::take(snapshot), std::mem::take(events));
         previous = ids;
         snapshot.vehicles.clear();
     };

@@ -6,3 +6,4 @@ pub mod lights;
 pub mod output;
 pub mod plot;
 pub mod replay;
+pub mod ros2;
