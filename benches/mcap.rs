@@ -1,8 +1,9 @@
 //! What recording a run as MCAP costs (issue 57: at most 25 % more wall time at 1,000 vehicles
 //! logged at 10 Hz): the benchmark world (every module on) with the trajectory log at 10 Hz
 //! alone, and with the Foxglove recorder beside it writing every channel (`/vehicles`, `/tf`,
-//! `/vehicle/<id>/state`, `/gps/<id>`, ...) into a zstd MCAP file. Each iteration runs 1 s of
-//! sim time (10 log ticks). After the timings it records 6 s (100 vehicle-minutes) into a fresh
+//! `/vehicle/<id>/state`, `/gps/<id>`, ...) into a zstd MCAP file, for the world's vehicles
+//! following their paths and for them driving the IDM with MOBIL lane changes. Each iteration
+//! runs 1 s of sim time (10 log ticks). After the timings it records 6 s (100 vehicle-minutes) into a fresh
 //! file and prints its size per vehicle-minute.
 //! Run: `cargo bench --bench mcap`.
 
@@ -15,9 +16,10 @@ use smlworld::prelude::*;
 const VEHICLES: usize = 1000;
 const LOG_RATE: f64 = 10.0;
 
-/// The bench world with the CSV log at 10 Hz (into nothing) and, with `mcap`, the recorder.
-fn sim(mcap: Option<&std::path::Path>) -> Sim {
-    let world = BenchWorld { vehicles: VEHICLES, ..Default::default() };
+/// The bench world (path following, or with `lane_change` the IDM and MOBIL lane changes) with
+/// the CSV log at 10 Hz (into nothing) and, with `mcap`, the recorder.
+fn sim(lane_change: bool, mcap: Option<&std::path::Path>) -> Sim {
+    let world = BenchWorld { vehicles: VEHICLES, lane_change, ..Default::default() };
     let mut b = world.builder().expect("the bench world builds");
     b.insert_resource(TrajectoryLog::new(Box::new(std::io::sink())));
     b.add_plugin(TrajectoryLogPlugin { rate: LOG_RATE });
@@ -37,17 +39,19 @@ fn bench_mcap(c: &mut Criterion) {
     std::fs::create_dir_all(&dir).expect("a temporary folder");
     let mut group = c.benchmark_group("record_1000_vehicles_10hz_1s");
     group.sample_size(10);
-    let mut plain = sim(None);
-    group.bench_function("csv_only", |b| b.iter(|| plain.run_for(1.0)));
-    drop(plain);
-    let mut recorded = sim(Some(&dir.join("bench.mcap")));
-    group.bench_function("csv_and_mcap", |b| b.iter(|| recorded.run_for(1.0)));
-    drop(recorded);
+    for (name, lane_change) in [("path_following", false), ("idm_lane_changes", true)] {
+        let mut plain = sim(lane_change, None);
+        group.bench_function(format!("{name}/csv_only"), |b| b.iter(|| plain.run_for(1.0)));
+        drop(plain);
+        let mut recorded = sim(lane_change, Some(&dir.join(format!("{name}.mcap"))));
+        group.bench_function(format!("{name}/csv_and_mcap"), |b| b.iter(|| recorded.run_for(1.0)));
+        drop(recorded);
+    }
     group.finish();
 
     // File size per vehicle-minute: 6 s of 1,000 vehicles.
     let path = dir.join("size.mcap");
-    let mut s = sim(Some(&path));
+    let mut s = sim(false, Some(&path));
     s.run_for(5.0); // 6 s in all with the warm-up second
     let rec = s.world_mut().remove_resource::<FoxgloveRecorder>().expect("the recorder");
     rec.finish(None, s.now().0).expect("the file closes");

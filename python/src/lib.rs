@@ -320,7 +320,7 @@ impl Core {
         let rows = self.session(py)?.readings(id).map_err(session_err)?;
         let flat: Vec<f64> = rows.iter().flatten().copied().collect();
         let a = PyArray1::from_vec(py, flat);
-        Ok(a.reshape([rows.len(), 5])?)
+        a.reshape([rows.len(), 5])
     }
 
     #[pyo3(signature = (ids, throttle=None, steering=None, speed=None))]
@@ -342,7 +342,7 @@ impl Core {
         let mut guard = self.session(py)?;
         let s: &mut Session = &mut guard;
         let pixels = py.detach(|| s.frame(width, height)).map_err(session_err)?;
-        Ok(PyArray1::from_vec(py, pixels).reshape([height as usize, width as usize, 4])?)
+        PyArray1::from_vec(py, pixels).reshape([height as usize, width as usize, 4])
     }
 
     fn clear_commands(&self, py: Python<'_>, ids: PyReadonlyArray1<'_, i32>) -> PyResult<()> {
@@ -475,7 +475,7 @@ struct Map {
 
 fn points<'py>(py: Python<'py>, pts: &[smlworld::prelude::DVec2]) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let flat: Vec<f64> = pts.iter().flat_map(|p| [p.x, p.y]).collect();
-    Ok(PyArray1::from_vec(py, flat).reshape([pts.len(), 2])?)
+    PyArray1::from_vec(py, flat).reshape([pts.len(), 2])
 }
 
 #[pymethods]
@@ -492,7 +492,7 @@ impl Map {
         let pairs: Vec<i64> =
             self.map.lanelets.iter().flat_map(|l| l.successors.iter().flat_map(move |s| [l.id.0, s.0])).collect();
         let n = pairs.len() / 2;
-        Ok(PyArray1::from_vec(py, pairs).reshape([n, 2])?)
+        PyArray1::from_vec(py, pairs).reshape([n, 2])
     }
 
     /// Centre line of lanelet `id` as an (n, 2) array [m].

@@ -750,12 +750,28 @@ impl RecorderCore {
     }
 }
 
-/// A number as JSON with at most `.1` decimals ([`Fixed`]): `null` when not finite.
+/// A number as JSON rounded to `.1` decimals (at most 9), written as an integer and its
+/// decimals (`12.500`, `-0.250`; formatting a float exactly was a tenth of the recorder's
+/// time): `null` when not finite, [`Fixed`] beyond 1e12.
 struct JsonNum(f64, usize);
 
 impl std::fmt::Display for JsonNum {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        if self.0.is_finite() { Fixed(self.0, self.1).fmt(f) } else { f.write_str("null") }
+        let (x, decimals) = (self.0, self.1.min(9));
+        if !x.is_finite() {
+            return f.write_str("null");
+        }
+        if x.abs() >= 1e12 {
+            return Fixed(x, decimals).fmt(f);
+        }
+        let scale = 10u64.pow(decimals as u32);
+        let units = (x.abs() * scale as f64).round() as u64;
+        let sign = if x < 0.0 && units != 0 { "-" } else { "" };
+        if decimals == 0 {
+            write!(f, "{sign}{units}")
+        } else {
+            write!(f, "{sign}{}.{:0width$}", units / scale, units % scale, width = decimals)
+        }
     }
 }
 
@@ -1092,8 +1108,7 @@ pub fn record_tick(
     )>,
     metrics: Option<Res<crate::app::running::metrics::Metrics>>,
     lights: Option<Res<TrafficLights>>,
-    v2v: Option<Res<crate::sim::v2v::V2vStats>>,
-    v2v_channels: Option<Res<crate::sim::v2v::V2vChannelStats>>,
+    (v2v, v2v_channels): (Option<Res<crate::sim::v2v::V2vStats>>, Option<Res<crate::sim::v2v::V2vChannelStats>>),
     recorder: Option<ResMut<FoxgloveRecorder>>,
 ) {
     let Some(mut rec) = recorder else { return };
@@ -1394,6 +1409,17 @@ pub fn replay_mcap(out_dir: &FsPath, path: &FsPath) -> Result<u64, super::replay
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn json_numbers_are_rounded_to_their_unit() {
+        let text = |x: f64, d: usize| JsonNum(x, d).to_string();
+        assert_eq!(text(12.5, 3), "12.500");
+        assert_eq!(text(-0.25, 3), "-0.250");
+        assert_eq!(text(-0.0001, 3), "0.000");
+        assert_eq!(text(1.0 / 3.0, 5), "0.33333");
+        assert_eq!(text(f64::NAN, 3), "null");
+        assert_eq!(text(7.0, 0), "7");
+    }
 
     #[test]
     fn dashes_are_half_paint_half_gap_across_points() {
