@@ -237,3 +237,10 @@ def test_ros2_profile_reads_with_rosbags(cli, root, tmp_path):
                 assert {tr.child_frame_id for tr in msg.transforms} == {f"vehicle/{i}" for i in rows.get(t_ns // 1000, {})}
     assert counts["odom"] == sum(len(r) for r in rows.values())
     assert counts["/map"] == 1 and counts["/vehicles"] == counts["/clock"] == counts["/tf"]
+
+
+def test_vehicles_making_way_for_an_emergency_vehicle_are_events(cli, root, tmp_path):
+    out, mcap = run(cli, root, tmp_path, "emergency_vehicle.toml", 30)
+    topics = check_recording(decode_all(mcap), rows_by_time(out / "trajectories.csv"))
+    lines = [m.message for _, m, _ in topics["/events"] if m.name == "emergency"]
+    assert any("makes way for an emergency vehicle" in line for line in lines), lines

@@ -128,7 +128,8 @@ pub struct VehicleSnapshot {
     pub real: bool,
     /// Turn signal while changing lanes.
     pub signal: TurnSignal,
-    /// What drives it now: `lab`, `emergency_braking`, `lane_change`, `following`, `cruise`,
+    /// What drives it now: `lab`, `emergency_braking`, `yielding` (making way for an emergency
+    /// vehicle), `lane_change`, `following`, `cruise`,
     /// `none`.
     pub mode: &'static str,
 }
@@ -194,7 +195,7 @@ pub struct FoxgloveRecorder {
     camera: Option<Arc<RawChannel>>,
     live_port: Option<u16>,
     /// Ids of the last tick's vehicles and whether each was changing lanes / braking hard.
-    previous: Vec<(i32, TurnSignal, bool)>,
+    previous: Vec<(i32, TurnSignal, &'static str)>,
     /// Sim time of the last tick recorded [µs].
     last_t: Option<u64>,
     ticks: u64,
@@ -291,7 +292,7 @@ impl FoxgloveRecorder {
         self.last_t = Some(snapshot.t_us);
         self.ticks += 1;
         self.previous.clear();
-        self.previous.extend(snapshot.vehicles.iter().map(|v| (v.id, v.signal, v.mode == "emergency_braking")));
+        self.previous.extend(snapshot.vehicles.iter().map(|v| (v.id, v.signal, v.mode)));
         self.send(Job::Tick(snapshot, events));
     }
 
@@ -353,7 +354,7 @@ struct RecorderCore {
     map_wanted: Arc<AtomicBool>,
     projector: Option<Projector>,
     /// Ids of the last tick's vehicles (the deletions of `/vehicles`).
-    previous: Vec<(i32, TurnSignal, bool)>,
+    previous: Vec<(i32, TurnSignal, &'static str)>,
     last_t: Option<u64>,
     v2v_last: [(u64, u64); 2],
     json: String,
@@ -678,7 +679,7 @@ impl RecorderCore {
             }
         }
         self.previous.clear();
-        self.previous.extend(snapshot.vehicles.iter().map(|v| (v.id, v.signal, v.mode == "emergency_braking")));
+        self.previous.extend(snapshot.vehicles.iter().map(|v| (v.id, v.signal, v.mode)));
     }
 
     /// Log a V2V round summary on `/v2v` (cumulative counts and those since the last message,
@@ -917,7 +918,7 @@ const CUBE_HEIGHT: f64 = 1.5;
 /// The `/vehicles` scene of one tick: a cube, id text and velocity arrow per vehicle, the
 /// indicator while changing lanes, and deletions of the vehicles of `previous` (sorted ids)
 /// that left.
-pub fn vehicles_scene(snapshot: &Snapshot, previous: &[(i32, TurnSignal, bool)], ts: Timestamp) -> SceneUpdate {
+pub fn vehicles_scene(snapshot: &Snapshot, previous: &[(i32, TurnSignal, &'static str)], ts: Timestamp) -> SceneUpdate {
     let mut deletions = Vec::new();
     let mut i = 0;
     for &(id, _, _) in previous {
@@ -1079,10 +1080,11 @@ fn png_bytes(image: &image::RgbaImage) -> Result<Vec<u8>, String> {
 }
 
 /// What drives a vehicle now, for `/vehicle/<id>/state`.
-fn mode(lab: bool, lon: Option<&Longitudinal>, changing: bool) -> &'static str {
+fn mode(lab: bool, lon: Option<&Longitudinal>, yielding: bool, changing: bool) -> &'static str {
     match lon {
         _ if lab => "lab",
         Some(l) if l.emergency => "emergency_braking",
+        _ if yielding => "yielding",
         _ if changing => "lane_change",
         Some(l) if l.leader.is_some() => "following",
         Some(_) => "cruise",
@@ -1091,8 +1093,8 @@ fn mode(lab: bool, lon: Option<&Longitudinal>, changing: bool) -> &'static str {
 }
 
 /// Log-tick system: fill the snapshot from the world, gather the events since the last tick
-/// (collisions, lane changes and merges, emergency braking, light changes, vehicles that
-/// appear or leave) and record them. O(N) in the vehicles.
+/// (collisions, lane changes and merges, emergency braking, making way for an emergency
+/// vehicle, light changes, vehicles that appear or leave) and record them. O(N) in the vehicles.
 #[allow(clippy::type_complexity)]
 pub fn record_tick(
     clock: Res<SimClock>,
@@ -1105,6 +1107,7 @@ pub fn record_tick(
         Option<&LanePosition>,
         Option<&Longitudinal>,
         Option<&LaneChanger>,
+        Option<&crate::vehicles::YieldToEmergency>,
     )>,
     metrics: Option<Res<crate::app::running::metrics::Metrics>>,
     lights: Option<Res<TrafficLights>>,
@@ -1124,7 +1127,8 @@ pub fn record_tick(
     events.clear();
     let mut merges: Vec<(i32, String, &'static str)> = Vec::new();
     for (id, e) in vehicles.iter() {
-        let Ok((s, size, class, lab, lane, lon, changer)) = q.get(e) else { continue };
+        let Ok((s, size, class, lab, lane, lon, changer, yields)) = q.get(e) else { continue };
+        let yielding = yields.is_some_and(|y| y.requested || y.slow_to.is_some());
         let size = size.copied().unwrap_or_default();
         let manoeuvre = changer.and_then(|c| c.active.as_ref());
         let signal = changer.map_or(TurnSignal::Off, |c| c.signal());
@@ -1160,7 +1164,7 @@ pub fn record_tick(
             class: class.copied().unwrap_or_default(),
             real: lab.is_some(),
             signal,
-            mode: mode(lab.is_some(), lon, manoeuvre.is_some()),
+            mode: mode(lab.is_some(), lon, yielding, manoeuvre.is_some()),
         });
     }
     // Changes against the last tick (both lists in id order).
@@ -1177,7 +1181,7 @@ pub fn record_tick(
         } else if rec.ticks > 0 {
             events.push(Event { t_us, level: 2, name: "vehicle", message: format!("vehicle {} appeared", v.id) });
         }
-        let (was_signal, was_braking) = before.map_or((TurnSignal::Off, false), |b| (b.1, b.2));
+        let (was_signal, was_mode) = before.map_or((TurnSignal::Off, ""), |b| (b.1, b.2));
         if was_signal == TurnSignal::Off
             && v.signal != TurnSignal::Off
             && let Some((_, text, kind)) = merges.iter().find(|m| m.0 == v.id)
@@ -1190,8 +1194,15 @@ pub fn record_tick(
                 message: format!("vehicle {} changes lanes {side}: {text}", v.id),
             });
         }
-        let braking = v.mode == "emergency_braking";
-        if braking && !was_braking {
+        if v.mode == "yielding" && was_mode != "yielding" {
+            events.push(Event {
+                t_us,
+                level: 2,
+                name: "emergency",
+                message: format!("vehicle {} makes way for an emergency vehicle", v.id),
+            });
+        }
+        if v.mode == "emergency_braking" && was_mode != "emergency_braking" {
             events.push(Event {
                 t_us,
                 level: 3,
@@ -1448,7 +1459,7 @@ mod tests {
             mode: "none",
         };
         let snapshot = Snapshot { t_us: 100, vehicles: vec![v(1), v(3)] };
-        let previous = [(0, TurnSignal::Off, false), (1, TurnSignal::Off, false), (2, TurnSignal::Off, false)];
+        let previous = [(0, TurnSignal::Off, "none"), (1, TurnSignal::Off, "none"), (2, TurnSignal::Off, "none")];
         let scene = vehicles_scene(&snapshot, &previous, stamp(100));
         let gone: Vec<&str> = scene.deletions.iter().map(|d| d.id.as_str()).collect();
         assert_eq!(gone, vec!["vehicle/0", "vehicle/2"]);
