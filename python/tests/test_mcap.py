@@ -244,3 +244,13 @@ def test_vehicles_making_way_for_an_emergency_vehicle_are_events(cli, root, tmp_
     topics = check_recording(decode_all(mcap), rows_by_time(out / "trajectories.csv"))
     lines = [m.message for _, m, _ in topics["/events"] if m.name == "emergency"]
     assert any("makes way for an emergency vehicle" in line for line in lines), lines
+
+
+def test_the_scenario_output_key_records_into_the_output_folder(cli, root, tmp_path):
+    out = tmp_path / "out"
+    subprocess.run(
+        [str(cli), "run", str(root / "scenarios" / "highway.toml"), "--out", str(out), "--duration", "2",
+         "--set", 'output.mcap="run.mcap"'],
+        check=True, capture_output=True, text=True, timeout=120,
+    )
+    check_recording(decode_all(out / "run.mcap"), rows_by_time(out / "trajectories.csv"))

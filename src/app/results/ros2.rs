@@ -389,3 +389,33 @@ fn vehicle_markers(c: &mut Cdr, t_us: u64, v: &VehicleSnapshot) {
         &v.id.to_string(),
     );
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cdr_aligns_from_the_end_of_the_encapsulation_header() {
+        let mut c = Cdr::new();
+        c.u8(1);
+        c.f64(2.0); // 7 bytes of padding after the u8: offsets count from after the header
+        c.string("ab"); // length 3 (with the NUL), then the bytes
+        assert_eq!(&c.0[..4], &[0, 1, 0, 0]);
+        assert_eq!(c.0.len(), 4 + 1 + 7 + 8 + 4 + 3);
+        assert_eq!(&c.0[12..20], &2.0f64.to_le_bytes());
+        assert_eq!(&c.0[20..27], &[3, 0, 0, 0, b'a', b'b', 0]);
+    }
+
+    #[test]
+    fn schemas_name_every_dependency_once() {
+        let text = marker_array_schema();
+        for name in [
+            "visualization_msgs/Marker",
+            "std_msgs/Header",
+            "sensor_msgs/CompressedImage",
+            "visualization_msgs/MeshFile",
+        ] {
+            assert_eq!(text.matches(&format!("MSG: {name}\n")).count(), 1, "{name}");
+        }
+    }
+}
