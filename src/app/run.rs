@@ -86,6 +86,8 @@ pub struct RunOptions {
     pub plugins: Vec<Box<dyn Plugin>>,
     /// Replaces the scenario's `seed` [-].
     pub seed: Option<u64>,
+    /// MCAP recording and the Foxglove live view (`--mcap`, `--mcap-images`, `--foxglove`).
+    pub foxglove: super::results::foxglove::FoxgloveOutput,
     /// Dotted-key overrides of the scenario file, applied in order before it is checked (see
     /// [`super::running::scenario::overrides`]); needs a scenario file, not a loaded scenario.
     pub overrides: Vec<(String, toml::Value)>,
@@ -111,6 +113,7 @@ impl Default for RunOptions {
             plots: false,
             plugins: Vec::new(),
             seed: None,
+            foxglove: Default::default(),
             overrides: Vec::new(),
             threads: None,
         }
@@ -160,6 +163,9 @@ pub enum RunError {
     /// The UDP stream could not be opened.
     #[error("--stream: {0}")]
     Stream(String),
+    /// The MCAP recording or the Foxglove live server failed.
+    #[error(transparent)]
+    Foxglove(#[from] super::results::foxglove::FoxgloveError),
     /// The figures of `--plots` could not be drawn.
     #[error("--plots: {0}")]
     Plot(String),
@@ -248,6 +254,16 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     builder.insert_resource(TrajectoryLog::new(Box::new(std::io::BufWriter::new(csv))));
     builder.add_plugin(TrajectoryLogPlugin { rate: log_rate });
     builder.add_plugin(super::results::lights::LightLogPlugin);
+    let mcap = super::results::foxglove::mcap_path(
+        options.foxglove.mcap.as_deref(),
+        scenario.file.output.mcap.as_deref(),
+        &options.out,
+    );
+    if mcap.is_some() || options.foxglove.foxglove.is_some() {
+        use super::results::foxglove::{FoxgloveRecordPlugin, FoxgloveRecorder};
+        builder.insert_resource(FoxgloveRecorder::open(&options.foxglove, mcap.as_deref(), scenario.map.clone())?);
+        builder.add_plugin(FoxgloveRecordPlugin { images: options.foxglove.mcap_images, map: scenario.map.clone() });
+    }
     let mut sim = builder.build();
     if let Some(id) = options.frame_output.follow.filter(|_| recorder.is_some()) {
         let vehicles = sim.world().resource::<crate::world::Vehicles>();
@@ -271,6 +287,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         rec.finish()?;
     }
     super::results::output::log_final_state(&mut sim);
+    super::results::foxglove::record_final_state(&mut sim);
     sim.world_mut()
         .resource_mut::<TrajectoryLog>()
         .finish()
@@ -316,6 +333,11 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         std::fs::rename(tmp, path).map_err(|source| RunError::Io { path: path.clone(), source })?;
     }
     outputs.keep();
+    if let Some(rec) = sim.world_mut().remove_resource::<super::results::foxglove::FoxgloveRecorder>()
+        && let Some(path) = rec.finish(Some(&summary.to_json()), sim.now().0)?
+    {
+        tracing::info!("wrote {}", path.display());
+    }
     if options.plots {
         let dir = options.out.join("plots");
         let written = super::results::plot::plot_run(&options.out, &dir).map_err(|e| RunError::Plot(e.to_string()))?;

@@ -22,6 +22,9 @@ pub struct ReplayArgs {
     /// rear-axle point).
     #[arg(long, value_name = "FORMAT", default_value = "smlworld", value_parser = super::run::parse_stream_format)]
     pub stream_format: smlworld::io::viz::StreamFormat,
+    /// Write the run as an MCAP file (Foxglove schemas, zstd chunks, indexed) to FILE.
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
     /// Sim seconds per wall second of --stream (2 = twice as fast as recorded).
     #[arg(long, default_value_t = 1.0, value_parser = super::range::positive)]
     pub speed: f64,
@@ -34,6 +37,7 @@ pub fn main(args: ReplayArgs) -> anyhow::Result<()> {
         stream: args.stream,
         stream_format: args.stream_format,
         speed: args.speed,
+        mcap: args.mcap,
     };
     smlworld::app::running::interrupt::install();
     let report = replay_run(&args.out_dir, &options)?;

@@ -40,6 +40,9 @@ pub struct RunArgs {
     /// rear-axle point).
     #[arg(long, value_name = "FORMAT", default_value = "smlworld", value_parser = parse_stream_format)]
     pub stream_format: smlworld::io::viz::StreamFormat,
+    /// MCAP recording and the Foxglove live view.
+    #[command(flatten)]
+    pub foxglove: smlworld::app::results::foxglove::FoxgloveOutput,
     /// Write figures (speed, gaps, platoons, lateral deviation, trace; PNG + SVG) into OUT/plots.
     #[arg(long)]
     pub plots: bool,
@@ -79,6 +82,7 @@ pub fn main(args: RunArgs) -> anyhow::Result<()> {
         plots: args.plots,
         plugins: Vec::new(),
         seed: args.seed,
+        foxglove: args.foxglove,
         overrides: args.set,
         threads: args.threads,
     };

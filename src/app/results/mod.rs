@@ -1,7 +1,9 @@
 //! What a run leaves behind and what reads it afterwards: the trajectory log written while it
 //! runs, `smlworld replay` (frames and GIFs from `trajectories.csv`) and `smlworld plot`.
 
+pub mod foxglove;
 pub mod lights;
 pub mod output;
 pub mod plot;
 pub mod replay;
+pub mod ros2;

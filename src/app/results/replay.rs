@@ -46,6 +46,8 @@ pub struct ReplayOptions {
     pub speed: f64,
     /// Class names and reference point of the stream (see [`StreamFormat`]).
     pub stream_format: StreamFormat,
+    /// Write the run as an MCAP file here (Foxglove schemas, see [`super::foxglove::replay_mcap`]).
+    pub mcap: Option<PathBuf>,
 }
 
 impl Default for ReplayOptions {
@@ -55,6 +57,7 @@ impl Default for ReplayOptions {
             stream: None,
             speed: 1.0,
             stream_format: StreamFormat::Smlworld,
+            mcap: None,
         }
     }
 }
@@ -174,6 +177,9 @@ pub enum ReplayError {
     /// The UDP stream could not be opened or sent.
     #[error("--stream: {0}")]
     Stream(String),
+    /// The MCAP file could not be written.
+    #[error(transparent)]
+    Foxglove(#[from] super::foxglove::FoxgloveError),
 }
 
 /// Read the `replay` part of `OUT_DIR/summary.json`.
@@ -325,10 +331,17 @@ fn states_at(prev: &Group, next: &Group, t_us: u64, out: &mut Vec<Row>) {
 /// Redraw (and/or re-send) the run in `out_dir` from its `trajectories.csv` and `summary.json`.
 pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayReport, ReplayError> {
     let frames = &options.frame_output;
-    if !frames.any() && options.stream.is_none() {
+    if !frames.any() && options.stream.is_none() && options.mcap.is_none() {
         return Err(ReplayError::Option(
-            "replay needs at least one of --gif FILE, --frames DIR, --stream [ADDR]".into(),
+            "replay needs at least one of --gif FILE, --frames DIR, --stream [ADDR], --mcap FILE".into(),
         ));
+    }
+    if let Some(path) = &options.mcap {
+        let rows = super::foxglove::replay_mcap(out_dir, path)?;
+        tracing::info!("wrote {} from {rows} rows", path.display());
+        if !frames.any() && options.stream.is_none() {
+            return Ok(ReplayReport { rows, ..ReplayReport::default() });
+        }
     }
     if !(options.speed.is_finite() && options.speed > 0.0) {
         return Err(ReplayError::Option(format!("--speed must be a positive factor, got {}", options.speed)));

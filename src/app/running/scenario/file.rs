@@ -123,6 +123,9 @@ pub struct ScenarioFile {
     /// Module rates.
     #[serde(default)]
     pub rates: RatesConfig,
+    /// `[output]`: extra outputs of every run of the scenario (`mcap = "run.mcap"`).
+    #[serde(default)]
+    pub output: OutputSection,
     /// V2V settings.
     #[serde(default)]
     pub v2v: V2vSection,
@@ -373,6 +376,16 @@ fn default_duration() -> f64 {
 }
 fn default_points_per_meter() -> f64 {
     5.0
+}
+
+/// `[output]`: outputs a run writes beside `trajectories.csv` and `summary.json`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSection {
+    /// MCAP recording of the run (Foxglove schemas, see `docs/mcap.md`), relative to the run's
+    /// output folder (`--out`); `smlworld run --mcap FILE` replaces it.
+    #[serde(default)]
+    pub mcap: Option<PathBuf>,
 }
 
 /// `[rates]`, all [Hz].
