@@ -7,3 +7,4 @@ pub mod output;
 pub mod plot;
 pub mod replay;
 pub mod ros2;
+pub mod snapshot;

@@ -46,7 +46,7 @@ pub struct ReplayOptions {
     pub speed: f64,
     /// Class names and reference point of the stream (see [`StreamFormat`]).
     pub stream_format: StreamFormat,
-    /// Write the run as an MCAP file here (Foxglove schemas, see [`super::foxglove::replay_mcap`]).
+    /// Write the run as an MCAP file here (Foxglove schemas, see [`replay_mcap`]).
     pub mcap: Option<PathBuf>,
 }
 
@@ -337,7 +337,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         ));
     }
     if let Some(path) = &options.mcap {
-        let rows = super::foxglove::replay_mcap(out_dir, path)?;
+        let rows = replay_mcap(out_dir, path)?;
         tracing::info!("wrote {} from {rows} rows", path.display());
         if !frames.any() && options.stream.is_none() {
             return Ok(ReplayReport { rows, ..ReplayReport::default() });
@@ -531,6 +531,152 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
         });
     }
     Ok(report)
+}
+
+/// `smlworld replay OUT_DIR --mcap FILE`: the MCAP recording of a finished run from its
+/// `trajectories.csv` (a `/vehicles`, `/tf` and state message per logged time), `summary.json`
+/// (sizes and classes, collisions and lane changes on `/events`, `/metrics`) and map. V2V
+/// rounds, light changes and accelerations are not in those files: `/v2v` stays empty and
+/// `accel` is null. Returns the rows read.
+pub fn replay_mcap(out_dir: &FsPath, path: &FsPath) -> Result<u64, ReplayError> {
+    use super::foxglove::{Event, FoxgloveOutput, FoxgloveRecorder, Snapshot, VehicleSnapshot};
+    use crate::world::{TurnSignal, VehicleClass};
+    use std::collections::BTreeMap;
+    use std::io::BufRead;
+    use std::sync::Arc;
+    let info = read_replay_info(out_dir)?;
+    let marks = read_replay_marks(out_dir)?;
+    let map = match &info.map {
+        Some(p) => Some(Arc::new(
+            LaneletMap::load(p).map_err(|e| ReplayError::Map { path: p.clone(), message: e.to_string() })?,
+        )),
+        None => None,
+    };
+    let summary: Option<serde_json::Value> =
+        std::fs::read_to_string(out_dir.join("summary.json")).ok().and_then(|t| serde_json::from_str(&t).ok());
+    let output = FoxgloveOutput { mcap: Some(path.to_path_buf()), ..FoxgloveOutput::default() };
+    let mut rec = FoxgloveRecorder::open(&output, Some(path), map)?;
+    let by_id: BTreeMap<i32, &super::super::running::summary::ReplayVehicle> =
+        info.vehicles.iter().map(|v| (v.id, v)).collect();
+    let csv = out_dir.join("trajectories.csv");
+    let file = std::fs::File::open(&csv).map_err(|source| ReplayError::Io { path: csv.clone(), source })?;
+    let mut lines = std::io::BufReader::new(file).lines();
+    let header = lines.next().transpose().map_err(|source| ReplayError::Io { path: csv.clone(), source })?;
+    if header.as_deref().map(str::trim) != Some("t,id,x,y,yaw,vx,vy,lanelet,lane_offset") {
+        return Err(ReplayError::Row { path: csv, line: 1, message: format!("header is {header:?}") });
+    }
+    let mut snapshot = Snapshot::default();
+    let mut events = Vec::new();
+    let mut previous: Vec<i32> = Vec::new();
+    let mut rows = 0u64;
+    let mut collisions = marks.collisions.iter().peekable();
+    let mut flush = |snapshot: &mut Snapshot, rec: &mut FoxgloveRecorder, events: &mut Vec<Event>| {
+        snapshot.vehicles.sort_by_key(|v| v.id);
+        let t = snapshot.t_us as f64 * 1e-6;
+        events.clear();
+        while let Some(&&(a, b, tc)) = collisions.peek() {
+            if tc > t + 1e-9 {
+                break;
+            }
+            collisions.next();
+            events.push(Event {
+                t_us: crate::world::SimTime::from_secs(tc).0,
+                level: 3,
+                name: "collision",
+                message: format!("collision: vehicles {a} and {b}"),
+            });
+        }
+        let ids: Vec<i32> = snapshot.vehicles.iter().map(|v| v.id).collect();
+        for id in previous.iter().filter(|id| ids.binary_search(id).is_err()) {
+            events.push(Event {
+                t_us: snapshot.t_us,
+                level: 2,
+                name: "vehicle",
+                message: format!("vehicle {id} left"),
+            });
+        }
+        if rec.ticks() > 0 {
+            for id in ids.iter().filter(|id| previous.binary_search(id).is_err()) {
+                events.push(Event {
+                    t_us: snapshot.t_us,
+                    level: 2,
+                    name: "vehicle",
+                    message: format!("vehicle {id} appeared"),
+                });
+            }
+        }
+        for v in &mut snapshot.vehicles {
+            if let Some(&(_, t0, _, side)) =
+                marks.lane_changes.iter().find(|l| l.0 == v.id && l.1 <= t + 1e-9 && t < l.2)
+            {
+                v.signal = match side {
+                    crate::render::Indicator::Left => TurnSignal::Left,
+                    crate::render::Indicator::Right => TurnSignal::Right,
+                };
+                v.mode = "lane_change";
+                if (t0 - t).abs() < 0.5 / info.log_rate.max(1e-9) {
+                    let dir = if v.signal == TurnSignal::Left { "left" } else { "right" };
+                    events.push(Event {
+                        t_us: snapshot.t_us,
+                        level: 2,
+                        name: "lane_change",
+                        message: format!("vehicle {} changes lanes {dir}", v.id),
+                    });
+                }
+            }
+        }
+        rec.record(std::mem::take(snapshot), std::mem::take(events));
+        previous = ids;
+        snapshot.vehicles.clear();
+    };
+    for (i, line) in lines.enumerate() {
+        let line = line.map_err(|source| ReplayError::Io { path: csv.clone(), source })?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let bad = |message: String| ReplayError::Row { path: csv.clone(), line: i + 2, message };
+        let f: Vec<&str> = line.trim().split(',').collect();
+        if f.len() != 9 {
+            return Err(bad(format!("{} fields", f.len())));
+        }
+        let num = |k: usize| f[k].parse::<f64>().ok().filter(|v| v.is_finite());
+        let (Some(t), Ok(id), Some(x), Some(y), Some(yaw), Some(vx), Some(vy)) =
+            (num(0), f[1].parse::<i32>(), num(2), num(3), num(4), num(5), num(6))
+        else {
+            return Err(bad("a number is missing or not finite".into()));
+        };
+        let t_us = crate::world::SimTime::from_secs(t).0;
+        if rows > 0 && t_us != snapshot.t_us {
+            if t_us < snapshot.t_us {
+                return Err(bad(format!("time {t} s goes back in time")));
+            }
+            flush(&mut snapshot, &mut rec, &mut events);
+        }
+        snapshot.t_us = t_us;
+        let v = by_id.get(&id);
+        snapshot.vehicles.push(VehicleSnapshot {
+            id,
+            position: DVec2::new(x, y),
+            yaw,
+            velocity: DVec2::new(vx, vy),
+            accel: f64::NAN,
+            lanelet: f[7].parse().ok(),
+            lane_offset: num(8),
+            length: v.map_or(4.12, |v| v.length),
+            width: v.map_or(1.7, |v| v.width),
+            class: v.map_or_else(VehicleClass::default, |v| v.class),
+            real: v.is_some_and(|v| v.lab),
+            signal: TurnSignal::Off,
+            mode: if v.is_some_and(|v| v.lab) { "lab" } else { "replay" },
+        });
+        rows += 1;
+    }
+    if rows > 0 {
+        flush(&mut snapshot, &mut rec, &mut events);
+    }
+    let end = rec.last_t.unwrap_or(0);
+    rec.finish(summary.as_ref(), end)?;
+    Ok(rows)
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use foxglove::{Context, PartialMetadata, RawChannel, Schema};
 use glam::DVec2;
 
-use super::foxglove::{Snapshot, VehicleSnapshot};
+use super::snapshot::{Snapshot, VehicleSnapshot};
 use crate::map::LaneletMap;
 use crate::world::TurnSignal;
 
