@@ -1119,14 +1119,14 @@ pub fn record_tick(
     for v in &snapshot.vehicles {
         while j < rec.previous.len() && rec.previous[j].0 < v.id {
             let id = rec.previous[j].0;
-            events.push(Event { t_us, level: 2, name: "vehicle", message: format!("vehicle {id} left") });
+            events.push(Event::info(t_us, "vehicle", format!("vehicle {id} left")));
             j += 1;
         }
         let before = rec.previous.get(j).filter(|p| p.0 == v.id).copied();
         if before.is_some() {
             j += 1;
         } else if rec.ticks > 0 {
-            events.push(Event { t_us, level: 2, name: "vehicle", message: format!("vehicle {} appeared", v.id) });
+            events.push(Event::info(t_us, "vehicle", format!("vehicle {} appeared", v.id)));
         }
         let (was_signal, was_mode) = before.map_or((TurnSignal::Off, ""), |b| (b.1, b.2));
         if was_signal == TurnSignal::Off
@@ -1134,41 +1134,25 @@ pub fn record_tick(
             && let Some((_, text, kind)) = merges.iter().find(|m| m.0 == v.id)
         {
             let side = if v.signal == TurnSignal::Left { "left" } else { "right" };
-            events.push(Event {
-                t_us,
-                level: 2,
-                name: kind,
-                message: format!("vehicle {} changes lanes {side}: {text}", v.id),
-            });
+            events.push(Event::info(t_us, kind, format!("vehicle {} changes lanes {side}: {text}", v.id)));
         }
         if v.mode == "yielding" && was_mode != "yielding" {
-            events.push(Event {
-                t_us,
-                level: 2,
-                name: "emergency",
-                message: format!("vehicle {} makes way for an emergency vehicle", v.id),
-            });
+            events.push(Event::info(t_us, "emergency", format!("vehicle {} makes way for an emergency vehicle", v.id)));
         }
         if v.mode == "emergency_braking" && was_mode != "emergency_braking" {
-            events.push(Event {
-                t_us,
-                level: 3,
-                name: "emergency",
-                message: format!("vehicle {} brakes hard (emergency braking)", v.id),
-            });
+            events.push(Event::warning(t_us, "emergency", format!("vehicle {} brakes hard (emergency braking)", v.id)));
         }
     }
     for p in &rec.previous[j..] {
-        events.push(Event { t_us, level: 2, name: "vehicle", message: format!("vehicle {} left", p.0) });
+        events.push(Event::info(t_us, "vehicle", format!("vehicle {} left", p.0)));
     }
     if let Some(m) = &metrics {
         for c in m.collisions.iter().skip(rec.collisions_seen) {
-            events.push(Event {
-                t_us: crate::world::SimTime::from_secs(c.t).0.min(t_us),
-                level: 3,
-                name: "collision",
-                message: format!("collision: vehicles {} and {}", c.a.0, c.b.0),
-            });
+            events.push(Event::warning(
+                crate::world::SimTime::from_secs(c.t).0.min(t_us),
+                "collision",
+                format!("collision: vehicles {} and {}", c.a.0, c.b.0),
+            ));
         }
         rec.collisions_seen = m.collisions.len();
     }
@@ -1180,12 +1164,7 @@ pub fn record_tick(
         for (i, c) in lights.controllers.iter().enumerate() {
             let now = lights.state_of(c.junction).unwrap_or_default();
             if rec.light_states[i] != now {
-                events.push(Event {
-                    t_us,
-                    level: 2,
-                    name: "light",
-                    message: format!("junction {}: {now}", c.junction + 1),
-                });
+                events.push(Event::info(t_us, "light", format!("junction {}: {now}", c.junction + 1)));
                 rec.light_states[i] = now;
             }
         }

@@ -579,30 +579,19 @@ pub fn replay_mcap(out_dir: &FsPath, path: &FsPath) -> Result<u64, ReplayError> 
                 break;
             }
             collisions.next();
-            events.push(Event {
-                t_us: crate::world::SimTime::from_secs(tc).0,
-                level: 3,
-                name: "collision",
-                message: format!("collision: vehicles {a} and {b}"),
-            });
+            events.push(Event::warning(
+                crate::world::SimTime::from_secs(tc).0,
+                "collision",
+                format!("collision: vehicles {a} and {b}"),
+            ));
         }
         let ids: Vec<i32> = snapshot.vehicles.iter().map(|v| v.id).collect();
         for id in previous.iter().filter(|id| ids.binary_search(id).is_err()) {
-            events.push(Event {
-                t_us: snapshot.t_us,
-                level: 2,
-                name: "vehicle",
-                message: format!("vehicle {id} left"),
-            });
+            events.push(Event::info(snapshot.t_us, "vehicle", format!("vehicle {id} left")));
         }
         if rec.ticks() > 0 {
             for id in ids.iter().filter(|id| previous.binary_search(id).is_err()) {
-                events.push(Event {
-                    t_us: snapshot.t_us,
-                    level: 2,
-                    name: "vehicle",
-                    message: format!("vehicle {id} appeared"),
-                });
+                events.push(Event::info(snapshot.t_us, "vehicle", format!("vehicle {id} appeared")));
             }
         }
         for v in &mut snapshot.vehicles {
@@ -616,12 +605,11 @@ pub fn replay_mcap(out_dir: &FsPath, path: &FsPath) -> Result<u64, ReplayError> 
                 v.mode = "lane_change";
                 if (t0 - t).abs() < 0.5 / info.log_rate.max(1e-9) {
                     let dir = if v.signal == TurnSignal::Left { "left" } else { "right" };
-                    events.push(Event {
-                        t_us: snapshot.t_us,
-                        level: 2,
-                        name: "lane_change",
-                        message: format!("vehicle {} changes lanes {dir}", v.id),
-                    });
+                    events.push(Event::info(
+                        snapshot.t_us,
+                        "lane_change",
+                        format!("vehicle {} changes lanes {dir}", v.id),
+                    ));
                 }
             }
         }

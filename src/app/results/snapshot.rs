@@ -60,3 +60,15 @@ pub struct Event {
     /// The line.
     pub message: String,
 }
+
+impl Event {
+    /// An `info` line (`foxglove.Log` level 2) at `t_us` [µs].
+    pub fn info(t_us: u64, name: &'static str, message: String) -> Event {
+        Event { t_us, level: 2, name, message }
+    }
+
+    /// A `warning` line (`foxglove.Log` level 3) at `t_us` [µs].
+    pub fn warning(t_us: u64, name: &'static str, message: String) -> Event {
+        Event { t_us, level: 3, name, message }
+    }
+}

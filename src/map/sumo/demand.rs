@@ -312,21 +312,28 @@ struct Reader<'m> {
     routes: BTreeMap<String, Vec<String>>,
 }
 
-impl Demand {
-    /// Read `files` (in order: a type or route defined in one is seen by the later ones) for
-    /// the SUMO network `map`, with the clock starting at SUMO time `begin` [s] (a `.sumocfg`'s
-    /// `begin`: departures before it are dropped, the others move `begin` earlier); departures
-    /// more than `until` [s] after `begin` are dropped.
-    pub fn load(files: &[PathBuf], map: &LaneletMap, begin: f64, until: f64) -> Result<Demand, MapError> {
-        let mut r = Reader {
+impl<'a> Reader<'a> {
+    /// A reader for the network `map` that drops departures after `until` [s], knowing only
+    /// SUMO's default vehicle type.
+    fn new(map: &'a LaneletMap, until: f64) -> Reader<'a> {
+        Reader {
             map,
             index: EdgeIndex::new(map),
             until,
             demand: Demand { types: vec![VehicleType::sumo_default("DEFAULT_VEHTYPE")], ..Demand::default() },
             types: BTreeMap::from([("DEFAULT_VEHTYPE".to_string(), 0)]),
             routes: BTreeMap::new(),
-        };
-        r.until = begin + until;
+        }
+    }
+}
+
+impl Demand {
+    /// Read `files` (in order: a type or route defined in one is seen by the later ones) for
+    /// the SUMO network `map`, with the clock starting at SUMO time `begin` [s] (a `.sumocfg`'s
+    /// `begin`: departures before it are dropped, the others move `begin` earlier); departures
+    /// more than `until` [s] after `begin` are dropped.
+    pub fn load(files: &[PathBuf], map: &LaneletMap, begin: f64, until: f64) -> Result<Demand, MapError> {
+        let mut r = Reader::new(map, begin + until);
         for f in files {
             let text = std::fs::read_to_string(f).map_err(|source| MapError::Io { path: f.clone(), source })?;
             r.file(&text, f)?;
@@ -350,14 +357,7 @@ impl Demand {
 
     /// Read demand text; `source` names the file in messages.
     pub fn parse_str(text: &str, source: &FsPath, map: &LaneletMap, until: f64) -> Result<Demand, MapError> {
-        let mut r = Reader {
-            map,
-            index: EdgeIndex::new(map),
-            until,
-            demand: Demand { types: vec![VehicleType::sumo_default("DEFAULT_VEHTYPE")], ..Demand::default() },
-            types: BTreeMap::from([("DEFAULT_VEHTYPE".to_string(), 0)]),
-            routes: BTreeMap::new(),
-        };
+        let mut r = Reader::new(map, until);
         r.file(text, source)?;
         Ok(r.demand)
     }
