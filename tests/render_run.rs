@@ -115,31 +115,35 @@ fn recording_writes_frames_and_gif_without_changing_results() {
     assert!(mean < 6.0, "GIF frame 10 differs from the PNG frame by {mean} per channel on average");
 }
 
-/// Issue 23 item 2: every GIF frame shows what the PNG frame of the same time shows (no ghosts,
-/// smears or stale pixels from frame differencing): on a run with 45 moving vehicles and the
-/// overlay on both, fewer than 1 % of the channel values differ by more than 48 (the palette's
-/// quantisation moves colours a little; a ghost or a stale vehicle moves whole patches).
-#[test]
-fn gif_frames_match_the_png_frames_of_the_same_time() {
+/// Run `scenarios/<scenario>.toml` for `duration` s writing both PNG frames and a GIF (overlay
+/// on both) at `rate` Hz and `size` px into `tmp(name)`: the decoded GIF frames and the PNG
+/// frames' paths in order, with the folder (removed when dropped).
+fn gif_and_png_frames(
+    name: &str,
+    scenario: &str,
+    duration: &str,
+    rate: &str,
+    (width, height): (&str, &str),
+) -> (Scratch, Vec<image::RgbaImage>, Vec<PathBuf>) {
     use image::AnimationDecoder;
-    let dir = tmp("gif-vs-png");
+    let dir = tmp(name);
     let (frames, gif) = (dir.join("frames"), dir.join("run.gif"));
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/highway_traffic.toml");
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("scenarios/{scenario}.toml"));
     smlworld(&[
         "run",
         scenario.to_str().unwrap(),
         "--duration",
-        "8",
+        duration,
         "--frames",
         frames.to_str().unwrap(),
         "--gif",
         gif.to_str().unwrap(),
         "--frame-rate",
-        "2",
+        rate,
         "--width",
-        "320",
+        width,
         "--height",
-        "180",
+        height,
         "--overlay",
         "--out",
         dir.join("out").to_str().unwrap(),
@@ -155,6 +159,16 @@ fn gif_frames_match_the_png_frames_of_the_same_time() {
         .collect();
     let mut pngs: Vec<PathBuf> = std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().path()).collect();
     pngs.sort();
+    (dir, decoded, pngs)
+}
+
+/// Issue 23 item 2: every GIF frame shows what the PNG frame of the same time shows (no ghosts,
+/// smears or stale pixels from frame differencing): on a run with 45 moving vehicles and the
+/// overlay on both, fewer than 1 % of the channel values differ by more than 48 (the palette's
+/// quantisation moves colours a little; a ghost or a stale vehicle moves whole patches).
+#[test]
+fn gif_frames_match_the_png_frames_of_the_same_time() {
+    let (_dir, decoded, pngs) = gif_and_png_frames("gif-vs-png", "highway_traffic", "8", "2", ("320", "180"));
     assert_eq!(decoded.len(), pngs.len(), "one GIF frame per PNG frame");
     assert!(decoded.len() >= 10, "{} frames", decoded.len());
     // The first frame, and later ones after many vehicles moved (differencing errors add up).
@@ -181,40 +195,7 @@ fn gif_frames_match_the_png_frames_of_the_same_time() {
 /// first, mid and last frames of the overtaking run, together with a small mean error.
 #[test]
 fn overtaking_gif_has_no_ghost_trails() {
-    use image::AnimationDecoder;
-    let dir = tmp("overtaking-ghosts");
-    let (frames, gif) = (dir.join("frames"), dir.join("run.gif"));
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/overtaking.toml");
-    smlworld(&[
-        "run",
-        scenario.to_str().unwrap(),
-        "--duration",
-        "30",
-        "--frames",
-        frames.to_str().unwrap(),
-        "--gif",
-        gif.to_str().unwrap(),
-        "--frame-rate",
-        "4",
-        "--width",
-        "640",
-        "--height",
-        "360",
-        "--overlay",
-        "--out",
-        dir.join("out").to_str().unwrap(),
-    ]);
-    let file = std::io::BufReader::new(std::fs::File::open(&gif).unwrap());
-    let decoded: Vec<image::RgbaImage> = image::codecs::gif::GifDecoder::new(file)
-        .unwrap()
-        .into_frames()
-        .collect_frames()
-        .unwrap()
-        .into_iter()
-        .map(|f| f.into_buffer())
-        .collect();
-    let mut pngs: Vec<PathBuf> = std::fs::read_dir(&frames).unwrap().map(|e| e.unwrap().path()).collect();
-    pngs.sort();
+    let (_dir, decoded, pngs) = gif_and_png_frames("overtaking-ghosts", "overtaking", "30", "4", ("640", "360"));
     assert_eq!(decoded.len(), pngs.len(), "one GIF frame per PNG frame");
     let mut shown_as: std::collections::HashMap<[u8; 3], [u8; 3]> = std::collections::HashMap::new();
     for k in [0, decoded.len() / 2, decoded.len() - 1] {
