@@ -29,6 +29,12 @@ impl LaneChangeProfile {
         LaneChangeProfile { offset, length }
     }
 
+    /// The highest speed [m/s] at which this profile keeps its lateral acceleration at or under
+    /// `max_lateral_accel` [m/s²] (the inverse of [`LaneChangeProfile::for_speed`]'s length).
+    pub fn speed_for(&self, max_lateral_accel: f64) -> f64 {
+        self.length / (QUINTIC_PEAK * self.offset.abs() / max_lateral_accel.max(1e-6)).sqrt().max(1e-9)
+    }
+
     /// Lateral offset [m] after driving `s` [m] since the start (clamped to the ends).
     pub fn offset_at(&self, s: f64) -> f64 {
         let u = (s / self.length).clamp(0.0, 1.0);

@@ -39,8 +39,21 @@ use crate::world::prefetch_bytes;
 pub const KEEP_RIGHT_BIAS: f64 = 0.3;
 /// Discretionary changes are weighed every this many control ticks (0.5 s at 20 Hz).
 pub const DISCRETIONARY_EVERY: i64 = 10;
-/// Shortest manoeuvre [m].
+/// Shortest manoeuvre [m] across a whole lane ([`LANE_SPACING`]); a shorter lateral move (an
+/// abort from part-way) may take less ([`min_change_length`]).
 pub const MIN_CHANGE_LENGTH: f64 = 10.0;
+/// Distance between lane centres assumed when a change is weighed, before its path is known [m].
+pub const LANE_SPACING: f64 = 3.5;
+/// No discretionary change starts below this speed [m/s]: the shortest manoeuvre (10 m) would
+/// take longer than [`CHANGE_TIME_BOUND`] / 2 (issue 61 §1).
+pub const MIN_CHANGE_SPEED: f64 = 2.0;
+/// Braking [m/s²] assumed of a leader when [`room_to_finish`] weighs the room ahead.
+pub const LEADER_BRAKING: f64 = 3.0;
+/// Bumper gap [m] kept to a standing leader when [`room_to_finish`] weighs the room ahead.
+pub const STANDSTILL_GAP: f64 = 2.0;
+/// The bound a lane change's duration keeps in traffic that moves [s] (documented in
+/// docs/vehicles.md; asserted over a dense ring by `tests/vehicles_lane_changes.rs`).
+pub const CHANGE_TIME_BOUND: f64 = 8.0;
 
 pub use super::lane_state::{
     ChangeKind, FollowLaw, Found, IndexEntry, LaneChangeParams, LaneChanger, LaneCrossings, LaneIndex, Manoeuvre,
@@ -811,11 +824,35 @@ fn evaluate(
         // In both lanes: follow the vehicle ahead in each (from the index, real lengths).
         let gap_of = |f: Found| (f.distance - 0.5 * (f.length + size.length), f.speed);
         ch.crossing_leaders[0] = index.ahead(lanes, i, pos.s, me).map(gap_of);
-        if let Some(j) = other_lane(lanes, pos, i) {
+        // Three quarters of the way across, the vehicle is in the lane it aims at and clear of
+        // the other lane's vehicles (2.6 m apart for 3.5 m lanes): it follows only its new lane,
+        // or a stopped leader in the lane it leaves would hold it across both.
+        let across = m.offset_at(&route.0, follower.s).abs() < 0.25 * m.profile.offset.abs();
+        if !across && let Some(j) = other_lane(lanes, pos, i) {
             let s_j = pos.s * lanes.length(j) / len_i.max(1e-9);
             ch.crossing_leaders[1] = index.ahead(lanes, j, s_j, me).map(gap_of);
         }
-        let driven = m.driven(&route.0, follower.s);
+        let mut driven = m.driven(&route.0, follower.s);
+        // As the speed falls the rest of the profile is shortened to the length sized for the
+        // speed (down to the shortest manoeuvre), the fraction done kept: below the speed it was
+        // sized for, a change advances by time, not distance, and one caught by a stop wave ends
+        // while braking instead of standing across two lanes (issue 61 §1).
+        if driven < m.profile.length {
+            let sized = LaneChangeProfile::for_speed(
+                m.profile.offset,
+                v,
+                p.max_lateral_accel,
+                min_change_length(m.profile.offset),
+            );
+            if sized.length < 0.9 * m.profile.length {
+                let u = driven / m.profile.length;
+                let s_start = follower.s - u * sized.length;
+                m.s_start = if route.0.closed { s_start.rem_euclid(route.0.length) } else { s_start };
+                m.profile = sized;
+                m.speed_cap = m.speed_cap.min(sized.speed_for(p.max_lateral_accel));
+                driven = u * sized.length;
+            }
+        }
         let d2 = profile_curvature(&m.profile, driven);
         m.peak_lateral_accel = m.peak_lateral_accel.max(v * v * d2);
         m.old_s = m.old_route.project_near(state.position, m.old_s + v * dt, v.abs() * dt + 5.0).s;
@@ -848,7 +885,7 @@ fn evaluate(
                 let back = m.old_route.project_near(state.position, m.old_s, 10.0);
                 let offset = back.lateral;
                 let profile =
-                    LaneChangeProfile::for_speed(-offset, m.speed_cap, p.max_lateral_accel, MIN_CHANGE_LENGTH);
+                    LaneChangeProfile::for_speed(-offset, m.speed_cap, p.max_lateral_accel, min_change_length(offset));
                 let old = std::mem::replace(&mut route.0, Arc::clone(&m.old_route));
                 let aborted = Manoeuvre {
                     profile,
@@ -950,6 +987,8 @@ fn evaluate(
         match decision {
             // Whether an earlier vehicle claimed the place this tick is known only in query
             // order: the serial part decides (and drops a claimed request).
+            MobilDecision::Change(_)
+                if kind == ChangeKind::Discretionary && !room_to_finish(v, size.length, leader, tl) => {}
             MobilDecision::Change(gain) => out.accepted[k] = Some((gain, side, kind, j, s_j)),
             _ if kind == ChangeKind::Requested => ch.request = None,
             MobilDecision::Occupied | MobilDecision::Unsafe(_) if kind == ChangeKind::Mandatory && u > 0.5 => {
@@ -964,6 +1003,33 @@ fn evaluate(
             out.signals[k] = Some((j, s_j, v, size.length));
         }
     }
+}
+
+/// The shortest manoeuvre [m] for a lateral move of `offset` [m]: [`MIN_CHANGE_LENGTH`] across a
+/// whole lane, shorter for a part (a kinematic vehicle's shortest S-bend grows with the square
+/// root of its lateral move), never under 3 m.
+pub fn min_change_length(offset: f64) -> f64 {
+    (MIN_CHANGE_LENGTH * (offset.abs() / LANE_SPACING).sqrt()).clamp(3.0, MIN_CHANGE_LENGTH)
+}
+
+/// Whether a discretionary change at speed `v` [m/s] has room to finish: should the target
+/// lane's `target_leader` and our lane's `leader` (distances centre to centre, our `length` [m])
+/// brake to a stop at [`LEADER_BRAKING`] now, we could still drive the shortest whole manoeuvre
+/// ([`MIN_CHANGE_LENGTH`]: a change in progress is shortened as the speed falls) behind the first
+/// and three quarters of it (clear of the lane we leave) behind the second, keeping
+/// [`STANDSTILL_GAP`]. Without it a change begun in stop-and-go traffic stood across two lanes
+/// behind a stopped leader for up to 37 s (issue 61 §1; 80 vehicles on the three-lane ring).
+/// Nothing starts below [`MIN_CHANGE_SPEED`].
+pub fn room_to_finish(v: f64, length: f64, leader: Option<Found>, target_leader: Option<Found>) -> bool {
+    if v < MIN_CHANGE_SPEED {
+        return false;
+    }
+    [(target_leader, MIN_CHANGE_LENGTH), (leader, 0.75 * MIN_CHANGE_LENGTH)].into_iter().all(|(f, need)| {
+        f.is_none_or(|f| {
+            let gap = f.distance - 0.5 * (f.length + length);
+            gap + f.speed * f.speed / (2.0 * LEADER_BRAKING) >= need + STANDSTILL_GAP
+        })
+    })
 }
 
 /// Whether the gap a change aims at has closed (the abort rule before the halfway point): the
