@@ -252,3 +252,24 @@ def test_reset_loads_the_scenario_once_and_records_no_metrics(monkeypatch, name)
     else:
         env.unwrapped._sim.step(8.0)  # the traffic's follower gaps are not recorded
         assert not env.unwrapped._sim.summary()["metrics"]["followers"]
+
+
+def test_platoon_follow_frame_at_a_collision_shows_the_red_ring():
+    """Issue 61 §2: the env stops the metrics that record collision events, so its frame at a
+    collision showed the two cars overlapping and no ring; the frame now rings any vehicles whose
+    footprints overlap (the ring's exact colour, RING_COLOR of src/render/overlay.rs)."""
+    env = gym.make("smlworld/PlatoonFollow-v0", render_mode="rgb_array")
+    env.reset(seed=3)
+    ring = np.array([235, 20, 20], dtype=np.uint8)
+
+    def ring_pixels(frame):
+        return int(np.all(frame == ring, axis=-1).sum())
+
+    assert ring_pixels(env.render()) == 0, "no collision yet, no ring"
+    terminated = False
+    for _ in range(2000):
+        _, _, terminated, _, info = env.step(np.array([3.0], dtype=np.float32))
+        if terminated:
+            break
+    assert terminated, "full throttle into the leader ends the episode"
+    assert ring_pixels(env.render()) >= 30, "the collision is ringed in red"

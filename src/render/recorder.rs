@@ -262,9 +262,27 @@ impl FrameRecorder {
 
     /// Render the world as it is now and return the frame, without writing it anywhere.
     pub fn render(&mut self, world: &World) -> Result<RgbaImage, RenderError> {
+        self.render_with(world, false)
+    }
+
+    /// [`FrameRecorder::render`], and every pair of vehicles whose footprints overlap now gets a
+    /// collision ring (as a live view marks them): for callers that record no collision events,
+    /// such as a learning environment that stopped the metrics and checks its own collisions.
+    pub fn render_marking_overlaps(&mut self, world: &World) -> Result<RgbaImage, RenderError> {
+        self.render_with(world, true)
+    }
+
+    fn render_with(&mut self, world: &World, mark_overlaps: bool) -> Result<RgbaImage, RenderError> {
         let mut sprites = std::mem::take(&mut self.sprites);
         sprites_from_world(world, self.sensor_ranges, &mut sprites);
         let t = world.get_resource::<SimClock>().map_or(0.0, |c| c.now.as_secs());
+        if mark_overlaps {
+            for (_, _, place) in super::overlapping_pairs(&sprites) {
+                if !self.collisions.iter().any(|&(p, t0)| t0 == t && p == place) {
+                    self.add_collision(place, t);
+                }
+            }
+        }
         let image = self.draw(&sprites, t).cloned();
         self.sprites = sprites;
         image

@@ -359,7 +359,8 @@ impl Session {
     }
 
     /// The bird's-eye view of the whole map with the vehicles as they are now, `width` x `height`
-    /// RGBA pixels (row-major, 4 bytes per pixel), from the off-screen renderer.
+    /// RGBA pixels (row-major, 4 bytes per pixel), from the off-screen renderer; a red ring
+    /// marks vehicles whose footprints overlap (for a few seconds after they met).
     pub fn frame(&mut self, width: u32, height: u32) -> Result<Vec<u8>, SessionError> {
         if !(16..=8192).contains(&width) || !(16..=8192).contains(&height) {
             return arg(format!("frame size must be 16..=8192 px each way, got {width} x {height}"));
@@ -379,7 +380,12 @@ impl Session {
             return arg("renderer: not available".to_string());
         };
         rec.set_signals(self.signals.from_world(self.sim.world()));
-        let image = rec.render(self.sim.world()).map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
+        // Vehicles that overlap now get the red collision ring: a learning environment stops the
+        // metrics that record collision events (issue 61 §2: PlatoonFollow's frame at a
+        // collision showed the cars overlapping and no ring).
+        let image = rec
+            .render_marking_overlaps(self.sim.world())
+            .map_err(|e| SessionError::Argument(format!("renderer: {e}")))?;
         Ok(image.into_raw())
     }
 
