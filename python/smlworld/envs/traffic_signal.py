@@ -643,7 +643,7 @@ class TrafficSignalParallelEnv(ParallelEnv):
     def reset(self, seed: Optional[int] = None, options=None):
         self.agents = list(self.possible_agents)
         obs = self.env.reset(seed=seed, options=options)
-        return obs, self._infos(self.env.metrics[-1])
+        return obs, self._infos(self.env._compute_info())
 
     def step(self, actions: Dict[str, int]):
         if not self.agents:
