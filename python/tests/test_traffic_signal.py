@@ -256,3 +256,21 @@ def test_callable_rewards_see_sumo_rl_s_traffic_signal(two_way):
     ts = env.unwrapped.traffic_signals["t"]
     assert reward == -sum(ts.get_lanes_queue())
     assert len(seen) == 8 and seen[-1][0] == ts.get_total_queued() > 0
+
+
+def test_bench_signals_measures_ours(root):
+    """python/bench/bench_signals.py (README's sumo-rl comparison) runs and reports its format."""
+    import re
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, str(root / "python/bench/bench_signals.py"), "--only", "ours", "--steps", "5", "--repeat", "2", "--net", "2way"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    m = re.search(r"2way smlworld: ([\d,]+) / ([\d,]+) / ([\d,]+) \(min / median / max\) env-steps/s \(5 steps, 1 agent, 2 runs\)", done.stdout)
+    assert m, done.stdout
+    lo, mid, hi = (float(g.replace(",", "")) for g in m.groups())
+    assert 0 < lo <= mid <= hi
