@@ -25,7 +25,10 @@ import time
 from pathlib import Path
 
 NETS = {
-    "2way": ("2way-single-intersection/single-intersection.net.xml", "2way-single-intersection/single-intersection-vhvh.rou.xml"),
+    "2way": (
+        "2way-single-intersection/single-intersection.net.xml",
+        "2way-single-intersection/single-intersection-vhvh.rou.xml",
+    ),
     "grid4x4": ("RESCO/grid4x4/grid4x4.net.xml", "RESCO/grid4x4/grid4x4_1.rou.xml"),
 }
 
@@ -50,8 +53,10 @@ def worker(kind: str, net: str, steps: int, seed: int, hz: float) -> dict:
         import traci
 
         if not traci.isLibsumo():
-            sys.exit("bench_signals: libsumo is not installed (`pip install libsumo`, the version of eclipse-sumo): "
-                     "sumo-rl would fall back to TraCI over a socket, which is slower than the libsumo it is compared with")
+            sys.exit(
+                "bench_signals: libsumo is not installed (`pip install libsumo`, the version of eclipse-sumo): "
+                "sumo-rl would fall back to TraCI over a socket, which is slower than the libsumo it is compared with"
+            )
         from sumo_rl import SumoEnvironment
 
         env = SumoEnvironment(single_agent=(net == "2way"), sumo_warnings=False, **kwargs)
@@ -82,7 +87,20 @@ def measure(kind, net, steps, seed, hz):
 
             env["SUMO_HOME"] = sumo.SUMO_HOME
     done = subprocess.run(
-        [sys.executable, __file__, "--worker", kind, "--net", net, "--steps", str(steps), "--seed", str(seed), "--hz", str(hz)],
+        [
+            sys.executable,
+            __file__,
+            "--worker",
+            kind,
+            "--net",
+            net,
+            "--steps",
+            str(steps),
+            "--seed",
+            str(seed),
+            "--hz",
+            str(hz),
+        ],
         capture_output=True,
         text=True,
         env=env,
@@ -103,7 +121,7 @@ def main():
         "--hz",
         type=float,
         default=0.0,
-        help="run our dynamics, control and sensors at this rate [Hz] (scenario overrides; 0: the defaults, 50/20/20 Hz)",
+        help="our dynamics, control and sensors rate [Hz] (scenario overrides; 0: the defaults, 50/20/20 Hz)",
     )
     p.add_argument("--worker", choices=["ours", "sumo"], help=argparse.SUPPRESS)
     a = p.parse_args()

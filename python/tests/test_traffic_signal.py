@@ -128,7 +128,9 @@ def test_observation_and_reward_match_a_hand_computed_step(two_way, tmp_path):
     vehicles and integrates every vehicle's waiting (speed < 0.1 m/s), then compares with the
     env's observation and diff-waiting-time reward at every step."""
     net, rou = two_way
-    env = smlworld.envs.traffic_signal.TrafficSignalEnv(net_file=net, route_file=rou, num_seconds=400, single_agent=True)
+    env = smlworld.envs.traffic_signal.TrafficSignalEnv(
+        net_file=net, route_file=rou, num_seconds=400, single_agent=True
+    )
     obs, _ = env.reset(seed=11)
     ts = env.traffic_signals["t"]
     junction = ts.junction
@@ -264,13 +266,28 @@ def test_bench_signals_measures_ours(root):
     import sys
 
     done = subprocess.run(
-        [sys.executable, str(root / "python/bench/bench_signals.py"), "--only", "ours", "--steps", "5", "--repeat", "2", "--net", "2way"],
+        [
+            sys.executable,
+            str(root / "python/bench/bench_signals.py"),
+            "--only",
+            "ours",
+            "--steps",
+            "5",
+            "--repeat",
+            "2",
+            "--net",
+            "2way",
+        ],
         capture_output=True,
         text=True,
         timeout=300,
     )
     assert done.returncode == 0, done.stderr[-2000:]
-    m = re.search(r"2way smlworld: ([\d,]+) / ([\d,]+) / ([\d,]+) \(min / median / max\) env-steps/s \(5 steps, 1 agent, 2 runs\)", done.stdout)
+    m = re.search(
+        r"2way smlworld: ([\d,]+) / ([\d,]+) / ([\d,]+) \(min / median / max\) env-steps/s "
+        r"\(5 steps, 1 agent, 2 runs\)",
+        done.stdout,
+    )
     assert m, done.stdout
     lo, mid, hi = (float(g.replace(",", "")) for g in m.groups())
     assert 0 < lo <= mid <= hi

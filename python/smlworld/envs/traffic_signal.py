@@ -85,14 +85,19 @@ class TrafficSignal:
                 raise NotImplementedError(f"Reward function {reward_fn} not implemented")
             reward_fn = TrafficSignal.reward_fns[reward_fn]
         elif not callable(reward_fn):
-            raise ValueError(f"reward_fn must be a name of {sorted(TrafficSignal.reward_fns)} or a callable, got {reward_fn!r}")
+            raise ValueError(
+                f"reward_fn must be a name of {sorted(TrafficSignal.reward_fns)} or a callable, got {reward_fn!r}"
+            )
         self.reward_fn = reward_fn
         self._in = in_slots
         self._out = out_slots
         self.lanes = list(light["lanes"])
         self.out_lanes = list(light["out_lanes"])
         lengths = env._layout["slot_length"]
-        self.lanes_length = {lane: float(lengths[k]) for lane, k in zip(self.lanes + self.out_lanes, np.concatenate([in_slots, out_slots]))}
+        self.lanes_length = {
+            lane: float(lengths[k])
+            for lane, k in zip(self.lanes + self.out_lanes, np.concatenate([in_slots, out_slots]))
+        }
         self._build_phases([Phase(d, s) for s, d in light["phases"]])
         self.observation_fn = env.observation_class(self)
         self.observation_space = self.observation_fn.observation_space()
@@ -152,7 +157,10 @@ class TrafficSignal:
         green phase whatever the action and ``min_green`` (sumo-rl 1.4.5 ignores ``max_green``)."""
         new_phase = int(new_phase)
         if not 0 <= new_phase < self.num_green_phases:
-            raise ValueError(f"traffic light {self.id}: action {new_phase} is not a green phase index in [0, {self.num_green_phases})")
+            raise ValueError(
+                f"traffic light {self.id}: action {new_phase} is not a green phase index "
+                f"in [0, {self.num_green_phases})"
+            )
         forced = (
             self.env.enforce_max_green
             and not self.is_yellow
@@ -346,14 +354,30 @@ class TrafficSignalEnv(gym.Env):
                 )
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        for name, v in [("delta_time", delta_time), ("yellow_time", yellow_time), ("min_green", min_green), ("max_green", max_green), ("num_seconds", num_seconds), ("begin_time", begin_time)]:
+        for name, v in [
+            ("delta_time", delta_time),
+            ("yellow_time", yellow_time),
+            ("min_green", min_green),
+            ("max_green", max_green),
+            ("num_seconds", num_seconds),
+            ("begin_time", begin_time),
+        ]:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-                raise ValueError(f"{name} must be a whole number of seconds >= 0 (sumo-rl steps SUMO in 1 s), got {v!r}")
+                raise ValueError(
+                    f"{name} must be a whole number of seconds >= 0 (sumo-rl steps SUMO in 1 s), got {v!r}"
+                )
         if not delta_time > yellow_time:
-            raise ValueError(f"delta_time ({delta_time}) must be greater than yellow_time ({yellow_time}), as sumo-rl asserts")
+            raise ValueError(
+                f"delta_time ({delta_time}) must be greater than yellow_time ({yellow_time}), as sumo-rl asserts"
+            )
         if scenario is None and (net_file is None or route_file is None):
-            raise ValueError("give net_file and route_file (SUMO files), or scenario=... (a scenario with traffic lights)")
-        if not (sumo_seed == "random" or (isinstance(sumo_seed, (int, np.integer)) and not isinstance(sumo_seed, bool) and sumo_seed >= 0)):
+            raise ValueError(
+                "give net_file and route_file (SUMO files), or scenario=... (a scenario with traffic lights)"
+            )
+        if not (
+            sumo_seed == "random"
+            or (isinstance(sumo_seed, (int, np.integer)) and not isinstance(sumo_seed, bool) and sumo_seed >= 0)
+        ):
             raise ValueError(f"sumo_seed must be 'random' or an int >= 0, got {sumo_seed!r}")
         self.render_mode = render_mode
         self._net = net_file
@@ -395,28 +419,32 @@ class TrafficSignalEnv(gym.Env):
         lights = self._layout["lights"]
         if not lights:
             raise ValueError(f"{scenario or net_file} has no traffic light to control")
-        names = [str(l["name"]) for l in lights]
+        names = [str(light["name"]) for light in lights]
         if len(set(names)) != len(names):
             # A SUMO light split into several junctions here (docs/sumo.md): one agent each.
-            names = [f"{l['name']}#{l['junction']}" for l in lights]
+            names = [f"{light['name']}#{light['junction']}" for light in lights]
         self._lights = dict(zip(names, lights))
         self.ts_ids = list(names)
         if isinstance(reward_fn, dict):
             unknown = set(reward_fn) - set(self.ts_ids)
             if unknown:
-                raise ValueError(f"reward_fn names unknown traffic lights {sorted(unknown)}; the lights are {self.ts_ids}")
+                raise ValueError(
+                    f"reward_fn names unknown traffic lights {sorted(unknown)}; the lights are {self.ts_ids}"
+                )
             self.ts_ids = [t for t in self.ts_ids if t in reward_fn]
         if ts_id is not None:
             if ts_id not in self.ts_ids:
-                raise ValueError(f"ts_id {ts_id!r} is not a traffic light of {scenario or net_file}; the lights are {self.ts_ids}")
+                raise ValueError(
+                    f"ts_id {ts_id!r} is not a traffic light of {scenario or net_file}; the lights are {self.ts_ids}"
+                )
             self.ts_ids = [ts_id] + [t for t in self.ts_ids if t != ts_id]
         # Lane slots of each light: its incoming lanes come first in the layout, light by light,
         # then the outgoing ones.
         self._slots = {}
         k_in = 0
-        k_out = sum(len(l["lanes"]) for l in lights)
-        for name, l in self._lights.items():
-            n_in, n_out = len(l["lanes"]), len(l["out_lanes"])
+        k_out = sum(len(light["lanes"]) for light in lights)
+        for name, light in self._lights.items():
+            n_in, n_out = len(light["lanes"]), len(light["out_lanes"])
             self._slots[name] = (np.arange(k_in, k_in + n_in), np.arange(k_out, k_out + n_out))
             k_in += n_in
             k_out += n_out
@@ -532,7 +560,9 @@ class TrafficSignalEnv(gym.Env):
                 ts.set_next_phase(int(np.asarray(actions).reshape(-1)[0]))
         else:
             if not isinstance(actions, dict):
-                raise ValueError(f"actions must be a dict {{ts_id: green phase}} with single_agent=False, got {actions!r}")
+                raise ValueError(
+                    f"actions must be a dict {{ts_id: green phase}} with single_agent=False, got {actions!r}"
+                )
             for ts, action in actions.items():
                 if ts not in self.traffic_signals:
                     raise ValueError(f"unknown traffic light {ts!r}; the lights are {self.ts_ids}")
@@ -546,13 +576,25 @@ class TrafficSignalEnv(gym.Env):
 
     def _compute_observations(self):
         self.observations.update(
-            {ts: self.traffic_signals[ts].compute_observation() for ts in self.ts_ids if self.traffic_signals[ts].time_to_act or self.fixed_ts}
+            {
+                ts: self.traffic_signals[ts].compute_observation()
+                for ts in self.ts_ids
+                if self.traffic_signals[ts].time_to_act or self.fixed_ts
+            }
         )
-        return {ts: self.observations[ts].copy() for ts in self.observations if self.traffic_signals[ts].time_to_act or self.fixed_ts}
+        return {
+            ts: self.observations[ts].copy()
+            for ts in self.observations
+            if self.traffic_signals[ts].time_to_act or self.fixed_ts
+        }
 
     def _compute_rewards(self):
         self.rewards.update(
-            {ts: self.traffic_signals[ts].compute_reward() for ts in self.ts_ids if self.traffic_signals[ts].time_to_act or self.fixed_ts}
+            {
+                ts: self.traffic_signals[ts].compute_reward()
+                for ts in self.ts_ids
+                if self.traffic_signals[ts].time_to_act or self.fixed_ts
+            }
         )
         return {ts: self.rewards[ts] for ts in self.rewards if self.traffic_signals[ts].time_to_act or self.fixed_ts}
 
@@ -618,7 +660,10 @@ class TrafficSignalParallelEnv(ParallelEnv):
 
     def __init__(self, **kwargs):
         if kwargs.pop("single_agent", False):
-            raise ValueError("traffic_signal_parallel_env has one agent per light; single_agent=True is gymnasium.make('smlworld/TrafficSignal-v0')")
+            raise ValueError(
+                "traffic_signal_parallel_env has one agent per light; for one agent use "
+                "gymnasium.make('smlworld/TrafficSignal-v0')"
+            )
         self.env = TrafficSignalEnv(single_agent=False, **kwargs)
         self.render_mode = self.env.render_mode
         self.possible_agents = list(self.env.ts_ids)

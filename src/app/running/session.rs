@@ -268,10 +268,10 @@ impl Session {
         let mut sim = b.build();
         // Waiting times are what a traffic-signal environment rewards (issue 55): counted
         // where there are lights to learn.
-        if sim.world().get_resource::<TrafficLights>().is_some_and(|l| !l.controllers.is_empty()) {
-            if let Some(schedule) = sim.scheduler_mut().schedule_mut(crate::sim::Dynamics) {
-                schedule.add_systems(accumulate_waiting.after(SimSystems::Integrate));
-            }
+        if sim.world().get_resource::<TrafficLights>().is_some_and(|l| !l.controllers.is_empty())
+            && let Some(schedule) = sim.scheduler_mut().schedule_mut(crate::sim::Dynamics)
+        {
+            schedule.add_systems(accumulate_waiting.after(SimSystems::Integrate));
         }
         let start = sim.now();
         Ok(Session {

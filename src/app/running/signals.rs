@@ -190,10 +190,10 @@ impl SignalLayout {
                     }
                 }
                 for s in &map.lanelets[i].successors {
-                    if let Some(k) = map.lanelet_index(*s).map(|k| k as u32).filter(|&k| !is_link(k)) {
-                        if !outgoing.contains(&k) {
-                            outgoing.push(k);
-                        }
+                    if let Some(k) = map.lanelet_index(*s).map(|k| k as u32).filter(|&k| !is_link(k))
+                        && !outgoing.contains(&k)
+                    {
+                        outgoing.push(k);
                     }
                 }
             }
