@@ -78,6 +78,7 @@ class TrafficSignal:
         self.time_since_last_phase_change = 0
         self.next_action_time = env.begin_time
         self._green_start = env.begin_time  # when the green shown now came on [s]
+        self._shown = None
         self.last_measure = 0.0
         self.last_reward = None
         if isinstance(reward_fn, str):
@@ -135,7 +136,11 @@ class TrafficSignal:
         self._show(self.all_phases[0].state)
 
     def _show(self, state: str):
-        self.env._sim.set_phase(self.junction, state)
+        """Hold ``state`` at the light (sumo-rl ``setRedYellowGreenState``; a state already
+        held is not sent again)."""
+        if state != self._shown:
+            self.env._sim.set_phase(self.junction, state)
+            self._shown = state
 
     @property
     def time_to_act(self) -> bool:
@@ -205,13 +210,6 @@ class TrafficSignal:
         return reward
 
     # -- sumo-rl's measurements -----------------------------------------------------------
-    def _capacity(self, slots):
-        """Vehicles that fit in each lane: length / (MIN_GAP + mean vehicle length)."""
-        m = self.env._measures
-        count = m["count"][slots]
-        mean_length = np.divide(m["length_sum"][slots], count, out=np.zeros_like(count), where=count > 0)
-        return self.env._layout["slot_length"][slots] / (self.MIN_GAP + mean_length)
-
     def get_accumulated_waiting_time_per_lane(self):
         """Accumulated waiting time [s] of the vehicles on each incoming lane, a vehicle's
         waiting split over the lanes it waited on as sumo-rl splits it."""
@@ -231,16 +229,16 @@ class TrafficSignal:
         return int(m[self._out].sum() - m[self._in].sum())
 
     def get_out_lanes_density(self):
-        return [min(1, float(d)) for d in self.env._measures["count"][self._out] / self._capacity(self._out)]
+        return self.env._measures["density"][self._out].tolist()
 
     def get_lanes_density(self):
         """Vehicles on each incoming lane over the vehicles that fit, capped at 1."""
-        return [min(1, float(d)) for d in self.env._measures["count"][self._in] / self._capacity(self._in)]
+        return self.env._measures["density"][self._in].tolist()
 
     def get_lanes_queue(self):
         """Halting vehicles (speed < 0.1 m/s) on each incoming lane over the vehicles that fit,
         capped at 1."""
-        return [min(1, float(q)) for q in self.env._measures["halting"][self._in] / self._capacity(self._in)]
+        return self.env._measures["queue"][self._in].tolist()
 
     def get_total_queued(self) -> int:
         """Halting vehicles on the incoming lanes."""
@@ -473,7 +471,16 @@ class TrafficSignalEnv(gym.Env):
         }
 
     def _measure(self):
-        self._measures = self._sim._core.signal_measures()
+        """One measurement of every light's lanes (one Rust call), with every lane's density
+        and queue as sumo-rl computes them: vehicles (halting vehicles) over the vehicles that
+        fit, ``length / (MIN_GAP + mean vehicle length)``, capped at 1."""
+        m = self._sim._core.signal_measures()
+        count = m["count"]
+        mean_length = np.divide(m["length_sum"], count, out=np.zeros_like(count), where=count > 0)
+        capacity = self._layout["slot_length"] / (TrafficSignal.MIN_GAP + mean_length)
+        m["density"] = np.minimum(1.0, count / capacity)
+        m["queue"] = np.minimum(1.0, m["halting"] / capacity)
+        self._measures = m
 
     @property
     def sim_step(self) -> int:
