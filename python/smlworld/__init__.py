@@ -285,6 +285,7 @@ ENV_KWARGS = {
 VECTOR_ENVS = {
     "smlworld/PlatoonFollow-v0": "smlworld.envs.vector:platoon_follow_vec",
     "smlworld/HighwayMerge-v0": "smlworld.envs.vector:highway_merge_vec",
+    "smlworld/TrafficSignal-v0": "smlworld.envs.traffic_signal:traffic_signal_vec",
 }
 
 

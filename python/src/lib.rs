@@ -521,6 +521,57 @@ fn run<'py>(
     json_to_py(py, &serde_json_string(&summary)?)
 }
 
+/// Advance `cores[i]` by `dts[i]` [s] for every `i` in one call, the simulations side by side on
+/// the crate's persistent thread pool (at most `threads`, 0: the default) with the GIL released:
+/// the traffic-signal vector env's step (issue 55). Each simulation gives the bits it gives
+/// stepped alone; sims with Python controllers, a sim listed twice, or a bad `dt` are refused
+/// before anything moves.
+#[pyfunction]
+#[pyo3(signature = (cores, dts, threads=0))]
+fn step_many(py: Python<'_>, cores: Vec<PyRef<'_, Core>>, dts: Vec<f64>, threads: usize) -> PyResult<()> {
+    if cores.len() != dts.len() {
+        return Err(PyValueError::new_err(format!(
+            "step_many: {} sims and {} dts; give one dt per sim",
+            cores.len(),
+            dts.len()
+        )));
+    }
+    if let Some((i, dt)) = dts.iter().enumerate().find(|(_, dt)| !(dt.is_finite() && **dt >= 0.0)) {
+        return Err(PyValueError::new_err(format!(
+            "step_many: dts[{i}] must be a finite number of seconds >= 0, got {dt}"
+        )));
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    if let Some(i) = cores.iter().position(|c| !seen.insert(c.address())) {
+        return Err(PyValueError::new_err(format!("step_many: sim {i} is listed twice")));
+    }
+    let mut guards = Vec::with_capacity(cores.len());
+    for (i, c) in cores.iter().enumerate() {
+        let s = c.session(py)?;
+        if controllers::any(&s) {
+            return Err(PyValueError::new_err(format!(
+                "step_many: sim {i} has Python controllers; step it with Sim.step"
+            )));
+        }
+        guards.push(s);
+    }
+    let mut work: Vec<(&mut Session, f64)> = guards.iter_mut().map(|g| &mut **g).zip(dts).collect();
+    let parallelism = if threads == 0 {
+        smlworld::sim::Parallelism { min_vehicles: 1, ..Default::default() }
+    } else {
+        smlworld::sim::Parallelism { threads, min_vehicles: 1 }
+    };
+    py.detach(|| {
+        parallelism.for_each_chunk(&mut work, &mut Vec::<()>::new(), |chunk, _| {
+            for (s, dt) in chunk {
+                // Checked above: a finite dt >= 0 cannot fail.
+                let _ = s.step(*dt);
+            }
+        })
+    });
+    Ok(())
+}
+
 /// A lanelet map (see `smlworld.load_map`).
 #[pyclass(module = "smlworld._smlworld", frozen)]
 struct Map {
@@ -614,5 +665,6 @@ fn _smlworld(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<vec::VecCore>()?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(load_map, m)?)?;
+    m.add_function(wrap_pyfunction!(step_many, m)?)?;
     Ok(())
 }

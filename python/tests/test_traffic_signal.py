@@ -291,3 +291,36 @@ def test_bench_signals_measures_ours(root):
     assert m, done.stdout
     lo, mid, hi = (float(g.replace(",", "")) for g in m.groups())
     assert 0 < lo <= mid <= hi
+
+
+def test_make_vec_steps_copies_together_as_the_single_env_does(two_way):
+    """make_vec's copies advance in one Rust call per signal event; each copy gives what a single
+    env gives for its seed (s + i) and actions, autoreset (NEXT_STEP) included."""
+    net, rou = two_way
+    n, steps = 3, 9
+    kwargs = dict(net_file=net, route_file=rou, num_seconds=30, sumo_seed=0)
+    vec = smlworld.envs.make_vec("smlworld/TrafficSignal-v0", num_envs=n, seed=4, **kwargs)
+    assert vec.observation_space.shape == (n, 21)
+    rng = np.random.default_rng(0)
+    actions = rng.integers(0, 4, size=(steps, n))
+    singles = [gym.make("smlworld/TrafficSignal-v0", **kwargs) for _ in range(n)]
+    first = [s.reset(seed=4 + i)[0] for i, s in enumerate(singles)]
+    assert np.array_equal(np.stack(first), vec.reset(seed=4)[0])
+    done = np.zeros(n, dtype=bool)
+    truncations = 0
+    for k in range(steps):
+        obs, rewards, terminated, truncated, infos = vec.step(actions[k])
+        for i, s in enumerate(singles):
+            if done[i]:
+                o, _ = s.reset()
+                r, tr = 0.0, False
+            else:
+                o, r, _, tr, _ = s.step(int(actions[k, i]))
+            np.testing.assert_array_equal(obs[i], o, err_msg=f"step {k}, env {i}")
+            assert rewards[i] == r and truncated[i] == tr, (k, i)
+            done[i] = tr
+        truncations += int(truncated.sum())
+        assert "system_total_stopped" in infos and len(infos["system_total_stopped"]) == n
+    assert truncations == n, "every copy ended its 30 s episode once (at the 6th step) and was reset"
+    default = gym.make_vec("smlworld/TrafficSignal-v0", num_envs=2, **kwargs)
+    assert type(default).__name__ == "TrafficSignalVectorEnv"

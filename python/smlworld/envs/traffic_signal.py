@@ -30,9 +30,13 @@ from typing import Callable, Dict, Optional, Union
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
 from pettingzoo import ParallelEnv
 
 import smlworld
+
+from .. import _smlworld
 
 from ._frames import rgb_frame
 
@@ -526,11 +530,21 @@ class TrafficSignalEnv(gym.Env):
     def step(self, action):
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        if self.fixed_ts or action is None or (isinstance(action, dict) and action == {}):
+        if self._start_step(action):
             self._advance(self.delta_time)
         else:
-            self._apply_actions(action)
             self._run_steps()
+        return self._finish_step()
+
+    def _start_step(self, action) -> bool:
+        """Apply ``action``; True when the step just lets the program run (``fixed_ts`` or no
+        action, as sumo-rl's ``step``)."""
+        if self.fixed_ts or action is None or (isinstance(action, dict) and action == {}):
+            return True
+        self._apply_actions(action)
+        return False
+
+    def _finish_step(self):
         self._measure()
         observations = self._compute_observations()
         rewards = self._compute_rewards()
@@ -546,19 +560,28 @@ class TrafficSignalEnv(gym.Env):
         """sumo-rl ``_run_steps`` (1 s steps until a light acts), stepping straight to the next
         event (a yellow's end, a light's action time) instead of second by second."""
         while True:
-            t = self.sim_step
-            events = [ts.next_action_time for ts in self.traffic_signals.values() if ts.next_action_time > t]
-            events += [
-                t + ts.yellow_time - ts.time_since_last_phase_change
-                for ts in self.traffic_signals.values()
-                if ts.is_yellow and ts.time_since_last_phase_change < ts.yellow_time
-            ]
-            target = min(events) if events else t + 1
-            self._advance(target - t)
-            for ts in self.traffic_signals.values():
-                ts.update(target - t)
-            if any(ts.time_to_act for ts in self.traffic_signals.values()):
+            seconds = self._next_event()
+            self._advance(seconds)
+            if self._arrive(seconds):
                 return
+
+    def _next_event(self) -> int:
+        """Seconds to the next event: a light's yellow ends or a light acts."""
+        t = self.sim_step
+        events = [ts.next_action_time for ts in self.traffic_signals.values() if ts.next_action_time > t]
+        events += [
+            t + ts.yellow_time - ts.time_since_last_phase_change
+            for ts in self.traffic_signals.values()
+            if ts.is_yellow and ts.time_since_last_phase_change < ts.yellow_time
+        ]
+        return (min(events) if events else t + 1) - t
+
+    def _arrive(self, seconds: int) -> bool:
+        """After the sim advanced ``seconds``: sumo-rl's per-second ``update`` of every light;
+        True when a light acts now."""
+        for ts in self.traffic_signals.values():
+            ts.update(seconds)
+        return any(ts.time_to_act for ts in self.traffic_signals.values())
 
     def _apply_actions(self, actions):
         if self.single_agent:
@@ -724,3 +747,94 @@ def traffic_signal_parallel_env(**kwargs) -> TrafficSignalParallelEnv:
     """sumo-rl's ``parallel_env`` on SML World: a PettingZoo ``ParallelEnv`` with one agent per
     traffic light (arguments as :class:`TrafficSignalEnv`)."""
     return TrafficSignalParallelEnv(**kwargs)
+
+
+class TrafficSignalVectorEnv(VectorEnv):
+    """``num_envs`` copies of ``smlworld/TrafficSignal-v0`` whose simulations advance together:
+    every stretch of sim time between two signal events (a yellow's end, the next action) is one
+    Rust call for all copies (``_smlworld.step_many``: side by side on the thread pool, the GIL
+    released). The lights' logic stays the single env's Python, so each copy gives the single
+    env's observations, rewards and flags for the same seed and actions.
+
+    Autoreset as gymnasium's default ``NEXT_STEP`` (as :mod:`smlworld.envs.vector`): the step
+    after an episode's end resets that copy, ignores its action and returns its first
+    observation with reward 0. ``reset(seed=s)`` seeds copy ``i`` with ``s + i``. ``threads``
+    caps the threads of one step (``None``: the default pool, at most 4).
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, threads: Optional[int] = None, **kwargs):
+        num_envs = int(num_envs)
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be at least 1, got {num_envs}")
+        if not kwargs.pop("single_agent", True):
+            raise ValueError("the vector env has one agent per copy (single_agent=True)")
+        self.envs = [TrafficSignalEnv(single_agent=True, **kwargs) for _ in range(num_envs)]
+        self.num_envs = num_envs
+        self.threads = 0 if threads is None else int(threads)
+        self.single_observation_space = self.envs[0].observation_space
+        self.single_action_space = self.envs[0].action_space
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._autoreset = np.zeros(num_envs, dtype=bool)
+
+    def reset(self, *, seed=None, options=None):
+        if seed is None or isinstance(seed, (int, np.integer)):
+            seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"reset: {len(seeds)} seeds for {self.num_envs} envs")
+        obs, infos = [], {}
+        for i, (env, s) in enumerate(zip(self.envs, seeds)):
+            o, info = env.reset(seed=s, options=options)
+            obs.append(o)
+            infos = self._add_info(infos, info, i)
+        self._autoreset[:] = False
+        return np.stack(obs), infos
+
+    def _advance_all(self, envs, seconds):
+        _smlworld.step_many([e._sim._core for e in envs], [float(s) for s in seconds], self.threads)
+        for e, s in zip(envs, seconds):
+            e._t += int(s)
+
+    def step(self, actions):
+        actions = np.asarray(actions).reshape(self.num_envs, -1)
+        if not all(e._started for e in self.envs):
+            raise RuntimeError("call reset() before step()")
+        moving = [i for i in range(self.num_envs) if not self._autoreset[i]]
+        running, fixed = [], []
+        for i in moving:
+            (fixed if self.envs[i]._start_step(int(actions[i, 0])) else running).append(self.envs[i])
+        if fixed:
+            self._advance_all(fixed, [e.delta_time for e in fixed])
+        # Every copy to its next signal event in one call, until each copy's lights act.
+        while running:
+            seconds = [e._next_event() for e in running]
+            self._advance_all(running, seconds)
+            running = [e for e, s in zip(running, seconds) if not e._arrive(s)]
+        obs = np.zeros((self.num_envs,) + self.single_observation_space.shape, dtype=np.float32)
+        rewards = np.zeros(self.num_envs)
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        truncated = np.zeros(self.num_envs, dtype=bool)
+        infos = {}
+        for i, env in enumerate(self.envs):
+            if self._autoreset[i]:
+                obs[i], info = env.reset()
+            else:
+                obs[i], rewards[i], terminated[i], truncated[i], info = env._finish_step()
+            infos = self._add_info(infos, info, i)
+        self._autoreset = terminated | truncated
+        return obs, rewards, terminated, truncated, infos
+
+    def close_extras(self, **kwargs):
+        for env in self.envs:
+            env.close()
+
+
+def traffic_signal_vec(num_envs: int = 1, threads: Optional[int] = None, **kwargs) -> TrafficSignalVectorEnv:
+    """``make_vec("smlworld/TrafficSignal-v0", num_envs=N, net_file=..., route_file=...)``: see
+    :class:`TrafficSignalVectorEnv` (``kwargs`` are the single env's)."""
+    kwargs.pop("max_episode_steps", None)
+    return TrafficSignalVectorEnv(num_envs=num_envs, threads=threads, **kwargs)
