@@ -324,3 +324,14 @@ def test_make_vec_steps_copies_together_as_the_single_env_does(two_way):
     assert truncations == n, "every copy ended its 30 s episode once (at the 6th step) and was reset"
     default = gym.make_vec("smlworld/TrafficSignal-v0", num_envs=2, **kwargs)
     assert type(default).__name__ == "TrafficSignalVectorEnv"
+
+
+def test_rgb_array_frames_show_the_junction(two_way):
+    env = gym.make("smlworld/TrafficSignal-v0", net_file=two_way[0], route_file=two_way[1], render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(1)
+    frame = env.render()
+    assert frame.shape == (360, 640, 3) and frame.dtype == np.uint8
+    assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 3, "roads, vehicles and signals, not a blank image"
+    with pytest.raises(ValueError, match=r"render_mode must be None or 'rgb_array'"):
+        smlworld.envs.TrafficSignalEnv(net_file=two_way[0], route_file=two_way[1], render_mode="human")
