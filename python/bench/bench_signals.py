@@ -2,6 +2,7 @@
 ``smlworld/TrafficSignal-v0`` on the same SUMO net and routes with random actions (issue 55 §2).
 
     python python/bench/bench_signals.py [--steps 200] [--repeat 3] [--only ours|sumo] [--net 2way|grid4x4] [--hz 10]
+                                         [--vec 8]
 
 Needs ``sumo-rl``, ``eclipse-sumo`` and ``libsumo`` (the same version as eclipse-sumo; without
 it sumo-rl falls back to TraCI over a socket and the worker stops with a message).
@@ -42,13 +43,24 @@ def nets_dir() -> Path:
     return Path(spec.submodule_search_locations[0]) / "nets"
 
 
-def worker(kind: str, net: str, steps: int, seed: int, hz: float) -> dict:
-    """One measurement in this process: env-steps per second of `kind` ("ours" or "sumo")."""
+def worker(kind: str, net: str, steps: int, seed: int, hz: float, vec: int = 0) -> dict:
+    """One measurement in this process: env-steps per second of `kind` ("ours" or "sumo"); with
+    ``vec`` (ours, 2way) of ``make_vec`` with that many copies (steps x copies per second)."""
     import numpy as np
 
     net_file, route_file = (str(nets_dir() / p) for p in NETS[net])
     rng = np.random.default_rng(seed)
     kwargs = dict(net_file=net_file, route_file=route_file, num_seconds=steps * 5 + 100, sumo_seed=seed)
+    if vec:
+        import smlworld.envs
+
+        overrides = {f"rates.{m}": hz for m in ("dynamics", "control", "sensors")} if hz else {}
+        envs = smlworld.envs.make_vec("smlworld/TrafficSignal-v0", num_envs=vec, overrides=overrides, **kwargs)
+        envs.reset(seed=seed)
+        t = time.perf_counter()
+        for _ in range(steps):
+            envs.step(rng.integers(envs.single_action_space.n, size=vec))
+        return {"env_steps_per_s": steps * vec / (time.perf_counter() - t), "agents": 1}
     if kind == "sumo":
         import traci
 
@@ -78,7 +90,7 @@ def worker(kind: str, net: str, steps: int, seed: int, hz: float) -> dict:
     return {"env_steps_per_s": steps * len(agents if net != "2way" else [0]) / wall, "agents": len(agents)}
 
 
-def measure(kind, net, steps, seed, hz):
+def measure(kind, net, steps, seed, hz, vec=0):
     env = dict(os.environ)
     if kind == "sumo":
         env["LIBSUMO_AS_TRACI"] = "1"
@@ -100,6 +112,8 @@ def measure(kind, net, steps, seed, hz):
             str(seed),
             "--hz",
             str(hz),
+            "--vec",
+            str(vec),
         ],
         capture_output=True,
         text=True,
@@ -123,12 +137,13 @@ def main():
         default=0.0,
         help="our dynamics, control and sensors rate [Hz] (scenario overrides; 0: the defaults, 50/20/20 Hz)",
     )
+    p.add_argument("--vec", type=int, default=0, help="also measure make_vec with this many copies (2way)")
     p.add_argument("--worker", choices=["ours", "sumo"], help=argparse.SUPPRESS)
     a = p.parse_args()
     if a.steps < 1 or a.repeat < 1:
         sys.exit("bench_signals: --steps and --repeat must be at least 1")
     if a.worker:
-        print(json.dumps(worker(a.worker, a.net[0], a.steps, a.seed, a.hz)))
+        print(json.dumps(worker(a.worker, a.net[0], a.steps, a.seed, a.hz, a.vec)))
         return
     kinds = [a.only] if a.only else ["sumo", "ours"]
     for net in a.net or ["2way", "grid4x4"]:
@@ -139,9 +154,15 @@ def main():
                 m = measure(k, net, a.steps, a.seed + r, a.hz)
                 results[k].append(m["env_steps_per_s"])
                 agents = m["agents"]
-        for k in kinds:
+        if a.vec and net == "2way" and "ours" in kinds:
+            results["vec"] = [
+                measure("ours", net, a.steps, a.seed + r, a.hz, a.vec)["env_steps_per_s"] for r in range(a.repeat)
+            ]
+        for k in results:
             v = results[k]
             name = "sumo-rl (libsumo)" if k == "sumo" else ("smlworld" + (f" at {a.hz:g} Hz" if a.hz else ""))
+            if k == "vec":
+                name += f" make_vec(num_envs={a.vec})"
             print(
                 f"{net} {name}: {min(v):,.0f} / {statistics.median(v):,.0f} / {max(v):,.0f} (min / median / max) "
                 f"env-steps/s ({a.steps} steps, {agents} agent{'s' if agents != 1 else ''}, {a.repeat} runs)"
