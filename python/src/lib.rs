@@ -434,7 +434,7 @@ impl Core {
     }
 
     /// Every traffic light for a signal-control environment (issue 55): a list of dicts
-    /// `{"junction", "name", "phases": [(state, duration)], "lanes", "out_lanes"}` plus the lane
+    /// `{"junction", "name", "phases": [(state, duration)], "file_states", "lanes", "out_lanes"}` plus the lane
     /// slots the measurements use: `{"lights": [...], "slot_lanelet", "slot_incoming",
     /// "slot_length", "slot_allowed"}` (see `smlworld::app::signals::SignalLayout`).
     fn signal_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
@@ -447,6 +447,7 @@ impl Core {
             d.set_item("junction", l.junction)?;
             d.set_item("name", &l.name)?;
             d.set_item("phases", l.phases.clone())?;
+            d.set_item("file_states", l.file_states.clone())?;
             d.set_item("lanes", l.lanes.clone())?;
             d.set_item("out_lanes", l.out_lanes.clone())?;
             lights.append(d)?;

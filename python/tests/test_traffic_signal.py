@@ -335,3 +335,52 @@ def test_rgb_array_frames_show_the_junction(two_way):
     assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 3, "roads, vehicles and signals, not a blank image"
     with pytest.raises(ValueError, match=r"render_mode must be None or 'rgb_array'"):
         smlworld.envs.TrafficSignalEnv(net_file=two_way[0], route_file=two_way[1], render_mode="human")
+
+
+@pytest.mark.parametrize(
+    "net, routes",
+    [
+        (
+            "2way-single-intersection/single-intersection.net.xml",
+            "2way-single-intersection/single-intersection-vhvh.rou.xml",
+        ),
+        ("RESCO/grid4x4/grid4x4.net.xml", "RESCO/grid4x4/grid4x4_1.rou.xml"),
+    ],
+)
+def test_lights_phases_and_lanes_are_sumo_rl_s(nets, net, routes):
+    """sumo-rl's own SumoEnvironment (TraCI, SUMO from eclipse-sumo) on the same files gives the
+    same light ids in the same order, the same green phases and yellow transitions (their
+    characters; ours are in our link order), and the same incoming lanes in the same order
+    (matched by their centre lines), so a policy's observation layout carries over."""
+    import sumo
+
+    os.environ.setdefault("SUMO_HOME", sumo.SUMO_HOME)
+    import sumolib
+    from sumo_rl import SumoEnvironment
+
+    net_file, route_file = str(nets / net), str(nets / routes)
+    theirs = SumoEnvironment(net_file=net_file, route_file=route_file, sumo_warnings=False)
+    ours = smlworld.envs.TrafficSignalEnv(net_file=net_file, route_file=route_file)
+    assert ours.ts_ids == theirs.ts_ids
+    sumo_net = sumolib.net.readNet(net_file)
+    geometry = ours._sim.map()
+    ends = {int(k): (c[0], c[-1]) for k in geometry.lanelets for c in [geometry.centre(int(k))]}
+
+    def lanelet_of(lane_id):
+        shape = np.array(sumo_net.getLane(lane_id).getShape())
+        d = {k: np.hypot(*(a - shape[0])) + np.hypot(*(b - shape[-1])) for k, (a, b) in ends.items()}
+        best = min(d, key=d.get)
+        assert d[best] < 1.0, (lane_id, d[best])
+        return best
+
+    for ts_id in ours.ts_ids:
+        a, b = theirs.traffic_signals[ts_id], ours.traffic_signals[ts_id]
+        assert b.num_green_phases == a.num_green_phases, ts_id
+        assert [sorted(p.state) for p in b.green_phases] == [sorted(p.state) for p in a.green_phases], ts_id
+        assert b.yellow_dict == a.yellow_dict
+        for key, k in a.yellow_dict.items():
+            assert sorted(b.all_phases[b.yellow_dict[key]].state) == sorted(a.all_phases[k].state), (ts_id, key)
+        assert b.lanes == [lanelet_of(lane) for lane in a.lanes], ts_id
+        assert set(b.out_lanes) == {lanelet_of(lane) for lane in a.out_lanes}, ts_id
+        for lane in a.lanes:
+            assert b.lanes_length[lanelet_of(lane)] == pytest.approx(a.lanes_length[lane], abs=0.5)

@@ -56,6 +56,12 @@ UNSUPPORTED = {
 }
 
 
+#: SUMO signal characters -> the ones the simulator shows for them, as it runs a SUMO program
+#: (src/map/junctions.rs ``map_program``): ``u`` red, ``s`` and ``o`` yielding green, ``O``
+#: green, ``Y`` yellow.
+_AS_SHOWN = str.maketrans({"O": "G", "s": "g", "o": "g", "Y": "y", "u": "r"})
+
+
 class TrafficSignal:
     """One traffic light as sumo-rl's ``TrafficSignal`` presents it to observation and reward
     functions: the same attributes (``id``, ``green_phase``, ``is_yellow``,
@@ -103,7 +109,7 @@ class TrafficSignal:
             lane: float(lengths[k])
             for lane, k in zip(self.lanes + self.out_lanes, np.concatenate([in_slots, out_slots]))
         }
-        self._build_phases([Phase(d, s) for s, d in light["phases"]])
+        self._build_phases([Phase(d, s) for s, (_, d) in zip(light["file_states"], light["phases"])])
         self.observation_fn = env.observation_class(self)
         self.observation_space = self.observation_fn.observation_space()
         self.action_space = spaces.Discrete(self.num_green_phases)
@@ -140,10 +146,11 @@ class TrafficSignal:
         self._show(self.all_phases[0].state)
 
     def _show(self, state: str):
-        """Hold ``state`` at the light (sumo-rl ``setRedYellowGreenState``; a state already
-        held is not sent again)."""
+        """Hold ``state`` (in the file's characters) at the light (sumo-rl
+        ``setRedYellowGreenState``; a state already held is not sent again), shown as the
+        simulator shows the file's program (``map_program`` in src/map/junctions.rs)."""
         if state != self._shown:
-            self.env._sim.set_phase(self.junction, state)
+            self.env._sim.set_phase(self.junction, state.translate(_AS_SHOWN))
             self._shown = state
 
     @property
@@ -426,7 +433,8 @@ class TrafficSignalEnv(gym.Env):
             # A SUMO light split into several junctions here (docs/sumo.md): one agent each.
             names = [f"{light['name']}#{light['junction']}" for light in lights]
         self._lights = dict(zip(names, lights))
-        self.ts_ids = list(names)
+        # In SUMO's order (``trafficlight.getIDList``: sorted by id; junction ids by number).
+        self.ts_ids = sorted(names, key=lambda n: (0, int(n), "") if n.isdigit() else (1, 0, n))
         if isinstance(reward_fn, dict):
             unknown = set(reward_fn) - set(self.ts_ids)
             if unknown:

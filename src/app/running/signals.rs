@@ -14,6 +14,7 @@ use bevy_ecs::prelude::{Commands, Component, Entity, Query, Res, Resource, World
 use bevy_ecs::query::QueryState;
 
 use crate::map::LaneletMap;
+use crate::map::junctions::SignalPhase;
 use crate::sim::SimClock;
 use crate::vehicles::{JunctionNetwork, LanePosition, TrafficLights};
 use crate::world::{VehicleSize, VehicleState};
@@ -127,6 +128,10 @@ pub struct LightLayout {
     pub name: String,
     /// The program's phases: state (one character per link, in link order) and duration [s].
     pub phases: Vec<(String, f64)>,
+    /// The same phases as the map file states them, in link order: SUMO's own characters (`s`,
+    /// `u`, `o`, `O` ... kept, which `phases` shows as ours), so an environment derives green and
+    /// yellow phases from them as sumo-rl does. Equal to `phases`' states for other maps.
+    pub file_states: Vec<String>,
     /// Incoming lanes (lanelet ids) in the order of the links they feed (SUMO's `linkIndex`
     /// where the map gives it, as `trafficlight.getControlledLanes`), each once.
     pub lanes: Vec<i64>,
@@ -208,6 +213,7 @@ impl SignalLayout {
                 junction: junction.id,
                 name,
                 phases: c.program.iter().map(|p| (p.state.clone(), p.duration)).collect(),
+                file_states: file_states(map, junction, &c.program),
                 lanes: lanes.iter().map(|&i| map.lanelets[i as usize].id.0).collect(),
                 out_lanes: outgoing.iter().map(|&i| map.lanelets[i as usize].id.0).collect(),
             });
@@ -233,6 +239,38 @@ impl SignalLayout {
         let limit = l.tags.get("speed_limit").and_then(|v| v.parse::<f64>().ok()).filter(|v| *v > 0.0);
         self.allowed.push(limit.map_or(DEFAULT_ALLOWED_SPEED, |kmh| kmh / 3.6));
     }
+}
+
+/// The states of `program` as the map file gives them (see [`LightLayout::file_states`]): from
+/// the SUMO `tlLogic` every link names (tags `signal_program`, `signal_index`), re-ordered into
+/// link order like [`crate::map::junctions::map_program`] but with the file's characters; else
+/// `program`'s states. A program of another length than the file's (a scenario's
+/// `[[traffic_lights]]`) keeps its own states.
+fn file_states(map: &LaneletMap, junction: &crate::map::junctions::Junction, program: &[SignalPhase]) -> Vec<String> {
+    let own = || program.iter().map(|p| p.state.clone()).collect();
+    let mut name: Option<&str> = None;
+    let mut indices = Vec::with_capacity(junction.links.len());
+    for link in &junction.links {
+        let Some(tags) = map.lanelet(link.lanelet).map(|l| &l.tags) else { return own() };
+        let (Some(id), Some(k)) =
+            (tags.get("signal_program"), tags.get("signal_index").and_then(|k| k.parse::<usize>().ok()))
+        else {
+            return own();
+        };
+        if name.is_some_and(|n| n != id) {
+            return own();
+        }
+        name = Some(id);
+        indices.push(k);
+    }
+    let Some(file) = name.and_then(|n| map.signal_programs.get(n)) else { return own() };
+    if file.phases.len() != program.len() {
+        return own();
+    }
+    file.phases
+        .iter()
+        .map(|ph| indices.iter().map(|&k| ph.state.as_bytes().get(k).map_or('r', |&c| c as char)).collect())
+        .collect()
 }
 
 /// One measurement: per lane slot of a [`SignalLayout`] and for the whole system.
