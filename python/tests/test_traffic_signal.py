@@ -384,3 +384,22 @@ def test_lights_phases_and_lanes_are_sumo_rl_s(nets, net, routes):
         assert set(b.out_lanes) == {lanelet_of(lane) for lane in a.out_lanes}, ts_id
         for lane in a.lanes:
             assert b.lanes_length[lanelet_of(lane)] == pytest.approx(a.lanes_length[lane], abs=0.5)
+
+
+def test_ts_id_picks_the_single_agent_s_light_and_reward_dicts_pick_lights(nets):
+    d = nets / "RESCO" / "grid4x4"
+    files = dict(net_file=str(d / "grid4x4.net.xml"), route_file=str(d / "grid4x4_1.rou.xml"), num_seconds=60)
+    env = gym.make("smlworld/TrafficSignal-v0", ts_id="B1", **files)
+    assert env.unwrapped.ts_ids[0] == "B1"
+    obs, info = env.reset(seed=0)
+    b1 = env.unwrapped.traffic_signals["B1"]
+    assert obs.shape == (b1.num_green_phases + 1 + 2 * len(b1.lanes),)
+    with pytest.raises(ValueError, match=r"ts_id 'Z9' is not a traffic light"):
+        smlworld.envs.TrafficSignalEnv(ts_id="Z9", **files)
+    two = smlworld.envs.TrafficSignalEnv(reward_fn={"A0": "queue", "D3": "pressure"}, **files)
+    assert two.ts_ids == ["A0", "D3"]
+    two.reset(seed=0)
+    for _ in range(6):
+        _, rewards, _, _ = two.step({"A0": 1, "D3": 0})
+    assert rewards["A0"] == -two.traffic_signals["A0"].get_total_queued()
+    assert rewards["D3"] == two.traffic_signals["D3"].get_pressure()
