@@ -272,6 +272,12 @@ def load_map(path) -> Map:
 ENVS = {
     "smlworld/PlatoonFollow-v0": "smlworld.envs.platoon:PlatoonFollowEnv",
     "smlworld/HighwayMerge-v0": "smlworld.envs.merge:HighwayMergeEnv",
+    "smlworld/TrafficSignal-v0": "smlworld.envs.traffic_signal:TrafficSignalEnv",
+}
+
+#: Constructor arguments an env id fixes by default (``gymnasium.make`` may override them).
+ENV_KWARGS = {
+    "smlworld/TrafficSignal-v0": {"single_agent": True},
 }
 
 #: Their vector envs stepped in Rust (``smlworld.envs.make_vec``): what ``gymnasium.make_vec``
@@ -279,6 +285,7 @@ ENVS = {
 VECTOR_ENVS = {
     "smlworld/PlatoonFollow-v0": "smlworld.envs.vector:platoon_follow_vec",
     "smlworld/HighwayMerge-v0": "smlworld.envs.vector:highway_merge_vec",
+    "smlworld/TrafficSignal-v0": "smlworld.envs.traffic_signal:traffic_signal_vec",
 }
 
 
@@ -292,7 +299,12 @@ def _register_envs() -> None:
         return
     for env_id, entry_point in ENVS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry_point, vector_entry_point=VECTOR_ENVS[env_id])
+            gymnasium.register(
+                id=env_id,
+                entry_point=entry_point,
+                vector_entry_point=VECTOR_ENVS.get(env_id),
+                kwargs=ENV_KWARGS.get(env_id, {}),
+            )
 
 
 _register_envs()

@@ -433,6 +433,61 @@ impl Core {
         self.session(py)?.set_phase(id, state).map_err(session_err)
     }
 
+    /// Every traffic light for a signal-control environment (issue 55): a list of dicts
+    /// `{"junction", "name", "phases": [(state, duration)], "file_states", "lanes", "out_lanes"}` plus the lane
+    /// slots the measurements use: `{"lights": [...], "slot_lanelet", "slot_incoming",
+    /// "slot_length", "slot_allowed"}` (see `smlworld::app::signals::SignalLayout`).
+    fn signal_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let mut s = self.session(py)?;
+        let map = s.map().cloned();
+        let layout = s.signal_layout();
+        let lights = PyList::empty(py);
+        for l in &layout.lights {
+            let d = PyDict::new(py);
+            d.set_item("junction", l.junction)?;
+            d.set_item("name", &l.name)?;
+            d.set_item("phases", l.phases.clone())?;
+            d.set_item("file_states", l.file_states.clone())?;
+            d.set_item("lanes", l.lanes.clone())?;
+            d.set_item("out_lanes", l.out_lanes.clone())?;
+            lights.append(d)?;
+        }
+        let out = PyDict::new(py);
+        out.set_item("lights", lights)?;
+        let ids: Vec<i64> =
+            layout.slots.iter().map(|&i| map.as_ref().map_or(-1, |m| m.lanelets[i as usize].id.0)).collect();
+        out.set_item("slot_lanelet", PyArray1::from_vec(py, ids))?;
+        out.set_item("slot_incoming", PyArray1::from_vec(py, layout.incoming.clone()))?;
+        out.set_item("slot_length", column(py, &layout.length))?;
+        out.set_item("slot_allowed", column(py, &layout.allowed))?;
+        Ok(out)
+    }
+
+    /// One measurement of every light's lanes and of the system, in one pass over the vehicles
+    /// (see `smlworld::app::signals::SignalMeasures`): per lane slot the float arrays "count",
+    /// "halting", "length_sum", "speed_ratio_sum", "waiting"; and "running", "stopped",
+    /// "total_waiting", "total_speed".
+    fn signal_measures<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let mut m = smlworld::app::signals::SignalMeasures::default();
+        self.session(py)?.signal_measures(&mut m);
+        let d = PyDict::new(py);
+        d.set_item("count", PyArray1::from_vec(py, m.count))?;
+        d.set_item("halting", PyArray1::from_vec(py, m.halting))?;
+        d.set_item("length_sum", PyArray1::from_vec(py, m.length_sum))?;
+        d.set_item("speed_ratio_sum", PyArray1::from_vec(py, m.speed_ratio_sum))?;
+        d.set_item("waiting", PyArray1::from_vec(py, m.waiting))?;
+        d.set_item("running", m.running)?;
+        d.set_item("stopped", m.stopped)?;
+        d.set_item("total_waiting", m.total_waiting)?;
+        d.set_item("total_speed", m.total_speed)?;
+        Ok(d)
+    }
+
+    /// Remember waiting for `seconds` [s] (SUMO's `--waiting-time-memory`).
+    fn set_waiting_memory(&self, py: Python<'_>, seconds: f64) -> PyResult<()> {
+        self.session(py)?.set_waiting_memory(seconds).map_err(session_err)
+    }
+
     /// Whether Python controllers are added.
     #[getter]
     fn has_controllers(&self, py: Python<'_>) -> PyResult<bool> {
@@ -465,6 +520,57 @@ fn run<'py>(
         run_scenario(scenario, options).map_err(run_err)
     })?;
     json_to_py(py, &serde_json_string(&summary)?)
+}
+
+/// Advance `cores[i]` by `dts[i]` [s] for every `i` in one call, the simulations side by side on
+/// the crate's persistent thread pool (at most `threads`, 0: the default) with the GIL released:
+/// the traffic-signal vector env's step (issue 55). Each simulation gives the bits it gives
+/// stepped alone; sims with Python controllers, a sim listed twice, or a bad `dt` are refused
+/// before anything moves.
+#[pyfunction]
+#[pyo3(signature = (cores, dts, threads=0))]
+fn step_many(py: Python<'_>, cores: Vec<PyRef<'_, Core>>, dts: Vec<f64>, threads: usize) -> PyResult<()> {
+    if cores.len() != dts.len() {
+        return Err(PyValueError::new_err(format!(
+            "step_many: {} sims and {} dts; give one dt per sim",
+            cores.len(),
+            dts.len()
+        )));
+    }
+    if let Some((i, dt)) = dts.iter().enumerate().find(|(_, dt)| !(dt.is_finite() && **dt >= 0.0)) {
+        return Err(PyValueError::new_err(format!(
+            "step_many: dts[{i}] must be a finite number of seconds >= 0, got {dt}"
+        )));
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    if let Some(i) = cores.iter().position(|c| !seen.insert(c.address())) {
+        return Err(PyValueError::new_err(format!("step_many: sim {i} is listed twice")));
+    }
+    let mut guards = Vec::with_capacity(cores.len());
+    for (i, c) in cores.iter().enumerate() {
+        let s = c.session(py)?;
+        if controllers::any(&s) {
+            return Err(PyValueError::new_err(format!(
+                "step_many: sim {i} has Python controllers; step it with Sim.step"
+            )));
+        }
+        guards.push(s);
+    }
+    let mut work: Vec<(&mut Session, f64)> = guards.iter_mut().map(|g| &mut **g).zip(dts).collect();
+    let parallelism = if threads == 0 {
+        smlworld::sim::Parallelism { min_vehicles: 1, ..Default::default() }
+    } else {
+        smlworld::sim::Parallelism { threads, min_vehicles: 1 }
+    };
+    py.detach(|| {
+        parallelism.for_each_chunk(&mut work, &mut Vec::<()>::new(), |chunk, _| {
+            for (s, dt) in chunk {
+                // Checked above: a finite dt >= 0 cannot fail.
+                let _ = s.step(*dt);
+            }
+        })
+    });
+    Ok(())
 }
 
 /// A lanelet map (see `smlworld.load_map`).
@@ -560,5 +666,6 @@ fn _smlworld(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<vec::VecCore>()?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(load_map, m)?)?;
+    m.add_function(wrap_pyfunction!(step_many, m)?)?;
     Ok(())
 }

@@ -52,4 +52,4 @@ pub use running::runner::{RealtimeRunner, RunReport, run_headless};
 pub use running::scenario::{Scenario, ScenarioError};
 pub use running::session::{CommandOverride, LightState, Session, SessionError, StateColumns};
 pub use running::summary::{MessagesDelivered, ReplayInfo, ReplayVehicle, RunSummary};
-pub use running::{bench, bench_map, bench_render, interrupt, metrics, scenario, session, soak, traffic};
+pub use running::{bench, bench_map, bench_render, interrupt, metrics, scenario, session, signals, soak, traffic};

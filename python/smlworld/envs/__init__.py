@@ -24,6 +24,13 @@
 ``platoon_parallel_env(n=5)`` is the PettingZoo parallel version: every member behind the
 scripted leader is an agent (see :mod:`smlworld.envs.platoon_parallel`).
 
+- ``smlworld/TrafficSignal-v0``: traffic-signal control with sumo-rl's interface and defaults
+  (``net_file``, ``route_file``, ``delta_time=5``, ``yellow_time=2``, ``min_green=5``,
+  ``reward_fn="diff-waiting-time"``, ...): one traffic light, action the next green phase,
+  observation sumo-rl's default (see :mod:`smlworld.envs.traffic_signal`, docs/signals.md).
+  ``traffic_signal_parallel_env(net_file=..., route_file=...)`` is its PettingZoo parallel form,
+  one agent per light.
+
 ``make_vec(env_id, num_envs=64, seed=0)`` gives either env as a ``gymnasium.vector.VectorEnv``
 whose ``num_envs`` copies step together in Rust, in one call per step (see
 :mod:`smlworld.envs.vector`); ``gymnasium.make_vec(env_id, num_envs)`` builds the same.
@@ -36,6 +43,7 @@ import gymnasium
 from .merge import HighwayMergeEnv
 from .platoon import PlatoonFollowEnv
 from .platoon_parallel import PlatoonParallelEnv, platoon_parallel_env
+from .traffic_signal import TrafficSignalEnv, TrafficSignalParallelEnv, traffic_signal_parallel_env
 from .vector import SmlworldVectorEnv, make_vec
 
 __all__ = [
@@ -43,12 +51,17 @@ __all__ = [
     "PlatoonFollowEnv",
     "PlatoonParallelEnv",
     "SmlworldVectorEnv",
+    "TrafficSignalEnv",
+    "TrafficSignalParallelEnv",
     "make_vec",
     "platoon_parallel_env",
+    "traffic_signal_parallel_env",
 ]
 
-from .. import ENVS, VECTOR_ENVS
+from .. import ENV_KWARGS, ENVS, VECTOR_ENVS
 
 for _id, _entry in ENVS.items():
     if _id not in gymnasium.registry:
-        gymnasium.register(id=_id, entry_point=_entry, vector_entry_point=VECTOR_ENVS[_id])
+        gymnasium.register(
+            id=_id, entry_point=_entry, vector_entry_point=VECTOR_ENVS.get(_id), kwargs=ENV_KWARGS.get(_id, {})
+        )

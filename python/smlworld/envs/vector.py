@@ -33,7 +33,7 @@ from .. import _smlworld
 from . import merge, platoon
 
 #: The env ids ``make_vec`` knows.
-VECTOR_ENVS = ("smlworld/PlatoonFollow-v0", "smlworld/HighwayMerge-v0")
+VECTOR_ENVS = ("smlworld/PlatoonFollow-v0", "smlworld/HighwayMerge-v0", "smlworld/TrafficSignal-v0")
 
 #: Info values that are flags (the others are floats).
 _BOOL_INFO = ("merged", "collided")
@@ -239,7 +239,9 @@ def make_vec(
     **kwargs,
 ) -> SmlworldVectorEnv:
     """A vector env of ``num_envs`` copies of ``env_id`` ("smlworld/PlatoonFollow-v0" or
-    "smlworld/HighwayMerge-v0"), stepped together in Rust. ``kwargs`` are the single env's
+    "smlworld/HighwayMerge-v0"), stepped together in Rust; "smlworld/TrafficSignal-v0" gives
+    :class:`smlworld.envs.traffic_signal.TrafficSignalVectorEnv` (its ``kwargs`` are the single
+    env's: ``net_file``, ``route_file``, ...). For the other two ``kwargs`` are the single env's
     (``dt``, ``max_steps``; HighwayMerge-v0 also ``action="discrete"|"continuous"``). With a
     ``seed`` the envs are reset with it now (env ``i`` gets ``seed + i``); call ``reset()``
     yourself otherwise. ``threads`` and ``copy``: see :class:`SmlworldVectorEnv`.
@@ -247,6 +249,13 @@ def make_vec(
         envs = smlworld.envs.make_vec("smlworld/PlatoonFollow-v0", num_envs=64, seed=0)
         obs, rewards, terminated, truncated, infos = envs.step(envs.action_space.sample())
     """
+    if env_id == "smlworld/TrafficSignal-v0":
+        from .traffic_signal import traffic_signal_vec
+
+        env = traffic_signal_vec(num_envs, threads, **kwargs)
+        if seed is not None:
+            env.reset(seed=seed)
+        return env
     maker = _MAKERS.get(env_id)
     if maker is None:
         raise ValueError(f"make_vec knows no env {env_id!r}; known: {', '.join(VECTOR_ENVS)}")

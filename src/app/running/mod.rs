@@ -11,6 +11,7 @@ pub mod random_trips;
 pub mod runner;
 pub mod scenario;
 pub mod session;
+pub mod signals;
 pub mod soak;
 pub mod summary;
 pub mod traffic;

@@ -34,6 +34,7 @@ use crate::world::{
 
 use super::runner::RunReport;
 use super::scenario::{Scenario, ScenarioError};
+use super::signals::{MeasureQuery, SignalLayout, SignalMeasures, WaitingMemory, accumulate_waiting, measure};
 use super::summary::RunSummary;
 
 /// What a session call can reject (the message names the key, id or argument and what is allowed).
@@ -238,6 +239,9 @@ pub struct Session {
     scenario: Scenario,
     wall_seconds: f64,
     start: SimTime,
+    /// The lights' layout and the vehicle query of [`Session::signal_measures`], made at its
+    /// first call.
+    signal_state: Option<(SignalLayout, MeasureQuery)>,
 }
 
 impl Session {
@@ -261,9 +265,24 @@ impl Session {
             Control,
             report_overridden_accel.after(LongitudinalSystems::Actuate).before(LongitudinalSystems::Report),
         );
-        let sim = b.build();
+        let mut sim = b.build();
+        // Waiting times are what a traffic-signal environment rewards (issue 55): counted
+        // where there are lights to learn.
+        if sim.world().get_resource::<TrafficLights>().is_some_and(|l| !l.controllers.is_empty())
+            && let Some(schedule) = sim.scheduler_mut().schedule_mut(crate::sim::Dynamics)
+        {
+            schedule.add_systems(accumulate_waiting.after(SimSystems::Integrate));
+        }
         let start = sim.now();
-        Ok(Session { sim, renderer: None, signals: Default::default(), scenario, wall_seconds: 0.0, start })
+        Ok(Session {
+            sim,
+            renderer: None,
+            signals: Default::default(),
+            scenario,
+            wall_seconds: 0.0,
+            start,
+            signal_state: None,
+        })
     }
 
     /// The simulation.
@@ -437,6 +456,43 @@ impl Session {
         lights
             .set_state(junction - 1, state)
             .map_err(|m| SessionError::Argument(format!("set_phase: junction {junction}: {m}")))
+    }
+
+    /// Every traffic light's program and controlled lanes (see [`SignalLayout`]); empty without
+    /// lights.
+    pub fn signal_layout(&mut self) -> &SignalLayout {
+        &self.signal_parts().0
+    }
+
+    /// Measure every light's lanes and the system now, into `out` (see [`SignalMeasures`]):
+    /// one pass over the vehicles.
+    pub fn signal_measures(&mut self, out: &mut SignalMeasures) {
+        let now = self.time();
+        self.signal_parts();
+        if let Some((layout, query)) = self.signal_state.as_mut() {
+            measure(self.sim.world_mut(), query, layout, now, out);
+        }
+    }
+
+    /// Remember waiting for `seconds` [s] (SUMO's `--waiting-time-memory`, default 1000 s as
+    /// sumo-rl sets it); an error for a value that is not a positive finite number.
+    pub fn set_waiting_memory(&mut self, seconds: f64) -> Result<(), SessionError> {
+        if !(seconds.is_finite() && seconds > 0.0) {
+            return arg(format!("waiting_time_memory must be a positive number of seconds, got {seconds}"));
+        }
+        self.sim.world_mut().insert_resource(WaitingMemory(seconds));
+        Ok(())
+    }
+
+    fn signal_parts(&mut self) -> &(SignalLayout, MeasureQuery) {
+        let world = self.sim.world_mut();
+        self.signal_state.get_or_insert_with(|| {
+            let layout = match (world.get_resource::<TrafficLights>(), world.get_resource::<JunctionNetwork>()) {
+                (Some(lights), Some(network)) => SignalLayout::new(lights, network),
+                _ => SignalLayout::default(),
+            };
+            (layout, world.query())
+        })
     }
 
     /// Advance by `duration` [s] and summarise everything run so far as `summary.json` does.
