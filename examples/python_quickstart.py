@@ -47,7 +47,10 @@ for _ in range(600):  # 60 s in steps of 0.1 s
 ids = sim.states()["id"]
 speeds = np.array(speeds)
 metrics = sim.summary()["metrics"]
-print("summary metrics:", metrics)
+print("summary metrics:")
+for key, value in metrics.items():  # one line each, long lists cut short
+    text = repr(value)
+    print(f"  {key}: {text if len(text) <= 100 else text[:97] + '...'}")
 min_gap = min(f["min_gap"] for f in metrics["followers"])  # [m], bumper to bumper
 
 import matplotlib

@@ -7,7 +7,7 @@ use clap::Parser;
 fn main() -> std::process::ExitCode {
     cli::huge_pages::restart_with_huge_pages();
     restore_default_sigpipe();
-    let args = cli::Cli::parse();
+    let args = cli::Cli::parse_from(cli::join_optional_values(std::env::args_os()));
     cli::init_logging(args.verbose);
     match cli::dispatch(args.command) {
         // A run stopped by Ctrl-C or SIGTERM wrote its outputs and ends as shells expect: 130 / 143.

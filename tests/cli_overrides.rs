@@ -92,6 +92,22 @@ fn a_misspelt_override_gets_the_file_error_naming_the_key() {
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
 
+/// Issue 60 §4: `--set 'vehicles.*.sped=12.0'` reported "line 19 ... line numbers count in the
+/// rewritten scenario", a file nobody sees; the error names the `--set` argument instead (the
+/// first one after which the file no longer parses), with the parser's reason.
+#[test]
+fn a_bad_override_is_named_by_its_set_argument_not_a_line_of_the_rewritten_file() {
+    let e = load_scenario_with_overrides(
+        Path::new("scenarios/platoon_brake.toml"),
+        None,
+        &[("seed".into(), toml::Value::Integer(3)), ("vehicles.*.sped".into(), toml::Value::Float(12.0))],
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("--set vehicles.*.sped=12.0") && e.contains("unknown field `sped`"), "{e}");
+    assert!(!e.contains("rewritten") && !e.contains("line "), "{e}");
+}
+
 /// summary.json without the fields that measure the wall clock.
 fn summary_without_wall_clock(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("summary.json")).unwrap();

@@ -242,3 +242,28 @@ fn a_followed_gif_stays_small_and_says_its_size() {
     assert_eq!(frames.len(), 51, "5 Hz of 10 s from t = 0");
     assert!(bytes < 15_000_000, "{bytes} bytes for 10 s");
 }
+
+/// Issue 60 §5: `--overlay none` (a space, as other flags take their value) was refused with
+/// "unexpected argument 'none'"; only `--overlay=none` worked. Both spellings now give the same
+/// frames, for `none` and `all`, and they differ from each other.
+#[test]
+fn overlay_takes_its_value_after_a_space_or_an_equals_sign() {
+    let dir = tmp("overlay-space");
+    let frame = |flags: &[&str], name: &str| {
+        let frames = dir.join(name);
+        let mut args = vec!["run", "scenarios/highway.toml", "--duration", "0.1", "--frame-rate", "10"];
+        args.extend_from_slice(&["--width", "320", "--height", "180", "--frames", frames.to_str().unwrap()]);
+        let out = dir.join(format!("{name}-out"));
+        args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+        args.extend_from_slice(flags);
+        smlworld(&args);
+        std::fs::read(frames.join("frame_000001.png")).unwrap()
+    };
+    let none_space = frame(&["--overlay", "none"], "none-space");
+    let none_equals = frame(&["--overlay=none"], "none-equals");
+    let all_space = frame(&["--overlay", "all"], "all-space");
+    let all_equals = frame(&["--overlay=all"], "all-equals");
+    assert_eq!(none_space, none_equals, "--overlay none = --overlay=none");
+    assert_eq!(all_space, all_equals, "--overlay all = --overlay=all");
+    assert_ne!(none_space, all_space, "the overlay is drawn with all, not with none");
+}

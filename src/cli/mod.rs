@@ -45,6 +45,25 @@ pub enum Command {
     MockMocap(mock_mocap::MockMocapArgs),
 }
 
+/// The command line with `--overlay VALUE` (a space, as most flags take their value) joined into
+/// `--overlay=VALUE` when VALUE is one of the overlay's values: the flag's value is optional
+/// (a bare `--overlay` means `all`), so clap takes it only after `=`, and `--overlay none` was
+/// refused with "unexpected argument 'none'" (issue 60 §5). Anything else passes unchanged.
+pub fn join_optional_values(args: impl IntoIterator<Item = std::ffi::OsString>) -> Vec<std::ffi::OsString> {
+    let mut out: Vec<std::ffi::OsString> = Vec::new();
+    for arg in args {
+        let joins =
+            out.last().is_some_and(|last| last == "--overlay") && ["gif", "all", "none"].iter().any(|v| arg == *v);
+        if joins && let Some(last) = out.last_mut() {
+            last.push("=");
+            last.push(&arg);
+        } else {
+            out.push(arg);
+        }
+    }
+    out
+}
+
 /// Log to stderr, in colour only when stderr is a terminal; `RUST_LOG` wins over `-v`.
 pub fn init_logging(verbose: u8) {
     let default = match verbose {

@@ -13,8 +13,9 @@ pub struct ReplayArgs {
     /// Frames and GIF of the bird's-eye view.
     #[command(flatten)]
     pub frame_output: smlworld::render::FrameOutput,
-    /// Send the vehicles over UDP (2015 visualisation format, 50 Hz of sim time) to ADDR
-    /// (default 127.0.0.1:38008), paced to the wall clock, for `smlworld view`.
+    /// Send the vehicles over UDP (the 2015 lab's packet layout, 50 Hz of sim time; class names
+    /// and reference point as --stream-format says) to ADDR (default 127.0.0.1:38008), paced to
+    /// the wall clock, for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
     pub stream: Option<std::net::SocketAddr>,
     /// Class names and reference point of --stream: `smlworld` (ours: `Car`, `Truck`, ...; x, y the

@@ -31,8 +31,8 @@ pub struct RunArgs {
     /// Draw radar cones and velodyne circles in the frames.
     #[arg(long)]
     pub sensor_ranges: bool,
-    /// Stream the vehicles over UDP (2015 visualisation format, 50 Hz) to ADDR (default
-    /// 127.0.0.1:38008) for `smlworld view`.
+    /// Stream the vehicles over UDP (the 2015 lab's packet layout, 50 Hz; class names and
+    /// reference point as --stream-format says) to ADDR (default 127.0.0.1:38008) for `smlworld view`.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:38008")]
     pub stream: Option<std::net::SocketAddr>,
     /// Class names and reference point of --stream: `smlworld` (ours: `Car`, `Truck`, ...; x, y the

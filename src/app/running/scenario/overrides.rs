@@ -204,10 +204,57 @@ pub fn load_with_overrides(
     let text =
         toml::to_string(&table).map_err(|e| ScenarioError::Syntax { path: path.into(), message: e.to_string() })?;
     Scenario::parse_str_with(&text, path, controllers).map_err(|e| match e {
-        ScenarioError::Syntax { path, message } => ScenarioError::Syntax {
-            path,
-            message: format!("{message}(with the overrides applied; line numbers count in the rewritten scenario)"),
+        ScenarioError::Syntax { path, message } => match culprit(&path, overrides, controllers) {
+            // The file parses alone: name the `--set` that made it fail, not a line of the
+            // rewritten scenario nobody sees (issue 60 §4).
+            Some((key, value, reason)) => {
+                ScenarioError::Invalid { path, key: format!("--set {key}={value}"), problem: reason }
+            }
+            None => ScenarioError::Syntax {
+                path,
+                message: format!("{message}(with the overrides applied; line numbers count in the rewritten scenario)"),
+            },
         },
         e => e,
     })
+}
+
+/// The first override after which the scenario at `path` no longer parses (it parses with none),
+/// with its value and the parser's reason without the rewritten text's line and excerpt; `None`
+/// when the file fails alone or no single prefix of the overrides can be blamed.
+fn culprit<'a>(
+    path: &FsPath,
+    overrides: &'a [(String, toml::Value)],
+    controllers: &ControllerRegistry,
+) -> Option<(&'a str, String, String)> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let text = if path.extension().is_some_and(|e| e == "sumocfg") {
+        super::sumocfg::scenario_text(&text, path).ok()?
+    } else {
+        text
+    };
+    let parses =
+        |table: &toml::Table| toml::to_string(table).ok().map(|t| Scenario::parse_str_with(&t, path, controllers));
+    let mut table: toml::Table = toml::from_str(&text).ok()?;
+    if !matches!(parses(&table)?, Ok(_) | Err(ScenarioError::Invalid { .. })) {
+        return None;
+    }
+    for (key, value) in overrides {
+        apply_override(&mut table, key, value.clone()).ok()?;
+        if let Err(ScenarioError::Syntax { message, .. }) = parses(&table)? {
+            return Some((key, value.to_string(), toml_reason(&message)));
+        }
+    }
+    None
+}
+
+/// A TOML parse error's reason without its location line and the excerpt of the text.
+fn toml_reason(message: &str) -> String {
+    let reason: Vec<&str> = message
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("TOML parse error") && !l.starts_with('|') && !l.contains(" | "))
+        .filter(|l| !l.chars().all(|c| c == '^' || c == ' ' || c == '|'))
+        .collect();
+    if reason.is_empty() { message.trim().to_string() } else { reason.join(" ") }
 }
