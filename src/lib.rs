@@ -1,5 +1,14 @@
 //! SML World: a simulator for autonomous and cooperative driving research.
 //!
+//! Where to start:
+//! - [`prelude`]: `use smlworld::prelude::*;` brings the names a program or a plugin needs;
+//!   [`app::run_scenario`] runs a scenario file as `smlworld run` does.
+//! - Plugins: a controller is a [`sim::Plugin`] registered with
+//!   [`sim::ControllerRegistry`]; `examples/student_controller.rs` is a whole one in about 60
+//!   lines (`cargo run --release --example student_controller`).
+//! - The command line (`smlworld --help`) and the README are the user's guide; this reference is
+//!   for those who extend the simulator.
+//!
 //! Modules, with dependencies pointing one way (no cycles):
 //! - [`files`]: atomic output files (written aside, renamed into place);
 //! - [`map`]: lanelet road maps from JOSM/OSM XML, projection, routing, map generation;

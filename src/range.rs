@@ -13,7 +13,7 @@ pub const HUGE: f64 = 1e9;
 pub const MAX_VEHICLES: u64 = 10_000_000;
 /// Most threads of `--threads`.
 pub const MAX_THREADS: u64 = 1024;
-/// Image sides [px] (the renderer's texture limit).
+/// Image sides \[px\] (the renderer's texture limit).
 pub const MIN_PIXELS: u64 = 16;
 /// See [`MIN_PIXELS`].
 pub const MAX_PIXELS: u64 = 8192;
@@ -38,7 +38,7 @@ pub fn non_negative(s: &str) -> Result<f64, String> {
     within(v, v.is_finite() && (0.0..=HUGE).contains(&v), "a finite number from 0 to 1e9")
 }
 
-/// A point `X,Y` [m] (`--center`): each coordinate finite and within [-[`HUGE`], [`HUGE`]].
+/// A point `X,Y` \[m\] (`--center`): each coordinate finite and within [-[`HUGE`], [`HUGE`]].
 pub fn point(s: &str) -> Result<DVec2, String> {
     let (x, y) = s.split_once(',').ok_or_else(|| format!("`{s}` is not a point: write X,Y in metres, e.g. 12.5,-3"))?;
     let coordinate = |c: &str| {

@@ -5,7 +5,7 @@
 use std::io::IsTerminal;
 use std::time::Duration;
 
-/// Wall time [s] a bar runs before it estimates the time left.
+/// Wall time \[s\] a bar runs before it estimates the time left.
 pub const ETA_WARMUP_S: f64 = 2.0;
 /// Fraction of the work done before the bar estimates the time left.
 pub const ETA_WARMUP_FRACTION: f64 = 0.02;
@@ -22,7 +22,7 @@ pub fn eta_text(elapsed: Duration, fraction: f64) -> String {
     format!("{:#}", indicatif::HumanDuration(Duration::from_secs_f64(left.max(0.0))))
 }
 
-/// A bar over `total` [s] of sim time, drawn on stderr when it is a terminal and `show`; `None`
+/// A bar over `total` \[s\] of sim time, drawn on stderr when it is a terminal and `show`; `None`
 /// otherwise. Positions are milliseconds of sim time ([`set_progress`]).
 pub fn sim_time_bar(total: f64, show: bool) -> Option<indicatif::ProgressBar> {
     if !(show && std::io::stderr().is_terminal() && total.is_finite() && total > 0.0) {
@@ -38,7 +38,7 @@ pub fn sim_time_bar(total: f64, show: bool) -> Option<indicatif::ProgressBar> {
     Some(bar)
 }
 
-/// Show sim time `t` [s] of `total` on `bar`.
+/// Show sim time `t` \[s\] of `total` on `bar`.
 pub fn set_progress(bar: &indicatif::ProgressBar, t: f64, total: f64) {
     bar.set_position((t * 1000.0).round() as u64);
     bar.set_message(format!("{t:.0}/{total:.0}"));

@@ -60,13 +60,13 @@ impl From<Scenario> for ScenarioSource {
 pub struct RunOptions {
     /// Output folder for `trajectories.csv`, `trips.csv` and `summary.json` (created if missing).
     pub out: PathBuf,
-    /// Sim time to run [s] (default: the scenario's `duration`).
+    /// Sim time to run \[s\] (default: the scenario's `duration`).
     pub duration: Option<f64>,
     /// Pace the run to the wall clock instead of running as fast as possible.
     pub realtime: bool,
     /// Sim seconds per wall second in a real-time run.
     pub speed: f64,
-    /// Trajectory log rate [Hz] (default: the scenario's `rates.log`).
+    /// Trajectory log rate \[Hz\] (default: the scenario's `rates.log`).
     pub log_rate: Option<f64>,
     /// Frames and GIF of the bird's-eye view: outputs, size, rate, overlay and window (the
     /// arguments `smlworld run` shares with `replay` and `view`).
@@ -133,7 +133,7 @@ impl RunOptions {
         self
     }
 
-    /// Set the sim time to run [s].
+    /// Set the sim time to run \[s\].
     pub fn duration(mut self, seconds: f64) -> Self {
         self.duration = Some(seconds);
         self

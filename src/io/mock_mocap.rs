@@ -31,7 +31,7 @@ use super::qualisys::{
     DEFAULT_QTM_PORT, MAX_PACKET_LEN, PacketDecoder, PacketType, encode_6d_euler_packet, encode_text,
 };
 
-/// Default capture rate of the mock [Hz]: frame numbers advance at this rate.
+/// Default capture rate of the mock \[Hz\]: frame numbers advance at this rate.
 pub const DEFAULT_MOCK_RATE_HZ: f64 = 100.0;
 /// Greeting the server sends on connect (as QTM does).
 pub const GREETING: &str = "QTM RT Interface connected";
@@ -70,11 +70,11 @@ pub enum MockMocapError {
     },
 }
 
-/// One keyframe of a body: time [s] and pose `[x, y, z mm, roll, pitch, yaw degrees]`
+/// One keyframe of a body: time \[s\] and pose `[x, y, z mm, roll, pitch, yaw degrees]`
 /// (NaN values: hidden).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Keyframe {
-    /// Time from the start of the script [s].
+    /// Time from the start of the script \[s\].
     pub t_s: f64,
     /// Pose `[x_mm, y_mm, z_mm, roll_deg, pitch_deg, yaw_deg]`.
     pub pose: [f64; 6],
@@ -89,9 +89,9 @@ pub enum MocapScript {
     Circles {
         /// Number of bodies.
         bodies: u32,
-        /// Radius of body 1's circle [mm].
+        /// Radius of body 1's circle \[mm\].
         radius_mm: f64,
-        /// Extra radius per body index [mm].
+        /// Extra radius per body index \[mm\].
         spacing_mm: f64,
         /// Speed along the circle [mm/s].
         speed_mm_s: f64,
@@ -171,7 +171,7 @@ impl MocapScript {
         }
     }
 
-    /// Pose of body number `number` (1-based) at `t_s` [s], `None` when hidden.
+    /// Pose of body number `number` (1-based) at `t_s` \[s\], `None` when hidden.
     pub fn pose(&self, number: u32, t_s: f64) -> Option<[f64; 6]> {
         match self {
             Self::Circles { bodies, radius_mm, spacing_mm, speed_mm_s } => {
@@ -212,11 +212,11 @@ impl MocapScript {
 pub const MAX_MOCK_BODIES: u32 = 40_000;
 // A frame of MAX_MOCK_BODIES bodies (24 bytes each, plus headers) fits in one packet.
 const _: () = assert!(MAX_MOCK_BODIES as usize * 24 + 64 <= MAX_PACKET_LEN);
-/// Highest capture rate the mock accepts [Hz] (QTM's cameras reach a few kHz).
+/// Highest capture rate the mock accepts \[Hz\] (QTM's cameras reach a few kHz).
 pub const MAX_MOCK_RATE_HZ: f64 = 10_000.0;
-/// Largest keyframe script read [bytes].
+/// Largest keyframe script read \[bytes\].
 pub const MAX_SCRIPT_BYTES: u64 = 64 << 20;
-/// Largest command packet a client may send [bytes] (QTM commands are a few words).
+/// Largest command packet a client may send \[bytes\] (QTM commands are a few words).
 pub const MAX_COMMAND_LEN: usize = 64 << 10;
 /// Most clients served at once; more are refused (logged) until one leaves.
 pub const MAX_CLIENTS: usize = 64;
@@ -226,7 +226,7 @@ pub const MAX_CLIENTS: usize = 64;
 pub struct MockMocapConfig {
     /// Address to listen on (default 127.0.0.1:22224; port 0 picks a free one).
     pub bind: SocketAddr,
-    /// Capture rate [Hz]: frame numbers advance at this rate (default 100).
+    /// Capture rate \[Hz\]: frame numbers advance at this rate (default 100).
     pub rate_hz: f64,
     /// What the bodies do.
     pub script: MocapScript,

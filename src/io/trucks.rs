@@ -24,7 +24,7 @@ use super::lock;
 
 /// Default first port: vehicle id 0 listens on 16000, id 1 on 16001, ...
 pub const DEFAULT_TRUCK_BASE_PORT: u16 = 16000;
-/// Default rate of the status lines [Hz].
+/// Default rate of the status lines \[Hz\].
 pub const DEFAULT_TRUCK_RATE_HZ: f64 = 20.0;
 /// Default lab scale: world lengths are divided by this before sending.
 pub const DEFAULT_LAB_SCALE: f64 = 32.0;
@@ -54,23 +54,23 @@ impl std::fmt::Display for Lane {
 /// What a truck is told, in world units (the server scales to the lab).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct TruckState {
-    /// Time stamp [s] (sent unscaled): the motion-capture frame time of a real truck.
+    /// Time stamp \[s\] (sent unscaled): the motion-capture frame time of a real truck.
     pub time: f64,
     /// Lane.
     pub lane: Lane,
-    /// Gap to the leader [m] (world; sent / scale).
+    /// Gap to the leader \[m\] (world; sent / scale).
     pub current_distance: f64,
-    /// Wanted gap to the leader [m] (world; sent / scale).
+    /// Wanted gap to the leader \[m\] (world; sent / scale).
     pub desired_distance: f64,
     /// Speed [m/s] (world; sent / scale).
     pub velocity: f64,
-    /// Position [m] (world; sent / scale).
+    /// Position \[m\] (world; sent / scale).
     pub x: f64,
-    /// Position [m] (world; sent / scale).
+    /// Position \[m\] (world; sent / scale).
     pub y: f64,
-    /// Heading [rad] (sent in degrees, as the 2015 sender did).
+    /// Heading \[rad\] (sent in degrees, as the 2015 sender did).
     pub yaw: f64,
-    /// Lateral offset from the lane centre [m] (world; sent / scale).
+    /// Lateral offset from the lane centre \[m\] (world; sent / scale).
     pub lane_offset: f64,
 }
 
@@ -133,7 +133,7 @@ pub struct TruckServerConfig {
     /// Vehicle id k listens on `base_port + k` (default 16000). 0 means "any free port" for
     /// every truck (tests); ask [`TruckServer::local_addr`] for the ports actually bound.
     pub base_port: u16,
-    /// Lines per second [Hz] (default 20).
+    /// Lines per second \[Hz\] (default 20).
     pub rate_hz: f64,
     /// Lab scale (default 32): lengths and speeds are divided by it.
     pub scale: f64,

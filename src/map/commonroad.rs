@@ -62,9 +62,9 @@ const NON_VEHICLE_TYPES: [&str; 3] = ["sidewalk", "crosswalk", "bicycleLane"];
 pub struct CommonRoadState {
     /// Integer time step (time = step * `timeStepSize`).
     pub time_step: i64,
-    /// Position [m].
+    /// Position \[m\].
     pub position: DVec2,
-    /// Heading, counter-clockwise from the x axis [rad].
+    /// Heading, counter-clockwise from the x axis \[rad\].
     pub orientation: f64,
     /// Speed [m/s].
     pub velocity: f64,
@@ -77,9 +77,9 @@ pub struct DynamicObstacle {
     pub id: i64,
     /// `<type>` (`car`, `truck`, `pedestrian`, ...).
     pub kind: String,
-    /// Length of its rectangle [m].
+    /// Length of its rectangle \[m\].
     pub length: f64,
-    /// Width of its rectangle [m].
+    /// Width of its rectangle \[m\].
     pub width: f64,
     /// Initial state followed by the trajectory, in time-step order.
     pub states: Vec<CommonRoadState>,
@@ -102,15 +102,15 @@ pub struct StaticObstacle {
     pub id: i64,
     /// `<type>` (`parkedVehicle`, `roadBoundary`, `constructionZone`, `building`, ...).
     pub kind: String,
-    /// Centre of the rectangle around its shapes [m].
+    /// Centre of the rectangle around its shapes \[m\].
     pub position: DVec2,
-    /// Heading of that rectangle's length axis [rad].
+    /// Heading of that rectangle's length axis \[rad\].
     pub orientation: f64,
-    /// Length of that rectangle [m].
+    /// Length of that rectangle \[m\].
     pub length: f64,
-    /// Width of that rectangle [m].
+    /// Width of that rectangle \[m\].
     pub width: f64,
-    /// Outline of each shape in map coordinates [m] (circles as 24-gons).
+    /// Outline of each shape in map coordinates \[m\] (circles as 24-gons).
     pub outlines: Vec<Vec<DVec2>>,
 }
 
@@ -121,34 +121,34 @@ pub struct EnvironmentObstacle {
     pub id: i64,
     /// `<type>`.
     pub kind: String,
-    /// Outline of each shape in map coordinates [m].
+    /// Outline of each shape in map coordinates \[m\].
     pub outlines: Vec<Vec<DVec2>>,
 }
 
 /// Goal position of a planning problem, or one shape of an obstacle or of an uncertain position.
 #[derive(Debug, Clone, PartialEq)]
 pub enum GoalShape {
-    /// A rectangle of `length` x `width` [m] around `center`, turned by `orientation` [rad].
+    /// A rectangle of `length` x `width` \[m\] around `center`, turned by `orientation` \[rad\].
     Rectangle {
-        /// Centre [m].
+        /// Centre \[m\].
         center: DVec2,
-        /// Along its orientation [m].
+        /// Along its orientation \[m\].
         length: f64,
-        /// Across [m].
+        /// Across \[m\].
         width: f64,
-        /// Heading of its length axis [rad].
+        /// Heading of its length axis \[rad\].
         orientation: f64,
     },
     /// A circle.
     Circle {
-        /// Centre [m].
+        /// Centre \[m\].
         center: DVec2,
-        /// Radius [m].
+        /// Radius \[m\].
         radius: f64,
     },
     /// A polygon (any orientation).
     Polygon {
-        /// Corners [m].
+        /// Corners \[m\].
         points: Vec<DVec2>,
     },
     /// Any point of these lanelets.
@@ -162,7 +162,7 @@ pub enum GoalShape {
 const CIRCLE_SIDES: usize = 24;
 
 impl GoalShape {
-    /// The shape's centre [m]: a rectangle's or circle's centre, the mean of a polygon's corners
+    /// The shape's centre \[m\]: a rectangle's or circle's centre, the mean of a polygon's corners
     /// (a closing point that repeats the first is not counted twice); `None` for lanelets.
     pub fn centre(&self) -> Option<DVec2> {
         match self {
@@ -175,7 +175,7 @@ impl GoalShape {
         }
     }
 
-    /// The outline [m], counter-clockwise for rectangles and circles (a circle as a
+    /// The outline \[m\], counter-clockwise for rectangles and circles (a circle as a
     /// 24-gon), a polygon's corners as given without a repeated closing point; empty for lanelets.
     pub fn outline(&self) -> Vec<DVec2> {
         match self {
@@ -193,7 +193,7 @@ impl GoalShape {
         }
     }
 
-    /// Whether `p` [m] lies in the goal shape (lanelets: inside one of their polygons).
+    /// Whether `p` \[m\] lies in the goal shape (lanelets: inside one of their polygons).
     pub fn contains(&self, p: DVec2, map: &LaneletMap) -> bool {
         match self {
             GoalShape::Rectangle { center, length, width, orientation } => {
@@ -282,7 +282,7 @@ pub struct PlanningProblem {
 pub struct CommonRoadScenario {
     /// `commonRoadVersion` of the file (`2018b`, `2020a`, ...).
     pub version: String,
-    /// Time step [s] (`timeStepSize`).
+    /// Time step \[s\] (`timeStepSize`).
     pub time_step_size: f64,
     /// The road network.
     pub map: LaneletMap,

@@ -137,7 +137,7 @@ pub struct Link {
     pub lanelet: LaneletId,
     /// The routable lanelet leading into it (lowest id), if any.
     pub from: Option<LaneletId>,
-    /// Heading at its start [rad].
+    /// Heading at its start \[rad\].
     pub heading_in: f64,
     /// Heading change along it.
     pub turn: Turn,
@@ -145,7 +145,7 @@ pub struct Link {
     pub major: bool,
     /// The Lanelet2 `traffic_light` element controlling it (on it or on `from`).
     pub signal: Option<i64>,
-    /// Its length [m].
+    /// Its length \[m\].
     pub length: f64,
 }
 
@@ -158,11 +158,11 @@ pub struct Conflict {
     pub b: LaneletId,
     /// Crossing or merging.
     pub kind: ConflictKind,
-    /// Arc length along `a` where they meet [m].
+    /// Arc length along `a` where they meet \[m\].
     pub s_a: f64,
-    /// Arc length along `b` where they meet [m].
+    /// Arc length along `b` where they meet \[m\].
     pub s_b: f64,
-    /// Where they meet [m].
+    /// Where they meet \[m\].
     #[serde(skip)]
     pub point: DVec2,
     /// Who gives way when no signal decides.
@@ -196,7 +196,7 @@ pub struct Junction {
     pub conflicts: Vec<Conflict>,
     /// How it is controlled.
     pub control: JunctionControl,
-    /// Mean of its conflict points [m].
+    /// Mean of its conflict points \[m\].
     #[serde(skip)]
     pub centre: DVec2,
 }
@@ -853,7 +853,7 @@ fn stated_no_foes(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> bool {
 pub struct MapSignalProgram {
     /// The phases in file order.
     pub phases: Vec<SignalPhase>,
-    /// Cycle shift [s].
+    /// Cycle shift \[s\].
     pub offset: f64,
 }
 
@@ -895,22 +895,22 @@ pub fn map_program(map: &LaneletMap, junction: &Junction) -> Option<(Vec<SignalP
     Some((phases, p.offset))
 }
 
-/// One phase of a signal program: a state (one character per link) held for `duration` [s].
+/// One phase of a signal program: a state (one character per link) held for `duration` \[s\].
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SignalPhase {
     /// One character per link in link order: `G` green with priority, `g` green yielding, `y`
     /// yellow, `r` red.
     pub state: String,
-    /// How long it is held [s].
+    /// How long it is held \[s\].
     pub duration: f64,
 }
 
-/// Green time of each phase of [`default_program`] [s].
+/// Green time of each phase of [`default_program`] \[s\].
 pub const DEFAULT_GREEN: f64 = 27.0;
-/// Yellow time of [`default_program`] [s] (SUMO's default for 50 km/h roads is 3 s).
+/// Yellow time of [`default_program`] \[s\] (SUMO's default for 50 km/h roads is 3 s).
 pub const DEFAULT_YELLOW: f64 = 3.0;
-/// All-red time between phases of [`default_program`] [s].
+/// All-red time between phases of [`default_program`] \[s\].
 pub const DEFAULT_ALL_RED: f64 = 2.0;
 
 /// A fixed-time program for a junction that has lights but no program (a Lanelet2 map, a

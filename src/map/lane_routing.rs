@@ -25,7 +25,7 @@ pub struct LaneChangeOptions {
     pub points_per_meter: f64,
     /// Cost of one lane change [m of driving]; raising it trades longer routes for fewer changes.
     pub change_penalty_m: f64,
-    /// Length over which the returned path blends into the new lane [m] (clipped to what is
+    /// Length over which the returned path blends into the new lane \[m\] (clipped to what is
     /// left of the lanelet pair); a shorter blend is a sharper change.
     pub blend_m: f64,
 }
@@ -43,7 +43,7 @@ pub struct LaneChange {
     pub from: LaneletId,
     /// Lanelet entered (a neighbour of `from`).
     pub to: LaneletId,
-    /// Arc length along the returned path where the change begins [m].
+    /// Arc length along the returned path where the change begins \[m\].
     pub at_m: f64,
 }
 
@@ -54,7 +54,7 @@ pub struct LaneChangeRoute {
     pub path: Path,
     /// The lane changes, in driving order.
     pub lane_changes: Vec<LaneChange>,
-    /// Search cost: length driven plus the penalties [m].
+    /// Search cost: length driven plus the penalties \[m\].
     pub cost_m: f64,
 }
 

@@ -31,11 +31,11 @@ pub type Tags = BTreeMap<String, String>;
 pub struct MapNode {
     /// OSM node id (negative for objects JOSM has not uploaded).
     pub id: i64,
-    /// Latitude [deg].
+    /// Latitude \[deg\].
     pub lat: f64,
-    /// Longitude [deg].
+    /// Longitude \[deg\].
     pub lon: f64,
-    /// Local position [m], x east, y north, relative to the map origin.
+    /// Local position \[m\], x east, y north, relative to the map origin.
     pub position: DVec2,
     /// All tags of the node.
     pub tags: Tags,
@@ -48,7 +48,7 @@ pub struct MapWay {
     pub id: i64,
     /// Node ids in drawn order.
     pub nodes: Vec<i64>,
-    /// Node positions [m] in drawn order.
+    /// Node positions \[m\] in drawn order.
     pub points: Vec<DVec2>,
     /// All tags of the way (`line_type`, `region`, `type`, `subtype`, ...).
     pub tags: Tags,
@@ -82,13 +82,13 @@ pub struct Lanelet {
     pub left_nodes: Vec<i64>,
     /// Node ids of the right bound, in driving direction.
     pub right_nodes: Vec<i64>,
-    /// Left bound [m], in driving direction, same length as `right` and `centre`.
+    /// Left bound \[m\], in driving direction, same length as `right` and `centre`.
     pub left: Vec<DVec2>,
-    /// Right bound [m], in driving direction.
+    /// Right bound \[m\], in driving direction.
     pub right: Vec<DVec2>,
-    /// Centre line [m]: midpoints of the paired bounds.
+    /// Centre line \[m\]: midpoints of the paired bounds.
     pub centre: Vec<DVec2>,
-    /// Length of the centre line [m].
+    /// Length of the centre line \[m\].
     pub length: f64,
     /// Lanelets that follow this one in its driving direction.
     pub successors: Vec<LaneletId>,

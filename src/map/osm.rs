@@ -23,9 +23,9 @@ pub type Tags = BTreeMap<String, String>;
 pub struct OsmNode {
     /// Node id (negative for objects JOSM has not uploaded).
     pub id: i64,
-    /// Latitude [deg], -90..=90.
+    /// Latitude \[deg\], -90..=90.
     pub lat: f64,
-    /// Longitude [deg], -180..=180.
+    /// Longitude \[deg\], -180..=180.
     pub lon: f64,
     /// Tags.
     pub tags: Tags,

@@ -30,11 +30,11 @@ pub(crate) fn ceil_index(x: f64) -> isize {
 pub struct Path {
     /// Lanelets in driving order (for a loop, the first is not repeated at the end).
     pub lanelets: Vec<LaneletId>,
-    /// Points [m] at equal arc-length spacing; for a closed loop the last point is not a copy
+    /// Points \[m\] at equal arc-length spacing; for a closed loop the last point is not a copy
     /// of the first (the segment back to the start closes it).
     #[serde(serialize_with = "serialize_points")]
     pub points: Vec<DVec2>,
-    /// Length [m] (for a loop, including the closing segment).
+    /// Length \[m\] (for a loop, including the closing segment).
     pub length: f64,
     /// Whether the path is a closed loop.
     pub closed: bool,
@@ -64,13 +64,13 @@ fn serialize_points<S: serde::Serializer>(points: &[DVec2], s: S) -> Result<S::O
 /// Where a point lies relative to a [`Path`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PathProjection {
-    /// Arc length of the nearest path point [m].
+    /// Arc length of the nearest path point \[m\].
     pub s: f64,
-    /// Nearest point on the path [m].
+    /// Nearest point on the path \[m\].
     pub point: DVec2,
-    /// Signed lateral offset [m]: positive when the point lies left of the path.
+    /// Signed lateral offset \[m\]: positive when the point lies left of the path.
     pub lateral: f64,
-    /// Heading of the path at the nearest point [rad].
+    /// Heading of the path at the nearest point \[rad\].
     pub heading: f64,
     /// Unit direction of the path at the nearest point (`heading` as a vector, without trig).
     pub direction: DVec2,
@@ -95,7 +95,7 @@ impl Path {
         path
     }
 
-    /// An open path along `points` (at least two distinct ones), resampled every `spacing` [m]
+    /// An open path along `points` (at least two distinct ones), resampled every `spacing` \[m\]
     /// (rounded so the points are equally spaced; both ends kept). A road a controller should
     /// follow that does not come from a map: `Path::from_polyline(&[a, b, c], 0.5)`.
     pub fn from_polyline(points: &[DVec2], spacing: f64) -> Path {
@@ -129,18 +129,18 @@ impl Path {
         ((s * self.per_meter) as usize).min(self.points.len().saturating_sub(1))
     }
 
-    /// Mean segment length [m] (all segments are equal up to rounding after resampling).
+    /// Mean segment length \[m\] (all segments are equal up to rounding after resampling).
     pub fn spacing(&self) -> f64 {
         self.spacing
     }
 
-    /// Point and heading [rad] at arc length `s` [m]; wraps around a loop, clamps an open path.
+    /// Point and heading \[rad\] at arc length `s` \[m\]; wraps around a loop, clamps an open path.
     pub fn sample(&self, s: f64) -> (DVec2, f64) {
         let (point, d) = self.sample_direction(s);
         (point, d.y.atan2(d.x))
     }
 
-    /// Point at arc length `s` [m], as [`Path::sample`] gives it, without the heading's `atan2`
+    /// Point at arc length `s` \[m\], as [`Path::sample`] gives it, without the heading's `atan2`
     /// (a path follower samples its look-ahead point every tick and needs the heading only to
     /// aim beside the path).
     pub fn sample_point(&self, s: f64) -> DVec2 {
@@ -228,7 +228,7 @@ impl Path {
         }
     }
 
-    /// [`Path::project_near`] when only a point within `max_distance` [m] of the path is of
+    /// [`Path::project_near`] when only a point within `max_distance` \[m\] of the path is of
     /// use: `None` when the nearest point in the window is farther (same result as
     /// `project_near` filtered by `|lateral| <= max_distance`, found faster: blocks of the
     /// window that cannot come that near are skipped).
@@ -305,10 +305,10 @@ impl Path {
         Some(best)
     }
 
-    /// Where `p` lies near arc length `hint` [m] on a smooth path, when within `max_distance`
-    /// [m] of it: arc length [m], nearest point [m], signed lateral offset [m] and the path's
+    /// Where `p` lies near arc length `hint` \[m\] on a smooth path, when within `max_distance`
+    /// \[m\] of it: arc length \[m\], nearest point \[m\], signed lateral offset \[m\] and the path's
     /// unit direction there (no trigonometry). Walks from `hint` to the nearest segment (the
-    /// nearest within `window` [m] when the distance has one minimum there, as along a lane's
+    /// nearest within `window` \[m\] when the distance has one minimum there, as along a lane's
     /// centre line near a vehicle on it), else searches the window like
     /// [`Path::project_near_within`].
     pub fn near_within(&self, p: DVec2, hint: f64, window: f64, max_distance: f64) -> Option<(f64, DVec2, f64, DVec2)> {
@@ -347,7 +347,7 @@ impl Path {
         self.project_segments(p, 0, self.segment_count())
     }
 
-    /// Nearest point to `p` within `window` [m] either side of arc length `hint` (O(window)):
+    /// Nearest point to `p` within `window` \[m\] either side of arc length `hint` (O(window)):
     /// what a path follower calls every tick with its last projection as the hint.
     pub fn project_near(&self, p: DVec2, hint: f64, window: f64) -> PathProjection {
         if self.segment_count() == 0 {
@@ -357,7 +357,7 @@ impl Path {
         self.project_segments(p, from, count)
     }
 
-    /// Arc length [m] and signed lateral offset [m] of [`Path::project_near`]'s projection, the
+    /// Arc length \[m\] and signed lateral offset \[m\] of [`Path::project_near`]'s projection, the
     /// same numbers without its heading and direction (an `atan2`, a square root and a division
     /// that a path follower, calling this every tick, never reads).
     pub fn locate_near(&self, p: DVec2, hint: f64, window: f64) -> (f64, f64) {
@@ -372,7 +372,7 @@ impl Path {
         }
     }
 
-    /// [`Path::locate_near`] found by walking from `hint` to the nearest segment ([`Path::walk`]:
+    /// [`Path::locate_near`] found by walking from `hint` to the nearest segment (`Path::walk`:
     /// two or three segments for a vehicle that moved a little along a smooth path, instead of
     /// every segment of the window), the window searched only when the walk reaches its edge.
     /// The same as `locate_near` wherever the distance to the path has one minimum in the

@@ -36,12 +36,12 @@ pub fn resample_count(points: &[DVec2], count: usize) -> Vec<DVec2> {
     out
 }
 
-/// Length of a polyline [m].
+/// Length of a polyline \[m\].
 pub fn polyline_length(points: &[DVec2]) -> f64 {
     points.windows(2).map(|w| w[0].distance(w[1])).sum()
 }
 
-/// Project `p` onto a polyline: (arc length of the nearest point [m], distance [m]).
+/// Project `p` onto a polyline: (arc length of the nearest point \[m\], distance \[m\]).
 pub fn project_polyline(points: &[DVec2], p: DVec2) -> (f64, f64) {
     let mut best = (0.0, f64::INFINITY);
     let mut s0 = 0.0;
@@ -59,7 +59,7 @@ pub fn project_polyline(points: &[DVec2], p: DVec2) -> (f64, f64) {
     best
 }
 
-/// The part of a polyline between arc lengths `a0` <= `a1` [m].
+/// The part of a polyline between arc lengths `a0` <= `a1` \[m\].
 pub fn sub_polyline(points: &[DVec2], a0: f64, a1: f64) -> Vec<DVec2> {
     let mut out = Vec::new();
     let mut s0 = 0.0;

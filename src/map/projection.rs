@@ -5,12 +5,12 @@
 
 use glam::DVec2;
 
-/// Projects lat/lon [deg] to local x/y [m] around an origin, and back.
+/// Projects lat/lon \[deg\] to local x/y \[m\] around an origin, and back.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Projector {
-    /// Latitude of the local origin [deg].
+    /// Latitude of the local origin \[deg\].
     pub origin_lat: f64,
-    /// Longitude of the local origin [deg].
+    /// Longitude of the local origin \[deg\].
     pub origin_lon: f64,
     /// UTM zone number used for every node (the origin's zone).
     pub zone: u8,
@@ -21,7 +21,7 @@ pub struct Projector {
 }
 
 impl Projector {
-    /// A projector whose local (0, 0) is at `origin_lat`, `origin_lon` [deg].
+    /// A projector whose local (0, 0) is at `origin_lat`, `origin_lon` \[deg\].
     pub fn new(origin_lat: f64, origin_lon: f64) -> Projector {
         // The utm crate gives zone 61 at exactly 180 degrees east; zones run 1..=60.
         let zone = utm::lat_lon_to_zone_number(origin_lat, origin_lon).clamp(1, 60);
@@ -36,13 +36,13 @@ impl Projector {
         format!("{}{}", self.zone, self.band)
     }
 
-    /// lat/lon [deg] -> local x (east), y (north) [m].
+    /// lat/lon \[deg\] -> local x (east), y (north) \[m\].
     pub fn forward(&self, lat: f64, lon: f64) -> DVec2 {
         let (northing, easting) = utm_wgs84(lat, lon, self.zone);
         DVec2::new(easting - self.origin_easting, northing - self.origin_northing)
     }
 
-    /// Local x/y [m] -> (lat, lon) [deg], exact to well below a millimetre.
+    /// Local x/y \[m\] -> (lat, lon) \[deg\], exact to well below a millimetre.
     ///
     /// The closed-form inverse of the `utm` crate is only good to a few metres, so it is used as
     /// the first guess of a Newton iteration on [`Projector::forward`].

@@ -539,7 +539,7 @@ impl LaneletMap {
     }
 
     /// The seed's adjacency matrix: n x n in [`LaneletMap::lanelets`] order, entry (i, j) = length
-    /// of lanelet i [m] when j follows i, else 1e10.
+    /// of lanelet i \[m\] when j follows i, else 1e10.
     pub fn adjacency_matrix(&self) -> Vec<Vec<f64>> {
         let n = self.lanelets.len();
         let mut m = vec![vec![1e10; n]; n];
@@ -553,7 +553,7 @@ impl LaneletMap {
         m
     }
 
-    /// Bounding box of all nodes [m]: (min, max). Zero when the map has no nodes.
+    /// Bounding box of all nodes \[m\]: (min, max). Zero when the map has no nodes.
     pub fn bounding_box(&self) -> (DVec2, DVec2) {
         let mut it = self.nodes.values().map(|n| n.position);
         let Some(first) = it.next() else { return (DVec2::ZERO, DVec2::ZERO) };

@@ -42,14 +42,14 @@ pub struct FrameOutput {
     /// Write an animated GIF (parent folders created).
     #[arg(long, value_name = "FILE.gif")]
     pub gif: Option<PathBuf>,
-    /// Frames per second of sim time for --frames and --gif [Hz] (`view`: the most frames per
+    /// Frames per second of sim time for --frames and --gif \[Hz\] (`view`: the most frames per
     /// wall-clock second written); does not change the results.
     #[arg(long, default_value_t = 10.0, value_parser = crate::range::positive)]
     pub frame_rate: f64,
-    /// Frame width [px].
+    /// Frame width \[px\].
     #[arg(long, default_value_t = 1280, value_parser = crate::range::pixels())]
     pub width: u32,
-    /// Frame height [px].
+    /// Frame height \[px\].
     #[arg(long, default_value_t = 720, value_parser = crate::range::pixels())]
     pub height: u32,
     /// Time stamp and legend (classes; real vs virtual): `gif` (default: on the GIF only),
@@ -64,7 +64,7 @@ pub struct FrameOutput {
     /// default the map's centre), or the scale of --follow.
     #[arg(long, value_parser = crate::range::positive)]
     pub pixels_per_meter: Option<f64>,
-    /// World point at the image centre, `X,Y` [m] (needs --pixels-per-meter).
+    /// World point at the image centre, `X,Y` \[m\] (needs --pixels-per-meter).
     #[arg(long, value_parser = crate::range::point, allow_hyphen_values = true, requires = "pixels_per_meter")]
     pub center: Option<DVec2>,
     /// With --follow, write the GIF at every frame and the full size too (by default a followed
@@ -74,9 +74,9 @@ pub struct FrameOutput {
     pub full_gif: bool,
 }
 
-/// Most frames per second of sim time of a followed view's GIF unless --full-gif [Hz].
+/// Most frames per second of sim time of a followed view's GIF unless --full-gif \[Hz\].
 pub const FOLLOW_GIF_RATE: f64 = 5.0;
-/// Widest followed view's GIF unless --full-gif [px] (the height keeps the aspect ratio).
+/// Widest followed view's GIF unless --full-gif \[px\] (the height keeps the aspect ratio).
 pub const FOLLOW_GIF_WIDTH: u32 = 640;
 
 impl Default for FrameOutput {
@@ -182,7 +182,7 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// The camera for `frames` over a map whose nodes span `map_box` (min, max) [m]; `None`
+    /// The camera for `frames` over a map whose nodes span `map_box` (min, max) \[m\]; `None`
     /// without a map (origin-centred at 4 px/m unless a scale is given).
     pub fn new(frames: &FrameOutput, map_box: Option<(DVec2, DVec2)>) -> Result<Camera, RenderError> {
         let (width, height) = (frames.width, frames.height);
@@ -206,7 +206,7 @@ impl Camera {
         Ok(Camera { width, height, mode })
     }
 
-    /// The same camera for another image size [px] (a resized window); a fixed view keeps its
+    /// The same camera for another image size \[px\] (a resized window); a fixed view keeps its
     /// scale and centre.
     pub fn resized(&self, width: u32, height: u32) -> Result<Camera, RenderError> {
         let resize = |v: &BirdseyeView| BirdseyeView::new(width, height, v.pixels_per_meter, v.center);
@@ -224,7 +224,7 @@ impl Camera {
         Ok(Camera { width, height, mode })
     }
 
-    /// Image width and height [px].
+    /// Image width and height \[px\].
     pub fn size(&self) -> (u32, u32) {
         (self.width, self.height)
     }

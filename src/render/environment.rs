@@ -23,13 +23,13 @@ use super::triangulate::triangulate;
 use super::view::BirdseyeView;
 use crate::map::LaneletMap;
 
-/// A road surface between a left and a right bound [m]; `left[k]` and `right[k]` are paired when
+/// A road surface between a left and a right bound \[m\]; `left[k]` and `right[k]` are paired when
 /// both have the same length (then it is drawn as a strip), else the polygon is triangulated.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RoadStrip {
-    /// Left bound [m], in driving direction.
+    /// Left bound \[m\], in driving direction.
     pub left: Vec<DVec2>,
-    /// Right bound [m], in driving direction.
+    /// Right bound \[m\], in driving direction.
     pub right: Vec<DVec2>,
 }
 
@@ -38,7 +38,7 @@ pub struct RoadStrip {
 pub struct Area {
     /// Ground pattern inside the outline.
     pub pattern: PatternKind,
-    /// Outline [m]; closing point optional; simple (non-self-intersecting), any orientation.
+    /// Outline \[m\]; closing point optional; simple (non-self-intersecting), any orientation.
     pub outline: Vec<DVec2>,
 }
 
@@ -47,9 +47,9 @@ pub struct Area {
 pub struct LineStyle {
     /// Colour, sRGB with alpha.
     pub color: [u8; 4],
-    /// Line width [m]; never drawn thinner than 1.5 px so it stays visible when zoomed out.
+    /// Line width \[m\]; never drawn thinner than 1.5 px so it stays visible when zoomed out.
     pub width: f64,
-    /// Dash period [m] (half painted, half gap); `None` for a solid line.
+    /// Dash period \[m\] (half painted, half gap); `None` for a solid line.
     pub dash: Option<f64>,
 }
 
@@ -93,7 +93,7 @@ impl LineStyle {
 const WHITE: [u8; 4] = [242, 242, 236, 255];
 
 /// The lines of a Lanelet2 line string with `type` and `subtype` (see the module docs): each
-/// style with its offset to the left of the way's direction [m]. Empty when nothing is drawn.
+/// style with its offset to the left of the way's direction \[m\]. Empty when nothing is drawn.
 pub fn lanelet2_lines(kind: &str, subtype: Option<&str>) -> Vec<(LineStyle, f64)> {
     let painted = |thick: bool| {
         let (solid, dashed) = if thick {
@@ -168,7 +168,7 @@ fn offset_polyline(points: &[DVec2], d: f64) -> Vec<DVec2> {
 pub struct Fill {
     /// sRGB colour with alpha.
     pub color: [u8; 4],
-    /// Outline [m]; closing point optional; simple, any orientation.
+    /// Outline \[m\]; closing point optional; simple, any orientation.
     pub outline: Vec<DVec2>,
 }
 
@@ -177,7 +177,7 @@ pub struct Fill {
 pub struct Line {
     /// How it is painted.
     pub style: LineStyle,
-    /// Points [m] in order.
+    /// Points \[m\] in order.
     pub points: Vec<DVec2>,
 }
 

@@ -77,7 +77,7 @@ pub fn frame_path(dir: &Path, index: u64) -> std::path::PathBuf {
     dir.join(format!("frame_{index:06}.png"))
 }
 
-/// Write frames as an animated GIF that loops forever, shown at `frame_rate` [Hz].
+/// Write frames as an animated GIF that loops forever, shown at `frame_rate` \[Hz\].
 pub fn write_gif(path: &Path, frames: &[RgbaImage], frame_rate: f64) -> Result<(), RenderError> {
     let (w, h) = frames.first().map_or((1, 1), RgbaImage::dimensions);
     let mut gif = GifWriter::create(path, w, h, frame_rate)?;
@@ -177,7 +177,7 @@ impl GifPalette {
 }
 
 impl GifWriter {
-    /// Create `path` for frames of `width` x `height` px shown at `frame_rate` [Hz], looping forever.
+    /// Create `path` for frames of `width` x `height` px shown at `frame_rate` \[Hz\], looping forever.
     pub fn create(path: &Path, width: u32, height: u32, frame_rate: f64) -> Result<GifWriter, RenderError> {
         if !(frame_rate.is_finite() && frame_rate > 0.0) {
             return Err(write_error(path, format!("frame rate {frame_rate} Hz must be finite and > 0")));
@@ -270,7 +270,7 @@ impl GifWriter {
     }
 
     /// End the GIF (its trailer written, the file flushed) and rename it into place; returns
-    /// the size written [bytes].
+    /// the size written \[bytes\].
     pub fn finish(self) -> Result<u64, RenderError> {
         let GifWriter { path, file, encoder, out, size, .. } = self;
         let out = match (encoder, out) {

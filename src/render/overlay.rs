@@ -17,7 +17,7 @@ fn font() -> Option<&'static FontRef<'static>> {
     FONT.get_or_init(|| FontRef::try_from_slice(FONT_TTF).ok()).as_ref()
 }
 
-/// Text height of the overlay on a 720 px high image and above [px]; smaller images scale it
+/// Text height of the overlay on a 720 px high image and above \[px\]; smaller images scale it
 /// down with their height (never below 9 px), so the legend keeps to a corner (at 640x360 it is
 /// at most a quarter of the width).
 pub const OVERLAY_TEXT_PX: f32 = 16.0;
@@ -74,9 +74,9 @@ fn draw_text(img: &mut RgbaImage, x: f32, y: f32, px: f32, text: &str, color: [u
     }
 }
 
-/// Draw the time stamp `t` [s] and the legend of the classes in `sprites` (sorted by name), and
+/// Draw the time stamp `t` \[s\] and the legend of the classes in `sprites` (sorted by name), and
 /// "real"/"virtual" entries for the kinds present, into the top-left corner of `img`; the text
-/// scales with the image's height. Returns the legend's box: x, y, width, height [px].
+/// scales with the image's height. Returns the legend's box: x, y, width, height \[px\].
 pub fn draw_overlay(img: &mut RgbaImage, t: f64, sprites: &[VehicleSprite]) -> [i64; 4] {
     let mut classes: Vec<&str> = sprites.iter().map(|s| s.class.as_str()).collect();
     classes.sort_unstable();
@@ -110,7 +110,7 @@ pub fn draw_overlay(img: &mut RgbaImage, t: f64, sprites: &[VehicleSprite]) -> [
 /// Colour of a collision ring (sRGB).
 const RING_COLOR: [u8; 4] = [235, 20, 20, 255];
 
-/// A red ring around `place` [m] seen through `view`, marking a collision: radius 3 m but at
+/// A red ring around `place` \[m\] seen through `view`, marking a collision: radius 3 m but at
 /// least 10 px, 3 px wide with a dark edge inside and out, so it reads on any ground.
 pub fn draw_collision_ring(img: &mut RgbaImage, view: &super::BirdseyeView, place: glam::DVec2) {
     let c = view.world_to_pixel(place);

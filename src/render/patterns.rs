@@ -7,7 +7,7 @@ use image::RgbaImage;
 
 use super::RenderError;
 
-/// Side of every pattern tile on the GPU [px]; user images of another size are resized to it.
+/// Side of every pattern tile on the GPU \[px\]; user images of another size are resized to it.
 pub const PATTERN_SIZE: u32 = 256;
 
 /// The ground materials the environment layer knows.
@@ -61,7 +61,7 @@ impl PatternKind {
         }
     }
 
-    /// Default ground size of one tile [m]: a larger value stretches the pattern.
+    /// Default ground size of one tile \[m\]: a larger value stretches the pattern.
     pub fn default_tile_meters(self) -> f64 {
         match self {
             PatternKind::Forest => 24.0,
@@ -97,12 +97,12 @@ impl PatternKind {
     }
 }
 
-/// One pattern: its tile image and the ground size of one tile [m].
+/// One pattern: its tile image and the ground size of one tile \[m\].
 #[derive(Debug, Clone)]
 pub struct Pattern {
     /// Tile image, [`PATTERN_SIZE`] square, repeated over the ground.
     pub image: RgbaImage,
-    /// Ground size of one tile [m].
+    /// Ground size of one tile \[m\].
     pub tile_meters: f64,
 }
 
@@ -161,7 +161,7 @@ impl PatternSet {
         }
     }
 
-    /// Set the ground size of one tile of a pattern [m] (ignored unless finite and > 0).
+    /// Set the ground size of one tile of a pattern \[m\] (ignored unless finite and > 0).
     pub fn set_tile_meters(&mut self, kind: PatternKind, meters: f64) {
         if let Some(p) = self.patterns.get_mut(&kind)
             && meters.is_finite()

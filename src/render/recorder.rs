@@ -71,7 +71,7 @@ impl FrameRecorder {
         FrameRecorder::with_environment(Environment::from_map(map), map_box, frames)
     }
 
-    /// A recorder of any environment; `map_box` (min, max) [m] is what the whole-map view fits
+    /// A recorder of any environment; `map_box` (min, max) \[m\] is what the whole-map view fits
     /// (`None`: origin-centred at 4 px/m unless `frames` gives a scale).
     pub fn with_environment(
         env: Environment,
@@ -126,7 +126,7 @@ impl FrameRecorder {
         self
     }
 
-    /// Mark a collision at `place` [m] that happened at sim time `t` [s]: frames from `t` to
+    /// Mark a collision at `place` \[m\] that happened at sim time `t` \[s\]: frames from `t` to
     /// `t` + [`COLLISION_RING_SECONDS`] draw a red ring there.
     pub fn add_collision(&mut self, place: DVec2, t: f64) {
         if place.is_finite() && t.is_finite() {
@@ -173,14 +173,14 @@ impl FrameRecorder {
         result
     }
 
-    /// Render `sprites` (sorted by id, as [`sprites_from_world`] gives them) at sim time `t` [s]
+    /// Render `sprites` (sorted by id, as [`sprites_from_world`] gives them) at sim time `t` \[s\]
     /// and append the frame to the outputs: `smlworld replay` draws a finished run's rows this way.
     pub fn record_sprites(&mut self, sprites: &[VehicleSprite], t: f64) -> Result<(), RenderError> {
         self.draw(sprites, t)?;
         self.write_drawn(sprites, t)
     }
 
-    /// Render `sprites` at sim time `t` [s] (with the stop lines of [`FrameRecorder::set_signals`]
+    /// Render `sprites` at sim time `t` \[s\] (with the stop lines of [`FrameRecorder::set_signals`]
     /// and collision rings, without the overlay) and
     /// return the image, writing nothing.
     pub fn draw(&mut self, sprites: &[VehicleSprite], t: f64) -> Result<&RgbaImage, RenderError> {
@@ -202,7 +202,7 @@ impl FrameRecorder {
     }
 
     /// Append the image [`FrameRecorder::draw`] drew last to the outputs, with the overlay (for
-    /// time `t` [s] and the classes of `sprites`) on the outputs [`FrameOutput::overlay`] names;
+    /// time `t` \[s\] and the classes of `sprites`) on the outputs [`FrameOutput::overlay`] names;
     /// the drawn image itself stays without it.
     pub fn write_drawn(&mut self, sprites: &[VehicleSprite], t: f64) -> Result<(), RenderError> {
         let overlaid = |image: &RgbaImage| {
@@ -254,7 +254,7 @@ impl FrameRecorder {
         &self.image
     }
 
-    /// Draw the overlay (time `t` [s], the classes of `sprites`) onto the image drawn last (a
+    /// Draw the overlay (time `t` \[s\], the classes of `sprites`) onto the image drawn last (a
     /// live window showing it).
     pub fn overlay_drawn(&mut self, sprites: &[VehicleSprite], t: f64) {
         super::draw_overlay(&mut self.image, t, sprites);

@@ -12,9 +12,9 @@ use crate::map::junctions::Junctions;
 /// One link's part of a stop line and the signal it shows.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SignalLine {
-    /// One end [m].
+    /// One end \[m\].
     pub a: DVec2,
-    /// The other end [m].
+    /// The other end \[m\].
     pub b: DVec2,
     /// Signal character: `G`/`g` green, `y` yellow, `r`/`s` red; any other draws nothing.
     pub signal: u8,

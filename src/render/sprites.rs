@@ -11,9 +11,9 @@ use super::view::BirdseyeView;
 /// A radar cone in front of a vehicle.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RadarCone {
-    /// Range [m].
+    /// Range \[m\].
     pub range: f64,
-    /// Full opening angle [rad], centred on the vehicle's heading.
+    /// Full opening angle \[rad\], centred on the vehicle's heading.
     pub angle: f64,
 }
 
@@ -22,11 +22,11 @@ pub struct RadarCone {
 pub struct Overlays {
     /// Radar cone.
     pub radar: Option<RadarCone>,
-    /// 360° "velodyne" range [m].
+    /// 360° "velodyne" range \[m\].
     pub velodyne: Option<f64>,
-    /// Wifi (short-range V2V) range [m].
+    /// Wifi (short-range V2V) range \[m\].
     pub wifi: Option<f64>,
-    /// The vehicle's route [m]; shared, so building sprites every frame copies nothing.
+    /// The vehicle's route \[m\]; shared, so building sprites every frame copies nothing.
     pub route: Option<Arc<[DVec2]>>,
     /// A lane change in progress: the indicator on that side (amber front and rear corners).
     pub indicator: Option<Indicator>,
@@ -50,13 +50,13 @@ pub struct VehicleSprite {
     /// dark outline; otherwise virtual, hatched with a light outline. [`VehicleSprite::new`]
     /// makes it virtual; the id's sign says nothing.
     pub real: bool,
-    /// Centre of the body [m].
+    /// Centre of the body \[m\].
     pub position: DVec2,
-    /// Heading [rad], counter-clockwise from east.
+    /// Heading \[rad\], counter-clockwise from east.
     pub yaw: f64,
-    /// Body length [m].
+    /// Body length \[m\].
     pub length: f64,
-    /// Body width [m].
+    /// Body width \[m\].
     pub width: f64,
     /// Class name (`Truck`, `Car`, `Bus`, ...): picks the colour.
     pub class: String,
@@ -390,8 +390,8 @@ fn label_size(n: usize, scale: f32) -> (f32, f32) {
     )
 }
 
-/// Where the id labels of `sprites` go in `view`: (id, [x0, y0, x1, y1] [px]) for every label
-/// drawn, in the order they were placed (see [`FrameBatches::build`]); vehicles out of view
+/// Where the id labels of `sprites` go in `view`: (id, [x0, y0, x1, y1] \[px\]) for every label
+/// drawn, in the order they were placed (see `FrameBatches::build`); vehicles out of view
 /// and labels left out for overlapping have none.
 pub fn label_boxes(view: &BirdseyeView, sprites: &[VehicleSprite]) -> Vec<(i32, [f32; 4])> {
     let mut batches = FrameBatches::default();
@@ -400,7 +400,7 @@ pub fn label_boxes(view: &BirdseyeView, sprites: &[VehicleSprite]) -> Vec<(i32, 
 }
 
 /// The pairs of `sprites` whose footprints (oriented rectangles) overlap: lower id, higher id
-/// and the midpoint of their centres [m], sorted by the ids. For a live view, which gets no
+/// and the midpoint of their centres \[m\], sorted by the ids. For a live view, which gets no
 /// collision events: a pair that starts to overlap has collided. O(n²): meant for the tens to
 /// hundreds of vehicles of a stream.
 pub fn overlapping_pairs(sprites: &[VehicleSprite]) -> Vec<(i32, i32, DVec2)> {

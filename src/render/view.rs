@@ -6,19 +6,19 @@ use super::RenderError;
 
 /// A bird's-eye camera: an image of `width` x `height` pixels looking straight down at `center`.
 ///
-/// A world point `p` [m] lands at pixel
+/// A world point `p` \[m\] lands at pixel
 /// `x = W/2 + (p.x - center.x)·P`, `y = H/2 - (p.y - center.y)·P·aspect`
 /// (y up in the world, down in the image). With `center = (0, 0)` this is the 2015 tool's
 /// convention `x = W/2 + x·P`, `y = H/2 - y·P`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BirdseyeView {
-    /// Image width [px].
+    /// Image width \[px\].
     pub width: u32,
-    /// Image height [px].
+    /// Image height \[px\].
     pub height: u32,
     /// Horizontal scale [px/m]; larger zooms in.
     pub pixels_per_meter: f64,
-    /// World point at the image centre [m].
+    /// World point at the image centre \[m\].
     pub center: DVec2,
     /// Vertical scale divided by horizontal scale (1.0 = square metres stay square). Only a
     /// projector calibration whose floor rectangle does not match the image's aspect ratio needs
@@ -26,11 +26,11 @@ pub struct BirdseyeView {
     pub aspect: f64,
 }
 
-/// Largest image side the renderer accepts [px] (wgpu's default 2D texture limit).
+/// Largest image side the renderer accepts \[px\] (wgpu's default 2D texture limit).
 pub const MAX_IMAGE_SIDE: u32 = 8192;
 
 impl BirdseyeView {
-    /// A view of `width` x `height` px at `pixels_per_meter` [px/m] centred on `center` [m].
+    /// A view of `width` x `height` px at `pixels_per_meter` [px/m] centred on `center` \[m\].
     pub fn new(width: u32, height: u32, pixels_per_meter: f64, center: DVec2) -> Result<Self, RenderError> {
         let view = BirdseyeView { width, height, pixels_per_meter, center, aspect: 1.0 };
         view.validate()?;
@@ -42,8 +42,8 @@ impl BirdseyeView {
         BirdseyeView::new(width, height, pixels_per_meter, DVec2::ZERO)
     }
 
-    /// The largest scale at which the world box `min`..`max` [m] fits the image with a margin of
-    /// `margin` [m] on every side, centred on the box.
+    /// The largest scale at which the world box `min`..`max` \[m\] fits the image with a margin of
+    /// `margin` \[m\] on every side, centred on the box.
     pub fn fit(width: u32, height: u32, min: DVec2, max: DVec2, margin: f64) -> Result<Self, RenderError> {
         let size = (max - min).max(DVec2::ZERO) + DVec2::splat(2.0 * margin.max(0.0));
         if !(size.x.is_finite() && size.y.is_finite()) {
@@ -74,7 +74,7 @@ impl BirdseyeView {
         BirdseyeView::fit(width, height, min, max, margin)
     }
 
-    /// A projector calibration: the floor rectangle `left..right` x `down..up` [m] fills the whole
+    /// A projector calibration: the floor rectangle `left..right` x `down..up` \[m\] fills the whole
     /// image exactly, so a ceiling projector showing this image lines up with the floor. When the
     /// rectangle's aspect ratio differs from the image's, the pixels are not square on the floor
     /// (`aspect != 1`).
@@ -102,7 +102,7 @@ impl BirdseyeView {
         self.pixels_per_meter * self.aspect
     }
 
-    /// Pixel coordinates (x right, y down, continuous; pixel (i, j) covers i..i+1, j..j+1) of a world point [m].
+    /// Pixel coordinates (x right, y down, continuous; pixel (i, j) covers i..i+1, j..j+1) of a world point \[m\].
     pub fn world_to_pixel(&self, p: DVec2) -> DVec2 {
         DVec2::new(
             0.5 * f64::from(self.width) + (p.x - self.center.x) * self.pixels_per_meter,
@@ -110,7 +110,7 @@ impl BirdseyeView {
         )
     }
 
-    /// World point [m] under pixel coordinates (inverse of [`BirdseyeView::world_to_pixel`]).
+    /// World point \[m\] under pixel coordinates (inverse of [`BirdseyeView::world_to_pixel`]).
     pub fn pixel_to_world(&self, px: DVec2) -> DVec2 {
         DVec2::new(
             self.center.x + (px.x - 0.5 * f64::from(self.width)) / self.pixels_per_meter,
@@ -118,7 +118,7 @@ impl BirdseyeView {
         )
     }
 
-    /// World rectangle seen by the view: (min, max) corners [m].
+    /// World rectangle seen by the view: (min, max) corners \[m\].
     pub fn world_rect(&self) -> (DVec2, DVec2) {
         let half = DVec2::new(
             0.5 * f64::from(self.width) / self.pixels_per_meter,

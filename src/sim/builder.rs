@@ -97,8 +97,8 @@ impl SimBuilder {
         self
     }
 
-    /// Add a module of your own: a new schedule `label` running at `rate` [Hz] in `phase`. Its
-    /// schedule chains the [`SimSystems`] sets like the built-in ones.
+    /// Add a module of your own: a new schedule `label` running at `rate` \[Hz\] in `phase`. Its
+    /// schedule chains the `SimSystems` sets like the built-in ones.
     ///
     /// # Panics
     /// If a module with `label` already exists (two plugins claiming one module is a programming
@@ -124,7 +124,7 @@ impl SimBuilder {
     }
 
     /// Configure system sets in the schedule of module `label` (e.g. chain a plugin's own sets
-    /// inside [`SimSystems::Control`]).
+    /// inside `SimSystems::Control`).
     ///
     /// # Panics
     /// If there is no such module.
@@ -142,7 +142,7 @@ impl SimBuilder {
         self
     }
 
-    /// Set the rate of module `label` [Hz].
+    /// Set the rate of module `label` \[Hz\].
     ///
     /// # Panics
     /// If there is no such module or the rate is not positive and finite.
@@ -152,7 +152,7 @@ impl SimBuilder {
         self
     }
 
-    /// Rate of module `label` [Hz].
+    /// Rate of module `label` \[Hz\].
     pub fn rate(&self, label: impl ScheduleLabel) -> Option<f64> {
         self.scheduler.rate(label)
     }
@@ -227,7 +227,7 @@ impl SimBuilder {
 }
 
 /// A built simulation: the world plus its scheduler. Run it with [`Sim::run_for`] (headless) or
-/// a [`RealtimeRunner`].
+/// a `RealtimeRunner`.
 pub struct Sim {
     world: World,
     pub(crate) scheduler: Scheduler,
@@ -270,7 +270,7 @@ impl Sim {
         self.scheduler.run_until(&mut self.world, end);
     }
 
-    /// Run headless for `seconds` [s] of sim time from now.
+    /// Run headless for `seconds` \[s\] of sim time from now.
     pub fn run_for(&mut self, seconds: f64) {
         let end = SimTime(self.now().0 + SimTime::from_secs(seconds).0);
         self.run_until(end);

@@ -51,7 +51,7 @@ fn advance_arc(state: &mut VehicleState, distance: f64, curvature: f64, end_spee
     }
 }
 
-/// One step of the kinematic unicycle over `dt` [s]: drive at the commanded speed with the
+/// One step of the kinematic unicycle over `dt` \[s\]: drive at the commanded speed with the
 /// commanded steering (clamped to ±`max_steering`).
 pub fn step_kinematic_unicycle(
     state: &mut VehicleState,
@@ -165,7 +165,7 @@ impl Pass for KinematicChunk<'_> {
     }
 }
 
-/// One step of the acceleration unicycle over `dt` [s]: v̇ = (throttle − c v) / m, solved
+/// One step of the acceleration unicycle over `dt` \[s\]: v̇ = (throttle − c v) / m, solved
 /// exactly over the step; a negative throttle brakes to zero speed and stays there (the model
 /// never reverses, and a negative starting speed counts as zero).
 pub fn step_acceleration_unicycle(
@@ -233,8 +233,8 @@ fn integrate<M: Component + Sync>(
     }
 }
 
-/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step ([`integrate`]),
-/// four at a time where they can ([`KinematicChunk`]).
+/// Integrate every vehicle with a [`KinematicUnicycle`] over the dynamics step (`integrate`),
+/// four at a time where they can (`KinematicChunk`).
 pub fn integrate_kinematic_unicycles(
     clock: Res<SimClock>,
     parallelism: Res<Parallelism>,
@@ -248,7 +248,7 @@ pub fn integrate_kinematic_unicycles(
 }
 
 /// Integrate every vehicle with an [`AccelerationUnicycle`] over the dynamics step
-/// ([`integrate`]).
+/// (`integrate`).
 pub fn integrate_acceleration_unicycles(
     clock: Res<SimClock>,
     parallelism: Res<Parallelism>,

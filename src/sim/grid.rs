@@ -1,6 +1,6 @@
 //! A uniform spatial hash grid rebuilt once per tick: O(N) to build, O(neighbours) per query.
 //!
-//! Cells are squares of side `cell` [m]; cell coordinates are hashed into a power-of-two
+//! Cells are squares of side `cell` \[m\]; cell coordinates are hashed into a power-of-two
 //! number of buckets (at least the number of entries) and the entries are counting-sorted by
 //! bucket, so a rebuild is O(N) with no allocation once the buffers have grown. A query visits
 //! the cells its disc overlaps and accepts an entry only if it lies in the visited cell, so hash
@@ -15,7 +15,7 @@ use crate::world::VehicleId;
 /// One vehicle in the grid.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GridEntry {
-    /// Position [m].
+    /// Position \[m\].
     pub position: DVec2,
     /// Velocity [m/s].
     pub velocity: DVec2,
@@ -30,7 +30,7 @@ pub struct GridEntry {
 /// entry's id and index only when it is within range.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GridPoint {
-    /// Position [m].
+    /// Position \[m\].
     pub position: DVec2,
     /// Vehicle id.
     pub id: VehicleId,
@@ -156,7 +156,7 @@ impl SpatialGrid {
         cell_at(p, self.cell)
     }
 
-    /// Refill the grid with `entries` using square cells of side `cell` [m] (> 0); queries are
+    /// Refill the grid with `entries` using square cells of side `cell` \[m\] (> 0); queries are
     /// cheapest when `cell` is about the largest query radius.
     ///
     /// `entries` is read twice (a clone of it first): once for each entry's cell, then again
@@ -387,7 +387,7 @@ impl SpatialGrid {
 
     /// Append the entries of the cells (x, y) with x in `xs` and y in `ys` to `out`, each once.
     ///
-    /// A column's cells that share a run of buckets ([`RUN`]) sit in consecutive buckets, so
+    /// A column's cells that share a run of buckets (`RUN`) sit in consecutive buckets, so
     /// their entries are one range of the arrays when each of those buckets holds only its own
     /// cell's entries or none (the common case: buckets are at least as many as entries): that
     /// range is copied whole (three copies and a count instead of an element at a time). Any
@@ -441,7 +441,7 @@ impl SpatialGrid {
         out.slots.extend(range.start as u32..range.end as u32);
     }
 
-    /// Side of the cells [m].
+    /// Side of the cells \[m\].
     pub fn cell_size(&self) -> f64 {
         self.cell
     }
@@ -466,7 +466,7 @@ impl SpatialGrid {
         self.indices[slot as usize]
     }
 
-    /// Gather into `out` every entry that may lie within `radius` [m] of a point of `cell` (the
+    /// Gather into `out` every entry that may lie within `radius` \[m\] of a point of `cell` (the
     /// square of cells as far as the radius reaches, or everything when that square has more
     /// cells than the grid has entries); returns whether it gathered everything.
     pub fn gather_around(&self, cell: (i32, i32), radius: f64, out: &mut Candidates) -> bool {
@@ -487,7 +487,7 @@ impl SpatialGrid {
         &self.slots[slot as usize]
     }
 
-    /// Call `f(slot, point, squared distance [m²])` with every entry within `radius` [m] of `p`
+    /// Call `f(slot, point, squared distance [m²])` with every entry within `radius` \[m\] of `p`
     /// (inclusive), each exactly once.
     pub fn for_each_within(&self, p: DVec2, radius: f64, mut f: impl FnMut(u32, &GridPoint, f64)) {
         if self.slots.is_empty() {
@@ -566,14 +566,14 @@ pub fn pack<T: Copy + PartialEq>(from: &[T], to: &mut [T], none: T) -> usize {
 }
 
 /// Candidates gathered from some cells of a grid, as arrays (structure of arrays): slot,
-/// coordinates [m] and id of each, so a test of all of them against one sensor vectorises.
+/// coordinates \[m\] and id of each, so a test of all of them against one sensor vectorises.
 #[derive(Debug, Clone, Default)]
 pub struct Candidates {
     /// Grid slot of each ([`SpatialGrid::get`]).
     pub slots: Vec<u32>,
-    /// x [m].
+    /// x \[m\].
     pub xs: Vec<f64>,
-    /// y [m].
+    /// y \[m\].
     pub ys: Vec<f64>,
     /// Vehicle id.
     pub ids: Vec<VehicleId>,
@@ -598,7 +598,7 @@ impl Candidates {
         self.slots.is_empty()
     }
 
-    /// The slots of the candidates within `radius` [m] of `p` (inclusive; the squared distance
+    /// The slots of the candidates within `radius` \[m\] of `p` (inclusive; the squared distance
     /// as [`DVec2::distance_squared`] computes it) but vehicle `exclude`, in candidate order,
     /// into `out`; `marks` is scratch. A branch-free pass over the arrays (vector code, AVX2
     /// where the processor has it, chosen at run time), then a pack.

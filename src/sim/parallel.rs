@@ -13,7 +13,7 @@
 //! sleeping thread costs 50-90 µs on the virtual machines we run on (measured: a section with a
 //! 33 µs serial gap before it took 55 µs longer than its work), so a 10,000-vehicle tick lost a
 //! section's worth of time to every hand-over. The [`Team`] here keeps its helpers spinning for
-//! [`SPIN`] after each section (a tick's sections reach them within a microsecond), then parks
+//! `SPIN` after each section (a tick's sections reach them within a microsecond), then parks
 //! them until the next one: the same fork-join, without the wake-up on the hot path.
 //!
 //! The systems gather their query items into a vector each tick; [`recycle`] keeps that
@@ -53,7 +53,7 @@ const WAIT_SPIN: Duration = Duration::from_micros(100);
 /// vehicles the caller waited 50-120 ms a run with one chunk a thread, 28-49 ms with 2, 12-24 ms
 /// with 4, but at 100,000 vehicles 4 made the wifi round 10-30 % slower than 2 (0.98 -> 1.08 s
 /// and 0.83 -> 1.12 s), and wall time at 10,000 could not tell 2 and 4 apart; 8 was slower.
-/// Four of falling size ([`chunk_start`]) instead of two equal: paired, 2 threads, 0.99 of the
+/// Four of falling size (`chunk_start`) instead of two equal: paired, 2 threads, 0.99 of the
 /// wall time at 10,000 vehicles (plain and `--lane-change`) and at 100,000. Five halving ones
 /// (8, 4, 2, 1, 1 sixteenths of a share: the last chunk running when the other runs out a
 /// thirty-second of the section, not a twentieth) instead of those four: paired, 2 threads, 30
@@ -89,7 +89,7 @@ struct Shared {
 }
 
 /// `helpers` persistent threads that share each section's chunks with the caller
-/// ([`Team::run`]). One section at a time: a second caller (another thread, or a
+/// (`Team::run`). One section at a time: a second caller (another thread, or a
 /// chunk that itself splits its work) finds the team busy and runs its chunks itself.
 pub struct Team {
     shared: Arc<Shared>,

@@ -104,9 +104,9 @@ pub const MAX_SPEED: f64 = 1e3;
 pub const MAX_ACCEL: f64 = 1e3;
 /// Largest controller gain a user may give (any unit).
 pub const MAX_GAIN: f64 = 1e6;
-/// Largest time constant (time gap, timeout, hold) a user may give [s]: one day.
+/// Largest time constant (time gap, timeout, hold) a user may give \[s\]: one day.
 pub const MAX_TIME: f64 = 86_400.0;
-/// Largest distance or position coordinate a user may give [m] (a UTM zone is ~1e6 m wide).
+/// Largest distance or position coordinate a user may give \[m\] (a UTM zone is ~1e6 m wide).
 pub const MAX_DISTANCE: f64 = 1e7;
-/// Largest vehicle dimension (length, width, wheelbase) [m].
+/// Largest vehicle dimension (length, width, wheelbase) \[m\].
 pub const MAX_VEHICLE_SIZE: f64 = 100.0;

@@ -19,11 +19,11 @@ use crate::world::VehicleState;
 /// One recorded state.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RecordedSample {
-    /// Time [s].
+    /// Time \[s\].
     pub t: f64,
-    /// Position [m].
+    /// Position \[m\].
     pub position: DVec2,
-    /// Heading, counter-clockwise from x [rad].
+    /// Heading, counter-clockwise from x \[rad\].
     pub yaw: f64,
     /// Speed along the heading [m/s].
     pub speed: f64,
@@ -46,7 +46,7 @@ impl RecordedTrajectory {
         Some(RecordedTrajectory { samples: samples.into(), cursor: 0 })
     }
 
-    /// The recorded state at time `t` [s]; moves the cursor (O(1) amortised as time goes on).
+    /// The recorded state at time `t` \[s\]; moves the cursor (O(1) amortised as time goes on).
     pub fn state_at(&mut self, t: f64) -> VehicleState {
         let s = &self.samples;
         if self.cursor >= s.len() || s[self.cursor].t > t {

@@ -65,18 +65,18 @@ pub enum Phase {
     Dynamics,
 }
 
-/// Rates of the standard modules [Hz]; the defaults are those of the 2015 simulator.
+/// Rates of the standard modules \[Hz\]; the defaults are those of the 2015 simulator.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rates {
-    /// Dynamics integration rate [Hz]; raising it shortens the integration step.
+    /// Dynamics integration rate \[Hz\]; raising it shortens the integration step.
     pub dynamics: f64,
-    /// Sensor rate [Hz].
+    /// Sensor rate \[Hz\].
     pub sensors: f64,
-    /// Controller rate [Hz].
+    /// Controller rate \[Hz\].
     pub control: f64,
-    /// Wifi round rate [Hz].
+    /// Wifi round rate \[Hz\].
     pub wifi: f64,
-    /// Network round rate [Hz].
+    /// Network round rate \[Hz\].
     pub network: f64,
 }
 
@@ -86,7 +86,7 @@ impl Default for Rates {
     }
 }
 
-/// The wifi module's rate [Hz] as built ([`crate::sim::SimBuilder::build`] inserts it; rates are
+/// The wifi module's rate \[Hz\] as built ([`crate::sim::SimBuilder::build`] inserts it; rates are
 /// fixed from then on), for controllers whose defaults count wifi rounds.
 #[derive(Resource, Debug, Clone, Copy, PartialEq)]
 pub struct WifiRate(pub f64);
@@ -96,7 +96,7 @@ pub struct WifiRate(pub f64);
 pub struct SimClock {
     /// Current sim time: the instant the running module is due at.
     pub now: SimTime,
-    /// Step of the running module [s]: the time until its next tick (what dynamics integrates over).
+    /// Step of the running module \[s\]: the time until its next tick (what dynamics integrates over).
     pub dt: f64,
 }
 
@@ -188,7 +188,7 @@ impl Scheduler {
         Some(&mut self.modules[i].schedule)
     }
 
-    /// Change the rate of module `label` [Hz]; returns false if there is no such module.
+    /// Change the rate of module `label` \[Hz\]; returns false if there is no such module.
     ///
     /// # Panics
     /// If `rate` is not positive and finite, or the module has already run.
@@ -200,7 +200,7 @@ impl Scheduler {
         true
     }
 
-    /// Rate of module `label` [Hz].
+    /// Rate of module `label` \[Hz\].
     pub fn rate(&self, label: impl ScheduleLabel) -> Option<f64> {
         self.index(label.intern()).map(|i| self.modules[i].rate)
     }
@@ -216,7 +216,7 @@ impl Scheduler {
         self.timing = on;
     }
 
-    /// Wall time each module's schedule has run while timing was on [s], in the order the
+    /// Wall time each module's schedule has run while timing was on \[s\], in the order the
     /// modules were added: where a run's time went, module by module.
     pub fn module_times(&self) -> impl Iterator<Item = (&str, f64)> {
         self.modules.iter().map(|m| (m.name.as_str(), m.busy.as_secs_f64()))
@@ -233,7 +233,7 @@ impl Scheduler {
         self.now
     }
 
-    /// The module due next: (index, due time, its name, its period [s]).
+    /// The module due next: (index, due time, its name, its period \[s\]).
     pub fn peek(&self) -> Option<(usize, SimTime, &str, f64)> {
         let (i, due) = self
             .modules

@@ -8,13 +8,13 @@
 /// 1e-20 of the result, far below a double's rounding.
 const SMALL: f64 = 1e-2;
 
-/// sin and cos of `a` [rad].
+/// sin and cos of `a` \[rad\].
 #[inline]
 pub fn small_sin_cos(a: f64) -> (f64, f64) {
     if is_small(a) { sin_cos_polynomial(a) } else { a.sin_cos() }
 }
 
-/// Whether `a` is small enough for the polynomials ([`SMALL`]).
+/// Whether `a` is small enough for the polynomials (`SMALL`).
 #[inline(always)]
 pub fn is_small(a: f64) -> bool {
     a.abs() < SMALL
@@ -30,7 +30,7 @@ pub fn sin_cos_polynomial(a: f64) -> (f64, f64) {
     (sin, cos)
 }
 
-/// tan of `a` [rad]: a + a³/3 + 2a⁵/15 + 17a⁷/315 + 62a⁹/2835 when small.
+/// tan of `a` \[rad\]: a + a³/3 + 2a⁵/15 + 17a⁷/315 + 62a⁹/2835 when small.
 #[inline]
 pub fn small_tan(a: f64) -> f64 {
     if is_small(a) { tan_polynomial(a) } else { a.tan() }

@@ -47,7 +47,7 @@ use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, 
 /// Settings of the V2V channels.
 #[derive(Resource, Debug, Clone, Copy, PartialEq)]
 pub struct V2vConfig {
-    /// Wifi range [m], inclusive: a receiver exactly this far from a sender still hears it.
+    /// Wifi range \[m\], inclusive: a receiver exactly this far from a sender still hears it.
     pub wifi_range: f64,
     /// Loss, bursts and delay of the wifi channel (perfect by default).
     pub wifi: ChannelModel,
@@ -79,9 +79,9 @@ pub struct ChannelStats {
     pub sent: u64,
     /// Receptions not lost (delivered, or still in flight when the run ended).
     pub delivered: u64,
-    /// Sum of the delivery delays [µs].
+    /// Sum of the delivery delays \[µs\].
     pub delay_sum_us: u64,
-    /// Sum over deliveries of (delivery time - time the message was written) [µs]: the age of
+    /// Sum over deliveries of (delivery time - time the message was written) \[µs\]: the age of
     /// the information when it arrives (out-box wait + delay).
     pub age_sum_us: u64,
     /// Deliveries whose age was counted.
@@ -96,12 +96,12 @@ impl ChannelStats {
         self.sent - self.delivered
     }
 
-    /// Mean delivery delay [ms].
+    /// Mean delivery delay \[ms\].
     pub fn delay_ms_mean(&self) -> f64 {
         if self.delivered == 0 { 0.0 } else { self.delay_sum_us as f64 / self.delivered as f64 / 1000.0 }
     }
 
-    /// 95th percentile of the delivery delay [ms] (to the histogram's 0.5 ms bins).
+    /// 95th percentile of the delivery delay \[ms\] (to the histogram's 0.5 ms bins).
     pub fn delay_ms_p95(&self) -> f64 {
         let total: u64 = self.delay_bins.iter().sum();
         if total == 0 {
@@ -118,7 +118,7 @@ impl ChannelStats {
         0.0
     }
 
-    /// Mean age of information at delivery [ms].
+    /// Mean age of information at delivery \[ms\].
     pub fn age_of_information_ms_mean(&self) -> f64 {
         if self.aged == 0 { 0.0 } else { self.age_sum_us as f64 / self.aged as f64 / 1000.0 }
     }

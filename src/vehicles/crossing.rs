@@ -32,12 +32,12 @@ use super::platoon::PlatoonMember;
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Crossing {
-    /// Centre of the conflict zone [m] (x, y); vehicles negotiate with claims of the same centre
+    /// Centre of the conflict zone \[m\] (x, y); vehicles negotiate with claims of the same centre
     /// (within 1 m).
     pub center: [f64; 2],
-    /// Radius of the conflict zone [m]; it must cover every place where the routes cross.
+    /// Radius of the conflict zone \[m\]; it must cover every place where the routes cross.
     pub radius: f64,
-    /// Distance kept before the zone when yielding [m].
+    /// Distance kept before the zone when yielding \[m\].
     pub stop_margin: f64,
     /// Braking used to stop before the zone [m/s²] (positive).
     pub deceleration: f64,
@@ -69,7 +69,7 @@ impl Default for Crossing {
 /// What a vehicle near the zone broadcasts.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CrossingClaim {
-    /// Centre of the zone [m].
+    /// Centre of the zone \[m\].
     pub center: DVec2,
     /// Whether its front is in the zone.
     pub inside: bool,
@@ -77,11 +77,11 @@ pub struct CrossingClaim {
     pub going: bool,
     /// Whether it holds the right and can no longer stop before the zone.
     pub committed: bool,
-    /// Estimated time until its front reaches the zone [s] (0 inside).
+    /// Estimated time until its front reaches the zone \[s\] (0 inside).
     pub eta: f64,
 }
 
-/// Arrival times closer than this [s] count as a tie, settled by id, so that two vehicles
+/// Arrival times closer than this \[s\] count as a tie, settled by id, so that two vehicles
 /// with slightly different estimates of each other never both think they are first.
 pub const ETA_TIE: f64 = 0.3;
 
@@ -98,7 +98,7 @@ pub fn goes_first(a: &CrossingClaim, a_id: VehicleId, b: &CrossingClaim, b_id: V
     }
 }
 
-/// Acceleration [m/s²] that stops a vehicle at speed `v` [m/s] within `room` [m]: the
+/// Acceleration [m/s²] that stops a vehicle at speed `v` [m/s] within `room` \[m\]: the
 /// deceleration needed once it exceeds half of `deceleration` [m/s²], else a gentle approach
 /// along the profile √(2·deceleration·room); full braking (3 × `deceleration`) with no room left.
 pub fn stop_before(v: f64, room: f64, deceleration: f64) -> f64 {
@@ -109,7 +109,7 @@ pub fn stop_before(v: f64, room: f64, deceleration: f64) -> f64 {
     if needed >= 0.5 * deceleration { -needed } else { ((2.0 * deceleration * room).sqrt() - v).min(1.0) }
 }
 
-/// Where `path` enters and leaves the disc (`center`, `radius`) first, as arc lengths [m].
+/// Where `path` enters and leaves the disc (`center`, `radius`) first, as arc lengths \[m\].
 pub fn zone_span(path: &Path, center: DVec2, radius: f64) -> Option<(f64, f64)> {
     let spacing = path.spacing();
     let inside = |p: &DVec2| p.distance(center) <= radius;

@@ -4,7 +4,7 @@
 //! The reference speed is the route's target speed ([`Longitudinal::route_speed`], i.e. the path
 //! follower's cruise speed) except during a [`SpeedDip`]; it moves towards its target at bounded
 //! rates and its rate of change is fed forward, so a scripted braking at 6 m/s² really brakes at
-//! 6 m/s². The gains act on throttle [N]: the original 500/50/150 suit a 1000 kg car; they are
+//! 6 m/s². The gains act on throttle \[N\]: the original 500/50/150 suit a 1000 kg car; they are
 //! scaled by mass / 1000 kg for heavier models so the closed loop keeps its speed.
 
 use bevy_ecs::prelude::{Component, Query, Res};
@@ -28,7 +28,7 @@ pub struct SpeedDip {
     pub speed: f64,
     /// Deceleration of the ramp down [m/s²] (positive).
     pub deceleration: f64,
-    /// How long to hold the low speed once reached [s]; infinite keeps it for ever.
+    /// How long to hold the low speed once reached \[s\]; infinite keeps it for ever.
     #[serde(default)]
     pub hold: f64,
 }

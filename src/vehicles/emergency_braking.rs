@@ -19,7 +19,7 @@ use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudina
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EmergencyBraking {
-    /// Time-to-collision threshold [s]; raising it brakes earlier (and more often).
+    /// Time-to-collision threshold \[s\]; raising it brakes earlier (and more often).
     pub ttc: f64,
     /// Braking applied [m/s²] (positive).
     pub deceleration: f64,
@@ -42,7 +42,7 @@ impl Default for EmergencyBraking {
     }
 }
 
-/// Time to collision [s] for a bumper gap `gap` [m] closing at `closing` [m/s]; infinite when not
+/// Time to collision \[s\] for a bumper gap `gap` \[m\] closing at `closing` [m/s]; infinite when not
 /// closing, zero when already touching.
 pub fn time_to_collision(gap: f64, closing: f64) -> f64 {
     if gap <= 0.0 {

@@ -37,12 +37,12 @@ use super::lanes::{LaneMap, LanePosition};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 use super::path_following::{LateralShift, PathFollower};
 
-/// A received beacon is acted on for this long after it was sent [s] (a lost round or two does
+/// A received beacon is acted on for this long after it was sent \[s\] (a lost round or two does
 /// not end a yield).
 pub const BEACON_HOLD: f64 = 1.0;
-/// Room kept to the lane's edge when moving aside [m].
+/// Room kept to the lane's edge when moving aside \[m\].
 pub const EDGE_MARGIN: f64 = 0.25;
-/// Largest sideways shift inside the lane [m].
+/// Largest sideways shift inside the lane \[m\].
 pub const MAX_SHIFT: f64 = 1.2;
 /// A vehicle that moves aside slows to this share of its speed when it began to [-]: enough to
 /// drop behind a neighbour alongside in the lane to the right, not so much that the gap it
@@ -51,7 +51,7 @@ pub const SLOW_SHARE: f64 = 0.8;
 /// Hardest braking used to slow while moving aside [m/s²].
 pub const SLOW_DECELERATION: f64 = 1.5;
 /// A vehicle that changed lanes for an emergency vehicle asks to change back for this long
-/// after it has passed [s] (then MOBIL decides as usual).
+/// after it has passed \[s\] (then MOBIL decides as usual).
 pub const RETURN_WINDOW: f64 = 10.0;
 /// An emergency vehicle this close to the end of its open route [m] has arrived.
 const ARRIVED: f64 = 5.0;
@@ -60,7 +60,7 @@ const ARRIVED: f64 = 5.0;
 #[derive(Resource, Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EmergencySettings {
-    /// How far behind a vehicle an emergency vehicle makes it yield [m] (along the lane);
+    /// How far behind a vehicle an emergency vehicle makes it yield \[m\] (along the lane);
     /// raising it clears the lane earlier (and disturbs more traffic). The beacon must reach
     /// that far: set `[v2v.wifi] range` at least as high.
     pub warning_range: f64,
@@ -92,9 +92,9 @@ pub struct EmergencyBeacon {
     pub lane: LaneletId,
     /// The lanelet it is changing to, if it is changing lanes (the lane it will use).
     pub target_lane: Option<LaneletId>,
-    /// Its position [m].
+    /// Its position \[m\].
     pub position: DVec2,
-    /// Its arc length along `lane` [m].
+    /// Its arc length along `lane` \[m\].
     pub s: f64,
     /// Its speed [m/s] (receivers extrapolate `s` by it).
     pub speed: f64,
@@ -111,13 +111,13 @@ pub struct EmergencyVehicle {
 #[derive(Component, Debug, Clone, Copy, PartialEq, Default)]
 #[require(LateralShift)]
 pub struct YieldToEmergency {
-    /// The last beacon heard, and when it was sent [s].
+    /// The last beacon heard, and when it was sent \[s\].
     pub heard: Option<(f64, EmergencyBeacon)>,
     /// Whether it asked for a change to the right at the last tick.
     pub requested: bool,
     /// Speed to slow to while moving aside [m/s].
     pub slow_to: Option<f64>,
-    /// It changed lanes for an emergency vehicle: ask to change back until this time [s].
+    /// It changed lanes for an emergency vehicle: ask to change back until this time \[s\].
     pub return_until: Option<f64>,
     /// Whether it has made way at least once (a change to the right, or a shift).
     pub yielded: bool,
@@ -135,9 +135,9 @@ pub struct YieldPlan {
     pub slow: bool,
 }
 
-/// Distance [m] along the lane from arc length `from_s` on lanelet `from` forward to `to_s` on
-/// lanelet `to`, following `successor`, if `to` is reached within `horizon` [m] and the point
-/// lies ahead (>= 0). `length(i)` is lanelet `i`'s length [m].
+/// Distance \[m\] along the lane from arc length `from_s` on lanelet `from` forward to `to_s` on
+/// lanelet `to`, following `successor`, if `to` is reached within `horizon` \[m\] and the point
+/// lies ahead (>= 0). `length(i)` is lanelet `i`'s length \[m\].
 pub fn distance_along_lane(
     successor: impl Fn(u32) -> Option<u32>,
     length: impl Fn(u32) -> f64,
@@ -165,8 +165,8 @@ pub fn distance_along_lane(
     None
 }
 
-/// The rule: a vehicle `ahead` [m] of an emergency vehicle in the lane it uses (`None`: not in
-/// its way), within `range` [m], changes to the right when there is a lane there
+/// The rule: a vehicle `ahead` \[m\] of an emergency vehicle in the lane it uses (`None`: not in
+/// its way), within `range` \[m\], changes to the right when there is a lane there
 /// (`right_lane`); it moves aside inside its lane and slows while its last request was `refused`, and
 /// so does one with no lane to the right (the 2015 behaviour). One already `changing` lanes
 /// just finishes.
@@ -179,14 +179,14 @@ pub fn yield_plan(ahead: Option<f64>, range: f64, right_lane: bool, changing: bo
     }
 }
 
-/// Sideways shift [m] (negative: right) that moves a vehicle of `width` [m] to the right edge of
-/// a lane of half width `half_width` [m], keeping [`EDGE_MARGIN`], at most [`MAX_SHIFT`].
+/// Sideways shift \[m\] (negative: right) that moves a vehicle of `width` \[m\] to the right edge of
+/// a lane of half width `half_width` \[m\], keeping [`EDGE_MARGIN`], at most [`MAX_SHIFT`].
 pub fn aside_shift(half_width: f64, width: f64) -> f64 {
     -(half_width - 0.5 * width - EDGE_MARGIN).clamp(0.0, MAX_SHIFT)
 }
 
-/// Clearance [m] between two vehicles at `a` and `b` (centres [m]) of sizes `size_a`, `size_b`,
-/// seen along `a`'s heading `yaw_a` [rad], both taken as parallel (a highway): the larger of the
+/// Clearance \[m\] between two vehicles at `a` and `b` (centres \[m\]) of sizes `size_a`, `size_b`,
+/// seen along `a`'s heading `yaw_a` \[rad\], both taken as parallel (a highway): the larger of the
 /// longitudinal and the lateral gap between the footprints, 0 when they overlap.
 pub fn clearance(a: DVec2, yaw_a: f64, size_a: VehicleSize, b: DVec2, size_b: VehicleSize) -> f64 {
     let d = b - a;
@@ -199,17 +199,17 @@ pub fn clearance(a: DVec2, yaw_a: f64, size_a: VehicleSize, b: DVec2, size_b: Ve
 /// One emergency vehicle's run, for `metrics.emergency`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EmergencyRun {
-    /// First control tick seen [s].
+    /// First control tick seen \[s\].
     pub start: f64,
-    /// Last control tick seen [s].
+    /// Last control tick seen \[s\].
     pub last: f64,
-    /// When it reached the end of its open route [s], if it did.
+    /// When it reached the end of its open route \[s\], if it did.
     pub arrived: Option<f64>,
-    /// Distance driven [m] (its speed integrated over the control ticks, whatever lane).
+    /// Distance driven \[m\] (its speed integrated over the control ticks, whatever lane).
     pub driven: f64,
     /// Desired speed [m/s].
     pub desired_speed: f64,
-    /// Smallest clearance to any other vehicle [m].
+    /// Smallest clearance to any other vehicle \[m\].
     pub min_clearance: f64,
 }
 
@@ -227,13 +227,13 @@ pub struct EmergencyLog {
 pub struct EmergencySummary {
     /// The emergency vehicle.
     pub id: VehicleId,
-    /// Time it drove [s]: from the start to the end of its open route, or to the end of the run.
+    /// Time it drove \[s\]: from the start to the end of its open route, or to the end of the run.
     pub travel_time_s: f64,
-    /// Time the same distance takes alone at its desired speed [s].
+    /// Time the same distance takes alone at its desired speed \[s\].
     pub free_flow_time_s: f64,
-    /// `travel_time_s - free_flow_time_s` [s]: what the traffic cost it.
+    /// `travel_time_s - free_flow_time_s` \[s\]: what the traffic cost it.
     pub delay_s: f64,
-    /// Smallest clearance between it and any other vehicle [m] (footprints taken parallel);
+    /// Smallest clearance between it and any other vehicle \[m\] (footprints taken parallel);
     /// -1 when no vehicle came within 40 m of it.
     pub min_clearance_m: f64,
     /// Vehicles that made way for it (changed to the right, or moved aside in their lane).

@@ -17,9 +17,9 @@ use crate::world::VehicleId;
 pub struct LeaderGap {
     /// Its id.
     pub id: VehicleId,
-    /// Arc length from our centre to its centre along our route [m].
+    /// Arc length from our centre to its centre along our route \[m\].
     pub distance: f64,
-    /// Bumper-to-bumper gap [m]: `distance` minus our own length. Sensors report centres, not
+    /// Bumper-to-bumper gap \[m\]: `distance` minus our own length. Sensors report centres, not
     /// lengths, so this assumes the leader is as long as we are; raise the standstill distance
     /// when following longer vehicles.
     pub gap: f64,
@@ -39,9 +39,9 @@ pub const IDM_MAX_BRAKING: f64 = 9.0;
 pub struct Idm {
     /// Desired speed v₀ [m/s] (also the path follower's cruise speed).
     pub speed: f64,
-    /// Desired time gap T [s]; raising it follows farther.
+    /// Desired time gap T \[s\]; raising it follows farther.
     pub time_gap: f64,
-    /// Standstill gap s₀ [m], bumper to bumper.
+    /// Standstill gap s₀ \[m\], bumper to bumper.
     pub min_gap: f64,
     /// Maximum acceleration a_max [m/s²].
     pub accel: f64,
@@ -98,10 +98,10 @@ pub const BRAKING_BOUND_FROM: f64 = 1.0;
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AdaptiveCruise {
-    /// Time gap h [s] kept to the leader on top of the standstill distance; raising it follows
+    /// Time gap h \[s\] kept to the leader on top of the standstill distance; raising it follows
     /// farther and damps disturbances more.
     pub time_gap: f64,
-    /// Standstill distance d₀ [m], bumper to bumper, kept when stopped behind the leader.
+    /// Standstill distance d₀ \[m\], bumper to bumper, kept when stopped behind the leader.
     pub standstill: f64,
     /// Gap error gain k_p [1/s²]; raising it closes gap errors faster but rings more.
     pub gap_gain: f64,
@@ -144,7 +144,7 @@ impl AdaptiveCruise {
         ])
     }
 
-    /// Desired gap [m] at speed `v` [m/s]: d₀ + h·v.
+    /// Desired gap \[m\] at speed `v` [m/s]: d₀ + h·v.
     pub fn desired_gap(&self, v: f64) -> f64 {
         self.standstill + self.time_gap * v.max(0.0)
     }

@@ -17,7 +17,7 @@
 //!    heard for [`LOST_AFTER`] drops out of the zipper, and the next vehicle becomes the pair;
 //! 2. gap maker: follows its forward pair (the merger, projected into its lane) as a virtual
 //!    leader at the rear safe gap, which opens the gap to its real predecessor, and announces STOM
-//!    when both gaps are safe ([`stom`], [`keep_stom`]);
+//!    when both gaps are safe (`stom`, [`keep_stom`]);
 //! 3. merger: follows its forward pair virtually at the front safe gap, and asks the lane-change
 //!    plugin ([`super::lane_changing`]) for the change once its backward pair announces STOM and
 //!    its own check of both gaps passes ([`merge_action`]); it asks for an abort when STOM or its
@@ -52,13 +52,13 @@ use super::longitudinal::{LeaderGap, Longitudinal, LongitudinalSystems, install_
 use super::path_following::PathFollower;
 use super::platoon::Platooning;
 
-/// A participant not heard for this long is lost [s] (ten wifi rounds at 10 Hz: a lossy channel
+/// A participant not heard for this long is lost \[s\] (ten wifi rounds at 10 Hz: a lossy channel
 /// does not end a pair, a vehicle that left does).
 pub const LOST_AFTER: f64 = 1.0;
 /// A merger gives the decision back to the lane-change plugin's mandatory change this far before
-/// the end of its lane [m] (the protocol failed; better merge somewhere than stop).
+/// the end of its lane \[m\] (the protocol failed; better merge somewhere than stop).
 pub const LAST_RESORT: f64 = 60.0;
-/// Virtual following keeps this much more than the safe gap [m], so STOM does not flicker at
+/// Virtual following keeps this much more than the safe gap \[m\], so STOM does not flicker at
 /// the threshold.
 pub const GAP_MARGIN: f64 = 3.0;
 /// Hardest braking a virtual leader may ask for [m/s²] (comfortable; the real leader may ask
@@ -84,7 +84,7 @@ pub enum Role {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MergeParams {
-    /// Minimum safe gap [m] under the speed-dependent 2015 gaps (front `max(safe_gap,
+    /// Minimum safe gap \[m\] under the speed-dependent 2015 gaps (front `max(safe_gap,
     /// 0.27 v^1.5)`, rear `max(safe_gap, 0.23 v^1.5)`); raising it opens wider gaps.
     pub safe_gap: f64,
     /// Cruise speed [m/s] from the moment the merge zone is heard (default: keep `speed`): the
@@ -124,9 +124,9 @@ pub enum RsuKind {
 pub struct Rsu {
     /// Sender id of its messages (not a vehicle: ids from `i32::MIN` up).
     pub id: VehicleId,
-    /// Where it stands [m] (for `merge_zone`: the start of the zone).
+    /// Where it stands \[m\] (for `merge_zone`: the start of the zone).
     pub position: DVec2,
-    /// Its own wifi range [m], inclusive.
+    /// Its own wifi range \[m\], inclusive.
     pub range: f64,
     /// What it says.
     pub message: RsuKind,
@@ -137,7 +137,7 @@ pub struct Rsu {
 pub struct RsuMessage {
     /// What it says.
     pub message: RsuKind,
-    /// Where the zone starts [m].
+    /// Where the zone starts \[m\].
     pub at: DVec2,
 }
 
@@ -150,7 +150,7 @@ pub struct Rsus(pub Vec<Rsu>);
 pub struct Mio {
     /// Its id.
     pub id: VehicleId,
-    /// Bumper-to-bumper range [m].
+    /// Bumper-to-bumper range \[m\].
     pub range: f64,
     /// Range rate [m/s] (its speed minus ours).
     pub range_rate: f64,
@@ -165,7 +165,7 @@ pub struct GcdcMessage {
     pub platoon_id: VehicleId,
     /// Its lane, counted from the right (1 = right-most).
     pub lane: u8,
-    /// Distance along the road to the merge zone [m] (negative inside it; NaN before it heard the
+    /// Distance along the road to the merge zone \[m\] (negative inside it; NaN before it heard the
     /// roadside unit).
     pub distance_to_merge_zone: f64,
     /// Speed [m/s].
@@ -193,7 +193,7 @@ pub struct GcdcMessage {
 /// A broadcast heard, and what the receiver keeps about its sender.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Heard {
-    /// When it was sent [s].
+    /// When it was sent \[s\].
     pub sent: f64,
     /// The message.
     pub message: GcdcMessage,
@@ -206,13 +206,13 @@ pub struct Heard {
 pub struct VirtualLeader {
     /// Its id.
     pub id: VehicleId,
-    /// Bumper-to-bumper gap along the road [m] (negative: it is behind).
+    /// Bumper-to-bumper gap along the road \[m\] (negative: it is behind).
     pub gap: f64,
     /// Its speed [m/s].
     pub speed: f64,
     /// Its acceleration [m/s²].
     pub accel: f64,
-    /// Gap to keep [m] (the safe gap plus [`GAP_MARGIN`]).
+    /// Gap to keep \[m\] (the safe gap plus [`GAP_MARGIN`]).
     pub keep: f64,
 }
 
@@ -226,9 +226,9 @@ pub struct GcdcVehicle {
     pub platoon: Platooning,
     /// Safe gaps and the speed in the merge zone.
     pub merge: MergeParams,
-    /// Where the merge zone starts [m], once heard.
+    /// Where the merge zone starts \[m\], once heard.
     pub zone: Option<DVec2>,
-    /// Distance along the road to the zone [m] (NaN before it is heard).
+    /// Distance along the road to the zone \[m\] (NaN before it is heard).
     pub distance: f64,
     /// The other participants heard in the last [`LOST_AFTER`].
     pub heard: BTreeMap<VehicleId, Heard>,
@@ -242,7 +242,7 @@ pub struct GcdcVehicle {
     pub merge_request: bool,
     /// Changing lanes now.
     pub merging: bool,
-    /// When it merged [s] (mergers).
+    /// When it merged \[s\] (mergers).
     pub merged: Option<f64>,
     /// Lane from the right (1 = right-most).
     pub lane: u8,
@@ -314,7 +314,7 @@ impl GcdcVehicle {
 pub struct MergeEvent {
     /// The merger.
     pub id: VehicleId,
-    /// When its lane change ended in the other lane [s].
+    /// When its lane change ended in the other lane \[s\].
     pub t: f64,
     /// Its forward pair then.
     pub forward_pair: Option<VehicleId>,
@@ -325,18 +325,18 @@ pub struct MergeEvent {
 /// What the merge protocol measured.
 #[derive(Resource, Debug, Clone, Default)]
 pub struct MergeLog {
-    /// Participants by id: (merger, arc length at the first tick [m] for their order in their
-    /// lane, distance to the zone at the last tick [m]).
+    /// Participants by id: (merger, arc length at the first tick \[m\] for their order in their
+    /// lane, distance to the zone at the last tick \[m\]).
     pub participants: BTreeMap<VehicleId, (bool, f64, f64)>,
     /// Pairs acknowledged both ways, each once (lower id first).
     pub pairs: BTreeSet<(VehicleId, VehicleId)>,
-    /// When the first pair formed [s].
+    /// When the first pair formed \[s\].
     pub first_pair: Option<f64>,
     /// The merges, in order.
     pub merges: Vec<MergeEvent>,
-    /// Smallest bumper-to-bumper gap of a participant to the vehicle ahead in its lane [m].
+    /// Smallest bumper-to-bumper gap of a participant to the vehicle ahead in its lane \[m\].
     pub min_gap: f64,
-    /// Smallest time gap of the same [s] (above 1 m/s).
+    /// Smallest time gap of the same \[s\] (above 1 m/s).
     pub min_time_gap: f64,
     /// Merges aborted back to the ending lane.
     pub aborted: usize,
@@ -353,12 +353,12 @@ pub struct MergeSummary {
     pub vehicles_merged: usize,
     /// Pairs acknowledged both ways (each once; a re-pairing adds one).
     pub pairs_formed: usize,
-    /// From the first pair formed to the last merge [s] (0 when none merged).
+    /// From the first pair formed to the last merge \[s\] (0 when none merged).
     pub duration_s: f64,
     /// Smallest bumper-to-bumper gap between a participant and the vehicle ahead in its lane,
-    /// from the merge zone's announcement on [m] (-1 when never measured).
+    /// from the merge zone's announcement on \[m\] (-1 when never measured).
     pub min_gap_m: f64,
-    /// Smallest time gap of the same (gap / own speed, above 1 m/s) [s] (-1 when never measured).
+    /// Smallest time gap of the same (gap / own speed, above 1 m/s) \[s\] (-1 when never measured).
     pub min_time_gap_s: f64,
     /// Whether every merger merged and the final order zips the two platoons, each in its order.
     pub zipper_order: bool,

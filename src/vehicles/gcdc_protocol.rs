@@ -18,13 +18,13 @@
 
 use crate::world::VehicleId;
 
-/// Front safe gap [m] at speed `v` [m/s] (bumper to bumper, merger to the vehicle it merges
+/// Front safe gap \[m\] at speed `v` [m/s] (bumper to bumper, merger to the vehicle it merges
 /// behind): `max(min, 0.27 v^1.5)` (the 2015 rule with `min` = 10 m).
 pub fn safe_gap_front(v: f64, min: f64) -> f64 {
     min.max(0.27 * v.max(0.0).powf(1.5))
 }
 
-/// Rear safe gap [m] at speed `v` [m/s] (bumper to bumper, the vehicle behind to the merger):
+/// Rear safe gap \[m\] at speed `v` [m/s] (bumper to bumper, the vehicle behind to the merger):
 /// `max(min, 0.23 v^1.5)` (the 2015 rule with `min` = 10 m).
 pub fn safe_gap_rear(v: f64, min: f64) -> f64 {
     min.max(0.23 * v.max(0.0).powf(1.5))
@@ -37,7 +37,7 @@ pub struct Participant {
     pub id: VehicleId,
     /// Whether it merges (it came from the ending lane).
     pub merger: bool,
-    /// Distance to the merge zone along the road [m] (smaller = further ahead).
+    /// Distance to the merge zone along the road \[m\] (smaller = further ahead).
     pub distance: f64,
 }
 
@@ -91,13 +91,13 @@ pub fn pairs_in(order: &[VehicleId], me: VehicleId, merger: impl Fn(VehicleId) -
 /// Safe to merge, as the gap maker announces it: the gap from it to its forward partner (the
 /// merger, projected into its lane) is at least the rear safe gap, and the room between the
 /// merger and the gap maker's own leader (`None`: no leader) at least the front safe gap, both at
-/// the gap maker's speed `v` [m/s] with the minimum `safe_gap` [m]. Gaps bumper to bumper [m].
+/// the gap maker's speed `v` [m/s] with the minimum `safe_gap` \[m\]. Gaps bumper to bumper \[m\].
 pub fn stom(gap_to_partner: f64, partner_room_ahead: Option<f64>, v: f64, safe_gap: f64) -> bool {
     gap_to_partner >= safe_gap_rear(v, safe_gap) && partner_room_ahead.is_none_or(|g| g >= safe_gap_front(v, safe_gap))
 }
 
 /// STOM with hysteresis: once announced (`announced`), it holds while the partner `merging`
-/// changes lanes as long as the gap to it stays at the minimum `safe_gap` [m] (a gap breathing
+/// changes lanes as long as the gap to it stays at the minimum `safe_gap` \[m\] (a gap breathing
 /// around the speed-dependent value must not abort a merge halfway); otherwise [`stom`].
 pub fn keep_stom(
     announced: bool,
@@ -120,13 +120,13 @@ pub struct MergeView {
     pub acknowledged: bool,
     /// Its backward partner announces STOM (`true` when it has none: it merges at the tail).
     pub stom: bool,
-    /// Gap to the forward partner [m] (bumper to bumper, along the road), if it has one.
+    /// Gap to the forward partner \[m\] (bumper to bumper, along the road), if it has one.
     pub front_gap: Option<f64>,
-    /// Gap from the backward partner [m], if it has one.
+    /// Gap from the backward partner \[m\], if it has one.
     pub rear_gap: Option<f64>,
     /// Its speed [m/s].
     pub speed: f64,
-    /// Minimum safe gap [m] (`merge.safe_gap`).
+    /// Minimum safe gap \[m\] (`merge.safe_gap`).
     pub safe_gap: f64,
     /// A lane change is in progress.
     pub merging: bool,

@@ -3,7 +3,7 @@
 //! of the longitudinal pipeline, with the leader from the sensors like ACC.
 //!
 //! `a = a_max [1 − (v/v₀)^δ − (s*/s)²]`, `s* = s₀ + v T + v Δv / (2 √(a_max b))`, with gap `s`
-//! [m] to the leader and approach rate `Δv = v − v_leader` [m/s] (see REFERENCE.md).
+//! \[m\] to the leader and approach rate `Δv = v − v_leader` [m/s] (see REFERENCE.md).
 
 use bevy_ecs::prelude::{Component, Local, Query, Res};
 use bevy_ecs::schedule::IntoScheduleConfigs;

@@ -11,9 +11,9 @@
 /// whose curvature-free start and end need no steering jump.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LaneChangeProfile {
-    /// Signed lateral distance to the target lane's centre [m] (positive = left).
+    /// Signed lateral distance to the target lane's centre \[m\] (positive = left).
     pub offset: f64,
-    /// Distance along the road over which the change happens [m].
+    /// Distance along the road over which the change happens \[m\].
     pub length: f64,
 }
 
@@ -22,7 +22,7 @@ const QUINTIC_PEAK: f64 = 5.773_502_691_896_258;
 
 impl LaneChangeProfile {
     /// The shortest profile whose lateral acceleration at `speed` [m/s] stays at or under
-    /// `max_lateral_accel` [m/s²], but no shorter than `min_length` [m]: `L = v √(5.77 |D| / a)`.
+    /// `max_lateral_accel` [m/s²], but no shorter than `min_length` \[m\]: `L = v √(5.77 |D| / a)`.
     pub fn for_speed(offset: f64, speed: f64, max_lateral_accel: f64, min_length: f64) -> LaneChangeProfile {
         let a = max_lateral_accel.max(1e-6);
         let length = (speed.abs() * (QUINTIC_PEAK * offset.abs() / a).sqrt()).max(min_length).max(1e-3);
@@ -35,7 +35,7 @@ impl LaneChangeProfile {
         self.length / (QUINTIC_PEAK * self.offset.abs() / max_lateral_accel.max(1e-6)).sqrt().max(1e-9)
     }
 
-    /// Lateral offset [m] after driving `s` [m] since the start (clamped to the ends).
+    /// Lateral offset \[m\] after driving `s` \[m\] since the start (clamped to the ends).
     pub fn offset_at(&self, s: f64) -> f64 {
         let u = (s / self.length).clamp(0.0, 1.0);
         self.offset * u * u * u * (10.0 - 15.0 * u + 6.0 * u * u)
@@ -79,7 +79,7 @@ impl Default for Mobil {
 /// A vehicle as MOBIL sees it: its position along the road [m, centre] and speed [m/s].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Seen {
-    /// Position along the road [m] (centre).
+    /// Position along the road \[m\] (centre).
     pub s: f64,
     /// Speed [m/s].
     pub speed: f64,
@@ -91,7 +91,7 @@ pub struct Seen {
 pub struct Surroundings {
     /// Ourselves.
     pub me: Seen,
-    /// Our length [m] (all vehicles assumed this long).
+    /// Our length \[m\] (all vehicles assumed this long).
     pub length: f64,
     /// Nearest vehicle ahead in our lane.
     pub leader: Option<Seen>,

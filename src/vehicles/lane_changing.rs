@@ -39,19 +39,19 @@ use crate::world::prefetch_bytes;
 pub const KEEP_RIGHT_BIAS: f64 = 0.3;
 /// Discretionary changes are weighed every this many control ticks (0.5 s at 20 Hz).
 pub const DISCRETIONARY_EVERY: i64 = 10;
-/// Shortest manoeuvre [m] across a whole lane ([`LANE_SPACING`]); a shorter lateral move (an
+/// Shortest manoeuvre \[m\] across a whole lane ([`LANE_SPACING`]); a shorter lateral move (an
 /// abort from part-way) may take less ([`min_change_length`]).
 pub const MIN_CHANGE_LENGTH: f64 = 10.0;
-/// Distance between lane centres assumed when a change is weighed, before its path is known [m].
+/// Distance between lane centres assumed when a change is weighed, before its path is known \[m\].
 pub const LANE_SPACING: f64 = 3.5;
 /// No discretionary change starts below this speed [m/s]: the shortest manoeuvre (10 m) would
 /// take longer than [`CHANGE_TIME_BOUND`] / 2 (issue 61 §1).
 pub const MIN_CHANGE_SPEED: f64 = 2.0;
 /// Braking [m/s²] assumed of a leader when [`room_to_finish`] weighs the room ahead.
 pub const LEADER_BRAKING: f64 = 3.0;
-/// Bumper gap [m] kept to a standing leader when [`room_to_finish`] weighs the room ahead.
+/// Bumper gap \[m\] kept to a standing leader when [`room_to_finish`] weighs the room ahead.
 pub const STANDSTILL_GAP: f64 = 2.0;
-/// The bound a lane change's duration keeps in traffic that moves [s] (documented in
+/// The bound a lane change's duration keeps in traffic that moves \[s\] (documented in
 /// docs/vehicles.md; asserted over a dense ring by `tests/vehicles_lane_changes.rs`).
 pub const CHANGE_TIME_BOUND: f64 = 8.0;
 
@@ -65,9 +65,9 @@ pub use super::lane_state::{
 pub struct LaneChangeEvent {
     /// Vehicle.
     pub id: VehicleId,
-    /// Start [s].
+    /// Start \[s\].
     pub t_start: f64,
-    /// End [s] (back in the old lane for an aborted one).
+    /// End \[s\] (back in the old lane for an aborted one).
     pub t_end: f64,
     /// Lanelet left.
     pub from: i64,
@@ -98,7 +98,7 @@ pub struct LaneChangeLog {
     pub aborted: usize,
     /// Vehicles that reached the end of a lane they had to leave.
     pub missed_exits: std::collections::BTreeSet<VehicleId>,
-    /// Longest time a vehicle stood (below 0.5 m/s) waiting for a gap [s].
+    /// Longest time a vehicle stood (below 0.5 m/s) waiting for a gap \[s\].
     pub max_wait_s: f64,
 }
 
@@ -215,7 +215,7 @@ impl LanePaths {
         Some(path)
     }
 
-    /// Where lanelet `i` starts along the loop [`LanePaths::path_through`] gave for it [m]
+    /// Where lanelet `i` starts along the loop [`LanePaths::path_through`] gave for it \[m\]
     /// (`None` if no loop passes it).
     pub fn loop_start(&self, lanes: &LaneMap, i: u32) -> Option<f64> {
         let id = lanes.id(i);
@@ -297,8 +297,8 @@ fn loop_projection_near(path: &Path, p: DVec2, hint: f64) -> crate::map::PathPro
     q
 }
 
-/// Mandatory-change signals of the last tick: target lanelet -> (arc length [m], speed [m/s],
-/// length [m], id) of the vehicles waiting to move in.
+/// Mandatory-change signals of the last tick: target lanelet -> (arc length \[m\], speed [m/s],
+/// length \[m\], id) of the vehicles waiting to move in.
 #[derive(Resource, Debug, Clone, Default)]
 pub struct LaneSignals(pub BTreeMap<u32, Vec<(f64, f64, f64, VehicleId)>>);
 
@@ -311,7 +311,7 @@ pub struct Claims(pub Vec<(u32, f64)>);
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct LaneChangeSystems;
 
-/// Urgency [0, 1] of a mandatory change with `remaining` [m] of lane left at speed `v` [m/s].
+/// Urgency [0, 1] of a mandatory change with `remaining` \[m\] of lane left at speed `v` [m/s].
 pub fn urgency(remaining: f64, v: f64) -> f64 {
     let horizon = 100.0 + 4.0 * v.max(0.0);
     (1.0 - (remaining - 10.0) / horizon).clamp(0.0, 1.0)
@@ -1005,7 +1005,7 @@ fn evaluate(
     }
 }
 
-/// The shortest manoeuvre [m] for a lateral move of `offset` [m]: [`MIN_CHANGE_LENGTH`] across a
+/// The shortest manoeuvre \[m\] for a lateral move of `offset` \[m\]: [`MIN_CHANGE_LENGTH`] across a
 /// whole lane, shorter for a part (a kinematic vehicle's shortest S-bend grows with the square
 /// root of its lateral move), never under 3 m.
 pub fn min_change_length(offset: f64) -> f64 {
@@ -1013,7 +1013,7 @@ pub fn min_change_length(offset: f64) -> f64 {
 }
 
 /// Whether a discretionary change at speed `v` [m/s] has room to finish: should the target
-/// lane's `target_leader` and our lane's `leader` (distances centre to centre, our `length` [m])
+/// lane's `target_leader` and our lane's `leader` (distances centre to centre, our `length` \[m\])
 /// brake to a stop at [`LEADER_BRAKING`] now, we could still drive the shortest whole manoeuvre
 /// ([`MIN_CHANGE_LENGTH`]: a change in progress is shortened as the speed falls) behind the first
 /// and three quarters of it (clear of the lane we leave) behind the second, keeping

@@ -22,7 +22,7 @@ use super::lanes::LaneMap;
 use crate::sim::Parallelism;
 use crate::sim::parallel::{CHUNKS_PER_THREAD, recycle};
 
-/// How far the leader and follower searches look along the lane [m].
+/// How far the leader and follower searches look along the lane \[m\].
 pub const SEARCH_HORIZON: f64 = 200.0;
 
 /// `lane_change = { politeness, threshold, safe_deceleration, max_lateral_accel, keep_right,
@@ -42,7 +42,7 @@ pub struct LaneChangeParams {
     pub keep_right: bool,
     /// Open a gap (braking up to `safe_deceleration / 2`) for a neighbour that must change.
     pub cooperative: bool,
-    /// Least time between two changes of one vehicle [s] (no ping-pong).
+    /// Least time between two changes of one vehicle \[s\] (no ping-pong).
     pub min_interval: f64,
     /// Change lanes only when asked from outside (Python's `change_lane`, a learning agent such
     /// as `smlworld/HighwayMerge-v0`'s): no discretionary or mandatory change of its own. The
@@ -174,15 +174,15 @@ pub struct Manoeuvre {
     pub to: LaneletId,
     /// Lateral profile: the offset from the route goes from `start_offset` to 0.
     pub profile: LaneChangeProfile,
-    /// Offset from the (new) route at the start [m], positive left.
+    /// Offset from the (new) route at the start \[m\], positive left.
     pub start_offset: f64,
-    /// Arc length along the route where it began [m].
+    /// Arc length along the route where it began \[m\].
     pub s_start: f64,
     /// The route driven before (searched for leaders while crossing, and driven back to on an abort).
     pub old_route: Arc<Path>,
-    /// Arc length along `old_route` [m].
+    /// Arc length along `old_route` \[m\].
     pub old_s: f64,
-    /// Start time [s].
+    /// Start time \[s\].
     pub t_start: f64,
     /// Largest lateral acceleration of the profile so far, v² |d''(s)| [m/s²].
     pub peak_lateral_accel: f64,
@@ -191,13 +191,13 @@ pub struct Manoeuvre {
 }
 
 impl Manoeuvre {
-    /// Distance driven since the start along `route` [m].
+    /// Distance driven since the start along `route` \[m\].
     pub fn driven(&self, route: &Path, s: f64) -> f64 {
         let d = s - self.s_start;
         if route.closed { d.rem_euclid(route.length) } else { d }
     }
 
-    /// Offset from the route [m] (positive left) the path follower aims at, `s` along the route.
+    /// Offset from the route \[m\] (positive left) the path follower aims at, `s` along the route.
     pub fn offset_at(&self, route: &Path, s: f64) -> f64 {
         let d = self.driven(route, s);
         if route.closed && d > 0.5 * route.length {
@@ -220,17 +220,17 @@ impl Manoeuvre {
 pub struct LaneChanger {
     /// Parameters.
     pub params: LaneChangeParams,
-    /// End time of the last change [s].
+    /// End time of the last change \[s\].
     pub last_change: f64,
     /// Which lanelets reach the goal (looked up once, shared by every vehicle with this goal).
     pub(super) reach: Option<Arc<Vec<bool>>>,
-    /// A slower vehicle in the target lane to fall behind while a mandatory change waits: (gap [m], speed [m/s]).
+    /// A slower vehicle in the target lane to fall behind while a mandatory change waits: (gap \[m\], speed [m/s]).
     pub virtual_leader: Option<(f64, f64)>,
-    /// A neighbour signalling a mandatory change in our gap: (gap [m], speed [m/s]).
+    /// A neighbour signalling a mandatory change in our gap: (gap \[m\], speed [m/s]).
     pub yield_to: Option<(f64, f64)>,
-    /// Road left [m] to the end of a lane the vehicle must leave (a mandatory change waits).
+    /// Road left \[m\] to the end of a lane the vehicle must leave (a mandatory change waits).
     pub lane_end: Option<f64>,
-    /// While crossing: the vehicles ahead in both lanes, (gap [m], speed [m/s]) each.
+    /// While crossing: the vehicles ahead in both lanes, (gap \[m\], speed [m/s]) each.
     pub crossing_leaders: [Option<(f64, f64)>; 2],
     pub(super) wait_since: Option<f64>,
     /// A change asked for from outside, carried out when safe (cleared when done or refused).
@@ -327,11 +327,11 @@ pub struct LaneCrossings(pub BTreeMap<VehicleId, (LaneletId, LaneletId)>);
 pub struct IndexEntry {
     /// Lanelet index.
     pub lanelet: u32,
-    /// Arc length along it [m].
+    /// Arc length along it \[m\].
     pub s: f64,
     /// Speed [m/s].
     pub speed: f64,
-    /// Length [m].
+    /// Length \[m\].
     pub length: f64,
     /// Its id.
     pub id: VehicleId,
@@ -344,7 +344,7 @@ impl IndexEntry {
 }
 
 /// `list.partition_point(|e| e.s < s)` for a lanelet's entries (sorted by arc length, the
-/// lanelet 1 / `per_length` [m] long): the first entry at or after `s`. Traffic spreads along a
+/// lanelet 1 / `per_length` \[m\] long): the first entry at or after `s`. Traffic spreads along a
 /// lanelet, so the place in proportion to `s / length` is a few entries off: walk from there (in
 /// cache) instead of a binary search's dependent loads over the whole list; search the rest of
 /// the list when the walk goes far (a queue, an empty stretch). The guess is a multiplication by
@@ -508,11 +508,11 @@ impl Slots {
 /// A vehicle found by the index: distance along the lane [m, centre to centre], speed, length.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Found {
-    /// Distance along the lane from the asking position [m], positive.
+    /// Distance along the lane from the asking position \[m\], positive.
     pub distance: f64,
     /// Speed [m/s].
     pub speed: f64,
-    /// Length [m].
+    /// Length \[m\].
     pub length: f64,
     /// Id.
     pub id: VehicleId,

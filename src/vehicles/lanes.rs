@@ -39,7 +39,7 @@ pub struct LaneMap {
     pub neighbours: Vec<Neighbours>,
     /// Centre line of every lanelet as a path resampled every metre or finer.
     pub centres: Vec<Path>,
-    /// Half the mean width of every lanelet [m].
+    /// Half the mean width of every lanelet \[m\].
     pub half_widths: Vec<f64>,
     /// Successors of every lanelet (indices, routable only).
     pub successors: Vec<Vec<u32>>,
@@ -113,9 +113,9 @@ impl LaneMap {
         LaneMap { map, neighbours, centres, half_widths, successors, predecessors, ids, beside, per_length, grid }
     }
 
-    /// Hint to the processor that lanelet `i`'s centre line around arc length `s` [m] will be
+    /// Hint to the processor that lanelet `i`'s centre line around arc length `s` \[m\] will be
     /// read soon (no effect off-road or off x86-64): the six points a walk from there reads
-    /// ([`crate::map::path::walk_four`]: two segments either side of the one at `s`), which
+    /// (`crate::map::path::walk_four`: two segments either side of the one at `s`), which
     /// span two or three cache lines.
     pub fn prefetch(&self, i: Option<u32>, s: f64) {
         let Some(path) = i.and_then(|i| self.centres.get(i as usize)) else { return };
@@ -126,7 +126,7 @@ impl LaneMap {
         }
     }
 
-    /// Length of lanelet `i`'s centre line [m].
+    /// Length of lanelet `i`'s centre line \[m\].
     pub fn length(&self, i: u32) -> f64 {
         self.centres[i as usize].length
     }
@@ -161,7 +161,7 @@ impl LaneMap {
     }
 
     /// Where `p` is: `(lanelet index, s [m], offset [m])`, looking first around `last` (the
-    /// lanelet and arc length of the previous step, advanced by `ds` [m]), else in the grid.
+    /// lanelet and arc length of the previous step, advanced by `ds` \[m\]), else in the grid.
     pub fn locate(&self, p: DVec2, last: Option<(u32, f64)>, ds: f64) -> Option<(u32, f64, f64)> {
         let better = |best: Option<(u32, f64, f64)>, c: Option<(u32, f64, f64)>| match (best, c) {
             (Some(b), Some(c)) if c.2.abs() < b.2.abs() => Some(c),
@@ -212,9 +212,9 @@ pub struct LanePosition {
     pub lanelet: Option<LaneletId>,
     /// Its index in [`LaneletMap::lanelets`] (`u32::MAX` off-road).
     pub index: u32,
-    /// Arc length along the lanelet's centre line [m].
+    /// Arc length along the lanelet's centre line \[m\].
     pub s: f64,
-    /// Signed offset from the centre line [m], positive to the left.
+    /// Signed offset from the centre line \[m\], positive to the left.
     pub offset: f64,
     /// Signed forward speed [m/s] ([`VehicleState::speed`]) when the position was found: the
     /// control tick's readers take it from here instead of each computing it (trigonometry).

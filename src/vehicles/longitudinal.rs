@@ -75,12 +75,12 @@ pub struct Longitudinal {
     pub route_speed: f64,
     /// The vehicle ahead on the route, if the sensors see one.
     pub leader: Option<LeaderGap>,
-    /// Largest lateral offset [m] of a detection from our route for it to count as "on our
+    /// Largest lateral offset \[m\] of a detection from our route for it to count as "on our
     /// route"; about half a lane width.
     pub lane_half_width: f64,
     /// Whether emergency braking overrides the controllers this tick.
     pub emergency: bool,
-    /// The leader's own length [m] where the leader search knew it (the lane index), so a
+    /// The leader's own length \[m\] where the leader search knew it (the lane index), so a
     /// controller need not look the vehicle up.
     pub leader_length: Option<f64>,
 }
@@ -105,8 +105,8 @@ impl Longitudinal {
     }
 }
 
-/// The nearest detection that lies on `path` ahead of arc length `s` [m] (within
-/// `lane_half_width` [m] of the centre line), as a [`LeaderGap`] with zero acceleration.
+/// The nearest detection that lies on `path` ahead of arc length `s` \[m\] (within
+/// `lane_half_width` \[m\] of the centre line), as a [`LeaderGap`] with zero acceleration.
 /// `detections` must be sorted nearest first (as [`SensorReadings`] are). O(window) per
 /// detection looked at; stops at the first one on the path.
 pub fn leader_on_path(

@@ -27,9 +27,9 @@ use glam::DVec2;
 pub struct PathFollowing {
     /// Cruise speed [m/s].
     pub speed: f64,
-    /// Shortest look-ahead distance [m]; raising it smooths steering but cuts corners more.
+    /// Shortest look-ahead distance \[m\]; raising it smooths steering but cuts corners more.
     pub lookahead_min: f64,
-    /// Look-ahead time [s]: the look-ahead distance is max(`lookahead_min`, speed · this).
+    /// Look-ahead time \[s\]: the look-ahead distance is max(`lookahead_min`, speed · this).
     pub lookahead_time: f64,
     /// Speed error gain of the throttle controller [1/s] (acceleration model only); raising it
     /// reaches the cruise speed faster.
@@ -49,9 +49,9 @@ impl Default for PathFollowing {
 pub struct PathFollower {
     /// Parameters.
     pub params: PathFollowing,
-    /// Arc length of the vehicle's projection on its route at the last tick [m].
+    /// Arc length of the vehicle's projection on its route at the last tick \[m\].
     pub s: f64,
-    /// Largest distance to the route's centre line seen so far [m].
+    /// Largest distance to the route's centre line seen so far \[m\].
     pub max_offset: f64,
     tracking: bool,
 }
@@ -62,14 +62,14 @@ impl PathFollower {
         PathFollower { params, s: 0.0, max_offset: 0.0, tracking: false }
     }
 
-    /// A follower whose vehicle is known to start near arc length `s` [m] of its route, so even
+    /// A follower whose vehicle is known to start near arc length `s` \[m\] of its route, so even
     /// its first tick searches only around there.
     pub fn starting_at(params: PathFollowing, s: f64) -> PathFollower {
         PathFollower { params, s, max_offset: 0.0, tracking: true }
     }
 }
 
-/// A sideways shift inside the lane [m], positive to the left, that the path follower adds to
+/// A sideways shift inside the lane \[m\], positive to the left, that the path follower adds to
 /// its route (and to a lane change's profile): set by cooperative plugins, e.g. moving aside for
 /// an emergency vehicle ([`super::emergency_vehicle`]). 0 follows the route's centre line.
 #[derive(Component, Debug, Clone, Copy, Default, PartialEq)]

@@ -46,11 +46,11 @@ use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudina
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Platooning {
-    /// Time gap inside the platoon [s].
+    /// Time gap inside the platoon \[s\].
     pub time_gap: f64,
-    /// Time gap while not a member (joining, after leaving) [s].
+    /// Time gap while not a member (joining, after leaving) \[s\].
     pub acc_time_gap: f64,
-    /// Standstill distance [m], bumper to bumper.
+    /// Standstill distance \[m\], bumper to bumper.
     pub standstill: f64,
     /// Gap error gain k_p [1/s²].
     pub gap_gain: f64,
@@ -64,7 +64,7 @@ pub struct Platooning {
     pub max_acceleration: f64,
     /// Largest braking asked for [m/s²] (positive).
     pub max_deceleration: f64,
-    /// The older spelling of [`Fallback::beacon_timeout`] [s] (`controller.platoon.beacon_timeout`
+    /// The older spelling of [`Fallback::beacon_timeout`] \[s\] (`controller.platoon.beacon_timeout`
     /// in scenario files written before the fallback table): when set, a beacon of the member
     /// ahead older than this puts the follower in fallback. `None`: the fallback table decides.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -76,12 +76,12 @@ pub struct Platooning {
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Fallback {
-    /// Age [s] of the newest beacon of the member ahead above which the follower falls back;
+    /// Age \[s\] of the newest beacon of the member ahead above which the follower falls back;
     /// `None` (the default) = 3 wifi intervals (0.3 s at the default 10 Hz). Raising it rides
     /// out longer loss bursts on stale feed-forward.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub beacon_timeout: Option<f64>,
-    /// ACC time gap while in fallback [s] (default 1.2); raising it is safer and slower to
+    /// ACC time gap while in fallback \[s\] (default 1.2); raising it is safer and slower to
     /// return to the platoon gap.
     pub time_gap: f64,
 }
@@ -190,7 +190,7 @@ pub struct PlatoonMember {
     /// Whether it is in fallback now: a follower driving ACC because the beacons of the member
     /// ahead are older than the timeout.
     pub degraded: bool,
-    /// Age [s] of the newest beacon of the vehicle ahead at the last control tick, while a
+    /// Age \[s\] of the newest beacon of the vehicle ahead at the last control tick, while a
     /// follower (`None` otherwise).
     pub beacon_age: Option<f64>,
     /// The latest beacon of the vehicle ahead and when it was sent.
@@ -224,8 +224,8 @@ impl PlatoonMember {
         self.left = true;
     }
 
-    /// The beacon timeout in force [s]: `fallback.beacon_timeout`, else the older
-    /// `platoon.beacon_timeout`, else 3 intervals of wifi at `wifi_rate` [Hz].
+    /// The beacon timeout in force \[s\]: `fallback.beacon_timeout`, else the older
+    /// `platoon.beacon_timeout`, else 3 intervals of wifi at `wifi_rate` \[Hz\].
     pub fn beacon_timeout(&self, wifi_rate: f64) -> f64 {
         self.fallback.beacon_timeout.or(self.params.beacon_timeout).unwrap_or(FALLBACK_WIFI_INTERVALS / wifi_rate)
     }

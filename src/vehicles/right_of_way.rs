@@ -43,7 +43,7 @@ use super::PathFollower;
 use super::crossing::{CrossingNegotiator, stop_before};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
-/// Half the extent of a conflict area along each link [m]: a vehicle "reaches" a conflict
+/// Half the extent of a conflict area along each link \[m\]: a vehicle "reaches" a conflict
 /// point this far before it and has "cleared" it with its rear this far after.
 pub const CLEAR: f64 = 2.5;
 /// Distance kept between the front bumper and the stop line when stopping [m].
@@ -70,7 +70,7 @@ pub struct JunctionParams {
     /// Rule between equal approaches where the map says nothing: `"right_before_left"`
     /// (default) or `"first_come"`.
     pub default: Fallback,
-    /// Time gap a vehicle keeps to a foe at a conflict point [s] (SUMO's `jmTimegapMinor`, 1 s).
+    /// Time gap a vehicle keeps to a foe at a conflict point \[s\] (SUMO's `jmTimegapMinor`, 1 s).
     /// More: fewer vehicles take a gap, longer waits.
     pub time_gap: f64,
     /// Largest lateral acceleration on a junction's links [m/s²] (2 m/s², comfortable driving).
@@ -80,9 +80,9 @@ pub struct JunctionParams {
     pub yellow_decel: f64,
     /// A vehicle stops for red if it can at this deceleration [m/s²].
     pub red_decel: f64,
-    /// How far before a junction a vehicle starts to look at it [m].
+    /// How far before a junction a vehicle starts to look at it \[m\].
     pub look_ahead: f64,
-    /// Waiting time [s] over which the accepted gap shrinks from `time_gap` to 0 (0: never).
+    /// Waiting time \[s\] over which the accepted gap shrinks from `time_gap` to 0 (0: never).
     pub impatience: f64,
 }
 
@@ -114,7 +114,7 @@ impl JunctionParams {
     }
 }
 
-/// Time [s] to cover `d` [m] from speed `v` [m/s] accelerating at `a` [m/s²] up to `v_max`
+/// Time \[s\] to cover `d` \[m\] from speed `v` [m/s] accelerating at `a` [m/s²] up to `v_max`
 /// [m/s] (0 for `d <= 0`; a vehicle that cannot move never arrives).
 pub fn time_to_cover(d: f64, v: f64, a: f64, v_max: f64) -> f64 {
     if d <= 0.0 {
@@ -133,14 +133,14 @@ pub fn time_to_cover(d: f64, v: f64, a: f64, v_max: f64) -> f64 {
     if d <= d1 { ((v * v + 2.0 * a * d).sqrt() - v) / a } else { t1 + (d - d1) / v_max }
 }
 
-/// Gap acceptance: a vehicle that clears the conflict point at `t_clear` [s] from now may go
-/// before a foe with priority that reaches it at `t_foe` [s] when `t_foe > t_clear + gap`.
+/// Gap acceptance: a vehicle that clears the conflict point at `t_clear` \[s\] from now may go
+/// before a foe with priority that reaches it at `t_foe` \[s\] when `t_foe > t_clear + gap`.
 pub fn accepts_gap(t_clear: f64, t_foe: f64, gap: f64) -> bool {
     t_foe > t_clear + gap
 }
 
-/// The gap a vehicle that has stood `waiting` [s] before a junction accepts in front of a foe
-/// with priority [s]: [`JunctionParams::time_gap`], shrinking linearly to nothing over
+/// The gap a vehicle that has stood `waiting` \[s\] before a junction accepts in front of a foe
+/// with priority \[s\]: [`JunctionParams::time_gap`], shrinking linearly to nothing over
 /// [`JunctionParams::impatience`] s of waiting (SUMO's `impatience`: drivers who have waited long
 /// take smaller gaps). The arrival estimates stay conservative (the foe accelerating, this vehicle
 /// clearing the conflict area with its whole length), so a gap of 0 is still one it clears.
@@ -151,7 +151,7 @@ pub fn impatient_gap(params: &JunctionParams, waiting: f64) -> f64 {
     params.time_gap * (1.0 - waiting / params.impatience).clamp(0.0, 1.0)
 }
 
-/// SUMO's yellow rule: stop when the stop line `distance` [m] ahead can be reached from speed
+/// SUMO's yellow rule: stop when the stop line `distance` \[m\] ahead can be reached from speed
 /// `v` [m/s] decelerating at no more than `max_decel` [m/s²]; else drive on.
 pub fn stops_at_yellow(v: f64, distance: f64, max_decel: f64) -> bool {
     if distance <= 0.0 {
@@ -160,7 +160,7 @@ pub fn stops_at_yellow(v: f64, distance: f64, max_decel: f64) -> bool {
     v * v / (2.0 * distance) <= max_decel
 }
 
-/// The phase of a cyclic `program` at time `t` [s] with the cycle shifted by `offset` [s]
+/// The phase of a cyclic `program` at time `t` \[s\] with the cycle shifted by `offset` \[s\]
 /// (SUMO's `offset`: the program is at its start at t = offset).
 pub fn phase_at(program: &[SignalPhase], offset: f64, t: f64) -> usize {
     let cycle: f64 = program.iter().map(|p| p.duration).sum();
@@ -182,9 +182,9 @@ pub fn phase_at(program: &[SignalPhase], offset: f64, t: f64) -> usize {
 pub struct FoeConflict {
     /// The other link (global link index).
     pub foe: u32,
-    /// Arc length of the meeting point on this link [m].
+    /// Arc length of the meeting point on this link \[m\].
     pub s_mine: f64,
-    /// Arc length of the meeting point on the foe's link [m].
+    /// Arc length of the meeting point on the foe's link \[m\].
     pub s_foe: f64,
     /// Crossing or merging.
     pub kind: ConflictKind,
@@ -218,7 +218,7 @@ pub struct JunctionNetwork {
     pub link_of_lanelet: Vec<u32>,
     /// Lanelet index -> whether it is the lanelet after some link (an exit).
     pub is_exit: Vec<bool>,
-    /// Lanelet lengths [m], by lanelet index.
+    /// Lanelet lengths \[m\], by lanelet index.
     pub lengths: Vec<f64>,
     /// The map.
     pub map: Arc<LaneletMap>,
@@ -304,7 +304,7 @@ pub struct LightController {
     pub junction: u32,
     /// The phases, cycled.
     pub program: Vec<SignalPhase>,
-    /// Cycle shift [s].
+    /// Cycle shift \[s\].
     pub offset: f64,
     /// A state set from outside ([`TrafficLights::set_state`]), held until set again.
     pub manual: Option<String>,
@@ -349,7 +349,7 @@ impl TrafficLights {
         lights
     }
 
-    /// Show what every program shows at `t` [s].
+    /// Show what every program shows at `t` \[s\].
     pub fn advance(&mut self, t: f64) {
         for c in &mut self.controllers {
             let text = match &c.manual {
@@ -424,11 +424,11 @@ pub fn check_state(state: &str, links: usize) -> Result<(), String> {
 pub struct Passage {
     /// Junction index.
     pub junction: u32,
-    /// Route arc length of the stop line (the first link's start) [m].
+    /// Route arc length of the stop line (the first link's start) \[m\].
     pub entry: f64,
-    /// Route arc length of the last link's end [m].
+    /// Route arc length of the last link's end \[m\].
     pub exit: f64,
-    /// Global link indices with the route arc length of each link's start [m].
+    /// Global link indices with the route arc length of each link's start \[m\].
     pub links: Vec<(u32, f64)>,
     /// Lanelet index after the passage (`u32::MAX`: the route ends in the junction).
     pub exit_lanelet: u32,
@@ -492,16 +492,16 @@ pub struct JunctionDriver {
     arrived_at: f64,
     /// Whether it has stopped at the stop line (all-way stops).
     stopped: bool,
-    /// Waiting time at the next junction so far [s].
+    /// Waiting time at the next junction so far \[s\].
     pub waited: f64,
-    /// Waiting time of the current stop so far [s].
+    /// Waiting time of the current stop so far \[s\].
     pub waiting_now: f64,
 }
 
 /// What happened at each junction (`metrics.junctions`).
 #[derive(Resource, Debug, Clone, Default)]
 pub struct JunctionStats {
-    /// Per junction (index): vehicles through, sum of their waits [s], longest wait [s], most
+    /// Per junction (index): vehicles through, sum of their waits \[s\], longest wait \[s\], most
     /// vehicles waiting at once.
     pub per_junction: Vec<JunctionCounts>,
     /// Vehicles that passed a stop line while it showed red (should stay 0).
@@ -515,9 +515,9 @@ pub struct JunctionMetric {
     pub id: u32,
     /// Vehicles that drove through it.
     pub vehicles_through: u64,
-    /// Mean waiting time (speed under 0.1 m/s) before it of the vehicles through [s].
+    /// Mean waiting time (speed under 0.1 m/s) before it of the vehicles through \[s\].
     pub mean_wait_s: f64,
-    /// Longest waiting time of one vehicle before it [s].
+    /// Longest waiting time of one vehicle before it \[s\].
     pub max_wait_s: f64,
     /// Most vehicles waiting before it at once.
     pub max_queue: u32,
@@ -551,9 +551,9 @@ impl JunctionStats {
 pub struct JunctionCounts {
     /// Vehicles that drove through.
     pub through: u64,
-    /// Sum of their waiting times [s].
+    /// Sum of their waiting times \[s\].
     pub wait_sum: f64,
-    /// Longest waiting time of one vehicle [s].
+    /// Longest waiting time of one vehicle \[s\].
     pub wait_max: f64,
     /// Most vehicles waiting before it at once.
     pub max_queue: u32,
@@ -1039,7 +1039,7 @@ pub struct JunctionsPlugin {
     pub map: Arc<LaneletMap>,
     /// Parameters.
     pub params: JunctionParams,
-    /// Programs given by the scenario: junction id (from 1), phases, offset [s].
+    /// Programs given by the scenario: junction id (from 1), phases, offset \[s\].
     pub programs: Vec<(u32, Vec<SignalPhase>, f64)>,
 }
 

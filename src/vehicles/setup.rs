@@ -88,7 +88,7 @@ pub struct PlatoonSetup {
     /// The leader's cruise control (with an optional scripted dip).
     #[serde(default)]
     pub cruise: CruiseControl,
-    /// Sim time at which it leaves the platoon [s], if any.
+    /// Sim time at which it leaves the platoon \[s\], if any.
     #[serde(default)]
     pub leave_at: Option<f64>,
     /// Emergency braking.

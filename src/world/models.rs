@@ -6,9 +6,9 @@ use bevy_ecs::prelude::Component;
 /// θ̇ = v / L · tan φ, with v the commanded speed and φ the steering angle.
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct KinematicUnicycle {
-    /// Wheelbase L [m]; a longer one turns wider for the same steering.
+    /// Wheelbase L \[m\]; a longer one turns wider for the same steering.
     pub wheelbase: f64,
-    /// Steering limit [rad]; commands beyond ±this are clamped.
+    /// Steering limit \[rad\]; commands beyond ±this are clamped.
     pub max_steering: f64,
 }
 
@@ -22,13 +22,13 @@ impl Default for KinematicUnicycle {
 /// [`KinematicUnicycle`]. Braking (negative throttle) stops at zero speed, never reverses.
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct AccelerationUnicycle {
-    /// Wheelbase L [m]; a longer one turns wider for the same steering.
+    /// Wheelbase L \[m\]; a longer one turns wider for the same steering.
     pub wheelbase: f64,
-    /// Mass m [kg]; a heavier vehicle responds more slowly to throttle.
+    /// Mass m \[kg\]; a heavier vehicle responds more slowly to throttle.
     pub mass: f64,
     /// Linear drag coefficient c [N s/m]; top speed for a throttle u is u / c.
     pub drag: f64,
-    /// Steering limit [rad]; commands beyond ±this are clamped.
+    /// Steering limit \[rad\]; commands beyond ±this are clamped.
     pub max_steering: f64,
 }
 

@@ -33,7 +33,7 @@ enum Repr {
 }
 
 impl Payload {
-    /// The largest value [`Payload::copied`] holds inline [bytes].
+    /// The largest value [`Payload::copied`] holds inline \[bytes\].
     pub const INLINE_BYTES: usize = 16;
 
     /// `value`, shared behind an `Arc` (clones of the payload share it).

@@ -8,9 +8,9 @@ use super::VehicleId;
 /// Radar: a cone ahead of the vehicle.
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct Radar {
-    /// Full opening angle of the cone [rad], centred on the heading (default 60° = π/3).
+    /// Full opening angle of the cone \[rad\], centred on the heading (default 60° = π/3).
     pub angle: f64,
-    /// Range [m] (inclusive).
+    /// Range \[m\] (inclusive).
     pub range: f64,
 }
 
@@ -23,7 +23,7 @@ impl Default for Radar {
 /// "Velodyne": a full circle around the vehicle.
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct Velodyne {
-    /// Range [m] (inclusive).
+    /// Range \[m\] (inclusive).
     pub range: f64,
 }
 
@@ -42,9 +42,9 @@ pub struct Omniscient;
 /// target, tick): the same for any thread count.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SensorError {
-    /// Standard deviation of the Gaussian error of the range to the target's centre [m].
+    /// Standard deviation of the Gaussian error of the range to the target's centre \[m\].
     pub range_sd: f64,
-    /// Standard deviation of the Gaussian error of the bearing to the target's centre [rad].
+    /// Standard deviation of the Gaussian error of the bearing to the target's centre \[rad\].
     pub bearing_sd: f64,
     /// Standard deviation of the Gaussian error of each velocity component (x, y) [m/s].
     pub speed_sd: f64,
@@ -89,7 +89,7 @@ impl SensorErrors {
 pub struct Detection {
     /// Id of the detected vehicle.
     pub id: VehicleId,
-    /// Its position [m].
+    /// Its position \[m\].
     pub position: DVec2,
     /// Its velocity [m/s].
     pub velocity: DVec2,

@@ -8,17 +8,17 @@ impl SimTime {
     /// The start of every run.
     pub const ZERO: SimTime = SimTime(0);
 
-    /// Time from seconds [s], rounded to the nearest microsecond; negative values give zero.
+    /// Time from seconds \[s\], rounded to the nearest microsecond; negative values give zero.
     pub fn from_secs(seconds: f64) -> SimTime {
         SimTime((seconds.max(0.0) * 1e6).round() as u64)
     }
 
-    /// Time in seconds [s].
+    /// Time in seconds \[s\].
     pub fn as_secs(self) -> f64 {
         self.0 as f64 * 1e-6
     }
 
-    /// Time in microseconds [µs].
+    /// Time in microseconds \[µs\].
     pub fn as_micros(self) -> u64 {
         self.0
     }

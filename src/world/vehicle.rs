@@ -45,9 +45,9 @@ impl std::fmt::Display for VehicleId {
 /// nothing: the memory is used only while it belongs to the current yaw, bit for bit.
 #[derive(Component, Debug, Clone, Copy)]
 pub struct VehicleState {
-    /// Position of the vehicle's reference point [m], x east, y north.
+    /// Position of the vehicle's reference point \[m\], x east, y north.
     pub position: DVec2,
-    /// Heading [rad], counter-clockwise from east.
+    /// Heading \[rad\], counter-clockwise from east.
     pub yaw: f64,
     /// Velocity [m/s] in world axes (ẋ, ẏ).
     pub velocity: DVec2,
@@ -70,13 +70,13 @@ impl PartialEq for VehicleState {
 }
 
 impl VehicleState {
-    /// A state at `position` [m] heading `yaw` [rad] with forward speed `speed` [m/s].
+    /// A state at `position` \[m\] heading `yaw` \[rad\] with forward speed `speed` [m/s].
     pub fn new(position: DVec2, yaw: f64, speed: f64) -> VehicleState {
         let facing = DVec2::from_angle(yaw);
         VehicleState { position, yaw, velocity: facing * speed, facing_yaw: yaw, facing }
     }
 
-    /// A state at `position` [m] heading `yaw` [rad] moving at `velocity` [m/s] (world axes).
+    /// A state at `position` \[m\] heading `yaw` \[rad\] moving at `velocity` [m/s] (world axes).
     pub fn with_velocity(position: DVec2, yaw: f64, velocity: DVec2) -> VehicleState {
         VehicleState { velocity, ..VehicleState::new(position, yaw, 0.0) }
     }
@@ -107,9 +107,9 @@ impl VehicleState {
 /// [`crate::world::AccelerationUnicycle`] reads `throttle` and `steering`.
 #[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
 pub struct ControlCommand {
-    /// Longitudinal force [N]; negative brakes (braking stops at zero speed, never reverses).
+    /// Longitudinal force \[N\]; negative brakes (braking stops at zero speed, never reverses).
     pub throttle: f64,
-    /// Steering angle of the front wheels [rad], positive turns left; clamped by the model.
+    /// Steering angle of the front wheels \[rad\], positive turns left; clamped by the model.
     pub steering: f64,
     /// Commanded forward speed [m/s] (speed-controlled models).
     pub speed: f64,
@@ -136,12 +136,12 @@ pub enum TurnSignal {
     Right,
 }
 
-/// Footprint of a vehicle [m].
+/// Footprint of a vehicle \[m\].
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct VehicleSize {
-    /// Length along the heading [m].
+    /// Length along the heading \[m\].
     pub length: f64,
-    /// Width across the heading [m].
+    /// Width across the heading \[m\].
     pub width: f64,
 }
 

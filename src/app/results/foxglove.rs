@@ -8,7 +8,7 @@
 //! `/vehicle/<id>/state` (JSON), `/v2v` (JSON), `/events` (`foxglove.Log`), `/metrics` (the
 //! final `summary.json`), `/camera/birdseye` (`foxglove.CompressedImage`, PNG, with
 //! `--mcap-images HZ`) and `/gps/<id>` (`foxglove.LocationFix`, maps with a geographic origin).
-//! Log time = sim time [ns]. With `--mcap-profile ros2` the file holds ROS 2 messages in CDR
+//! Log time = sim time \[ns\]. With `--mcap-profile ros2` the file holds ROS 2 messages in CDR
 //! instead ([`super::ros2`]).
 //!
 //! Nothing is built for a channel no sink listens to (`has_sinks`), so a live server without a
@@ -61,7 +61,7 @@ pub struct FoxgloveOutput {
     #[arg(long, value_name = "HZ", value_parser = crate::range::rate_hz)]
     pub mcap_images: Option<f64>,
     /// Message set of --mcap: `foxglove` (protobuf schemas) or `ros2` (CDR, ROS 2 Humble
-    /// messages: /tf, /clock, /vehicles and /map as MarkerArray, /vehicle/<id>/odom).
+    /// messages: /tf, /clock, /vehicles and /map as MarkerArray, `/vehicle/<id>/odom`).
     #[arg(long, value_name = "PROFILE", value_enum, default_value_t = McapProfile::Foxglove)]
     pub mcap_profile: McapProfile,
     /// Serve the run live over the Foxglove WebSocket protocol on ADDR (default 127.0.0.1:8765;
@@ -963,10 +963,10 @@ pub struct Record;
 pub struct BirdseyeImages;
 
 /// The recorder on the trajectory log's ticks ([`super::output::Log`], after the CSV rows):
-/// insert a [`FoxgloveRecorder`] resource first. With `images` [Hz], a module of its own draws
+/// insert a [`FoxgloveRecorder`] resource first. With `images` \[Hz\], a module of its own draws
 /// the bird's-eye view into `/camera/birdseye`.
 pub struct FoxgloveRecordPlugin {
-    /// `--mcap-images` [Hz].
+    /// `--mcap-images` \[Hz\].
     pub images: Option<f64>,
     /// The map the images draw.
     pub map: Option<Arc<LaneletMap>>,

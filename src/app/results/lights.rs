@@ -203,7 +203,7 @@ impl LightTimeline {
         parse_lights(&text, path, links.as_deref()).map(Some)
     }
 
-    /// Take every row up to time `t` [s].
+    /// Take every row up to time `t` \[s\].
     pub fn advance_to(&mut self, t: f64) {
         while let Some((_, id, state)) = self.rows.get(self.next).filter(|r| r.0 <= t + 1e-9) {
             self.current.insert(*id, state.clone());

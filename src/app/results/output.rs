@@ -49,9 +49,9 @@ impl TrajectoryLog {
     }
 }
 
-/// Decimals of lengths [m] and speeds [m/s] in `trajectories.csv`: 1 mm and 1 mm/s.
+/// Decimals of lengths \[m\] and speeds [m/s] in `trajectories.csv`: 1 mm and 1 mm/s.
 pub const LENGTH_DECIMALS: usize = 3;
-/// Decimals of angles [rad] in `trajectories.csv`: 1e-5 rad (0.6 mdeg, 1 mm at 100 m).
+/// Decimals of angles \[rad\] in `trajectories.csv`: 1e-5 rad (0.6 mdeg, 1 mm at 100 m).
 pub const ANGLE_DECIMALS: usize = 5;
 
 /// A number written with at most `.1` decimals, trailing zeros dropped (`12.5`, `0`, `-3.142`),
@@ -77,7 +77,7 @@ pub fn rounded(x: f64, decimals: usize) -> f64 {
     if r == 0.0 { 0.0 } else { r }
 }
 
-/// Decimals of times [s] in outputs: the clock's 1 µs.
+/// Decimals of times \[s\] in outputs: the clock's 1 µs.
 pub const TIME_DECIMALS: usize = 6;
 
 /// Append every vehicle's state at this tick to the [`TrajectoryLog`].
@@ -131,11 +131,11 @@ pub fn log_final_state(sim: &mut Sim) {
     let _ = sim.world_mut().run_system_once(log_trajectories);
 }
 
-/// The trajectory logger as a module of its own at `rate` [Hz]; insert a [`TrajectoryLog`]
+/// The trajectory logger as a module of its own at `rate` \[Hz\]; insert a [`TrajectoryLog`]
 /// resource to say where the rows go.
 #[derive(Debug, Clone, Copy)]
 pub struct TrajectoryLogPlugin {
-    /// Log rate [Hz].
+    /// Log rate \[Hz\].
     pub rate: f64,
 }
 

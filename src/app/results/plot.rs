@@ -5,12 +5,12 @@
 //! Figures (each `NAME.png` and `NAME.svg` in the output folder):
 //! - `speed`: speed over time per vehicle [m/s];
 //! - `gaps`: per follower of `summary.json` `metrics.followers`, the bumper-to-bumper gap to its
-//!   leader [m] (centre distance minus the half lengths) and the time gap (gap / own speed) [s];
+//!   leader \[m\] (centre distance minus the half lengths) and the time gap (gap / own speed) \[s\];
 //! - `platoon_<leader>`: per platoon, the speed of each member (the string-stability picture);
-//! - `lateral`: each vehicle's distance from the nearest lanelet centre line of the map [m];
+//! - `lateral`: each vehicle's distance from the nearest lanelet centre line of the map \[m\];
 //! - `merge` (runs with `metrics.merge`, the GCDC merge): per participant, the gap along the road
 //!   to the vehicle that is ahead of it after the merge (its predecessor in the zipper order; of
-//!   the other lane until it merged) [m], and its speed [m/s], with the merge instants (the end of
+//!   the other lane until it merged) \[m\], and its speed [m/s], with the merge instants (the end of
 //!   each merger's lane change) marked as dashed lines;
 //! - `lanes` (runs with lane changes): the lanelet under each vehicle that changed lanes and
 //!   its offset from that lanelet's centre line over time;
@@ -42,7 +42,7 @@ use super::replay::{ReplayError, read_replay_info};
 
 /// Most legend entries per panel.
 pub const MAX_LEGEND: usize = 12;
-/// Figure size [px]: 1600 x 1000, readable when printed one column wide.
+/// Figure size \[px\]: 1600 x 1000, readable when printed one column wide.
 pub const FIGURE_SIZE: (u32, u32) = (1600, 1000);
 
 fn register_font() {
@@ -254,7 +254,7 @@ fn draw_lines<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &Lines, cut_
 }
 
 /// Pixel polylines that draw one unbroken curve given in pixel coordinates, with `pattern`
-/// (on/off lengths [px]; `None` solid): a point closer than [`MIN_STEP`] to the last one kept is
+/// (on/off lengths \[px\]; `None` solid): a point closer than [`MIN_STEP`] to the last one kept is
 /// dropped (detail finer than the line's width is invisible; a long run draws a few points per
 /// pixel column, not every sample, and a jittering curve no zig-zag), the line cut wherever it turns by more than
 /// 90 degrees (with `cut_turns`: for the bitmap; an SVG viewer limits its mitres itself, and
@@ -332,7 +332,7 @@ pub fn strokes(points: &[(f64, f64)], pattern: Option<&[f64]>, cut_turns: bool) 
     out
 }
 
-/// Shortest step [px] between the points of a drawn curve (see [`strokes`]).
+/// Shortest step \[px\] between the points of a drawn curve (see [`strokes`]).
 pub const MIN_STEP: f64 = 2.0;
 
 /// Line width of every curve [px].
@@ -555,7 +555,7 @@ fn label(id: i32) -> String {
 /// event (a platoon settling its gaps in the first second slows by about 7 %).
 pub const MIN_EVENT_DROP: f64 = 0.15;
 
-/// Farthest a sample may lie from the road of a time-space diagram and be drawn on it [m].
+/// Farthest a sample may lie from the road of a time-space diagram and be drawn on it \[m\].
 pub const ROAD_REACH: f64 = 12.0;
 /// Most samples of one vehicle in a time-space diagram.
 pub const TIME_SPACE_SAMPLES: usize = 1000;

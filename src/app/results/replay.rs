@@ -66,9 +66,9 @@ impl Default for ReplayOptions {
 /// pair and the time) and lane changes (who, when, which way).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ReplayMarks {
-    /// Collisions: ids of the pair and sim time [s].
+    /// Collisions: ids of the pair and sim time \[s\].
     pub collisions: Vec<(i32, i32, f64)>,
-    /// Lane changes: id, start and end [s], and the side the indicator shows.
+    /// Lane changes: id, start and end \[s\], and the side the indicator shows.
     pub lane_changes: Vec<(i32, f64, f64, Indicator)>,
 }
 

@@ -11,9 +11,9 @@ use crate::world::{TurnSignal, VehicleClass};
 pub struct VehicleSnapshot {
     /// Vehicle id.
     pub id: i32,
-    /// Centre of the body [m].
+    /// Centre of the body \[m\].
     pub position: DVec2,
-    /// Heading [rad], counter-clockwise from east.
+    /// Heading \[rad\], counter-clockwise from east.
     pub yaw: f64,
     /// Velocity [m/s].
     pub velocity: DVec2,
@@ -21,11 +21,11 @@ pub struct VehicleSnapshot {
     pub accel: f64,
     /// Lanelet under the reference point, if any.
     pub lanelet: Option<i64>,
-    /// Signed offset from that lanelet's centre line [m], left positive.
+    /// Signed offset from that lanelet's centre line \[m\], left positive.
     pub lane_offset: Option<f64>,
-    /// Body length [m].
+    /// Body length \[m\].
     pub length: f64,
-    /// Body width [m].
+    /// Body width \[m\].
     pub width: f64,
     /// Class (picks the colour).
     pub class: VehicleClass,
@@ -42,7 +42,7 @@ pub struct VehicleSnapshot {
 /// Every vehicle at one log tick, in id order.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Snapshot {
-    /// Sim time [µs].
+    /// Sim time \[µs\].
     pub t_us: u64,
     /// The vehicles, ascending id.
     pub vehicles: Vec<VehicleSnapshot>,
@@ -51,7 +51,7 @@ pub struct Snapshot {
 /// One line of `/events`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Event {
-    /// Sim time [µs].
+    /// Sim time \[µs\].
     pub t_us: u64,
     /// `foxglove.Log` level: 2 info, 3 warning.
     pub level: i32,
@@ -62,12 +62,12 @@ pub struct Event {
 }
 
 impl Event {
-    /// An `info` line (`foxglove.Log` level 2) at `t_us` [µs].
+    /// An `info` line (`foxglove.Log` level 2) at `t_us` \[µs\].
     pub fn info(t_us: u64, name: &'static str, message: String) -> Event {
         Event { t_us, level: 2, name, message }
     }
 
-    /// A `warning` line (`foxglove.Log` level 3) at `t_us` [µs].
+    /// A `warning` line (`foxglove.Log` level 3) at `t_us` \[µs\].
     pub fn warning(t_us: u64, name: &'static str, message: String) -> Event {
         Event { t_us, level: 3, name, message }
     }

@@ -46,20 +46,20 @@ pub enum BenchError {
 pub struct BenchWorld {
     /// Number of vehicles.
     pub vehicles: usize,
-    /// Gap between consecutive vehicles of a lane [m] (2 s at 20 m/s).
+    /// Gap between consecutive vehicles of a lane \[m\] (2 s at 20 m/s).
     pub spacing: f64,
     /// Cruise speed [m/s].
     pub speed: f64,
-    /// Smallest radius of the ring's inner edge [m]; the ring grows beyond it to give every
+    /// Smallest radius of the ring's inner edge \[m\]; the ring grows beyond it to give every
     /// vehicle `spacing` metres of lane.
     pub ring_radius: f64,
     /// Lanes of the ring.
     pub lanes: usize,
-    /// Lane width [m].
+    /// Lane width \[m\].
     pub lane_width: f64,
     /// Centre-line resolution [points per metre].
     pub points_per_meter: f64,
-    /// Largest distance between the generated map's boundary and a true circle [m]: sets the
+    /// Largest distance between the generated map's boundary and a true circle \[m\]: sets the
     /// map's node spacing (coarser for bigger rings, so the map stays small).
     pub chord_error: f64,
     /// Every vehicle drives the IDM (desired speeds spread ±20 % around `speed`) and changes
@@ -162,8 +162,8 @@ pub fn send_wifi_beacons(
 }
 
 impl BenchWorld {
-    /// The generated ring: inner edge radius [m] large enough for every vehicle to have about
-    /// `spacing` metres of lane, and the node spacing [m] that keeps the chord error.
+    /// The generated ring: inner edge radius \[m\] large enough for every vehicle to have about
+    /// `spacing` metres of lane, and the node spacing \[m\] that keeps the chord error.
     pub fn ring(&self) -> RingParams {
         let lanes = self.lanes.max(1);
         let per_lane = self.vehicles.div_ceil(lanes) as f64;
@@ -300,37 +300,37 @@ pub struct BenchMap {
     pub kind: &'static str,
     /// Lanes, all in one direction.
     pub lanes: usize,
-    /// Radius of the ring's inner edge [m].
+    /// Radius of the ring's inner edge \[m\].
     pub radius_m: f64,
-    /// Lane width [m].
+    /// Lane width \[m\].
     pub lane_width_m: f64,
-    /// Length of one lane's closed loop (the middle one's centre line) [m].
+    /// Length of one lane's closed loop (the middle one's centre line) \[m\].
     pub lane_length_m: f64,
 }
 
 /// The sensors every benchmark vehicle carries.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BenchSensors {
-    /// Radar range [m].
+    /// Radar range \[m\].
     pub radar_range_m: f64,
-    /// Radar full opening angle [deg].
+    /// Radar full opening angle \[deg\].
     pub radar_angle_deg: f64,
-    /// Velodyne range [m].
+    /// Velodyne range \[m\].
     pub velodyne_range_m: f64,
 }
 
-/// Rates of the modules [Hz].
+/// Rates of the modules \[Hz\].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BenchRates {
-    /// Dynamics [Hz].
+    /// Dynamics \[Hz\].
     pub dynamics: f64,
-    /// Sensors (radar + velodyne) [Hz].
+    /// Sensors (radar + velodyne) \[Hz\].
     pub sensors: f64,
-    /// Controllers (path following, beacons) [Hz].
+    /// Controllers (path following, beacons) \[Hz\].
     pub control: f64,
-    /// Wifi rounds [Hz].
+    /// Wifi rounds \[Hz\].
     pub wifi: f64,
-    /// Network rounds [Hz].
+    /// Network rounds \[Hz\].
     pub network: f64,
 }
 
@@ -339,7 +339,7 @@ pub struct BenchRates {
 pub struct ModuleTime {
     /// Module name (`sensors`, `wifi`, `network`, `control`, `dynamics`).
     pub module: String,
-    /// Wall time its schedule ran [s].
+    /// Wall time its schedule ran \[s\].
     pub seconds: f64,
     /// Its share of the run's wall time (0..1); what is left to 1 is the scheduler itself.
     pub share: f64,
@@ -357,19 +357,19 @@ pub struct BenchReport {
     pub degraded: bool,
     /// Sensors of every vehicle.
     pub sensors: BenchSensors,
-    /// Module rates [Hz].
+    /// Module rates \[Hz\].
     pub rates: BenchRates,
     /// Threads the per-vehicle systems were allowed.
     pub threads: usize,
     /// Threads they used at this vehicle count (1 below [`Parallelism::min_vehicles`]).
     pub threads_used: usize,
-    /// Sim time run [s] (the time reached when interrupted).
+    /// Sim time run \[s\] (the time reached when interrupted).
     pub sim_seconds: f64,
     /// Whether Ctrl-C or SIGTERM stopped the benchmark early (the figures cover what ran).
     pub interrupted: bool,
-    /// Wall time of the run, set-up excluded [s].
+    /// Wall time of the run, set-up excluded \[s\].
     pub wall_seconds: f64,
-    /// Processor time of the run, all threads together, set-up excluded [s] (Linux and other
+    /// Processor time of the run, all threads together, set-up excluded \[s\] (Linux and other
     /// Unix; `None` elsewhere): on a busy machine a steadier measure than the wall time.
     pub cpu_seconds: Option<f64>,
     /// Vehicle dynamics steps per processor second (all threads together).
@@ -378,13 +378,13 @@ pub struct BenchReport {
     pub real_time_factor: f64,
     /// Vehicle dynamics steps (vehicles x dynamics ticks) per wall second.
     pub vehicle_steps_per_second: f64,
-    /// Wall time per vehicle per sim second [µs]: flat in N when the cost is linear.
+    /// Wall time per vehicle per sim second \[µs\]: flat in N when the cost is linear.
     pub us_per_vehicle_sim_second: f64,
     /// Where the wall time went, module by module, in the order the modules were added.
     pub modules: Vec<ModuleTime>,
-    /// Peak resident memory of the process [MB] (Linux only).
+    /// Peak resident memory of the process \[MB\] (Linux only).
     pub peak_rss_mb: Option<f64>,
-    /// Resident memory on transparent huge pages at the end of the run [MB] (Linux
+    /// Resident memory on transparent huge pages at the end of the run \[MB\] (Linux
     /// `AnonHugePages`): the heap's, when `smlworld` restarted itself with glibc's malloc on
     /// huge pages (see `SMLWORLD_HUGE_PAGES` in the README); 0 without.
     pub huge_pages_mb: Option<f64>,
@@ -408,7 +408,7 @@ pub struct BenchChannel {
     pub sent: u64,
     /// Receptions not lost.
     pub delivered: u64,
-    /// Mean delivery delay [ms].
+    /// Mean delivery delay \[ms\].
     pub delay_ms_mean: f64,
 }
 
@@ -427,7 +427,7 @@ pub struct BenchV2v {
     pub network: BenchChannel,
 }
 
-/// Processor time this process has used so far, user and system, all threads [s].
+/// Processor time this process has used so far, user and system, all threads \[s\].
 pub fn process_cpu_seconds() -> Option<f64> {
     #[cfg(unix)]
     {
@@ -456,12 +456,12 @@ pub(crate) fn proc_self_mb(file: &str, key: &str) -> Option<f64> {
     Some(kb / 1024.0)
 }
 
-/// Peak resident memory of this process [MB] (Linux `VmHWM`), if known.
+/// Peak resident memory of this process \[MB\] (Linux `VmHWM`), if known.
 pub fn peak_rss_mb() -> Option<f64> {
     proc_self_mb("status", "VmHWM")
 }
 
-/// Resident memory of this process on transparent huge pages [MB] (Linux `AnonHugePages`), if
+/// Resident memory of this process on transparent huge pages \[MB\] (Linux `AnonHugePages`), if
 /// known.
 pub fn huge_pages_mb() -> Option<f64> {
     proc_self_mb("smaps_rollup", "AnonHugePages")

@@ -19,7 +19,7 @@ use super::scenario::Scenario;
 pub struct CityBench {
     /// Blocks per side (the 20).
     pub rows: usize,
-    /// Distance between junction centres [m] (200).
+    /// Distance between junction centres \[m\] (200).
     pub block: f64,
     /// Lanes per direction (2).
     pub lanes: usize,
@@ -53,13 +53,13 @@ pub struct CityReport {
     pub vehicles_at_end: usize,
     /// Junctions of the town (with conflicts).
     pub junctions: usize,
-    /// Simulated time [s].
+    /// Simulated time \[s\].
     pub sim_seconds: f64,
-    /// Wall time of the simulated seconds [s] (set-up excluded).
+    /// Wall time of the simulated seconds \[s\] (set-up excluded).
     pub wall_seconds: f64,
-    /// Wall time of the set-up: map, junctions, first routes, placing [s].
+    /// Wall time of the set-up: map, junctions, first routes, placing \[s\].
     pub setup_seconds: f64,
-    /// CPU time of the process during the simulated seconds [s] (all threads): steadier than
+    /// CPU time of the process during the simulated seconds \[s\] (all threads): steadier than
     /// the wall time on a loaded machine.
     pub cpu_seconds: Option<f64>,
     /// sim_seconds / wall_seconds.

@@ -31,7 +31,7 @@ pub struct RoutingReport {
     pub no_route: usize,
     /// Mean points of a found route's path.
     pub mean_points: f64,
-    /// Wall time of all the routes [s] (the map loaded before).
+    /// Wall time of all the routes \[s\] (the map loaded before).
     pub seconds: f64,
     /// Routes (found or not) per second of wall time.
     pub routes_per_second: f64,
@@ -44,13 +44,13 @@ pub struct RoutingReport {
 pub struct MapLoadReport {
     /// The map file.
     pub map: PathBuf,
-    /// Its size [bytes].
+    /// Its size \[bytes\].
     pub bytes: u64,
     /// Lanelets loaded.
     pub lanelets: usize,
     /// Loads timed.
     pub runs: usize,
-    /// Wall time of each load [s], in order.
+    /// Wall time of each load \[s\], in order.
     pub seconds: Vec<f64>,
     /// Megabytes (10⁶ bytes) of XML per second of the median load.
     pub mb_per_second: f64,

@@ -20,17 +20,17 @@ const FRAME_GAP_S: f64 = 0.5;
 /// What `bench --render` measured.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RenderBench {
-    /// Image width [px].
+    /// Image width \[px\].
     pub width: u32,
-    /// Image height [px].
+    /// Image height \[px\].
     pub height: u32,
     /// Vehicles drawn.
     pub vehicles: usize,
     /// Frames timed.
     pub frames: usize,
-    /// Wall time of the first frame [ms] (builds the cached environment layer; not timed below).
+    /// Wall time of the first frame \[ms\] (builds the cached environment layer; not timed below).
     pub first_frame_ms: f64,
-    /// Each timed frame's wall time [ms], in order.
+    /// Each timed frame's wall time \[ms\], in order.
     pub frame_ms: Vec<f64>,
     /// Median of `frame_ms`.
     pub median_ms: f64,
@@ -49,7 +49,7 @@ pub enum RenderBenchError {
     Render(#[from] RenderError),
 }
 
-/// Draw `world` at `width` x `height` px [`RENDER_FRAMES`] times, [`FRAME_GAP_S`] of sim time
+/// Draw `world` at `width` x `height` px [`RENDER_FRAMES`] times, `FRAME_GAP_S` of sim time
 /// apart (the sim steps between frames are not timed).
 pub fn bench_render(
     world: &BenchWorld,
@@ -90,7 +90,7 @@ pub fn bench_render(
     })
 }
 
-/// `WxH` as (width, height) [px], each in 1..=16384.
+/// `WxH` as (width, height) \[px\], each in 1..=16384.
 pub fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let bad = || format!("--render takes WIDTHxHEIGHT in pixels, e.g. 1920x1080; got '{text}'");
     let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;

@@ -31,7 +31,7 @@ pub struct Collision {
     pub a: VehicleId,
     /// Higher id of the pair.
     pub b: VehicleId,
-    /// Sim time the overlap started [s].
+    /// Sim time the overlap started \[s\].
     pub t: f64,
 }
 
@@ -42,21 +42,21 @@ pub struct FollowerStats {
     pub id: VehicleId,
     /// Its leader at the last sample.
     pub leader: VehicleId,
-    /// Smallest bumper-to-bumper gap [m].
+    /// Smallest bumper-to-bumper gap \[m\].
     pub min_gap: f64,
-    /// Smallest time gap [s] (samples above 1 m/s; none if it never moved that fast).
+    /// Smallest time gap \[s\] (samples above 1 m/s; none if it never moved that fast).
     pub min_time_gap: Option<f64>,
-    /// Mean time gap [s] (samples above 1 m/s).
+    /// Mean time gap \[s\] (samples above 1 m/s).
     pub mean_time_gap: Option<f64>,
     /// Root mean square of leader speed − own speed [m/s].
     pub speed_error_rms: f64,
     /// Number of samples.
     pub samples: u64,
     /// Time it spent in platoon fallback (ACC because the beacons of the member ahead were
-    /// stale, [`PlatoonMember::degraded`]) after the warm-up [s]; 0 for a vehicle that is no
+    /// stale, [`PlatoonMember::degraded`]) after the warm-up \[s\]; 0 for a vehicle that is no
     /// platoon follower.
     pub degraded_s: f64,
-    /// Largest age of the newest beacon of the member ahead [s] while a platoon follower, after
+    /// Largest age of the newest beacon of the member ahead \[s\] while a platoon follower, after
     /// the warm-up; `None` (JSON `null`) for a vehicle that never was one.
     pub beacon_age_max_s: Option<f64>,
     #[serde(skip)]
@@ -103,14 +103,14 @@ pub struct PlatoonStats {
 /// What goes into `summary.json` under `metrics`.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MetricsSummary {
-    /// Statistics skip this start-up time [s] (collisions do not).
+    /// Statistics skip this start-up time \[s\] (collisions do not).
     pub warmup: f64,
     /// Number of collisions.
     pub collision_count: usize,
     /// Every collision, in time order.
     pub collisions: Vec<Collision>,
     /// Every vehicle that collided (JSON keys are its id as a string): the sim time of its first
-    /// collision [s].
+    /// collision \[s\].
     pub collided: BTreeMap<i32, f64>,
     /// Every follower, in id order.
     pub followers: Vec<FollowerStats>,
@@ -170,7 +170,7 @@ pub struct LaneChangeSummary {
     pub aborted: usize,
     /// Vehicles that reached the end of a lane they had to leave.
     pub missed_exits: usize,
-    /// Longest time a vehicle stood (below 0.5 m/s) waiting for a gap [s].
+    /// Longest time a vehicle stood (below 0.5 m/s) waiting for a gap \[s\].
     pub max_wait_s: f64,
 }
 
@@ -206,11 +206,11 @@ pub struct ChannelMetrics {
     pub delivered: u64,
     /// `sent - delivered`.
     pub lost: u64,
-    /// Mean delivery delay [ms].
+    /// Mean delivery delay \[ms\].
     pub delay_ms_mean: f64,
-    /// 95th percentile of the delivery delay [ms] (0.5 ms resolution).
+    /// 95th percentile of the delivery delay \[ms\] (0.5 ms resolution).
     pub delay_ms_p95: f64,
-    /// Mean age of a message when it reaches the in-box [ms]: out-box wait plus delay.
+    /// Mean age of a message when it reaches the in-box \[ms\]: out-box wait plus delay.
     pub age_of_information_ms_mean: f64,
 }
 
@@ -232,11 +232,11 @@ impl V2vMetrics {
 /// The metrics being recorded.
 #[derive(Resource, Debug, Default)]
 pub struct Metrics {
-    /// Start-up time skipped by the statistics [s].
+    /// Start-up time skipped by the statistics \[s\].
     pub warmup: f64,
     /// Collisions so far.
     pub collisions: Vec<Collision>,
-    /// Sim time of each vehicle's first collision [s].
+    /// Sim time of each vehicle's first collision \[s\].
     pub collided: BTreeMap<VehicleId, f64>,
     /// Routed vehicles that no path follower measures (driven from Python, a student's
     /// controller, none): where each was on its route and its largest distance to the route's
@@ -257,9 +257,9 @@ pub struct Metrics {
 /// [`Metrics::route_deviation`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct RouteTrack {
-    /// Arc length of its projection on the route at the last step [m].
+    /// Arc length of its projection on the route at the last step \[m\].
     pub s: f64,
-    /// Largest distance to the route's centre line so far [m].
+    /// Largest distance to the route's centre line so far \[m\].
     pub max_offset: f64,
 }
 
@@ -341,7 +341,7 @@ fn overlap(a: &Footprint, b: &Footprint) -> bool {
 }
 
 impl Metrics {
-    /// Empty metrics skipping `warmup` [s] in the statistics.
+    /// Empty metrics skipping `warmup` \[s\] in the statistics.
     pub fn new(warmup: f64) -> Metrics {
         Metrics { warmup, ..Default::default() }
     }
@@ -598,7 +598,7 @@ impl Metrics {
 /// Records [`Metrics`] after every dynamics step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MetricsPlugin {
-    /// Start-up time skipped by the statistics (not by collisions) [s].
+    /// Start-up time skipped by the statistics (not by collisions) \[s\].
     pub warmup: f64,
 }
 

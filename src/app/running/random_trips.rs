@@ -12,7 +12,7 @@ use std::sync::Arc;
 use crate::map::{LaneletId, LaneletMap, Path, RouteOptions};
 use crate::sim::random::uniform;
 
-/// Shortest route a random trip may have [m]: shorter ones (a lanelet to its own successor)
+/// Shortest route a random trip may have \[m\]: shorter ones (a lanelet to its own successor)
 /// are redrawn, as they measure nothing but the insertion.
 pub const MIN_TRIP_M: f64 = 50.0;
 /// Draws whose destination is any lanelet; later draws pick among the lanelets the origin
@@ -54,7 +54,7 @@ pub struct RandomTrips {
     before_junction: Vec<bool>,
 }
 
-/// A trip does not start closer than this to a junction [m] (a car at 12 m/s stops in 24 m at
+/// A trip does not start closer than this to a junction \[m\] (a car at 12 m/s stops in 24 m at
 /// 3 m/s²): a vehicle inserted at speed just
 /// before a stop line could not stop for a red light.
 pub const CLEAR_OF_JUNCTIONS_M: f64 = 25.0;
@@ -120,7 +120,7 @@ impl RandomTrips {
         }
     }
 
-    /// How much of lanelet `i` (map index) a trip may start on, from its start [m]: all of it,
+    /// How much of lanelet `i` (map index) a trip may start on, from its start \[m\]: all of it,
     /// less the last [`CLEAR_OF_JUNCTIONS_M`] where it ends at a junction (a long lanelet up to
     /// a stop line is an origin, but a car placed at speed just before the line could not stop
     /// for a red light or a foe: two were, and collided, in a 10 x 10 town).

@@ -17,20 +17,20 @@ use crate::sim::Sim;
 /// What a run did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RunReport {
-    /// Sim time covered [s].
+    /// Sim time covered \[s\].
     pub sim_seconds: f64,
-    /// Wall-clock time taken [s].
+    /// Wall-clock time taken \[s\].
     pub wall_seconds: f64,
     /// Rate warnings logged during this run.
     pub rate_warnings: u64,
-    /// Largest lag behind the wall clock seen [s] (0 for headless runs).
+    /// Largest lag behind the wall clock seen \[s\] (0 for headless runs).
     pub max_lag_seconds: f64,
     /// The run stopped early on Ctrl-C or SIGTERM ([`super::interrupt`]); `sim_seconds` is the
     /// sim time it reached.
     pub interrupted: bool,
 }
 
-/// Run headless for `seconds` [s], calling `progress` after every `chunk` [s] of sim time. A stop
+/// Run headless for `seconds` \[s\], calling `progress` after every `chunk` \[s\] of sim time. A stop
 /// signal ([`super::interrupt::requested`]) ends the run after the step that is running.
 pub fn run_headless(sim: &mut Sim, seconds: f64, chunk: f64, mut progress: impl FnMut(&Sim)) -> RunReport {
     let wall = Instant::now();
@@ -69,9 +69,9 @@ pub fn run_headless(sim: &mut Sim, seconds: f64, chunk: f64, mut progress: impl 
 pub struct RealtimeRunner {
     /// Sim seconds per wall second (1 = real time, 2 = twice as fast).
     pub speed: f64,
-    /// At most one rate warning per this wall time [s].
+    /// At most one rate warning per this wall time \[s\].
     pub warn_interval: f64,
-    /// Wall time [s] the run may stay behind the scaled wall clock without catching up before
+    /// Wall time \[s\] the run may stay behind the scaled wall clock without catching up before
     /// it counts as not keeping its rate (what an oversleeping `sleep` or a busy moment of the
     /// machine costs is no warning).
     pub tolerance: f64,
@@ -90,7 +90,7 @@ impl RealtimeRunner {
         RealtimeRunner { speed, ..Default::default() }
     }
 
-    /// Run for `seconds` [s] of sim time, calling `progress` after every `chunk` [s] of sim time.
+    /// Run for `seconds` \[s\] of sim time, calling `progress` after every `chunk` \[s\] of sim time.
     pub fn run(&self, sim: &mut Sim, seconds: f64, chunk: f64, mut progress: impl FnMut(&Sim)) -> RunReport {
         let wall = Instant::now();
         let start = sim.now();

@@ -117,9 +117,9 @@ fn collect_byte_inboxes(mut q: Query<(&Mailbox, &mut ByteInbox)>) {
 /// controller wrote, at every control tick after all controllers ran, until cleared.
 #[derive(Component, Debug, Clone, Copy, Default, PartialEq)]
 pub struct CommandOverride {
-    /// Throttle [N].
+    /// Throttle \[N\].
     pub throttle: Option<f64>,
-    /// Steering [rad].
+    /// Steering \[rad\].
     pub steering: Option<f64>,
     /// Speed [m/s].
     pub speed: Option<f64>,
@@ -184,11 +184,11 @@ fn report_overridden_accel(
 pub struct StateColumns {
     /// Vehicle ids, ascending.
     pub id: Vec<i32>,
-    /// Position x [m].
+    /// Position x \[m\].
     pub x: Vec<f64>,
-    /// Position y [m].
+    /// Position y \[m\].
     pub y: Vec<f64>,
-    /// Heading [rad].
+    /// Heading \[rad\].
     pub yaw: Vec<f64>,
     /// Velocity x [m/s].
     pub vx: Vec<f64>,
@@ -196,7 +196,7 @@ pub struct StateColumns {
     pub vy: Vec<f64>,
     /// Id of the lanelet under the reference point (NaN off the road or without a map).
     pub lanelet: Vec<f64>,
-    /// Signed offset from that lanelet's centre line [m], left positive (NaN off the road).
+    /// Signed offset from that lanelet's centre line \[m\], left positive (NaN off the road).
     pub lane_offset: Vec<f64>,
 }
 
@@ -333,12 +333,12 @@ impl Session {
         self.scenario.map.as_ref()
     }
 
-    /// Sim time [s].
+    /// Sim time \[s\].
     pub fn time(&self) -> f64 {
         self.sim.now().as_secs()
     }
 
-    /// Advance sim time by `dt` [s] through the normal multi-rate schedule (every tick due before
+    /// Advance sim time by `dt` \[s\] through the normal multi-rate schedule (every tick due before
     /// the new time runs).
     pub fn step(&mut self, dt: f64) -> Result<(), SessionError> {
         if !(dt.is_finite() && dt >= 0.0) {
@@ -474,7 +474,7 @@ impl Session {
         }
     }
 
-    /// Remember waiting for `seconds` [s] (SUMO's `--waiting-time-memory`, default 1000 s as
+    /// Remember waiting for `seconds` \[s\] (SUMO's `--waiting-time-memory`, default 1000 s as
     /// sumo-rl sets it); an error for a value that is not a positive finite number.
     pub fn set_waiting_memory(&mut self, seconds: f64) -> Result<(), SessionError> {
         if !(seconds.is_finite() && seconds > 0.0) {
@@ -495,7 +495,7 @@ impl Session {
         })
     }
 
-    /// Advance by `duration` [s] and summarise everything run so far as `summary.json` does.
+    /// Advance by `duration` \[s\] and summarise everything run so far as `summary.json` does.
     pub fn run(&mut self, duration: f64) -> Result<RunSummary, SessionError> {
         self.step(duration)?;
         Ok(self.summary())
@@ -611,7 +611,7 @@ impl Session {
             .unwrap_or_default())
     }
 
-    /// Set the commands of vehicles `ids`: each given column (throttle [N], steering [rad],
+    /// Set the commands of vehicles `ids`: each given column (throttle \[N\], steering \[rad\],
     /// speed [m/s]) must have one finite value per id; a column left out keeps its value. Checks
     /// everything before changing anything. They act at once and replace what the vehicle's own
     /// controller (if any) writes at every later control tick, until [`Session::clear_commands`].

@@ -25,7 +25,7 @@ pub const HALTING_SPEED: f64 = 0.1;
 /// Speed limit assumed on a lane without a `speed_limit` tag [m/s] (50 km/h).
 pub const DEFAULT_ALLOWED_SPEED: f64 = 50.0 / 3.6;
 
-/// How far back [`WaitingTime::accumulated`] remembers waiting [s] (SUMO's
+/// How far back [`WaitingTime::accumulated`] remembers waiting \[s\] (SUMO's
 /// `--waiting-time-memory`; sumo-rl's `waiting_time_memory` default, 1000 s, which it passes to
 /// SUMO).
 #[derive(Resource, Debug, Clone, Copy, PartialEq)]
@@ -41,7 +41,7 @@ impl Default for WaitingMemory {
 /// `WaitingTimeCollector`).
 #[derive(Component, Debug, Clone, Default, PartialEq)]
 pub struct WaitingTime {
-    /// Time since the vehicle last moved at [`HALTING_SPEED`] or more [s] (TraCI
+    /// Time since the vehicle last moved at [`HALTING_SPEED`] or more \[s\] (TraCI
     /// `vehicle.getWaitingTime`).
     pub current: f64,
     /// Waiting periods `(start, end)` [s] that end within the memory, oldest first.
@@ -59,7 +59,7 @@ impl WaitingTime {
         WaitingTime { lane: u32::MAX, ..Default::default() }
     }
 
-    /// Waiting within the last `memory` seconds before `now` [s] (TraCI
+    /// Waiting within the last `memory` seconds before `now` \[s\] (TraCI
     /// `vehicle.getAccumulatedWaitingTime`).
     pub fn accumulated(&self, now: f64, memory: f64) -> f64 {
         let from = now - memory;
@@ -126,7 +126,7 @@ pub struct LightLayout {
     pub junction: u32,
     /// The SUMO `tlLogic` id its links name (tag `signal_program`), else the junction id.
     pub name: String,
-    /// The program's phases: state (one character per link, in link order) and duration [s].
+    /// The program's phases: state (one character per link, in link order) and duration \[s\].
     pub phases: Vec<(String, f64)>,
     /// The same phases as the map file states them, in link order: SUMO's own characters (`s`,
     /// `u`, `o`, `O` ... kept, which `phases` shows as ours), so an environment derives green and
@@ -149,7 +149,7 @@ pub struct SignalLayout {
     pub slots: Vec<u32>,
     /// Whether each slot is an incoming lane (waiting is counted on those only).
     pub incoming: Vec<bool>,
-    /// Length of each slot's lane [m].
+    /// Length of each slot's lane \[m\].
     pub length: Vec<f64>,
     /// Speed limit of each slot's lane [m/s] (the `speed_limit` tag; [`DEFAULT_ALLOWED_SPEED`]
     /// where none).
@@ -280,17 +280,17 @@ pub struct SignalMeasures {
     pub count: Vec<f64>,
     /// Of them, halting: speed below [`HALTING_SPEED`] (`lane.getLastStepHaltingNumber`).
     pub halting: Vec<f64>,
-    /// Sum of their lengths [m] (`lane.getLastStepLength` is this over `count`).
+    /// Sum of their lengths \[m\] (`lane.getLastStepLength` is this over `count`).
     pub length_sum: Vec<f64>,
     /// Sum of speed / allowed speed (the lane's limit) [-] (sumo-rl `get_average_speed`).
     pub speed_ratio_sum: Vec<f64>,
-    /// Accumulated waiting counted on the lane, sumo-rl's way [s] (0 on outgoing slots).
+    /// Accumulated waiting counted on the lane, sumo-rl's way \[s\] (0 on outgoing slots).
     pub waiting: Vec<f64>,
     /// Vehicles in the simulation.
     pub running: usize,
     /// Of them, halting.
     pub stopped: usize,
-    /// Sum of every vehicle's current waiting time [s] (`vehicle.getWaitingTime`).
+    /// Sum of every vehicle's current waiting time \[s\] (`vehicle.getWaitingTime`).
     pub total_waiting: f64,
     /// Sum of every vehicle's speed [m/s].
     pub total_speed: f64,
@@ -304,7 +304,7 @@ pub type MeasureQuery = QueryState<(
     Option<&'static mut WaitingTime>,
 )>;
 
-/// Measure every slot of `layout` and the system in `world` at sim time `now` [s] into `out`
+/// Measure every slot of `layout` and the system in `world` at sim time `now` \[s\] into `out`
 /// (its vectors are reused): one pass over the vehicles. Lane positions must be current
 /// ([`crate::vehicles::refresh_lane_positions`]).
 pub fn measure(world: &mut World, query: &mut MeasureQuery, layout: &SignalLayout, now: f64, out: &mut SignalMeasures) {

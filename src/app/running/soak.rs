@@ -15,7 +15,7 @@ use super::bench::{BenchError, BenchWorld};
 /// Largest growth of resident memory after the warm-up that still counts as flat [-] (5 %).
 pub const FLAT_TOLERANCE: f64 = 0.05;
 
-/// Sim time between two rounds of traffic churn in a soak [s].
+/// Sim time between two rounds of traffic churn in a soak \[s\].
 pub const CHURN_PERIOD: f64 = 10.0;
 /// Share of the vehicles that leave and enter in one round of churn [-].
 pub const CHURN_SHARE: f64 = 0.05;
@@ -28,11 +28,11 @@ pub fn warm_up(wall_seconds: f64) -> f64 {
 /// One sample of a soak.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct SoakSample {
-    /// Wall time since the start of the run [s].
+    /// Wall time since the start of the run \[s\].
     pub wall_s: f64,
-    /// Sim time reached [s].
+    /// Sim time reached \[s\].
     pub sim_s: f64,
-    /// Resident memory of the process [MB].
+    /// Resident memory of the process \[MB\].
     pub rss_mb: f64,
 }
 
@@ -41,15 +41,15 @@ pub struct SoakSample {
 pub struct SoakReport {
     /// Number of vehicles.
     pub vehicles: usize,
-    /// Wall time asked for [s].
+    /// Wall time asked for \[s\].
     pub wall_seconds: f64,
-    /// Sim time run [s].
+    /// Sim time run \[s\].
     pub sim_seconds: f64,
     /// Warm-up excluded from the flatness check [s of wall time].
     pub warm_up_s: f64,
-    /// Resident memory at the end of the warm-up [MB].
+    /// Resident memory at the end of the warm-up \[MB\].
     pub rss_after_warm_up_mb: f64,
-    /// Largest resident memory after the warm-up [MB].
+    /// Largest resident memory after the warm-up \[MB\].
     pub rss_max_after_warm_up_mb: f64,
     /// `rss_max_after_warm_up_mb / rss_after_warm_up_mb - 1` [-].
     pub growth: f64,
@@ -63,12 +63,12 @@ pub struct SoakReport {
     pub samples: Vec<SoakSample>,
 }
 
-/// Resident memory of this process now [MB] (Linux `VmRSS`), if known.
+/// Resident memory of this process now \[MB\] (Linux `VmRSS`), if known.
 pub fn rss_mb() -> Option<f64> {
     super::bench::proc_self_mb("status", "VmRSS")
 }
 
-/// Run `world` for `wall_seconds` of wall time, sampling memory every `every` [s] (`on_sample`
+/// Run `world` for `wall_seconds` of wall time, sampling memory every `every` \[s\] (`on_sample`
 /// sees each sample as it is taken, e.g. to print progress).
 pub fn soak(
     world: &BenchWorld,

@@ -24,11 +24,11 @@ pub struct MessagesDelivered {
 /// `summary.json` of a run.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RunSummary {
-    /// Sim time covered [s] (the time reached when the run was interrupted).
+    /// Sim time covered \[s\] (the time reached when the run was interrupted).
     pub sim_seconds: f64,
     /// Whether Ctrl-C or SIGTERM stopped the run before its end (the outputs hold what ran).
     pub interrupted: bool,
-    /// Wall-clock time taken [s].
+    /// Wall-clock time taken \[s\].
     pub wall_seconds: f64,
     /// Sim seconds per wall second.
     pub real_time_factor: f64,
@@ -43,7 +43,7 @@ pub struct RunSummary {
     pub seed: u64,
     /// Per vehicle id (JSON keys are strings), for every vehicle with a route, those removed
     /// during the run (background traffic at its route's end) included: largest distance
-    /// to its route's centre line [m], seen by its path follower at every control tick, or for a
+    /// to its route's centre line \[m\], seen by its path follower at every control tick, or for a
     /// vehicle without one (driven from Python, by a student's controller, by nothing) after
     /// every dynamics step.
     pub max_distance_to_centre_line: BTreeMap<i32, f64>,
@@ -67,7 +67,7 @@ pub struct RunSummary {
 pub struct ReplayInfo {
     /// The map file the run drove on (absolute when it could be resolved); `None` without a map.
     pub map: Option<std::path::PathBuf>,
-    /// Trajectory log rate [Hz]: rows of `trajectories.csv` are this far apart in time.
+    /// Trajectory log rate \[Hz\]: rows of `trajectories.csv` are this far apart in time.
     pub log_rate: f64,
     /// Every vehicle, in the order the run's visualisation stream sent them.
     pub vehicles: Vec<ReplayVehicle>,
@@ -81,9 +81,9 @@ pub struct ReplayVehicle {
     pub id: i32,
     /// Vehicle class (`car`, `truck`, ...).
     pub class: VehicleClass,
-    /// Body length [m].
+    /// Body length \[m\].
     pub length: f64,
-    /// Body width [m].
+    /// Body width \[m\].
     pub width: f64,
     /// A stationary obstacle (CommonRoad static obstacle): the map draws it, replays draw no
     /// sprite for it. Absent (false) for every other vehicle.
@@ -96,7 +96,7 @@ pub struct ReplayVehicle {
 }
 
 impl ReplayInfo {
-    /// The vehicles of `world` (in the stream's query order), with the run's `map` and `log_rate` [Hz].
+    /// The vehicles of `world` (in the stream's query order), with the run's `map` and `log_rate` \[Hz\].
     pub fn of(world: &mut World, map: Option<std::path::PathBuf>, log_rate: f64) -> ReplayInfo {
         let mut query = world.query::<(
             &VehicleId,
@@ -118,9 +118,9 @@ impl ReplayInfo {
 }
 
 /// Decimals a figure of `summary.json` keeps, from its key (the unit its name gives), as the CSV
-/// keeps the precision of its unit: times [s] the clock's 1 µs (`t`, `t_*`, `*_s`, `*seconds*`,
+/// keeps the precision of its unit: times \[s\] the clock's 1 µs (`t`, `t_*`, `*_s`, `*seconds*`,
 /// `*time*`, ...), milliseconds 1 µs too, angles 1e-5 rad, dimensionless ratios and rates
-/// 1e-6; everything else (lengths [m], speeds [m/s], accelerations [m/s²], per-hour counts)
+/// 1e-6; everything else (lengths \[m\], speeds [m/s], accelerations [m/s²], per-hour counts)
 /// 1 mm, 1 mm/s, 1 mm/s².
 pub fn figure_decimals(key: &str) -> usize {
     let k = key.to_ascii_lowercase();

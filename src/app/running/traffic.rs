@@ -37,7 +37,7 @@ const TIME_GAP: f64 = 1.5;
 /// A vehicle this close to the end of its route [m] has left the world.
 const LEAVE_AT: f64 = 5.0;
 
-/// Footprint of a traffic vehicle of class `c` [m].
+/// Footprint of a traffic vehicle of class `c` \[m\].
 pub fn class_size(c: VehicleClass) -> VehicleSize {
     match c {
         VehicleClass::Truck => VehicleSize { length: 12.0, width: 2.5 },
@@ -54,7 +54,7 @@ pub fn class_size(c: VehicleClass) -> VehicleSize {
 pub struct TrafficLane {
     /// Lanelet index of the path's start.
     pub lanelet: u32,
-    /// Arc length of the path's start on that lanelet [m].
+    /// Arc length of the path's start on that lanelet \[m\].
     pub entry_s: f64,
     /// The path (a loop, or to the destination).
     pub path: Arc<Path>,
@@ -71,7 +71,7 @@ pub struct TrafficSource {
     pub goal: RouteGoal,
     /// Arrivals per second [1/s] (0: none).
     pub rate_per_s: f64,
-    /// No insertion after this time [s].
+    /// No insertion after this time \[s\].
     pub until: f64,
     /// Desired speed range [m/s].
     pub speed: [f64; 2],
@@ -96,7 +96,7 @@ pub struct TrafficSource {
     pub id_step: i32,
     /// Vehicles drawn so far (the random index).
     pub drawn: u64,
-    /// Next arrival time [s].
+    /// Next arrival time \[s\].
     pub next_time: f64,
     /// Arrivals waiting for a free entry.
     pub queue: u64,
@@ -108,19 +108,19 @@ pub struct TrafficSource {
     /// Random trips only: at its destination a vehicle draws a new trip from there instead of
     /// leaving (`on_arrival = "new_trip"`).
     pub renew: bool,
-    /// Departure times [s], sorted (SUMO demand, [`crate::map::sumo::demand`]): a vehicle
+    /// Departure times \[s\], sorted (SUMO demand, [`crate::map::sumo::demand`]): a vehicle
     /// arrives at each, besides the `rate` arrivals.
     pub schedule: Vec<f64>,
     /// Departures of `schedule` that have arrived so far.
     pub scheduled: usize,
-    /// Body length [m] in place of the class's (a SUMO `vType` length).
+    /// Body length \[m\] in place of the class's (a SUMO `vType` length).
     pub length: Option<f64>,
     /// Speed on entry [m/s] at most this (a SUMO `departSpeed`); `None`: the desired speed.
     pub depart_speed: Option<f64>,
 }
 
 impl TrafficSource {
-    /// Footprint of a vehicle of class `c` of this table [m].
+    /// Footprint of a vehicle of class `c` of this table \[m\].
     pub fn size(&self, c: VehicleClass) -> VehicleSize {
         let size = class_size(c);
         VehicleSize { length: self.length.unwrap_or(size.length), ..size }
@@ -144,7 +144,7 @@ pub struct Traffic {
     pub removed: u64,
     /// Most arrivals waiting at once for a free entry.
     pub waiting_max: u64,
-    /// Largest distance to its route's centre line [m] of every vehicle removed so far, by id
+    /// Largest distance to its route's centre line \[m\] of every vehicle removed so far, by id
     /// (ids are never reused in a run): `summary.json` reports every vehicle that drove.
     pub departed_max_offset: std::collections::BTreeMap<i32, f64>,
 }
@@ -186,7 +186,7 @@ fn draw(seed: u64, src: &TrafficSource, k: u64) -> (f64, VehicleClass, usize) {
     (v0, class, lane.min(src.lanes.len().saturating_sub(1)))
 }
 
-/// Spawn one traffic vehicle of table `index` on `lane` at arc length `s` [m] with initial speed
+/// Spawn one traffic vehicle of table `index` on `lane` at arc length `s` \[m\] with initial speed
 /// `v` [m/s] and desired speed `v0` [m/s], heading for `goal` (where its lane changes may lead);
 /// its [`Trip`] departs now.
 #[allow(clippy::too_many_arguments)]
@@ -244,7 +244,7 @@ pub fn spawn_traffic_vehicle(
     Ok(())
 }
 
-/// Longest body of the classes a table may draw [m].
+/// Longest body of the classes a table may draw \[m\].
 pub fn longest(src: &TrafficSource) -> f64 {
     src.classes.iter().map(|c| class_size(c.0).length).fold(0.0, f64::max)
 }
@@ -506,9 +506,9 @@ fn insert_random(
 }
 
 /// Place `count` vehicles of random table `index` at t = 0: each on its own random trip at a
-/// random point of its origin lanelet, at least [`MIN_GAP`] + 2 m (bumper to bumper, in a
+/// random point of its origin lanelet, at least `MIN_GAP` + 2 m (bumper to bumper, in a
 /// straight line) from every other, at a speed it can stop from in the distance to the nearest
-/// ([`TIME_GAP`]). `Err` says how many fit.
+/// (`TIME_GAP`). `Err` says how many fit.
 pub fn place_random(world: &mut World, traffic: &mut Traffic, index: usize, count: usize) -> Result<(), String> {
     let seed = traffic.seed;
     let src = &mut traffic.sources[index];

@@ -19,14 +19,14 @@ use crate::world::{Route, VehicleId, VehicleState, Vehicles};
 
 /// Below this speed a vehicle is waiting [m/s] (SUMO's threshold).
 pub const WAITING_SPEED: f64 = 0.1;
-/// A vehicle this close to the end of its open route has arrived [m] (the distance at which
+/// A vehicle this close to the end of its open route has arrived \[m\] (the distance at which
 /// traffic vehicles leave the world).
 pub const ARRIVED_WITHIN: f64 = 5.0;
 
 /// Time spent standing and stops, counted sample by sample ([`Waiting::sample`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Waiting {
-    /// Time spent below [`WAITING_SPEED`] [s].
+    /// Time spent below [`WAITING_SPEED`] \[s\].
     pub time_s: f64,
     /// Changes from moving to standing.
     pub stops: u32,
@@ -40,7 +40,7 @@ impl Waiting {
         Waiting { time_s: 0.0, stops: 0, standing: speed < WAITING_SPEED }
     }
 
-    /// One sample: the vehicle drives at `speed` [m/s] for the next `dt` [s].
+    /// One sample: the vehicle drives at `speed` [m/s] for the next `dt` \[s\].
     pub fn sample(&mut self, speed: f64, dt: f64) {
         let standing = speed < WAITING_SPEED;
         if standing {
@@ -56,18 +56,18 @@ impl Waiting {
 /// The trip of a vehicle on a route.
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
 pub struct Trip {
-    /// Sim time it departed [s].
+    /// Sim time it departed \[s\].
     pub depart: f64,
-    /// Length of its route from where it departed to the end [m] (one lap of a closed loop).
+    /// Length of its route from where it departed to the end \[m\] (one lap of a closed loop).
     pub route_length: f64,
-    /// Sim time it reached its route's end [s]; `None` while driving.
+    /// Sim time it reached its route's end \[s\]; `None` while driving.
     pub arrival: Option<f64>,
     /// Its waiting time and stops.
     pub waiting: Waiting,
 }
 
 impl Trip {
-    /// A trip departing at `depart` [s] at `speed` [m/s] with `route_length` [m] to drive.
+    /// A trip departing at `depart` \[s\] at `speed` [m/s] with `route_length` \[m\] to drive.
     pub fn new(depart: f64, route_length: f64, speed: f64) -> Trip {
         Trip { depart, route_length, arrival: None, waiting: Waiting::starting_at(speed) }
     }
@@ -83,7 +83,7 @@ pub struct TripRecord {
 }
 
 impl TripRecord {
-    /// Arrival − departure [s], `None` while driving.
+    /// Arrival − departure \[s\], `None` while driving.
     pub fn travel_time(&self) -> Option<f64> {
         self.trip.arrival.map(|a| a - self.trip.depart)
     }
@@ -96,7 +96,7 @@ pub struct TripLog {
     pub finished: Vec<TripRecord>,
 }
 
-/// End the trip of vehicle `id` (entity `entity`) at `t` [s] before it is removed: its trip,
+/// End the trip of vehicle `id` (entity `entity`) at `t` \[s\] before it is removed: its trip,
 /// arrived at `t` unless it arrived earlier, moves into the [`TripLog`]. Nothing happens for a
 /// vehicle without a [`Trip`] or a world without the log.
 pub fn end_trip(world: &mut World, id: VehicleId, entity: Entity, t: f64) {
@@ -154,11 +154,11 @@ pub struct TripsSummary {
     pub inserted: u64,
     /// Of which reached their route's end.
     pub arrived: u64,
-    /// Mean travel time of the arrived vehicles [s].
+    /// Mean travel time of the arrived vehicles \[s\].
     pub mean_travel_time_s: Option<f64>,
-    /// 95th percentile (nearest rank) of their travel times [s].
+    /// 95th percentile (nearest rank) of their travel times \[s\].
     pub p95_travel_time_s: Option<f64>,
-    /// Mean waiting time (speed below 0.1 m/s) over every vehicle with a trip [s].
+    /// Mean waiting time (speed below 0.1 m/s) over every vehicle with a trip \[s\].
     pub mean_waiting_time_s: Option<f64>,
     /// Mean number of stops over every vehicle with a trip.
     pub mean_stops: Option<f64>,
@@ -188,8 +188,8 @@ impl TripsSummary {
 /// Header of `trips.csv`.
 pub const TRIPS_HEADER: &str = "id,depart,arrival,route_length_m,travel_time_s,waiting_time_s,stops";
 
-/// `trips.csv`: [`TRIPS_HEADER`], then one row per record: times [s] to 0.01 s, the route
-/// length [m] to 0.1 m; `arrival` and `travel_time_s` empty for a vehicle still driving.
+/// `trips.csv`: [`TRIPS_HEADER`], then one row per record: times \[s\] to 0.01 s, the route
+/// length \[m\] to 0.1 m; `arrival` and `travel_time_s` empty for a vehicle still driving.
 pub fn trips_csv(records: &[TripRecord]) -> String {
     use crate::app::results::output::Fixed;
     use std::fmt::Write;

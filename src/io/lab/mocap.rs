@@ -55,9 +55,9 @@ pub struct MocapTrack {
     /// Whether it has no fresh tracking now: never seen yet, or lost for longer than the
     /// timeout. A stale vehicle keeps its last position, with zero velocity.
     pub stale: bool,
-    /// Sim time spent stale [s], counted per dynamics step.
+    /// Sim time spent stale \[s\], counted per dynamics step.
     pub stale_seconds: f64,
-    /// Motion-capture timestamp of the last frame that saw its body [µs] (QTM's clock; the
+    /// Motion-capture timestamp of the last frame that saw its body \[µs\] (QTM's clock; the
     /// truck line's `time`), also used to count each frame once.
     pub last_timestamp_us: Option<i64>,
 }

@@ -41,7 +41,7 @@ pub use trucks::{LaneIndex, TruckBridge, TruckLine, TruckPlugin, Trucks, leader_
 
 /// A mock motion-capture script in which each body number (1-based, as QTM numbers them) drives
 /// its vehicle's `path` from its state's position at its state's speed, one lap (or to the
-/// path's end), keyframes every `step` [m];
+/// path's end), keyframes every `step` \[m\];
 /// positions in lab millimetres (world metres / `scale` * 1000), yaw in degrees. A vehicle that
 /// stands still gets one keyframe. The script loops with the longest lap's period.
 pub fn ring_script<'a>(

@@ -20,9 +20,9 @@ use super::{MocapTrack, TruckBridge, TruckLine, VizStream};
 pub struct RealVehicleBeacon {
     /// The real vehicle.
     pub id: VehicleId,
-    /// Its position [m].
+    /// Its position \[m\].
     pub position: DVec2,
-    /// Its heading [rad].
+    /// Its heading \[rad\].
     pub yaw: f64,
     /// Its velocity [m/s].
     pub velocity: DVec2,
@@ -141,7 +141,7 @@ pub struct RealVehicleSummary {
     pub frames_received: u64,
     /// Whether it was stale (untracked) at the end.
     pub stale: bool,
-    /// Sim time it spent stale [s] (including before its first frame).
+    /// Sim time it spent stale \[s\] (including before its first frame).
     pub stale_seconds: f64,
     /// Sensor detections of it by virtual vehicles.
     pub detections_by_virtual: u64,

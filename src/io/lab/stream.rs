@@ -121,7 +121,7 @@ pub fn stream_vehicles(mut stream: ResMut<VizStream>, vehicles: Query<StreamedVe
     }
 }
 
-/// Streams the world's vehicles over UDP to `target` at `rate` [Hz] of sim time (a module of
+/// Streams the world's vehicles over UDP to `target` at `rate` \[Hz\] of sim time (a module of
 /// its own; in a real-time run, of wall time too).
 #[derive(Debug)]
 pub struct VizStreamPlugin {
@@ -132,7 +132,7 @@ pub struct VizStreamPlugin {
 impl VizStreamPlugin {
     /// Bind the sending socket now (so a bad address is an error here, not in the run).
     ///
-    /// `rate` [Hz] must be positive and at most 1e6.
+    /// `rate` \[Hz\] must be positive and at most 1e6.
     pub fn new(target: SocketAddr, rate: f64) -> Result<VizStreamPlugin, VizError> {
         if !(rate.is_finite() && rate > 0.0 && rate <= 1e6) {
             return Err(VizError::BadRate(rate));

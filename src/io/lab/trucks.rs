@@ -24,11 +24,11 @@ pub struct Trucks;
 pub struct TruckBridge {
     /// One TCP server per real vehicle.
     pub server: TruckServer,
-    /// Gap the trucks are asked to keep [m].
+    /// Gap the trucks are asked to keep \[m\].
     pub desired_distance: f64,
-    /// Vehicles whose centre is within this of the lane's centre line are on it [m].
+    /// Vehicles whose centre is within this of the lane's centre line are on it \[m\].
     pub lane_half_width: f64,
-    /// Longest gap looked for [m]; sent when no leader is closer.
+    /// Longest gap looked for \[m\]; sent when no leader is closer.
     pub max_gap: f64,
 }
 
@@ -37,11 +37,11 @@ pub struct TruckBridge {
 pub struct TruckLine {
     /// The leader, if a vehicle is ahead on the lane within `max_gap`.
     pub leader: Option<VehicleId>,
-    /// Gap to the leader, centre to centre along the lane [m] (`max_gap` without a leader).
+    /// Gap to the leader, centre to centre along the lane \[m\] (`max_gap` without a leader).
     pub current_distance: f64,
     /// Lane the truck is on.
     pub lane: Lane,
-    /// Signed offset from that lane's centre line [m], positive to the left.
+    /// Signed offset from that lane's centre line \[m\], positive to the left.
     pub lane_offset: f64,
     /// Arc length of the truck along its route at the last tick [m] (projection hint).
     route_s: Option<f64>,
@@ -77,7 +77,7 @@ impl LaneIndex {
         LaneIndex { lanes }
     }
 
-    /// The lane whose centre line is nearest to `p`, and the signed offset of `p` from it [m]
+    /// The lane whose centre line is nearest to `p`, and the signed offset of `p` from it \[m\]
     /// (positive to the left of the driving direction). O(centre-line points).
     pub fn locate(&self, p: DVec2) -> Option<(Lane, f64)> {
         let mut best: Option<(f64, Lane, f64)> = None;
@@ -102,9 +102,9 @@ impl LaneIndex {
     }
 }
 
-/// Gap from a vehicle at `s` [m] along `route` to the nearest of `others` ahead of it on the
-/// route: centre to centre along the route, counting only vehicles within `half_width` [m] of
-/// the route and at most `max_gap` [m] ahead (wrapping around a closed route). Returns the
+/// Gap from a vehicle at `s` \[m\] along `route` to the nearest of `others` ahead of it on the
+/// route: centre to centre along the route, counting only vehicles within `half_width` \[m\] of
+/// the route and at most `max_gap` \[m\] ahead (wrapping around a closed route). Returns the
 /// leader and the gap.
 pub fn leader_gap(
     route: &Path,
@@ -218,7 +218,7 @@ pub fn publish_trucks(
     }
 }
 
-/// Feeds the truck servers of the real vehicles at `rate` [Hz] (a module of its own). Build it
+/// Feeds the truck servers of the real vehicles at `rate` \[Hz\] (a module of its own). Build it
 /// once: a second `build` finds the bridge taken and adds nothing.
 #[derive(Debug)]
 pub struct TruckPlugin {
@@ -228,7 +228,7 @@ pub struct TruckPlugin {
 }
 
 impl TruckPlugin {
-    /// The plugin for started servers, sending at `rate` [Hz]; `lanes` names the lanes (without
+    /// The plugin for started servers, sending at `rate` \[Hz\]; `lanes` names the lanes (without
     /// a map every truck is told `center`).
     pub fn new(bridge: TruckBridge, rate: f64, lanes: Option<LaneIndex>) -> TruckPlugin {
         TruckPlugin { bridge: Mutex::new(Some(bridge)), rate, lanes }

@@ -20,7 +20,7 @@ use crate::io::{WarnLimiter, lock};
 pub const DEFAULT_QTM_PORT: u16 = 22224;
 /// Default server address: loopback, port 22224.
 pub const DEFAULT_QTM_ADDR: SocketAddr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, DEFAULT_QTM_PORT));
-/// Default polling rate of `GetCurrentFrame` [Hz] (the 2015 rate).
+/// Default polling rate of `GetCurrentFrame` \[Hz\] (the 2015 rate).
 pub const DEFAULT_POLL_RATE_HZ: f64 = 24.0;
 
 /// Settings of a [`QtmClient`].
@@ -28,7 +28,7 @@ pub const DEFAULT_POLL_RATE_HZ: f64 = 24.0;
 pub struct QtmClientConfig {
     /// QTM server (default 127.0.0.1:22224).
     pub addr: SocketAddr,
-    /// `GetCurrentFrame` polls per second [Hz] (default 24; raising it lowers latency).
+    /// `GetCurrentFrame` polls per second \[Hz\] (default 24; raising it lowers latency).
     pub poll_rate_hz: f64,
     /// When set, `TakeControl <password>` is sent before `New` (needed when not master).
     pub password: Option<String>,
@@ -36,7 +36,7 @@ pub struct QtmClientConfig {
     pub reconnect_delay: Duration,
     /// Longest wait for a handshake reply or a connection (default 2 s).
     pub handshake_timeout: Duration,
-    /// Bound on a packet's size field [bytes] (default 1 MiB).
+    /// Bound on a packet's size field \[bytes\] (default 1 MiB).
     pub max_packet_len: usize,
 }
 

@@ -4,10 +4,10 @@
 //! # Wire format
 //! TCP (default port 22224). Every packet: big-endian i32 size (the 8-byte header included),
 //! big-endian i32 type ([`PacketType`]), then the payload. Commands (type 1) are ASCII text ending
-//! with one NUL byte. A data packet (type 3) holds an i64 timestamp [µs], an i32 frame number, an
+//! with one NUL byte. A data packet (type 3) holds an i64 timestamp \[µs\], an i32 frame number, an
 //! i32 component count, then components: i32 size (its 8-byte header included), i32 type (6 =
 //! 6DOF Euler), and for 6DOF Euler an i32 body count, 4 bytes of drop-rate/out-of-sync counters
-//! and per body six f32: x, y, z [mm], roll, pitch, yaw [degrees]. All integers and floats are
+//! and per body six f32: x, y, z \[mm\], roll, pitch, yaw \[degrees\]. All integers and floats are
 //! big-endian. Sizes are never trusted: a packet larger than the configured bound (default
 //! [`MAX_PACKET_LEN`]) is refused before anything is allocated.
 //!

@@ -42,7 +42,7 @@ impl BodyMapping {
 pub struct TrackerConfig {
     /// Body -> vehicle id (default: body k is vehicle k).
     pub mapping: BodyMapping,
-    /// Lab floor to world factor (default 32, the trucks' scale): world [m] = lab [m] * scale.
+    /// Lab floor to world factor (default 32, the trucks' scale): world \[m\] = lab \[m\] * scale.
     pub scale: f64,
     /// A body unseen for longer than this is reported stale (default 0.5 s; raising it hides
     /// short occlusions, lowering it reports losses sooner).
@@ -62,9 +62,9 @@ pub struct TrackedBody {
     pub id: i32,
     /// QTM body number (1-based).
     pub body: u32,
-    /// World position [m] (lab position scaled by the factor).
+    /// World position \[m\] (lab position scaled by the factor).
     pub position: DVec2,
-    /// Heading, the third Euler angle [rad].
+    /// Heading, the third Euler angle \[rad\].
     pub yaw: f64,
     /// World velocity from successive frames [m/s]; zero on the first sighting or after a loss.
     pub velocity: DVec2,
@@ -73,7 +73,7 @@ pub struct TrackedBody {
     pub stale: bool,
     /// QTM frame number of the last sighting.
     pub frame: i32,
-    /// QTM timestamp of the last sighting [µs].
+    /// QTM timestamp of the last sighting \[µs\].
     pub timestamp_us: i64,
     /// When the last sighting arrived.
     pub last_seen: Instant,

@@ -1,9 +1,9 @@
 //! QTM real-time wire format: packet header and types, framing of a byte stream with a bound on
 //! size fields, parsing and encoding of 6DOF Euler data frames, and the protocol's errors.
 
-/// Packet header length [bytes]: size and type.
+/// Packet header length \[bytes\]: size and type.
 pub const HEADER_LEN: usize = 8;
-/// Default bound on a packet's size field [bytes]; anything larger is refused unread.
+/// Default bound on a packet's size field \[bytes\]; anything larger is refused unread.
 pub const MAX_PACKET_LEN: usize = 1 << 20;
 /// Component type of 6DOF bodies with Euler angles.
 pub const COMPONENT_6D_EULER: i32 = 6;
@@ -254,17 +254,17 @@ impl PacketDecoder {
 pub struct Body6DEuler {
     /// 0-based index of the body in QTM's body list (see [`Body6DEuler::number`]).
     pub index: u32,
-    /// Position [mm].
+    /// Position \[mm\].
     pub x_mm: f32,
-    /// Position [mm].
+    /// Position \[mm\].
     pub y_mm: f32,
-    /// Position [mm].
+    /// Position \[mm\].
     pub z_mm: f32,
-    /// First Euler angle [degrees].
+    /// First Euler angle \[degrees\].
     pub roll_deg: f32,
-    /// Second Euler angle [degrees].
+    /// Second Euler angle \[degrees\].
     pub pitch_deg: f32,
-    /// Third Euler angle, used as yaw [degrees].
+    /// Third Euler angle, used as yaw \[degrees\].
     pub yaw_deg: f32,
 }
 
@@ -279,7 +279,7 @@ impl Body6DEuler {
 /// A parsed data packet: its 6DOF Euler bodies.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct DataFrame {
-    /// Capture timestamp [µs].
+    /// Capture timestamp \[µs\].
     pub timestamp_us: i64,
     /// QTM frame number.
     pub frame: i32,

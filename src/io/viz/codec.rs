@@ -4,7 +4,7 @@
 use std::fmt::Write as _;
 use std::io::Write as _;
 
-/// Largest datagram the encoder emits [bytes]: the 2015 receiver's buffer size.
+/// Largest datagram the encoder emits \[bytes\]: the 2015 receiver's buffer size.
 pub const MAX_DATAGRAM_LEN: usize = 4096;
 /// Key of the split extension: 0-based index of this part within its frame.
 pub const PART_KEY: &str = "part";
@@ -13,7 +13,7 @@ pub const PARTS_KEY: &str = "parts";
 /// Most parts a receiver accepts for one frame (bounds the memory a hostile sender can claim);
 /// at about 70 vehicles per part, frames of up to roughly 280 000 vehicles.
 pub const MAX_PARTS: u32 = 4096;
-/// Longest class name sent [bytes]; longer names are cut.
+/// Longest class name sent \[bytes\]; longer names are cut.
 pub const MAX_CLASS_NAME_LEN: usize = 64;
 
 /// One vehicle as the visualisation stream carries it.
@@ -21,11 +21,11 @@ pub const MAX_CLASS_NAME_LEN: usize = 64;
 pub struct VizVehicle {
     /// Vehicle id (non-negative: real vehicle, negative: virtual).
     pub id: i32,
-    /// Position east [m].
+    /// Position east \[m\].
     pub x: f64,
-    /// Position north [m].
+    /// Position north \[m\].
     pub y: f64,
-    /// Heading, counter-clockwise from the x axis [degrees].
+    /// Heading, counter-clockwise from the x axis \[degrees\].
     pub yaw_deg: f64,
     /// Vehicle class shown by the viewer (e.g. `Truck`, `Car`).
     pub class_name: String,

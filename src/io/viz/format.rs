@@ -69,7 +69,7 @@ impl StreamFormat {
         }
     }
 
-    /// The point sent for a body of `length` [m] centred at `centre` [m] heading `yaw` [rad].
+    /// The point sent for a body of `length` \[m\] centred at `centre` \[m\] heading `yaw` \[rad\].
     pub fn point_from_centre(self, centre: DVec2, yaw: f64, length: f64) -> DVec2 {
         match self {
             StreamFormat::Smlworld => centre,
@@ -77,8 +77,8 @@ impl StreamFormat {
         }
     }
 
-    /// The body centre of a vehicle of `length` [m] whose stream point is `point` [m], heading
-    /// `yaw` [rad] (the inverse of [`StreamFormat::point_from_centre`]).
+    /// The body centre of a vehicle of `length` \[m\] whose stream point is `point` \[m\], heading
+    /// `yaw` \[rad\] (the inverse of [`StreamFormat::point_from_centre`]).
     pub fn centre_from_point(self, point: DVec2, yaw: f64, length: f64) -> DVec2 {
         match self {
             StreamFormat::Smlworld => point,
@@ -98,7 +98,7 @@ pub fn class_name_2015(id: i32, class: VehicleClass) -> &'static str {
     }
 }
 
-/// Footprint `(length, width)` [m] the viewer draws for a class name of the stream (which carries
+/// Footprint `(length, width)` \[m\] the viewer draws for a class name of the stream (which carries
 /// no sizes): our classes at the 2015 tool's scenario sizes, the 2015 vehicle classes at the 2015
 /// car's size (4.779 x 2.096 m, `load_smart_car_image`) and the lab bodies at theirs (lab metres
 /// x 32: `load_big_box_image`, `load_small_box_image`, `load_goal_image`).
@@ -116,8 +116,8 @@ pub fn viewer_footprint(class: &str) -> (f64, f64) {
     }
 }
 
-/// Where the viewer draws a received vehicle of a stream in `format`: body centre [m], heading
-/// [rad], length and width [m] ([`viewer_footprint`]).
+/// Where the viewer draws a received vehicle of a stream in `format`: body centre \[m\], heading
+/// \[rad\], length and width \[m\] ([`viewer_footprint`]).
 pub fn viewer_body(format: StreamFormat, v: &VizVehicle) -> (DVec2, f64, f64, f64) {
     let (length, width) = viewer_footprint(&v.class_name);
     let yaw = v.yaw_deg.to_radians();

@@ -6,7 +6,7 @@
 //! `<counter>#id=<id>;x=<x>;y=<y>;yaw=<deg>;class_name=<Class>!id=...`
 //! - `counter`: a non-negative integer, 0 for the first frame, +1 per frame;
 //! - after `#`, one record per vehicle, records separated by `!`; an empty body means "no vehicles";
-//! - a record is `;`-separated `key=value` fields: `id` (integer), `x`, `y` [m], `yaw` [degrees],
+//! - a record is `;`-separated `key=value` fields: `id` (integer), `x`, `y` \[m\], `yaw` \[degrees\],
 //!   `class_name` (text without `#`, `!`, `;`, `=`).
 //!
 //! A receiver drops a datagram whose counter is not newer than the last one it accepted.
@@ -41,7 +41,7 @@
 //! (counted, logged at debug level), so it goes on showing the vehicles; the vehicle datagrams
 //! are unchanged. Only [`StreamFormat::Smlworld`] streams send them (never the 2015 format).
 //!
-//! Which class names and reference point a stream carries: [`format`] (ours by default, the
+//! Which class names and reference point a stream carries: [`format`](mod@format) (ours by default, the
 //! 2015 viewers' with `--stream-format 2015`).
 //!
 //! Layout: [`codec`] (datagram text encoding and decoding, the stream's errors), [`reassembly`]

@@ -13,7 +13,7 @@ use crate::io::lock;
 
 /// Default destination of the stream: loopback, port 38008 (the 2015 port).
 pub const DEFAULT_VIZ_ADDR: SocketAddr = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 38008));
-/// Default send rate [Hz] (the 2015 rate).
+/// Default send rate \[Hz\] (the 2015 rate).
 pub const DEFAULT_VIZ_RATE_HZ: f64 = 50.0;
 
 /// Settings of a [`VizSender`].
@@ -24,7 +24,7 @@ pub struct VizSenderConfig {
     /// Local address to send from; `None` (default): loopback, any port, for a loopback target,
     /// else the unspecified address of the target's family.
     pub bind: Option<SocketAddr>,
-    /// Frames per second [Hz] for [`VizSender::send_if_due`] (default 50; raising it sends more often).
+    /// Frames per second \[Hz\] for [`VizSender::send_if_due`] (default 50; raising it sends more often).
     pub rate_hz: f64,
 }
 
@@ -98,7 +98,7 @@ impl VizSender {
     }
 
     /// Send a frame if one period (1 / rate) has passed since the last one sent by this method,
-    /// `now_us` being the caller's clock [µs] (sim or wall time). Returns whether it sent.
+    /// `now_us` being the caller's clock \[µs\] (sim or wall time). Returns whether it sent.
     pub fn send_if_due(&mut self, now_us: i64, vehicles: &[VizVehicle]) -> Result<bool, VizError> {
         if self.next_due_us.is_some_and(|due| now_us < due) {
             return Ok(false);
@@ -116,7 +116,7 @@ impl VizSender {
         self.counter
     }
 
-    /// Period between frames for [`Self::send_if_due`] [µs].
+    /// Period between frames for [`Self::send_if_due`] \[µs\].
     pub fn period_us(&self) -> i64 {
         self.period_us
     }
@@ -208,7 +208,7 @@ impl Drop for VizReceiver {
     }
 }
 
-/// Receive buffer asked for [bytes]: a split frame arrives as a burst of up to hundreds of
+/// Receive buffer asked for \[bytes\]: a split frame arrives as a burst of up to hundreds of
 /// datagrams, more than the usual 208 KiB default holds. The kernel may grant less.
 pub const RECV_BUFFER_LEN: usize = 4 << 20;
 

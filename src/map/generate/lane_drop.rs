@@ -20,16 +20,16 @@ pub const LANE_DROP_END: &str = "lane_drop_end";
 /// lane at `w < y < 2w` up to `drop_at`, then the right lane alone up to `length`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LaneDropParams {
-    /// Length of the road [m] (> `drop_at`).
+    /// Length of the road \[m\] (> `drop_at`).
     pub length: f64,
     /// Where the left lane ends [m from the start] (> 0).
     pub drop_at: f64,
-    /// Width of both lanes [m] (> 0).
+    /// Width of both lanes \[m\] (> 0).
     pub lane_width: f64,
-    /// Largest lanelet length [m] (> 0): both lanes are cut into lanelets this long or shorter,
+    /// Largest lanelet length \[m\] (> 0): both lanes are cut into lanelets this long or shorter,
     /// side by side, so a change can happen on any of them.
     pub segment: f64,
-    /// Largest distance between consecutive nodes [m] (> 0).
+    /// Largest distance between consecutive nodes \[m\] (> 0).
     pub node_spacing: f64,
 }
 

@@ -39,9 +39,9 @@ pub use lane_drop::{
     write_lane_drop,
 };
 
-/// Latitude of the origin of every generated map [deg] (the SML lab, Södertälje).
+/// Latitude of the origin of every generated map \[deg\] (the SML lab, Södertälje).
 pub const ORIGIN_LAT: f64 = 59.15;
-/// Longitude of the origin of every generated map [deg].
+/// Longitude of the origin of every generated map \[deg\].
 pub const ORIGIN_LON: f64 = 17.66;
 
 /// Invalid generator parameters, or a failed write.
@@ -71,7 +71,7 @@ pub struct MapStats {
     pub ways: usize,
     /// Lanelet relations written.
     pub lanelets: usize,
-    /// Size of the XML [bytes].
+    /// Size of the XML \[bytes\].
     pub bytes: u64,
 }
 
@@ -80,15 +80,15 @@ pub struct MapStats {
 pub struct RingParams {
     /// Number of lanes, all in the same direction (>= 1). More lanes widen the road outwards.
     pub lanes: usize,
-    /// Radius of the innermost road edge [m] (> 0). Lane `m` (0 = innermost) has its centre line
+    /// Radius of the innermost road edge \[m\] (> 0). Lane `m` (0 = innermost) has its centre line
     /// at `radius + (m + 0.5) * lane_width`.
     pub radius: f64,
-    /// Width of every lane [m] (> 0).
+    /// Width of every lane \[m\] (> 0).
     pub lane_width: f64,
     /// Drive clockwise; the default (false) is counter-clockwise as in HighwaySML, where the
     /// rightmost lane is the outermost.
     pub clockwise: bool,
-    /// Largest distance between consecutive nodes on the outermost edge [m] (> 0). Every boundary
+    /// Largest distance between consecutive nodes on the outermost edge \[m\] (> 0). Every boundary
     /// gets the same node count, so inner boundaries are denser. Smaller = rounder and bigger.
     pub node_spacing: f64,
 }
@@ -186,14 +186,14 @@ pub struct IntersectionParams {
     /// Lanes per direction on every arm (>= 1); lane `i` of an arm turns into lane `i` of the
     /// other arms (counted from the centre line).
     pub lanes: usize,
-    /// Length of each arm from the edge of the junction to its far end [m] (> 0).
+    /// Length of each arm from the edge of the junction to its far end \[m\] (> 0).
     pub arm_length: f64,
-    /// Width of every lane [m] (> 0).
+    /// Width of every lane \[m\] (> 0).
     pub lane_width: f64,
-    /// Radius of the road edge in the corners [m] (> 0): the arms start `lanes * lane_width +
+    /// Radius of the road edge in the corners \[m\] (> 0): the arms start `lanes * lane_width +
     /// corner_radius` from the centre. Larger = wider junction and gentler turns.
     pub corner_radius: f64,
-    /// Largest distance between consecutive nodes [m] (> 0).
+    /// Largest distance between consecutive nodes \[m\] (> 0).
     pub node_spacing: f64,
     /// Junction control written on the turn lanelets.
     pub control: JunctionMarks,
@@ -349,16 +349,16 @@ pub struct GridParams {
     pub rows: usize,
     /// Blocks from west to east (>= 1); there are `cols + 1` north-south streets.
     pub cols: usize,
-    /// Distance between neighbouring junction centres [m]; must exceed twice the junction size
+    /// Distance between neighbouring junction centres \[m\]; must exceed twice the junction size
     /// `2 (lanes lane_width + corner_radius)`.
     pub block: f64,
     /// Lanes per direction on every street (>= 1).
     pub lanes: usize,
-    /// Width of every lane [m] (> 0).
+    /// Width of every lane \[m\] (> 0).
     pub lane_width: f64,
-    /// Radius of the road edge in the corners [m] (> 0).
+    /// Radius of the road edge in the corners \[m\] (> 0).
     pub corner_radius: f64,
-    /// Largest distance between consecutive nodes [m] (> 0). Smaller = bigger file.
+    /// Largest distance between consecutive nodes \[m\] (> 0). Smaller = bigger file.
     pub node_spacing: f64,
     /// Junction control written on the turn lanelets (lights at junctions of 3 and 4 arms).
     pub control: JunctionMarks,

@@ -13,11 +13,11 @@ use crate::map::lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay, Tags}
 use crate::map::polyline::polyline_length;
 use crate::map::projection::Projector;
 
-/// Largest distance between a sampled bound and the true lane border between two samples [m].
+/// Largest distance between a sampled bound and the true lane border between two samples \[m\].
 pub const CHORD_ERROR: f64 = 0.02;
-/// Longest step between two samples, even on a straight road [m].
+/// Longest step between two samples, even on a straight road \[m\].
 pub const MAX_STEP: f64 = 10.0;
-/// Shortest step [m]: below it a border bends with a radius under 2 cm ([`CHORD_ERROR`] cannot
+/// Shortest step \[m\]: below it a border bends with a radius under 2 cm ([`CHORD_ERROR`] cannot
 /// hold there anyway), and a wild curvature in a file must not ask for unbounded points.
 pub const MIN_STEP: f64 = 0.05;
 

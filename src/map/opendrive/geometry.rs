@@ -152,7 +152,7 @@ impl Cubic {
         integrate(a, b, 2, |p| DVec2::new(self.speed(p), 0.0)).x
     }
 
-    /// Total arc length of the table [m].
+    /// Total arc length of the table \[m\].
     pub fn total(&self) -> f64 {
         self.lengths.last().copied().unwrap_or(0.0)
     }
@@ -198,20 +198,20 @@ impl Cubic {
 /// One `<geometry>` record of a road's `<planView>`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Geometry {
-    /// Start along the reference line [m].
+    /// Start along the reference line \[m\].
     pub s: f64,
-    /// Start position [m].
+    /// Start position \[m\].
     pub start: DVec2,
-    /// Start heading [rad].
+    /// Start heading \[rad\].
     pub hdg: f64,
-    /// Length [m].
+    /// Length \[m\].
     pub length: f64,
     /// Its shape.
     pub shape: Shape,
 }
 
 impl Geometry {
-    /// Position [m] and heading [rad] at `ds` [m] from the geometry's start (clamped to it).
+    /// Position \[m\] and heading \[rad\] at `ds` \[m\] from the geometry's start (clamped to it).
     pub fn eval(&self, ds: f64) -> (DVec2, f64) {
         let ds = ds.clamp(0.0, self.length);
         let (sin, cos) = self.hdg.sin_cos();

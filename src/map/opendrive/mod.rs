@@ -37,7 +37,7 @@
 //!
 //! No crate was used for parsing: the package lists this project may install from showed no
 //! Rust OpenDRIVE crate (only Python ones: `pyxodr`, ...), and errors and warnings here must name
-//! the file's line, which quick-xml gives us; the tree in [`xml`] is the same small reader the
+//! the file's line, which quick-xml gives us; the tree in `xml` is the same small reader the
 //! CommonRoad module uses.
 
 mod build;

@@ -19,7 +19,7 @@ use quick_xml::escape::escape;
 
 use crate::map::lanelet::LaneletMap;
 
-/// Linked bound ends further apart than this [m] are not merged.
+/// Linked bound ends further apart than this \[m\] are not merged.
 pub const MERGE_DISTANCE: f64 = 0.05;
 
 /// What [`write_osm`] wrote.

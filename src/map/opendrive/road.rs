@@ -14,21 +14,21 @@ use super::geometry::{Cubic, Geometry, Shape};
 use super::xml::Element;
 use crate::map::error::{Location, MapError, MapWarning};
 
-/// Longest road or geometry accepted [m]: sampling is proportional to length, so a typo such as
+/// Longest road or geometry accepted \[m\]: sampling is proportional to length, so a typo such as
 /// `length="1e12"` in a small file would otherwise ask for billions of points.
 pub const MAX_LENGTH: f64 = 100_000.0;
 
 /// A cubic polynomial record (`laneOffset`, `width`, `border`) starting at `s`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Poly {
-    /// Start along the road [m] (absolute: a lane record's `sOffset` plus its section's `s`).
+    /// Start along the road \[m\] (absolute: a lane record's `sOffset` plus its section's `s`).
     pub s: f64,
     /// a, b, c, d of a + b ds + c ds² + d ds³.
     pub c: [f64; 4],
 }
 
 impl Poly {
-    /// Value at `s` [m].
+    /// Value at `s` \[m\].
     pub fn value(&self, s: f64) -> f64 {
         let x = s - self.s;
         self.c[0] + x * (self.c[1] + x * (self.c[2] + x * self.c[3]))
@@ -51,7 +51,7 @@ pub fn record_at(list: &[Poly], s: f64) -> Option<&Poly> {
 /// A `<roadMark>` record.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RoadMark {
-    /// Start along the road [m] (absolute).
+    /// Start along the road \[m\] (absolute).
     pub s: f64,
     /// `type`: `solid`, `broken`, `solid broken`, `curb`, `none`, ...
     pub kind: String,
@@ -89,9 +89,9 @@ pub struct Lane {
 /// A lane section: lanes from `s` to the next section (or the road's end).
 #[derive(Debug, Clone, PartialEq)]
 pub struct LaneSection {
-    /// Start along the road [m].
+    /// Start along the road \[m\].
     pub s: f64,
-    /// End along the road [m].
+    /// End along the road \[m\].
     pub end: f64,
     /// Left lanes, from the centre out (1, 2, ...).
     pub left: Vec<Lane>,
@@ -144,7 +144,7 @@ pub enum RoadLink {
 pub struct Road {
     /// `id`.
     pub id: String,
-    /// `length` [m].
+    /// `length` \[m\].
     pub length: f64,
     /// `junction` (`-1` outside junctions).
     pub junction: String,
@@ -160,14 +160,14 @@ pub struct Road {
     pub lane_offsets: Vec<Poly>,
     /// Lane sections, in order.
     pub sections: Vec<LaneSection>,
-    /// Road `<type>` speed records: (start [m], limit [m/s]).
+    /// Road `<type>` speed records: (start \[m\], limit [m/s]).
     pub speeds: Vec<(f64, f64)>,
     /// Line of the `<road>` element.
     pub line: usize,
 }
 
 impl Road {
-    /// Reference-line position [m] and heading [rad] at `s` [m].
+    /// Reference-line position \[m\] and heading \[rad\] at `s` \[m\].
     pub fn reference(&self, s: f64) -> (DVec2, f64) {
         self.reference_at(s, s)
     }
@@ -180,7 +180,7 @@ impl Road {
         g.eval(s - g.s)
     }
 
-    /// Lane offset at `s` [m].
+    /// Lane offset at `s` \[m\].
     pub fn offset(&self, s: f64) -> f64 {
         record_at(&self.lane_offsets, s).map_or(0.0, |p| p.value(s))
     }
@@ -222,7 +222,7 @@ pub struct Junction {
 /// A whole parsed file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Document {
-    /// `header/geoReference` origin (lat, lon) [deg], if it gives `+lat_0` and `+lon_0`.
+    /// `header/geoReference` origin (lat, lon) \[deg\], if it gives `+lat_0` and `+lon_0`.
     pub origin: Option<(f64, f64)>,
     /// Roads in file order.
     pub roads: Vec<Road>,
@@ -619,7 +619,7 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// The origin (lat, lon) [deg] of a `geoReference` PROJ string's `+lat_0` and `+lon_0`.
+/// The origin (lat, lon) \[deg\] of a `geoReference` PROJ string's `+lat_0` and `+lon_0`.
 pub fn geo_origin(proj: &str) -> Option<(f64, f64)> {
     let value = |key: &str| {
         proj.split_whitespace().find_map(|w| w.strip_prefix(key)).and_then(|v| v.trim().parse::<f64>().ok())

@@ -32,9 +32,9 @@ use super::super::opendrive::xml::{Element, parse_root};
 pub struct VehicleType {
     /// Type id.
     pub id: String,
-    /// Body length [m].
+    /// Body length \[m\].
     pub length: f64,
-    /// Standstill gap to the leader [m] (IDM s₀).
+    /// Standstill gap to the leader \[m\] (IDM s₀).
     pub min_gap: f64,
     /// Maximum acceleration [m/s²].
     pub accel: f64,
@@ -42,7 +42,7 @@ pub struct VehicleType {
     pub decel: f64,
     /// Top speed [m/s].
     pub max_speed: f64,
-    /// Desired time headway [s] (IDM T).
+    /// Desired time headway \[s\] (IDM T).
     pub tau: f64,
     /// IDM acceleration exponent δ.
     pub delta: f64,
@@ -70,22 +70,22 @@ impl VehicleType {
 /// When the vehicles of a group depart.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Departures {
-    /// At these times [s], sorted.
+    /// At these times \[s\], sorted.
     Times(Vec<f64>),
-    /// One vehicle each second with probability `p`, from `begin` to `end` [s].
+    /// One vehicle each second with probability `p`, from `begin` to `end` \[s\].
     Probability {
-        /// First second [s].
+        /// First second \[s\].
         begin: f64,
-        /// No departure at or after [s].
+        /// No departure at or after \[s\].
         end: f64,
         /// Chance per second.
         p: f64,
     },
-    /// Poisson arrivals of `rate` [1/s] from `begin` to `end` [s] (`period="exp(rate)"`).
+    /// Poisson arrivals of `rate` [1/s] from `begin` to `end` \[s\] (`period="exp(rate)"`).
     Poisson {
-        /// Start [s].
+        /// Start \[s\].
         begin: f64,
-        /// End [s].
+        /// End \[s\].
         end: f64,
         /// Rate [1/s].
         rate: f64,
@@ -329,9 +329,9 @@ impl<'a> Reader<'a> {
 
 impl Demand {
     /// Read `files` (in order: a type or route defined in one is seen by the later ones) for
-    /// the SUMO network `map`, with the clock starting at SUMO time `begin` [s] (a `.sumocfg`'s
+    /// the SUMO network `map`, with the clock starting at SUMO time `begin` \[s\] (a `.sumocfg`'s
     /// `begin`: departures before it are dropped, the others move `begin` earlier); departures
-    /// more than `until` [s] after `begin` are dropped.
+    /// more than `until` \[s\] after `begin` are dropped.
     pub fn load(files: &[PathBuf], map: &LaneletMap, begin: f64, until: f64) -> Result<Demand, MapError> {
         let mut r = Reader::new(map, begin + until);
         for f in files {

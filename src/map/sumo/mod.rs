@@ -51,7 +51,7 @@ use super::opendrive::xml::{Element, parse_root};
 use super::polyline::{polyline_length, resample_count};
 use super::projection::Projector;
 
-/// SUMO's default lane width [m] (`netconvert --default.lanewidth`).
+/// SUMO's default lane width \[m\] (`netconvert --default.lanewidth`).
 pub const DEFAULT_WIDTH: f64 = 3.2;
 
 /// Whether `text` is a SUMO network (its root element is `<net>`).
@@ -166,7 +166,7 @@ impl Cx<'_> {
     }
 }
 
-/// The polyline `points` moved sideways by `d` [m] (positive: to the left of its direction),
+/// The polyline `points` moved sideways by `d` \[m\] (positive: to the left of its direction),
 /// each vertex along the mitre of its two segments (the mitre stretch capped at 1/0.3).
 pub fn offset_polyline(points: &[DVec2], d: f64) -> Vec<DVec2> {
     let n = points.len();

@@ -122,9 +122,9 @@ pub struct GoalResult {
     /// Whether the ego reached a goal state without colliding before (a goal reached after a
     /// collision does not count).
     pub reached: bool,
-    /// Sim time it first did [s].
+    /// Sim time it first did \[s\].
     pub time: Option<f64>,
-    /// Sim time of the ego's first collision [s], if it collided before reaching the goal
+    /// Sim time of the ego's first collision \[s\], if it collided before reaching the goal
     /// (`reached` is then false).
     pub collision: Option<f64>,
 }

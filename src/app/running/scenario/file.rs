@@ -111,7 +111,7 @@ pub struct ScenarioFile {
     /// Seed of the run [-].
     #[serde(default)]
     pub seed: u64,
-    /// Default duration [s].
+    /// Default duration \[s\].
     #[serde(default = "default_duration")]
     pub duration: f64,
     /// Map file, relative to the scenario file.
@@ -159,7 +159,7 @@ pub struct ScenarioFile {
     /// ([`crate::map::sumo::demand`]).
     #[serde(default)]
     pub demand: Vec<PathBuf>,
-    /// SUMO time at which this run starts [s] (a `.sumocfg`'s `begin`): demand departing
+    /// SUMO time at which this run starts \[s\] (a `.sumocfg`'s `begin`): demand departing
     /// earlier is dropped, later departures come `demand_begin` s earlier.
     #[serde(default)]
     pub demand_begin: f64,
@@ -187,7 +187,7 @@ pub struct TrafficLightConfig {
 pub struct RsuConfig {
     /// Where it stands.
     pub at: RsuAt,
-    /// Its wifi range [m], inclusive (default 300).
+    /// Its wifi range \[m\], inclusive (default 300).
     #[serde(default = "default_rsu_range")]
     pub range: f64,
     /// What it broadcasts: `"merge_zone"` (the merge zone starts here).
@@ -198,14 +198,14 @@ fn default_rsu_range() -> f64 {
     300.0
 }
 
-/// `at = { x = .., y = .. }` [m] or `at = { node = NODE }` (a node id or tag value).
+/// `at = { x = .., y = .. }` \[m\] or `at = { node = NODE }` (a node id or tag value).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RsuAt {
-    /// x [m].
+    /// x \[m\].
     #[serde(default)]
     pub x: Option<f64>,
-    /// y [m].
+    /// y \[m\].
     #[serde(default)]
     pub y: Option<f64>,
     /// A node of the map.
@@ -388,21 +388,21 @@ pub struct OutputSection {
     pub mcap: Option<PathBuf>,
 }
 
-/// `[rates]`, all [Hz].
+/// `[rates]`, all \[Hz\].
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RatesConfig {
-    /// Dynamics [Hz].
+    /// Dynamics \[Hz\].
     pub dynamics: f64,
-    /// Sensors [Hz].
+    /// Sensors \[Hz\].
     pub sensors: f64,
-    /// Controllers [Hz].
+    /// Controllers \[Hz\].
     pub control: f64,
-    /// Wifi rounds [Hz].
+    /// Wifi rounds \[Hz\].
     pub wifi: f64,
-    /// Network rounds [Hz].
+    /// Network rounds \[Hz\].
     pub network: f64,
-    /// Trajectory log [Hz].
+    /// Trajectory log \[Hz\].
     pub log: f64,
 }
 
@@ -424,7 +424,7 @@ impl Default for RatesConfig {
 #[derive(Debug, Clone, Copy, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct V2vSection {
-    /// Wifi range [m], inclusive (the older spelling of `[v2v.wifi] range`).
+    /// Wifi range \[m\], inclusive (the older spelling of `[v2v.wifi] range`).
     pub wifi_range: Option<f64>,
     /// `[v2v.wifi]`: range, loss, bursts, delay.
     pub wifi: ChannelSection,
@@ -433,7 +433,7 @@ pub struct V2vSection {
 }
 
 impl V2vSection {
-    /// The wifi range [m]: `wifi.range`, else `wifi_range`, else the default 50 m.
+    /// The wifi range \[m\]: `wifi.range`, else `wifi_range`, else the default 50 m.
     pub fn range(&self) -> f64 {
         self.wifi.range.or(self.wifi_range).unwrap_or(V2vConfig::default().wifi_range)
     }
@@ -443,15 +443,15 @@ impl V2vSection {
 #[derive(Debug, Clone, Copy, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct ChannelSection {
-    /// Range [m] (wifi only).
+    /// Range \[m\] (wifi only).
     pub range: Option<f64>,
     /// `loss = 0.1` (per reception) or `loss = { model = "distance", p_at_0, p_at_range }`.
     pub loss: LossConfig,
     /// `burst = { p_enter, p_leave, loss_in_burst }`: Gilbert-Elliott, per link.
     pub burst: Option<BurstConfig>,
-    /// Delivery delay [ms].
+    /// Delivery delay \[ms\].
     pub delay_ms: f64,
-    /// Extra delay, uniform in [0, jitter_ms) [ms].
+    /// Extra delay, uniform in [0, jitter_ms) \[ms\].
     pub jitter_ms: f64,
 }
 
@@ -546,10 +546,10 @@ pub struct VehicleConfig {
     /// Class.
     #[serde(default)]
     pub class: VehicleClass,
-    /// Length [m] (default 4.12).
+    /// Length \[m\] (default 4.12).
     #[serde(default)]
     pub length: Option<f64>,
-    /// Width [m] (default 1.7).
+    /// Width \[m\] (default 1.7).
     #[serde(default)]
     pub width: Option<f64>,
     /// Dynamics model.
@@ -617,25 +617,25 @@ fn yes() -> bool {
 pub enum ModelConfig {
     /// Kinematic unicycle (speed command).
     Kinematic {
-        /// Wheelbase [m].
+        /// Wheelbase \[m\].
         #[serde(default = "default_wheelbase")]
         wheelbase: f64,
-        /// Steering limit [rad].
+        /// Steering limit \[rad\].
         #[serde(default = "default_max_steering")]
         max_steering: f64,
     },
     /// Acceleration unicycle (throttle command).
     Acceleration {
-        /// Wheelbase [m].
+        /// Wheelbase \[m\].
         #[serde(default = "default_wheelbase")]
         wheelbase: f64,
-        /// Mass [kg].
+        /// Mass \[kg\].
         #[serde(default = "default_mass")]
         mass: f64,
         /// Drag [N s/m].
         #[serde(default = "default_drag")]
         drag: f64,
-        /// Steering limit [rad].
+        /// Steering limit \[rad\].
         #[serde(default = "default_max_steering")]
         max_steering: f64,
     },
@@ -687,16 +687,16 @@ pub struct StartConfig {
     /// A node to start at (projected onto the route if there is one).
     #[serde(default)]
     pub at: Option<NodeRef>,
-    /// Distance along the route from the route start (or from `at`) [m].
+    /// Distance along the route from the route start (or from `at`) \[m\].
     #[serde(default)]
     pub offset: Option<f64>,
-    /// Position x [m].
+    /// Position x \[m\].
     #[serde(default)]
     pub x: Option<f64>,
-    /// Position y [m].
+    /// Position y \[m\].
     #[serde(default)]
     pub y: Option<f64>,
-    /// Heading [rad] (default: the route's heading there, else 0).
+    /// Heading \[rad\] (default: the route's heading there, else 0).
     #[serde(default)]
     pub yaw: Option<f64>,
 }
@@ -720,9 +720,9 @@ pub struct SensorsConfig {
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RadarConfig {
-    /// Full opening angle [deg] (converted to radians for the simulation).
+    /// Full opening angle \[deg\] (converted to radians for the simulation).
     pub angle_deg: f64,
-    /// Range [m].
+    /// Range \[m\].
     pub range: f64,
     /// Gaussian measurement noise (none by default).
     pub noise: NoiseConfig,
@@ -749,7 +749,7 @@ impl Default for RadarConfig {
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct VelodyneConfig {
-    /// Range [m].
+    /// Range \[m\].
     pub range: f64,
     /// Gaussian measurement noise (none by default).
     pub noise: NoiseConfig,
@@ -823,10 +823,10 @@ pub enum BuiltInController {
         /// Cruise speed [m/s].
         #[serde(default = "default_cruise")]
         speed: f64,
-        /// Shortest look-ahead [m].
+        /// Shortest look-ahead \[m\].
         #[serde(default = "default_lookahead_min")]
         lookahead_min: f64,
-        /// Look-ahead time [s].
+        /// Look-ahead time \[s\].
         #[serde(default = "default_lookahead_time")]
         lookahead_time: f64,
         /// Throttle speed gain [1/s].

@@ -62,7 +62,7 @@ fn lab_error(key: &str, problem: impl Into<String>) -> LabError {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LabConfig {
-    /// Lab floor to world factor [-] (default 32): world [m] = lab [m] * scale.
+    /// Lab floor to world factor [-] (default 32): world \[m\] = lab \[m\] * scale.
     #[serde(default = "default_scale")]
     pub scale: f64,
     /// Motion capture input, if any.
@@ -94,10 +94,10 @@ pub struct MocapConfig {
     /// `TakeControl` password, when this client is not the master.
     #[serde(default)]
     pub password: Option<String>,
-    /// Frame polls per second [Hz] (default 24).
+    /// Frame polls per second \[Hz\] (default 24).
     #[serde(default = "default_poll_rate")]
     pub poll_rate: f64,
-    /// A body unseen for longer than this marks its vehicle stale [s] (default 0.5).
+    /// A body unseen for longer than this marks its vehicle stale \[s\] (default 0.5).
     #[serde(default = "default_stale_after")]
     pub stale_after: f64,
 }
@@ -119,17 +119,17 @@ pub struct TrucksConfig {
     /// Vehicle k listens on `base_port + k` (default 16000; 0: free ports, for tests).
     #[serde(default = "default_base_port")]
     pub base_port: u16,
-    /// Status lines per second [Hz] (default 20).
+    /// Status lines per second \[Hz\] (default 20).
     #[serde(default = "default_truck_rate")]
     pub rate: f64,
-    /// Gap the trucks are asked to keep to their leader [m] (world units, default 20).
+    /// Gap the trucks are asked to keep to their leader \[m\] (world units, default 20).
     #[serde(default = "default_desired_distance")]
     pub desired_distance: f64,
     /// A vehicle counts as on the truck's lane when its centre is at most this far from the
-    /// lane's centre line [m] (default 2, half of a 4 m lane).
+    /// lane's centre line \[m\] (default 2, half of a 4 m lane).
     #[serde(default = "default_lane_half_width")]
     pub lane_half_width: f64,
-    /// Longest gap looked for [m] (default 100); with no leader closer, this is sent.
+    /// Longest gap looked for \[m\] (default 100); with no leader closer, this is sent.
     #[serde(default = "default_max_gap")]
     pub max_gap: f64,
 }
