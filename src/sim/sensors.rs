@@ -69,11 +69,18 @@ impl SensorStats {
 }
 
 /// Footprint of a grid entry for occlusion: half length, half width [m] and yaw [rad].
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Footprint {
     half_length: f64,
     half_width: f64,
     yaw: f64,
+}
+
+impl Footprint {
+    /// The footprint of a vehicle of `size` heading `yaw` [rad].
+    pub fn new(size: VehicleSize, yaw: f64) -> Footprint {
+        Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw }
+    }
 }
 
 /// Angle wrapped into (−π, π] [rad].
@@ -84,7 +91,7 @@ fn wrap(a: f64) -> f64 {
 
 /// The angular extent of footprint `f` centred at `relative` [m] from the sensor: the bearing
 /// of its centre and the lowest and highest bearing of its corners relative to it [rad].
-fn extent(relative: DVec2, f: &Footprint) -> (f64, f64, f64) {
+pub(crate) fn extent(relative: DVec2, f: &Footprint) -> (f64, f64, f64) {
     let centre = relative.y.atan2(relative.x);
     let (along, across) = (DVec2::from_angle(f.yaw) * f.half_length, DVec2::from_angle(f.yaw).perp() * f.half_width);
     let (mut lo, mut hi) = (0.0f64, 0.0f64);
@@ -98,7 +105,7 @@ fn extent(relative: DVec2, f: &Footprint) -> (f64, f64, f64) {
 }
 
 /// Whether extent `inner` lies inside extent `outer` (both as [`extent`] gives them).
-fn covers(outer: (f64, f64, f64), inner: (f64, f64, f64)) -> bool {
+pub(crate) fn covers(outer: (f64, f64, f64), inner: (f64, f64, f64)) -> bool {
     let d = wrap(inner.0 - outer.0);
     d + inner.1 >= outer.1 && d + inner.2 <= outer.2
 }
@@ -152,19 +159,19 @@ impl Draws {
 /// as REFERENCE "Channels" asks (nothing depends on threads or order), at two hashes per noisy
 /// kept detection instead of a per-pair counter hash and a hash per word after it.
 #[derive(Debug, Clone, Copy)]
-struct SensorKeys {
+pub(crate) struct SensorKeys {
     word: [u64; 3],
 }
 
 impl SensorKeys {
-    fn new(seed: u64, stream: u64, now_us: u64) -> SensorKeys {
+    pub(crate) fn new(seed: u64, stream: u64, now_us: u64) -> SensorKeys {
         let tick = key(seed, stream, now_us);
         SensorKeys { word: std::array::from_fn(|k| mix(tick ^ k as u64)) }
     }
 
     /// The draws of the pair (observer, target) this tick ([`PairDraws`]).
     #[inline]
-    fn pair(&self, observer: VehicleId, target: VehicleId) -> PairDraws<'_> {
+    pub(crate) fn pair(&self, observer: VehicleId, target: VehicleId) -> PairDraws<'_> {
         let pair = Draws::pair(observer, target);
         PairDraws { keys: self, pair, first: mix(self.word[0] ^ pair) }
     }
@@ -178,7 +185,7 @@ impl SensorKeys {
 /// own part of the rare continuation, keyed by word 2's key and the pair). So a dropped
 /// detection costs one hash and a kept noisy one two.
 #[derive(Debug, Clone, Copy)]
-struct PairDraws<'a> {
+pub(crate) struct PairDraws<'a> {
     keys: &'a SensorKeys,
     pair: u64,
     first: u64,
@@ -188,7 +195,7 @@ impl PairDraws<'_> {
     /// Whether the detection survives a dropout of probability `dropout`: the high 16 bits of
     /// word 0 as a uniform of 2⁻¹⁶ resolution at or above it.
     #[inline]
-    fn kept(&self, dropout: f64) -> bool {
+    pub(crate) fn kept(&self, dropout: f64) -> bool {
         // Through u32: its conversion to f64 is one instruction, a u64's a branchy sequence.
         f64::from((self.first >> 48) as u32) >= dropout * 65_536.0
     }
@@ -196,7 +203,7 @@ impl PairDraws<'_> {
     /// The four standard normals of the noise: range, bearing, x and y velocity. Always
     /// inlined: returned through memory, the four were read back before their stores retired.
     #[inline(always)]
-    fn normals(&self) -> [f64; 4] {
+    pub(crate) fn normals(&self) -> [f64; 4] {
         let w1 = mix(self.keys.word[1] ^ self.pair);
         let more = self.keys.word[2] ^ self.pair;
         // 24 bits as `normal_half`'s 32: the high 16 as its uniform's top, the low 8 its layer.
@@ -762,6 +769,22 @@ const REACH: u32 = 0b11 << 30;
 const RADAR_REACH: u32 = 1 << 31;
 const VELODYNE_REACH: u32 = 1 << 30;
 
+/// The name of the radar's detections ([`Detection::sensor`]).
+pub const RADAR: &str = "radar";
+/// The name of the velodyne's detections.
+pub const VELODYNE: &str = "velodyne";
+/// The name of an omniscient sensor's detections.
+pub const OMNISCIENT: &str = "omniscient";
+
+/// Which built-in sensor a detection with key low word `low` is named after: the radar where it
+/// reaches the target, else the velodyne where it does, else the omniscient sensor (by the two
+/// reach bits, one table look-up).
+#[inline]
+fn reached_by(low: u32) -> &'static str {
+    const BY_REACH: [&str; 4] = [OMNISCIENT, VELODYNE, RADAR, RADAR];
+    BY_REACH[(low >> 30) as usize]
+}
+
 /// The cone of a vehicle without a radar (never consulted: its radar range is negative).
 const NO_CONE: Cone = Cone { heading: DVec2::ZERO, cos_half: 1.0, cos_half2: 1.0, everything: false };
 
@@ -771,7 +794,7 @@ fn write_readings(found: &mut [u64], grid: &impl Targets, from: DVec2, readings:
     readings.0.clear();
     readings.0.extend(found.iter().map(|&key| {
         let e = grid.target(key as u32 & !REACH);
-        Detection { id: e.id, position: e.position, velocity: e.velocity }
+        Detection { id: e.id, position: e.position, velocity: e.velocity, sensor: reached_by(key as u32) }
     }));
 }
 
@@ -827,7 +850,12 @@ fn write_imperfect_readings(
             }
             continue;
         };
-        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
+        let sensor = match (radar_kept, velodyne_kept) {
+            (true, _) => RADAR,
+            (false, true) => VELODYNE,
+            _ => reached_by(low),
+        };
+        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity, sensor };
         if let Some((err, keys)) = noise.filter(|(err, _)| err.is_noisy()) {
             add_noise(&mut detection, sight.position, relative, d2, err, keys.pair(sight.id, e.id).normals());
         }
@@ -840,7 +868,7 @@ fn write_imperfect_readings(
 /// `position`) by the range, bearing and velocity errors of `err`, with the standard normals
 /// `normals` (range, bearing, x and y velocity: [`PairDraws::normals`]).
 #[inline]
-fn add_noise(
+pub(crate) fn add_noise(
     detection: &mut Detection,
     position: DVec2,
     relative: DVec2,
@@ -886,7 +914,7 @@ fn write_radar_error_readings(
     for &key in found.iter() {
         let low = key as u32;
         let e = grid.target(low & !REACH);
-        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
+        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity, sensor: reached_by(low) };
         if !sight.omniscient() && low & RADAR_REACH != 0 && (dropout || noisy) {
             let pair = draws.radar.pair(sight.id, e.id);
             if !dropout || pair.kept(err.dropout) {
@@ -898,6 +926,8 @@ fn write_radar_error_readings(
             } else if low & VELODYNE_REACH == 0 {
                 stats.missed_by_dropout += 1;
                 continue;
+            } else {
+                detection.sensor = VELODYNE;
             }
         }
         readings.0.push(detection);

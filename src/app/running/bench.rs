@@ -207,7 +207,7 @@ impl BenchWorld {
         b.add_systems(Control, send_wifi_beacons.in_set(SimSystems::Control).run_if(at_rate(rates.wifi)));
         if self.degraded {
             let wifi_range = V2vConfig::default().wifi_range;
-            b.insert_resource(V2vConfig { wifi_range, wifi: DEGRADED_WIFI, network: DEGRADED_NETWORK });
+            b.insert_resource(V2vConfig { wifi_range, wifi: DEGRADED_WIFI.clone(), network: DEGRADED_NETWORK.clone() });
             b.insert_resource(SimSeed(1));
         }
         self.spawn_in(&mut b, order)?;

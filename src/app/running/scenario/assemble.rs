@@ -8,8 +8,8 @@ use glam::DVec2;
 
 use super::commonroad::{GoalMonitor, add_goal_monitor, spawn_obstacles};
 use super::file::{
-    BuiltInController, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RouteConfig, SensorsConfig, StartConfig,
-    TrafficLanes, TrafficRoute, VehicleConfig,
+    BuiltInController, ChannelSection, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RouteConfig,
+    SensorsConfig, StartConfig, TrafficLanes, TrafficRoute, VehicleConfig,
 };
 use super::lab::add_lab_plugins;
 use super::{Scenario, ScenarioError};
@@ -104,9 +104,12 @@ impl Scenario {
         b.insert_resource(SimSeed(self.file.seed));
         b.add_plugin(default_plugins);
         let v2v = &self.file.v2v;
-        b.add_plugin(V2vPlugin {
-            config: V2vConfig { wifi_range: v2v.range(), wifi: v2v.wifi.model(), network: v2v.network.model() },
-        });
+        let models = b.controllers().channel_models();
+        let model = |name: &str, ch: &ChannelSection| {
+            ch.model(models).map_err(|(key, problem)| self.invalid(format!("v2v.{name}.{key}"), problem))
+        };
+        let (wifi, network) = (model("wifi", &v2v.wifi)?, model("network", &v2v.network)?);
+        b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: v2v.range(), wifi, network } });
         b.add_plugin(PathFollowingPlugin);
         b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default()).add_plugin(TripsPlugin);
         if let Some(map) = &self.map {

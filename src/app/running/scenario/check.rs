@@ -10,6 +10,7 @@ use super::file::{
     VehicleConfig,
 };
 use crate::sim::ControllerRegistry;
+use crate::sim::channel_models::ChannelModelRegistry;
 use crate::sim::params::{MAX_DISTANCE, MAX_GAIN, MAX_SPEED, MAX_TIME, MAX_VEHICLE_SIZE, Range};
 
 /// Builds the errors of one file: each names the key and what is allowed.
@@ -46,7 +47,7 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
         // At most 1e6 Hz: one tick per microsecond.
         c.within(format!("rates.{k}"), v, Range::positive(1e6))?;
     }
-    check_v2v(&c, &file.v2v)?;
+    check_v2v(&c, &file.v2v, controllers.channel_models())?;
     file.emergency.check().map_err(|e| c.invalid(format!("emergency.{}", e.key), &e.problem))?;
     file.junctions.check().map_err(|e| c.invalid(format!("junctions.{}", e.key), &e.problem))?;
     for (k, light) in file.traffic_lights.iter().enumerate() {
@@ -170,7 +171,7 @@ fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> R
 
 /// The checks of one `[[vehicles]]` entry (index `i`).
 /// `[v2v]`: one range key, probabilities in [0, 1], delays in [0, 60 s].
-fn check_v2v(c: &Checker, v2v: &V2vSection) -> Result<(), ScenarioError> {
+fn check_v2v(c: &Checker, v2v: &V2vSection, models: &ChannelModelRegistry) -> Result<(), ScenarioError> {
     if let (Some(_), Some(_)) = (v2v.wifi_range, v2v.wifi.range) {
         return Err(c.invalid("v2v.wifi_range".into(), "and `v2v.wifi.range` both set the wifi range; keep one"));
     }
@@ -179,12 +180,8 @@ fn check_v2v(c: &Checker, v2v: &V2vSection) -> Result<(), ScenarioError> {
     }
     c.within("v2v.wifi.range".into(), v2v.range(), Range::non_negative(MAX_DISTANCE))?;
     for (name, ch) in [("wifi", &v2v.wifi), ("network", &v2v.network)] {
-        match ch.loss {
-            LossConfig::Constant(p) => c.within(format!("v2v.{name}.loss"), p, Range::non_negative(1.0))?,
-            LossConfig::Distance { p_at_0, p_at_range } => {
-                c.within(format!("v2v.{name}.loss.p_at_0"), p_at_0, Range::non_negative(1.0))?;
-                c.within(format!("v2v.{name}.loss.p_at_range"), p_at_range, Range::non_negative(1.0))?;
-            }
+        if let LossConfig::Constant(p) = ch.loss {
+            c.within(format!("v2v.{name}.loss"), p, Range::non_negative(1.0))?;
         }
         if let Some(b) = ch.burst {
             c.within(format!("v2v.{name}.burst.p_enter"), b.p_enter, Range::non_negative(1.0))?;
@@ -193,6 +190,7 @@ fn check_v2v(c: &Checker, v2v: &V2vSection) -> Result<(), ScenarioError> {
         }
         c.within(format!("v2v.{name}.delay_ms"), ch.delay_ms, Range::non_negative(60_000.0))?;
         c.within(format!("v2v.{name}.jitter_ms"), ch.jitter_ms, Range::non_negative(60_000.0))?;
+        ch.model(models).map_err(|(key, problem)| c.invalid(format!("v2v.{name}.{key}"), &problem))?;
     }
     Ok(())
 }
