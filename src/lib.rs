@@ -43,7 +43,7 @@ pub mod prelude {
         Payload, Radar, Route, SensorReadings, SensorSet, SimTime, VehicleClass, VehicleId, VehicleModel, VehicleSize,
         VehicleSpec, VehicleState, Vehicles, Velodyne,
     };
-    pub use bevy_ecs::prelude::{Component, EntityWorldMut, Query, Res, ResMut};
+    pub use bevy_ecs::prelude::{Component, EntityWorldMut, Local, Query, Res, ResMut};
     pub use bevy_ecs::schedule::IntoScheduleConfigs;
     pub use glam::DVec2;
 }

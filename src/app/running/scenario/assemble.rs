@@ -238,6 +238,19 @@ impl Scenario {
         if let Some(trip) = trip {
             b.world_mut().entity_mut(entity).insert(trip);
         }
+        for (name, params) in &v.sensors.plugins {
+            let sensor = match b.controllers().sensors().parse(name, params.clone()) {
+                Some(Ok(sensor)) => sensor,
+                Some(Err(e)) => return Err(self.invalid(key(&format!("sensors.{name}.{}", e.key)), e.problem)),
+                None => {
+                    let known = b.controllers().sensors().known_list();
+                    let problem =
+                        format!("names no known sensor: `{name}` (known: {known}); add the plugin that registers it");
+                    return Err(self.invalid(key(&format!("sensors.{name}")), problem));
+                }
+            };
+            sensor.attach(&mut b.world_mut().entity_mut(entity));
+        }
         match &v.controller {
             Some(ControllerConfig::BuiltIn(BuiltInController::PathFollowing {
                 speed,

@@ -135,6 +135,12 @@ fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> R
     if t.classes.values().sum::<f64>() <= 0.0 {
         return Err(c.invalid(key("classes"), "needs a share above 0, e.g. { car = 1.0 }"));
     }
+    if let Some(name) = t.sensors.plugins.keys().next() {
+        return Err(c.invalid(
+            key(&format!("sensors.{name}")),
+            "is not a built-in sensor (radar, velodyne, omniscient): traffic takes built-in sensors only; put a plugin sensor on a [[vehicles]] entry",
+        ));
+    }
     if let Some(r) = t.sensors.radar {
         check_sensor_errors(c, &key("sensors.radar"), &r.noise, r.dropout)?;
     }
@@ -258,6 +264,23 @@ fn check_vehicle(
         }
         if let Some(yaw) = s.yaw {
             c.within(key("start.yaw"), yaw, Range::between(-1e3, 1e3))?;
+        }
+    }
+    for (name, params) in &v.sensors.plugins {
+        let at = key(&format!("sensors.{name}"));
+        match controllers.sensors().parse(name, params.clone()) {
+            None => {
+                return Err(c.invalid(
+                    at,
+                    &format!(
+                        "names no known sensor: `{name}` (known: {}); a sensor of your own must be registered by its plugin (SimBuilder::register_sensor) before the scenario is loaded",
+                        controllers.sensors().known_list()
+                    ),
+                ));
+            }
+            Some(Ok(_)) => {}
+            Some(Err(e)) if e.key.is_empty() => return Err(c.invalid(at, &e.problem)),
+            Some(Err(e)) => return Err(c.invalid(format!("{at}.{}", e.key), &e.problem)),
         }
     }
     if let Some(r) = v.sensors.radar {

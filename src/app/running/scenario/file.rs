@@ -359,7 +359,7 @@ fn default_traffic_lane_change() -> LaneChangeSetting {
     LaneChangeSetting(Some(LaneChangeParams::default()))
 }
 pub(crate) fn default_traffic_sensors() -> SensorsConfig {
-    SensorsConfig { radar: Some(RadarConfig::default()), velodyne: None, omniscient: false }
+    SensorsConfig { radar: Some(RadarConfig::default()), ..SensorsConfig::default() }
 }
 
 /// What to do with a CommonRoad map's obstacles.
@@ -710,19 +710,55 @@ pub struct StartConfig {
     pub yaw: Option<f64>,
 }
 
-/// `sensors = { radar, velodyne, omniscient }`.
-#[derive(Debug, Clone, Copy, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// `sensors = { radar, velodyne, omniscient, NAME = { .. } }`: the built-in sensors, and those
+/// of plugins by their registered names.
+#[derive(Debug, Clone, Default)]
 pub struct SensorsConfig {
     /// Radar cone.
-    #[serde(default)]
     pub radar: Option<RadarConfig>,
     /// Velodyne circle.
-    #[serde(default)]
     pub velodyne: Option<VelodyneConfig>,
     /// Sees everyone.
-    #[serde(default)]
     pub omniscient: bool,
+    /// Plugin sensors: name -> their table, parsed by the sensor registered under that name
+    /// ([`crate::sim::sensor_plugins::SensorRegistry`]) when the scenario is checked.
+    pub plugins: std::collections::BTreeMap<String, toml::Table>,
+}
+
+impl<'de> Deserialize<'de> for SensorsConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<SensorsConfig, D::Error> {
+        use serde::de::Error;
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct BuiltIn {
+            #[serde(default)]
+            radar: Option<RadarConfig>,
+            #[serde(default)]
+            velodyne: Option<VelodyneConfig>,
+            #[serde(default)]
+            omniscient: bool,
+        }
+        let mut table = toml::Table::deserialize(d)?;
+        let names: Vec<String> =
+            table.keys().filter(|k| !["radar", "velodyne", "omniscient"].contains(&k.as_str())).cloned().collect();
+        let mut plugins = std::collections::BTreeMap::new();
+        for name in names {
+            match table.remove(&name) {
+                Some(toml::Value::Table(t)) => {
+                    plugins.insert(name, t);
+                }
+                other => {
+                    return Err(D::Error::custom(format!(
+                        "`{name}` is {}: a plugin sensor's settings are a table (`{name} = {{ range = 50.0 }}`); the built-in sensors are radar, velodyne and omniscient",
+                        other.map_or("missing".to_string(), |v| v.to_string())
+                    )));
+                }
+            }
+        }
+        let b: BuiltIn =
+            toml::Value::Table(table).try_into().map_err(|e: toml::de::Error| D::Error::custom(e.message()))?;
+        Ok(SensorsConfig { radar: b.radar, velodyne: b.velodyne, omniscient: b.omniscient, plugins })
+    }
 }
 
 /// `radar = { angle_deg, range, noise, dropout, occlusion }`.
