@@ -25,6 +25,10 @@ pub mod sim;
 pub mod vehicles;
 pub mod world;
 
+/// The crate under its own name, so that `examples/student_sensor.rs` (written as a student writes
+/// a plugin, against `smlworld::`) compiles inside the benchmark (`bench --plugin-sensor-share`).
+extern crate self as smlworld;
+
 /// The names most users need: `use smlworld::prelude::*;` (including the few bevy_ecs names a
 /// controller plugin needs, so a student's file needs no other import).
 pub mod prelude {
