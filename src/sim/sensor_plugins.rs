@@ -42,7 +42,7 @@ use serde::de::DeserializeOwned;
 use super::controllers::ControllerParamError;
 use super::grid::{GridEntry, SpatialGrid};
 use super::random::{key, mix};
-use super::sensors::{Footprint, SensorKeys, SensorStats, add_noise, covers, extent};
+use super::sensors::{Footprint, SensorKeys, SensorStats, add_noise};
 use crate::world::{Detection, SensorError, SensorReadings, SimTime, VehicleId, VehicleSize, VehicleState};
 
 /// A sensor a scenario can name: the keys of its table in a vehicle's `sensors` are
@@ -333,10 +333,15 @@ fn stream_of(name: &str) -> u64 {
 
 /// Occlusion as the built-in sensors judge it: a target is hidden when its angular extent lies
 /// inside one nearer target's. Feed the candidates nearest first; one per observer and tick
-/// ([`Occlusion::clear`]), its buffer reused.
+/// ([`Occlusion::clear`]), its buffer reused. The extents are kept as the directions of their
+/// outermost corners and compared by cross products (no trigonometry but one `sin_cos` per
+/// target): the same containment as the built-in sensors' angles for any target that spans
+/// less than a right angle, as every vehicle does from outside it.
 #[derive(Debug, Clone, Default)]
 pub struct Occlusion {
-    extents: Vec<(f64, f64, f64)>,
+    /// Each nearer target's (clockwise-most, counter-clockwise-most) corner [m], relative to the
+    /// observer.
+    extents: Vec<(DVec2, DVec2)>,
 }
 
 impl Occlusion {
@@ -348,11 +353,35 @@ impl Occlusion {
     /// Whether `target` (nearer than every one given after it) is hidden from `from` by one
     /// given before; it then hides those behind it in turn.
     pub fn hidden(&mut self, from: DVec2, target: &Neighbour) -> bool {
-        let ext = extent(target.position - from, &target.footprint);
-        let hidden = self.extents.iter().any(|&nearer| covers(nearer, ext));
-        self.extents.push(ext);
+        let (inner_right, inner_left) = corner_extent(target.position - from, &target.footprint);
+        let inside = |&(right, left): &(DVec2, DVec2)| {
+            right.dot(inner_right) > 0.0
+                && left.dot(inner_left) > 0.0
+                && right.perp_dot(inner_right) >= 0.0
+                && inner_left.perp_dot(left) >= 0.0
+        };
+        let hidden = self.extents.iter().any(inside);
+        self.extents.push((inner_right, inner_left));
         hidden
     }
+}
+
+/// The clockwise-most and counter-clockwise-most corners of footprint `f` centred at
+/// `relative` [m] from the observer.
+fn corner_extent(relative: DVec2, f: &Footprint) -> (DVec2, DVec2) {
+    let (along, across) = f.axes();
+    let corners =
+        [relative + along + across, relative + along - across, relative - along + across, relative - along - across];
+    let (mut right, mut left) = (corners[0], corners[0]);
+    for &c in &corners[1..] {
+        if right.perp_dot(c) < 0.0 {
+            right = c;
+        }
+        if left.perp_dot(c) > 0.0 {
+            left = c;
+        }
+    }
+    (right, left)
 }
 
 /// Detections and misses of each plugin sensor, by name (`summary.json`
@@ -378,5 +407,38 @@ impl SensorReadings {
     /// The detections of sensor `name`.
     pub fn of<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a Detection> + 'a {
         self.0.iter().filter(move |d| d.sensor == name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::random::uniform;
+    use crate::sim::sensors::{covers, extent};
+
+    #[test]
+    fn occlusion_by_corners_is_the_built_in_rule_of_angles() {
+        let neighbour = |k: u64, near: bool| {
+            let (d, spread) =
+                if near { (8.0 + 20.0 * uniform(5, 1, k, 0), 0.3) } else { (30.0 + 40.0 * uniform(5, 1, k, 0), 0.3) };
+            let bearing = spread * (uniform(5, 1, k, 1) - 0.5);
+            let size = VehicleSize { length: 3.0 + 10.0 * uniform(5, 1, k, 2), width: 1.5 + uniform(5, 1, k, 3) };
+            let yaw = std::f64::consts::TAU * uniform(5, 1, k, 4);
+            let position = DVec2::from_angle(bearing) * d;
+            let footprint = Footprint::new(size, yaw);
+            Neighbour { id: VehicleId(k as i32), position, velocity: DVec2::ZERO, distance_squared: d * d, footprint }
+        };
+        let (mut agree, mut hidden) = (0, 0);
+        for k in 0..20_000u64 {
+            let (near, far) = (neighbour(2 * k, true), neighbour(2 * k + 1, false));
+            let mut occlusion = Occlusion::default();
+            occlusion.hidden(DVec2::ZERO, &near);
+            let ours = occlusion.hidden(DVec2::ZERO, &far);
+            let built_in = covers(extent(near.position, &near.footprint), extent(far.position, &far.footprint));
+            assert_eq!(ours, built_in, "pair {k}: {near:?} {far:?}");
+            agree += 1;
+            hidden += usize::from(ours);
+        }
+        assert!(hidden > 1000 && hidden < agree - 1000, "{hidden} of {agree} hidden: both outcomes tested");
     }
 }

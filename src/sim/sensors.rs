@@ -81,6 +81,12 @@ impl Footprint {
     pub fn new(size: VehicleSize, yaw: f64) -> Footprint {
         Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw }
     }
+
+    /// Half its length along its heading and half its width across it, as vectors [m].
+    pub(crate) fn axes(&self) -> (DVec2, DVec2) {
+        let heading = DVec2::from_angle(self.yaw);
+        (heading * self.half_length, heading.perp() * self.half_width)
+    }
 }
 
 /// Angle wrapped into (−π, π] [rad].
