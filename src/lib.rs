@@ -34,6 +34,10 @@ pub mod sim;
 pub mod vehicles;
 pub mod world;
 
+/// The crate under its own name, so that `examples/student_sensor.rs` (written as a student writes
+/// a plugin, against `smlworld::`) compiles inside the benchmark (`bench --plugin-sensor-share`).
+extern crate self as smlworld;
+
 /// The names most users need: `use smlworld::prelude::*;` (including the few bevy_ecs names a
 /// controller plugin needs, so a student's file needs no other import).
 pub mod prelude {
@@ -52,7 +56,7 @@ pub mod prelude {
         Payload, Radar, Route, SensorReadings, SensorSet, SimTime, VehicleClass, VehicleId, VehicleModel, VehicleSize,
         VehicleSpec, VehicleState, Vehicles, Velodyne,
     };
-    pub use bevy_ecs::prelude::{Component, EntityWorldMut, Query, Res, ResMut};
+    pub use bevy_ecs::prelude::{Component, EntityWorldMut, Local, Query, Res, ResMut};
     pub use bevy_ecs::schedule::IntoScheduleConfigs;
     pub use glam::DVec2;
 }

@@ -294,7 +294,12 @@ fn lanes_of_the_ring_and_gaps_along_a_lane() {
     }
 
     let route = map.closed_loop_tag("right_lane_node", &RouteOptions::default()).expect("right lane loop");
-    let det = |id: i32, p: glam::DVec2| Detection { id: VehicleId(id), position: p, velocity: glam::DVec2::ZERO };
+    let det = |id: i32, p: glam::DVec2| Detection {
+        id: VehicleId(id),
+        position: p,
+        velocity: glam::DVec2::ZERO,
+        sensor: "radar",
+    };
     // Truck at arc 0 (angle 0); others: 30 m ahead on the lane, 20 m ahead one lane in,
     // 10 m behind, and 90 m ahead.
     let others = [

@@ -284,7 +284,7 @@ fn link_state_of_despawned_vehicles_is_dropped_so_memory_stays_flat_under_churn(
     let burst = Burst { p_enter: 0.1, p_leave: 0.5, loss_in_burst: 1.0 };
     let model = ChannelModel { burst: Some(burst), ..Default::default() };
     let mut b = SimBuilder::new();
-    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model, network: model } });
+    b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: 50.0, wifi: model.clone(), network: model } });
     parked(&mut b, -1, DVec2::ZERO);
     let mut sim = b.build();
     let mut most = 0;
@@ -479,7 +479,7 @@ fn a_link_keeps_its_order_whether_the_jitter_is_narrower_or_wider_than_the_round
     // spans four rounds (the link's last due time is kept).
     for jitter_ms in [40.0, 350.0] {
         let model = ChannelModel { delay_ms: 5.0, jitter_ms, ..Default::default() };
-        let arrivals = wifi_arrivals(model, 1);
+        let arrivals = wifi_arrivals(model.clone(), 1);
         assert!(arrivals.len() >= 790, "jitter {jitter_ms}: {} of 800 arrived", arrivals.len());
         let bad = arrivals.windows(2).position(|w| w[0] > w[1]);
         assert!(

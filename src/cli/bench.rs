@@ -34,6 +34,10 @@ pub struct BenchArgs {
     /// radar (noise 0.2 m, 0.5°, 0.1 m/s; 2 % dropout) degraded, seed 1 (issue 21).
     #[arg(long)]
     pub degraded: bool,
+    /// Share of the vehicles that also carry the student camera of examples/student_sensor.rs
+    /// (a plugin sensor: 90°, 80 m, occlusion), spread evenly along the road [0, 1]
+    #[arg(long, default_value_t = 0.0, value_name = "SHARE")]
+    pub plugin_sensor_share: f64,
     /// Routing benchmark instead of the simulation: route --routes random node pairs (drawn with
     /// --seed among the nodes on a drivable lanelet's right bound) of this map with A*; prints
     /// `routes_per_second`.
@@ -110,8 +114,14 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         vehicles: args.vehicles,
         lane_change: args.lane_change || args.soak.is_some(),
         degraded: args.degraded,
+        plugin_sensor_share: args.plugin_sensor_share,
         ..Default::default()
     };
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.plugin_sensor_share),
+        "--plugin-sensor-share must be in [0, 1], got {}",
+        args.plugin_sensor_share
+    );
     let parallelism = args.threads.map(Parallelism::split);
     smlworld::app::running::interrupt::install();
     if let Some(seconds) = args.soak {

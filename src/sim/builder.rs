@@ -24,11 +24,13 @@ use bevy_ecs::prelude::{Entity, EntityWorldMut, Resource, World};
 use bevy_ecs::schedule::{InternedSystemSet, IntoScheduleConfigs, ScheduleLabel};
 use bevy_ecs::system::ScheduleSystem;
 
+use super::channel_models::ChannelLossModel;
 use super::controllers::{ControllerRegistry, ScenarioController};
 use super::schedule::DuplicateModule;
+use super::sensor_plugins::{NearbyIndex, PluginSensorStats, PluginSensorSystems, ScenarioSensor, index_nearby};
 use super::{
     Control, ControlEpoch, Dynamics, DynamicsPlugin, Network, Phase, Rates, Scheduler, Sensors, SensorsPlugin,
-    SimClock, V2vPlugin, Wifi, WifiRate,
+    SimClock, SimSystems, V2vPlugin, Wifi, WifiRate,
 };
 use crate::world::{SimTime, VehicleId, VehicleSpec, VehicleState, Vehicles, WorldError, spawn_vehicle};
 
@@ -211,7 +213,49 @@ impl SimBuilder {
         self
     }
 
-    /// The controllers registered so far (by plugins).
+    /// Register a channel model under `name` so that scenario files can name it like a
+    /// built-in one: `[v2v.wifi] loss = { model = "NAME", ... }` (or `[v2v.network]`), the other
+    /// keys deserialised into `M`.
+    ///
+    /// # Panics
+    /// If `name` is taken already (a built-in model's or one registered twice).
+    pub fn register_channel_model<M: ChannelLossModel>(&mut self, name: &str) -> &mut Self {
+        if let Err(e) = self.controllers.channel_models_mut().register::<M>(name) {
+            panic!("{e}");
+        }
+        self
+    }
+
+    /// Register a sensor under `name` so that scenario files can put it on a vehicle like a
+    /// built-in one: `sensors = { NAME = { ... } }`, the keys deserialised into `S` and the
+    /// vehicle given a [`Sensor<S>`](super::sensor_plugins::Sensor). The first registration also
+    /// adds the [`Nearby`](super::sensor_plugins::Nearby) grid's system and the
+    /// [`PluginSensorSystems`] sets (after the built-in sensors); the plugin adds its own
+    /// system in [`PluginSensorSystems::Sense`] of [`Sensors`].
+    ///
+    /// # Panics
+    /// If `name` is taken already (a built-in sensor's or one registered twice).
+    pub fn register_sensor<S: ScenarioSensor>(&mut self, name: &str) -> &mut Self {
+        if let Err(e) = self.controllers.sensors_mut().register::<S>(name) {
+            panic!("{e}");
+        }
+        if !self.world.contains_resource::<PluginSensorStats>() {
+            self.world.insert_resource(PluginSensorStats::default());
+            self.world.init_resource::<NearbyIndex>();
+            self.configure_sets(
+                Sensors,
+                (PluginSensorSystems::Index, PluginSensorSystems::Sense)
+                    .chain()
+                    .in_set(SimSystems::Sense)
+                    .after(super::sensors::sense_vehicles),
+            );
+            self.add_systems(Sensors, index_nearby.in_set(PluginSensorSystems::Index));
+        }
+        self
+    }
+
+    /// The controllers registered so far (by plugins), and the channel models
+    /// ([`ControllerRegistry::channel_models`]).
     pub fn controllers(&self) -> &ControllerRegistry {
         &self.controllers
     }

@@ -14,13 +14,18 @@
 //! - Delay: `delay_ms` plus uniform `[0, jitter_ms)`; a link never reorders (a message is never
 //!   due before the one sent before it on the same link).
 //!
+//! - A model of a plugin's ([`super::channel_models`]): whatever its
+//!   [`super::channel_models::ChannelLossModel::deliver`] decides, per reception.
+//!
 //! Every draw is [`super::random::uniform`] keyed by (seed, channel stream, link, round, message
 //! index, draw), so results do not depend on threads or system order and a draw allocates nothing.
 
+use super::channel_models::{LinkContext, PluginLoss};
 use super::random::{key, mix, uniform_at};
+use crate::world::VehicleId;
 
 /// Probability that a reception is lost, before bursts.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Loss {
     /// The same probability at every distance [-].
     Constant(f64),
@@ -31,6 +36,9 @@ pub enum Loss {
         /// Loss probability at the channel's range [-].
         p_at_range: f64,
     },
+    /// A model registered by a plugin ([`crate::sim::SimBuilder::register_channel_model`]):
+    /// it decides each reception's fate itself.
+    Plugin(PluginLoss),
 }
 
 impl Default for Loss {
@@ -51,24 +59,28 @@ pub struct Burst {
 }
 
 /// One channel's model.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct ChannelModel {
     /// Loss before bursts.
     pub loss: Loss,
     /// Gilbert-Elliott bursts, if any.
     pub burst: Option<Burst>,
-    /// Fixed delivery delay \[ms\].
+    /// Fixed delivery delay [ms].
     pub delay_ms: f64,
-    /// Extra delay, uniform in `[0, jitter_ms)` \[ms\].
+    /// Extra delay, uniform in `[0, jitter_ms)` [ms].
     pub jitter_ms: f64,
 }
 
-/// Per-link state a channel keeps between messages: the burst state and the latest due time.
+/// Per-link state a channel keeps between messages: the burst state, a plugin model's word and
+/// the latest due time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct LinkState {
     /// In the Gilbert-Elliott bad state.
     pub bad: bool,
-    /// Due time of the last message delivered on the link \[µs\], so none overtakes it.
+    /// A plugin model's state of this link (0 on a fresh link), kept by the runtime when the
+    /// model asks for it ([`super::channel_models::ChannelLossModel::keeps_link_state`]).
+    pub word: u64,
+    /// Due time of the last message delivered on the link [µs], so none overtakes it.
     pub last_due_us: u64,
 }
 
@@ -137,37 +149,53 @@ impl ChannelModel {
 
     /// Whether nothing is ever lost.
     pub fn loss_free(&self) -> bool {
-        let no_loss = match self.loss {
-            Loss::Constant(p) => p == 0.0,
-            Loss::Distance { p_at_0, p_at_range } => p_at_0 == 0.0 && p_at_range == 0.0,
+        let no_loss = match &self.loss {
+            Loss::Constant(p) => *p == 0.0,
+            Loss::Distance { p_at_0, p_at_range } => *p_at_0 == 0.0 && *p_at_range == 0.0,
+            Loss::Plugin(_) => false,
         };
         no_loss && self.burst.is_none_or(|b| b.loss_in_burst == 0.0 || b.p_enter == 0.0)
     }
 
     /// Whether messages may be delayed.
     pub fn delays(&self) -> bool {
-        self.delay_ms > 0.0 || self.jitter_ms > 0.0
+        self.delay_ms > 0.0 || self.jitter_ms > 0.0 || matches!(&self.loss, Loss::Plugin(m) if m.delays())
     }
 
     /// Whether a link's state matters: bursts step it, delays order by it. Without either,
     /// [`ChannelModel::deliver`] may be given a fresh [`LinkState`] and nothing is kept per link.
     pub fn keeps_link_state(&self) -> bool {
-        self.burst.is_some() || self.delays()
+        self.steps_links() || self.delays()
     }
 
-    /// The widest spread of the delays \[µs\]: the largest delay [`ChannelModel::deliver`] gives
-    /// less the smallest. Rounds further apart than this cannot overtake one another.
+    /// Whether a message changes its link's state for the next one: bursts do, and a plugin
+    /// model that keeps a word per link.
+    pub fn steps_links(&self) -> bool {
+        self.burst.is_some() || matches!(&self.loss, Loss::Plugin(m) if m.keeps_link_state())
+    }
+
+    /// The widest spread of the delays [µs]: the largest delay [`ChannelModel::deliver`] gives
+    /// less the smallest. Rounds further apart than this cannot overtake one another. A plugin
+    /// model's delays are not bounded in advance: every round may overtake.
     pub fn delay_spread_us(&self) -> u64 {
+        if matches!(&self.loss, Loss::Plugin(m) if m.delays()) {
+            return u64::MAX;
+        }
         let us = |ms: f64| round_us(ms * 1000.0);
         us(self.delay_ms + self.jitter_ms.max(0.0)).saturating_sub(us(self.delay_ms))
     }
 
     /// Whether the loss depends on the distance.
     pub fn uses_distance(&self) -> bool {
-        matches!(self.loss, Loss::Distance { .. })
+        match &self.loss {
+            Loss::Distance { .. } => true,
+            Loss::Plugin(m) => m.uses_distance(),
+            Loss::Constant(_) => false,
+        }
     }
 
-    /// Loss probability before bursts at `distance` \[m\] for a channel of `range` \[m\].
+    /// Loss probability before bursts at `distance` [m] for a channel of `range` [m].
+    /// A plugin model decides in [`ChannelModel::deliver`]: 0 here.
     pub fn loss_at(&self, distance: f64, range: f64) -> f64 {
         match self.loss {
             Loss::Constant(p) => p,
@@ -175,14 +203,16 @@ impl ChannelModel {
                 let u = if range > 0.0 { (distance / range).min(1.0) } else { 1.0 };
                 (p_at_0 + (p_at_range - p_at_0) * u * u).clamp(0.0, 1.0)
             }
+            Loss::Plugin(_) => 0.0,
         }
     }
 
-    /// The fate of one reception: `None` when lost, else its delay \[µs\] (never due before the
+    /// The fate of one reception: `None` when lost, else its delay [µs] (never due before the
     /// link's previous message: `link.last_due_us` is kept). `now_us` is the round's time,
-    /// `distance` \[m\] the sender-receiver distance, `range` \[m\] the channel's range.
+    /// `distance` [m] the sender-receiver distance, `range` [m] the channel's range.
     pub fn deliver(&self, draw: &Draw, now_us: u64, distance: f64, range: f64, link: &mut LinkState) -> Option<u64> {
-        self.deliver_keyed(draw.key(), draw.index, now_us, distance, range, link)
+        let ids = (VehicleId(draw.sender), VehicleId(draw.receiver));
+        self.deliver_keyed(draw.key(), draw.index, ids, now_us, distance, range, link)
     }
 
     /// [`ChannelModel::deliver`] of message `index` of the link round whose counter is
@@ -192,12 +222,15 @@ impl ChannelModel {
     /// hash of (seed, stream, round, sender, receiver) that nothing else draws from: its high 32
     /// bits decide the loss, its low 32 bits the jitter (each a uniform of 2⁻³² resolution,
     /// finer than a microsecond of jitter), so a lossy, jittered beacon costs its link's hash
-    /// and nothing more ([`ChannelModel::fate`]).
+    /// and nothing more ([`ChannelModel::fate`]). `ids` are (sender, receiver), which a plugin
+    /// model is told; a plugin model's own word is `mix(key ^ ((index << 8) | 3))`.
     #[inline]
+    #[allow(clippy::too_many_arguments)]
     pub fn deliver_keyed(
         &self,
         key: u64,
         index: u32,
+        ids: (VehicleId, VehicleId),
         now_us: u64,
         distance: f64,
         range: f64,
@@ -211,14 +244,24 @@ impl ChannelModel {
                 return None;
             }
         }
-        let delay_us = self.fate(key, index, self.loss_at(distance, range))?;
+        let delay_us = match &self.loss {
+            Loss::Plugin(model) => {
+                let (sender, receiver) = ids;
+                let random = mix(key ^ ((u64::from(index) << 8) | 3));
+                let context = LinkContext { sender, receiver, distance, range, now_us, random };
+                let extra_ms = model.deliver(&context, &mut link.word)?;
+                let extra_us = if model.delays() { round_us(extra_ms * 1000.0) } else { 0 };
+                self.fate(key, index, 0.0)? + extra_us
+            }
+            _ => self.fate(key, index, self.loss_at(distance, range))?,
+        };
         let due = (now_us + delay_us).max(link.last_due_us);
         link.last_due_us = due;
         Some(due - now_us)
     }
 
     /// The loss and delay of message `index` of the link round `key` after its burst state:
-    /// `None` when lost with probability `p` ([`ChannelModel::loss_at`]), else its delay \[µs\]
+    /// `None` when lost with probability `p` ([`ChannelModel::loss_at`]), else its delay [µs]
     /// before the link's ordering. What [`ChannelModel::deliver_keyed`] gives for a model
     /// without bursts and a fresh link, so a round of such a model (nothing kept per link) calls
     /// this directly: one hash and a few operations per reception, inlined.

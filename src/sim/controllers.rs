@@ -27,6 +27,9 @@ use std::collections::BTreeMap;
 use bevy_ecs::prelude::EntityWorldMut;
 use serde::de::DeserializeOwned;
 
+use super::channel_models::ChannelModelRegistry;
+use super::sensor_plugins::SensorRegistry;
+
 /// Names of the controllers the scenario format has built in; a plugin cannot register them.
 pub const BUILT_IN_CONTROLLERS: [&str; 6] = ["path_following", "cruise_control", "acc", "platoon", "idm", "gcdc"];
 
@@ -71,7 +74,7 @@ impl<C: ScenarioController> AttachController for C {
     }
 }
 
-/// Why a registered controller's parameters were refused.
+/// Why a registered controller's (or channel model's) parameters were refused.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ControllerParamError {
     /// The key (relative to the `controller` table), empty when the table as a whole is wrong.
@@ -95,10 +98,14 @@ fn parse_as<C: ScenarioController>(params: toml::Table) -> Result<Box<dyn Attach
 #[error("controller name `{0}` is taken (built in or registered twice): register it under another name")]
 pub struct DuplicateController(pub String);
 
-/// Controller types registered by plugins, by name (in name order).
+/// The names scenario files can use for plugins' types: controllers registered by plugins (by
+/// name, in name order), the channel models ([`ControllerRegistry::channel_models`]) and the
+/// sensors ([`ControllerRegistry::sensors`]).
 #[derive(Clone, Default)]
 pub struct ControllerRegistry {
     entries: BTreeMap<String, Parse>,
+    channel_models: ChannelModelRegistry,
+    sensors: SensorRegistry,
 }
 
 impl std::fmt::Debug for ControllerRegistry {
@@ -115,6 +122,28 @@ impl ControllerRegistry {
         }
         self.entries.insert(name.to_string(), parse_as::<C>);
         Ok(())
+    }
+
+    /// The channel models scenario files can name (`loss = { model = "NAME", .. }`): the
+    /// built-in ones and those plugins registered.
+    pub fn channel_models(&self) -> &ChannelModelRegistry {
+        &self.channel_models
+    }
+
+    /// [`ControllerRegistry::channel_models`], to register one
+    /// ([`crate::sim::SimBuilder::register_channel_model`]).
+    pub fn channel_models_mut(&mut self) -> &mut ChannelModelRegistry {
+        &mut self.channel_models
+    }
+
+    /// The sensors plugins registered (`sensors = { NAME = { .. } }`).
+    pub fn sensors(&self) -> &SensorRegistry {
+        &self.sensors
+    }
+
+    /// [`ControllerRegistry::sensors`], to register one ([`crate::sim::SimBuilder::register_sensor`]).
+    pub fn sensors_mut(&mut self) -> &mut SensorRegistry {
+        &mut self.sensors
     }
 
     /// Whether `name` is registered.

@@ -13,6 +13,7 @@
 
 mod builder;
 pub mod channel;
+pub mod channel_models;
 pub mod controllers;
 pub mod dynamics;
 pub mod grid;
@@ -22,11 +23,13 @@ pub mod params;
 pub use crate::world::random;
 pub mod recorded;
 mod schedule;
+pub mod sensor_plugins;
 pub mod sensors;
 pub mod trig;
 pub mod v2v;
 
 pub use builder::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
+pub use channel_models::{ChannelLossModel, ChannelModelRegistry, LinkContext};
 pub use controllers::{AttachController, BUILT_IN_CONTROLLERS, ControllerRegistry, ScenarioController};
 pub use dynamics::{DynamicsPlugin, step_acceleration_unicycle, step_kinematic_unicycle};
 pub use grid::{Candidates, GridEntry, GridPoint, SpatialGrid};
@@ -35,6 +38,9 @@ pub use recorded::{RecordedSample, RecordedTrajectory, recorded_trajectories};
 pub use schedule::{
     Control, ControlEpoch, DuplicateModule, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, SimSystems,
     Wifi, WifiRate,
+};
+pub use sensor_plugins::{
+    Nearby, Neighbour, Occlusion, PluginDraws, PluginSensorStats, PluginSensorSystems, ScenarioSensor, Sensor,
 };
 pub use sensors::{SensorStats, SensorsPlugin, in_radar_cone};
 pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vLinks, V2vPlugin, V2vStats};

@@ -8,7 +8,7 @@
 //! vehicle).
 //!
 //! Where every vehicle senses with a bounded range from one ECS table (the common case), the
-//! grid is built only now and then, for Verlet neighbour lists (`NeighbourLists`): each
+//! grid is built only now and then, for Verlet neighbour lists ([`NeighbourLists`]): each
 //! vehicle's list holds those within its range plus a skin, kept while no two neighbours have
 //! closed in on each other by the skin (traffic moves together: seconds at a time), so most
 //! ticks test a short list per vehicle and rebuild nothing. The readings are the grid scan's,
@@ -20,7 +20,7 @@
 //! with its probability, and Gaussian noise moves range, bearing and velocity. Every draw is
 //! counter-based ([`super::random`]), keyed by (seed, sensor, observer and target, tick): no
 //! allocation, the same bits for any thread count; two hashes per noisy detection
-//! (`SensorKeys`). The normals come from the ziggurat on 24 or 32 bits of a hash each
+//! ([`SensorKeys`]). The normals come from the ziggurat on 24 or 32 bits of a hash each
 //! ([`super::random::normal_half`]: a multiplication each, mostly) and the bearing error's
 //! rotation from a short polynomial, so noise costs no `ln` or `sin_cos` per detection.
 //! [`SensorStats`] counts detections and the misses of each kind.
@@ -68,12 +68,25 @@ impl SensorStats {
     }
 }
 
-/// Footprint of a grid entry for occlusion: half length, half width \[m\] and yaw \[rad\].
-#[derive(Debug, Clone, Copy, Default)]
+/// Footprint of a grid entry for occlusion: half length, half width [m] and yaw [rad].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Footprint {
     half_length: f64,
     half_width: f64,
     yaw: f64,
+}
+
+impl Footprint {
+    /// The footprint of a vehicle of `size` heading `yaw` [rad].
+    pub fn new(size: VehicleSize, yaw: f64) -> Footprint {
+        Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw }
+    }
+
+    /// Half its length along its heading and half its width across it, as vectors [m].
+    pub(crate) fn axes(&self) -> (DVec2, DVec2) {
+        let heading = DVec2::from_angle(self.yaw);
+        (heading * self.half_length, heading.perp() * self.half_width)
+    }
 }
 
 /// Angle wrapped into (−π, π] [rad].
@@ -84,7 +97,7 @@ fn wrap(a: f64) -> f64 {
 
 /// The angular extent of footprint `f` centred at `relative` [m] from the sensor: the bearing
 /// of its centre and the lowest and highest bearing of its corners relative to it [rad].
-fn extent(relative: DVec2, f: &Footprint) -> (f64, f64, f64) {
+pub(crate) fn extent(relative: DVec2, f: &Footprint) -> (f64, f64, f64) {
     let centre = relative.y.atan2(relative.x);
     let (along, across) = (DVec2::from_angle(f.yaw) * f.half_length, DVec2::from_angle(f.yaw).perp() * f.half_width);
     let (mut lo, mut hi) = (0.0f64, 0.0f64);
@@ -98,7 +111,7 @@ fn extent(relative: DVec2, f: &Footprint) -> (f64, f64, f64) {
 }
 
 /// Whether extent `inner` lies inside extent `outer` (both as [`extent`] gives them).
-fn covers(outer: (f64, f64, f64), inner: (f64, f64, f64)) -> bool {
+pub(crate) fn covers(outer: (f64, f64, f64), inner: (f64, f64, f64)) -> bool {
     let d = wrap(inner.0 - outer.0);
     d + inner.1 >= outer.1 && d + inner.2 <= outer.2
 }
@@ -152,19 +165,19 @@ impl Draws {
 /// as REFERENCE "Channels" asks (nothing depends on threads or order), at two hashes per noisy
 /// kept detection instead of a per-pair counter hash and a hash per word after it.
 #[derive(Debug, Clone, Copy)]
-struct SensorKeys {
+pub(crate) struct SensorKeys {
     word: [u64; 3],
 }
 
 impl SensorKeys {
-    fn new(seed: u64, stream: u64, now_us: u64) -> SensorKeys {
+    pub(crate) fn new(seed: u64, stream: u64, now_us: u64) -> SensorKeys {
         let tick = key(seed, stream, now_us);
         SensorKeys { word: std::array::from_fn(|k| mix(tick ^ k as u64)) }
     }
 
     /// The draws of the pair (observer, target) this tick ([`PairDraws`]).
     #[inline]
-    fn pair(&self, observer: VehicleId, target: VehicleId) -> PairDraws<'_> {
+    pub(crate) fn pair(&self, observer: VehicleId, target: VehicleId) -> PairDraws<'_> {
         let pair = Draws::pair(observer, target);
         PairDraws { keys: self, pair, first: mix(self.word[0] ^ pair) }
     }
@@ -178,7 +191,7 @@ impl SensorKeys {
 /// own part of the rare continuation, keyed by word 2's key and the pair). So a dropped
 /// detection costs one hash and a kept noisy one two.
 #[derive(Debug, Clone, Copy)]
-struct PairDraws<'a> {
+pub(crate) struct PairDraws<'a> {
     keys: &'a SensorKeys,
     pair: u64,
     first: u64,
@@ -188,7 +201,7 @@ impl PairDraws<'_> {
     /// Whether the detection survives a dropout of probability `dropout`: the high 16 bits of
     /// word 0 as a uniform of 2⁻¹⁶ resolution at or above it.
     #[inline]
-    fn kept(&self, dropout: f64) -> bool {
+    pub(crate) fn kept(&self, dropout: f64) -> bool {
         // Through u32: its conversion to f64 is one instruction, a u64's a branchy sequence.
         f64::from((self.first >> 48) as u32) >= dropout * 65_536.0
     }
@@ -196,7 +209,7 @@ impl PairDraws<'_> {
     /// The four standard normals of the noise: range, bearing, x and y velocity. Always
     /// inlined: returned through memory, the four were read back before their stores retired.
     #[inline(always)]
-    fn normals(&self) -> [f64; 4] {
+    pub(crate) fn normals(&self) -> [f64; 4] {
         let w1 = mix(self.keys.word[1] ^ self.pair);
         let more = self.keys.word[2] ^ self.pair;
         // 24 bits as `normal_half`'s 32: the high 16 as its uniform's top, the low 8 its layer.
@@ -210,8 +223,8 @@ impl PairDraws<'_> {
     }
 }
 
-/// Whether a target at offset `relative` \[m\] from the sensor lies inside a radar cone facing
-/// `heading` (a unit vector) with full opening angle `angle` \[rad\] (edges inclusive).
+/// Whether a target at offset `relative` [m] from the sensor lies inside a radar cone facing
+/// `heading` (a unit vector) with full opening angle `angle` [rad] (edges inclusive).
 ///
 /// Every angle here is in radians. The 2015 Python code compared an angle in degrees with one in
 /// radians in this test, so its radar cone was not the configured one; this one is.
@@ -271,7 +284,7 @@ impl Cone {
     }
 }
 
-/// The grid all sensors query and the neighbour lists built over it (`NeighbourLists`),
+/// The grid all sensors query and the neighbour lists built over it ([`NeighbourLists`]),
 /// kept between sensor ticks: the grid is rebuilt every tick where the lists are not used,
 /// else with the lists.
 #[derive(Resource, Debug, Default)]
@@ -762,6 +775,22 @@ const REACH: u32 = 0b11 << 30;
 const RADAR_REACH: u32 = 1 << 31;
 const VELODYNE_REACH: u32 = 1 << 30;
 
+/// The name of the radar's detections ([`Detection::sensor`]).
+pub const RADAR: &str = "radar";
+/// The name of the velodyne's detections.
+pub const VELODYNE: &str = "velodyne";
+/// The name of an omniscient sensor's detections.
+pub const OMNISCIENT: &str = "omniscient";
+
+/// Which built-in sensor a detection with key low word `low` is named after: the radar where it
+/// reaches the target, else the velodyne where it does, else the omniscient sensor (by the two
+/// reach bits, one table look-up).
+#[inline]
+fn reached_by(low: u32) -> &'static str {
+    const BY_REACH: [&str; 4] = [OMNISCIENT, VELODYNE, RADAR, RADAR];
+    BY_REACH[(low >> 30) as usize]
+}
+
 /// The cone of a vehicle without a radar (never consulted: its radar range is negative).
 const NO_CONE: Cone = Cone { heading: DVec2::ZERO, cos_half: 1.0, cos_half2: 1.0, everything: false };
 
@@ -771,7 +800,7 @@ fn write_readings(found: &mut [u64], grid: &impl Targets, from: DVec2, readings:
     readings.0.clear();
     readings.0.extend(found.iter().map(|&key| {
         let e = grid.target(key as u32 & !REACH);
-        Detection { id: e.id, position: e.position, velocity: e.velocity }
+        Detection { id: e.id, position: e.position, velocity: e.velocity, sensor: reached_by(key as u32) }
     }));
 }
 
@@ -827,7 +856,12 @@ fn write_imperfect_readings(
             }
             continue;
         };
-        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
+        let sensor = match (radar_kept, velodyne_kept) {
+            (true, _) => RADAR,
+            (false, true) => VELODYNE,
+            _ => reached_by(low),
+        };
+        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity, sensor };
         if let Some((err, keys)) = noise.filter(|(err, _)| err.is_noisy()) {
             add_noise(&mut detection, sight.position, relative, d2, err, keys.pair(sight.id, e.id).normals());
         }
@@ -840,7 +874,7 @@ fn write_imperfect_readings(
 /// `position`) by the range, bearing and velocity errors of `err`, with the standard normals
 /// `normals` (range, bearing, x and y velocity: [`PairDraws::normals`]).
 #[inline]
-fn add_noise(
+pub(crate) fn add_noise(
     detection: &mut Detection,
     position: DVec2,
     relative: DVec2,
@@ -886,7 +920,7 @@ fn write_radar_error_readings(
     for &key in found.iter() {
         let low = key as u32;
         let e = grid.target(low & !REACH);
-        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity };
+        let mut detection = Detection { id: e.id, position: e.position, velocity: e.velocity, sensor: reached_by(low) };
         if !sight.omniscient() && low & RADAR_REACH != 0 && (dropout || noisy) {
             let pair = draws.radar.pair(sight.id, e.id);
             if !dropout || pair.kept(err.dropout) {
@@ -898,6 +932,8 @@ fn write_radar_error_readings(
             } else if low & VELODYNE_REACH == 0 {
                 stats.missed_by_dropout += 1;
                 continue;
+            } else {
+                detection.sensor = VELODYNE;
             }
         }
         readings.0.push(detection);
@@ -1142,15 +1178,15 @@ impl DriftPart {
 }
 
 /// How far all around each vehicle the neighbour lists must reach for the modules that read
-/// them besides the sensors \[m\] (the wifi round asks for its range, [`super::v2v`]); within the
-/// sensors' own largest range, the lists then hold everyone that close (see `Reach`). A
+/// them besides the sensors [m] (the wifi round asks for its range, [`super::v2v`]); within the
+/// sensors' own largest range, the lists then hold everyone that close (see [`Reach`]). A
 /// resource those modules set, so that sensing depends on none of them. 0: the sensors' needs.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
 pub struct ListFloor(pub f64);
 
 /// The instant the wifi round expects to run next (its last round plus the spacing of its last
 /// two, [`super::v2v`]): the sensor tick at that instant notes which neighbours on each list
-/// lie within the [`ListFloor`] (`SensorGrid::near`). A wrong guess costs only that the
+/// lie within the [`ListFloor`] ([`SensorGrid::near`]). A wrong guess costs only that the
 /// round tests the neighbours itself.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
 pub struct NearWanted(pub Option<SimTime>);
@@ -1178,7 +1214,7 @@ struct Shape {
     velodyne: f64,
 }
 
-/// What `typical_range` and the neighbour lists need to know of a run of `Shape`s, found
+/// What [`typical_range`] and the neighbour lists need to know of a run of [`Shape`]s, found
 /// in the pass that makes them (split over the threads) and merged in order: the first bounded
 /// range, whether every bounded range equals it, and whether every range is finite.
 #[derive(Debug, Clone, Copy)]

@@ -45,7 +45,7 @@ use super::sensors::{DriftScratch, ListFloor, Lists, NEAR_MASK_BITS, NearWanted,
 use super::{Candidates, Control, ControlEpoch, GridEntry, Network, Parallelism, SimSystems, SpatialGrid, Wifi};
 
 /// Settings of the V2V channels.
-#[derive(Resource, Debug, Clone, Copy, PartialEq)]
+#[derive(Resource, Debug, Clone, PartialEq)]
 pub struct V2vConfig {
     /// Wifi range \[m\], inclusive: a receiver exactly this far from a sender still hears it.
     pub wifi_range: f64,
@@ -607,7 +607,7 @@ pub fn deliver_network(
     let batch = into_batch(&mut buffer);
     stats.network_sent += batch.len() as u64;
     let age_all: u64 = batch.iter().map(|m| now.0.saturating_sub(m.sent_at.0)).sum();
-    let model = config.network;
+    let model = config.network.clone();
     if let Some(registry) = &registry {
         links.prune(registry);
     }
@@ -649,7 +649,7 @@ pub fn deliver_network(
         return;
     }
     let seed = seed.map_or(0, |s| s.0);
-    if let (Loss::Constant(p), false) = (model.loss, model.keeps_link_state()) {
+    if let (&Loss::Constant(p), false) = (&model.loss, model.keeps_link_state()) {
         // One age for the whole batch (beacons written at the same tick): the delivered age
         // is that times the count; otherwise the lost ones' ages are taken off one by one.
         let uniform_age = common_sent_at(&batch);
@@ -670,7 +670,7 @@ pub fn deliver_network(
         positions.sort_by_key(|p| p.0);
     }
     let ordered = model.delays() && delayed.needs_link_order(Channel::Network, now.0, &model);
-    let stateful = model.burst.is_some() || ordered;
+    let stateful = model.steps_links() || ordered;
     let mut record =
         model.delays().then(|| delayed.open(Channel::Network, round, &batch, mailboxes.iter().map(|(e, _, _)| e)));
     let network_round = round_key(seed, NETWORK_STREAM, round);
@@ -706,7 +706,9 @@ pub fn deliver_network(
             };
             let mut fresh = LinkState::default();
             let link = if stateful { links.network.entry((m.sender, owner)).or_default() } else { &mut fresh };
-            let Some(delay) = model.deliver_keyed(sender_key, index, now.0, distance, config.wifi_range, link) else {
+            let ids = (m.sender, owner);
+            let Some(delay) = model.deliver_keyed(sender_key, index, ids, now.0, distance, config.wifi_range, link)
+            else {
                 continue;
             };
             channel.network.delivered += 1;
@@ -900,7 +902,7 @@ impl Default for WifiThread {
 
 /// What every chunk of a wifi round reads.
 struct WifiRound<'a> {
-    model: ChannelModel,
+    model: &'a ChannelModel,
     range: f64,
     /// [`round_key`] of this round of the wifi stream.
     round_key: u64,
@@ -935,13 +937,13 @@ impl WifiRound<'_> {
         t: &mut WifiThread,
         mut links: Option<&mut HashMap<(VehicleId, VehicleId), LinkState>>,
     ) {
-        let (model, now) = (&self.model, self.now_us);
+        let (model, now) = (self.model, self.now_us);
         let (senders, starts, batch) = (self.senders, self.starts, self.batch);
         let shared = BatchRef::new(batch);
         // Without per-link state or distance (a constant loss, no bursts) every reception's fate
         // is `ChannelModel::fate` with one loss probability: no link to look up.
-        let memoryless = match (model.loss, model.burst, links.is_some()) {
-            (Loss::Constant(p), None, false) => Some(p),
+        let memoryless = match (&model.loss, model.burst, links.is_some()) {
+            (&Loss::Constant(p), None, false) => Some(p),
             _ => None,
         };
         // The senders around a cell are gathered once for the receivers of that cell in a row
@@ -1046,7 +1048,7 @@ impl WifiRound<'_> {
                     let k = starts[i as usize] + index;
                     let fate = match memoryless {
                         Some(p) => model.fate(key, index, p),
-                        None => model.deliver_keyed(key, index, now, distance, self.range, link),
+                        None => model.deliver_keyed(key, index, (sender, owner), now, distance, self.range, link),
                     };
                     let Some(delay) = fate else {
                         continue;
@@ -1109,12 +1111,12 @@ pub fn deliver_wifi(
     }
     let now = clock.now;
     let seed = seed.map_or(0, |s| s.0);
-    let model = config.wifi;
+    let model = config.wifi.clone();
     if let Some(registry) = &registry {
         links.prune(registry);
     }
     let ordered = model.delays() && delayed.needs_link_order(Channel::Wifi, now.0, &model);
-    let stateful = model.burst.is_some() || ordered;
+    let stateful = model.steps_links() || ordered;
     let s = &mut *scratch;
     let parallelism = parallelism.map_or(Parallelism::single(), |p| *p);
     // The senders and their messages in query order: each thread empties a contiguous chunk of
@@ -1185,7 +1187,7 @@ pub fn deliver_wifi(
         });
     }
     let input = WifiRound {
-        model,
+        model: &model,
         range: config.wifi_range,
         round_key: round_key(seed, WIFI_STREAM, round),
         round,
@@ -1509,7 +1511,7 @@ pub fn deliver_delayed(
 }
 
 /// Network and wifi V2V in the [`Network`] and [`Wifi`] schedules.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct V2vPlugin {
     /// Settings (wifi range).
     pub config: V2vConfig,
@@ -1524,7 +1526,7 @@ impl Plugin for V2vPlugin {
     /// `default_plugins`' perfect ones) only replaces the [`V2vConfig`]. Added twice, every round
     /// ran twice (the second over empty out-boxes, counting a round of its own).
     fn build(&self, sim: &mut SimBuilder) {
-        sim.insert_resource(self.config);
+        sim.insert_resource(self.config.clone());
         // The sensors' neighbour lists reach the wifi range all around, so a round reads them.
         sim.insert_resource(ListFloor(self.config.wifi_range));
         if !sim.world_mut().contains_resource::<NearWanted>() {
@@ -1558,7 +1560,7 @@ mod tests {
     fn the_sensors_lists_are_asked_to_reach_the_wifi_range_also_after_the_config_is_replaced() {
         let config = V2vConfig { wifi_range: 80.0, ..V2vConfig::default() };
         let mut b = SimBuilder::new();
-        b.add_plugin(V2vPlugin { config });
+        b.add_plugin(V2vPlugin { config: config.clone() });
         assert_eq!(b.world_mut().resource::<ListFloor>().0, 80.0);
         b.insert_resource(V2vConfig { wifi_range: 30.0, ..config });
         let mut sim = b.build();

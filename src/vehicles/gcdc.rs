@@ -426,7 +426,7 @@ pub fn broadcast_rsus(
 ) {
     let seed = seed.map_or(0, |s| s.0);
     let round = stats.wifi_rounds;
-    let model = config.wifi;
+    let model = &config.wifi;
     for rsu in &rsus.0 {
         let payload = Payload::new(RsuMessage { message: rsu.message, at: rsu.position });
         let batch: Arc<[Message]> =

@@ -93,9 +93,13 @@ pub struct Detection {
     pub position: DVec2,
     /// Its velocity [m/s].
     pub velocity: DVec2,
+    /// The name of the sensor that saw it: `"radar"`, `"velodyne"` (a target both reach is the
+    /// radar's unless the radar dropped it), `"omniscient"`, or a plugin sensor's registered name.
+    pub sensor: &'static str,
 }
 
-/// Everything a vehicle's sensors saw at the last sensor tick, nearest first (ties by id).
-/// The union over all its sensors; a vehicle never detects itself.
+/// Everything a vehicle's sensors saw at the last sensor tick: the built-in sensors' detections
+/// nearest first (ties by id), one per target; then each plugin sensor's, in the order it wrote
+/// them. A vehicle never detects itself.
 #[derive(Component, Debug, Clone, Default, PartialEq)]
 pub struct SensorReadings(pub Vec<Detection>);

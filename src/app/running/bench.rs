@@ -14,6 +14,7 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 use crate::map::generate::{GenerateError, RingParams, ring_highway, ring_lane_tag};
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
 use crate::sim::channel::{ChannelModel, Loss};
+use crate::sim::sensor_plugins::attach_sensor;
 use crate::sim::{
     ChannelStats, Control, Dynamics, Parallelism, Rates, SensorStats, SimClock, SimSeed, SimSystems, V2vChannelStats,
     V2vConfig,
@@ -68,7 +69,16 @@ pub struct BenchWorld {
     /// Loss, delay and jitter on wifi ([`DEGRADED_WIFI`]), loss on the network
     /// ([`DEGRADED_NETWORK`]), noise and dropout on every radar ([`degraded_radar`]), seed 1.
     pub degraded: bool,
+    /// Share of the vehicles (spread evenly along the road) that also carry the student camera
+    /// of `examples/student_sensor.rs` (90°, 80 m, occlusion), a plugin sensor [0, 1].
+    pub plugin_sensor_share: f64,
 }
+
+/// The student camera of `examples/student_sensor.rs`, compiled in for
+/// [`BenchWorld::plugin_sensor_share`]: the benchmark measures the example itself.
+#[allow(dead_code)] // its main() is the example's own entry point
+#[path = "../../../examples/student_sensor.rs"]
+mod student_sensor;
 
 /// The wifi of a degraded benchmark: 10 % loss, 10 ms delay, 5 ms jitter (issue 21's example).
 pub const DEGRADED_WIFI: ChannelModel =
@@ -101,6 +111,7 @@ impl Default for BenchWorld {
             chord_error: 0.1,
             lane_change: false,
             degraded: false,
+            plugin_sensor_share: 0.0,
         }
     }
 }
@@ -205,9 +216,12 @@ impl BenchWorld {
         // of their own in the control phase would hold the V2V in-boxes until it ran.
         b.add_systems(Control, send_beacons.in_set(SimSystems::Control).run_if(at_rate(rates.network)));
         b.add_systems(Control, send_wifi_beacons.in_set(SimSystems::Control).run_if(at_rate(rates.wifi)));
+        if self.plugin_sensor_share > 0.0 {
+            b.add_plugin(student_sensor::CameraPlugin);
+        }
         if self.degraded {
             let wifi_range = V2vConfig::default().wifi_range;
-            b.insert_resource(V2vConfig { wifi_range, wifi: DEGRADED_WIFI, network: DEGRADED_NETWORK });
+            b.insert_resource(V2vConfig { wifi_range, wifi: DEGRADED_WIFI.clone(), network: DEGRADED_NETWORK.clone() });
             b.insert_resource(SimSeed(1));
         }
         self.spawn_in(&mut b, order)?;
@@ -264,6 +278,18 @@ impl BenchWorld {
                 spec.route = Some(Arc::clone(path));
                 if let Ok(e) = b.spawn_vehicle(spec) {
                     b.world_mut().entity_mut(e).insert(PathFollower::starting_at(params, s));
+                    // Every vehicle whose rank crosses a multiple of 1 / share: evenly spread.
+                    let share = self.plugin_sensor_share;
+                    if share > 0.0 && ((rank + 1) as f64 * share).floor() > (rank as f64 * share).floor() {
+                        let camera = student_sensor::Camera {
+                            fov_deg: 90.0,
+                            range: 80.0,
+                            occlusion: true,
+                            range_sd: 0.0,
+                            dropout: 0.0,
+                        };
+                        attach_sensor(&mut b.world_mut().entity_mut(e), "camera", camera);
+                    }
                     if self.lane_change {
                         // Desired speeds spread by a fixed low-discrepancy sequence, so faster
                         // vehicles catch up and overtake.
@@ -355,6 +381,8 @@ pub struct BenchReport {
     /// Whether channels and radars were degraded (`--degraded`: [`DEGRADED_WIFI`],
     /// [`DEGRADED_NETWORK`], [`degraded_radar`] on every radar).
     pub degraded: bool,
+    /// Share of the vehicles that carry the student camera (`--plugin-sensor-share`).
+    pub plugin_sensor_share: f64,
     /// Sensors of every vehicle.
     pub sensors: BenchSensors,
     /// Module rates \[Hz\].
@@ -507,6 +535,7 @@ impl BenchWorld {
             },
             vehicles: self.vehicles,
             degraded: self.degraded,
+            plugin_sensor_share: self.plugin_sensor_share,
             sensors: BenchSensors {
                 radar_range_m: radar.range,
                 radar_angle_deg: radar.angle.to_degrees(),
@@ -558,6 +587,17 @@ mod tests {
         let mut b = world.builder().expect("the bench world builds");
         b.insert_resource(parallelism);
         b.build()
+    }
+
+    #[test]
+    fn a_tenth_of_the_vehicles_carry_the_student_camera_and_it_sees() {
+        let world = BenchWorld { vehicles: 300, plugin_sensor_share: 0.1, ..Default::default() };
+        let mut sim = sim_of(world, Parallelism::single());
+        sim.run_for(1.0);
+        let mut carriers = sim.world_mut().query::<&crate::sim::sensor_plugins::CarriesPluginSensor>();
+        assert_eq!(carriers.iter(sim.world()).count(), 30, "a tenth of 300");
+        let stats = sim.world().resource::<crate::sim::PluginSensorStats>();
+        assert!(stats.0.get("camera").is_some_and(|c| c.detections > 0), "{stats:?}");
     }
 
     /// Everything the heavy systems write, per vehicle, in id order, as exact bits.

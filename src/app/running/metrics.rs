@@ -140,9 +140,10 @@ pub struct MetricsSummary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub emergency: Option<crate::vehicles::EmergencySummary>,
     /// Detections of all sensors and the misses by dropout and by occlusion, summed over
-    /// observers and sensor ticks (`None` without the sensor plugin).
+    /// observers and sensor ticks, and each plugin sensor's by name (`None` without the sensor
+    /// plugin).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub sensors: Option<crate::sim::SensorStats>,
+    pub sensors: Option<SensorMetrics>,
     /// The GCDC merge: vehicles to merge and merged, pairs, duration, smallest gaps, zipper
     /// order, aborts (only when a `gcdc` vehicle heard a merge zone).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -195,6 +196,18 @@ pub struct V2vMetrics {
     pub wifi: ChannelMetrics,
     /// The network channel.
     pub network: ChannelMetrics,
+}
+
+/// `metrics.sensors`: the built-in sensors' counts (radar, velodyne and omniscient together, at
+/// the top level as before) and each plugin sensor's, by name.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct SensorMetrics {
+    /// The built-in sensors' counts.
+    #[serde(flatten)]
+    pub built_in: crate::sim::SensorStats,
+    /// Each plugin sensor's counts, by its registered name (empty without plugin sensors).
+    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub by_sensor: std::collections::BTreeMap<String, crate::sim::SensorStats>,
 }
 
 /// One channel of [`V2vMetrics`].

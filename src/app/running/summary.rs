@@ -252,7 +252,11 @@ impl RunSummary {
                     .and_then(crate::vehicles::EmergencyLog::summary);
                 summary.merge =
                     world.get_resource::<crate::vehicles::MergeLog>().and_then(crate::vehicles::MergeLog::summary);
-                summary.sensors = world.get_resource::<crate::sim::SensorStats>().copied();
+                summary.sensors = world.get_resource::<crate::sim::SensorStats>().map(|&built_in| {
+                    let plugins = world.get_resource::<crate::sim::PluginSensorStats>();
+                    let by_sensor = plugins.map(|p| p.0.iter().map(|(k, v)| (k.to_string(), *v)).collect());
+                    super::metrics::SensorMetrics { built_in, by_sensor: by_sensor.unwrap_or_default() }
+                });
                 if let Some(j) = world.get_resource::<crate::vehicles::JunctionStats>() {
                     summary.junctions = Some(j.summary());
                     if world.get_resource::<crate::vehicles::TrafficLights>().is_some_and(|l| !l.controllers.is_empty())

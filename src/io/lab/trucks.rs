@@ -158,6 +158,7 @@ pub fn publish_trucks(
                     id: other,
                     position: s.position,
                     velocity: s.velocity,
+                    sensor: crate::sim::sensors::OMNISCIENT,
                 }));
                 &all
             }

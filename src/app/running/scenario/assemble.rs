@@ -8,8 +8,8 @@ use glam::DVec2;
 
 use super::commonroad::{GoalMonitor, add_goal_monitor, spawn_obstacles};
 use super::file::{
-    BuiltInController, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RouteConfig, SensorsConfig, StartConfig,
-    TrafficLanes, TrafficRoute, VehicleConfig,
+    BuiltInController, ChannelSection, ControllerConfig, ModelConfig, NodeRef, ObstaclesMode, RouteConfig,
+    SensorsConfig, StartConfig, TrafficLanes, TrafficRoute, VehicleConfig,
 };
 use super::lab::add_lab_plugins;
 use super::{Scenario, ScenarioError};
@@ -104,9 +104,12 @@ impl Scenario {
         b.insert_resource(SimSeed(self.file.seed));
         b.add_plugin(default_plugins);
         let v2v = &self.file.v2v;
-        b.add_plugin(V2vPlugin {
-            config: V2vConfig { wifi_range: v2v.range(), wifi: v2v.wifi.model(), network: v2v.network.model() },
-        });
+        let models = b.controllers().channel_models();
+        let model = |name: &str, ch: &ChannelSection| {
+            ch.model(models).map_err(|(key, problem)| self.invalid(format!("v2v.{name}.{key}"), problem))
+        };
+        let (wifi, network) = (model("wifi", &v2v.wifi)?, model("network", &v2v.network)?);
+        b.add_plugin(V2vPlugin { config: V2vConfig { wifi_range: v2v.range(), wifi, network } });
         b.add_plugin(PathFollowingPlugin);
         b.add_plugin(smart_vehicles).add_plugin(MetricsPlugin::default()).add_plugin(TripsPlugin);
         if let Some(map) = &self.map {
@@ -234,6 +237,19 @@ impl Scenario {
         let entity = b.spawn_vehicle(spec).map_err(|e| self.invalid(key("id"), e.to_string()))?;
         if let Some(trip) = trip {
             b.world_mut().entity_mut(entity).insert(trip);
+        }
+        for (name, params) in &v.sensors.plugins {
+            let sensor = match b.controllers().sensors().parse(name, params.clone()) {
+                Some(Ok(sensor)) => sensor,
+                Some(Err(e)) => return Err(self.invalid(key(&format!("sensors.{name}.{}", e.key)), e.problem)),
+                None => {
+                    let known = b.controllers().sensors().known_list();
+                    let problem =
+                        format!("names no known sensor: `{name}` (known: {known}); add the plugin that registers it");
+                    return Err(self.invalid(key(&format!("sensors.{name}")), problem));
+                }
+            };
+            sensor.attach(&mut b.world_mut().entity_mut(entity));
         }
         match &v.controller {
             Some(ControllerConfig::BuiltIn(BuiltInController::PathFollowing {

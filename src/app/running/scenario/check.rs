@@ -10,6 +10,7 @@ use super::file::{
     VehicleConfig,
 };
 use crate::sim::ControllerRegistry;
+use crate::sim::channel_models::ChannelModelRegistry;
 use crate::sim::params::{MAX_DISTANCE, MAX_GAIN, MAX_SPEED, MAX_TIME, MAX_VEHICLE_SIZE, Range};
 
 /// Builds the errors of one file: each names the key and what is allowed.
@@ -46,7 +47,7 @@ pub(super) fn check(file: &ScenarioFile, path: &FsPath, controllers: &Controller
         // At most 1e6 Hz: one tick per microsecond.
         c.within(format!("rates.{k}"), v, Range::positive(1e6))?;
     }
-    check_v2v(&c, &file.v2v)?;
+    check_v2v(&c, &file.v2v, controllers.channel_models())?;
     file.emergency.check().map_err(|e| c.invalid(format!("emergency.{}", e.key), &e.problem))?;
     file.junctions.check().map_err(|e| c.invalid(format!("junctions.{}", e.key), &e.problem))?;
     for (k, light) in file.traffic_lights.iter().enumerate() {
@@ -134,6 +135,12 @@ fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> R
     if t.classes.values().sum::<f64>() <= 0.0 {
         return Err(c.invalid(key("classes"), "needs a share above 0, e.g. { car = 1.0 }"));
     }
+    if let Some(name) = t.sensors.plugins.keys().next() {
+        return Err(c.invalid(
+            key(&format!("sensors.{name}")),
+            "is not a built-in sensor (radar, velodyne, omniscient): traffic takes built-in sensors only; put a plugin sensor on a [[vehicles]] entry",
+        ));
+    }
     if let Some(r) = t.sensors.radar {
         check_sensor_errors(c, &key("sensors.radar"), &r.noise, r.dropout)?;
     }
@@ -170,7 +177,7 @@ fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> R
 
 /// The checks of one `[[vehicles]]` entry (index `i`).
 /// `[v2v]`: one range key, probabilities in [0, 1], delays in [0, 60 s].
-fn check_v2v(c: &Checker, v2v: &V2vSection) -> Result<(), ScenarioError> {
+fn check_v2v(c: &Checker, v2v: &V2vSection, models: &ChannelModelRegistry) -> Result<(), ScenarioError> {
     if let (Some(_), Some(_)) = (v2v.wifi_range, v2v.wifi.range) {
         return Err(c.invalid("v2v.wifi_range".into(), "and `v2v.wifi.range` both set the wifi range; keep one"));
     }
@@ -179,12 +186,8 @@ fn check_v2v(c: &Checker, v2v: &V2vSection) -> Result<(), ScenarioError> {
     }
     c.within("v2v.wifi.range".into(), v2v.range(), Range::non_negative(MAX_DISTANCE))?;
     for (name, ch) in [("wifi", &v2v.wifi), ("network", &v2v.network)] {
-        match ch.loss {
-            LossConfig::Constant(p) => c.within(format!("v2v.{name}.loss"), p, Range::non_negative(1.0))?,
-            LossConfig::Distance { p_at_0, p_at_range } => {
-                c.within(format!("v2v.{name}.loss.p_at_0"), p_at_0, Range::non_negative(1.0))?;
-                c.within(format!("v2v.{name}.loss.p_at_range"), p_at_range, Range::non_negative(1.0))?;
-            }
+        if let LossConfig::Constant(p) = ch.loss {
+            c.within(format!("v2v.{name}.loss"), p, Range::non_negative(1.0))?;
         }
         if let Some(b) = ch.burst {
             c.within(format!("v2v.{name}.burst.p_enter"), b.p_enter, Range::non_negative(1.0))?;
@@ -193,6 +196,7 @@ fn check_v2v(c: &Checker, v2v: &V2vSection) -> Result<(), ScenarioError> {
         }
         c.within(format!("v2v.{name}.delay_ms"), ch.delay_ms, Range::non_negative(60_000.0))?;
         c.within(format!("v2v.{name}.jitter_ms"), ch.jitter_ms, Range::non_negative(60_000.0))?;
+        ch.model(models).map_err(|(key, problem)| c.invalid(format!("v2v.{name}.{key}"), &problem))?;
     }
     Ok(())
 }
@@ -260,6 +264,23 @@ fn check_vehicle(
         }
         if let Some(yaw) = s.yaw {
             c.within(key("start.yaw"), yaw, Range::between(-1e3, 1e3))?;
+        }
+    }
+    for (name, params) in &v.sensors.plugins {
+        let at = key(&format!("sensors.{name}"));
+        match controllers.sensors().parse(name, params.clone()) {
+            None => {
+                return Err(c.invalid(
+                    at,
+                    &format!(
+                        "names no known sensor: `{name}` (known: {}); a sensor of your own must be registered by its plugin (SimBuilder::register_sensor) before the scenario is loaded",
+                        controllers.sensors().known_list()
+                    ),
+                ));
+            }
+            Some(Ok(_)) => {}
+            Some(Err(e)) if e.key.is_empty() => return Err(c.invalid(at, &e.problem)),
+            Some(Err(e)) => return Err(c.invalid(format!("{at}.{}", e.key), &e.problem)),
         }
     }
     if let Some(r) = v.sensors.radar {

@@ -7,6 +7,7 @@ use serde::Deserialize;
 use super::lab::LabConfig;
 use crate::map::routing::Place;
 use crate::sim::channel::{Burst, ChannelModel, Loss};
+use crate::sim::channel_models::ChannelModelRegistry;
 use crate::sim::{BUILT_IN_CONTROLLERS, Rates, V2vConfig};
 use crate::vehicles::{
     AccSetup, CruiseSetup, EmergencySettings, GcdcSetup, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, RsuKind,
@@ -358,7 +359,7 @@ fn default_traffic_lane_change() -> LaneChangeSetting {
     LaneChangeSetting(Some(LaneChangeParams::default()))
 }
 pub(crate) fn default_traffic_sensors() -> SensorsConfig {
-    SensorsConfig { radar: Some(RadarConfig::default()), velodyne: None, omniscient: false }
+    SensorsConfig { radar: Some(RadarConfig::default()), ..SensorsConfig::default() }
 }
 
 /// What to do with a CommonRoad map's obstacles.
@@ -421,7 +422,7 @@ impl Default for RatesConfig {
 }
 
 /// `[v2v]`: `wifi_range` (kept from before) or `[v2v.wifi] range`, and each channel's model.
-#[derive(Debug, Clone, Copy, Deserialize, Default)]
+#[derive(Debug, Clone, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct V2vSection {
     /// Wifi range \[m\], inclusive (the older spelling of `[v2v.wifi] range`).
@@ -440,12 +441,13 @@ impl V2vSection {
 }
 
 /// `[v2v.wifi]` / `[v2v.network]`: a channel's model ([`crate::sim::channel`]).
-#[derive(Debug, Clone, Copy, Deserialize, Default)]
+#[derive(Debug, Clone, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct ChannelSection {
     /// Range \[m\] (wifi only).
     pub range: Option<f64>,
-    /// `loss = 0.1` (per reception) or `loss = { model = "distance", p_at_0, p_at_range }`.
+    /// `loss = 0.1` (per reception) or `loss = { model = "NAME", ... }`: a built-in model
+    /// (`constant`, `distance`, `gilbert_elliott`) or one a plugin registered.
     pub loss: LossConfig,
     /// `burst = { p_enter, p_leave, loss_in_burst }`: Gilbert-Elliott, per link.
     pub burst: Option<BurstConfig>,
@@ -455,18 +457,37 @@ pub struct ChannelSection {
     pub jitter_ms: f64,
 }
 
+/// Why a channel's `loss` could not be turned into a model: the key (relative to the channel's
+/// table) and what is wrong.
+pub type ChannelProblem = (String, String);
+
 impl ChannelSection {
-    /// The model the V2V systems use.
-    pub fn model(&self) -> ChannelModel {
-        ChannelModel {
-            loss: match self.loss {
-                LossConfig::Constant(p) => Loss::Constant(p),
-                LossConfig::Distance { p_at_0, p_at_range } => Loss::Distance { p_at_0, p_at_range },
+    /// The model the V2V systems use, its `loss` model looked up in `models`: `Err((key,
+    /// problem))` with the key relative to the channel's table (`loss.model`, `loss.p_at_0`, ...).
+    pub fn model(&self, models: &ChannelModelRegistry) -> Result<ChannelModel, ChannelProblem> {
+        let (loss, model_burst) = match &self.loss {
+            LossConfig::Constant(p) => (Loss::Constant(*p), None),
+            LossConfig::Model { name, params } => match models.parse(name, params.clone()) {
+                Some(Ok(m)) => (m.loss, m.burst),
+                Some(Err(e)) if e.key.is_empty() => return Err(("loss".into(), e.problem)),
+                Some(Err(e)) => return Err((format!("loss.{}", e.key), e.problem)),
+                None => {
+                    return Err((
+                        "loss.model".into(),
+                        format!(
+                            "names no known channel model: `{name}` (known: {}); a model of your own must be registered by its plugin (SimBuilder::register_channel_model) before the scenario is loaded",
+                            models.known_list()
+                        ),
+                    ));
+                }
             },
-            burst: self.burst.map(|b| Burst { p_enter: b.p_enter, p_leave: b.p_leave, loss_in_burst: b.loss_in_burst }),
-            delay_ms: self.delay_ms,
-            jitter_ms: self.jitter_ms,
+        };
+        let burst =
+            self.burst.map(|b| Burst { p_enter: b.p_enter, p_leave: b.p_leave, loss_in_burst: b.loss_in_burst });
+        if burst.is_some() && model_burst.is_some() {
+            return Err(("burst".into(), "and a `gilbert_elliott` loss both give bursts; keep one".into()));
         }
+        Ok(ChannelModel { loss, burst: burst.or(model_burst), delay_ms: self.delay_ms, jitter_ms: self.jitter_ms })
     }
 }
 
@@ -488,16 +509,17 @@ fn one() -> f64 {
 }
 
 /// A channel's loss: a number, or a table naming a model.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum LossConfig {
     /// `loss = p`.
     Constant(f64),
-    /// `loss = { model = "distance", p_at_0 = .., p_at_range = .. }`.
-    Distance {
-        /// Loss next to the sender [-].
-        p_at_0: f64,
-        /// Loss at the range [-].
-        p_at_range: f64,
+    /// `loss = { model = "NAME", .. }`: the model's name and its other keys, parsed by the
+    /// model registered under that name ([`ChannelModelRegistry`]).
+    Model {
+        /// The model's name.
+        name: String,
+        /// Its parameters (the table without `model`).
+        params: toml::Table,
     },
 }
 
@@ -510,28 +532,15 @@ impl Default for LossConfig {
 impl<'de> Deserialize<'de> for LossConfig {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<LossConfig, D::Error> {
         use serde::de::Error;
-        #[derive(Deserialize)]
-        #[serde(deny_unknown_fields)]
-        struct Model {
-            model: String,
-            #[serde(default)]
-            p_at_0: f64,
-            p_at_range: f64,
-        }
-        let forms = "`loss = 0.1` (probability per reception) or `loss = { model = \"distance\", p_at_0 = 0.01, p_at_range = 0.5 }`";
+        let forms = "`loss = 0.1` (probability per reception) or `loss = { model = \"NAME\", ... }` (e.g. `{ model = \"distance\", p_at_0 = 0.01, p_at_range = 0.5 }`)";
         match toml::Value::deserialize(d)? {
             toml::Value::Float(p) => Ok(LossConfig::Constant(p)),
             toml::Value::Integer(p) => Ok(LossConfig::Constant(p as f64)),
-            v @ toml::Value::Table(_) => {
-                let m: Model = v.try_into().map_err(|e| D::Error::custom(format!("{e}; expected {forms}")))?;
-                if m.model != "distance" {
-                    return Err(D::Error::custom(format!(
-                        "unknown loss model `{}`; known: distance ({forms})",
-                        m.model
-                    )));
-                }
-                Ok(LossConfig::Distance { p_at_0: m.p_at_0, p_at_range: m.p_at_range })
-            }
+            toml::Value::Table(mut params) => match params.remove("model") {
+                Some(toml::Value::String(name)) => Ok(LossConfig::Model { name, params }),
+                Some(other) => Err(D::Error::custom(format!("`model` is {other}, not a name; expected {forms}"))),
+                None => Err(D::Error::custom(format!("a loss table needs `model`; expected {forms}"))),
+            },
             other => Err(D::Error::custom(format!("got {other}; expected {forms}"))),
         }
     }
@@ -701,19 +710,55 @@ pub struct StartConfig {
     pub yaw: Option<f64>,
 }
 
-/// `sensors = { radar, velodyne, omniscient }`.
-#[derive(Debug, Clone, Copy, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// `sensors = { radar, velodyne, omniscient, NAME = { .. } }`: the built-in sensors, and those
+/// of plugins by their registered names.
+#[derive(Debug, Clone, Default)]
 pub struct SensorsConfig {
     /// Radar cone.
-    #[serde(default)]
     pub radar: Option<RadarConfig>,
     /// Velodyne circle.
-    #[serde(default)]
     pub velodyne: Option<VelodyneConfig>,
     /// Sees everyone.
-    #[serde(default)]
     pub omniscient: bool,
+    /// Plugin sensors: name -> their table, parsed by the sensor registered under that name
+    /// ([`crate::sim::sensor_plugins::SensorRegistry`]) when the scenario is checked.
+    pub plugins: std::collections::BTreeMap<String, toml::Table>,
+}
+
+impl<'de> Deserialize<'de> for SensorsConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<SensorsConfig, D::Error> {
+        use serde::de::Error;
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct BuiltIn {
+            #[serde(default)]
+            radar: Option<RadarConfig>,
+            #[serde(default)]
+            velodyne: Option<VelodyneConfig>,
+            #[serde(default)]
+            omniscient: bool,
+        }
+        let mut table = toml::Table::deserialize(d)?;
+        let names: Vec<String> =
+            table.keys().filter(|k| !["radar", "velodyne", "omniscient"].contains(&k.as_str())).cloned().collect();
+        let mut plugins = std::collections::BTreeMap::new();
+        for name in names {
+            match table.remove(&name) {
+                Some(toml::Value::Table(t)) => {
+                    plugins.insert(name, t);
+                }
+                other => {
+                    return Err(D::Error::custom(format!(
+                        "`{name}` is {}: a plugin sensor's settings are a table (`{name} = {{ range = 50.0 }}`); the built-in sensors are radar, velodyne and omniscient",
+                        other.map_or("missing".to_string(), |v| v.to_string())
+                    )));
+                }
+            }
+        }
+        let b: BuiltIn =
+            toml::Value::Table(table).try_into().map_err(|e: toml::de::Error| D::Error::custom(e.message()))?;
+        Ok(SensorsConfig { radar: b.radar, velodyne: b.velodyne, omniscient: b.omniscient, plugins })
+    }
 }
 
 /// `radar = { angle_deg, range, noise, dropout, occlusion }`.

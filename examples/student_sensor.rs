@@ -1,0 +1,120 @@
+//! A complete sensor in one file: copy it to start your own.
+//!
+//! `Camera` sees the vehicles within `range` [m] inside a field of view of `fov_deg` around its
+//! heading, each hidden when a nearer vehicle it sees covers it, with the built-in sensors'
+//! noise and dropout. Its plugin registers it under a name, so `scenarios/student_sensor.toml`
+//! puts it on a vehicle like a built-in sensor: `sensors = { camera = { fov_deg = 90.0, range = 80.0 } }`;
+//! its detections go into the vehicle's `SensorReadings`, named `"camera"`.
+//! Run it: `cargo run --release --example student_sensor [SCENARIO] [OUT_DIR]`
+//! (default `scenarios/student_sensor.toml`, `out/student_sensor`).
+
+use smlworld::prelude::*;
+use smlworld::sim::{Nearby, Neighbour, Occlusion, PluginDraws, PluginSensorStats, PluginSensorSystems};
+use smlworld::sim::{ScenarioSensor, Sensor, in_radar_cone};
+use smlworld::world::SensorError;
+
+/// The camera's parameters, read from its table in the vehicle's `sensors`.
+#[derive(serde::Deserialize, Debug, Clone, Copy)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    /// Full opening angle of the field of view [deg].
+    pub fov_deg: f64,
+    /// Farthest it sees [m].
+    pub range: f64,
+    /// Whether a vehicle behind a nearer one is hidden (default true).
+    #[serde(default = "yes")]
+    pub occlusion: bool,
+    /// Standard deviation of the range error [m] (default 0).
+    #[serde(default)]
+    pub range_sd: f64,
+    /// Probability that a visible vehicle is missed [-] (default 0).
+    #[serde(default)]
+    pub dropout: f64,
+}
+
+fn yes() -> bool {
+    true
+}
+
+impl ScenarioSensor for Camera {
+    fn check(&self) -> Result<(), (String, String)> {
+        let (fov, range, sd, dropout) = (self.fov_deg, self.range, self.range_sd, self.dropout);
+        let rules = [
+            (fov > 0.0 && fov <= 360.0, "fov_deg", "in (0, 360] degrees", fov),
+            (range.is_finite() && range > 0.0, "range", "a positive distance [m]", range),
+            (sd.is_finite() && sd >= 0.0, "range_sd", "zero or more [m]", sd),
+            ((0.0..=1.0).contains(&dropout), "dropout", "a probability", dropout),
+        ];
+        match rules.into_iter().find(|rule| !rule.0) {
+            Some((_, key, what, got)) => Err((key.into(), format!("must be {what}, got {got}"))),
+            None => Ok(()),
+        }
+    }
+    fn range(&self) -> f64 {
+        self.range
+    }
+}
+
+/// Every sensor tick: the neighbours within range (O(k) from the shared grid), nearest first,
+/// kept when inside the field of view and not hidden, then dropout and noise.
+#[allow(clippy::type_complexity)]
+pub fn sense_cameras(
+    nearby: Nearby,
+    (clock, seed): (Res<SimClock>, Res<SimSeed>),
+    mut stats: ResMut<PluginSensorStats>,
+    mut cameras: Query<(&VehicleId, &VehicleState, &Sensor<Camera>, &mut SensorReadings)>,
+    mut found: Local<Vec<Neighbour>>,
+    mut occlusion: Local<Occlusion>,
+) {
+    for (&me, state, camera, mut readings) in &mut cameras {
+        let (from, heading) = (state.position, DVec2::from_angle(state.yaw));
+        let draws = PluginDraws::new(seed.0, camera.name, clock.now);
+        let error = SensorError { range_sd: camera.range_sd, dropout: camera.dropout, ..Default::default() };
+        let counts = stats.of(camera.name);
+        nearby.within(from, camera.range, &mut found);
+        occlusion.clear();
+        let seen = found
+            .iter()
+            .filter(|n| n.id != me && in_radar_cone(n.position - from, heading, camera.fov_deg.to_radians()));
+        let kept = seen.filter_map(|n| {
+            if occlusion.hidden(from, n) && camera.occlusion {
+                counts.missed_by_occlusion += 1;
+                return None;
+            }
+            let mut detection = n.detection(camera.name);
+            if !draws.apply(&error, me, from, &mut detection) {
+                counts.missed_by_dropout += 1;
+                return None;
+            }
+            counts.detections += 1;
+            Some(detection)
+        });
+        readings.set_sensor(camera.name, kept);
+    }
+}
+
+/// The plugin: registers the sensor's name and adds its system.
+pub struct CameraPlugin;
+
+impl Plugin for CameraPlugin {
+    fn build(&self, sim: &mut SimBuilder) {
+        sim.register_sensor::<Camera>("camera");
+        sim.add_systems(Sensors, sense_cameras.in_set(PluginSensorSystems::Sense));
+    }
+}
+
+/// Run the scenario named on the command line (default `scenarios/student_sensor.toml`).
+pub fn main() {
+    let mut args = std::env::args().skip(1);
+    let scenario = args.next().unwrap_or_else(|| "scenarios/student_sensor.toml".into());
+    let out = args.next().unwrap_or_else(|| "out/student_sensor".into());
+    match run_scenario(scenario.as_str(), RunOptions::default().out(&out).plugin(CameraPlugin)) {
+        Ok(summary) => {
+            println!("{} vehicles, {:.0} sim s; wrote {out}/summary.json", summary.vehicles, summary.sim_seconds)
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::exit(1);
+        }
+    }
+}

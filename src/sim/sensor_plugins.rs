@@ -1,0 +1,444 @@
+//! Sensors by name: the trait a student's sensor implements ([`ScenarioSensor`]), the registry
+//! from a vehicle's `sensors = { NAME = { ... } }` to it, the neighbour query a sensor system
+//! reads ([`Nearby`]) and the helpers that give a plugin sensor the built-in sensors' noise,
+//! dropout and occlusion ([`PluginDraws`], [`Occlusion`]).
+//!
+//! A plugin sensor's parameters live on its vehicles as [`Sensor<S>`], stored sparsely: a
+//! component stored in the vehicles' table would split them into two tables, and the built-in
+//! sensors' neighbour lists serve only vehicles of one table, so a camera on a tenth of the
+//! vehicles would slow every vehicle's radar. Its system runs in [`PluginSensorSystems::Sense`]
+//! (after the built-in sensors wrote their readings) and writes its detections, named, into
+//! the vehicle's [`SensorReadings`] ([`SensorReadings::set_sensor`]).
+//!
+//! ```
+//! use smlworld::prelude::*;
+//! use smlworld::sim::sensor_plugins::{Nearby, ScenarioSensor, Sensor};
+//!
+//! #[derive(serde::Deserialize, Clone)]
+//! #[serde(deny_unknown_fields)]
+//! struct Ring {
+//!     range: f64,
+//! }
+//!
+//! impl ScenarioSensor for Ring {
+//!     fn range(&self) -> f64 {
+//!         self.range
+//!     }
+//! }
+//!
+//! let mut sim = SimBuilder::new();
+//! sim.register_sensor::<Ring>("ring");
+//! assert!(sim.controllers().sensors().contains("ring"));
+//! ```
+
+use std::collections::BTreeMap;
+
+use bevy_ecs::prelude::{Component, Entity, EntityWorldMut, Query, Res, ResMut, Resource, With};
+use bevy_ecs::schedule::SystemSet;
+use bevy_ecs::system::SystemParam;
+use glam::DVec2;
+use serde::de::DeserializeOwned;
+
+use super::controllers::ControllerParamError;
+use super::grid::{GridEntry, SpatialGrid};
+use super::random::{key, mix};
+use super::sensors::{Footprint, SensorKeys, SensorStats, add_noise};
+use crate::world::{Detection, SensorError, SensorReadings, SimTime, VehicleId, VehicleSize, VehicleState};
+
+/// A sensor a scenario can name: the keys of its table in a vehicle's `sensors` are
+/// deserialised into the type (`deny_unknown_fields` refuses a misspelt key, naming it).
+pub trait ScenarioSensor: DeserializeOwned + Clone + Send + Sync + 'static {
+    /// Check the values after parsing: `Err((key, problem))` names the key (relative to the
+    /// sensor's table) and what is allowed. The default accepts everything.
+    fn check(&self) -> Result<(), (String, String)> {
+        Ok(())
+    }
+
+    /// The farthest it sees [m]: [`Nearby`] keeps its grid's cells at least this large.
+    fn range(&self) -> f64;
+}
+
+/// A plugin sensor on a vehicle: its registered name and its parameters. Stored sparsely, so
+/// the vehicles that carry one stay in the table of those that do not (see the module docs).
+#[derive(Component, Debug, Clone)]
+#[component(storage = "SparseSet")]
+pub struct Sensor<S: Send + Sync + 'static> {
+    /// The name it was registered under (what its detections say, [`Detection::sensor`]).
+    pub name: &'static str,
+    /// Its parameters, from the scenario.
+    pub params: S,
+}
+
+impl<S: Send + Sync + 'static> std::ops::Deref for Sensor<S> {
+    type Target = S;
+    fn deref(&self) -> &S {
+        &self.params
+    }
+}
+
+/// Marks a vehicle that carries at least one plugin sensor (stored sparsely): [`Nearby`]'s grid
+/// is built only while there is one.
+#[derive(Component, Debug, Clone, Copy, Default)]
+#[component(storage = "SparseSet")]
+pub struct CarriesPluginSensor;
+
+/// A parsed, checked sensor of a registered type, ready to put on a vehicle.
+pub trait AttachSensor: Send + Sync {
+    /// Insert the [`Sensor`] (and [`SensorReadings`] where the vehicle has none).
+    fn attach(&self, vehicle: &mut EntityWorldMut<'_>);
+}
+
+struct Parsed<S> {
+    name: &'static str,
+    params: S,
+}
+
+impl<S: ScenarioSensor> AttachSensor for Parsed<S> {
+    fn attach(&self, vehicle: &mut EntityWorldMut<'_>) {
+        attach_sensor(vehicle, self.name, self.params.clone());
+    }
+}
+
+/// Put sensor `params`, registered as `name`, on `vehicle`, as a scenario does.
+pub fn attach_sensor<S: ScenarioSensor>(vehicle: &mut EntityWorldMut<'_>, name: &'static str, params: S) {
+    let range = params.range();
+    vehicle.insert((Sensor { name, params }, CarriesPluginSensor));
+    if !vehicle.contains::<SensorReadings>() {
+        vehicle.insert(SensorReadings::default());
+    }
+    vehicle.world_scope(|w| {
+        let mut index = w.get_resource_or_insert_with(NearbyIndex::default);
+        index.reach = index.reach.max(range);
+    });
+}
+
+type Parse = fn(&'static str, toml::Table) -> Result<Box<dyn AttachSensor>, ControllerParamError>;
+
+fn parse_as<S: ScenarioSensor>(
+    name: &'static str,
+    params: toml::Table,
+) -> Result<Box<dyn AttachSensor>, ControllerParamError> {
+    let s: S = toml::Value::Table(params)
+        .try_into()
+        .map_err(|e: toml::de::Error| ControllerParamError { key: String::new(), problem: e.message().to_string() })?;
+    s.check().map_err(|(key, problem)| ControllerParamError { key, problem })?;
+    Ok(Box::new(Parsed { name, params: s }))
+}
+
+/// The names of the built-in sensors; a plugin cannot register them.
+pub const BUILT_IN_SENSORS: [&str; 3] = ["radar", "velodyne", "omniscient"];
+
+/// A sensor name is taken already.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("sensor name `{0}` is taken (built in or registered twice): register it under another name")]
+pub struct DuplicateSensor(pub String);
+
+/// Sensors registered by plugins, by name (in name order).
+#[derive(Clone, Default)]
+pub struct SensorRegistry {
+    entries: BTreeMap<&'static str, Parse>,
+}
+
+impl std::fmt::Debug for SensorRegistry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_list().entries(self.entries.keys()).finish()
+    }
+}
+
+impl SensorRegistry {
+    /// Register `S` under `name`; a built-in name or one registered already is an error. The
+    /// name is kept for the rest of the process (each detection refers to it).
+    pub fn register<S: ScenarioSensor>(&mut self, name: &str) -> Result<(), DuplicateSensor> {
+        if BUILT_IN_SENSORS.contains(&name) || self.entries.contains_key(name) {
+            return Err(DuplicateSensor(name.to_string()));
+        }
+        let name: &'static str = Box::leak(name.to_owned().into_boxed_str());
+        self.entries.insert(name, parse_as::<S>);
+        Ok(())
+    }
+
+    /// Whether `name` is registered.
+    pub fn contains(&self, name: &str) -> bool {
+        self.entries.contains_key(name)
+    }
+
+    /// Parse and check `params` (the sensor's table) as sensor `name`; `None` when no such
+    /// sensor is registered.
+    pub fn parse(
+        &self,
+        name: &str,
+        params: toml::Table,
+    ) -> Option<Result<Box<dyn AttachSensor>, ControllerParamError>> {
+        self.entries.get_key_value(name).map(|(name, parse)| parse(name, params))
+    }
+
+    /// "built in: radar, ...; registered by plugins: ..." for error messages.
+    pub fn known_list(&self) -> String {
+        let registered: Vec<&str> = self.entries.keys().copied().collect();
+        let mut s = format!("built in: {}", BUILT_IN_SENSORS.join(", "));
+        if registered.is_empty() {
+            s.push_str("; none registered by plugins");
+        } else {
+            s.push_str(&format!("; registered by plugins: {}", registered.join(", ")));
+        }
+        s
+    }
+}
+
+/// The phases of plugin sensing inside [`super::SimSystems::Sense`], after the built-in sensors:
+/// [`Nearby`]'s grid is built, then the plugin sensors sense.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PluginSensorSystems {
+    /// The neighbour grid is rebuilt ([`index_nearby`]).
+    Index,
+    /// Plugin sensors read [`Nearby`] and write readings: put a sensor's system here.
+    Sense,
+}
+
+/// The grid of every vehicle [`Nearby`] answers from, rebuilt once per sensor tick while any
+/// vehicle carries a plugin sensor.
+#[derive(Resource, Debug, Default)]
+pub struct NearbyIndex {
+    grid: SpatialGrid,
+    /// Footprints by grid index, for occlusion.
+    footprints: Vec<Footprint>,
+    /// The longest plugin sensor range [m] (the cells are at least this large).
+    reach: f64,
+    /// When it was built.
+    built_at: Option<SimTime>,
+}
+
+/// One vehicle near a query's position.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Neighbour {
+    /// Its id.
+    pub id: VehicleId,
+    /// Its position [m].
+    pub position: DVec2,
+    /// Its velocity [m/s].
+    pub velocity: DVec2,
+    /// Squared distance from the query's position [m²].
+    pub distance_squared: f64,
+    footprint: Footprint,
+}
+
+impl Neighbour {
+    /// The ground-truth detection of it by sensor `sensor`.
+    pub fn detection(&self, sensor: &'static str) -> Detection {
+        Detection { id: self.id, position: self.position, velocity: self.velocity, sensor }
+    }
+}
+
+/// The neighbour query of plugin sensors: every vehicle within a range of a position, from the
+/// grid built this sensor tick, O(k) for the k found (plus their sort).
+#[derive(SystemParam)]
+pub struct Nearby<'w> {
+    index: Res<'w, NearbyIndex>,
+}
+
+impl Nearby<'_> {
+    /// Every vehicle within `range` [m] of `position` (inclusive), nearest first (ties by id),
+    /// into `out` (cleared first; keep one buffer per system to allocate nothing per tick). The
+    /// vehicle at `position` itself is among them: skip your own id.
+    pub fn within(&self, position: DVec2, range: f64, out: &mut Vec<Neighbour>) {
+        out.clear();
+        let index = &*self.index;
+        index.grid.for_each_within(position, range, |slot, point, d2| {
+            let e = index.grid.get(slot);
+            let footprint = index.footprints[point.index as usize];
+            out.push(Neighbour {
+                id: point.id,
+                position: point.position,
+                velocity: e.velocity,
+                distance_squared: d2,
+                footprint,
+            });
+        });
+        out.sort_unstable_by(|a, b| a.distance_squared.total_cmp(&b.distance_squared).then(a.id.cmp(&b.id)));
+    }
+
+    /// When the grid was built (`None`: no vehicle carries a plugin sensor yet).
+    pub fn built_at(&self) -> Option<SimTime> {
+        self.index.built_at
+    }
+}
+
+/// Rebuild [`NearbyIndex`] from every vehicle, once per sensor tick, while some vehicle carries
+/// a plugin sensor: O(N).
+pub fn index_nearby(
+    mut index: ResMut<NearbyIndex>,
+    clock: Res<super::SimClock>,
+    carriers: Query<(), With<CarriesPluginSensor>>,
+    everyone: Query<(Entity, &VehicleId, &VehicleState, Option<&VehicleSize>)>,
+) {
+    if carriers.is_empty() {
+        return;
+    }
+    let index = &mut *index;
+    let cell = if index.reach > 0.0 { index.reach } else { 50.0 };
+    index.footprints.clear();
+    index.footprints.extend(everyone.iter().map(|(_, _, s, size)| {
+        let size = size.copied().unwrap_or_default();
+        Footprint::new(size, s.yaw)
+    }));
+    let entries = everyone.iter().enumerate().map(|(i, (_, &id, s, _))| GridEntry {
+        position: s.position,
+        velocity: s.velocity,
+        id,
+        index: i as u32,
+    });
+    index.grid.rebuild(cell, entries);
+    index.built_at = Some(clock.now);
+}
+
+/// Counter-based noise and dropout of a plugin sensor at one tick, the built-in sensors' own
+/// ([`SensorError`]): every draw a pure function of (seed, the sensor's name, observer,
+/// target, tick), so any thread count and any order give the same readings.
+#[derive(Debug, Clone, Copy)]
+pub struct PluginDraws {
+    keys: SensorKeys,
+}
+
+impl PluginDraws {
+    /// The draws of sensor `name` at tick `now` of a run with `seed`.
+    pub fn new(seed: u64, name: &str, now: SimTime) -> PluginDraws {
+        PluginDraws { keys: SensorKeys::new(seed, stream_of(name), now.0) }
+    }
+
+    /// Apply `err`'s dropout and noise to `detection` as seen by `observer` at `from`: `false`
+    /// when it is dropped (then leave it out), else `detection` carries the noise.
+    pub fn apply(&self, err: &SensorError, observer: VehicleId, from: DVec2, detection: &mut Detection) -> bool {
+        let pair = self.keys.pair(observer, detection.id);
+        if err.dropout > 0.0 && !pair.kept(err.dropout) {
+            return false;
+        }
+        if err.is_noisy() {
+            let relative = detection.position - from;
+            add_noise(detection, from, relative, relative.length_squared(), err, pair.normals());
+        }
+        true
+    }
+}
+
+/// A sensor's random stream from its name: FNV-1a of the name's bytes, mixed with the seed by
+/// [`key`].
+fn stream_of(name: &str) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in name.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    mix(key(h, 0x504c_5547, 0))
+}
+
+/// Occlusion as the built-in sensors judge it: a target is hidden when its angular extent lies
+/// inside one nearer target's. Feed the candidates nearest first; one per observer and tick
+/// ([`Occlusion::clear`]), its buffer reused. The extents are kept as the directions of their
+/// outermost corners and compared by cross products (no trigonometry but one `sin_cos` per
+/// target): the same containment as the built-in sensors' angles for any target that spans
+/// less than a right angle, as every vehicle does from outside it.
+#[derive(Debug, Clone, Default)]
+pub struct Occlusion {
+    /// Each nearer target's (clockwise-most, counter-clockwise-most) corner [m], relative to the
+    /// observer.
+    extents: Vec<(DVec2, DVec2)>,
+}
+
+impl Occlusion {
+    /// Start a new observer.
+    pub fn clear(&mut self) {
+        self.extents.clear();
+    }
+
+    /// Whether `target` (nearer than every one given after it) is hidden from `from` by one
+    /// given before; it then hides those behind it in turn.
+    pub fn hidden(&mut self, from: DVec2, target: &Neighbour) -> bool {
+        let (inner_right, inner_left) = corner_extent(target.position - from, &target.footprint);
+        let inside = |&(right, left): &(DVec2, DVec2)| {
+            right.dot(inner_right) > 0.0
+                && left.dot(inner_left) > 0.0
+                && right.perp_dot(inner_right) >= 0.0
+                && inner_left.perp_dot(left) >= 0.0
+        };
+        let hidden = self.extents.iter().any(inside);
+        self.extents.push((inner_right, inner_left));
+        hidden
+    }
+}
+
+/// The clockwise-most and counter-clockwise-most corners of footprint `f` centred at
+/// `relative` [m] from the observer.
+fn corner_extent(relative: DVec2, f: &Footprint) -> (DVec2, DVec2) {
+    let (along, across) = f.axes();
+    let corners =
+        [relative + along + across, relative + along - across, relative - along + across, relative - along - across];
+    let (mut right, mut left) = (corners[0], corners[0]);
+    for &c in &corners[1..] {
+        if right.perp_dot(c) < 0.0 {
+            right = c;
+        }
+        if left.perp_dot(c) > 0.0 {
+            left = c;
+        }
+    }
+    (right, left)
+}
+
+/// Detections and misses of each plugin sensor, by name (`summary.json`
+/// `metrics.sensors.by_sensor`); a sensor's system adds its counts.
+#[derive(Resource, Debug, Clone, Default, PartialEq, Eq)]
+pub struct PluginSensorStats(pub BTreeMap<&'static str, SensorStats>);
+
+impl PluginSensorStats {
+    /// The counts of sensor `name`, to add to.
+    pub fn of(&mut self, name: &'static str) -> &mut SensorStats {
+        self.0.entry(name).or_default()
+    }
+}
+
+impl SensorReadings {
+    /// Replace the detections of sensor `name` by `detections` (the other sensors' stay): what a
+    /// plugin sensor's system does each tick.
+    pub fn set_sensor(&mut self, name: &str, detections: impl IntoIterator<Item = Detection>) {
+        self.0.retain(|d| d.sensor != name);
+        self.0.extend(detections);
+    }
+
+    /// The detections of sensor `name`.
+    pub fn of<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a Detection> + 'a {
+        self.0.iter().filter(move |d| d.sensor == name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::random::uniform;
+    use crate::sim::sensors::{covers, extent};
+
+    #[test]
+    fn occlusion_by_corners_is_the_built_in_rule_of_angles() {
+        let neighbour = |k: u64, near: bool| {
+            let (d, spread) =
+                if near { (8.0 + 20.0 * uniform(5, 1, k, 0), 0.3) } else { (30.0 + 40.0 * uniform(5, 1, k, 0), 0.3) };
+            let bearing = spread * (uniform(5, 1, k, 1) - 0.5);
+            let size = VehicleSize { length: 3.0 + 10.0 * uniform(5, 1, k, 2), width: 1.5 + uniform(5, 1, k, 3) };
+            let yaw = std::f64::consts::TAU * uniform(5, 1, k, 4);
+            let position = DVec2::from_angle(bearing) * d;
+            let footprint = Footprint::new(size, yaw);
+            Neighbour { id: VehicleId(k as i32), position, velocity: DVec2::ZERO, distance_squared: d * d, footprint }
+        };
+        let (mut agree, mut hidden) = (0, 0);
+        for k in 0..20_000u64 {
+            let (near, far) = (neighbour(2 * k, true), neighbour(2 * k + 1, false));
+            let mut occlusion = Occlusion::default();
+            occlusion.hidden(DVec2::ZERO, &near);
+            let ours = occlusion.hidden(DVec2::ZERO, &far);
+            let built_in = covers(extent(near.position, &near.footprint), extent(far.position, &far.footprint));
+            assert_eq!(ours, built_in, "pair {k}: {near:?} {far:?}");
+            agree += 1;
+            hidden += usize::from(ours);
+        }
+        assert!(hidden > 1000 && hidden < agree - 1000, "{hidden} of {agree} hidden: both outcomes tested");
+    }
+}
