@@ -65,9 +65,9 @@ pub struct ChannelModel {
     pub loss: Loss,
     /// Gilbert-Elliott bursts, if any.
     pub burst: Option<Burst>,
-    /// Fixed delivery delay [ms].
+    /// Fixed delivery delay \[ms\].
     pub delay_ms: f64,
-    /// Extra delay, uniform in `[0, jitter_ms)` [ms].
+    /// Extra delay, uniform in `[0, jitter_ms)` \[ms\].
     pub jitter_ms: f64,
 }
 
@@ -80,7 +80,7 @@ pub struct LinkState {
     /// A plugin model's state of this link (0 on a fresh link), kept by the runtime when the
     /// model asks for it ([`super::channel_models::ChannelLossModel::keeps_link_state`]).
     pub word: u64,
-    /// Due time of the last message delivered on the link [µs], so none overtakes it.
+    /// Due time of the last message delivered on the link \[µs\], so none overtakes it.
     pub last_due_us: u64,
 }
 
@@ -174,7 +174,7 @@ impl ChannelModel {
         self.burst.is_some() || matches!(&self.loss, Loss::Plugin(m) if m.keeps_link_state())
     }
 
-    /// The widest spread of the delays [µs]: the largest delay [`ChannelModel::deliver`] gives
+    /// The widest spread of the delays \[µs\]: the largest delay [`ChannelModel::deliver`] gives
     /// less the smallest. Rounds further apart than this cannot overtake one another. A plugin
     /// model's delays are not bounded in advance: every round may overtake.
     pub fn delay_spread_us(&self) -> u64 {
@@ -194,7 +194,7 @@ impl ChannelModel {
         }
     }
 
-    /// Loss probability before bursts at `distance` [m] for a channel of `range` [m].
+    /// Loss probability before bursts at `distance` \[m\] for a channel of `range` \[m\].
     /// A plugin model decides in [`ChannelModel::deliver`]: 0 here.
     pub fn loss_at(&self, distance: f64, range: f64) -> f64 {
         match self.loss {
@@ -207,9 +207,9 @@ impl ChannelModel {
         }
     }
 
-    /// The fate of one reception: `None` when lost, else its delay [µs] (never due before the
+    /// The fate of one reception: `None` when lost, else its delay \[µs\] (never due before the
     /// link's previous message: `link.last_due_us` is kept). `now_us` is the round's time,
-    /// `distance` [m] the sender-receiver distance, `range` [m] the channel's range.
+    /// `distance` \[m\] the sender-receiver distance, `range` \[m\] the channel's range.
     pub fn deliver(&self, draw: &Draw, now_us: u64, distance: f64, range: f64, link: &mut LinkState) -> Option<u64> {
         let ids = (VehicleId(draw.sender), VehicleId(draw.receiver));
         self.deliver_keyed(draw.key(), draw.index, ids, now_us, distance, range, link)
@@ -261,7 +261,7 @@ impl ChannelModel {
     }
 
     /// The loss and delay of message `index` of the link round `key` after its burst state:
-    /// `None` when lost with probability `p` ([`ChannelModel::loss_at`]), else its delay [µs]
+    /// `None` when lost with probability `p` ([`ChannelModel::loss_at`]), else its delay \[µs\]
     /// before the link's ordering. What [`ChannelModel::deliver_keyed`] gives for a model
     /// without bursts and a fresh link, so a round of such a model (nothing kept per link) calls
     /// this directly: one hash and a few operations per reception, inlined.

@@ -45,12 +45,12 @@ pub struct LinkContext {
     pub sender: VehicleId,
     /// Who would receive it.
     pub receiver: VehicleId,
-    /// Sender-receiver distance at the round [m] (0 when the model says it does not use it,
+    /// Sender-receiver distance at the round \[m\] (0 when the model says it does not use it,
     /// [`ChannelLossModel::uses_distance`]).
     pub distance: f64,
-    /// The channel's range [m] (the network channel is told the wifi range).
+    /// The channel's range \[m\] (the network channel is told the wifi range).
     pub range: f64,
-    /// The round's sim time [µs].
+    /// The round's sim time \[µs\].
     pub now_us: u64,
     /// A random word of this reception: a pure function of (seed, channel, round, sender,
     /// receiver, message index), independent of the draws the channel's delay and bursts use,
@@ -80,7 +80,7 @@ pub trait ChannelLossModel: DeserializeOwned + Send + Sync + 'static {
         Ok(())
     }
 
-    /// The fate of one reception: `None` when lost, else its extra delay [ms] (counted only when
+    /// The fate of one reception: `None` when lost, else its extra delay \[ms\] (counted only when
     /// [`ChannelLossModel::delays`] says so). `state` is this link's word (0 on a fresh link),
     /// kept between messages when [`ChannelLossModel::keeps_link_state`] says so.
     fn deliver(&self, link: &LinkContext, state: &mut u64) -> Option<f64>;

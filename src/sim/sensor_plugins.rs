@@ -54,7 +54,7 @@ pub trait ScenarioSensor: DeserializeOwned + Clone + Send + Sync + 'static {
         Ok(())
     }
 
-    /// The farthest it sees [m]: [`Nearby`] keeps its grid's cells at least this large.
+    /// The farthest it sees \[m\]: [`Nearby`] keeps its grid's cells at least this large.
     fn range(&self) -> f64;
 }
 
@@ -213,11 +213,11 @@ pub struct NearbyIndex {
 pub struct Neighbour {
     /// Its id.
     pub id: VehicleId,
-    /// Its position [m].
+    /// Its position \[m\].
     pub position: DVec2,
     /// Its velocity [m/s].
     pub velocity: DVec2,
-    /// Squared distance from the query's position [m²].
+    /// Squared distance from the query's position \[m²\].
     pub distance_squared: f64,
     footprint: Footprint,
 }
@@ -237,7 +237,7 @@ pub struct Nearby<'w> {
 }
 
 impl Nearby<'_> {
-    /// Every vehicle within `range` [m] of `position` (inclusive), nearest first (ties by id),
+    /// Every vehicle within `range` \[m\] of `position` (inclusive), nearest first (ties by id),
     /// into `out` (cleared first; keep one buffer per system to allocate nothing per tick). The
     /// vehicle at `position` itself is among them: skip your own id.
     pub fn within(&self, position: DVec2, range: f64, out: &mut Vec<Neighbour>) {

@@ -8,7 +8,7 @@
 //! vehicle).
 //!
 //! Where every vehicle senses with a bounded range from one ECS table (the common case), the
-//! grid is built only now and then, for Verlet neighbour lists ([`NeighbourLists`]): each
+//! grid is built only now and then, for Verlet neighbour lists (`NeighbourLists`): each
 //! vehicle's list holds those within its range plus a skin, kept while no two neighbours have
 //! closed in on each other by the skin (traffic moves together: seconds at a time), so most
 //! ticks test a short list per vehicle and rebuild nothing. The readings are the grid scan's,
@@ -20,7 +20,7 @@
 //! with its probability, and Gaussian noise moves range, bearing and velocity. Every draw is
 //! counter-based ([`super::random`]), keyed by (seed, sensor, observer and target, tick): no
 //! allocation, the same bits for any thread count; two hashes per noisy detection
-//! ([`SensorKeys`]). The normals come from the ziggurat on 24 or 32 bits of a hash each
+//! (`SensorKeys`). The normals come from the ziggurat on 24 or 32 bits of a hash each
 //! ([`super::random::normal_half`]: a multiplication each, mostly) and the bearing error's
 //! rotation from a short polynomial, so noise costs no `ln` or `sin_cos` per detection.
 //! [`SensorStats`] counts detections and the misses of each kind.
@@ -68,7 +68,7 @@ impl SensorStats {
     }
 }
 
-/// Footprint of a grid entry for occlusion: half length, half width [m] and yaw [rad].
+/// Footprint of a grid entry for occlusion: half length, half width \[m\] and yaw \[rad\].
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Footprint {
     half_length: f64,
@@ -77,7 +77,7 @@ pub struct Footprint {
 }
 
 impl Footprint {
-    /// The footprint of a vehicle of `size` heading `yaw` [rad].
+    /// The footprint of a vehicle of `size` heading `yaw` \[rad\].
     pub fn new(size: VehicleSize, yaw: f64) -> Footprint {
         Footprint { half_length: 0.5 * size.length, half_width: 0.5 * size.width, yaw }
     }
@@ -223,8 +223,8 @@ impl PairDraws<'_> {
     }
 }
 
-/// Whether a target at offset `relative` [m] from the sensor lies inside a radar cone facing
-/// `heading` (a unit vector) with full opening angle `angle` [rad] (edges inclusive).
+/// Whether a target at offset `relative` \[m\] from the sensor lies inside a radar cone facing
+/// `heading` (a unit vector) with full opening angle `angle` \[rad\] (edges inclusive).
 ///
 /// Every angle here is in radians. The 2015 Python code compared an angle in degrees with one in
 /// radians in this test, so its radar cone was not the configured one; this one is.
@@ -284,7 +284,7 @@ impl Cone {
     }
 }
 
-/// The grid all sensors query and the neighbour lists built over it ([`NeighbourLists`]),
+/// The grid all sensors query and the neighbour lists built over it (`NeighbourLists`),
 /// kept between sensor ticks: the grid is rebuilt every tick where the lists are not used,
 /// else with the lists.
 #[derive(Resource, Debug, Default)]
@@ -1178,15 +1178,15 @@ impl DriftPart {
 }
 
 /// How far all around each vehicle the neighbour lists must reach for the modules that read
-/// them besides the sensors [m] (the wifi round asks for its range, [`super::v2v`]); within the
-/// sensors' own largest range, the lists then hold everyone that close (see [`Reach`]). A
+/// them besides the sensors \[m\] (the wifi round asks for its range, [`super::v2v`]); within the
+/// sensors' own largest range, the lists then hold everyone that close (see `Reach`). A
 /// resource those modules set, so that sensing depends on none of them. 0: the sensors' needs.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
 pub struct ListFloor(pub f64);
 
 /// The instant the wifi round expects to run next (its last round plus the spacing of its last
 /// two, [`super::v2v`]): the sensor tick at that instant notes which neighbours on each list
-/// lie within the [`ListFloor`] ([`SensorGrid::near`]). A wrong guess costs only that the
+/// lie within the [`ListFloor`] (`SensorGrid::near`). A wrong guess costs only that the
 /// round tests the neighbours itself.
 #[derive(Resource, Debug, Clone, Copy, Default, PartialEq)]
 pub struct NearWanted(pub Option<SimTime>);
@@ -1214,7 +1214,7 @@ struct Shape {
     velodyne: f64,
 }
 
-/// What [`typical_range`] and the neighbour lists need to know of a run of [`Shape`]s, found
+/// What `typical_range` and the neighbour lists need to know of a run of `Shape`s, found
 /// in the pass that makes them (split over the threads) and merged in order: the first bounded
 /// range, whether every bounded range equals it, and whether every range is finite.
 #[derive(Debug, Clone, Copy)]
