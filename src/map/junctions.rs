@@ -22,6 +22,7 @@
 //!   approaches the one turning left yields; of two links from one approach, the one from the
 //!   left lane yields.
 
+pub use super::lanelet::{MapSignalProgram, SignalPhase};
 use std::collections::BTreeMap;
 
 use glam::DVec2;
@@ -847,16 +848,6 @@ fn stated_no_foes(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> bool {
     }
 }
 
-/// A signal program stated by the map file (a SUMO `<tlLogic>`): phases whose states have one
-/// character per signal index (the `signal_index` tag of the links it controls).
-#[derive(Debug, Clone, PartialEq)]
-pub struct MapSignalProgram {
-    /// The phases in file order.
-    pub phases: Vec<SignalPhase>,
-    /// Cycle shift \[s\].
-    pub offset: f64,
-}
-
 /// The program of `junction` from the map's own signal programs: every link names the same
 /// program (tag `signal_program`) and its character (tag `signal_index`); each phase's state is
 /// then re-ordered into the junction's link order. `None` where a link has no such tags (the
@@ -893,17 +884,6 @@ pub fn map_program(map: &LaneletMap, junction: &Junction) -> Option<(Vec<SignalP
         })
         .collect();
     Some((phases, p.offset))
-}
-
-/// One phase of a signal program: a state (one character per link) held for `duration` \[s\].
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SignalPhase {
-    /// One character per link in link order: `G` green with priority, `g` green yielding, `y`
-    /// yellow, `r` red.
-    pub state: String,
-    /// How long it is held \[s\].
-    pub duration: f64,
 }
 
 /// Green time of each phase of [`default_program`] \[s\].
@@ -969,9 +949,10 @@ impl LaneletMap {
     /// The map's junctions under the default rules ([`find_junctions`]), found once and shared
     /// by everything that asks (the right-of-way plugin, random trips, the light log, `map info`).
     pub fn junctions(&self) -> std::sync::Arc<Junctions> {
-        std::sync::Arc::clone(
-            self.junctions.get_or_init(|| std::sync::Arc::new(find_junctions(self, &JunctionRules::default()))),
-        )
+        let found = || find_junctions(self, &JunctionRules::default());
+        let cached = self.junctions.get_or_init(|| std::sync::Arc::new(found()));
+        // The cache holds nothing else; should it ever, the junctions are found afresh.
+        std::sync::Arc::clone(cached).downcast::<Junctions>().unwrap_or_else(|_| std::sync::Arc::new(found()))
     }
 
     /// Whether any lanelet is tagged `driving_side = left`.

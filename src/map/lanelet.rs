@@ -122,6 +122,27 @@ impl Lanelet {
     }
 }
 
+/// One phase of a signal program: a state (one character per link) held for `duration` \[s\].
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SignalPhase {
+    /// One character per link in link order: `G` green with priority, `g` green yielding, `y`
+    /// yellow, `r` red.
+    pub state: String,
+    /// How long it is held \[s\].
+    pub duration: f64,
+}
+
+/// A signal program stated by the map file (a SUMO `<tlLogic>`): phases whose states have one
+/// character per signal index (the `signal_index` tag of the links it controls).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapSignalProgram {
+    /// The phases in file order.
+    pub phases: Vec<SignalPhase>,
+    /// Cycle shift \[s\].
+    pub offset: f64,
+}
+
 /// A loaded lanelet map: everything the simulator, router and renderer need, in metres.
 #[derive(Debug, Clone)]
 pub struct LaneletMap {
@@ -144,10 +165,11 @@ pub struct LaneletMap {
     pub regulatory: BTreeMap<i64, RegulatoryElement>,
     /// Signal programs the map file gives (SUMO `<tlLogic>`), by program id; a junction link
     /// lanelet names its program and its character in the states with the tags
-    /// `signal_program` and `signal_index` ([`super::junctions::map_program`]).
-    pub signal_programs: BTreeMap<String, super::junctions::MapSignalProgram>,
-    /// The junctions under the default rules, found on first use ([`LaneletMap::junctions`]).
-    pub(crate) junctions: std::sync::OnceLock<std::sync::Arc<super::junctions::Junctions>>,
+    /// `signal_program` and `signal_index` (`junctions::map_program`).
+    pub signal_programs: BTreeMap<String, MapSignalProgram>,
+    /// The junctions under the default rules, found on first use ([`LaneletMap::junctions`]);
+    /// held type-erased so this data module does not import the junction logic built on it.
+    pub(crate) junctions: std::sync::OnceLock<std::sync::Arc<dyn std::any::Any + Send + Sync>>,
     pub(crate) index: BTreeMap<LaneletId, usize>,
     pub(crate) graph: RoutingGraph,
 }

@@ -28,6 +28,7 @@ use bevy_ecs::prelude::EntityWorldMut;
 use serde::de::DeserializeOwned;
 
 use super::channel_models::ChannelModelRegistry;
+use super::params::parse_plugin_params;
 use super::sensor_plugins::SensorRegistry;
 
 /// Names of the controllers the scenario format has built in; a plugin cannot register them.
@@ -74,23 +75,12 @@ impl<C: ScenarioController> AttachController for C {
     }
 }
 
-/// Why a registered controller's (or channel model's) parameters were refused.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ControllerParamError {
-    /// The key (relative to the `controller` table), empty when the table as a whole is wrong.
-    pub key: String,
-    /// What is wrong and what is allowed.
-    pub problem: String,
-}
+pub use super::params::ControllerParamError;
 
 type Parse = fn(toml::Table) -> Result<Box<dyn AttachController>, ControllerParamError>;
 
 fn parse_as<C: ScenarioController>(params: toml::Table) -> Result<Box<dyn AttachController>, ControllerParamError> {
-    let c: C = toml::Value::Table(params)
-        .try_into()
-        .map_err(|e: toml::de::Error| ControllerParamError { key: String::new(), problem: e.message().to_string() })?;
-    c.check().map_err(|(key, problem)| ControllerParamError { key, problem })?;
-    Ok(Box::new(c))
+    Ok(Box::new(parse_plugin_params::<C>(params, C::check)?))
 }
 
 /// A name is taken already.

@@ -110,3 +110,26 @@ pub const MAX_TIME: f64 = 86_400.0;
 pub const MAX_DISTANCE: f64 = 1e7;
 /// Largest vehicle dimension (length, width, wheelbase) \[m\].
 pub const MAX_VEHICLE_SIZE: f64 = 100.0;
+
+/// Why a registered plugin's parameters (a controller's, a sensor's or a channel model's table
+/// in a scenario) were refused.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ControllerParamError {
+    /// The key (relative to the plugin's table), empty when the table as a whole is wrong.
+    pub key: String,
+    /// What is wrong and what is allowed.
+    pub problem: String,
+}
+
+/// A plugin's parameter table deserialised into `T` (unknown keys refused when `T` denies them)
+/// and checked by `check` (`Err((key, problem))`): the one parse every plugin registry uses.
+pub fn parse_plugin_params<T: serde::de::DeserializeOwned>(
+    params: toml::Table,
+    check: impl FnOnce(&T) -> Result<(), (String, String)>,
+) -> Result<T, ControllerParamError> {
+    let value: T = toml::Value::Table(params)
+        .try_into()
+        .map_err(|e: toml::de::Error| ControllerParamError { key: String::new(), problem: e.message().to_string() })?;
+    check(&value).map_err(|(key, problem)| ControllerParamError { key, problem })?;
+    Ok(value)
+}

@@ -39,8 +39,8 @@ use bevy_ecs::system::SystemParam;
 use glam::DVec2;
 use serde::de::DeserializeOwned;
 
-use super::controllers::ControllerParamError;
 use super::grid::{GridEntry, SpatialGrid};
+use super::params::{ControllerParamError, parse_plugin_params};
 use super::random::{key, mix};
 use super::sensors::{Footprint, SensorKeys, SensorStats, add_noise};
 use crate::world::{Detection, SensorError, SensorReadings, SimTime, VehicleId, VehicleSize, VehicleState};
@@ -118,11 +118,7 @@ fn parse_as<S: ScenarioSensor>(
     name: &'static str,
     params: toml::Table,
 ) -> Result<Box<dyn AttachSensor>, ControllerParamError> {
-    let s: S = toml::Value::Table(params)
-        .try_into()
-        .map_err(|e: toml::de::Error| ControllerParamError { key: String::new(), problem: e.message().to_string() })?;
-    s.check().map_err(|(key, problem)| ControllerParamError { key, problem })?;
-    Ok(Box::new(Parsed { name, params: s }))
+    Ok(Box::new(Parsed { name, params: parse_plugin_params::<S>(params, S::check)? }))
 }
 
 /// The names of the built-in sensors; a plugin cannot register them.
