@@ -213,6 +213,7 @@ impl ChannelModelRegistry {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::world::VehicleId;
 
     fn table(text: &str) -> toml::Table {
         text.parse().expect("toml")
