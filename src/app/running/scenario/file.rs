@@ -491,22 +491,9 @@ impl ChannelSection {
     }
 }
 
-/// `burst = { p_enter, p_leave, loss_in_burst }` (probabilities per message).
-#[derive(Debug, Clone, Copy, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BurstConfig {
-    /// Good -> bad per message [-].
-    pub p_enter: f64,
-    /// Bad -> good per message [-]; mean burst length 1 / p_leave messages.
-    pub p_leave: f64,
-    /// Loss probability in the bad state [-].
-    #[serde(default = "one")]
-    pub loss_in_burst: f64,
-}
-
-fn one() -> f64 {
-    1.0
-}
+/// `burst = { p_enter, p_leave, loss_in_burst }` (probabilities per message): the same table as
+/// `loss = { model = "gilbert_elliott", ... }` takes.
+pub type BurstConfig = crate::sim::channel_models::GilbertElliott;
 
 /// A channel's loss: a number, or a table naming a model.
 #[derive(Debug, Clone, PartialEq)]
