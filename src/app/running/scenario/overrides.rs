@@ -165,6 +165,12 @@ fn set_item(
     }
 }
 
+/// The scenario text of `path`: the file, or for a SUMO configuration the scenario it describes.
+fn scenario_text(path: &FsPath) -> Result<String, ScenarioError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io { path: path.into(), source })?;
+    if path.extension().is_some_and(|e| e == "sumocfg") { super::sumocfg::scenario_text(&text, path) } else { Ok(text) }
+}
+
 /// Read the scenario file `path`, apply `seed` (replaces `seed`) and `overrides` in order, and
 /// parse and check the result like the file (with the controllers of `controllers`). Errors name
 /// the file and the key.
@@ -174,13 +180,7 @@ pub fn load_with_overrides(
     overrides: &[(String, toml::Value)],
     controllers: &ControllerRegistry,
 ) -> Result<Scenario, ScenarioError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io { path: path.into(), source })?;
-    // A SUMO configuration runs as the scenario it describes.
-    let text = if path.extension().is_some_and(|e| e == "sumocfg") {
-        super::sumocfg::scenario_text(&text, path)?
-    } else {
-        text
-    };
+    let text = scenario_text(path)?;
     if seed.is_none() && overrides.is_empty() {
         return Scenario::parse_str_with(&text, path, controllers);
     }
@@ -227,12 +227,7 @@ fn culprit<'a>(
     overrides: &'a [(String, toml::Value)],
     controllers: &ControllerRegistry,
 ) -> Option<(&'a str, String, String)> {
-    let text = std::fs::read_to_string(path).ok()?;
-    let text = if path.extension().is_some_and(|e| e == "sumocfg") {
-        super::sumocfg::scenario_text(&text, path).ok()?
-    } else {
-        text
-    };
+    let text = scenario_text(path).ok()?;
     let parses =
         |table: &toml::Table| toml::to_string(table).ok().map(|t| Scenario::parse_str_with(&t, path, controllers));
     let mut table: toml::Table = toml::from_str(&text).ok()?;
