@@ -280,7 +280,7 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
     let report = drive(&mut sim, &options, duration, realtime, recorder.as_mut())?;
     if let Some(rec) = &recorder {
         let f = &options.frame_output;
-        let to: Vec<String> = f.frames.iter().chain(&f.gif).map(|p| p.display().to_string()).collect();
+        let to: Vec<String> = f.frames.iter().chain(&f.gif).chain(&f.video).map(|p| p.display().to_string()).collect();
         tracing::info!("recorded {} frames at {} Hz into {}", rec.frames(), f.frame_rate, to.join(" and "));
     }
     if let Some(rec) = recorder {
@@ -452,7 +452,7 @@ fn drive(
     }
 }
 
-/// The frame recorder when frames or a GIF are asked for.
+/// The frame recorder when frames, a GIF or a video are asked for.
 fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRecorder>, RunError> {
     let frames = &options.frame_output;
     if !frames.any() {
@@ -461,7 +461,7 @@ fn recorder(scenario: &Scenario, options: &RunOptions) -> Result<Option<FrameRec
     frames.check().map_err(RunError::Option)?;
     let Some(map) = scenario.map.as_ref() else {
         return Err(RunError::Option(format!(
-            "--frames/--gif draw the scenario's map, but {} names no `map`",
+            "--frames/--gif/--video draw the scenario's map, but {} names no `map`",
             scenario.path.display()
         )));
     };

@@ -32,6 +32,7 @@ mod recorder;
 mod signals;
 mod sprites;
 mod triangulate;
+mod video;
 mod view;
 
 use std::path::PathBuf;
@@ -50,6 +51,7 @@ pub use sprites::{
     Indicator, Overlays, RadarCone, VehicleSprite, class_color, label_boxes, overlapping_pairs, vehicle_color,
 };
 pub use triangulate::triangulate;
+pub use video::VideoWriter;
 pub use view::{BirdseyeView, MAX_IMAGE_SIDE};
 
 /// What can go wrong while rendering.

@@ -13,6 +13,7 @@ use image::RgbaImage;
 
 use super::camera::{Camera, FrameOutput, Overlay};
 use super::output::{GifWriter, frame_path, write_error};
+use super::video::VideoWriter;
 use super::{
     BirdseyeView, Environment, EnvironmentLayer, Overlays, PatternSet, RadarCone, RenderError, Renderer, SignalLine,
     VehicleSprite,
@@ -37,6 +38,8 @@ pub struct FrameRecorder {
     gif_size: (u32, u32),
     /// The GIF takes every `n`-th frame, scaled to this size ([`FrameOutput::gif_sampling`]).
     gif_sampling: (u64, u32, u32),
+    /// The MP4 video: every frame at full size.
+    video: Option<(VideoWriter, PathBuf)>,
     sensor_ranges: bool,
     overlay: Overlay,
     sprites: Vec<VehicleSprite>,
@@ -99,6 +102,12 @@ impl FrameRecorder {
             }
             None => None,
         };
+        let video = match &frames.video {
+            Some(path) => {
+                Some((VideoWriter::create(path, frames.width, frames.height, frames.frame_rate)?, path.clone()))
+            }
+            None => None,
+        };
         Ok(FrameRecorder {
             renderer,
             env,
@@ -110,6 +119,7 @@ impl FrameRecorder {
             gif_path: frames.gif.clone(),
             gif_size: (frames.width, frames.height),
             gif_sampling,
+            video,
             sensor_ranges: false,
             overlay: frames.overlay,
             sprites: Vec::new(),
@@ -221,6 +231,27 @@ impl FrameRecorder {
                 super::write_image(&path, &self.image)?;
             }
         }
+        if let Some((video, _)) = self.video.as_mut() {
+            if self.image.dimensions() != self.gif_size {
+                tracing::warn!(
+                    "a {}x{} px frame does not fit the {}x{} px video: left out of it",
+                    self.image.width(),
+                    self.image.height(),
+                    self.gif_size.0,
+                    self.gif_size.1
+                );
+            } else {
+                match &with_overlay {
+                    Some(image) => video.push(image)?,
+                    None if self.overlay != Overlay::None => {
+                        let image = overlaid(&self.image);
+                        video.push(&image)?;
+                        with_overlay = Some(image);
+                    }
+                    None => video.push(&self.image)?,
+                }
+            }
+        }
         let (every, gif_w, gif_h) = self.gif_sampling;
         if let Some(gif) = self.gif.as_mut().filter(|_| self.frames.is_multiple_of(every)) {
             if self.image.dimensions() != self.gif_size {
@@ -288,10 +319,15 @@ impl FrameRecorder {
         image
     }
 
-    /// Finish the outputs: the GIF is completed and renamed into place (frames are written one by
+    /// Finish the outputs: the video and the GIF are completed and renamed into place (frames are written one by
     /// one as they come). A recorder dropped without this leaves an earlier GIF of the same name.
     /// Logs the GIF's size: a followed view's moving ground makes every frame new.
     pub fn finish(self) -> Result<(), RenderError> {
+        if let Some((video, path)) = self.video {
+            let frames = video.frames();
+            let bytes = video.finish()?;
+            tracing::info!("wrote {} ({frames} frames, {:.1} MB)", path.display(), bytes as f64 / 1e6);
+        }
         let (Some(gif), Some(path)) = (self.gif, self.gif_path) else { return Ok(()) };
         let bytes = gif.finish()?;
         let frames = self.frames.div_ceil(self.gif_sampling.0);

@@ -333,7 +333,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     let frames = &options.frame_output;
     if !frames.any() && options.stream.is_none() && options.mcap.is_none() {
         return Err(ReplayError::Option(
-            "replay needs at least one of --gif FILE, --frames DIR, --stream [ADDR], --mcap FILE".into(),
+            "replay needs at least one of --gif FILE, --video FILE, --frames DIR, --stream [ADDR], --mcap FILE".into(),
         ));
     }
     if let Some(path) = &options.mcap {
@@ -366,7 +366,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
     let mut recorder = if drawing {
         let Some(map_path) = &info.map else {
             return Err(ReplayError::Option(format!(
-                "--frames/--gif draw the run's map, but {} names none (the scenario had no `map`)",
+                "--frames/--gif/--video draw the run's map, but {} names none (the scenario had no `map`)",
                 out_dir.join("summary.json").display()
             )));
         };
