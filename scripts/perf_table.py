@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Measure the README's performance table and write it there (issue 25: the table is generated,
+"""Measure the performance table of docs/performance.md and write it there (issue 25: the table is generated,
 not typed).
 
     python3 scripts/perf_table.py [--runs 3] [--vehicles 10000] [--no-write]
@@ -9,7 +9,7 @@ simulation configurations taking turns (plain, --lane-change, --degraded, on the
 and on one) so every ratio compares figures of the same minutes. Each ratio is given three ways:
 of the medians, paired (the median of each turn's ratio) and of the best runs. Prints the table (min / median /
 max of the runs, the command of each row, N, the commit, the machine's load) and, unless
---no-write, replaces the block between the README's `<!-- perf-table:start -->` and
+--no-write, replaces the block between docs/performance.md's `<!-- perf-table:start -->` and
 `<!-- perf-table:end -->` markers with it. The generated grid map for the routing and loading rows
 goes into a temporary folder that is removed at the end.
 """
@@ -55,7 +55,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=3, help="runs of each configuration (default 3)")
     ap.add_argument("--vehicles", type=int, default=10000, help="vehicles of the simulation rows (default 10000)")
-    ap.add_argument("--no-write", action="store_true", help="print the table, leave README.md as it is")
+    ap.add_argument("--no-write", action="store_true", help="print the table, leave docs/performance.md as it is")
     a = ap.parse_args()
     if a.runs < 1 or a.vehicles < 1:
         sys.exit("perf_table.py: --runs and --vehicles must be at least 1")
@@ -153,16 +153,16 @@ def main():
     print(table)
     if a.no_write:
         return
-    readme = ROOT / "README.md"
+    readme = ROOT / "docs" / "performance.md"
     text = readme.read_text()
     if START in text and END in text:
         head, rest = text.split(START, 1)
         _, tail = rest.split(END, 1)
         text = head + table + tail
     else:
-        sys.exit(f"perf_table.py: README.md has no {START} ... {END} block; add one where the table belongs")
+        sys.exit(f"perf_table.py: docs/performance.md has no {START} ... {END} block; add one where the table belongs")
     readme.write_text(text)
-    print("README.md: performance table written", file=sys.stderr)
+    print("docs/performance.md: performance table written", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@
 # (target/release/lib_smlworld.so) in the same run; the extension is then copied into python/smlworld/ and the venv imports the package from
 # python/ (a .pth file, as an editable install has; Ray's workers see it too), so no second compilation of the crate (maturin's own cargo run unifies
 # features differently) happens on a change. Users still install the package with
-# `pip install ./python` or `maturin develop` (README, Python).
+# `pip install ./python` or `maturin develop` (docs/python.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

@@ -6,7 +6,7 @@
 //! - Plugins: a controller is a [`sim::Plugin`] registered with
 //!   [`sim::ControllerRegistry`]; `examples/student_controller.rs` is a whole one in about 60
 //!   lines (`cargo run --release --example student_controller`).
-//! - The command line (`smlworld --help`) and the README are the user's guide; this reference is
+//! - The command line (`smlworld --help`), the README and `docs/` are the user's guide; this reference is
 //!   for those who extend the simulator.
 //!
 //! Modules, with dependencies pointing one way (no cycles):

@@ -127,7 +127,7 @@ fn a_bad_stream_format_names_the_choices() {
     assert!(err.contains("--stream-format") && err.contains("2015") && err.contains("smlworld"), "{err}");
 }
 
-/// The table of the README ("Stream formats"): each of our classes has one 2015 name, a name the
+/// The table of docs/lab.md ("Stream formats"): each of our classes has one 2015 name, a name the
 /// 2015 viewer (`sml_world_old/VisualisationModule.py`, `draw_vehicles`) draws; ids <= -100 are
 /// never `DummyVehicle`, which that viewer skips there.
 #[test]

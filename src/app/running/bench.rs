@@ -414,7 +414,7 @@ pub struct BenchReport {
     pub peak_rss_mb: Option<f64>,
     /// Resident memory on transparent huge pages at the end of the run \[MB\] (Linux
     /// `AnonHugePages`): the heap's, when `smlworld` restarted itself with glibc's malloc on
-    /// huge pages (see `SMLWORLD_HUGE_PAGES` in the README); 0 without.
+    /// huge pages (see `SMLWORLD_HUGE_PAGES` in docs/performance.md); 0 without.
     pub huge_pages_mb: Option<f64>,
     /// What the V2V channels carried, counted per receiver (as `summary.json`'s
     /// `metrics.v2v`): the evidence that the wifi fan-out, and a degraded run's loss and delay,

@@ -7,7 +7,7 @@
 //!   `SmartVehicle`, `DummyVehicle`, and the lab bodies `QualisysGoal`, `QualisysBigBox`,
 //!   `QualisysSmallBox`; the later `visualization.py` also `BaseVehicle` and `WifiVehicle`) and
 //!   stop on any other name. The name is mapped from our [`VehicleClass`] ([`class_name_2015`],
-//!   the table in the README, "The lab"):
+//!   the table in docs/lab.md):
 //!
 //!   | our class | 2015 name | why |
 //!   |---|---|---|

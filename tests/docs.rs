@@ -1,0 +1,127 @@
+//! The documentation a newcomer reads (issue 60): a README that guides in at most 400 lines and
+//! links into docs/, links that resolve, and a scenario reference that names every key the
+//! parser accepts.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+
+/// README.md, CONTRIBUTING.md and every page of docs/.
+fn pages() -> Vec<PathBuf> {
+    let mut pages = vec![Path::new(ROOT).join("README.md"), Path::new(ROOT).join("CONTRIBUTING.md")];
+    let mut docs: Vec<PathBuf> = std::fs::read_dir(Path::new(ROOT).join("docs"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "md"))
+        .collect();
+    docs.sort();
+    pages.extend(docs);
+    pages
+}
+
+/// The targets of the Markdown links and images of `text`: `[label](target)`, `![alt](target)`.
+fn link_targets(text: &str) -> Vec<String> {
+    let mut targets = Vec::new();
+    let mut rest = text;
+    while let Some(i) = rest.find("](") {
+        let after = &rest[i + 2..];
+        let end = after.find(')').unwrap_or(after.len());
+        let target = &after[..end];
+        if !target.is_empty() && !target.contains(char::is_whitespace) {
+            targets.push(target.to_string());
+        }
+        rest = &after[end.min(after.len())..];
+    }
+    targets
+}
+
+#[test]
+fn link_targets_are_found_in_markdown() {
+    let found = link_targets("see [a](docs/a.md) and ![b](../assets/b.png), [web](https://x.y/z) and [x] (not)");
+    assert_eq!(found, ["docs/a.md", "../assets/b.png", "https://x.y/z"]);
+}
+
+/// Every relative link of README.md, CONTRIBUTING.md and docs/*.md names a file or folder that
+/// exists (anchors and web addresses aside).
+#[test]
+fn every_relative_link_resolves() {
+    let mut broken = Vec::new();
+    for page in pages() {
+        let text = std::fs::read_to_string(&page).unwrap();
+        for target in link_targets(&text) {
+            if target.contains("://") || target.starts_with('#') || target.starts_with("mailto:") {
+                continue;
+            }
+            let path = target.split('#').next().unwrap();
+            if !page.parent().unwrap().join(path).exists() {
+                broken.push(format!("{}: {target}", page.strip_prefix(ROOT).unwrap().display()));
+            }
+        }
+    }
+    assert!(broken.is_empty(), "links to nothing:\n{}", broken.join("\n"));
+}
+
+/// The README is a guide: at most 400 lines, and it links to every page of docs/ and to
+/// CONTRIBUTING.md, so nothing documented is out of a reader's reach.
+#[test]
+fn the_readme_is_short_and_links_every_docs_page() {
+    let readme = std::fs::read_to_string(Path::new(ROOT).join("README.md")).unwrap();
+    let lines = readme.lines().count();
+    assert!(lines <= 400, "README.md has {lines} lines; details belong in docs/");
+    let targets = link_targets(&readme);
+    for page in pages().iter().skip(1) {
+        let rel = page.strip_prefix(ROOT).unwrap().to_str().unwrap().to_string();
+        assert!(targets.contains(&rel), "README.md does not link {rel}");
+    }
+}
+
+/// The keys the scenario parser accepts in the table at `path` of `scenario` (`""`: the top
+/// level), read from its error for an unknown key, which lists them.
+fn accepted_keys(scenario: &str, path: &str) -> Vec<String> {
+    let key = if path.is_empty() { "no_such_key".to_string() } else { format!("{path}.no_such_key") };
+    let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["run", &format!("{ROOT}/scenarios/{scenario}"), "--duration", "0.1", "--out"])
+        .arg(std::env::temp_dir().join("smlworld-docs-keys-never-written"))
+        .args(["--set", &format!("{key}=1")])
+        .output()
+        .expect("runs smlworld");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{key} was accepted");
+    // serde lists them: "expected one of `a`, `b`", or "expected `a`" when there is one.
+    let after = stderr.split("unknown field `no_such_key`, expected ").nth(1);
+    let list = after.unwrap_or_else(|| panic!("{key}: no key list in {stderr}"));
+    let list = list.strip_prefix("one of ").unwrap_or(list).lines().next().unwrap_or("");
+    list.split(',').map(|k| k.trim().trim_matches('`').to_string()).filter(|k| !k.is_empty()).collect()
+}
+
+/// docs/scenarios.md names every key the parser accepts at the top level, in `[rates]`,
+/// `[[vehicles]]`, `lane_change`, `[[traffic]]`, `[[rsu]]`, `[junctions]` and `[emergency]`: a
+/// key added to the parser without a line in the reference fails here.
+#[test]
+fn the_scenario_reference_names_every_key_the_parser_accepts() {
+    let reference = std::fs::read_to_string(Path::new(ROOT).join("docs/scenarios.md")).unwrap();
+    let tables = [
+        ("highway.toml", "", ""),
+        ("highway.toml", "rates", ""),
+        ("highway.toml", "vehicles.0", ""),
+        ("overtaking.toml", "vehicles.0.lane_change", ""),
+        ("highway_traffic.toml", "traffic.0", ""),
+        ("gcdc_merge.toml", "rsu.0", "rsu."),
+        ("highway.toml", "junctions", "junctions."),
+        ("highway.toml", "emergency", "emergency."),
+    ];
+    let mut missing = Vec::new();
+    for (scenario, path, prefix) in tables {
+        let keys = accepted_keys(scenario, path);
+        assert!(!keys.is_empty(), "{scenario} {path}: {keys:?}");
+        for k in keys {
+            let named = format!("`{prefix}{k}`");
+            // A row may name several keys in one cell: `length`, `width`.
+            if !reference.contains(&named) {
+                missing.push(format!("{path}: {named}"));
+            }
+        }
+    }
+    assert!(missing.is_empty(), "docs/scenarios.md lacks:\n{}", missing.join("\n"));
+}
