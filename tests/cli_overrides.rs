@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use smlworld::app::scenario::{apply_override, parse_override};
-use smlworld::app::session::load_scenario_with_overrides;
+use smlworld::app::running::scenario::{apply_override, parse_override};
+use smlworld::app::running::session::load_scenario_with_overrides;
 
 fn smlworld(args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))

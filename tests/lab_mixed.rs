@@ -253,7 +253,7 @@ fn bad_lab_settings_are_errors_naming_the_key() {
 #[test]
 fn the_mock_script_drives_the_trucks_along_the_right_lane_in_lab_millimetres() {
     let scenario = Scenario::load(&scenario_path()).expect("scenario");
-    let script = smlworld::app::scenario::scenario_script(&scenario).expect("script");
+    let script = smlworld::app::running::scenario::scenario_script(&scenario).expect("script");
     assert_eq!(script.body_count(), 2);
     // Truck 0 starts 60 m along the right lane (radius 60 m, from the positive x axis,
     // counter-clockwise) at 8 m/s; lab mm = world m / 32 * 1000.

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use smlworld::app::session::{apply_override, load_scenario_with_overrides};
+use smlworld::app::running::session::{apply_override, load_scenario_with_overrides};
 use smlworld::app::{Session, StateColumns, run_headless};
 
 const PLATOON: &str = "scenarios/platoon_brake.toml";
@@ -119,7 +119,7 @@ fn inbox_returns_every_message_since_the_last_call() {
 /// channel; past it the oldest are dropped first, so the newest are the ones returned.
 #[test]
 fn inbox_keeps_the_newest_messages_when_more_than_its_bound_wait() {
-    use smlworld::app::session::INBOX_CAPACITY;
+    use smlworld::app::running::session::INBOX_CAPACITY;
     let mut s = Session::from_scenario(Path::new(PLATOON), None, &[]).unwrap();
     assert!(s.inbox(-2, "wifi").unwrap().is_empty(), "from now on every message is kept until read");
     // 10 over the bound, in three wifi rounds (10 Hz), numbered in the order they were sent.

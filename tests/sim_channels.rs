@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use smlworld::app::metrics::V2vMetrics;
+use smlworld::app::running::metrics::V2vMetrics;
 use smlworld::prelude::*;
 use smlworld::sim::channel::{Burst, ChannelModel, Loss};
 use smlworld::sim::{ChannelStats, Parallelism, V2vChannelStats};
@@ -182,14 +182,14 @@ fn bad_channel_settings_name_the_key() {
 
 /// The summary's `metrics` as JSON, as `summary.json` writes it.
 fn metrics_json(sim: &Sim) -> serde_json::Value {
-    serde_json::to_value(sim.world().resource::<smlworld::app::metrics::Metrics>().summary()).unwrap()
+    serde_json::to_value(sim.world().resource::<smlworld::app::running::metrics::Metrics>().summary()).unwrap()
 }
 
 #[test]
 fn half_the_beacons_lost_a_platoon_falls_back_to_acc_and_does_not_collide() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
     let set = [("v2v.wifi.loss".to_string(), toml::Value::Float(0.5))];
-    let scenario = smlworld::app::scenario::load_with_overrides(&path, None, &set, &ControllerRegistry::default())
+    let scenario = smlworld::app::running::scenario::load_with_overrides(&path, None, &set, &ControllerRegistry::default())
         .expect("platoon_brake with --set v2v.wifi.loss=0.5 loads");
     let mut sim = scenario.builder().unwrap().build();
     sim.run_for(70.0);
@@ -210,9 +210,9 @@ fn platoon_brake_set(seed: u64, set: &[(&str, &str)]) -> Scenario {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
     let set: Vec<(String, toml::Value)> = set
         .iter()
-        .map(|(k, v)| (k.to_string(), smlworld::app::scenario::parse_override(&format!("{k}={v}")).unwrap().1))
+        .map(|(k, v)| (k.to_string(), smlworld::app::running::scenario::parse_override(&format!("{k}={v}")).unwrap().1))
         .collect();
-    smlworld::app::scenario::load_with_overrides(&path, Some(seed), &set, &ControllerRegistry::default())
+    smlworld::app::running::scenario::load_with_overrides(&path, Some(seed), &set, &ControllerRegistry::default())
         .expect("platoon_brake with overrides loads")
 }
 
@@ -264,8 +264,8 @@ fn bad_sensor_settings_name_the_key() {
         ("vehicles.0.sensors.radar.noise.bearing", "1.0", "bearing"),
     ] {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
-        let v = smlworld::app::scenario::parse_override(&format!("{key}={value}")).unwrap().1;
-        let e = smlworld::app::scenario::load_with_overrides(
+        let v = smlworld::app::running::scenario::parse_override(&format!("{key}={value}")).unwrap().1;
+        let e = smlworld::app::running::scenario::load_with_overrides(
             &path,
             None,
             &[(key.into(), v)],

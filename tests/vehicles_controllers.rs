@@ -6,7 +6,7 @@ mod vehicles_support;
 use std::path::Path as FsPath;
 
 use smlworld::app::Scenario;
-use smlworld::app::metrics::rectangles_overlap;
+use smlworld::app::running::metrics::rectangles_overlap;
 use smlworld::prelude::*;
 use smlworld::vehicles::{CruiseControl, CruiseController, SpeedDip, time_to_collision};
 use vehicles_support::{builder, spawn, straight};

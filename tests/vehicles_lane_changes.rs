@@ -276,7 +276,7 @@ fn highway_traffic_flows_and_changes_lanes_in_mixed_traffic_without_collisions()
 }
 
 mod determinism {
-    use smlworld::app::session::load_scenario_with_overrides;
+    use smlworld::app::running::session::load_scenario_with_overrides;
     use smlworld::sim::Parallelism;
     use smlworld::vehicles::LaneChangeLog;
     use smlworld::world::{VehicleId, VehicleState};
@@ -439,7 +439,7 @@ fn bad_traffic_tables_are_refused_naming_the_key() {
 
 #[test]
 fn a_session_reports_lanes_and_carries_out_requested_changes() {
-    use smlworld::app::session::{Session, StateColumns};
+    use smlworld::app::running::session::{Session, StateColumns};
     let mut s = Session::from_scenario(&root().join("scenarios/overtaking.toml"), None, &[]).unwrap();
     s.step(30.0).unwrap();
     let mut cols = StateColumns::default();

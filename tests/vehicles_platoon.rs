@@ -4,7 +4,7 @@
 
 mod vehicles_support;
 
-use smlworld::app::metrics::MetricsSummary;
+use smlworld::app::running::metrics::MetricsSummary;
 use smlworld::prelude::*;
 use smlworld::vehicles::{
     AccController, AdaptiveCruise, CruiseControl, CruiseController, PlatoonMember, Platooning, SpeedDip,

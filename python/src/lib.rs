@@ -12,7 +12,7 @@ use pyo3::exceptions::{PyFileNotFoundError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
-use smlworld::app::session::{SessionError, load_scenario_with_overrides};
+use smlworld::app::running::session::{SessionError, load_scenario_with_overrides};
 use smlworld::app::{RunError, RunOptions, ScenarioError, Session, StateColumns, run_scenario};
 use smlworld::map::{LaneletMap, MapError, Place, RouteOptions};
 
@@ -369,7 +369,7 @@ impl Core {
         for v in &s.scenario().file.vehicles {
             ids.push(v.id);
             match v.model {
-                smlworld::app::scenario::ModelConfig::Acceleration { mass: m, drag: d, .. } => {
+                smlworld::app::running::scenario::ModelConfig::Acceleration { mass: m, drag: d, .. } => {
                     mass.push(m);
                     drag.push(d);
                 }
@@ -436,7 +436,7 @@ impl Core {
     /// Every traffic light for a signal-control environment (issue 55): a list of dicts
     /// `{"junction", "name", "phases": [(state, duration)], "file_states", "lanes", "out_lanes"}` plus the lane
     /// slots the measurements use: `{"lights": [...], "slot_lanelet", "slot_incoming",
-    /// "slot_length", "slot_allowed"}` (see `smlworld::app::signals::SignalLayout`).
+    /// "slot_length", "slot_allowed"}` (see `smlworld::app::running::signals::SignalLayout`).
     fn signal_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let mut s = self.session(py)?;
         let map = s.map().cloned();
@@ -464,11 +464,11 @@ impl Core {
     }
 
     /// One measurement of every light's lanes and of the system, in one pass over the vehicles
-    /// (see `smlworld::app::signals::SignalMeasures`): per lane slot the float arrays "count",
+    /// (see `smlworld::app::running::signals::SignalMeasures`): per lane slot the float arrays "count",
     /// "halting", "length_sum", "speed_ratio_sum", "waiting"; and "running", "stopped",
     /// "total_waiting", "total_speed".
     fn signal_measures<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let mut m = smlworld::app::signals::SignalMeasures::default();
+        let mut m = smlworld::app::running::signals::SignalMeasures::default();
         self.session(py)?.signal_measures(&mut m);
         let d = PyDict::new(py);
         d.set_item("count", PyArray1::from_vec(py, m.count))?;

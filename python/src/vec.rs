@@ -29,7 +29,7 @@ use pyo3::exceptions::{PyKeyError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use smlworld::app::scenario::ModelConfig;
+use smlworld::app::running::scenario::ModelConfig;
 use smlworld::app::{Scenario, Session, SessionError};
 use smlworld::sim::Parallelism;
 use smlworld::world::VehicleId;
@@ -668,7 +668,7 @@ impl VecCore {
         }
         let task = task(kind, params)?;
         let scenario = py
-            .detach(|| smlworld::app::session::load_scenario_with_overrides(&path, None, &[]))
+            .detach(|| smlworld::app::running::session::load_scenario_with_overrides(&path, None, &[]))
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         let threads = if threads == 0 { Parallelism::default().threads } else { threads };
         let slots = (0..num_envs).map(|_| Slot::new(&task)).collect();

@@ -2,12 +2,13 @@
 //! Two rooms: [`running`] (scenario files, runners, sessions, metrics, traffic, benchmarks and
 //! the run's summary) and [`results`] (the trajectory log, replay and plots, which read what a
 //! run left); [`run_scenario`] sits above both and wires them for `smlworld run`.
-//! [`Plugin`], [`SimBuilder`] and [`Sim`] live in [`crate::sim`] and are re-exported here.
+//! [`crate::sim::Plugin`], [`crate::sim::SimBuilder`] and [`crate::sim::Sim`] live in [`crate::sim`];
+//! each item has one path.
 //!
 //! # Running a scenario from your own program
 //! [`run_scenario`] does what `smlworld run` does (trajectories, summary with metrics, optional
 //! frames, GIF and stream); your plugins go into [`RunOptions::plugins`], and controllers they
-//! register ([`SimBuilder::register_controller`]) can be named in the scenario like built-in
+//! register ([`crate::sim::SimBuilder::register_controller`]) can be named in the scenario like built-in
 //! ones. `examples/student_controller.rs` is a complete program to copy.
 //!
 //! # The controller contract
@@ -40,8 +41,6 @@ pub mod results;
 mod run;
 pub mod running;
 
-// The old flat paths (`crate::app::session`, `crate::app::metrics`, ...) stay valid.
-pub use crate::sim::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
 pub use results::output::{Log, TrajectoryLog, TrajectoryLogPlugin, log_trajectories};
 pub use results::plot::{FIGURE_SIZE, MAX_LEGEND, PALETTE, Pen, pen, plot_compare, plot_run};
 pub use results::replay::{
@@ -52,4 +51,3 @@ pub use running::runner::{RealtimeRunner, RunReport, run_headless};
 pub use running::scenario::{Scenario, ScenarioError};
 pub use running::session::{CommandOverride, LightState, Session, SessionError, StateColumns};
 pub use running::summary::{MessagesDelivered, ReplayInfo, ReplayVehicle, RunSummary};
-pub use running::{bench, bench_map, bench_render, interrupt, metrics, scenario, session, signals, soak, traffic};

@@ -64,7 +64,7 @@ pub struct BenchArgs {
     /// After the simulation bench, draw its world at WIDTHxHEIGHT px (e.g. 1920x1080) 10 times
     /// with the bird's-eye renderer (whole-map view) and add `render_ms_per_frame` (the median)
     /// and `render` (every frame's time, the adapter) to the JSON.
-    #[arg(long, value_name = "WxH", conflicts_with = "soak", value_parser = smlworld::app::bench_render::parse_size)]
+    #[arg(long, value_name = "WxH", conflicts_with = "soak", value_parser = smlworld::app::running::bench_render::parse_size)]
     pub render: Option<(u32, u32)>,
 }
 
@@ -82,7 +82,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
     );
     anyhow::ensure!(args.threads != Some(0), "--threads must be at least 1, got 0");
     if let Some(map) = &args.routing {
-        let report = smlworld::app::bench_map::bench_routing(map, args.routes, args.seed)?;
+        let report = smlworld::app::running::bench_map::bench_routing(map, args.routes, args.seed)?;
         println!("{}", serde_json::to_string(&report)?);
         return Ok(());
     }
@@ -104,7 +104,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     if let Some(map) = &args.map_load {
-        let report = smlworld::app::bench_map::bench_map_load(map, 3)?;
+        let report = smlworld::app::running::bench_map::bench_map_load(map, 3)?;
         println!("{}", serde_json::to_string(&report)?);
         return Ok(());
     }
@@ -145,7 +145,7 @@ pub fn main(args: BenchArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string(&report)?);
         return Ok(());
     };
-    let render = smlworld::app::bench_render::bench_render(&world, width, height, parallelism)?;
+    let render = smlworld::app::running::bench_render::bench_render(&world, width, height, parallelism)?;
     let mut json = serde_json::to_value(&report)?;
     if let Some(object) = json.as_object_mut() {
         object.insert("render_ms_per_frame".into(), serde_json::json!(render.median_ms));

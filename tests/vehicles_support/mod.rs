@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use bevy_ecs::prelude::Bundle;
-use smlworld::app::metrics::{Metrics, MetricsPlugin, MetricsSummary};
+use smlworld::app::running::metrics::{Metrics, MetricsPlugin, MetricsSummary};
 use smlworld::map::routing::resample;
 use smlworld::prelude::*;
 use smlworld::vehicles::smart_vehicles;
