@@ -5,13 +5,14 @@
 mod common;
 
 use common::Rng;
+use smlworld::world::TurnSignal;
 use std::collections::BTreeMap;
 use std::net::UdpSocket;
 use std::time::Duration;
 
 use smlworld::io::viz::{
-    MAX_DATAGRAM_LEN, VizEncoder, VizIndicator, VizPart, VizReassembler, VizReceiver, VizSender, VizSenderConfig,
-    VizVehicle, decode_datagram, encode_frame,
+    MAX_DATAGRAM_LEN, VizEncoder, VizPart, VizReassembler, VizReceiver, VizSender, VizSenderConfig, VizVehicle,
+    decode_datagram, encode_frame,
 };
 
 /// One vehicle record as the 2015 receiver saw it: key -> text value.
@@ -73,7 +74,7 @@ fn vehicle(i: usize) -> VizVehicle {
         y: -(i as f64) * 0.25,
         yaw_deg: (i % 360) as f64 - 180.0,
         class_name: if i.is_multiple_of(2) { "Truck".into() } else { "Car".into() },
-        indicator: None,
+        indicator: TurnSignal::Off,
     }
 }
 
@@ -88,8 +89,8 @@ fn check_old_record(rec: &OldRecord, i: usize) {
 #[test]
 fn small_frame_is_a_plain_2015_datagram_field_by_field() {
     let vehicles = vec![
-        VizVehicle { id: 3, x: 12.5, y: -7.25, yaw_deg: 90.0, class_name: "Truck".into(), indicator: None },
-        VizVehicle { id: -1, x: 0.0, y: 1e3, yaw_deg: -45.5, class_name: "Car".into(), indicator: None },
+        VizVehicle { id: 3, x: 12.5, y: -7.25, yaw_deg: 90.0, class_name: "Truck".into(), indicator: TurnSignal::Off },
+        VizVehicle { id: -1, x: 0.0, y: 1e3, yaw_deg: -45.5, class_name: "Car".into(), indicator: TurnSignal::Off },
     ];
     let parts = encode_frame(0, &vehicles);
     assert_eq!(parts.len(), 1);
@@ -123,7 +124,14 @@ fn empty_frame_has_an_empty_body() {
 
 #[test]
 fn class_names_cannot_break_the_format() {
-    let v = VizVehicle { id: 1, x: 0.0, y: 0.0, yaw_deg: 0.0, class_name: "a;b=c!d#e f\u{e9}".into(), indicator: None };
+    let v = VizVehicle {
+        id: 1,
+        x: 0.0,
+        y: 0.0,
+        yaw_deg: 0.0,
+        class_name: "a;b=c!d#e f\u{e9}".into(),
+        indicator: TurnSignal::Off,
+    };
     let parts = encode_frame(2, &[v]);
     let (_, recs) = old_parse(&parts[0]).expect("still parseable");
     assert_eq!(recs[0]["class_name"], "a_b_c_d_e_f_");
@@ -138,15 +146,29 @@ fn hand_built_datagrams_decode() {
     assert_eq!(
         d.vehicles,
         vec![
-            VizVehicle { id: 3, x: 1.5, y: -2.25, yaw_deg: 90.0, class_name: "Truck".into(), indicator: None },
-            VizVehicle { id: -1, x: 0.0, y: 4.0, yaw_deg: -180.0, class_name: "Car".into(), indicator: None },
+            VizVehicle {
+                id: 3,
+                x: 1.5,
+                y: -2.25,
+                yaw_deg: 90.0,
+                class_name: "Truck".into(),
+                indicator: TurnSignal::Off
+            },
+            VizVehicle {
+                id: -1,
+                x: 0.0,
+                y: 4.0,
+                yaw_deg: -180.0,
+                class_name: "Car".into(),
+                indicator: TurnSignal::Off
+            },
         ]
     );
     // Fields in another order and an unknown key are fine.
     let d = decode_datagram(b"8#class_name=Bus;yaw=1;y=2;x=3;speed=9;id=4").expect("any order");
     assert_eq!(
         d.vehicles[0],
-        VizVehicle { id: 4, x: 3.0, y: 2.0, yaw_deg: 1.0, class_name: "Bus".into(), indicator: None }
+        VizVehicle { id: 4, x: 3.0, y: 2.0, yaw_deg: 1.0, class_name: "Bus".into(), indicator: TurnSignal::Off }
     );
     let d = decode_datagram(b"9#id=1;x=0;y=0;yaw=0;class_name=A;part=1;parts=2").expect("split part");
     assert_eq!(d.part, Some(VizPart { index: 1, count: 2 }));
@@ -391,12 +413,13 @@ fn a_reused_encoder_forgets_the_previous_frame() {
 
 #[test]
 fn the_indicator_travels_when_on_and_a_bad_one_names_its_key() {
-    let mut v = VizVehicle { id: 7, x: 1.0, y: 2.0, yaw_deg: 3.0, class_name: "Car".into(), indicator: None };
-    for side in [Some(VizIndicator::Left), Some(VizIndicator::Right), None] {
+    let mut v =
+        VizVehicle { id: 7, x: 1.0, y: 2.0, yaw_deg: 3.0, class_name: "Car".into(), indicator: TurnSignal::Off };
+    for side in [TurnSignal::Left, TurnSignal::Right, TurnSignal::Off] {
         v.indicator = side;
         let parts = encode_frame(5, std::slice::from_ref(&v));
         let text = String::from_utf8(parts[0].clone()).expect("text");
-        assert_eq!(text.contains("indicator="), side.is_some(), "{text}");
+        assert_eq!(text.contains("indicator="), side != TurnSignal::Off, "{text}");
         assert_eq!(decode_datagram(&parts[0]).expect("decodes").vehicles, vec![v.clone()]);
     }
     let err = decode_datagram(b"1#id=1;x=0;y=0;yaw=0;class_name=Car;indicator=up").expect_err("bad side");

@@ -4,6 +4,7 @@
 use smlworld::io::viz::{
     MAX_VEHICLES_PER_DATAGRAM, MAX_VEHICLES_PER_FRAME, RESTART_AFTER, VizDatagram, VizPart, VizReassembler, VizVehicle,
 };
+use smlworld::world::TurnSignal;
 
 fn vehicles(n: usize) -> Vec<VizVehicle> {
     (0..n)
@@ -13,7 +14,7 @@ fn vehicles(n: usize) -> Vec<VizVehicle> {
             y: 0.0,
             yaw_deg: 0.0,
             class_name: "Car".into(),
-            indicator: None,
+            indicator: TurnSignal::Off,
         })
         .collect()
 }

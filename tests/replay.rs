@@ -181,7 +181,7 @@ fn replay_errors_name_the_file_and_what_is_needed() {
     let out = smlworld(&["replay", s(&run)]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("--gif FILE, --frames DIR, --stream"), "{err}");
+    assert!(err.contains("--gif FILE, --video FILE, --frames DIR, --stream"), "{err}");
 
     // A broken row is reported with its file and line.
     let csv = run.join("trajectories.csv");

@@ -189,8 +189,9 @@ fn metrics_json(sim: &Sim) -> serde_json::Value {
 fn half_the_beacons_lost_a_platoon_falls_back_to_acc_and_does_not_collide() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/platoon_brake.toml");
     let set = [("v2v.wifi.loss".to_string(), toml::Value::Float(0.5))];
-    let scenario = smlworld::app::running::scenario::load_with_overrides(&path, None, &set, &ControllerRegistry::default())
-        .expect("platoon_brake with --set v2v.wifi.loss=0.5 loads");
+    let scenario =
+        smlworld::app::running::scenario::load_with_overrides(&path, None, &set, &ControllerRegistry::default())
+            .expect("platoon_brake with --set v2v.wifi.loss=0.5 loads");
     let mut sim = scenario.builder().unwrap().build();
     sim.run_for(70.0);
     let m = metrics_json(&sim);

@@ -2,6 +2,7 @@
 //! and the rear-axle point they centre their sprites on; our viewer draws such a stream where the
 //! 2015 viewer would; the default stays our names and the body centre.
 
+use smlworld::world::TurnSignal;
 use std::net::{Ipv4Addr, SocketAddr};
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -104,7 +105,8 @@ fn the_default_format_sends_our_names_and_the_body_centre() {
 fn our_viewer_draws_a_2015_vehicle_where_the_2015_viewer_does() {
     let p = DVec2::new(10.0, -4.0);
     let yaw_deg = 30.0_f64;
-    let v = VizVehicle { id: -3, x: p.x, y: p.y, yaw_deg, class_name: "SmartVehicle".into(), indicator: None };
+    let v =
+        VizVehicle { id: -3, x: p.x, y: p.y, yaw_deg, class_name: "SmartVehicle".into(), indicator: TurnSignal::Off };
     let (centre, yaw, length, width) = viewer_body(StreamFormat::Y2015, &v);
     let h = DVec2::from_angle(yaw_deg.to_radians());
     assert!((yaw - yaw_deg.to_radians()).abs() < 1e-12);

@@ -5,6 +5,7 @@
 mod scratch_support;
 mod view_support;
 
+use smlworld::world::TurnSignal;
 use std::net::{Ipv4Addr, UdpSocket};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -45,8 +46,14 @@ fn lights_round_trip_in_one_datagram_or_several() {
 
 #[test]
 fn older_receivers_drop_the_lights_and_keep_the_vehicles() {
-    let vehicles =
-        vec![VizVehicle { id: -1, x: 1.0, y: 2.0, yaw_deg: 90.0, class_name: "Car".into(), indicator: None }];
+    let vehicles = vec![VizVehicle {
+        id: -1,
+        x: 1.0,
+        y: 2.0,
+        yaw_deg: 90.0,
+        class_name: "Car".into(),
+        indicator: TurnSignal::Off,
+    }];
     let frame = encode_frame(5, &vehicles);
     assert_eq!(String::from_utf8_lossy(&frame[0]), "5#id=-1;x=1.000;y=2.000;yaw=90.00;class_name=Car", "unchanged");
     let mut lights = Vec::new();

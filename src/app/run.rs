@@ -508,13 +508,12 @@ impl FrameMarks {
         }
         if let Some(mut q) = world.try_query::<(&crate::world::VehicleId, &crate::vehicles::LaneChanger)>() {
             for (id, changer) in q.iter(world) {
-                let indicator = match changer.signal() {
-                    crate::world::TurnSignal::Off => continue,
-                    crate::world::TurnSignal::Left => crate::render::Indicator::Left,
-                    crate::world::TurnSignal::Right => crate::render::Indicator::Right,
-                };
+                let indicator = changer.signal();
+                if indicator == crate::world::TurnSignal::Off {
+                    continue;
+                }
                 if let Ok(i) = self.sprites.binary_search_by_key(&id.0, |s| s.id) {
-                    self.sprites[i].overlays.indicator = Some(indicator);
+                    self.sprites[i].overlays.indicator = indicator;
                 }
             }
         }

@@ -19,9 +19,9 @@ use std::time::{Duration, Instant};
 use anyhow::Context as _;
 use image::RgbaImage;
 use smlworld::app::results::lights::SignalLines;
-use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizIndicator, VizReceiver, viewer_body};
+use smlworld::io::viz::{DEFAULT_VIZ_ADDR, VizFrame, VizReceiver, viewer_body};
 use smlworld::map::LaneletMap;
-use smlworld::render::{Environment, FrameOutput, FrameRecorder, Indicator, Overlay, VehicleSprite};
+use smlworld::render::{Environment, FrameOutput, FrameRecorder, Overlay, VehicleSprite};
 use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
 use winit::event::WindowEvent;
@@ -146,10 +146,7 @@ impl Scene {
                 // (its bridges drive ids >= 0) is all the viewer has.
                 sprite.real = v.id >= 0;
                 // A lane change in progress (our stream format sends it).
-                sprite.overlays.indicator = v.indicator.map(|i| match i {
-                    VizIndicator::Left => Indicator::Left,
-                    VizIndicator::Right => Indicator::Right,
-                });
+                sprite.overlays.indicator = v.indicator;
                 sprite
             }));
             self.sprites.sort_by_key(|s| s.id);

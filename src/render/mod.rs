@@ -47,9 +47,7 @@ pub use overlay::{FONT_TTF, OVERLAY_BACKGROUND, OVERLAY_TEXT_PX, draw_collision_
 pub use patterns::{PATTERN_SIZE, Pattern, PatternKind, PatternSet};
 pub use recorder::{COLLISION_RING_SECONDS, FrameRecorder, check_frame_rate, sprites_from_world};
 pub use signals::{SIGNAL_GREEN, SIGNAL_RED, SIGNAL_YELLOW, SignalLine, draw_signal_lines, signal_color, stop_lines};
-pub use sprites::{
-    Indicator, Overlays, RadarCone, VehicleSprite, class_color, label_boxes, overlapping_pairs, vehicle_color,
-};
+pub use sprites::{Overlays, RadarCone, VehicleSprite, class_color, label_boxes, overlapping_pairs, vehicle_color};
 pub use triangulate::triangulate;
 pub use video::VideoWriter;
 pub use view::{BirdseyeView, MAX_IMAGE_SIDE};

@@ -4,6 +4,8 @@ use std::sync::Arc;
 
 use glam::DVec2;
 
+use crate::world::TurnSignal;
+
 use super::environment::{GroundVertex, LineStyle, Tessellator};
 use super::font;
 use super::view::BirdseyeView;
@@ -29,16 +31,7 @@ pub struct Overlays {
     /// The vehicle's route \[m\]; shared, so building sprites every frame copies nothing.
     pub route: Option<Arc<[DVec2]>>,
     /// A lane change in progress: the indicator on that side (amber front and rear corners).
-    pub indicator: Option<Indicator>,
-}
-
-/// The side a vehicle's indicator shows (a lane change in progress).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Indicator {
-    /// Changing to the left.
-    Left,
-    /// Changing to the right.
-    Right,
+    pub indicator: TurnSignal,
 }
 
 /// One vehicle as the renderer sees it (plain data, no ECS).
@@ -320,9 +313,9 @@ impl FrameBatches {
                 sector(Some(radar.range), half, RADAR_COLOR);
             }
             let indicator = match s.overlays.indicator {
-                Some(Indicator::Left) => LEFT_INDICATOR,
-                Some(Indicator::Right) => RIGHT_INDICATOR,
-                None => 0,
+                TurnSignal::Left => LEFT_INDICATOR,
+                TurnSignal::Right => RIGHT_INDICATOR,
+                TurnSignal::Off => 0,
             };
             self.vehicles.push(VehicleInstance {
                 pos,

@@ -122,7 +122,8 @@ pub struct ControlCommand {
 #[derive(Component, Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Stationary;
 
-/// A vehicle's turn signal: on while it changes lanes, on the side it moves to. The lane-change
+/// A vehicle's turn signal: on while it changes lanes, on the side it moves to. The one
+/// indicator type of the crate: the renderer's sprites and the visualisation stream carry it too. The lane-change
 /// plugin does not write it (it keeps its own state); whoever shows signals to the outside
 /// copies it (the app, for the visualisation stream), and readers such as the stream send it.
 #[derive(Component, Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -134,6 +135,18 @@ pub enum TurnSignal {
     Left,
     /// Right.
     Right,
+}
+
+impl std::str::FromStr for TurnSignal {
+    type Err = ();
+    /// `left` or `right` (the visualisation stream's `indicator=` values; off is not sent).
+    fn from_str(s: &str) -> Result<TurnSignal, ()> {
+        match s {
+            "left" => Ok(TurnSignal::Left),
+            "right" => Ok(TurnSignal::Right),
+            _ => Err(()),
+        }
+    }
 }
 
 /// Footprint of a vehicle \[m\].

@@ -24,11 +24,10 @@ use std::time::{Duration, Instant};
 
 use glam::DVec2;
 
-use crate::io::viz::{
-    DEFAULT_VIZ_RATE_HZ, StreamFormat, VizIndicator, VizLight, VizSender, VizSenderConfig, VizVehicle,
-};
+use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, StreamFormat, VizLight, VizSender, VizSenderConfig, VizVehicle};
 use crate::map::LaneletMap;
-use crate::render::{FrameOutput, FrameRecorder, Indicator, RenderError, VehicleSprite};
+use crate::render::{FrameOutput, FrameRecorder, RenderError, VehicleSprite};
+use crate::world::TurnSignal;
 use crate::world::SimTime;
 
 use super::lights::{LightTimeline, SignalLines};
@@ -69,7 +68,7 @@ pub struct ReplayMarks {
     /// Collisions: ids of the pair and sim time \[s\].
     pub collisions: Vec<(i32, i32, f64)>,
     /// Lane changes: id, start and end \[s\], and the side the indicator shows.
-    pub lane_changes: Vec<(i32, f64, f64, Indicator)>,
+    pub lane_changes: Vec<(i32, f64, f64, TurnSignal)>,
 }
 
 /// Read the collisions and lane changes of `OUT_DIR/summary.json` (`metrics.collisions`,
@@ -97,8 +96,8 @@ pub fn read_replay_marks(out_dir: &FsPath) -> Result<ReplayMarks, ReplayError> {
         let side = match (l["direction"].as_str(), l["aborted"].as_bool()) {
             // An aborted change shows its first direction throughout: the summary does not say
             // when it turned back.
-            (Some("left"), Some(_)) => Indicator::Left,
-            (Some("right"), Some(_)) => Indicator::Right,
+            (Some("left"), Some(_)) => TurnSignal::Left,
+            (Some("right"), Some(_)) => TurnSignal::Right,
             _ => return Err(bad("lane_changes", i)),
         };
         match (id, l["t_start"].as_f64(), l["t_end"].as_f64()) {
@@ -445,7 +444,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                     .lane_changes
                     .iter()
                     .find(|(id, t0, t1, _)| *id == r.id && (*t0..=*t1).contains(&t))
-                    .map(|l| l.3);
+                    .map_or(TurnSignal::Off, |l| l.3);
                 sprites.push(sprite);
             }
             if let Some(rec) = recorder.as_mut() {
@@ -482,10 +481,7 @@ pub fn replay_run(out_dir: &FsPath, options: &ReplayOptions) -> Result<ReplayRep
                             .iter()
                             .find(|(id, t0, t1, _)| *id == r.id && (*t0..=*t1).contains(&t))
                             .filter(|_| f == StreamFormat::Smlworld)
-                            .map(|l| match l.3 {
-                                Indicator::Left => VizIndicator::Left,
-                                Indicator::Right => VizIndicator::Right,
-                            });
+                            .map_or(TurnSignal::Off, |l| l.3);
                         viz.push(VizVehicle {
                             id: r.id,
                             x: p.x,
@@ -598,10 +594,7 @@ pub fn replay_mcap(out_dir: &FsPath, path: &FsPath) -> Result<u64, ReplayError> 
             if let Some(&(_, t0, _, side)) =
                 marks.lane_changes.iter().find(|l| l.0 == v.id && l.1 <= t + 1e-9 && t < l.2)
             {
-                v.signal = match side {
-                    crate::render::Indicator::Left => TurnSignal::Left,
-                    crate::render::Indicator::Right => TurnSignal::Right,
-                };
+                v.signal = side;
                 v.mode = "lane_change";
                 if (t0 - t).abs() < 0.5 / info.log_rate.max(1e-9) {
                     let dir = if v.signal == TurnSignal::Left { "left" } else { "right" };

@@ -8,8 +8,7 @@ use bevy_ecs::prelude::{Query, ResMut, Resource, Without};
 use bevy_ecs::schedule::ScheduleLabel;
 
 use crate::io::viz::{
-    DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, StreamFormat, VizError, VizIndicator, VizLight, VizSender, VizSenderConfig,
-    VizVehicle,
+    DEFAULT_VIZ_ADDR, DEFAULT_VIZ_RATE_HZ, StreamFormat, VizError, VizLight, VizSender, VizSenderConfig, VizVehicle,
 };
 use crate::io::{WarnLimiter, lock};
 use crate::sim::Phase;
@@ -80,7 +79,7 @@ pub fn stream_vehicles(mut stream: ResMut<VizStream>, vehicles: Query<StreamedVe
                 y: 0.0,
                 yaw_deg: 0.0,
                 class_name: String::new(),
-                indicator: None,
+                indicator: TurnSignal::Off,
             });
         }
         let v = &mut stream.frame[n];
@@ -96,10 +95,9 @@ pub fn stream_vehicles(mut stream: ResMut<VizStream>, vehicles: Query<StreamedVe
             v.class_name.push_str(name);
         }
         // The 2015 viewers know no indicator: only our format carries it.
-        v.indicator = match (format, signal.copied().unwrap_or_default()) {
-            (StreamFormat::Y2015, _) | (_, TurnSignal::Off) => None,
-            (_, TurnSignal::Left) => Some(VizIndicator::Left),
-            (_, TurnSignal::Right) => Some(VizIndicator::Right),
+        v.indicator = match format {
+            StreamFormat::Y2015 => TurnSignal::Off,
+            StreamFormat::Smlworld => signal.copied().unwrap_or_default(),
         };
         n += 1;
     }

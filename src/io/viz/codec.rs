@@ -4,6 +4,8 @@
 use std::fmt::Write as _;
 use std::io::Write as _;
 
+use crate::world::TurnSignal;
+
 /// Largest datagram the encoder emits \[bytes\]: the 2015 receiver's buffer size.
 pub const MAX_DATAGRAM_LEN: usize = 4096;
 /// Key of the split extension: 0-based index of this part within its frame.
@@ -31,27 +33,7 @@ pub struct VizVehicle {
     pub class_name: String,
     /// A lane change in progress: the side its indicator shows (key `indicator=left|right`,
     /// sent only when on and only in our stream format; the 2015 viewers never see it).
-    pub indicator: Option<VizIndicator>,
-}
-
-/// The side of a vehicle's indicator in the stream.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum VizIndicator {
-    /// `indicator=left`.
-    Left,
-    /// `indicator=right`.
-    Right,
-}
-
-impl std::str::FromStr for VizIndicator {
-    type Err = ();
-    fn from_str(s: &str) -> Result<VizIndicator, ()> {
-        match s {
-            "left" => Ok(VizIndicator::Left),
-            "right" => Ok(VizIndicator::Right),
-            _ => Err(()),
-        }
-    }
+    pub indicator: TurnSignal,
 }
 
 /// What one signalised junction shows, as the lights extension carries it (see the module docs
@@ -291,9 +273,9 @@ fn write_record(out: &mut String, v: &VizVehicle) {
         out.push(if ok { c } else { '_' });
     }
     match v.indicator {
-        Some(VizIndicator::Left) => out.push_str(";indicator=left"),
-        Some(VizIndicator::Right) => out.push_str(";indicator=right"),
-        None => {}
+        TurnSignal::Left => out.push_str(";indicator=left"),
+        TurnSignal::Right => out.push_str(";indicator=right"),
+        TurnSignal::Off => {}
     }
 }
 
@@ -433,7 +415,7 @@ fn decode_record(record: usize, rec: &str) -> Result<(VizVehicle, Option<VizPart
         y: y.ok_or_else(|| missing("y"))?,
         yaw_deg: yaw.ok_or_else(|| missing("yaw"))?,
         class_name: class_name.ok_or_else(|| missing("class_name"))?,
-        indicator,
+        indicator: indicator.unwrap_or_default(),
     };
     Ok((vehicle, part))
 }

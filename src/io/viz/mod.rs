@@ -55,7 +55,7 @@ pub mod sockets;
 
 pub use codec::{
     LIGHTS_PREFIX, MAX_CLASS_NAME_LEN, MAX_DATAGRAM_LEN, MAX_PARTS, PART_KEY, PARTS_KEY, VizDatagram, VizEncoder,
-    VizError, VizIndicator, VizLight, VizPart, VizVehicle, decode_datagram, decode_lights, encode_frame, encode_lights,
+    VizError, VizLight, VizPart, VizVehicle, decode_datagram, decode_lights, encode_frame, encode_lights,
     is_lights_datagram,
 };
 pub use format::{REAR_AXLE_FROM_REAR, StreamFormat, class_name_2015, viewer_body, viewer_footprint};
