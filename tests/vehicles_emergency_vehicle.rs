@@ -20,9 +20,14 @@ fn run(tag: &str, sets: &[&str]) -> Value {
 
 /// [`run`], plus the trajectory rows (`t,id,x,y,yaw,vx,vy,lanelet,lane_offset`).
 fn run_with_rows(tag: &str, sets: &[&str]) -> (Value, Vec<Vec<String>>) {
+    run_scenario_with_rows("scenarios/emergency_vehicle.toml", tag, sets)
+}
+
+/// [`run_with_rows`] of another scenario file.
+fn run_scenario_with_rows(scenario: &str, tag: &str, sets: &[&str]) -> (Value, Vec<Vec<String>>) {
     let out = std::env::temp_dir().join(format!("smlworld-ev-{tag}-{}", std::process::id()));
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_smlworld"));
-    cmd.arg("run").arg(root().join("scenarios/emergency_vehicle.toml")).arg("--out").arg(&out);
+    cmd.arg("run").arg(root().join(scenario)).arg("--out").arg(&out);
     for s in sets {
         cmd.arg("--set").arg(s);
     }
@@ -94,6 +99,36 @@ fn in_the_right_most_lane_vehicles_move_aside_inside_their_lane() {
         .collect();
     assert!(!aside.is_empty(), "nobody moved aside");
     assert!(rows.iter().all(|r| r[8].parse::<f64>().map_or(true, |o| o > -1.0)), "nobody leaves the lane");
+}
+
+/// Issue 59 §3: the emergency vehicle is never stuck (below 20 % of its free speed), on the
+/// three-lane ring and on a two-lane ring whose right lane, where it drives, is full of vehicles
+/// that can only move aside inside the lane: it passes them inside the lane with 0.5 m of
+/// lateral clearance instead of following them.
+#[test]
+fn the_emergency_vehicle_is_never_stuck_and_passes_vehicles_moved_aside_in_its_lane() {
+    let three = run("stuck-three", &[]);
+    let e = &three["metrics"]["emergency"];
+    assert!(!e["stuck_s"].is_null(), "metrics.emergency.stuck_s missing: {e}");
+    assert_eq!(f(&e["stuck_s"]), 0.0, "{e}");
+
+    let (two, rows) = run_scenario_with_rows("scenarios/emergency_two_lane.toml", "two-lane", &[]);
+    let m = &two["metrics"];
+    let e = &m["emergency"];
+    eprintln!("two lanes: {e}");
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    assert_eq!(f(&e["stuck_s"]), 0.0, "{e}");
+    assert!(e["vehicles_yielded"].as_u64().unwrap() >= 3, "{e}");
+    assert!(f(&e["min_clearance_m"]) >= 0.0, "{e}");
+    // Following the slowed vehicles (at most 20 m/s x 0.8) would cost it a third of its time;
+    // passing them costs little.
+    let (delay, travel) = (f(&e["delay_s"]), f(&e["travel_time_s"]));
+    assert!(delay < 0.2 * travel, "delay {delay} s of {travel} s: it followed instead of passing");
+    // It passed inside its lane: shifted left, never more than 0.6 m over the line (4 m lanes:
+    // its 2 m body's centre at most 2 - 1 + 0.6 = 1.6 m left of the lane's centre line).
+    let ev: Vec<f64> = rows.iter().filter(|r| r[1] == "-1").filter_map(|r| r[8].parse().ok()).collect();
+    let widest = ev.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    assert!(widest > 1.0 && widest < 1.7, "the emergency vehicle's largest offset {widest} m");
 }
 
 fn load(text: &str) -> Result<Scenario, String> {

@@ -83,6 +83,78 @@ fn the_platoons_zip_together_without_collisions_with_and_without_loss() {
     assert!(deaf["metrics"]["merge"].is_null(), "{}", deaf["metrics"]["merge"]);
 }
 
+const TIME_GAP_08: &str = "vehicles.*.controller.merge.gap_rule={ time_gap = 0.8, standstill = 5.0 }";
+
+/// What issue 59 asks of the gentler merge with the 0.8 s time-gap rule: every merger in
+/// before the lane ends, no collision, time gaps of at least 0.5 s, nobody below 75 % of its
+/// speed at the announcement, nobody braking harder than 2.5 m/s².
+fn assert_gentle(tag: &str, summary: &Value) {
+    assert_merged(tag, summary);
+    let merge = &summary["metrics"]["merge"];
+    assert!(f(&merge["min_time_gap_s"]) >= 0.5, "{tag}: {merge}");
+    assert!(f(&merge["min_speed_ratio"]) >= 0.75, "{tag}: {merge}");
+    let decel = f(&merge["max_decel"]);
+    assert!(decel > 0.0 && decel <= 2.5, "{tag}: {merge}");
+    // Every merge ended before the end of the ending lane (at 1600 m, 60 s of road at most).
+    for e in merge["merges"].as_array().unwrap() {
+        assert!(f(&e["t"]) < 60.0, "{tag}: {e}");
+    }
+}
+
+#[test]
+fn with_a_time_gap_of_0_8_s_the_merge_is_gentle_with_and_without_loss() {
+    assert_gentle("time gap 0.8 s", &run("tg08", &[TIME_GAP_08]));
+    let lossy = run("tg08-loss", &[TIME_GAP_08, "v2v.wifi.loss=0.2"]);
+    assert!(lossy["metrics"]["v2v"]["wifi"]["lost"].as_u64().unwrap() > 0);
+    assert_gentle("time gap 0.8 s, wifi loss 0.2", &lossy);
+}
+
+#[test]
+fn the_2015_rule_is_no_harsher_than_before_and_longer_gaps_cost_more_delay() {
+    // Before issue 59 the last gap maker slowed from 22.2 to 6.6 m/s: a ratio of 0.30.
+    let sml = run("sml2015", &["vehicles.*.controller.merge.gap_rule=\"sml2015\""]);
+    assert_merged("sml2015", &sml);
+    let merge = &sml["metrics"]["merge"];
+    assert!(f(&merge["min_speed_ratio"]) >= 0.30, "{merge}");
+    assert!(f(&merge["min_speed_ratio"]) <= 1.0, "{merge}");
+    // The default is the 2015 rule: the same run without the override.
+    assert_eq!(run("default", &[])["metrics"]["merge"], *merge);
+    // delay_s against the run without platoon B: the gap makers lose time, more with longer gaps.
+    let delay = |tg: f64| {
+        let set = format!("vehicles.*.controller.merge.gap_rule={{ time_gap = {tg}, standstill = 5.0 }}");
+        let s = run(&format!("delay-{tg}"), &[&set]);
+        assert_merged(&format!("time gap {tg} s"), &s);
+        f(&s["metrics"]["merge"]["delay_s"])
+    };
+    let (short, long) = (delay(0.5), delay(1.5));
+    assert!(short > 0.0 && long > short, "delay with 0.5 s {short} s, with 1.5 s {long} s");
+}
+
+#[test]
+fn a_bad_gap_rule_from_the_command_line_is_refused_naming_the_key() {
+    for (value, expect) in [
+        ("\"sml2016\"", "sml2016"),
+        ("{ time_gap = 0.8 }", "standstill"),
+        ("{ time_gap = -1.0, standstill = 5.0 }", "gap_rule.time_gap"),
+    ] {
+        let out = std::env::temp_dir().join(format!("smlworld-gcdc-bad-{}", std::process::id()));
+        let output = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+            .arg("run")
+            .arg(root().join("scenarios/gcdc_merge.toml"))
+            .arg("--out")
+            .arg(&out)
+            .arg("--set")
+            .arg(format!("vehicles.*.controller.merge.gap_rule={value}"))
+            .output()
+            .expect("the smlworld binary runs");
+        let err = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "{value} accepted");
+        assert!(err.contains("gap_rule") && err.contains(expect), "{value}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        let _ = std::fs::remove_dir_all(&out);
+    }
+}
+
 /// Parse, check and assemble a scenario (placing a roadside unit happens at assembly).
 fn load(text: &str) -> Result<(), String> {
     let scenario = Scenario::parse_str(text, &root().join("scenarios/test.toml")).map_err(|e| e.to_string())?;
@@ -112,6 +184,10 @@ fn gcdc_and_rsu_keys_are_parsed_strictly_and_bad_input_names_the_key() {
     assert!(role.contains("leader") && role.contains("gap_maker"), "{role}");
     let typo = load(&gcdc("merge = { safe_gapp = 10.0 }")).unwrap_err();
     assert!(typo.contains("safe_gapp"), "{typo}");
+    let rule = load(&gcdc("merge = { gap_rule = \"zip\" }")).unwrap_err();
+    assert!(rule.contains("gap_rule") && rule.contains("zip") && rule.contains("sml2015"), "{rule}");
+    let time_gap = format!("{}{rsu}", gcdc("merge = { gap_rule = { time_gap = 0.8, standstill = 5.0 } }"));
+    assert!(load(&time_gap).is_ok(), "{:?}", load(&time_gap).err());
     let range = load(&gcdc("merge = { safe_gap = -1.0 }")).unwrap_err();
     assert!(range.contains("controller.merge.safe_gap"), "{range}");
     let no_at = load(&format!("{}[[rsu]]\nrange = 300.0\nmessage = \"merge_zone\"\n", gcdc(""))).unwrap_err();

@@ -294,6 +294,12 @@ pub fn run_scenario(source: impl Into<ScenarioSource>, options: RunOptions) -> R
         .map_err(|source| RunError::Io { path: csv_tmp.clone(), source })?;
 
     let mut summary = RunSummary::new(&sim, &report);
+    if let Some(merge) = summary.metrics.as_mut().and_then(|m| m.merge.as_mut())
+        && !summary.interrupted
+        && let Some(log) = sim.world().get_resource::<crate::vehicles::MergeLog>()
+    {
+        merge.delay_s = merge_baseline(&scenario, &options, duration, log)?;
+    }
     let map_path = scenario_map_path(&scenario);
     summary.replay = Some(super::running::summary::ReplayInfo::of(sim.world_mut(), map_path, log_rate));
     let summary_path = options.out.join("summary.json");
@@ -450,6 +456,29 @@ fn drive(
         Some(e) => Err(RunError::Render(e)),
         None => Ok(report),
     }
+}
+
+/// `metrics.merge.delay_s`: run the scenario again, headless and without outputs, without the
+/// mergers of `log` (platoon B), and compare (see [`crate::vehicles::MergeSummary::delay_s`]).
+/// The run is as cheap as the scenario itself (a merge run takes well under a second).
+fn merge_baseline(
+    scenario: &Scenario,
+    options: &RunOptions,
+    duration: f64,
+    log: &crate::vehicles::MergeLog,
+) -> Result<Option<f64>, RunError> {
+    let mergers: std::collections::BTreeSet<i32> =
+        log.participants.iter().filter(|(_, p)| p.0).map(|(id, _)| id.0).collect();
+    let mut without_b = scenario.clone();
+    without_b.file.vehicles.retain(|v| !mergers.contains(&v.id));
+    let mut builder = SimBuilder::new();
+    for plugin in &options.plugins {
+        plugin.build(&mut builder);
+    }
+    without_b.assemble(&mut builder)?;
+    let mut sim = builder.build();
+    super::running::runner::run_headless(&mut sim, duration, 1.0, |_| {});
+    Ok(sim.world().get_resource::<crate::vehicles::MergeLog>().and_then(|base| log.delay_against(base)))
 }
 
 /// The frame recorder when frames, a GIF or a video are asked for.

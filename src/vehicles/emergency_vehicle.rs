@@ -20,21 +20,29 @@
 //! does the same in spirit; like there, the figure that matters is the emergency vehicle's delay
 //! against free flow ([`EmergencyLog`]).
 //!
-//! The decisions are pure functions ([`distance_along_lane`], [`yield_plan`]) beside the systems.
+//! A vehicle that moved aside inside the emergency vehicle's own lane does not block it: the
+//! emergency vehicle shifts to the other side of its lane (over the line by at most
+//! [`PASS_SPILL`] where a lane lies there) and passes when the lateral clearance between the two
+//! is at least [`PASS_CLEARANCE`] ([`pass_shift`], [`passable`]); a vehicle it cannot pass stays
+//! its leader. `metrics.emergency.stuck_s` counts the time it drove below [`STUCK_SHARE`] of its
+//! free speed.
+//!
+//! The decisions are pure functions ([`distance_along_lane`], [`yield_plan`], [`pass_shift`],
+//! [`passable`]) beside the systems.
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use bevy_ecs::prelude::{Component, Query, Res, ResMut, Resource, Without};
+use bevy_ecs::prelude::{Component, Query, Res, ResMut, Resource, With, Without};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
 use crate::map::LaneletId;
 use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
-use crate::world::{Channel, Mailbox, Route, SimTime, VehicleId, VehicleSize, VehicleState};
+use crate::world::{Channel, Mailbox, Route, SimTime, VehicleId, VehicleSize, VehicleState, Vehicles};
 
-use super::lane_changing::{ChangeKind, LaneChangeSystems, LaneChanger, Side};
+use super::lane_changing::{ChangeKind, LaneChangeSystems, LaneChanger, LaneIndex, Side};
 use super::lanes::{LaneMap, LanePosition};
-use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
+use super::longitudinal::{LeaderGap, Longitudinal, LongitudinalSystems, find_leaders, install_longitudinal};
 use super::path_following::{LateralShift, PathFollower};
 
 /// A received beacon is acted on for this long after it was sent \[s\] (a lost round or two does
@@ -53,6 +61,16 @@ pub const SLOW_DECELERATION: f64 = 1.5;
 /// A vehicle that changed lanes for an emergency vehicle asks to change back for this long
 /// after it has passed \[s\] (then MOBIL decides as usual).
 pub const RETURN_WINDOW: f64 = 10.0;
+/// Lateral clearance \[m\] the emergency vehicle needs to pass a vehicle inside its own lane
+/// (footprints side by side, taken parallel).
+pub const PASS_CLEARANCE: f64 = 0.5;
+/// How far the emergency vehicle may reach over its lane's line to pass \[m\], where a lane lies
+/// on that side (a rescue lane is made of both lanes' edges); 0 at the road's edge.
+pub const PASS_SPILL: f64 = 0.6;
+/// The emergency vehicle looks this far ahead in its lane for a vehicle to pass \[m\].
+pub const PASS_LOOKAHEAD: f64 = 80.0;
+/// Below this share of its free speed the emergency vehicle counts as stuck [-].
+pub const STUCK_SHARE: f64 = 0.2;
 /// An emergency vehicle this close to the end of its open route [m] has arrived.
 const ARRIVED: f64 = 5.0;
 
@@ -102,6 +120,7 @@ pub struct EmergencyBeacon {
 
 /// Marks an emergency vehicle (class `emergency` of a scenario's `[[vehicles]]`).
 #[derive(Component, Debug, Clone, Copy, PartialEq)]
+#[require(LateralShift)]
 pub struct EmergencyVehicle {
     /// Its desired speed [m/s]: free flow for the delay metric.
     pub desired_speed: f64,
@@ -185,6 +204,46 @@ pub fn aside_shift(half_width: f64, width: f64) -> f64 {
     -(half_width - 0.5 * width - EDGE_MARGIN).clamp(0.0, MAX_SHIFT)
 }
 
+/// Lateral clearance \[m\] between two vehicles in the same lane at offsets `offset_a`, `offset_b`
+/// \[m\] from its centre line (positive left) with widths `width_a`, `width_b` \[m\] (negative:
+/// they overlap side by side).
+pub fn lateral_clearance(offset_a: f64, width_a: f64, offset_b: f64, width_b: f64) -> f64 {
+    (offset_a - offset_b).abs() - 0.5 * (width_a + width_b)
+}
+
+/// Whether the emergency vehicle (offset `offset`, width `width`) passes a vehicle ahead in its
+/// lane (offset `other_offset`, width `other_width`; all \[m\]) instead of following it: the
+/// lateral clearance is at least [`PASS_CLEARANCE`].
+pub fn passable(offset: f64, width: f64, other_offset: f64, other_width: f64) -> bool {
+    lateral_clearance(offset, width, other_offset, other_width) >= PASS_CLEARANCE
+}
+
+/// The emergency vehicle's own shift \[m\] (positive left) to pass a vehicle ahead at
+/// `other_offset` \[m\] of width `other_width` \[m\], in a lane of half width `half_width` \[m\],
+/// its width `width` \[m\]: to the side the other left free, by what [`PASS_CLEARANCE`] needs
+/// plus 0.1 m,
+/// within the lane plus [`PASS_SPILL`] where `lane_left` / `lane_right` says a lane lies on that
+/// side. `None` when that is not enough (it follows), or the other is not shifted (0.2 m).
+pub fn pass_shift(
+    other_offset: f64,
+    other_width: f64,
+    width: f64,
+    half_width: f64,
+    lane_left: bool,
+    lane_right: bool,
+) -> Option<f64> {
+    if other_offset.abs() < 0.2 {
+        return None;
+    }
+    let left = other_offset < 0.0;
+    // 0.1 m more than the clearance: the path follower tracks a shift to a few centimetres.
+    let needed = 0.5 * (width + other_width) + PASS_CLEARANCE + 0.1;
+    let spill = if (left && lane_left) || (!left && lane_right) { PASS_SPILL } else { 0.0 };
+    let room = (half_width - 0.5 * width + spill).max(0.0);
+    let shift = (needed - other_offset.abs()).max(0.0);
+    (shift <= room + 1e-9).then_some(if left { shift } else { -shift })
+}
+
 /// Clearance \[m\] between two vehicles at `a` and `b` (centres \[m\]) of sizes `size_a`, `size_b`,
 /// seen along `a`'s heading `yaw_a` \[rad\], both taken as parallel (a highway): the larger of the
 /// longitudinal and the lateral gap between the footprints, 0 when they overlap.
@@ -211,6 +270,8 @@ pub struct EmergencyRun {
     pub desired_speed: f64,
     /// Smallest clearance to any other vehicle \[m\].
     pub min_clearance: f64,
+    /// Time below [`STUCK_SHARE`] of its desired speed \[s\].
+    pub stuck: f64,
 }
 
 /// What the emergency-vehicle plugin measured.
@@ -238,6 +299,8 @@ pub struct EmergencySummary {
     pub min_clearance_m: f64,
     /// Vehicles that made way for it (changed to the right, or moved aside in their lane).
     pub vehicles_yielded: usize,
+    /// Time it drove below 20 % ([`STUCK_SHARE`]) of its free speed \[s\].
+    pub stuck_s: f64,
 }
 
 impl EmergencyLog {
@@ -253,6 +316,7 @@ impl EmergencyLog {
             delay_s: travel - free,
             min_clearance_m: if r.min_clearance.is_finite() { r.min_clearance } else { -1.0 },
             vehicles_yielded: self.yielded.len(),
+            stuck_s: r.stuck,
         })
     }
 }
@@ -289,9 +353,13 @@ pub fn send_emergency_beacons(
             driven: 0.0,
             desired_speed: ev.desired_speed,
             min_clearance: f64::INFINITY,
+            stuck: 0.0,
         });
         if run.arrived.is_none() {
             run.driven += state.speed() * dt;
+            if state.speed() < STUCK_SHARE * ev.desired_speed {
+                run.stuck += dt;
+            }
             run.last = t;
             if let (Some(r), Some(f)) = (route, follower)
                 && !r.0.closed
@@ -435,6 +503,61 @@ pub fn yield_to_emergency_vehicles(
     }
 }
 
+/// Every emergency vehicle with a vehicle ahead in its lane that moved aside shifts to the free
+/// side ([`pass_shift`]), and no longer follows a vehicle it clears by [`PASS_CLEARANCE`]
+/// ([`passable`]): its leader becomes the next one it does not clear. O(1) lookups per
+/// emergency vehicle.
+#[allow(clippy::type_complexity)]
+pub fn pass_shifted_vehicles(
+    lanes: Option<Res<LaneMap>>,
+    index: Option<Res<LaneIndex>>,
+    registry: Res<Vehicles>,
+    mut emergency: Query<
+        (&VehicleId, &VehicleSize, &LanePosition, &mut LateralShift, &mut Longitudinal),
+        With<EmergencyVehicle>,
+    >,
+    others: Query<(&VehicleSize, &LanePosition), Without<EmergencyVehicle>>,
+) {
+    let (Some(lanes), Some(index)) = (lanes, index) else { return };
+    let lanes = &*lanes;
+    for (id, size, pos, mut shift, mut lon) in &mut emergency {
+        let Some(i) = pos.on() else { continue };
+        let half = lanes.half_widths[i as usize];
+        let other = |o: VehicleId| registry.get(o).and_then(|e| others.get(e).ok());
+        // The lane index finds the others in its lane (this lanelet or the next ones): their
+        // offsets are from the same lane's centre line.
+        let clears =
+            |o: VehicleId| other(o).is_some_and(|(sz, p)| passable(pos.offset, size.width, p.offset, sz.width));
+        let ahead = index.ahead(lanes, i, pos.s, *id).filter(|f| f.distance <= PASS_LOOKAHEAD);
+        let target = ahead.and_then(|f| other(f.id)).and_then(|(sz, p)| {
+            let lane_left = super::lane_changing::neighbour(lanes, i, Side::Left).is_some();
+            let lane_right = super::lane_changing::neighbour(lanes, i, Side::Right).is_some();
+            pass_shift(p.offset, sz.width, size.width, half, lane_left, lane_right)
+        });
+        // Hold the shift while the vehicle just passed is still alongside.
+        let alongside = index
+            .behind(lanes, i, pos.s, *id)
+            .filter(|f| f.distance <= 0.5 * (f.length + size.length) + 2.0)
+            .and_then(|f| other(f.id))
+            .is_some_and(|(_, p)| p.offset.abs() >= 0.2);
+        shift.0 = match target {
+            Some(t) => t,
+            None if alongside => shift.0,
+            None => 0.0,
+        };
+        if lon.leader.is_some_and(|l| clears(l.id)) {
+            let next = index.ahead_where(lanes, i, pos.s, *id, |o| !clears(o));
+            lon.leader = next.map(|f| LeaderGap {
+                id: f.id,
+                distance: f.distance,
+                gap: f.distance - size.length,
+                speed: f.speed,
+                acceleration: 0.0,
+            });
+        }
+    }
+}
+
 /// Slow the vehicles that move aside to their `slow_to` speed, braking at most
 /// [`SLOW_DECELERATION`].
 pub fn slow_for_emergency_vehicles(mut vehicles: Query<(&VehicleState, &YieldToEmergency, &mut Longitudinal)>) {
@@ -463,6 +586,7 @@ impl Plugin for EmergencyVehiclePlugin {
             (send_emergency_beacons, yield_to_emergency_vehicles).chain().in_set(EmergencySystems),
         );
         sim.add_systems(Control, slow_for_emergency_vehicles.in_set(LongitudinalSystems::Limit));
+        sim.add_systems(Control, pass_shifted_vehicles.in_set(LongitudinalSystems::FindLeader).after(find_leaders));
     }
 }
 
@@ -534,11 +658,33 @@ mod tests {
                 driven: 1500.0,
                 desired_speed: 30.0,
                 min_clearance: 3.0,
+                stuck: 1.5,
             },
         );
         log.yielded.extend([VehicleId(1), VehicleId(2)]);
         let s = log.summary().expect("the log has a summary");
         assert_eq!((s.travel_time_s, s.free_flow_time_s, s.delay_s), (60.0, 50.0, 10.0));
-        assert_eq!((s.min_clearance_m, s.vehicles_yielded), (3.0, 2));
+        assert_eq!((s.min_clearance_m, s.vehicles_yielded, s.stuck_s), (3.0, 2, 1.5));
+    }
+
+    #[test]
+    fn it_passes_a_vehicle_moved_aside_when_the_lateral_clearance_is_half_a_metre() {
+        // A 2 m wide emergency vehicle behind a 1.7 m car moved 0.9 m right in a 4 m lane.
+        assert!((lateral_clearance(0.0, 2.0, -0.9, 1.7) + 0.95).abs() < 1e-12);
+        assert!(!passable(0.0, 2.0, -0.9, 1.7), "centred: no room");
+        // It shifts left by 1.55 m: 0.6 m clear; that reaches 0.55 m over the line, allowed
+        // with a lane on the left, not at the road's edge (a lane keeps it within 1 m).
+        let s = pass_shift(-0.9, 1.7, 2.0, 2.0, true, false).expect("a lane on the left");
+        assert!((s - 1.55).abs() < 1e-12, "{s}");
+        assert!(passable(s, 2.0, -0.9, 1.7));
+        assert!(passable(1.45, 2.0, -0.9, 1.7), "0.5 m is enough");
+        assert!(!passable(1.44, 2.0, -0.9, 1.7), "0.49 m is not");
+        assert_eq!(pass_shift(-0.9, 1.7, 2.0, 2.0, false, true), None, "the road's edge on the left");
+        // Mirrored: a car moved left is passed on the right.
+        assert_eq!(pass_shift(0.9, 1.7, 2.0, 2.0, false, true).map(|s| (s * 100.0).round()), Some(-155.0));
+        // A car in the middle of the lane is followed, not passed.
+        assert_eq!(pass_shift(0.1, 1.7, 2.0, 2.0, true, true), None);
+        // A wide lane needs no spill.
+        assert!(pass_shift(-1.2, 1.7, 2.0, 2.5, false, false).is_some());
     }
 }

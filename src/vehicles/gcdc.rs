@@ -43,8 +43,8 @@ use crate::world::{BatchRef, Channel, Mailbox, Message, Payload, Route, VehicleI
 
 use super::acc::AdaptiveCruise;
 use super::gcdc_protocol::{
-    MergeAction, MergeView, Pairs, Participant, is_zipper, keep_stom, merge_action, pairs_in, safe_gap_front,
-    safe_gap_rear, zipper_order,
+    GapPlan, GapRule, MergeAction, MergeView, Pairs, Participant, is_zipper, keep_stom, merge_action, pairs_in,
+    ready_point, zipper_order,
 };
 use super::lane_changing::{LaneChangeSystems, LaneChanger, LaneIndex, Side, neighbour};
 use super::lanes::{LaneMap, LanePosition};
@@ -63,7 +63,13 @@ pub const LAST_RESORT: f64 = 60.0;
 pub const GAP_MARGIN: f64 = 3.0;
 /// Hardest braking a virtual leader may ask for [m/s²] (comfortable; the real leader may ask
 /// for more).
-pub const VIRTUAL_DECELERATION: f64 = 2.0;
+pub const VIRTUAL_DECELERATION: f64 = 1.5;
+/// The gaps are planned to be open this far before the end of the ending lane \[m\]: the merges
+/// themselves (a lane change of a few seconds, STOM and the checks) and [`LAST_RESORT`] need
+/// that road.
+pub const READY_ROOM: f64 = 180.0;
+/// A gap is opened over at least this much road \[m\] (a pair formed late, or no lane end known).
+pub const MIN_PLAN_LENGTH: f64 = 150.0;
 /// Wifi draws of the roadside units (see [`Draw::stream`]).
 const RSU_STREAM: u64 = 0x5253_5530; // "RSU0"
 
@@ -80,13 +86,16 @@ pub enum Role {
     Merger,
 }
 
-/// `controller.merge = { safe_gap, speed }`.
+/// `controller.merge = { safe_gap, gap_rule, speed }`.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MergeParams {
     /// Minimum safe gap \[m\] under the speed-dependent 2015 gaps (front `max(safe_gap,
     /// 0.27 v^1.5)`, rear `max(safe_gap, 0.23 v^1.5)`); raising it opens wider gaps.
     pub safe_gap: f64,
+    /// The gaps a merger needs (see [`GapRule`]): `"sml2015"` (default) or `{ time_gap [s],
+    /// standstill [m] }`; longer gaps are safer and cost the traffic more.
+    pub gap_rule: GapRule,
     /// Cruise speed [m/s] from the moment the merge zone is heard (default: keep `speed`): the
     /// slower platoon catches up with the other's speed.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -95,15 +104,17 @@ pub struct MergeParams {
 
 impl Default for MergeParams {
     fn default() -> Self {
-        MergeParams { safe_gap: 10.0, speed: None }
+        MergeParams { safe_gap: 10.0, gap_rule: GapRule::Sml2015, speed: None }
     }
 }
 
 impl MergeParams {
-    /// Check the values (keys relative to `merge`): `safe_gap` (0, 1e3] m, `speed` [0, 1e3] m/s.
+    /// Check the values (keys relative to `merge`): `safe_gap` (0, 1e3] m, `gap_rule` (see
+    /// [`GapRule::check`]), `speed` [0, 1e3] m/s.
     pub fn check(&self) -> Result<(), crate::sim::params::ParamError> {
         use crate::sim::params::{MAX_SPEED, Range};
         Range::positive(1e3).check("safe_gap", self.safe_gap)?;
+        self.gap_rule.check()?;
         match self.speed {
             Some(s) => Range::non_negative(MAX_SPEED).check("speed", s),
             None => Ok(()),
@@ -212,8 +223,10 @@ pub struct VirtualLeader {
     pub speed: f64,
     /// Its acceleration [m/s²].
     pub accel: f64,
-    /// Gap to keep \[m\] (the safe gap plus [`GAP_MARGIN`]).
+    /// Gap to keep now \[m\]: on the way to the gap of the rule plus [`GAP_MARGIN`] ([`GapPlan`]).
     pub keep: f64,
+    /// How fast the gap to keep grows [m/s] (the plan's relative speed).
+    pub rate: f64,
 }
 
 /// Per-vehicle state of a `gcdc` vehicle.
@@ -256,6 +269,10 @@ pub struct GcdcVehicle {
     pub virtual_leader: Option<VirtualLeader>,
     /// Merger: the side of the lane it merges into.
     pub merge_side: Option<Side>,
+    /// Distance to the merge zone of the end of the lane that ends \[m\] (negative), once known.
+    pub zone_end: Option<f64>,
+    /// The plan of the gap to the forward pair, and that pair.
+    pub plan: Option<(VehicleId, GapPlan)>,
     /// Arc length of the zone on the current route: (route identity, s [m]).
     zone_s: Option<(usize, f64)>,
     /// The abort of the change in progress was counted.
@@ -284,6 +301,8 @@ impl GcdcVehicle {
             platoon_id: None,
             virtual_leader: None,
             merge_side: None,
+            zone_end: None,
+            plan: None,
             zone_s: None,
             abort_counted: false,
         }
@@ -342,6 +361,21 @@ pub struct MergeLog {
     pub aborted: usize,
     /// Whether any vehicle heard the merge zone.
     pub started: bool,
+    /// Speeds of the participants from the announcement on.
+    pub motion: BTreeMap<VehicleId, Motion>,
+}
+
+/// A participant's speeds from the merge zone's announcement on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Motion {
+    /// Speed when the zone was announced (the first participant heard it) [m/s].
+    pub announced: f64,
+    /// Lowest speed since [m/s].
+    pub lowest: f64,
+    /// Hardest deceleration since [m/s²] (positive; speed change between control ticks).
+    pub max_decel: f64,
+    /// Speed and time at the last control tick ([m/s], \[s\]).
+    pub last: (f64, f64),
 }
 
 /// `metrics.merge` of `summary.json`.
@@ -364,6 +398,17 @@ pub struct MergeSummary {
     pub zipper_order: bool,
     /// Merges aborted back to the ending lane.
     pub aborted: usize,
+    /// Lowest speed of any participant over its speed when the merge zone was announced [-]
+    /// (the first participant heard it; -1 when never measured).
+    pub min_speed_ratio: f64,
+    /// Hardest deceleration of any participant from the announcement on [m/s²] (speed change
+    /// between control ticks).
+    pub max_decel: f64,
+    /// Extra travel time of the participants against the same run without platoon B \[s\]:
+    /// the run is repeated without the mergers (`smlworld run` and the Python `run` do so; null
+    /// elsewhere), and each gap maker's distance behind where it is at the end of that run is
+    /// divided by its speed there, summed over the gap makers (the participants of both runs).
+    pub delay_s: Option<f64>,
     /// The merges: `{ id, t, forward_pair, backward_pair }`.
     pub merges: Vec<MergeEvent>,
     /// The participants front to back at the end of the run.
@@ -401,9 +446,36 @@ impl MergeLog {
             min_time_gap_s: finite_or(self.min_time_gap),
             zipper_order: merged.len() == mergers.len() && is_zipper(&order, &mergers, &others),
             aborted: self.aborted,
+            min_speed_ratio: self
+                .motion
+                .values()
+                .filter(|m| m.announced > 1.0)
+                .map(|m| m.lowest / m.announced)
+                .reduce(f64::min)
+                .unwrap_or(-1.0),
+            max_decel: self.motion.values().map(|m| m.max_decel).fold(0.0, f64::max),
+            delay_s: None,
             merges: self.merges.clone(),
             order,
         })
+    }
+}
+
+impl MergeLog {
+    /// `delay_s` of [`MergeSummary`]: the extra travel time \[s\] of the gap makers of this run
+    /// (`self`) against `without_b`, the same run without the mergers: per gap maker, how far
+    /// it is behind its place at the end of that run, divided by its speed there (at least
+    /// 1 m/s); `None` when no gap maker is in both.
+    pub fn delay_against(&self, without_b: &MergeLog) -> Option<f64> {
+        let mut sum = None;
+        for (id, &(merger, _, d)) in &self.participants {
+            let Some(&(_, _, d_base)) = without_b.participants.get(id).filter(|_| !merger) else { continue };
+            let v = without_b.motion.get(id).map_or(1.0, |m| m.last.0.max(1.0));
+            if d.is_finite() && d_base.is_finite() {
+                *sum.get_or_insert(0.0) += (d - d_base) / v;
+            }
+        }
+        sum
     }
 }
 
@@ -480,6 +552,25 @@ pub fn ending_lane_side(lanes: &LaneMap, i: u32, s: f64) -> Option<Side> {
     })
 }
 
+/// Road left \[m\] from arc length `s` of lanelet `i` to the end of the lane that ends in the
+/// merge: its own when it ends before a neighbour, else the nearer end of a neighbour lane that
+/// ends before its own (a gap maker looking at the mergers' lane); `None` when no lane ends.
+fn ending_lane_remaining(lanes: &LaneMap, i: u32, s: f64) -> Option<f64> {
+    let horizon = 1e5;
+    let own = lane_remaining(lanes, i, s, horizon);
+    if ending_lane_side(lanes, i, s).is_some() {
+        return Some(own);
+    }
+    [Side::Right, Side::Left]
+        .into_iter()
+        .filter_map(|side| {
+            let j = neighbour(lanes, i, side)?;
+            let s_j = s * lanes.length(j) / lanes.length(i).max(1e-9);
+            Some(lane_remaining(lanes, j, s_j, horizon)).filter(|&r| r + 1.0 < own)
+        })
+        .reduce(f64::min)
+}
+
 /// Lane number from the right (1 = right-most) of lanelet `i`.
 fn lane_number(lanes: &LaneMap, i: u32) -> u8 {
     let (mut n, mut j) = (1u8, i);
@@ -553,15 +644,23 @@ pub fn run_gcdc_protocol(
         let Some(zone) = g.zone else { continue };
         // Distance to the zone along the current route (projected once per route).
         let key = Arc::as_ptr(&route.0) as usize;
-        let s_zone = match g.zone_s {
-            Some((k, s)) if k == key => s,
+        // On a new route (a lane change begins) the zone may lie behind the route's start, and
+        // the path follower's arc length is still the old route's this tick: carry the distance
+        // over from the last tick (it moved a control tick's worth, about 1 m), or it jumps and
+        // the zipper, the pairs and the plans with it.
+        let (s_zone, s_me) = match g.zone_s {
+            Some((k, s)) if k == key => (s, follower.s),
             _ => {
-                let s = route.0.project(zone).s;
+                let s_me = route.0.project(state.position).s;
+                let s = if g.distance.is_finite() { s_me + g.distance } else { route.0.project(zone).s };
                 g.zone_s = Some((key, s));
-                s
+                (s, s_me)
             }
         };
-        g.distance = s_zone - follower.s;
+        g.distance = s_zone - s_me;
+        if g.zone_end.is_none() {
+            g.zone_end = Some(ending_lane_remaining(lanes, i, pos.s).map_or(f64::NAN, |rem| g.distance - rem));
+        }
         let merger_role = g.role == Role::Merger;
         if let Some(p) = log.participants.get_mut(&me) {
             *p = (merger_role, p.1, g.distance);
@@ -625,17 +724,33 @@ pub fn run_gcdc_protocol(
         // The forward pair as a virtual leader while it is in the other lane.
         let gap_to = |d: f64| d_me - d - size.length;
         let safe_gap = gv.merge.safe_gap;
+        let rule = gv.merge.gap_rule;
+        let d_end = gv.zone_end.filter(|e| e.is_finite());
+        let mut plan = gv.plan;
         let virtual_leader = pairs.forward.and_then(|f| {
             let m = heard(f)?;
             let still_apart = if merger_role { gv.merged.is_none() } else { m.merge_request };
-            still_apart.then(|| VirtualLeader {
-                id: f,
-                gap: gap_to(m.distance_to_merge_zone),
-                speed: m.speed,
-                accel: m.accel,
-                keep: if merger_role { safe_gap_front(v, safe_gap) } else { safe_gap_rear(v, safe_gap) } + GAP_MARGIN,
-            })
+            if !still_apart {
+                return None;
+            }
+            let gap = gap_to(m.distance_to_merge_zone);
+            // The gap opens along a plan made when the pair formed (a new pair, a new plan).
+            let p = match plan {
+                Some((id, p)) if id == f => p,
+                _ => {
+                    let d_ready = ready_point(d_me, d_end, READY_ROOM, MIN_PLAN_LENGTH);
+                    let p = GapPlan { d0: d_me, gap0: gap, d_ready };
+                    plan = Some((f, p));
+                    p
+                }
+            };
+            let full = if merger_role { rule.front(v, safe_gap) } else { rule.rear(v, safe_gap) } + GAP_MARGIN;
+            let (keep, rate) = p.keep(d_me, v, full);
+            Some(VirtualLeader { id: f, gap, speed: m.speed, accel: m.accel, keep, rate })
         });
+        if virtual_leader.is_none() {
+            plan = None;
+        }
         // Gap maker: STOM for a forward pair that still has to merge.
         let stom = match pairs.forward.and_then(heard).filter(|m| m.merge_request && !merger_role) {
             Some(m) if forward_ack => {
@@ -644,7 +759,7 @@ pub fn run_gcdc_protocol(
                     .leader
                     .filter(|l| Some(l.id) != pairs.forward)
                     .map(|l| l.distance - (d_me - m.distance_to_merge_zone) - size.length);
-                keep_stom(gv.stom, m.merging, gap, room, v, safe_gap)
+                keep_stom(gv.stom, m.merging, gap, room, v, safe_gap, rule)
             }
             _ => false,
         };
@@ -656,6 +771,7 @@ pub fn run_gcdc_protocol(
             rear_gap: pairs.backward.and_then(heard).map(|m| m.distance_to_merge_zone - d_me - size.length),
             speed: v,
             safe_gap,
+            rule,
             merging: gv.merging,
             in_zone: d_me <= 0.0,
         };
@@ -663,6 +779,7 @@ pub fn run_gcdc_protocol(
         g.acknowledged = forward_ack && backward_ack;
         (g.head, g.tail, g.platoon_id) = (head, tail, Some(first.1));
         g.virtual_leader = virtual_leader;
+        g.plan = plan;
         g.stom = stom;
 
         let Some(ch) = changer.as_mut() else { continue };
@@ -690,12 +807,15 @@ pub fn control_gcdc(mut vehicles: Query<(&VehicleState, &GcdcVehicle, &mut Longi
         let cruise = lon.route_speed;
         let mut a = law.acceleration(v, cruise, lon.leader.as_ref(), lon.leader.map_or(0.0, |l| ff(l.id)));
         if let Some(vl) = g.virtual_leader {
-            let extra = (vl.keep - law.desired_gap(v)).max(0.0);
+            // Follow the planned gap, not the law's own (which may be wider than the plan now:
+            // a pair side by side opens its gap along the plan, not by braking at once), with
+            // the plan's growth as a relative speed.
+            let extra = vl.keep - law.desired_gap(v);
             let leader = LeaderGap {
                 id: vl.id,
                 distance: vl.gap + extra,
                 gap: vl.gap - extra,
-                speed: vl.speed,
+                speed: vl.speed - vl.rate,
                 acceleration: vl.accel,
             };
             let follow = law.acceleration(v, cruise, Some(&leader), g.platoon.feedforward_gain * vl.accel);
@@ -735,13 +855,25 @@ pub fn send_gcdc_messages(
 /// Smallest gap and time gap of every active participant to the vehicle ahead in its lane (the
 /// lane index counts a vehicle changing lanes in both).
 pub fn measure_merge(
+    clock: Res<SimClock>,
     lanes: Option<Res<LaneMap>>,
     index: Option<Res<LaneIndex>>,
     mut log: ResMut<MergeLog>,
     vehicles: Query<(&VehicleId, &VehicleState, &VehicleSize, &LanePosition, &GcdcVehicle)>,
 ) {
     let (Some(lanes), Some(index)) = (lanes, index) else { return };
+    let t = clock.now.as_secs();
     for (id, state, size, pos, g) in &vehicles {
+        // Speeds of every participant from the announcement on (the first one to hear it).
+        if log.started {
+            let v = state.speed();
+            let m = log.motion.entry(*id).or_insert(Motion { announced: v, lowest: v, max_decel: 0.0, last: (v, t) });
+            if t > m.last.1 {
+                m.max_decel = m.max_decel.max((m.last.0 - v) / (t - m.last.1));
+            }
+            m.lowest = m.lowest.min(v);
+            m.last = (v, t);
+        }
         let Some(i) = pos.on().filter(|_| g.active()) else { continue };
         if let Some(f) = index.ahead(&lanes, i, pos.s, *id) {
             let gap = f.distance - 0.5 * (f.length + size.length);

@@ -52,7 +52,8 @@ pub use emergency_vehicle::{
     EmergencyBeacon, EmergencyLog, EmergencySettings, EmergencySummary, EmergencyVehicle, EmergencyVehiclePlugin,
     YieldPlan, YieldToEmergency, yield_plan,
 };
-pub use gcdc::{GcdcMessage, GcdcPlugin, GcdcVehicle, MergeLog, MergeParams, MergeSummary, Role, Rsu, RsuKind};
+pub use gcdc::{GcdcMessage, GcdcPlugin, GcdcVehicle, MergeLog, MergeParams, MergeSummary, Motion, Role, Rsu, RsuKind};
+pub use gcdc_protocol::GapRule;
 pub use idm::{Idm, IdmController, IdmPlugin, control_idm};
 pub use lane_changing::{
     ChangeKind, FollowLaw, LaneChangeEvent, LaneChangeLog, LaneChangeParams, LaneChangePlugin, LaneChanger,
