@@ -79,6 +79,11 @@ fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
             .expect("valid"),
         ),
         (
+            "maps/gcdc_intersection.osm",
+            intersection(&IntersectionParams { arms: 3, arm_length: 150.0, ..IntersectionParams::default() })
+                .expect("valid"),
+        ),
+        (
             "maps/emergency_ring.osm",
             ring_highway(&RingParams { radius: 250.0, ..RingParams::default() }).expect("valid"),
         ),
