@@ -905,6 +905,50 @@ impl Plugin for MetricsPlugin {
 mod tests {
     use super::*;
 
+    fn footprint(x: f64, y: f64, yaw: f64) -> Footprint {
+        Footprint {
+            id: VehicleId(0),
+            fixed: false,
+            centre: DVec2::new(x, y),
+            axis: DVec2::from_angle(yaw),
+            half: DVec2::new(2.0, 1.0),
+        }
+    }
+
+    #[test]
+    fn footprint_distance_is_zero_on_overlap_and_the_clearance_otherwise() {
+        // 4 x 2 m boxes: side by side 3.5 m apart (centres) leave 1.5 m; nose to tail 10 m
+        // apart leave 6 m; overlapping: 0.
+        assert!((footprint_distance(&footprint(0.0, 0.0, 0.0), &footprint(0.0, 3.5, 0.0)) - 1.5).abs() < 1e-12);
+        assert!((footprint_distance(&footprint(0.0, 0.0, 0.0), &footprint(10.0, 0.0, 0.0)) - 6.0).abs() < 1e-12);
+        assert_eq!(footprint_distance(&footprint(0.0, 0.0, 0.0), &footprint(1.0, 0.5, 0.3)), 0.0);
+        // Crossing at right angles: a corner of the turned box 1 m from the other's nose.
+        let d = footprint_distance(&footprint(0.0, 0.0, 0.0), &footprint(4.0, 0.0, std::f64::consts::FRAC_PI_2));
+        assert!((d - 1.0).abs() < 1e-9, "{d}");
+    }
+
+    #[test]
+    fn post_encroachment_runs_from_the_first_clearing_to_the_second_reaching() {
+        assert_eq!(post_encroachment((1.0, 2.0), (3.5, 4.0)), 1.5);
+        assert_eq!(post_encroachment((3.5, 4.0), (1.0, 2.0)), 1.5);
+        // On the point at once.
+        assert_eq!(post_encroachment((1.0, 3.0), (2.0, 4.0)), 0.0);
+    }
+
+    #[test]
+    fn a_platoon_is_split_only_by_a_conflicting_vehicle_entering_between_its_members() {
+        let (p, q) = (Some(VehicleId(-1)), Some(VehicleId(-11)));
+        // Links 0 and 1 meet, 2 meets neither.
+        let conflict = |a: u32, b: u32| matches!((a, b), (0, 1) | (1, 0));
+        // Platoon p on link 0 with a vehicle on link 2 in between: together.
+        assert_eq!(platoon_splits(&[(p, 0), (None, 2), (p, 0), (p, 0)], conflict), 0);
+        // A vehicle on link 1 in between: cut once.
+        assert_eq!(platoon_splits(&[(p, 0), (None, 1), (p, 0), (p, 0)], conflict), 1);
+        // Two platoons alternating on conflicting links: each member after the first is cut.
+        assert_eq!(platoon_splits(&[(p, 0), (q, 1), (p, 0), (q, 1)], conflict), 2);
+        assert_eq!(platoon_splits(&[], conflict), 0);
+    }
+
     fn platoon(ranges: &[(f64, f64)]) -> Metrics {
         let mut m = Metrics::new(0.0);
         let members = ranges
