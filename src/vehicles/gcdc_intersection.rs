@@ -489,6 +489,9 @@ pub fn negotiate_intersection(
         let out = IntersectionMessage { going: go && !passed, committed: go && !passed && !can_stop, ..message };
         neg.going = out.going;
         neg.passed = passed;
+        if neg.decision != Some(decision) {
+            tracing::debug!(target: "gcdc_intersection", "{id} at {now:.2} s, {to_zone:.1} m before the zone: {decision:?}");
+        }
         neg.decision = Some(decision);
         if passed {
             neg.known.clear();
