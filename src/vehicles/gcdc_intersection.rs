@@ -34,6 +34,8 @@
 //! stop line ([`super::crossing::stop_before`]). With `negotiate = false` the vehicle only
 //! measures (`metrics.intersection`) and the junction's plain right-of-way
 //! ([`super::right_of_way`]) decides, as for any vehicle: the comparison of the README.
+//! A vehicle that has not heard the unit is no participant: the plain right-of-way governs it,
+//! and the participants do not know of it (the scenario keeps everyone in the unit's range).
 //! Per tick the work is O(messages heard) per participant.
 
 use std::cmp::Ordering;
