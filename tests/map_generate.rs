@@ -42,7 +42,7 @@ fn assert_same_xml(expected: &str, actual: &str, what: &str) {
 
 #[test]
 fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
-    let cases: [(&str, String); 9] = [
+    let cases: [(&str, String); 10] = [
         ("maps/highway_ring.osm", ring_highway(&RingParams::default()).expect("defaults are valid")),
         (
             "maps/two_lane_ring.osm",
@@ -77,6 +77,11 @@ fn shipped_maps_are_what_the_generator_writes_with_default_parameters() {
                 ..IntersectionParams::default()
             })
             .expect("valid"),
+        ),
+        (
+            "maps/gcdc_intersection.osm",
+            intersection(&IntersectionParams { arms: 3, arm_length: 150.0, ..IntersectionParams::default() })
+                .expect("valid"),
         ),
         (
             "maps/emergency_ring.osm",

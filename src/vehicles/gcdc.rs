@@ -128,6 +128,9 @@ impl MergeParams {
 pub enum RsuKind {
     /// The merge zone starts here: the GCDC 2016 scenario 1 start signal.
     MergeZone,
+    /// The intersection zone is here: the GCDC 2016 scenario 2 start signal, read by
+    /// [`super::gcdc_intersection`] (the unit stands at the junction).
+    IntersectionZone,
 }
 
 /// A roadside unit: a fixed wifi sender.

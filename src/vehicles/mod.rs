@@ -18,6 +18,7 @@
 //! | [`LaneChangePlugin`] | [`LaneChanger`] | [`LaneChangeParams`] |
 //! | [`EmergencyVehiclePlugin`] | [`EmergencyVehicle`], [`YieldToEmergency`] | [`EmergencySettings`] |
 //! | [`GcdcPlugin`] | [`GcdcVehicle`] | [`MergeParams`], [`Rsu`] |
+//! | [`GcdcIntersectionPlugin`] | [`IntersectionNegotiator`] | [`IntersectionParams`] |
 //!
 //! [`smart_vehicles`] adds them all.
 
@@ -28,6 +29,7 @@ pub mod emergency_braking;
 pub mod emergency_vehicle;
 pub mod follow_laws;
 pub mod gcdc;
+pub mod gcdc_intersection;
 pub mod gcdc_protocol;
 pub mod idm;
 pub mod lane_change;
@@ -53,6 +55,10 @@ pub use emergency_vehicle::{
     YieldPlan, YieldToEmergency, yield_plan,
 };
 pub use gcdc::{GcdcMessage, GcdcPlugin, GcdcVehicle, MergeLog, MergeParams, MergeSummary, Motion, Role, Rsu, RsuKind};
+pub use gcdc_intersection::{
+    GcdcIntersectionPlugin, Intention, IntersectionMessage, IntersectionNegotiator, IntersectionParams,
+    negotiate_intersection,
+};
 pub use gcdc_protocol::GapRule;
 pub use idm::{Idm, IdmController, IdmPlugin, control_idm};
 pub use lane_changing::{
@@ -77,7 +83,8 @@ pub use setup::{AccSetup, CruiseSetup, GcdcSetup, PlatoonRole, PlatoonSetup, Sma
 use crate::sim::SimBuilder;
 
 /// Every smart-vehicle controller of this module (not the path follower): cruise control, ACC,
-/// platooning, intersection negotiation and emergency braking. Each acts only on vehicles with
+/// platooning, intersection negotiation (the disc of `crossing` and the GCDC intersection) and
+/// emergency braking. Each acts only on vehicles with
 /// its component.
 pub fn smart_vehicles(sim: &mut SimBuilder) {
     sim.add_plugin(CruisePlugin)
@@ -85,5 +92,6 @@ pub fn smart_vehicles(sim: &mut SimBuilder) {
         .add_plugin(IdmPlugin)
         .add_plugin(PlatoonPlugin)
         .add_plugin(CrossingPlugin)
+        .add_plugin(GcdcIntersectionPlugin)
         .add_plugin(EmergencyBrakingPlugin);
 }

@@ -5,6 +5,7 @@
 //! controller = { type = "cruise_control", speed = 20.0, cruise = { kp = 500.0 } }
 //! controller = { type = "acc", speed = 25.0, acc = { time_gap = 1.5 }, emergency = { ttc = 1.5 } }
 //! controller = { type = "acc", speed = 8.0, crossing = { center = [0.0, 0.0], radius = 10.0 } }
+//! controller = { type = "acc", speed = 10.0, intersection = { platoon_window = 3.0 } }
 //! controller = { type = "platoon", role = "leader", speed = 20.0, cruise = { dip = { at = 30.0, speed = 10.0, deceleration = 6.0 } } }
 //! controller = { type = "platoon", role = "follower", speed = 22.0, platoon = { time_gap = 0.5 } }
 //! controller = { type = "idm", speed = 30.0, time_gap = 1.5, min_gap = 2.0, accel = 1.0, decel = 2.0, delta = 4.0 }
@@ -16,6 +17,7 @@
 use bevy_ecs::prelude::{Entity, World};
 
 use super::gcdc::{GcdcVehicle, MergeParams, Role};
+use super::gcdc_intersection::{IntersectionNegotiator, IntersectionParams};
 use super::{
     AccController, AdaptiveCruise, Crossing, CrossingNegotiator, CruiseControl, CruiseController, EmergencyBrake,
     EmergencyBraking, Fallback, Idm, IdmController, PathFollower, PathFollowing, PlatoonMember, Platooning,
@@ -58,6 +60,10 @@ pub struct AccSetup {
     /// Intersection negotiation, if the route crosses a junction.
     #[serde(default)]
     pub crossing: Option<Crossing>,
+    /// The GCDC 2016 cooperative intersection: negotiate the junction a roadside unit
+    /// announces (see [`super::gcdc_intersection`]).
+    #[serde(default)]
+    pub intersection: Option<IntersectionParams>,
 }
 
 /// Role of a platoon vehicle.
@@ -97,6 +103,10 @@ pub struct PlatoonSetup {
     /// Intersection negotiation, if the route crosses a junction.
     #[serde(default)]
     pub crossing: Option<Crossing>,
+    /// The GCDC 2016 cooperative intersection: negotiate the junction a roadside unit
+    /// announces (see [`super::gcdc_intersection`]).
+    #[serde(default)]
+    pub intersection: Option<IntersectionParams>,
 }
 
 fn gcdc_platoon() -> Platooning {
@@ -148,6 +158,14 @@ impl SmartController {
     }
 
     fn check_params(&self) -> Result<(), ParamError> {
+        let intersection = match self {
+            SmartController::Acc(c) => c.intersection,
+            SmartController::Platoon(c) => c.intersection,
+            _ => None,
+        };
+        if let Some(i) = intersection {
+            i.check().map_err(|e| e.within("intersection"))?;
+        }
         let (speed, emergency, crossing) = match self {
             SmartController::Cruise(c) => {
                 c.cruise.check().map_err(|e| e.within("cruise"))?;
@@ -251,6 +269,14 @@ impl SmartController {
         e.insert(EmergencyBrake::new(emergency));
         if let Some(c) = crossing {
             e.insert(CrossingNegotiator::new(c));
+        }
+        let intersection = match *self {
+            SmartController::Acc(c) => c.intersection,
+            SmartController::Platoon(c) => c.intersection,
+            _ => None,
+        };
+        if let Some(i) = intersection {
+            e.insert(IntersectionNegotiator::new(i));
         }
     }
 }

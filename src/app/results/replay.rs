@@ -27,8 +27,8 @@ use glam::DVec2;
 use crate::io::viz::{DEFAULT_VIZ_RATE_HZ, StreamFormat, VizLight, VizSender, VizSenderConfig, VizVehicle};
 use crate::map::LaneletMap;
 use crate::render::{FrameOutput, FrameRecorder, RenderError, VehicleSprite};
-use crate::world::TurnSignal;
 use crate::world::SimTime;
+use crate::world::TurnSignal;
 
 use super::lights::{LightTimeline, SignalLines};
 use crate::app::running::summary::{ReplayInfo, ReplayVehicle};

@@ -156,6 +156,11 @@ pub struct MetricsSummary {
     /// vehicle could not stop).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub red_light_crossings: Option<u64>,
+    /// The GCDC 2016 cooperative intersection: participants, crossed, entry order, smallest gap
+    /// and post-encroachment time of conflicting pairs, mean delay, platoon splits (only with
+    /// vehicles that have `controller.intersection` and heard the roadside unit).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub intersection: Option<IntersectionSummary>,
 }
 
 /// `metrics.lane_change_summary` of `summary.json`.
@@ -402,6 +407,7 @@ impl Metrics {
             sensors: None,
             junctions: None,
             red_light_crossings: None,
+            intersection: None,
         }
     }
 }
@@ -608,6 +614,269 @@ impl Metrics {
     }
 }
 
+/// `metrics.intersection` of `summary.json`: the GCDC 2016 cooperative intersection (vehicles
+/// with `controller.intersection`, from the moment they heard the roadside unit).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct IntersectionSummary {
+    /// Participants: vehicles whose route passes the announced junction.
+    pub vehicles: usize,
+    /// Of which the rear has left the zone (the end of its last junction link).
+    pub crossed: usize,
+    /// Participants in the order their fronts entered the zone (passed the stop line).
+    pub order: Vec<VehicleId>,
+    /// Smallest distance between the footprints of two participants on conflicting links
+    /// (crossing or merging) while one of them is in the conflict area of the point where their
+    /// links meet (front within `CLEAR` = 2.5 m before it, rear not 2.5 m past it) \[m\]; `None`
+    /// (JSON `null`) if that never happened. Away from the conflict areas their paths do not
+    /// meet: a left turner that has reached the far arm passes the vehicles waiting there on the
+    /// opposite lane at a lane's width minus a car's (1.8 m here), as on any two-way road.
+    pub min_gap_m: Option<f64>,
+    /// Smallest post-encroachment time over the conflict points \[s\]: the time from the first
+    /// vehicle's rear clearing a point to the second's front reaching it (0 if both were on it
+    /// at once); `None` if no two conflicting participants passed a common point.
+    pub min_time_gap_s: Option<f64>,
+    /// Mean delay of the participants that crossed \[s\]: the time from hearing the unit to the
+    /// rear leaving the zone, minus driving the same distance at its starting speed (its cruise
+    /// speed if it started below 1 m/s), slowed to the links' curve speeds inside the zone.
+    pub mean_delay_s: Option<f64>,
+    /// Platoon members that entered the zone with a vehicle on a conflicting link between them
+    /// and the member of their platoon before them (the platoon was cut: some of it waited for a
+    /// foe): 0 when every platoon crossed as one. Vehicles on links that never meet theirs may
+    /// enter in between without cutting it.
+    pub platoon_splits: usize,
+}
+
+/// One participant as the intersection metrics follow it.
+#[derive(Debug, Clone, PartialEq)]
+struct IntersectionTrack {
+    start_t: f64,
+    free_time: f64,
+    link: u32,
+    platoon: Option<VehicleId>,
+    entered: Option<f64>,
+    cleared: Option<f64>,
+    /// Per conflict point of its first link: the foe link, the route arc length of the point
+    /// \[m\], when the front reached it and when the rear cleared it \[s\].
+    points: Vec<(u32, f64, Option<f64>, Option<f64>)>,
+}
+
+/// What [`record_intersection`] has measured so far.
+#[derive(Resource, Debug, Default)]
+pub struct IntersectionLog {
+    tracks: BTreeMap<VehicleId, IntersectionTrack>,
+    /// Pairs of participants' links that conflict (both orders), as met.
+    conflicts: BTreeSet<(u32, u32)>,
+    order: Vec<VehicleId>,
+    min_gap: Option<f64>,
+    near: Vec<(VehicleId, u32, f64, f64, Footprint)>,
+}
+
+/// Distance between two oriented rectangles \[m\] (0 when they overlap): the shortest from a
+/// corner of one to an edge of the other.
+fn footprint_distance(a: &Footprint, b: &Footprint) -> f64 {
+    if overlap(a, b) {
+        return 0.0;
+    }
+    let corners = |f: &Footprint| {
+        let (u, v) = (f.axis * f.half.x, f.axis.perp() * f.half.y);
+        [f.centre + u + v, f.centre - u + v, f.centre - u - v, f.centre + u - v]
+    };
+    let to_segment = |p: DVec2, q0: DVec2, q1: DVec2| {
+        let d = q1 - q0;
+        let t = if d.length_squared() > 0.0 { ((p - q0).dot(d) / d.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+        p.distance(q0 + t * d)
+    };
+    let (ca, cb) = (corners(a), corners(b));
+    let mut best = f64::INFINITY;
+    for (from, to) in [(&ca, &cb), (&cb, &ca)] {
+        for &p in from {
+            for k in 0..4 {
+                best = best.min(to_segment(p, to[k], to[(k + 1) % 4]));
+            }
+        }
+    }
+    best
+}
+
+/// Post-encroachment time \[s\] of two passages of one conflict point, each (front reaches,
+/// rear clears) \[s\]: from the first one's clearing to the second one's reaching; 0 when they
+/// were on it at once.
+pub fn post_encroachment(a: (f64, f64), b: (f64, f64)) -> f64 {
+    if a.1 <= b.0 {
+        b.0 - a.1
+    } else if b.1 <= a.0 {
+        a.0 - b.1
+    } else {
+        0.0
+    }
+}
+
+/// Whether links `a` and `b` of `network` conflict.
+fn links_conflict(network: &crate::vehicles::JunctionNetwork, a: u32, b: u32) -> bool {
+    network.links.get(a as usize).is_some_and(|l| l.conflicts.iter().any(|c| c.foe == b))
+}
+
+/// After every dynamics step: entries, clearings and conflict-point passages of the
+/// intersection participants, and the smallest footprint distance of conflicting pairs at their
+/// conflict areas (pairs among the few vehicles at the zone only, so the step stays O(N)).
+#[allow(clippy::type_complexity)]
+pub fn record_intersection(
+    clock: Res<SimClock>,
+    network: Option<Res<crate::vehicles::JunctionNetwork>>,
+    mut log: ResMut<IntersectionLog>,
+    vehicles: Query<(
+        &VehicleId,
+        &VehicleState,
+        &VehicleSize,
+        &PathFollower,
+        &crate::vehicles::IntersectionNegotiator,
+        Option<&PlatoonMember>,
+    )>,
+) {
+    let Some(net) = network else { return };
+    let t = clock.now.as_secs() + clock.dt;
+    let log = &mut *log;
+    log.near.clear();
+    for (&id, state, size, follower, neg, member) in &vehicles {
+        let Some(zone) = &neg.zone else { continue };
+        let Some(&(link, link_start)) = zone.links.first() else { continue };
+        let half = 0.5 * size.length;
+        let (front, rear) = (follower.s + half, follower.s - half);
+        let track = log.tracks.entry(id).or_insert_with(|| {
+            let v0 = state.speed();
+            let v_free = if v0 > 1.0 { v0 } else { follower.params.speed.max(1.0) };
+            let v_in = zone
+                .links
+                .iter()
+                .filter_map(|&(g, _)| net.links.get(g as usize).map(|l| l.curve_speed))
+                .fold(v_free, f64::min)
+                .max(0.5);
+            let approach = (zone.entry - front).max(0.0);
+            let through = zone.exit - zone.entry.max(front) + size.length;
+            let points = net
+                .links
+                .get(link as usize)
+                .map(|l| l.conflicts.iter().map(|c| (c.foe, link_start + c.s_mine, None, None)).collect())
+                .unwrap_or_default();
+            IntersectionTrack {
+                start_t: t,
+                free_time: approach / v_free + through.max(0.0) / v_in,
+                link,
+                platoon: None,
+                entered: None,
+                cleared: None,
+                points,
+            }
+        });
+        if track.entered.is_none() && front >= zone.entry {
+            if let Some(l) = net.links.get(link as usize) {
+                log.conflicts.extend(l.conflicts.iter().flat_map(|c| [(link, c.foe), (c.foe, link)]));
+            }
+            track.entered = Some(t);
+            track.platoon = member.and_then(|m| if m.lead { Some(id) } else { m.platoon });
+            log.order.push(id);
+        }
+        if track.cleared.is_none() && rear > zone.exit {
+            track.cleared = Some(t);
+        }
+        for p in &mut track.points {
+            if p.2.is_none() && front >= p.1 {
+                p.2 = Some(t);
+            }
+            if p.3.is_none() && rear >= p.1 {
+                p.3 = Some(t);
+            }
+        }
+        if front >= zone.entry - 10.0 && rear <= zone.exit + 10.0 {
+            let f = Footprint {
+                id,
+                fixed: false,
+                centre: state.position,
+                axis: DVec2::from_angle(state.yaw),
+                half: 0.5 * DVec2::new(size.length, size.width),
+            };
+            log.near.push((id, link, front, rear, f));
+        }
+    }
+    let tracks = &log.tracks;
+    // Whether vehicle `v` is in the conflict area of its link's meeting point with `foe`.
+    let at_point = |v: &(VehicleId, u32, f64, f64, Footprint), foe: u32| {
+        tracks.get(&v.0).is_some_and(|k| {
+            k.points.iter().any(|p| {
+                p.0 == foe
+                    && v.2 >= p.1 - crate::vehicles::right_of_way::CLEAR
+                    && v.3 <= p.1 + crate::vehicles::right_of_way::CLEAR
+            })
+        })
+    };
+    let mut best = log.min_gap;
+    for i in 0..log.near.len() {
+        for j in i + 1..log.near.len() {
+            let (a, b) = (&log.near[i], &log.near[j]);
+            if (at_point(a, b.1) || at_point(b, a.1)) && links_conflict(&net, a.1, b.1) {
+                let d = footprint_distance(&a.4, &b.4);
+                if best.is_none_or(|m| d < m) {
+                    tracing::debug!(target: "intersection", "gap {d:.2} m between {} and {} at {t:.2} s", a.0, b.0);
+                    best = Some(d);
+                }
+            }
+        }
+    }
+    log.min_gap = best;
+}
+
+impl IntersectionLog {
+    /// `metrics.intersection`, or `None` when nobody took part.
+    pub fn summary(&self) -> Option<IntersectionSummary> {
+        if self.tracks.is_empty() {
+            return None;
+        }
+        let delays: Vec<f64> =
+            self.tracks.values().filter_map(|k| Some(k.cleared? - k.start_t - k.free_time)).collect();
+        let entries: Vec<(Option<VehicleId>, u32)> =
+            self.order.iter().filter_map(|id| self.tracks.get(id)).map(|k| (k.platoon, k.link)).collect();
+        let mut min_pet: Option<f64> = None;
+        let list: Vec<&IntersectionTrack> = self.tracks.values().collect();
+        for (i, a) in list.iter().enumerate() {
+            for b in &list[i + 1..] {
+                let on_a = a.points.iter().find(|p| p.0 == b.link);
+                let on_b = b.points.iter().find(|p| p.0 == a.link);
+                if let (Some(&(_, _, Some(ra), Some(ca))), Some(&(_, _, Some(rb), Some(cb)))) = (on_a, on_b) {
+                    let pet = post_encroachment((ra, ca), (rb, cb));
+                    min_pet = Some(min_pet.map_or(pet, |m| m.min(pet)));
+                }
+            }
+        }
+        Some(IntersectionSummary {
+            vehicles: self.tracks.len(),
+            crossed: self.tracks.values().filter(|k| k.cleared.is_some()).count(),
+            order: self.order.clone(),
+            min_gap_m: self.min_gap,
+            min_time_gap_s: min_pet,
+            mean_delay_s: (!delays.is_empty()).then(|| delays.iter().sum::<f64>() / delays.len() as f64),
+            platoon_splits: platoon_splits(&entries, |a, b| self.conflicts.contains(&(a, b))),
+        })
+    }
+}
+
+/// Members of a platoon that entered with a vehicle on a conflicting link between them and the
+/// member of their platoon that entered before them. `entries`: (platoon, link) of each vehicle
+/// in entry order; `conflict(a, b)`: whether links `a` and `b` meet.
+pub fn platoon_splits(entries: &[(Option<VehicleId>, u32)], conflict: impl Fn(u32, u32) -> bool) -> usize {
+    let mut last: BTreeMap<VehicleId, usize> = BTreeMap::new();
+    let mut splits = 0;
+    for (k, &(platoon, link)) in entries.iter().enumerate() {
+        let Some(p) = platoon else { continue };
+        if let Some(&before) = last.get(&p)
+            && entries[before + 1..k].iter().any(|e| e.0 != Some(p) && conflict(e.1, link))
+        {
+            splits += 1;
+        }
+        last.insert(p, k);
+    }
+    splits
+}
+
 /// Records [`Metrics`] after every dynamics step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MetricsPlugin {
@@ -624,13 +893,61 @@ impl Default for MetricsPlugin {
 impl Plugin for MetricsPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         sim.insert_resource(Metrics::new(self.warmup));
-        sim.add_systems(Dynamics, (record_metrics, record_route_deviation).after(SimSystems::Integrate));
+        sim.insert_resource(IntersectionLog::default());
+        sim.add_systems(
+            Dynamics,
+            (record_metrics, record_route_deviation, record_intersection).after(SimSystems::Integrate),
+        );
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn footprint(x: f64, y: f64, yaw: f64) -> Footprint {
+        Footprint {
+            id: VehicleId(0),
+            fixed: false,
+            centre: DVec2::new(x, y),
+            axis: DVec2::from_angle(yaw),
+            half: DVec2::new(2.0, 1.0),
+        }
+    }
+
+    #[test]
+    fn footprint_distance_is_zero_on_overlap_and_the_clearance_otherwise() {
+        // 4 x 2 m boxes: side by side 3.5 m apart (centres) leave 1.5 m; nose to tail 10 m
+        // apart leave 6 m; overlapping: 0.
+        assert!((footprint_distance(&footprint(0.0, 0.0, 0.0), &footprint(0.0, 3.5, 0.0)) - 1.5).abs() < 1e-12);
+        assert!((footprint_distance(&footprint(0.0, 0.0, 0.0), &footprint(10.0, 0.0, 0.0)) - 6.0).abs() < 1e-12);
+        assert_eq!(footprint_distance(&footprint(0.0, 0.0, 0.0), &footprint(1.0, 0.5, 0.3)), 0.0);
+        // Crossing at right angles: a corner of the turned box 1 m from the other's nose.
+        let d = footprint_distance(&footprint(0.0, 0.0, 0.0), &footprint(4.0, 0.0, std::f64::consts::FRAC_PI_2));
+        assert!((d - 1.0).abs() < 1e-9, "{d}");
+    }
+
+    #[test]
+    fn post_encroachment_runs_from_the_first_clearing_to_the_second_reaching() {
+        assert_eq!(post_encroachment((1.0, 2.0), (3.5, 4.0)), 1.5);
+        assert_eq!(post_encroachment((3.5, 4.0), (1.0, 2.0)), 1.5);
+        // On the point at once.
+        assert_eq!(post_encroachment((1.0, 3.0), (2.0, 4.0)), 0.0);
+    }
+
+    #[test]
+    fn a_platoon_is_split_only_by_a_conflicting_vehicle_entering_between_its_members() {
+        let (p, q) = (Some(VehicleId(-1)), Some(VehicleId(-11)));
+        // Links 0 and 1 meet, 2 meets neither.
+        let conflict = |a: u32, b: u32| matches!((a, b), (0, 1) | (1, 0));
+        // Platoon p on link 0 with a vehicle on link 2 in between: together.
+        assert_eq!(platoon_splits(&[(p, 0), (None, 2), (p, 0), (p, 0)], conflict), 0);
+        // A vehicle on link 1 in between: cut once.
+        assert_eq!(platoon_splits(&[(p, 0), (None, 1), (p, 0), (p, 0)], conflict), 1);
+        // Two platoons alternating on conflicting links: each member after the first is cut.
+        assert_eq!(platoon_splits(&[(p, 0), (q, 1), (p, 0), (q, 1)], conflict), 2);
+        assert_eq!(platoon_splits(&[], conflict), 0);
+    }
 
     fn platoon(ranges: &[(f64, f64)]) -> Metrics {
         let mut m = Metrics::new(0.0);

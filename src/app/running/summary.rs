@@ -252,6 +252,9 @@ impl RunSummary {
                     .and_then(crate::vehicles::EmergencyLog::summary);
                 summary.merge =
                     world.get_resource::<crate::vehicles::MergeLog>().and_then(crate::vehicles::MergeLog::summary);
+                summary.intersection = world
+                    .get_resource::<super::metrics::IntersectionLog>()
+                    .and_then(super::metrics::IntersectionLog::summary);
                 summary.sensors = world.get_resource::<crate::sim::SensorStats>().map(|&built_in| {
                     let plugins = world.get_resource::<crate::sim::PluginSensorStats>();
                     let by_sensor = plugins.map(|p| p.0.iter().map(|(k, v)| (k.to_string(), *v)).collect());
