@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 import smlworld
+from smlworld.sweep import mean_ci95  # mean and 95 % band over the seeds
 
 ROOT = Path(__file__).resolve().parents[2]
 LOSS = "v2v.wifi.loss"
@@ -39,13 +40,6 @@ def run(seeds, backend, address, fallback):
     df["collisions"] = df["metrics.collision_count"]
     df["fallback"] = fallback
     return df[[LOSS, "seed", "fallback", "min_gap", "amplification", "collisions"]]
-
-
-def band(values):
-    """Mean and half width of the 95 % confidence interval of the mean (normal approximation)."""
-    v = np.asarray(values, dtype=float)
-    half = 1.96 * v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0.0
-    return v.mean(), half
 
 
 def main():  # under a main guard: the local backend's worker processes re-import this file
@@ -75,7 +69,7 @@ def main():  # under a main guard: the local backend's worker processes re-impor
         part = df[df["fallback"] == fb]
         losses = sorted(part[LOSS].unique())
         for ax, col in zip(axes, ("min_gap", "amplification")):
-            stats = [band(part[part[LOSS] == p][col]) for p in losses]
+            stats = [mean_ci95(part[part[LOSS] == p][col]) for p in losses]
             mean = np.array([s[0] for s in stats])
             half = np.array([s[1] for s in stats])
             ax.plot(losses, mean, "o-", color=colour, label=label)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 import smlworld
+from smlworld.sweep import mean_ci95  # mean and 95 % band over the seeds
 
 ROOT = Path(__file__).resolve().parents[2]
 LOSS = "v2v.wifi.loss"
@@ -36,13 +37,6 @@ def run(seeds, backend, address, grid, rule):
     df["rule"] = rule
     df["time_gap"] = df[TIME_GAP] if TIME_GAP in df else np.nan
     return df[["rule", "time_gap", LOSS, "seed", *METRICS, "vehicles_merged", "vehicles_to_merge", "collisions"]]
-
-
-def band(values):
-    """Mean and half width of the 95 % confidence interval of the mean (normal approximation)."""
-    v = np.asarray(values, dtype=float)
-    half = 1.96 * v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0.0
-    return v.mean(), half
 
 
 def main():  # under a main guard: the local backend's worker processes re-import this file
@@ -80,12 +74,12 @@ def main():  # under a main guard: the local backend's worker processes re-impor
     for loss, colour in zip(losses, ("#1f77b4", "#d62728")):
         part = tg[tg[LOSS] == loss]
         for ax, col in zip(axes, METRICS):
-            stats = [band(part[part["time_gap"] == g][col]) for g in TIME_GAPS]
+            stats = [mean_ci95(part[part["time_gap"] == g][col]) for g in TIME_GAPS]
             mean = np.array([s[0] for s in stats])
             half = np.array([s[1] for s in stats])
             ax.plot(TIME_GAPS, mean, "o-", color=colour, label=f"time-gap rule, wifi loss {loss:g}")
             ax.fill_between(TIME_GAPS, mean - half, mean + half, color=colour, alpha=0.2)
-            m, h = band(sml[sml[LOSS] == loss][col])
+            m, h = mean_ci95(sml[sml[LOSS] == loss][col])
             ax.axhline(m, color=colour, ls="--", lw=1, label=f"2015 rule (sml2015), wifi loss {loss:g}")
     for ax, col in zip(axes, METRICS):
         ax.set_xlabel("time gap of the rule (standstill 5 m) [s]")

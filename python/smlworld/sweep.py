@@ -92,6 +92,20 @@ def run_one(bundle: dict, params: dict, seed: int, duration: Optional[float] = N
     return row
 
 
+def mean_ci95(values) -> tuple:
+    """Mean of ``values`` and the half width of the 95 % confidence interval of that mean (normal
+    approximation: 1.96 standard errors; 0 for a single value): the band a sweep's figure draws
+    over its seeds."""
+    v = [float(x) for x in values]
+    if not v:
+        raise ValueError("mean_ci95 of no values")
+    mean = sum(v) / len(v)
+    if len(v) < 2:
+        return mean, 0.0
+    sd = (sum((x - mean) ** 2 for x in v) / (len(v) - 1)) ** 0.5
+    return mean, 1.96 * sd / len(v) ** 0.5
+
+
 def _grid_points(grid: Dict[str, Sequence]) -> List[dict]:
     keys = list(grid)
     for k in keys:

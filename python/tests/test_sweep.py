@@ -183,3 +183,15 @@ def test_loss_sweep_example_compares_fallback_and_writes_its_figure(root, tmp_pa
     assert sorted(df["v2v.wifi.loss"].unique()) == [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
     assert (df[df["fallback"]]["collisions"] == 0).all(), df
     assert (tmp_path / "loss_sweep.png").stat().st_size > 10_000
+
+
+def test_mean_ci95_is_the_normal_band_of_the_mean():
+    # The band the sweep examples draw: mean ± 1.96 standard errors (sample sd, n - 1).
+    from smlworld.sweep import mean_ci95
+
+    mean, half = mean_ci95([1.0, 2.0, 3.0])
+    assert mean == 2.0
+    assert abs(half - 1.96 / 3**0.5) < 1e-12
+    assert mean_ci95([4.0]) == (4.0, 0.0)
+    with pytest.raises(ValueError):
+        mean_ci95([])
