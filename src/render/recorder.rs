@@ -232,15 +232,7 @@ impl FrameRecorder {
             }
         }
         if let Some((video, _)) = self.video.as_mut() {
-            if self.image.dimensions() != self.gif_size {
-                tracing::warn!(
-                    "a {}x{} px frame does not fit the {}x{} px video: left out of it",
-                    self.image.width(),
-                    self.image.height(),
-                    self.gif_size.0,
-                    self.gif_size.1
-                );
-            } else {
+            if fits(&self.image, self.gif_size, "video") {
                 match &with_overlay {
                     Some(image) => video.push(image)?,
                     None if self.overlay != Overlay::None => {
@@ -254,15 +246,7 @@ impl FrameRecorder {
         }
         let (every, gif_w, gif_h) = self.gif_sampling;
         if let Some(gif) = self.gif.as_mut().filter(|_| self.frames.is_multiple_of(every)) {
-            if self.image.dimensions() != self.gif_size {
-                tracing::warn!(
-                    "a {}x{} px frame does not fit the {}x{} px GIF: left out of it",
-                    self.image.width(),
-                    self.image.height(),
-                    self.gif_size.0,
-                    self.gif_size.1
-                );
-            } else {
+            if fits(&self.image, self.gif_size, "GIF") {
                 let image = match with_overlay {
                     Some(image) => image,
                     None if self.overlay != Overlay::None => overlaid(&self.image),
@@ -339,6 +323,22 @@ impl FrameRecorder {
     pub fn frames(&self) -> u64 {
         self.frames
     }
+}
+
+/// Whether `image` has the `size` \[px\] of the `what` output (GIF, video) it goes into; warns
+/// that it is left out when not (a window resized under a recording).
+fn fits(image: &RgbaImage, size: (u32, u32), what: &str) -> bool {
+    let fits = image.dimensions() == size;
+    if !fits {
+        tracing::warn!(
+            "a {}x{} px frame does not fit the {}x{} px {what}: left out of it",
+            image.width(),
+            image.height(),
+            size.0,
+            size.1
+        );
+    }
+    fits
 }
 
 /// The world's vehicles as sprites, sorted by id (so frames do not depend on entity order);
