@@ -231,34 +231,34 @@ impl FrameRecorder {
                 super::write_image(&path, &self.image)?;
             }
         }
-        if let Some((video, _)) = self.video.as_mut() {
-            if fits(&self.image, self.gif_size, "video") {
-                match &with_overlay {
-                    Some(image) => video.push(image)?,
-                    None if self.overlay != Overlay::None => {
-                        let image = overlaid(&self.image);
-                        video.push(&image)?;
-                        with_overlay = Some(image);
-                    }
-                    None => video.push(&self.image)?,
+        if let Some((video, _)) = self.video.as_mut()
+            && fits(&self.image, self.gif_size, "video")
+        {
+            match &with_overlay {
+                Some(image) => video.push(image)?,
+                None if self.overlay != Overlay::None => {
+                    let image = overlaid(&self.image);
+                    video.push(&image)?;
+                    with_overlay = Some(image);
                 }
+                None => video.push(&self.image)?,
             }
         }
         let (every, gif_w, gif_h) = self.gif_sampling;
-        if let Some(gif) = self.gif.as_mut().filter(|_| self.frames.is_multiple_of(every)) {
-            if fits(&self.image, self.gif_size, "GIF") {
-                let image = match with_overlay {
-                    Some(image) => image,
-                    None if self.overlay != Overlay::None => overlaid(&self.image),
-                    None => self.image.clone(),
-                };
-                let image = if image.dimensions() == (gif_w, gif_h) {
-                    image
-                } else {
-                    image::imageops::resize(&image, gif_w, gif_h, image::imageops::FilterType::Triangle)
-                };
-                gif.push(image)?;
-            }
+        if let Some(gif) = self.gif.as_mut().filter(|_| self.frames.is_multiple_of(every))
+            && fits(&self.image, self.gif_size, "GIF")
+        {
+            let image = match with_overlay {
+                Some(image) => image,
+                None if self.overlay != Overlay::None => overlaid(&self.image),
+                None => self.image.clone(),
+            };
+            let image = if image.dimensions() == (gif_w, gif_h) {
+                image
+            } else {
+                image::imageops::resize(&image, gif_w, gif_h, image::imageops::FilterType::Triangle)
+            };
+            gif.push(image)?;
         }
         self.frames += 1;
         Ok(())
