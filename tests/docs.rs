@@ -79,18 +79,23 @@ fn the_readme_is_short_and_links_every_docs_page() {
 /// The keys the scenario parser accepts in the table at `path` of `scenario` (`""`: the top
 /// level), read from its error for an unknown key, which lists them.
 fn accepted_keys(scenario: &str, path: &str) -> Vec<String> {
-    let key = if path.is_empty() { "no_such_key".to_string() } else { format!("{path}.no_such_key") };
+    let set = if path.is_empty() { "no_such_key=1".to_string() } else { format!("{path}.no_such_key=1") };
+    keys_refused_with(scenario, &set)
+}
+
+/// The keys the parser lists when `--set SET` (which must add the key `no_such_key`) is refused.
+fn keys_refused_with(scenario: &str, set: &str) -> Vec<String> {
     let out = Command::new(env!("CARGO_BIN_EXE_smlworld"))
         .args(["run", &format!("{ROOT}/scenarios/{scenario}"), "--duration", "0.1", "--out"])
         .arg(std::env::temp_dir().join("smlworld-docs-keys-never-written"))
-        .args(["--set", &format!("{key}=1")])
+        .args(["--set", set])
         .output()
         .expect("runs smlworld");
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{key} was accepted");
+    assert!(!out.status.success(), "--set {set} was accepted");
     // serde lists them: "expected one of `a`, `b`", or "expected `a`" when there is one.
     let after = stderr.split("unknown field `no_such_key`, expected ").nth(1);
-    let list = after.unwrap_or_else(|| panic!("{key}: no key list in {stderr}"));
+    let list = after.unwrap_or_else(|| panic!("--set {set}: no key list in {stderr}"));
     let list = list.strip_prefix("one of ").unwrap_or(list).lines().next().unwrap_or("");
     list.split(',').map(|k| k.trim().trim_matches('`').to_string()).filter(|k| !k.is_empty()).collect()
 }
@@ -124,4 +129,23 @@ fn the_scenario_reference_names_every_key_the_parser_accepts() {
         }
     }
     assert!(missing.is_empty(), "docs/scenarios.md lacks:\n{}", missing.join("\n"));
+}
+
+/// The controllers table of docs/scenarios.md names, in each type's row, every key the parser
+/// accepts for that type (read from its error for an unknown key, as above).
+#[test]
+fn the_scenario_reference_names_every_controller_key() {
+    let reference = std::fs::read_to_string(Path::new(ROOT).join("docs/scenarios.md")).unwrap();
+    let mut missing = Vec::new();
+    for kind in ["cruise_control", "acc", "platoon", "idm", "gcdc"] {
+        let row = reference
+            .lines()
+            .find(|l| l.starts_with(&format!("| `{kind}` |")))
+            .unwrap_or_else(|| panic!("docs/scenarios.md has no controllers row for `{kind}`"));
+        let set = format!("vehicles.0.controller={{ type = \"{kind}\", no_such_key = 1 }}");
+        let keys = keys_refused_with("highway.toml", &set);
+        assert!(keys.len() >= 3, "{kind}: {keys:?}");
+        missing.extend(keys.iter().filter(|k| !row.contains(&format!("`{k}`"))).map(|k| format!("{kind}: `{k}`")));
+    }
+    assert!(missing.is_empty(), "docs/scenarios.md's controllers table lacks:\n{}", missing.join("\n"));
 }
