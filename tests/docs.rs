@@ -96,8 +96,21 @@ fn keys_refused_with(scenario: &str, set: &str) -> Vec<String> {
     // serde lists them: "expected one of `a`, `b`", or "expected `a`" when there is one.
     let after = stderr.split("unknown field `no_such_key`, expected ").nth(1);
     let list = after.unwrap_or_else(|| panic!("--set {set}: no key list in {stderr}"));
-    let list = list.strip_prefix("one of ").unwrap_or(list).lines().next().unwrap_or("");
-    list.split(',').map(|k| k.trim().trim_matches('`').to_string()).filter(|k| !k.is_empty()).collect()
+    // The list ends at the line's end or at a `;` that starts a hint.
+    let list = list.lines().next().unwrap_or("").split(';').next().unwrap_or("");
+    backticked(list)
+}
+
+/// The words between pairs of backticks: "one of `a`, `b`" and "`a` or `b`" both give [a, b].
+fn backticked(list: &str) -> Vec<String> {
+    list.split('`').skip(1).step_by(2).map(str::to_string).filter(|k| !k.is_empty()).collect()
+}
+
+#[test]
+fn key_lists_are_read_in_each_of_serdes_wordings() {
+    assert_eq!(backticked("one of `kp`, `ki`, `dip`"), ["kp", "ki", "dip"]);
+    assert_eq!(backticked("`ttc` or `deceleration`"), ["ttc", "deceleration"]);
+    assert_eq!(backticked("`mcap`"), ["mcap"]);
 }
 
 /// docs/scenarios.md names every key the parser accepts at the top level, in `[rates]`,
@@ -148,4 +161,58 @@ fn the_scenario_reference_names_every_controller_key() {
         missing.extend(keys.iter().filter(|k| !row.contains(&format!("`{k}`"))).map(|k| format!("{kind}: `{k}`")));
     }
     assert!(missing.is_empty(), "docs/scenarios.md's controllers table lacks:\n{}", missing.join("\n"));
+}
+
+/// The "Tables inside tables" reference of docs/scenarios.md names, in each table's row, every
+/// key the parser accepts there (the controllers' own tables, models, routes, sensors, channels
+/// and their loss models, light programs and the lab), read from the parser's error as above.
+#[test]
+fn the_scenario_reference_names_every_key_of_the_tables_inside_tables() {
+    let page = std::fs::read_to_string(Path::new(ROOT).join("docs/scenarios.md")).unwrap();
+    let reference =
+        page.split("## Tables inside tables").nth(1).expect("docs/scenarios.md has a \"Tables inside tables\" section");
+    let ctl = |kind: &str, inner: &str| format!("vehicles.0.controller={{ type = \"{kind}\", {inner} }}");
+    let probes = [
+        ("controller.cruise", ctl("cruise_control", "cruise = { no_such_key = 1 }")),
+        ("controller.cruise.dip", ctl("cruise_control", "cruise = { dip = { no_such_key = 1 } }")),
+        ("controller.acc", ctl("acc", "acc = { no_such_key = 1 }")),
+        ("controller.platoon", ctl("platoon", "role = \"leader\", platoon = { no_such_key = 1 }")),
+        ("controller.fallback", ctl("platoon", "role = \"leader\", fallback = { no_such_key = 1 }")),
+        ("controller.emergency", ctl("acc", "emergency = { no_such_key = 1 }")),
+        ("controller.crossing", ctl("acc", "crossing = { no_such_key = 1 }")),
+        ("controller.intersection", ctl("acc", "intersection = { no_such_key = 1 }")),
+        ("controller.merge", ctl("gcdc", "merge = { no_such_key = 1 }")),
+        ("controller.merge.gap_rule", ctl("gcdc", "merge = { gap_rule = { no_such_key = 1 } }")),
+        ("model", "vehicles.0.model={ type = \"acceleration\", no_such_key = 1 }".into()),
+        ("route", "vehicles.0.route={ loop = \"x\", no_such_key = 1 }".into()),
+        ("start", "vehicles.0.start={ offset = 1.0, no_such_key = 1 }".into()),
+        ("sensors.radar", "vehicles.0.sensors.radar.no_such_key=1".into()),
+        ("sensors.velodyne", "vehicles.0.sensors.velodyne.no_such_key=1".into()),
+        ("sensors.*.noise", "vehicles.0.sensors.radar.noise.no_such_key=1".into()),
+        ("v2v", "v2v.no_such_key=1".into()),
+        ("v2v.wifi`, `v2v.network", "v2v.wifi.no_such_key=1".into()),
+        ("v2v.wifi`, `v2v.network", "v2v.network.no_such_key=1".into()),
+        ("loss.model = \"constant\"", "v2v.wifi.loss={ model = \"constant\", no_such_key = 1 }".into()),
+        ("loss.model = \"distance\"", "v2v.wifi.loss={ model = \"distance\", no_such_key = 1 }".into()),
+        ("loss.model = \"gilbert_elliott\"", "v2v.wifi.loss={ model = \"gilbert_elliott\", no_such_key = 1 }".into()),
+        ("loss.model = \"gilbert_elliott\"", "v2v.wifi.burst.no_such_key=1".into()),
+        (
+            "traffic_lights.program",
+            "traffic_lights=[{ junction = 0, program = [{ state = \"G\", duration = 1.0, no_such_key = 1 }] }]".into(),
+        ),
+        ("lab", "lab.no_such_key=1".into()),
+        ("lab.mocap", "lab.mocap.no_such_key=1".into()),
+        ("lab.trucks", "lab.trucks.no_such_key=1".into()),
+    ];
+    let mut missing = Vec::new();
+    for (table, set) in probes {
+        let row = reference
+            .lines()
+            .find(|l| l.starts_with(&format!("| `{table}` |")))
+            .unwrap_or_else(|| panic!("docs/scenarios.md has no row for `{table}`"));
+        let keys = keys_refused_with("highway.toml", &set);
+        assert!(!keys.is_empty(), "{table}: no keys listed");
+        missing.extend(keys.iter().filter(|k| !row.contains(&format!("`{k}`"))).map(|k| format!("{table}: `{k}`")));
+    }
+    assert!(missing.is_empty(), "docs/scenarios.md's tables inside tables lack:\n{}", missing.join("\n"));
 }
