@@ -3,6 +3,7 @@
 not typed).
 
     python3 scripts/perf_table.py [--runs 3] [--vehicles 10000] [--no-write]
+    python3 scripts/perf_table.py --readme [--check]
 
 Builds the release binary, then runs each `smlworld bench` configuration RUNS times, the
 simulation configurations taking turns (plain, --lane-change, --degraded, on the default threads
@@ -12,6 +13,11 @@ max of the runs, the command of each row, N, the commit, the machine's load) and
 --no-write, replaces the block between docs/performance.md's `<!-- perf-table:start -->` and
 `<!-- perf-table:end -->` markers with it. The generated grid map for the routing and loading rows
 goes into a temporary folder that is removed at the end.
+
+The README's short table (between `<!-- perf-summary:start -->` and `<!-- perf-summary:end -->`)
+is derived from docs/performance.md's table, never typed: a measuring run rewrites both, and
+`--readme` rewrites only the README's from the table as it stands (`--check`: exit 1, naming
+the difference, when the README's is not what the table gives; a test runs it).
 """
 
 import argparse
@@ -26,6 +32,15 @@ import tempfile
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 BINARY = ROOT / "target" / "release" / "smlworld"
 START, END = "<!-- perf-table:start -->", "<!-- perf-table:end -->"
+SUMMARY_START, SUMMARY_END = "<!-- perf-summary:start -->", "<!-- perf-summary:end -->"
+# The rows of docs/performance.md's table the README shows: (command, threads column, README label).
+SUMMARY_ROWS = [
+    ("smlworld bench --vehicles 10000 --duration 10", "threads", "10,000 vehicles on a ring"),
+    ("smlworld bench --vehicles 10000 --duration 10 --lane-change", "threads", "the same with MOBIL lane changes"),
+    ("smlworld bench --vehicles 100000 --duration 2", "threads", "100,000 vehicles"),
+    ("smlworld bench --city --duration 60", "threads", "a 20x20 town with lights, 10,000 vehicles on random trips"),
+    ("smlworld bench --map-load Town04.xodr", "MB", "loading CARLA's Town04 (OpenDRIVE)"),
+]
 
 
 def bench(args):
@@ -51,12 +66,77 @@ def spread(xs, digits=2):
     return " / ".join(f"{x:,.{digits}f}" for x in (min(xs), statistics.median(xs), max(xs)))
 
 
+def table_rows(text):
+    """The rows of the generated table in `text` (docs/performance.md): a list of its cells."""
+    if START not in text or END not in text:
+        sys.exit(f"perf_table.py: docs/performance.md has no {START} ... {END} block")
+    block = text.split(START, 1)[1].split(END, 1)[0]
+    rows = []
+    for line in block.splitlines():
+        if line.startswith("| `"):
+            rows.append([c.strip() for c in line.strip().strip("|").split("|")])
+    return rows
+
+
+def median_of(figure):
+    """`a / b / c UNIT, more` -> `b UNIT, more`: the median of a min / median / max figure."""
+    parts = figure.split(" / ")
+    if len(parts) < 3:
+        return figure
+    unit = parts[2].split(" ", 1)[1] if " " in parts[2] else ""
+    return f"{parts[1]} {unit}".strip()
+
+
+def summary(table_text):
+    """The README's short table, from docs/performance.md's generated one."""
+    rows = table_rows(table_text)
+    lines = [SUMMARY_START, "| what (2 cores, no GPU) | command | figure |", "|---|---|---|"]
+    for command, on, label in SUMMARY_ROWS:
+        row = next((r for r in rows if r[0] == f"`{command}`" and on in r[1]), None)
+        if row is None:
+            continue  # not measured on this machine (e.g. Town04 absent): the README leaves it out
+        figure = median_of(row[2])
+        if len(row) > 3 and row[3]:
+            figure += f", {row[3]} real time"
+        lines.append(f"| {label} | `{command}` | {figure} |")
+    lines.append(SUMMARY_END)
+    return "\n".join(lines)
+
+
+def write_readme(check):
+    """Rewrite (or with `check`, compare) the README's short table from docs/performance.md's."""
+    readme = ROOT / "README.md"
+    text = readme.read_text()
+    if SUMMARY_START not in text or SUMMARY_END not in text:
+        sys.exit(f"perf_table.py: README.md has no {SUMMARY_START} ... {SUMMARY_END} block")
+    head, rest = text.split(SUMMARY_START, 1)
+    old, tail = rest.split(SUMMARY_END, 1)
+    new = summary((ROOT / "docs" / "performance.md").read_text())
+    if check:
+        if SUMMARY_START + old + SUMMARY_END != new:
+            sys.exit("perf_table.py: README.md's performance table is not the one docs/performance.md's gives;"
+                     " run `python3 scripts/perf_table.py --readme`. It should read:\n" + new)
+        print("README.md's performance table matches docs/performance.md's")
+        return
+    readme.write_text(head + new + tail)
+    print("README.md: performance summary written", file=sys.stderr)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=3, help="runs of each configuration (default 3)")
     ap.add_argument("--vehicles", type=int, default=10000, help="vehicles of the simulation rows (default 10000)")
     ap.add_argument("--no-write", action="store_true", help="print the table, leave docs/performance.md as it is")
+    ap.add_argument("--readme", action="store_true",
+                    help="measure nothing: rewrite README.md's short table from docs/performance.md's")
+    ap.add_argument("--check", action="store_true",
+                    help="with --readme: change nothing, exit 1 when README.md's short table is not the one docs/performance.md's gives")
     a = ap.parse_args()
+    if a.check and not a.readme:
+        sys.exit("perf_table.py: --check goes with --readme")
+    if a.readme:
+        write_readme(a.check)
+        return
     if a.runs < 1 or a.vehicles < 1:
         sys.exit("perf_table.py: --runs and --vehicles must be at least 1")
 
@@ -163,6 +243,7 @@ def main():
         sys.exit(f"perf_table.py: docs/performance.md has no {START} ... {END} block; add one where the table belongs")
     readme.write_text(text)
     print("docs/performance.md: performance table written", file=sys.stderr)
+    write_readme(check=False)
 
 
 if __name__ == "__main__":

@@ -216,3 +216,15 @@ fn the_scenario_reference_names_every_key_of_the_tables_inside_tables() {
     }
     assert!(missing.is_empty(), "docs/scenarios.md's tables inside tables lack:\n{}", missing.join("\n"));
 }
+
+/// The README's performance table is derived from docs/performance.md's generated one, never
+/// typed: `scripts/perf_table.py --readme --check` fails when the two disagree.
+#[test]
+fn the_readme_performance_table_is_the_generated_ones_medians() {
+    let out = Command::new("python3")
+        .arg(Path::new(ROOT).join("scripts/perf_table.py"))
+        .args(["--readme", "--check"])
+        .output()
+        .expect("runs python3");
+    assert!(out.status.success(), "{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+}
