@@ -228,3 +228,67 @@ fn the_readme_performance_table_is_the_generated_ones_medians() {
         .expect("runs python3");
     assert!(out.status.success(), "{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
 }
+
+/// The items `src/app/mod.rs` re-exports (`app::Session`, `app::run_scenario`, ...), read from its
+/// `pub use` lines.
+fn app_facade_items() -> Vec<String> {
+    let text = std::fs::read_to_string(Path::new(ROOT).join("src/app/mod.rs")).unwrap();
+    let mut items = Vec::new();
+    for stmt in text.split(';').filter_map(|s| s.trim().strip_prefix("pub use ")) {
+        let names = stmt.rsplit("::").next().unwrap_or("").trim_matches(|c| c == '{' || c == '}');
+        items.extend(names.split(',').map(|n| n.trim().to_string()).filter(|n| !n.is_empty()));
+    }
+    items
+}
+
+/// Files a user or a contributor reads: everything outside `src/app/` (whose own modules use
+/// each other's paths) that can name an app item.
+fn sources_outside_app(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().to_string();
+        if path.is_dir() {
+            if !(name.starts_with('.') || name == "target" || name == "node_modules" || path.ends_with("src/app")) {
+                sources_outside_app(&path, out);
+            }
+        } else if name.ends_with(".rs") || name.ends_with(".md") {
+            out.push(path);
+        }
+    }
+}
+
+/// One path each (issue 60 §5): an item `app` re-exports is named by that one path
+/// (`smlworld::app::Session`) outside `src/app/`, never by its module path under `running` or
+/// `results` beside it.
+#[test]
+fn app_items_are_named_by_their_one_public_path() {
+    let items = app_facade_items();
+    assert!(items.iter().any(|i| i == "Session") && items.len() >= 20, "{items:?}");
+    let mut files = Vec::new();
+    for dir in ["src", "tests", "examples", "benches", "python/src", "docs"] {
+        sources_outside_app(&Path::new(ROOT).join(dir), &mut files);
+    }
+    files.extend(["README.md", "CONTRIBUTING.md"].map(|f| Path::new(ROOT).join(f)));
+    let mut long = Vec::new();
+    for file in files {
+        let text = std::fs::read_to_string(&file).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            for module in ["app::running::", "app::results::"] {
+                for (i, _) in line.match_indices(module) {
+                    // The path's last segment(s): `session::Session` or `session::{A, B}`.
+                    let path: String =
+                        line[i..].chars().take_while(|c| c.is_alphanumeric() || "_:{}, ".contains(*c)).collect();
+                    let tail = path.rsplit("::").next().unwrap_or("");
+                    for name in tail.trim_matches(|c| c == '{' || c == '}' || c == ' ').split(',') {
+                        let name = name.trim().trim_end_matches(['}', ' ']);
+                        if items.iter().any(|i| i == name) {
+                            let rel = file.strip_prefix(ROOT).unwrap().display();
+                            long.push(format!("{rel}:{}: `{name}` (use `app::{name}`)", n + 1));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(long.is_empty(), "app items named by a second path:\n{}", long.join("\n"));
+}

@@ -439,7 +439,7 @@ fn bad_traffic_tables_are_refused_naming_the_key() {
 
 #[test]
 fn a_session_reports_lanes_and_carries_out_requested_changes() {
-    use smlworld::app::running::session::{Session, StateColumns};
+    use smlworld::app::{Session, StateColumns};
     let mut s = Session::from_scenario(&root().join("scenarios/overtaking.toml"), None, &[]).unwrap();
     s.step(30.0).unwrap();
     let mut cols = StateColumns::default();

@@ -3,7 +3,7 @@
 //! costs one call and no per-vehicle Python work.
 
 use smlworld::app::Session;
-use smlworld::app::running::session::SessionError;
+use smlworld::app::SessionError;
 use smlworld::world::VehicleId;
 
 /// Vehicle `id` and its nearest vehicles, as [`observe`] returns them.

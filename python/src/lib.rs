@@ -12,8 +12,8 @@ use pyo3::exceptions::{PyFileNotFoundError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
-use smlworld::app::running::session::{SessionError, load_scenario_with_overrides};
-use smlworld::app::{RunError, RunOptions, ScenarioError, Session, StateColumns, run_scenario};
+use smlworld::app::running::session::load_scenario_with_overrides;
+use smlworld::app::{RunError, RunOptions, ScenarioError, Session, SessionError, StateColumns, run_scenario};
 use smlworld::map::{LaneletMap, MapError, Place, RouteOptions};
 
 mod controllers;
