@@ -56,7 +56,7 @@ use super::gcdc::{RsuKind, RsuMessage};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 use super::path_following::PathFollower;
 use super::platoon::PlatoonMember;
-use super::right_of_way::{CLEAR, JunctionNetwork, passages};
+use super::right_of_way::{CLEAR, JunctionDriver, JunctionNetwork, passages};
 
 /// A participant whose newest message is older than this is missing \[s\]: it blocks every
 /// vehicle whose link conflicts with its own (five wifi rounds at 10 Hz: with 20 % loss, five
@@ -387,11 +387,12 @@ pub fn negotiate_intersection(
         &mut IntersectionNegotiator,
         &mut Longitudinal,
         Option<&PlatoonMember>,
+        Option<&mut JunctionDriver>,
     )>,
 ) {
     let Some(network) = network else { return };
     let now = clock.now.as_secs();
-    for (&id, state, size, route, follower, mut mailbox, mut neg, mut lon, member) in &mut vehicles {
+    for (&id, state, size, route, follower, mut mailbox, mut neg, mut lon, member, _) in &mut vehicles {
         let neg = &mut *neg;
         if neg.heard_at.is_none()
             && let Some((_, _, m)) =
@@ -499,6 +500,13 @@ pub fn negotiate_intersection(
             neg.known.clear();
         }
         broadcast(&mut mailbox, clock.now, out);
+    }
+    // The junction rules leave a vehicle to this negotiation while it decides its passage
+    // (read as the state stands after this tick's decisions).
+    for (.., neg, _, _, driver) in &mut vehicles {
+        if let Some(mut driver) = driver {
+            driver.own_negotiation = neg.negotiating();
+        }
     }
 }
 

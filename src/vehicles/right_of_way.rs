@@ -24,9 +24,10 @@
 //! Decisions are made one vehicle after another in a fixed order (those inside the junction,
 //! then by distance to the stop line, then id), each seeing the decisions before it, so two
 //! vehicles never take the same gap in the same tick and the result is the same on any number
-//! of threads. Vehicles with a V2V [`CrossingNegotiator`] (or a negotiating
-//! [`IntersectionNegotiator`]) keep their own negotiation and are only foes here. Traffic-light programs are a resource ([`TrafficLights`]) advanced by their
-//! own system before the decisions.
+//! of threads. Vehicles with a V2V [`CrossingNegotiator`], or whose own negotiation decides
+//! their passage ([`JunctionDriver::own_negotiation`], set by the GCDC intersection's), are only
+//! foes here. Traffic-light programs are a resource ([`TrafficLights`]) advanced by their own
+//! system before the decisions.
 
 use std::sync::Arc;
 
@@ -41,7 +42,6 @@ use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
 use super::PathFollower;
 use super::crossing::{CrossingNegotiator, stop_before};
-use super::gcdc_intersection::IntersectionNegotiator;
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
 /// Half the extent of a conflict area along each link \[m\]: a vehicle "reaches" a conflict
@@ -497,6 +497,10 @@ pub struct JunctionDriver {
     pub waited: f64,
     /// Waiting time of the current stop so far \[s\].
     pub waiting_now: f64,
+    /// Set while a V2V negotiation of the vehicle's own decides its passage (the GCDC 2016
+    /// intersection's, `vehicles::gcdc_intersection`, writes it each control tick): the
+    /// junction rules then treat it as a foe only.
+    pub own_negotiation: bool,
 }
 
 /// What happened at each junction (`metrics.junctions`).
@@ -670,7 +674,6 @@ pub fn give_way_at_junctions(
         &mut Longitudinal,
         &mut JunctionDriver,
         Option<&CrossingNegotiator>,
-        Option<&IntersectionNegotiator>,
     )>,
     positions: Query<(&super::LanePosition, &VehicleSize, &VehicleState)>,
     mut scratch: Local<Scratch>,
@@ -716,7 +719,7 @@ pub fn give_way_at_junctions(
     let signal = |g: u32| lights.as_deref().map_or(NO_SIGNAL, |l| l.state[g as usize]);
     // Who is near a junction.
     let mut queue_at: Vec<(u32, u32)> = Vec::new();
-    for (entity, &id, state, size, route, follower, _, mut driver, negotiator, gcdc) in &mut vehicles {
+    for (entity, &id, state, size, route, follower, _, mut driver, negotiator) in &mut vehicles {
         let key = Arc::as_ptr(&route.0) as usize;
         let driver: &mut JunctionDriver = &mut driver;
         if driver.route != key {
@@ -760,7 +763,7 @@ pub fn give_way_at_junctions(
             v_max: follower.params.speed.max(speed),
             inside: true,
             going: true,
-            decides: negotiator.is_none() && !gcdc.is_some_and(IntersectionNegotiator::negotiating),
+            decides: negotiator.is_none() && !driver.own_negotiation,
             arrived_at: f64::INFINITY,
             stopped: false,
             junction: 0,
@@ -846,7 +849,7 @@ pub fn give_way_at_junctions(
     }
     // Write back.
     for a in &sc.approaches {
-        let Ok((.., mut lon, mut driver, _, _)) = vehicles.get_mut(a.entity) else { continue };
+        let Ok((.., mut lon, mut driver, _)) = vehicles.get_mut(a.entity) else { continue };
         if !a.trailing {
             driver.going = a.going;
         }
