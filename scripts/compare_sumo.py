@@ -104,16 +104,22 @@ def figures(side, trips, end, wall, step):
     }
 
 
+def timed(who, cmd):
+    """Run `cmd` and return its wall time [s]; stop with its error output when it fails."""
+    start = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if done.returncode != 0:
+        fail(f"{who} failed ({' '.join(cmd)}):\n{done.stderr}")
+    return wall
+
+
 def run_sumo(cfg, out, end, step):
     tripinfo = out / "tripinfo.xml"
     cmd = [sumo_binary(), "-c", str(cfg), "--tripinfo-output", str(tripinfo),
            "--tripinfo-output.write-unfinished", "true", "--seed", "42", "--no-step-log", "true",
            "--no-warnings", "true", "--duration-log.disable", "true"]
-    start = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    if done.returncode != 0:
-        fail(f"SUMO failed ({' '.join(cmd)}):\n{done.stderr}")
+    wall = timed("SUMO", cmd)
     trips = []
     for t in ET.parse(tripinfo).getroot().iter("tripinfo"):
         depart = float(t.get("depart"))
@@ -131,11 +137,7 @@ def run_ours(cfg, out, end, step):
     if not BINARY.exists():
         subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
     cmd = [str(BINARY), "run", str(cfg), "--out", str(out / "smlworld"), "--log-rate", "1"]
-    start = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    if done.returncode != 0:
-        fail(f"smlworld failed ({' '.join(cmd)}):\n{done.stderr}")
+    wall = timed("smlworld", cmd)
     trips = []
     with open(out / "smlworld" / "trips.csv", newline="") as f:
         for row in csv.DictReader(f):
