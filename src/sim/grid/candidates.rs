@@ -9,7 +9,7 @@ use crate::world::VehicleId;
 /// coordinates \[m\] and id of each, so a test of all of them against one sensor vectorises.
 #[derive(Debug, Clone, Default)]
 pub struct Candidates {
-    /// Grid slot of each ([`SpatialGrid::get`]).
+    /// Grid slot of each ([`SpatialGrid::get`](crate::sim::SpatialGrid::get)).
     pub slots: Vec<u32>,
     /// x \[m\].
     pub xs: Vec<f64>,

@@ -2,7 +2,7 @@
 //!
 //! [`spatial`]: a uniform spatial hash grid rebuilt once per tick, O(N) to build and
 //! O(neighbours) per query; [`candidates`]: the candidates a query gathers, in arrays for the
-//! vector units; [`lists`]: the Verlet neighbour lists the sensors build over the grid and the
+//! vector units; `lists`: the Verlet neighbour lists the sensors build over the grid and the
 //! wifi round reads; [`pass`]: loop bodies compiled for AVX2 where the processor has it.
 
 pub mod candidates;

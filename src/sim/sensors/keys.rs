@@ -79,7 +79,7 @@ pub(super) const REACH: u32 = 0b11 << 30;
 pub(super) const RADAR_REACH: u32 = 1 << 31;
 pub(super) const VELODYNE_REACH: u32 = 1 << 30;
 
-/// The name of the radar's detections ([`Detection::sensor`]).
+/// The name of the radar's detections ([`Detection::sensor`](crate::world::Detection::sensor)).
 pub const RADAR: &str = "radar";
 /// The name of the velodyne's detections.
 pub const VELODYNE: &str = "velodyne";

@@ -4,7 +4,7 @@
 //! (median) sensor range, then each sensing vehicle scans only the cells its own range reaches:
 //! its 3 x 3 neighbourhood when its range is typical, a wider square for the few with a longer
 //! range, so a few long-range sensors cost only their own wider search, never a coarser grid for
-//! everyone. O(N) for bounded ranges. An [`Omniscient`] vehicle scans everyone (O(N) per such
+//! everyone. O(N) for bounded ranges. An [`Omniscient`](crate::world::Omniscient) vehicle scans everyone (O(N) per such
 //! vehicle).
 //!
 //! Where every vehicle senses with a bounded range from one ECS table (the common case), the
@@ -14,7 +14,7 @@
 //! ticks test a short list per vehicle and rebuild nothing. The readings are the grid scan's,
 //! bit for bit.
 //!
-//! Imperfect sensors ([`SensorErrors`], issue 21) cost only their own vehicles: after the
+//! Imperfect sensors ([`SensorErrors`](crate::world::SensorErrors), issue 21) cost only their own vehicles: after the
 //! candidates are found as above, occlusion compares each with the nearer ones found (a target
 //! whose angular extent lies inside one nearer target's is hidden), dropout drops a detection
 //! with its probability, and Gaussian noise moves range, bearing and velocity. Every draw is
@@ -25,10 +25,10 @@
 //! rotation from a short polynomial, so noise costs no `ln` or `sin_cos` per detection.
 //! [`SensorStats`] counts detections and the misses of each kind.
 //!
-//! The files: [`tick`] (the system), [`scan`] (one chunk of vehicles), [`sight`] (what one
-//! vehicle sees of a candidate; the scalar reference) beside [`kernel_scalar`] and
-//! [`kernel_avx2`] (neighbour lists, four at a time), [`radar`] (the cone), [`keys`]
-//! (detection keys and their order), [`readings`] and [`errors`] (noise, dropout, occlusion),
+//! The files: `tick` (the system), `scan` (one chunk of vehicles), `sight` (what one
+//! vehicle sees of a candidate; the scalar reference) beside `kernel_scalar` and
+//! `kernel_avx2` (neighbour lists, four at a time), `radar` (the cone), `keys`
+//! (detection keys and their order), `readings` and `errors` (noise, dropout, occlusion),
 //! and [`plugins`], the API of a student's sensor. The grid and the neighbour lists, which the
 //! wifi round reads too, live in [`super::grid`].
 

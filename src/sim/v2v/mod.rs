@@ -6,18 +6,18 @@
 //! spatial grid (O(N) per round), or, when the sensors' neighbour lists still hold everyone
 //! within the wifi range (every vehicle in one ECS table with sensors reaching at least as far,
 //! nobody moved half their skin since their build), from those lists: no grid to build, a
-//! short list per receiver ([`crate::sim::grid::lists`]). Either way the same receptions.
+//! short list per receiver (`sim::grid::lists`). Either way the same receptions.
 //!
-//! Each channel has a [`ChannelModel`] (loss, bursts, delay; perfect by default). A lossy channel
+//! Each channel has a [`ChannelModel`](crate::sim::channel::ChannelModel) (loss, bursts, delay; perfect by default). A lossy channel
 //! decides every reception with a seeded draw ([`super::channel`]); a delaying one queues the
 //! reception and [`deliver_delayed`] puts it into the in-box at the first control tick at or
 //! after its due time, links never reordered. Wifi stays O(N · neighbours).
 //!
-//! The network round with a constant, memoryless loss (a [`Loss::Constant`] probability, no
+//! The network round with a constant, memoryless loss (a [`Loss::Constant`](crate::sim::channel::Loss::Constant) probability, no
 //! bursts, no delay: nothing kept per link, nothing depending on distance) costs O(N) per
 //! round, not O(N²): for each receiver it draws how many of the batch's other M messages are
-//! lost (one [`binomial`] draw) and stores that count with a key; which ones are lost is a
-//! uniformly random subset of that size ([`OrderedSample`]), drawn only when the in-box is
+//! lost (one [`binomial`](crate::sim::random::binomial) draw) and stores that count with a key; which ones are lost is a
+//! uniformly random subset of that size ([`OrderedSample`](crate::sim::random::OrderedSample)), drawn only when the in-box is
 //! read. Given its count, the lost set of independent Bernoulli losses is exactly such a
 //! subset, so every receiver still loses each reception independently with probability p.
 //! The departure from REFERENCE's keying: these draws are keyed by (seed, network stream,
@@ -26,8 +26,8 @@
 //! the order of reading change nothing. Every other network model (bursts, distance loss,
 //! delay) decides each reception on its own as before, keyed per reception: O(N²) per round.
 //!
-//! The files: [`wifi`] and [`network`] (the rounds), [`delayed`] (receptions queued until due),
-//! [`batch`] (the shared batch of a round) and [`stats`]; the channel models are
+//! The files: `wifi` and `network` (the rounds), `delayed` (receptions queued until due),
+//! `batch` (the shared batch of a round) and `stats`; the channel models are
 //! [`super::channel`] and [`super::channel_models`] (the plugin API).
 
 use bevy_ecs::prelude::Resource;
