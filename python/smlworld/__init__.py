@@ -149,6 +149,12 @@ class Sim:
         array of ``id, x, y, vx, vy`` [-, m, m, m/s, m/s]."""
         return self._core.readings(int(id))
 
+    def reading_sensors(self, id: int) -> list[str]:
+        """The name of the sensor that saw each row of :meth:`readings` of vehicle ``id``, in
+        the same order: ``"radar"``, ``"velodyne"``, ``"omniscient"`` or a plugin sensor's
+        registered name."""
+        return list(self._core.reading_sensors(int(id)))
+
     def set_commands(self, ids, throttle=None, steering=None, speed=None) -> None:
         """Set commands for vehicles ``ids``: ``throttle`` [N] (acceleration model),
         ``steering`` [rad], ``speed`` [m/s] (kinematic model), one finite value per id; a column

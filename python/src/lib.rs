@@ -323,6 +323,10 @@ impl Core {
         a.reshape([rows.len(), 5])
     }
 
+    fn reading_sensors(&self, py: Python<'_>, id: i32) -> PyResult<Vec<&'static str>> {
+        self.session(py)?.reading_sensors(id).map_err(session_err)
+    }
+
     #[pyo3(signature = (ids, throttle=None, steering=None, speed=None))]
     fn set_commands(
         &self,

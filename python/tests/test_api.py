@@ -61,6 +61,17 @@ def test_readings_nearest_first(sim):
     assert 15.0 < d[0] < 30.0  # 21.5 m between centres at the start
 
 
+def test_each_reading_names_the_sensor_that_saw_it(sim):
+    sim.step(1.0)
+    r, names = sim.readings(-2), sim.reading_sensors(-2)
+    assert len(names) == r.shape[0] >= 1
+    # the leader ahead is in the truck's radar cone
+    assert names[0] == "radar"
+    assert set(names) <= {"radar", "velodyne", "omniscient"}
+    with pytest.raises(ValueError):
+        sim.reading_sensors(42)
+
+
 def test_set_commands_brakes_a_vehicle(root):
     sim = smlworld.Sim.from_scenario(root / PLATOON, seed=3)
     ids = np.array([-1])

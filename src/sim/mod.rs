@@ -23,8 +23,9 @@ pub mod params;
 pub use crate::world::random;
 pub mod recorded;
 mod schedule;
-pub mod sensor_plugins;
 pub mod sensors;
+/// The plugin API of sensors, where students found it before [`sensors`] became a folder.
+pub use sensors::plugins as sensor_plugins;
 pub mod trig;
 pub mod v2v;
 
@@ -39,7 +40,7 @@ pub use schedule::{
     Control, ControlEpoch, DuplicateModule, Dynamics, Network, Phase, Rates, Scheduler, Sensors, SimClock, SimSystems,
     Wifi, WifiRate,
 };
-pub use sensor_plugins::{
+pub use sensors::plugins::{
     Nearby, Neighbour, Occlusion, PluginDraws, PluginSensorStats, PluginSensorSystems, ScenarioSensor, Sensor,
 };
 pub use sensors::{SensorStats, SensorsPlugin, in_radar_cone};

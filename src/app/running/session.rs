@@ -611,6 +611,15 @@ impl Session {
             .unwrap_or_default())
     }
 
+    /// The name of the sensor that saw each row of [`Session::readings`] of vehicle `id`, in
+    /// the same order: `"radar"`, `"velodyne"`, `"omniscient"` or a plugin sensor's registered
+    /// name.
+    pub fn reading_sensors(&self, id: i32) -> Result<Vec<&'static str>, SessionError> {
+        let e = self.entity(id)?;
+        let readings = self.sim.world().get::<SensorReadings>(e);
+        Ok(readings.map(|r| r.0.iter().map(|d| d.sensor).collect()).unwrap_or_default())
+    }
+
     /// Set the commands of vehicles `ids`: each given column (throttle \[N\], steering \[rad\],
     /// speed [m/s]) must have one finite value per id; a column left out keeps its value. Checks
     /// everything before changing anything. They act at once and replace what the vehicle's own

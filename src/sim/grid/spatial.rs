@@ -8,8 +8,9 @@
 
 use glam::DVec2;
 
-use super::parallel::Parallelism;
-use super::trig::floor_i32;
+use super::candidates::Candidates;
+use crate::sim::parallel::Parallelism;
+use crate::sim::trig::floor_i32;
 use crate::world::VehicleId;
 
 /// One vehicle in the grid.
@@ -513,147 +514,6 @@ impl SpatialGrid {
                 self.for_each_in_cell((cx, cy), &mut test);
             }
         }
-    }
-}
-
-/// A branch-free pass over candidate arrays, which [`vectorised`] compiles for AVX2.
-///
-/// `run` must be `#[inline(always)]` and call only `#[inline(always)]` code: only what is inlined
-/// into [`with_avx2`] is compiled with AVX2 on. (The passes were closures until an unrelated
-/// change in the wifi round tipped the compiler's inlining: the sensors' closure was then called,
-/// not inlined, compiled without AVX2, and the sensors took 1.5 times as long.)
-pub trait Pass {
-    /// What the pass gives back.
-    type Output;
-    /// Do the pass.
-    fn run(self) -> Self::Output;
-}
-
-/// `pass.run()`, compiled for AVX2 where the processor has it (checked at run time; the
-/// standard library remembers the answer), else as it is: the compiler turns the branch-free
-/// loops over candidate arrays into vector code four candidates wide. The same operations in
-/// the same order either way, so the same bits.
-#[inline(always)]
-pub fn vectorised<P: Pass>(pass: P) -> P::Output {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the processor has AVX2, checked just above.
-        return unsafe { with_avx2(pass) };
-    }
-    pass.run()
-}
-
-/// `pass.run()` compiled with AVX2 on ([`vectorised`] calls it; tests call it to compare both).
-///
-/// # Safety
-/// Only on a processor with AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-pub unsafe fn with_avx2<P: Pass>(pass: P) -> P::Output {
-    pass.run()
-}
-
-/// Copy the items of `from` other than `none` to the front of `to` (at least as long), in order;
-/// returns how many. Without a branch on the items (which are kept is unpredictable), and into
-/// another buffer (in place, each store could alias the next load).
-pub fn pack<T: Copy + PartialEq>(from: &[T], to: &mut [T], none: T) -> usize {
-    let mut n = 0;
-    for &item in from {
-        to[n] = item;
-        n += usize::from(item != none);
-    }
-    n
-}
-
-/// Candidates gathered from some cells of a grid, as arrays (structure of arrays): slot,
-/// coordinates \[m\] and id of each, so a test of all of them against one sensor vectorises.
-#[derive(Debug, Clone, Default)]
-pub struct Candidates {
-    /// Grid slot of each ([`SpatialGrid::get`]).
-    pub slots: Vec<u32>,
-    /// x \[m\].
-    pub xs: Vec<f64>,
-    /// y \[m\].
-    pub ys: Vec<f64>,
-    /// Vehicle id.
-    pub ids: Vec<VehicleId>,
-}
-
-impl Candidates {
-    /// Forget every candidate (the buffers stay).
-    pub fn clear(&mut self) {
-        self.slots.clear();
-        self.xs.clear();
-        self.ys.clear();
-        self.ids.clear();
-    }
-
-    /// Number of candidates.
-    pub fn len(&self) -> usize {
-        self.slots.len()
-    }
-
-    /// Whether there is none.
-    pub fn is_empty(&self) -> bool {
-        self.slots.is_empty()
-    }
-
-    /// The slots of the candidates within `radius` \[m\] of `p` (inclusive; the squared distance
-    /// as [`DVec2::distance_squared`] computes it) but vehicle `exclude`, in candidate order,
-    /// into `out`; `marks` is scratch. A branch-free pass over the arrays (vector code, AVX2
-    /// where the processor has it, chosen at run time), then a pack.
-    pub fn within(&self, p: DVec2, radius: f64, exclude: VehicleId, marks: &mut Vec<u32>, out: &mut Vec<u32>) {
-        marks.clear();
-        marks.resize(self.len(), 0);
-        vectorised(MarkWithin { candidates: self, p, r2: radius * radius, exclude, marks });
-        out.clear();
-        out.resize(marks.len(), 0);
-        let n = pack(marks, out, u32::MAX);
-        out.truncate(n);
-    }
-
-    /// Each candidate's slot where it is within reach, else `u32::MAX` (no slot: grids hold
-    /// fewer than 2³² entries).
-    #[inline(always)]
-    fn mark_within(&self, p: DVec2, r2: f64, exclude: VehicleId, marks: &mut [u32]) {
-        let candidates = self.xs.iter().zip(&self.ys).zip(&self.slots).zip(&self.ids);
-        for (mark, (((&x, &y), &slot), &id)) in marks.iter_mut().zip(candidates) {
-            *mark = if within_reach(p, x, y, r2) & (id != exclude) { slot } else { u32::MAX };
-        }
-    }
-
-    #[inline]
-    fn push(&mut self, slot: u32, x: f64, y: f64, id: VehicleId) {
-        self.slots.push(slot);
-        self.xs.push(x);
-        self.ys.push(y);
-        self.ids.push(id);
-    }
-}
-
-/// Whether (`x`, `y`) lies within squared distance `r2` [m²] of `p` (inclusive), computed as
-/// every range query computes it (differences, then x² + y²), so that a search through the
-/// grid and one through neighbour lists agree at the edge bit for bit.
-#[inline(always)]
-pub(crate) fn within_reach(p: DVec2, x: f64, y: f64, r2: f64) -> bool {
-    let (dx, dy) = (x - p.x, y - p.y);
-    dx * dx + dy * dy <= r2
-}
-
-/// [`Candidates::mark_within`] as a [`Pass`].
-struct MarkWithin<'a> {
-    candidates: &'a Candidates,
-    p: DVec2,
-    r2: f64,
-    exclude: VehicleId,
-    marks: &'a mut [u32],
-}
-
-impl Pass for MarkWithin<'_> {
-    type Output = ();
-    #[inline(always)]
-    fn run(self) {
-        self.candidates.mark_within(self.p, self.r2, self.exclude, self.marks)
     }
 }
 

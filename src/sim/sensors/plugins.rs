@@ -39,10 +39,11 @@ use bevy_ecs::system::SystemParam;
 use glam::DVec2;
 use serde::de::DeserializeOwned;
 
-use super::grid::{GridEntry, SpatialGrid};
-use super::params::{ControllerParamError, parse_plugin_params};
-use super::random::{key, mix};
-use super::sensors::{Footprint, SensorKeys, SensorStats, add_noise};
+use super::errors::{Footprint, SensorKeys, add_noise};
+use super::readings::SensorStats;
+use crate::sim::grid::{GridEntry, SpatialGrid};
+use crate::sim::params::{ControllerParamError, parse_plugin_params};
+use crate::sim::random::{key, mix};
 use crate::world::{Detection, SensorError, SensorReadings, SimTime, VehicleId, VehicleSize, VehicleState};
 
 /// A sensor a scenario can name: the keys of its table in a vehicle's `sensors` are
@@ -181,7 +182,7 @@ impl SensorRegistry {
     }
 }
 
-/// The phases of plugin sensing inside [`super::SimSystems::Sense`], after the built-in sensors:
+/// The phases of plugin sensing inside [`crate::sim::SimSystems::Sense`], after the built-in sensors:
 /// [`Nearby`]'s grid is built, then the plugin sensors sense.
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PluginSensorSystems {
@@ -263,7 +264,7 @@ impl Nearby<'_> {
 /// a plugin sensor: O(N).
 pub fn index_nearby(
     mut index: ResMut<NearbyIndex>,
-    clock: Res<super::SimClock>,
+    clock: Res<crate::sim::SimClock>,
     carriers: Query<(), With<CarriesPluginSensor>>,
     everyone: Query<(Entity, &VehicleId, &VehicleState, Option<&VehicleSize>)>,
 ) {
@@ -410,7 +411,7 @@ impl SensorReadings {
 mod tests {
     use super::*;
     use crate::sim::random::uniform;
-    use crate::sim::sensors::{covers, extent};
+    use crate::sim::sensors::errors::{covers, extent};
 
     #[test]
     fn occlusion_by_corners_is_the_built_in_rule_of_angles() {
