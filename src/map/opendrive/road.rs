@@ -167,6 +167,12 @@ pub struct Road {
     pub sections: Vec<LaneSection>,
     /// Road `<type>` speed records: (start \[m\], limit [m/s]).
     pub speeds: Vec<(f64, f64)>,
+    /// Where a lane section at the road's start (`start_lanes`) or end (`end_lanes`) was merged
+    /// away (shorter than 2 cm): the file's lane ids there -> the lane ids of the section that
+    /// took its place, for links from other roads and junctions. `None`: no merge, ids as is.
+    pub start_lanes: Option<std::collections::BTreeMap<i32, i32>>,
+    /// See `start_lanes`.
+    pub end_lanes: Option<std::collections::BTreeMap<i32, i32>>,
     /// Line of the `<road>` element.
     pub line: usize,
 }
@@ -420,6 +426,8 @@ impl<'a> Reader<'a> {
             lane_offsets,
             sections,
             speeds,
+            start_lanes: None,
+            end_lanes: None,
             line: el.line,
         })
     }
