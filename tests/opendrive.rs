@@ -10,6 +10,7 @@ use std::process::Command;
 use glam::DVec2;
 use render_support::data_dir;
 use smlworld::map::opendrive::geometry::Shape;
+use smlworld::map::opendrive::osm_out::MERGE_DISTANCE;
 use smlworld::map::opendrive::{parse_document, parse_str};
 use smlworld::map::{Lanelet, LaneletMap, RouteOptions};
 
@@ -129,6 +130,69 @@ fn every_shared_file_renders() {
         assert!(grey > 50, "{}: {grey} road pixels", path.display());
     }
     std::fs::remove_dir_all(&out_dir).ok();
+}
+
+/// `map render` of a shared file, 400 x 400 px centred on `center` [m] at `ppm` px/m.
+fn render_at(name: &str, center: (f64, f64), ppm: f64) -> image::RgbaImage {
+    let out = std::env::temp_dir().join(format!(
+        "smlworld-opendrive-marks-{}-{name}-{}-{}.png",
+        std::process::id(),
+        center.0,
+        center.1
+    ));
+    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .args(["map", "render"])
+        .arg(opendrive_dir().join(name))
+        .arg("--out")
+        .arg(&out)
+        .args(["--width", "400", "--height", "400", "--pixels-per-meter", &ppm.to_string()])
+        .arg(format!("--center={},{}", center.0, center.1))
+        .output()
+        .expect("runs smlworld");
+    assert!(run.status.success(), "{name}: {}", String::from_utf8_lossy(&run.stderr));
+    let img = image::open(&out).unwrap().to_rgba8();
+    std::fs::remove_file(&out).ok();
+    std::fs::remove_file(out.with_extension("meta")).ok();
+    img
+}
+
+/// Lanes drawn by OpenDRIVE type and road marks as the file paints them (pixel rows: y [m] at
+/// 200 - 20 y px for 20 px/m).
+#[test]
+fn render_draws_lane_types_and_the_files_road_marks() {
+    let yellow = |p: &image::Rgba<u8>| p[0] > 180 && p[1] > 140 && p[2] < 110;
+    let white = |p: &image::Rgba<u8>| p[0] > 200 && p[1] > 200 && p[2] > 190;
+    // Town01 road 4 runs east along y = -131.41 m: a broken yellow centre line, 4 m driving
+    // lanes, 0.3 m shoulders with a curb, 4 m sidewalks (y -127.1 to -123.1: row 74).
+    let img = render_at("Town01.xodr", (200.0, -131.41), 20.0);
+    let row: Vec<_> = (0..400).map(|x| *img.get_pixel(x, 200)).collect();
+    let painted = row.iter().filter(|p| yellow(p)).count();
+    assert!(painted > 100 && painted < 300, "a broken yellow centre line: {painted} of 400 px yellow");
+    assert!(row.iter().all(|p| !white(p)), "no white paint on the centre line");
+    let sidewalk = img.get_pixel(200, 74);
+    let lane = img.get_pixel(200, 140);
+    assert!(sidewalk[0] > 150 && sidewalk[0] > sidewalk[2] + 25, "sidewalk tint: {sidewalk:?}");
+    assert!(lane[0].abs_diff(lane[2]) < 15 && lane[0] < 140, "asphalt: {lane:?}");
+    // straight_500m: shoulders 3.07-4.75 m (row 122) brown over the asphalt, borders beyond
+    // (row 45) darker than the driving lane (row 170).
+    let img = render_at("straight_500m.xodr", (250.0, 0.0), 20.0);
+    let (shoulder, border, driving) = (img.get_pixel(200, 122), img.get_pixel(200, 45), img.get_pixel(200, 170));
+    assert!(shoulder[0] > shoulder[2] + 15, "shoulder tint {shoulder:?} (driving {driving:?})");
+    assert!(
+        u32::from(border[0]) + u32::from(border[1]) + 30 < u32::from(driving[0]) + u32::from(driving[1]),
+        "border {border:?} darker than driving {driving:?}"
+    );
+    // straight_500m_roadmarks: the centre line changes along s, laneChange="both" throughout:
+    // solid from 50 to 100 m (every pixel of row 200 painted), double solid from 100 to 200 m
+    // (at 40 px/m two lines 0.24 m apart: rows 196 and 204 white, row 200 between them not).
+    let img = render_at("straight_500m_roadmarks.xodr", (75.0, 0.0), 20.0);
+    let solid = (0..400).filter(|&x| white(img.get_pixel(x, 200))).count();
+    assert_eq!(solid, 400, "a solid line from 50 to 100 m");
+    let img = render_at("straight_500m_roadmarks.xodr", (150.0, 0.0), 40.0);
+    for x in [50, 200, 350] {
+        let column: Vec<bool> = (190..211).map(|y| white(img.get_pixel(x, y))).collect();
+        assert!(column[6] && column[14] && !column[10], "two solid lines at x = {x}: {column:?}");
+    }
 }
 
 /// Analytic lane lengths: a lane whose centre lies at lateral offset t_c (the sum of the widths
@@ -689,10 +753,13 @@ fn by_lane_key(map: &LaneletMap) -> BTreeMap<LaneKey, (f64, Vec<LaneKey>)> {
 fn map_convert_writes_osm_that_loads_back_with_the_same_lanelets() {
     let dir = std::env::temp_dir().join(format!("smlworld-opendrive-convert-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    // multi_intersections is left out: its nodes south of the equator (origin 0, 0) do not
-    // project back to lat/lon yet (Projector::reverse diverges there). Town01 is left out too:
-    // it comes back with 302 of its 306 lanelets (issue 56 stays open on the round trip).
-    for name in ["straight_500m.xodr"] {
+    // Every shared file: the same lanelets and the same successors come back. Town01 lost 4
+    // lanelets of lane sections under a centimetre (the OSM loader skips zero-length bounds) and
+    // files without geoReference (origin 0, 0) came back off the globe before the reader merged
+    // short sections and the projection kept one false northing across the equator.
+    let mut totals = (0, 0);
+    for path in shared_files() {
+        let name = path.file_name().unwrap().to_str().unwrap();
         let out = dir.join(name.replace(".xodr", ".osm"));
         let input = opendrive_dir().join(name);
         let (ok, stdout, stderr) =
@@ -704,7 +771,6 @@ fn map_convert_writes_osm_that_loads_back_with_the_same_lanelets() {
             .find(|l| l.contains("not joined"))
             .and_then(|l| l.split("WARN ").nth(1)?.split_whitespace().next()?.parse().ok())
             .unwrap_or(0);
-        assert_eq!(unjoined, 0, "{name}: {stderr}");
         let text = std::fs::read_to_string(&out).unwrap();
         assert!(!smlworld::map::opendrive::is_opendrive(&text));
         let xodr = load(name);
@@ -713,22 +779,54 @@ fn map_convert_writes_osm_that_loads_back_with_the_same_lanelets() {
         assert_eq!(osm.origin_node, Some(-1), "{name}");
         assert!((osm.projector.origin_lat - xodr.projector.origin_lat).abs() < 1e-9, "{name}");
         assert!((osm.projector.origin_lon - xodr.projector.origin_lon).abs() < 1e-9, "{name}");
-        assert_eq!(osm.lanelets.len(), xodr.lanelets.len(), "{name}: lanelet count");
-        let (a, b) = (by_lane_key(&xodr), by_lane_key(&osm));
-        assert_eq!(a.len(), xodr.lanelets.len(), "{name}: one lanelet per (road, section, lane)");
-        let (mut links, mut missing) = (0, 0);
+        // Lane sections under 2 cm are merged into a neighbour with the same lanes; where the
+        // lanes differ (Town04: 22 lanelets, lanes moving sideways over a few µm) the section is
+        // kept as the file has it and the OSM loader skips its bounds of no length: nothing else.
+        let len = |p: &[DVec2]| p.windows(2).map(|w| w[0].distance(w[1])).sum::<f64>();
+        let tiny = |l: &Lanelet| len(&l.left).min(len(&l.right)) < 0.01;
+        let kept: usize = xodr.lanelets.iter().filter(|l| tiny(l)).count();
+        assert_eq!(kept, if name == "Town04.xodr" { 22 } else { 0 }, "{name}: lanelets of no length");
+        assert_eq!(osm.lanelets.len(), xodr.lanelets.len() - kept, "{name}: lanelet count");
+        let tiny_keys: Vec<LaneKey> = xodr.lanelets.iter().filter(|l| tiny(l)).map(lane_key).collect();
+        let (mut a, b) = (by_lane_key(&xodr), by_lane_key(&osm));
+        for k in &tiny_keys {
+            a.remove(k);
+        }
+        for (_, next) in a.values_mut() {
+            next.retain(|n| !tiny_keys.contains(n));
+        }
+        assert_eq!(a.len(), xodr.lanelets.len() - kept, "{name}: one lanelet per (road, section, lane)");
+        // An OSM lanelet map links lanelets by shared nodes: a link whose bounds lie apart in the
+        // file (soderleden's lane -3 ending into lane -2: 3.5 m; 2 in multi_intersections)
+        // cannot come back, and is reported. Every other link does.
+        let ends = |key: &LaneKey| {
+            let l = xodr.lanelets.iter().find(|l| lane_key(l) == *key).unwrap();
+            (l.left[0], l.right[0], l.left[l.left.len() - 1], l.right[l.right.len() - 1])
+        };
+        let (mut links, mut lost) = (0, 0);
         for (key, (len, next)) in &a {
             let (len2, next2) = b.get(key).unwrap_or_else(|| panic!("{name}: lanelet {key:?} is missing"));
             assert!((len - len2).abs() <= 0.01, "{name} {key:?}: length {len} -> {len2}");
             assert!(next2.iter().all(|n| next.contains(n)), "{name} {key:?}: successors {next:?} -> {next2:?}");
-            missing += next.len() - next2.len();
+            for n in next.iter().filter(|n| !next2.contains(n)) {
+                let ((_, _, l, r), (l2, r2, _, _)) = (ends(key), ends(n));
+                let gap = l.distance(l2).max(r.distance(r2));
+                assert!(gap > MERGE_DISTANCE, "{name} {key:?} -> {n:?}: lost, with bounds {gap} m apart");
+                lost += 1;
+            }
             links += next.len();
         }
-        assert_eq!(missing, unjoined, "{name}: successors lost are exactly the links reported");
-        // straight_500m is one road of one section: nothing to link.
-        assert_eq!(links > 0, name != "straight_500m.xodr", "{name}: links to compare");
+        assert_eq!(lost, unjoined, "{name}: successors lost are exactly the links reported");
+        let expected = match name {
+            "multi_intersections.xodr" => 2,
+            "soderleden.xodr" => 1,
+            _ => 0,
+        };
+        assert_eq!(unjoined, expected, "{name}: links not joined");
+        totals.0 += xodr.lanelets.len();
+        totals.1 += links - lost;
         // Positions survive the lat/lon round trip, routability and neighbours' lines too.
-        for l in &xodr.lanelets {
+        for l in xodr.lanelets.iter().filter(|l| !tiny(l)) {
             let l2 = osm.lanelets.iter().find(|m| lane_key(m) == lane_key(l)).unwrap();
             assert_eq!(l.routable, l2.routable, "{name} {:?}", lane_key(l));
             let (p, q) = (l.centre[l.centre.len() / 2], l2.centre[l2.centre.len() / 2]);
@@ -736,8 +834,10 @@ fn map_convert_writes_osm_that_loads_back_with_the_same_lanelets() {
         }
         // A lane named in the file is still a place a route can start.
         let start = osm.tag_index.keys().filter(|k| k.starts_with("start:")).count();
-        assert_eq!(start, xodr.lanelets.len(), "{name}: every lanelet's start tag survives");
+        assert!(start >= xodr.lanelets.len() - kept, "{name}: every lanelet's start tag survives");
     }
+    // Town01 302 lanelets and 266 links, Town04 1326 and 1116, ...: all of them.
+    assert!(totals.0 > 1800 && totals.1 > 1500, "lanelets and links compared: {totals:?}");
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -769,4 +869,46 @@ fn map_convert_refuses_to_overwrite_its_input_and_non_opendrive_files() {
     assert!(!ok && stderr.contains("bad.xodr") && !stderr.contains("panicked"), "{stderr}");
     assert!(!target.exists());
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// scenarios/opendrive_merge.toml: the on-ramp's lane ends on road 1, so every ramp vehicle
+/// (ids from -2000 down) makes a mandatory change into the main road and still arrives at the
+/// end of road 0; no collision. (Before scenario routes could use lane changes the ramp route
+/// was "no route"; before traffic let a vehicle mid-change leave at its route's end, vehicles
+/// stood past the end of road 0 and 21 collisions followed.)
+#[test]
+fn opendrive_merge_scenario_merges_the_ramp_without_collision() {
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/opendrive_merge.toml");
+    let out = std::env::temp_dir().join(format!("smlworld-opendrive-merge-{}", std::process::id()));
+    let (ok, _, err) = smlworld(&["run", scenario.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
+    assert!(inserted >= 40, "{inserted} vehicles");
+    assert_eq!(m["trips"]["arrived"].as_u64(), Some(inserted), "every vehicle arrived: {}", m["trips"]);
+    assert_eq!(m["traffic"]["removed"].as_u64(), Some(inserted), "none left standing: {}", m["traffic"]);
+    // Each ramp vehicle changed lanes (mandatory, not aborted) and its last position is at the
+    // end of road 0 lane 1.
+    let map = load("highway_example_with_merge_and_split.xodr");
+    let goal = map.nodes[&map.tag_index["end:0:0:1"][0]].position;
+    let mut last: BTreeMap<i64, DVec2> = BTreeMap::new();
+    let text = std::fs::read_to_string(out.join("trajectories.csv")).unwrap();
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let id: i64 = f[1].parse().unwrap();
+        last.insert(id, DVec2::new(f[2].parse().unwrap(), f[3].parse().unwrap()));
+    }
+    let ramp: Vec<i64> = last.keys().copied().filter(|&id| id <= -2000).collect();
+    assert!(ramp.len() >= 10, "ramp vehicles: {ramp:?}");
+    let changes = m["lane_changes"].as_array().unwrap();
+    for id in &ramp {
+        let merged =
+            changes.iter().any(|c| c["id"].as_i64() == Some(*id) && c["kind"] == "mandatory" && c["aborted"] == false);
+        assert!(merged, "ramp vehicle {id} made no mandatory change");
+        assert!(last[id].distance(goal) < 10.0, "ramp vehicle {id} ended at {} (goal {goal})", last[id]);
+    }
+    std::fs::remove_dir_all(&out).ok();
 }

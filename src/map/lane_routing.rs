@@ -16,7 +16,7 @@ use super::lanelet::{LaneletId, LaneletMap};
 use super::neighbours::Neighbours;
 use super::path::Path;
 use super::polyline::{polyline_length, project_polyline, resample, sub_polyline};
-use super::routing::Place;
+use super::routing::{Place, RouteOptions};
 
 /// Options of a route search with lane changes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -147,6 +147,46 @@ impl LaneletMap {
         }
         let (nodes, cost) = best.ok_or_else(no_route)?;
         Ok(self.lane_change_path(&nodes, &finals, cost, opts))
+    }
+
+    /// The path of a vehicle that makes its own lane changes (the lane-change plugin's mandatory
+    /// changes) on a trip that needs them: from `from` along its lane to where that lane ends,
+    /// through the lanelets of the route [`LaneletMap::route_with_lane_changes`] finds up to its
+    /// first change, then on through first successors (at most 64 lanelets, as the plugin's own
+    /// lane paths do). A route without a change is that route's path. Errors: no route even with
+    /// lane changes.
+    pub fn route_to_lane_end(&self, from: &Place, to: &Place, opts: &RouteOptions) -> Result<Path, MapError> {
+        let lc_opts = LaneChangeOptions { points_per_meter: opts.points_per_meter, ..LaneChangeOptions::default() };
+        let lc = self.route_with_lane_changes(from, to, &lc_opts)?;
+        let Some(first) = lc.lane_changes.first() else { return Ok(lc.path) };
+        let mut ids: Vec<LaneletId> = Vec::new();
+        for &id in &lc.path.lanelets {
+            ids.push(id);
+            if id == first.from {
+                break;
+            }
+        }
+        let mut points = sub_polyline(&lc.path.points, 0.0, first.at_m);
+        let here = points.last().copied().unwrap_or(lc.path.points[0]);
+        let mut j = self.lanelet_index(first.from).expect("a route's lanelets are the map's");
+        let mut piece = {
+            let c = &self.lanelets[j].centre;
+            sub_polyline(c, project_polyline(c, here).0, self.lanelets[j].length)
+        };
+        for _ in 0..64 {
+            let skip = usize::from(points.last().zip(piece.first()).is_some_and(|(p, q)| p.distance(*q) < 1e-6));
+            points.extend_from_slice(&piece[skip.min(piece.len())..]);
+            let next = self.lanelets[j]
+                .successors
+                .iter()
+                .filter_map(|id| self.lanelet_index(*id))
+                .find(|&k| self.lanelets[k].routable && !ids.contains(&self.lanelets[k].id));
+            let Some(k) = next else { break };
+            ids.push(self.lanelets[k].id);
+            piece = self.lanelets[k].centre.clone();
+            j = k;
+        }
+        Ok(Path::from_points(ids, resample(&points, opts.points_per_meter), false))
     }
 
     /// Geometry of a found node sequence: driven centre-line pieces, blended after each change.

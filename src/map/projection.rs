@@ -37,8 +37,14 @@ impl Projector {
     }
 
     /// lat/lon \[deg\] -> local x (east), y (north) \[m\].
+    ///
+    /// The false northing is the origin's hemisphere's for every point (as Lanelet2's
+    /// `UtmProjector` does), so a map that crosses the equator stays continuous.
     pub fn forward(&self, lat: f64, lon: f64) -> DVec2 {
-        let (northing, easting) = utm_wgs84(lat, lon, self.zone);
+        let (mut northing, easting) = utm_wgs84(lat, lon, self.zone);
+        if (lat > 0.0) != (self.origin_lat > 0.0) {
+            northing += if lat > 0.0 { FALSE_NORTHING_SOUTH } else { -FALSE_NORTHING_SOUTH };
+        }
         DVec2::new(easting - self.origin_easting, northing - self.origin_northing)
     }
 
@@ -49,8 +55,11 @@ impl Projector {
     pub fn reverse(&self, p: DVec2) -> (f64, f64) {
         let easting = p.x + self.origin_easting;
         let northing = p.y + self.origin_northing;
-        let (mut lat, mut lon) = utm::wsg84_utm_to_lat_lon(easting, northing, self.zone, self.band)
-            .unwrap_or((self.origin_lat, self.origin_lon));
+        // The band only tells the crate's inverse which false northing the northing carries:
+        // the origin's hemisphere's, as in `forward` (a band letter before N is southern).
+        let band = if self.origin_lat > 0.0 { 'N' } else { 'M' };
+        let (mut lat, mut lon) =
+            utm::wsg84_utm_to_lat_lon(easting, northing, self.zone, band).unwrap_or((self.origin_lat, self.origin_lon));
         // Newton steps with a finite-difference Jacobian; converges in 2-3 iterations.
         let h = 1e-7;
         for _ in 0..8 {
@@ -70,6 +79,9 @@ impl Projector {
         (lat, lon)
     }
 }
+
+/// The false northing UTM adds south of the equator [m].
+const FALSE_NORTHING_SOUTH: f64 = 10_000_000.0;
 
 /// WGS84 semi-major axis [m] and flattening [-], as the `utm` crate has them.
 const WGS84_A: f64 = 6378137.0;
@@ -111,7 +123,7 @@ fn utm_wgs84(latitude: f64, longitude: f64, zone: u8) -> (f64, f64) {
     let y = 0.9996 * (m + n * latitude.tan() * y3);
 
     // Southern hemisphere coordinates add a false northing.
-    let northing_mod = if latitude > 0.0 { 0.0 } else { 10000000.0 };
+    let northing_mod = if latitude > 0.0 { 0.0 } else { FALSE_NORTHING_SOUTH };
     (y + northing_mod, x + 500000.0)
 }
 
@@ -143,5 +155,23 @@ mod tests {
         }
         assert!(checked > 100_000);
         assert_eq!(utm_wgs84(0.0, 3.0, 31), (10000000.0, 500000.0), "the equator on the meridian, southern rule");
+    }
+
+    /// An origin on the equator (OpenDRIVE files without a geoReference) with nodes on both
+    /// sides: forward is continuous and reverse gives the point back (it diverged south of the
+    /// equator when each point took its own hemisphere's false northing).
+    #[test]
+    fn a_map_across_the_equator_projects_both_ways() {
+        for origin in [(0.0, 0.0), (0.001, 10.0), (-0.001, -70.0)] {
+            let p = Projector::new(origin.0, origin.1);
+            for q in [DVec2::new(120.0, -250.0), DVec2::new(-30.0, 400.0), DVec2::new(5.0, -0.5), DVec2::ZERO] {
+                let (lat, lon) = p.reverse(q);
+                let back = p.forward(lat, lon);
+                assert!(back.distance(q) < 1e-6, "{origin:?}: {q} -> ({lat}, {lon}) -> {back}");
+                assert!((lat - origin.0).abs() < 0.01, "{origin:?}: {q} -> latitude {lat}");
+            }
+            let (a, b) = (p.forward(-1e-9, origin.1), p.forward(1e-9, origin.1));
+            assert!(a.distance(b) < 1e-3, "{origin:?}: {a} and {b} across the equator");
+        }
     }
 }

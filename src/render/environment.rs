@@ -12,6 +12,12 @@
 //! - Lanelet subtypes (Lanelet2 `subtype`, CommonRoad `laneletType`): `crosswalk` striped as a
 //!   zebra crossing; `walkway`/`sidewalk`, `bicycle_lane`/`bicycleLane`, `parking`,
 //!   `bus_lane`/`busLane` tinted; roads and highways plain.
+//! - OpenDRIVE lanes (lanelets tagged `opendrive:type`) tinted by lane type
+//!   ([`lane_type_tint`]): driving lanes plain, sidewalks, shoulders, borders, medians, parking,
+//!   biking, restricted and other lanes each in their own tint; and road marks as the file gives
+//!   them (ways tagged `opendrive:marks`: each piece along the way solid, broken, double or
+//!   bold, in its `color`, see [`mark_color`]), whatever lane changes the `laneChange`
+//!   attribute allows.
 //! - CommonRoad obstacle outlines (closed ways tagged `obstacle`): filled, buildings and other
 //!   environment obstacles in brown-grey, parked vehicles in blue-grey, other static obstacles
 //!   (road boundaries, construction zones) in orange-grey, each with a dark outline.
@@ -134,6 +140,66 @@ pub fn subtype_tint(subtype: &str) -> Option<[u8; 4]> {
     }
 }
 
+/// The tint of an OpenDRIVE lane `type`, drawn over the road pattern; `None` (plain asphalt)
+/// for the lanes cars drive (driving, entry, exit, ramps, bidirectional) and `none`.
+pub fn lane_type_tint(kind: &str) -> Option<[u8; 4]> {
+    match kind {
+        "sidewalk" | "walking" => Some([214, 200, 170, 200]),
+        "shoulder" => Some([150, 130, 95, 150]),
+        "border" => Some([40, 40, 42, 200]),
+        "median" => Some([90, 140, 70, 200]),
+        "curb" => Some([200, 198, 190, 220]),
+        "parking" => Some([70, 110, 200, 110]),
+        "biking" => Some([196, 70, 60, 130]),
+        "restricted" => Some([200, 90, 160, 110]),
+        "bus" | "taxi" | "HOV" => Some([200, 150, 50, 110]),
+        "stop" => Some([200, 60, 60, 90]),
+        "tram" | "rail" => Some([120, 100, 90, 150]),
+        "special1" | "special2" | "special3" => Some([150, 110, 190, 110]),
+        _ => None,
+    }
+}
+
+/// The paint of an OpenDRIVE road mark `color` (`standard` and unknown names: white).
+pub fn mark_color(name: &str) -> [u8; 4] {
+    match name {
+        "yellow" => [236, 190, 40, 255],
+        "blue" => [60, 110, 220, 255],
+        "green" => [60, 170, 80, 255],
+        "red" => [210, 50, 40, 255],
+        "orange" => [240, 140, 30, 255],
+        "black" => [20, 20, 20, 255],
+        "violet" => [140, 80, 190, 255],
+        _ => WHITE,
+    }
+}
+
+/// The lines of a way's `opendrive:marks` pieces (`NODE TYPE SUBTYPE COLOR;...`, written by the
+/// OpenDRIVE reader): each piece's points with its styles and offsets; `None` when the value
+/// does not parse (the way is then drawn from its `type`/`subtype` like any Lanelet2 line).
+fn opendrive_mark_lines(value: &str, points: &[DVec2]) -> Option<Vec<Line>> {
+    let mut pieces: Vec<(usize, &str, Option<&str>, &str)> = Vec::new();
+    for piece in value.split(';') {
+        let f: Vec<&str> = piece.split_whitespace().collect();
+        let [node, kind, sub, color] = f.as_slice() else { return None };
+        let node: usize = node.parse().ok()?;
+        pieces.push((node.min(points.len().saturating_sub(1)), kind, (*sub != "-").then_some(*sub), color));
+    }
+    let mut lines = Vec::new();
+    for (k, &(from, kind, sub, color)) in pieces.iter().enumerate() {
+        let to = pieces.get(k + 1).map_or(points.len() - 1, |p| p.0);
+        if to <= from {
+            continue;
+        }
+        let part = &points[from..=to];
+        for (style, d) in lanelet2_lines(kind, sub) {
+            let style = LineStyle { color: mark_color(color), ..style };
+            lines.push(Line { style, points: offset_polyline(part, d) });
+        }
+    }
+    Some(lines)
+}
+
 /// Fill colour of a CommonRoad obstacle outline (a way's `obstacle` and `obstacle_role` tags).
 pub fn obstacle_color(kind: &str, role: Option<&str>) -> [u8; 4] {
     match (kind, role) {
@@ -217,6 +283,10 @@ impl Environment {
                     l.left.iter().zip(&l.right).map(|(a, b)| a.distance(*b)).sum::<f64>() / l.left.len().max(1) as f64;
                 let style = LineStyle { color: WHITE, width: 0.9 * width, dash: Some(1.0) };
                 lines.push(Line { style, points: l.centre.clone() });
+            } else if let Some(kind) = l.tags.get("opendrive:type") {
+                if let Some(color) = lane_type_tint(kind) {
+                    fills.push(Fill { color, outline: l.polygon() });
+                }
             } else if let Some(color) = subtypes.iter().find_map(|s| subtype_tint(s)) {
                 fills.push(Fill { color, outline: l.polygon() });
             }
@@ -239,6 +309,10 @@ impl Environment {
                 {
                     areas.push(Area { pattern, outline: way.points.clone() });
                 }
+            } else if let Some(marks) =
+                way.tags.get("opendrive:marks").and_then(|v| opendrive_mark_lines(v, &way.points))
+            {
+                lines.extend(marks);
             } else if let Some(kind) = way.tags.get("type") {
                 for (style, d) in lanelet2_lines(kind, way.tags.get("subtype").map(String::as_str)) {
                     lines.push(Line { style, points: offset_polyline(&way.points, d) });

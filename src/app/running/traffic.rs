@@ -319,9 +319,14 @@ pub fn run_traffic(world: &mut World) {
     let mut renewing: Vec<(VehicleId, Entity, usize)> = Vec::new();
     for (entity, id, route, follower, table, changer) in q.iter(world) {
         // A lane that ends holds a vehicle back for its change, except on a random trip, whose
-        // route ends at its destination (it has arrived, with or without a lane beside it).
+        // route ends at its destination (it has arrived, with or without a lane beside it). So
+        // does an aborted change (its route is the old lane's again); a change under way is
+        // already on the new lane's route, which leads to the destination: at its end the
+        // vehicle has arrived (held there, it stood past the end of the road for good:
+        // opendrive_merge.toml, a change started in the last metres of road 0).
         let trip = random.get(table.0).copied().unwrap_or(false);
-        let mandatory = changer.is_some_and(|c| (c.lane_end.is_some() && !trip) || c.active.is_some());
+        let mandatory =
+            changer.is_some_and(|c| (c.lane_end.is_some() && !trip) || c.active.as_ref().is_some_and(|m| m.aborted));
         if !route.0.closed && route.0.length - follower.s < LEAVE_AT && !mandatory {
             if renew.get(table.0).copied().unwrap_or(false) {
                 renewing.push((*id, entity, table.0));

@@ -21,6 +21,12 @@ pub const MAX_STEP: f64 = 10.0;
 /// hold there anyway), and a wild curvature in a file must not ask for unbounded points.
 pub const MIN_STEP: f64 = 0.05;
 
+/// Lane sections shorter than this \[m\] are merged into a neighbouring section
+/// ([`merge_short_sections`]): their lanelets' bounds would be shorter than the 1 cm an OSM
+/// lanelet map accepts (the round trip through `map convert` would lose them), and no car
+/// drives a lane 2 cm long.
+pub const MIN_SECTION: f64 = 0.02;
+
 /// Lane types a car may drive (OpenDRIVE 1.8 §11.7.3's types for motorised traffic).
 pub const DRIVABLE: [&str; 7] = ["driving", "entry", "exit", "onRamp", "offRamp", "connectingRamp", "bidirectional"];
 
@@ -33,6 +39,89 @@ fn subtype(kind: &str) -> Option<&'static str> {
         "bus" => Some("bus_lane"),
         "shoulder" => Some("shoulder"),
         _ => None,
+    }
+}
+
+/// Merges every lane section shorter than [`MIN_SECTION`] into the one before it (the first
+/// section into the one after it) when that one has the same lane ids, carrying the short
+/// section's lane links over: a lane linked into the short section links on to where that
+/// section's lane links. A road of one section keeps it, however short.
+pub(crate) fn merge_short_sections(doc: &mut Document) {
+    // Composes an earlier id map (file id -> id) with a step (id -> new id).
+    fn compose(old: Option<BTreeMap<i32, i32>>, step: BTreeMap<i32, i32>) -> Option<BTreeMap<i32, i32>> {
+        Some(match old {
+            None => step,
+            Some(m) => m.into_iter().filter_map(|(o, g)| step.get(&g).map(|n| (o, *n))).collect(),
+        })
+    }
+    for road in &mut doc.roads {
+        let mut k = 0;
+        while k < road.sections.len() {
+            let short = road.sections[k].end - road.sections[k].s < MIN_SECTION;
+            // Only into a neighbour with the same lanes: where the lanes differ the short section
+            // may move a lane sideways (Town04 road 688: 14 m over 1.7 µm), kept as the file has it.
+            let ids = |x: &LaneSection| x.left.iter().chain(&x.right).map(|l| l.id).collect::<Vec<_>>();
+            let neighbour = if k > 0 { k - 1 } else { k + 1 };
+            let same = road.sections.get(neighbour).is_some_and(|n| ids(n) == ids(&road.sections[k]));
+            if !short || !same {
+                k += 1;
+                continue;
+            }
+            let gone = road.sections.remove(k);
+            let last = k == road.sections.len();
+            if k > 0 {
+                // The section before runs on to the short one's end; its lanes link past it.
+                let prev = &mut road.sections[k - 1];
+                prev.end = gone.end;
+                let mut step = BTreeMap::new();
+                for lane in prev.left.iter_mut().chain(&mut prev.right) {
+                    let via = lane
+                        .successor
+                        .and_then(|id| gone.lane(id))
+                        .or_else(|| gone.left.iter().chain(&gone.right).find(|g| g.predecessor == Some(lane.id)));
+                    if let Some(g) = via {
+                        step.insert(g.id, lane.id);
+                    }
+                    lane.successor = via.and_then(|g| g.successor);
+                }
+                if last {
+                    road.end_lanes = compose(road.end_lanes.take(), step);
+                }
+                if let Some(next) = road.sections.get_mut(k) {
+                    for lane in next.left.iter_mut().chain(&mut next.right) {
+                        if let Some(id) = lane.predecessor {
+                            lane.predecessor = gone.lane(id).and_then(|g| g.predecessor);
+                        }
+                    }
+                }
+            } else {
+                // The first section: the next one starts at the road's start instead.
+                let next = &mut road.sections[0];
+                next.s = gone.s;
+                let mut step = BTreeMap::new();
+                for lane in next.left.iter_mut().chain(&mut next.right) {
+                    let via = lane
+                        .predecessor
+                        .and_then(|id| gone.lane(id))
+                        .or_else(|| gone.left.iter().chain(&gone.right).find(|g| g.successor == Some(lane.id)));
+                    if let Some(g) = via {
+                        step.insert(g.id, lane.id);
+                    }
+                    lane.predecessor = via.and_then(|g| g.predecessor);
+                }
+                road.start_lanes = compose(road.start_lanes.take(), step);
+            }
+        }
+    }
+}
+
+/// The lane id, in the sections built, of lane `id` that the file names at the `end` of `road`
+/// (`None` where a merged-away section's lane leads nowhere).
+fn lane_at(road: &Road, end: End, id: i32) -> Option<i32> {
+    let map = if end == End::Start { &road.start_lanes } else { &road.end_lanes };
+    match map {
+        None => Some(id),
+        Some(m) => m.get(&id).copied(),
     }
 }
 
@@ -144,7 +233,7 @@ pub(crate) fn build(
             let centre_points = samples.border(section, 0);
             let (centre_way, centre_nodes) = new_way(
                 centre_points,
-                mark_tags(section.centre.as_ref().map(|c| c.marks.as_slice()), Side::Centre, section.s),
+                mark_tags(section.centre.as_ref().map(|c| c.marks.as_slice()), Side::Centre, section.s, &samples.s),
                 &mut nodes,
             );
             let mut sn = SectionNodes { left: vec![], right: vec![], centre: centre_nodes };
@@ -153,7 +242,7 @@ pub(crate) fn build(
             for lane in section.left.iter().chain(&section.right) {
                 let side = if lane.id > 0 { Side::Left } else { Side::Right };
                 let pts = samples.border(section, lane.id);
-                let (w, ids) = new_way(pts, mark_tags(Some(&lane.marks), side, section.s), &mut nodes);
+                let (w, ids) = new_way(pts, mark_tags(Some(&lane.marks), side, section.s, &samples.s), &mut nodes);
                 way_ids.insert(lane.id, w);
                 let list = if lane.id > 0 { &mut sn.left } else { &mut sn.right };
                 list.push(ids);
@@ -194,8 +283,12 @@ pub(crate) fn build(
                 let centre: Vec<DVec2> = left.iter().zip(&right).map(|(l, r)| (*l + *r) * 0.5).collect();
                 let id = LaneletId(lanelets.len() as i64 + 1);
                 for (node, key, value) in [
-                    (right_nodes[0], "opendrive:start", super::lane_tag(&road.id, si, lane.id, false)),
-                    (right_nodes[right_nodes.len() - 1], "opendrive:end", super::lane_tag(&road.id, si, lane.id, true)),
+                    (right_nodes[0], "opendrive:start", super::lane_tag(&road.id, section.index, lane.id, false)),
+                    (
+                        right_nodes[right_nodes.len() - 1],
+                        "opendrive:end",
+                        super::lane_tag(&road.id, section.index, lane.id, true),
+                    ),
                 ] {
                     if let Some(n) = nodes.get_mut(&node) {
                         n.tags.insert(key.into(), value.clone());
@@ -205,7 +298,7 @@ pub(crate) fn build(
                 let mut tags = Tags::new();
                 tags.insert("type".into(), "lanelet".into());
                 tags.insert("opendrive:road".into(), road.id.clone());
-                tags.insert("opendrive:section".into(), si.to_string());
+                tags.insert("opendrive:section".into(), section.index.to_string());
                 tags.insert("opendrive:lane".into(), lane.id.to_string());
                 tags.insert("opendrive:type".into(), lane.kind.clone());
                 tags.insert("opendrive:junction".into(), road.junction.clone());
@@ -304,6 +397,7 @@ pub(crate) fn build(
             let osec = if *contact == Contact::Start { 0 } else { other.sections.len() - 1 };
             for lane in road.sections[section].left.iter().chain(&road.sections[section].right) {
                 let Some(to) = pick(lane) else { continue };
+                let Some(to) = lane_at(other, *contact, to) else { continue };
                 match (
                     by_key.get(&LaneKey { road: ri, section, lane: lane.id }),
                     by_key.get(&LaneKey { road: oi, section: osec, lane: to }),
@@ -342,6 +436,10 @@ pub(crate) fn build(
             let isec = if inc_end == End::Start { 0 } else { incoming.sections.len() - 1 };
             let csec = if c.contact == Contact::Start { 0 } else { connecting.sections.len() - 1 };
             for &(from, to) in &c.lane_links {
+                let (Some(from), Some(to)) = (lane_at(incoming, inc_end, from), lane_at(connecting, c.contact, to))
+                else {
+                    continue;
+                };
                 match (
                     by_key.get(&LaneKey { road: ii, section: isec, lane: from }),
                     by_key.get(&LaneKey { road: ci, section: csec, lane: to }),
@@ -411,42 +509,50 @@ enum Side {
     Right,
 }
 
+/// How a road mark is painted on a border way drawn along `s`: the Lanelet2 line `type` and
+/// `subtype` (`dashed`, `solid`, `solid_solid`, `solid_dashed`/`dashed_solid` as read along the
+/// way: the first part on its left), `line_thick` for `weight="bold"`.
+fn paint(mark: &RoadMark, side: Side) -> (&'static str, Option<String>) {
+    let part = |p: &str| match p {
+        "solid" => Some("solid"),
+        "broken" | "botts dots" => Some("dashed"),
+        _ => None,
+    };
+    let line = if mark.weight == "bold" { "line_thick" } else { "line_thin" };
+    let parts: Vec<&str> = mark.kind.split_whitespace().collect();
+    match parts.as_slice() {
+        ["none"] => ("virtual", None),
+        ["curb"] => ("curbstone", None),
+        ["grass"] | ["edge"] => ("road_border", None),
+        [one] => (line, part(one).map(str::to_string)),
+        [first, second] => {
+            // (way's left part, way's right part), the way drawn along s (+t on its left).
+            let (l, r) = if side == Side::Left { (second, first) } else { (first, second) };
+            match (part(l), part(r)) {
+                (Some("solid"), Some("solid")) => (line, Some("solid_solid".into())),
+                (Some("dashed"), Some("dashed")) => (line, Some("dashed".into())),
+                (Some(a), Some(b)) => (line, Some(format!("{a}_{b}"))),
+                _ => (line, None),
+            }
+        }
+        _ => (line, None),
+    }
+}
+
 /// Tags of a border way (drawn along `s`) from the road mark in force at the section's start:
-/// Lanelet2 `type`/`subtype` so the renderer and the neighbour rules read it like any Lanelet2
-/// line (`dashed` allows a change both ways, `solid` none, `solid_dashed`/`dashed_solid` one
-/// way as read along the way), with a `laneChange` attribute deciding the `subtype` where given;
-/// the file's own values stay in `opendrive:road_mark`, `opendrive:color` and
-/// `opendrive:lane_change`.
-fn mark_tags(marks: Option<&[RoadMark]>, side: Side, s: f64) -> Tags {
+/// Lanelet2 `type`/`subtype` so the neighbour rules read it like any Lanelet2 line (`dashed`
+/// allows a change both ways, `solid` none, `solid_dashed`/`dashed_solid` one way as read along
+/// the way), with a `laneChange` attribute deciding the `subtype` where given; the file's own
+/// values stay in `opendrive:road_mark`, `opendrive:color` and `opendrive:lane_change`, and
+/// `opendrive:marks` lists every mark painted along the way ([`mark_pieces`]) for the renderer.
+fn mark_tags(marks: Option<&[RoadMark]>, side: Side, s: f64, s_values: &[f64]) -> Tags {
     let mut tags = Tags::new();
     let Some(mark) = marks.and_then(|m| m.iter().rev().find(|m| m.s <= s + 1e-9).or(m.first())) else {
         return tags;
     };
     tags.insert("opendrive:road_mark".into(), mark.kind.clone());
     tags.insert("opendrive:color".into(), mark.color.clone());
-    let paint = |p: &str| match p {
-        "solid" => Some("solid"),
-        "broken" | "botts dots" => Some("dashed"),
-        _ => None,
-    };
-    let parts: Vec<&str> = mark.kind.split_whitespace().collect();
-    let (kind, mut sub): (&str, Option<String>) = match parts.as_slice() {
-        ["none"] => ("virtual", None),
-        ["curb"] => ("curbstone", None),
-        ["grass"] | ["edge"] => ("road_border", None),
-        [one] => ("line_thin", paint(one).map(str::to_string)),
-        [first, second] => {
-            // (way's left part, way's right part), the way drawn along s (+t on its left).
-            let (l, r) = if side == Side::Left { (second, first) } else { (first, second) };
-            match (paint(l), paint(r)) {
-                (Some("solid"), Some("solid")) => ("line_thin", Some("solid_solid".into())),
-                (Some("dashed"), Some("dashed")) => ("line_thin", Some("dashed".into())),
-                (Some(a), Some(b)) => ("line_thin", Some(format!("{a}_{b}"))),
-                _ => ("line_thin", None),
-            }
-        }
-        _ => ("line_thin", None),
-    };
+    let (kind, mut sub) = paint(mark, side);
     if let Some(change) = &mark.lane_change {
         tags.insert("opendrive:lane_change".into(), change.clone());
         // Lane ids rise to the left of the way: `increase` crosses from its right to its left.
@@ -465,7 +571,33 @@ fn mark_tags(marks: Option<&[RoadMark]>, side: Side, s: f64) -> Tags {
     if let Some(s) = sub {
         tags.insert("subtype".into(), s);
     }
+    if let Some(pieces) = marks.map(|m| mark_pieces(m, side, s_values)).filter(|p| !p.is_empty()) {
+        tags.insert("opendrive:marks".into(), pieces);
+    }
     tags
+}
+
+/// The road marks painted along a border way whose nodes lie at `s_values`: `;`-separated
+/// pieces `NODE TYPE SUBTYPE COLOR`, each from node index NODE (0-based along the way) to the
+/// next piece's, TYPE and SUBTYPE as [`paint`] gives them (`-`: none) and COLOR the file's
+/// `color` (`standard` is white). Marks start at samples (they are breaks of the sampling).
+fn mark_pieces(marks: &[RoadMark], side: Side, s_values: &[f64]) -> String {
+    let (Some(&first), Some(&last)) = (s_values.first(), s_values.last()) else { return String::new() };
+    let mut pieces: Vec<(usize, String)> = Vec::new();
+    for (k, m) in marks.iter().enumerate() {
+        let next = marks.get(k + 1).map_or(f64::INFINITY, |n| n.s);
+        if next <= first + 1e-6 || m.s >= last - 1e-6 {
+            continue;
+        }
+        let node = s_values.iter().position(|&v| v >= m.s - 1e-6).unwrap_or(0);
+        let (kind, sub) = paint(m, side);
+        let piece = format!("{node} {kind} {} {}", sub.as_deref().unwrap_or("-"), m.color.replace(' ', "_"));
+        if pieces.last().is_some_and(|(n, _)| *n == node) {
+            pieces.pop();
+        }
+        pieces.push((node, piece));
+    }
+    pieces.into_iter().map(|(_, p)| p).collect::<Vec<_>>().join(";")
 }
 
 /// The sampled reference line of a section: `s` values with position, heading and lane offset.
@@ -523,6 +655,10 @@ fn sample_section(road: &Road, section: &LaneSection) -> Samples {
     breaks.extend(road.lane_offsets.iter().map(|p| p.s).filter(|&s| inside(s)));
     for lane in section.left.iter().chain(&section.right) {
         breaks.extend(lane.widths.iter().chain(&lane.borders).map(|p| p.s).filter(|&s| inside(s)));
+        breaks.extend(lane.marks.iter().map(|m| m.s).filter(|&s| inside(s)));
+    }
+    if let Some(c) = &section.centre {
+        breaks.extend(c.marks.iter().map(|m| m.s).filter(|&s| inside(s)));
     }
     breaks.sort_by(f64::total_cmp);
     breaks.dedup_by(|x, y| (*x - *y).abs() < 1e-6);

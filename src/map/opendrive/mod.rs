@@ -12,6 +12,9 @@
 //!   `entry`, `exit`, `onRamp`, `offRamp`, `connectingRamp` and `bidirectional` are routable, the
 //!   others (sidewalk, shoulder, border, parking, median ...) are kept and drawn but never
 //!   routed through;
+//! - lane sections shorter than [`MIN_SECTION`] (CARLA's files have hundreds, down to 0.1 µm)
+//!   are merged into the section before them (the first one into the one after it), their lane
+//!   links carried over, so no lanelet has a bound of next to no length;
 //! - lanelet successors from lane `predecessor`/`successor` links between lane sections, road
 //!   links with `contactPoint`, and junction `connection`/`laneLink`s (never from geometry);
 //! - neighbours: adjacent lanes share one border way (same node ids), so the map's
@@ -48,7 +51,7 @@ pub(crate) mod xml;
 
 use std::path::Path as FsPath;
 
-pub use build::{CHORD_ERROR, DRIVABLE, MAX_STEP, MIN_STEP};
+pub use build::{CHORD_ERROR, DRIVABLE, MAX_STEP, MIN_SECTION, MIN_STEP};
 
 use super::error::MapError;
 use super::lanelet::LaneletMap;
@@ -71,7 +74,8 @@ pub fn is_opendrive(text: &str) -> bool {
 pub fn parse_str(text: &str, source: &FsPath) -> Result<LaneletMap, MapError> {
     let root = xml::parse_tree(text, source)?;
     let mut reader = road::Reader::new(source);
-    let doc = reader.document(&root)?;
+    let mut doc = reader.document(&root)?;
+    build::merge_short_sections(&mut doc);
     build::build(&doc, &root, source, reader.warnings())
 }
 

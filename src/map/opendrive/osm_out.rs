@@ -69,6 +69,23 @@ pub fn write_osm<W: Write>(map: &LaneletMap, out: W) -> io::Result<ConvertStats>
                 _ => false,
             };
             if !(close(lr, nr) && close(ll, nl)) {
+                let gap = |a: i64, b: i64| pos(a).zip(pos(b)).map_or(f64::NAN, |(p, q)| p.distance(q));
+                let place = |l: &crate::map::Lanelet| {
+                    let t = |k: &str| l.tags.get(k).map_or("?", String::as_str);
+                    format!(
+                        "road {} section {} lane {}",
+                        t("opendrive:road"),
+                        t("opendrive:section"),
+                        t("opendrive:lane")
+                    )
+                };
+                tracing::debug!(
+                    "not joined: {} -> {}: right bounds {:.3} m, left bounds {:.3} m apart",
+                    place(l),
+                    place(n),
+                    gap(lr, nr),
+                    gap(ll, nl)
+                );
                 stats.unmerged_links += 1;
                 continue;
             }

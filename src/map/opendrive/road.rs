@@ -59,6 +59,8 @@ pub struct RoadMark {
     pub color: String,
     /// `laneChange`: `increase`, `decrease`, `both`, `none`, if given.
     pub lane_change: Option<String>,
+    /// `weight`: `standard` or `bold`.
+    pub weight: String,
 }
 
 /// One lane of a lane section.
@@ -101,6 +103,9 @@ pub struct LaneSection {
     pub centre: Option<Lane>,
     /// Line of the `<laneSection>` element.
     pub line: usize,
+    /// Its index among the road's lane sections in the file (0-based, in order of `s`): what
+    /// the `opendrive:section` tag and `ROAD:SECTION:LANE` name.
+    pub index: usize,
 }
 
 impl LaneSection {
@@ -162,6 +167,12 @@ pub struct Road {
     pub sections: Vec<LaneSection>,
     /// Road `<type>` speed records: (start \[m\], limit [m/s]).
     pub speeds: Vec<(f64, f64)>,
+    /// Where a lane section at the road's start (`start_lanes`) or end (`end_lanes`) was merged
+    /// away (shorter than 2 cm): the file's lane ids there -> the lane ids of the section that
+    /// took its place, for links from other roads and junctions. `None`: no merge, ids as is.
+    pub start_lanes: Option<std::collections::BTreeMap<i32, i32>>,
+    /// See `start_lanes`.
+    pub end_lanes: Option<std::collections::BTreeMap<i32, i32>>,
     /// Line of the `<road>` element.
     pub line: usize,
 }
@@ -392,6 +403,7 @@ impl<'a> Reader<'a> {
         }
         sections.sort_by(|a, b| a.s.total_cmp(&b.s));
         for k in 0..sections.len() {
+            sections[k].index = k;
             sections[k].end = if k + 1 < sections.len() { sections[k + 1].s } else { length };
             if sections[k].end < sections[k].s {
                 return Err(MapError::OpenDrive {
@@ -414,6 +426,8 @@ impl<'a> Reader<'a> {
             lane_offsets,
             sections,
             speeds,
+            start_lanes: None,
+            end_lanes: None,
             line: el.line,
         })
     }
@@ -500,7 +514,8 @@ impl<'a> Reader<'a> {
     fn section(&mut self, el: &Element, what: &str) -> Result<LaneSection, MapError> {
         let s = self.number_or(el, "s", 0.0, what)?;
         self.others(el, &["left", "center", "right"]);
-        let mut section = LaneSection { s, end: s, left: Vec::new(), right: Vec::new(), centre: None, line: el.line };
+        let mut section =
+            LaneSection { s, end: s, left: Vec::new(), right: Vec::new(), centre: None, line: el.line, index: 0 };
         for side in ["left", "center", "right"] {
             let Some(side_el) = el.child(side) else { continue };
             self.others(side_el, &["lane"]);
@@ -578,6 +593,7 @@ impl<'a> Reader<'a> {
                 kind: m.attr("type").unwrap_or("none").trim().to_string(),
                 color: m.attr("color").unwrap_or("standard").trim().to_string(),
                 lane_change: m.attr("laneChange").map(|v| v.trim().to_string()),
+                weight: m.attr("weight").unwrap_or("standard").trim().to_string(),
             });
         }
         lane.marks.sort_by(|a, b| a.s.total_cmp(&b.s));

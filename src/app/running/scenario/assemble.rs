@@ -17,7 +17,7 @@ use crate::app::running::metrics::MetricsPlugin;
 use crate::app::running::random_trips::RandomTrips;
 use crate::app::running::traffic::{Traffic, TrafficLane, TrafficPlugin, TrafficSource, place, place_random};
 use crate::app::running::trips::{Trip, TripsPlugin};
-use crate::map::{LaneletId, Path, RouteOptions};
+use crate::map::{LaneletId, MapError, Path, RouteOptions};
 use crate::sim::{
     Control, Dynamics, Network, Sensors, SimBuilder, SimSeed, V2vConfig, V2vPlugin, Wifi, default_plugins,
 };
@@ -129,7 +129,10 @@ impl Scenario {
         for (i, v) in self.file.vehicles.iter().enumerate() {
             let key = |k: &str| format!("vehicles[{i}] (id {}).{k}", v.id);
             let route = match &v.route {
-                Some(r) => Some(self.route(r, &mut routes, &key)?),
+                Some(r) => {
+                    let changes = v.lane_change.0.is_some() || is_gcdc(v);
+                    Some(self.route(r, changes, &mut routes, &key)?)
+                }
                 None => None,
             };
             self.spawn(b, v, route, &key)?;
@@ -179,15 +182,19 @@ impl Scenario {
         Ok(rsus)
     }
 
-    /// The path of route `r`, computed once per distinct route and shared.
+    /// The path of route `r`, computed once per distinct route and shared. A vehicle that
+    /// changes lanes (`lane_changes`) on a `from`/`to` route that no lane joins drives its start
+    /// lane to where it ends, and its lane-change plugin makes the changes (mandatory ones, as at
+    /// a lane drop) where a route with lane changes exists ([`crate::map::LaneletMap::route_to_lane_end`]).
     fn route(
         &self,
         r: &RouteConfig,
+        lane_changes: bool,
         routes: &mut BTreeMap<String, Arc<Path>>,
         key: &dyn Fn(&str) -> String,
     ) -> Result<Arc<Path>, ScenarioError> {
         let map = self.map.as_ref().ok_or_else(|| self.invalid(key("route"), "needs a `map` in the scenario"))?;
-        let name = format!("{r:?}");
+        let name = format!("{r:?} {lane_changes}");
         if let Some(p) = routes.get(&name) {
             return Ok(Arc::clone(p));
         }
@@ -195,9 +202,12 @@ impl Scenario {
         let route_err = |e| ScenarioError::Route { path: self.path.clone(), key: key("route"), source: Box::new(e) };
         let p = Arc::new(match (&r.closed_loop, &r.from, &r.to) {
             (Some(n), _, _) => map.closed_loop_at(&n.place(), &opts).map_err(route_err)?,
-            (None, Some(a), Some(b)) if r.via.is_empty() => {
-                map.route_places(&a.place(), &b.end_place(), &opts).map_err(route_err)?
-            }
+            (None, Some(a), Some(b)) if r.via.is_empty() => match map.route_places(&a.place(), &b.end_place(), &opts) {
+                Err(MapError::NoRoute { .. }) if lane_changes => {
+                    map.route_to_lane_end(&a.place(), &b.end_place(), &opts).map_err(route_err)?
+                }
+                found => found.map_err(route_err)?,
+            },
             (None, Some(a), Some(b)) => {
                 let stops: Vec<&NodeRef> = std::iter::once(a).chain(&r.via).chain(std::iter::once(b)).collect();
                 let mut legs = Vec::with_capacity(stops.len() - 1);
@@ -470,7 +480,8 @@ impl Scenario {
         lanes_out: &mut Vec<TrafficLane>,
         key: &dyn Fn(&str) -> String,
     ) -> Result<RouteGoal, ScenarioError> {
-        let route = self.route(r, routes, key)?;
+        let changes = t.lane_change.0.is_some();
+        let route = self.route(r, changes, routes, key)?;
         let goal = match (&r.closed_loop, &r.to) {
             (None, Some(to)) => RouteGoal::To(to.end_place()),
             _ => RouteGoal::Loop,
@@ -509,7 +520,7 @@ impl Scenario {
                             via: r.via.clone(),
                         },
                     };
-                    let path = self.route(&lane_route, routes, &|_| key("lanes"))?;
+                    let path = self.route(&lane_route, changes, routes, &|_| key("lanes"))?;
                     let Some((i, s)) = locate(&path) else {
                         return Err(self.invalid(key("lanes"), "a lane starts off every lanelet of the map"));
                     };
