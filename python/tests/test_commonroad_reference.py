@@ -9,11 +9,11 @@ Optional locally (skipped without commonroad-io); needs the release binary
 """
 
 import json
-import os
 import pathlib
 import subprocess
 
 import pytest
+from conftest import smlworld_bin
 
 commonroad_reader = pytest.importorskip("commonroad.common.file_reader")
 
@@ -29,15 +29,6 @@ UNREADABLE = {
 }
 FILES = [f for f in ALL_FILES if f.name not in UNREADABLE]
 STEPS = [0, 1, 7, 20, 40]
-
-
-def smlworld_bin():
-    path = pathlib.Path(os.environ.get("SMLWORLD_BIN", ROOT / "target" / "release" / "smlworld"))
-    if not path.is_absolute():
-        path = ROOT / path
-    if not path.exists():
-        pytest.skip(f"{path} does not exist: run `cargo build --release` first")
-    return path
 
 
 def ours(path):

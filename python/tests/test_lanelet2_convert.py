@@ -11,7 +11,6 @@ goes wrong fails the test.
 """
 
 import json
-import os
 import pathlib
 import subprocess
 import xml.etree.ElementTree as ET
@@ -21,21 +20,13 @@ import pytest
 lanelet2 = pytest.importorskip("lanelet2")
 from lanelet2.io import Origin  # noqa: E402
 from lanelet2.projection import UtmProjector  # noqa: E402
+from conftest import smlworld_bin
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data" / "opendrive"
 FILES = sorted(DATA.glob("*.xodr"))
 EXTRA_OURS = {"Town04": 4}
 SKIPPED_BY_OURS = {"Town04": 22}
-
-
-def smlworld_bin():
-    path = pathlib.Path(os.environ.get("SMLWORLD_BIN", ROOT / "target" / "release" / "smlworld"))
-    if not path.is_absolute():
-        path = ROOT / path
-    if not path.exists():
-        pytest.skip(f"{path} does not exist: run `cargo build --release` first")
-    return path
 
 
 def info(path):
