@@ -22,7 +22,7 @@ pub const MAX_STEP: f64 = 10.0;
 pub const MIN_STEP: f64 = 0.05;
 
 /// Lane sections shorter than this \[m\] are merged into a neighbouring section
-/// ([`merge_short_sections`]): their lanelets' bounds would be shorter than the 1 cm an OSM
+/// (`merge_short_sections`): their lanelets' bounds would be shorter than the 1 cm an OSM
 /// lanelet map accepts (the round trip through `map convert` would lose them), and no car
 /// drives a lane 2 cm long.
 pub const MIN_SECTION: f64 = 0.02;
