@@ -144,6 +144,16 @@ fn the_scenario_reference_names_every_key_the_parser_accepts() {
     assert!(missing.is_empty(), "docs/scenarios.md lacks:\n{}", missing.join("\n"));
 }
 
+/// The `keys` that the row of `reference` labelled `` `label` `` does not name, each as
+/// "label: `key`"; a reference without that row fails.
+fn row_lacks(reference: &str, label: &str, keys: &[String]) -> Vec<String> {
+    let row = reference
+        .lines()
+        .find(|l| l.starts_with(&format!("| `{label}` |")))
+        .unwrap_or_else(|| panic!("docs/scenarios.md has no row for `{label}`"));
+    keys.iter().filter(|k| !row.contains(&format!("`{k}`"))).map(|k| format!("{label}: `{k}`")).collect()
+}
+
 /// The controllers table of docs/scenarios.md names, in each type's row, every key the parser
 /// accepts for that type (read from its error for an unknown key, as above).
 #[test]
@@ -151,14 +161,10 @@ fn the_scenario_reference_names_every_controller_key() {
     let reference = std::fs::read_to_string(Path::new(ROOT).join("docs/scenarios.md")).unwrap();
     let mut missing = Vec::new();
     for kind in ["cruise_control", "acc", "platoon", "idm", "gcdc"] {
-        let row = reference
-            .lines()
-            .find(|l| l.starts_with(&format!("| `{kind}` |")))
-            .unwrap_or_else(|| panic!("docs/scenarios.md has no controllers row for `{kind}`"));
         let set = format!("vehicles.0.controller={{ type = \"{kind}\", no_such_key = 1 }}");
         let keys = keys_refused_with("highway.toml", &set);
         assert!(keys.len() >= 3, "{kind}: {keys:?}");
-        missing.extend(keys.iter().filter(|k| !row.contains(&format!("`{k}`"))).map(|k| format!("{kind}: `{k}`")));
+        missing.extend(row_lacks(&reference, kind, &keys));
     }
     assert!(missing.is_empty(), "docs/scenarios.md's controllers table lacks:\n{}", missing.join("\n"));
 }
@@ -206,13 +212,9 @@ fn the_scenario_reference_names_every_key_of_the_tables_inside_tables() {
     ];
     let mut missing = Vec::new();
     for (table, set) in probes {
-        let row = reference
-            .lines()
-            .find(|l| l.starts_with(&format!("| `{table}` |")))
-            .unwrap_or_else(|| panic!("docs/scenarios.md has no row for `{table}`"));
         let keys = keys_refused_with("highway.toml", &set);
         assert!(!keys.is_empty(), "{table}: no keys listed");
-        missing.extend(keys.iter().filter(|k| !row.contains(&format!("`{k}`"))).map(|k| format!("{table}: `{k}`")));
+        missing.extend(row_lacks(reference, table, &keys));
     }
     assert!(missing.is_empty(), "docs/scenarios.md's tables inside tables lack:\n{}", missing.join("\n"));
 }
