@@ -18,7 +18,7 @@ mod vehicle;
 pub(crate) use mailbox::BatchRef;
 pub use mailbox::{Channel, Inbox, InboxIter, Mailbox, Message, Payload};
 pub use models::{AccelerationUnicycle, KinematicUnicycle, VehicleModel};
-pub use registry::{SensorSet, VehicleSpec, Vehicles, WorldError, despawn_vehicle, spawn_vehicle};
+pub use registry::{IdHasher, IdMap, SensorSet, VehicleSpec, Vehicles, WorldError, despawn_vehicle, spawn_vehicle};
 pub use sensors::{Detection, Omniscient, Radar, SensorError, SensorErrors, SensorReadings, Velodyne};
 pub use time::SimTime;
 pub use vehicle::{

@@ -26,12 +26,41 @@ pub enum WorldError {
 #[derive(Resource, Debug, Clone, Default)]
 pub struct Vehicles {
     by_id: BTreeMap<VehicleId, Entity>,
+    /// The same pairs in a hash table for [`Vehicles::get`]: leader, foe and sender lookups ask
+    /// it for every vehicle every tick, and a B-tree of 10,000 ids was four or five dependent
+    /// cache misses a lookup (issue 53 item 8: the town bench).
+    lookup: IdMap<Entity>,
+}
+
+/// A hash map keyed by [`VehicleId`] with [`IdHasher`]: a multiplication instead of SipHash
+/// (ids are small integers we chose, not attacker input).
+pub type IdMap<V> = std::collections::HashMap<VehicleId, V, std::hash::BuildHasherDefault<IdHasher>>;
+
+/// Fibonacci hashing of a vehicle id (Knuth, TAOCP vol. 3, 6.4): one multiplication by 2⁶⁴/φ;
+/// the high bits hashbrown reads for its control bytes are well mixed.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct IdHasher(u64);
+
+impl std::hash::Hasher for IdHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ u64::from(b)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+    }
+
+    fn write_i32(&mut self, i: i32) {
+        self.0 = (self.0 ^ u64::from(i as u32)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    }
 }
 
 impl Vehicles {
     /// The entity of vehicle `id`.
     pub fn get(&self, id: VehicleId) -> Option<Entity> {
-        self.by_id.get(&id).copied()
+        self.lookup.get(&id).copied()
     }
 
     /// All (id, entity) pairs in id order.
@@ -150,14 +179,21 @@ pub fn spawn_vehicle(world: &mut World, spec: VehicleSpec) -> Result<Entity, Wor
         e.insert(Route(path));
     }
     let entity = e.id();
-    world.resource_mut::<Vehicles>().by_id.insert(spec.id, entity);
+    let mut registry = world.resource_mut::<Vehicles>();
+    registry.by_id.insert(spec.id, entity);
+    registry.lookup.insert(spec.id, entity);
     Ok(entity)
 }
 
 /// Despawn vehicle `id` and unregister it.
 pub fn despawn_vehicle(world: &mut World, id: VehicleId) -> Result<(), WorldError> {
-    let entity =
-        world.get_resource_mut::<Vehicles>().and_then(|mut v| v.by_id.remove(&id)).ok_or(WorldError::UnknownId(id))?;
+    let entity = world
+        .get_resource_mut::<Vehicles>()
+        .and_then(|mut v| {
+            v.lookup.remove(&id);
+            v.by_id.remove(&id)
+        })
+        .ok_or(WorldError::UnknownId(id))?;
     world.despawn(entity);
     Ok(())
 }
