@@ -41,7 +41,8 @@ pub use schedule::{
     Wifi, WifiRate,
 };
 pub use sensors::plugins::{
-    Nearby, Neighbour, Occlusion, PluginDraws, PluginSensorStats, PluginSensorSystems, ScenarioSensor, Sensor,
+    Nearby, Neighbour, Occlusion, PluginDraws, PluginScratch, PluginSense, PluginSensorStats, PluginSensorSystems,
+    ScenarioSensor, Sensing, Sensor,
 };
 pub use sensors::{SensorStats, SensorsPlugin, in_radar_cone};
 pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vLinks, V2vPlugin, V2vStats};
