@@ -9,8 +9,7 @@
 //! (default `scenarios/student_sensor.toml`, `out/student_sensor`).
 
 use smlworld::prelude::*;
-use smlworld::sim::{Nearby, Neighbour, Occlusion, PluginDraws, PluginSensorStats, PluginSensorSystems};
-use smlworld::sim::{ScenarioSensor, Sensor, in_radar_cone};
+use smlworld::sim::{PluginSense, PluginSensorSystems, ScenarioSensor, Sensor, in_radar_cone};
 use smlworld::world::SensorError;
 
 /// The camera's parameters, read from its table in the vehicle's `sensors`.
@@ -55,29 +54,26 @@ impl ScenarioSensor for Camera {
     }
 }
 
-/// Every sensor tick: the neighbours within range (O(k) from the shared grid), nearest first,
-/// kept when inside the field of view and not hidden, then dropout and noise.
-#[allow(clippy::type_complexity)]
+/// Every sensor tick, for each camera (on the simulator's threads): the neighbours within range
+/// (O(k) from the shared grid), nearest first, kept when inside the field of view and not
+/// hidden, then dropout and noise.
 pub fn sense_cameras(
-    nearby: Nearby,
-    (clock, seed): (Res<SimClock>, Res<SimSeed>),
-    mut stats: ResMut<PluginSensorStats>,
+    mut sense: PluginSense,
     mut cameras: Query<(&VehicleId, &VehicleState, &Sensor<Camera>, &mut SensorReadings)>,
-    mut found: Local<Vec<Neighbour>>,
-    mut occlusion: Local<Occlusion>,
 ) {
-    for (&me, state, camera, mut readings) in &mut cameras {
+    sense.each(cameras.iter_mut(), |(&me, state, camera, mut readings), cx| {
         let (from, heading) = (state.position, DVec2::from_angle(state.yaw));
-        let draws = PluginDraws::new(seed.0, camera.name, clock.now);
+        let draws = cx.draws(camera.name);
         let error = SensorError { range_sd: camera.range_sd, dropout: camera.dropout, ..Default::default() };
-        let counts = stats.of(camera.name);
-        nearby.within(from, camera.range, &mut found);
-        occlusion.clear();
-        let seen = found
+        let counts = cx.stats.of(camera.name);
+        cx.nearby.within(from, camera.range, cx.found);
+        cx.occlusion.clear();
+        let seen = cx
+            .found
             .iter()
             .filter(|n| n.id != me && in_radar_cone(n.position - from, heading, camera.fov_deg.to_radians()));
         let kept = seen.filter_map(|n| {
-            if occlusion.hidden(from, n) && camera.occlusion {
+            if cx.occlusion.hidden(from, n) && camera.occlusion {
                 counts.missed_by_occlusion += 1;
                 return None;
             }
@@ -90,7 +86,7 @@ pub fn sense_cameras(
             Some(detection)
         });
         readings.set_sensor(camera.name, kept);
-    }
+    });
 }
 
 /// The plugin: registers the sensor's name and adds its system.

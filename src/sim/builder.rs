@@ -24,10 +24,10 @@ use bevy_ecs::prelude::{Entity, EntityWorldMut, Resource, World};
 use bevy_ecs::schedule::{InternedSystemSet, IntoScheduleConfigs, ScheduleLabel};
 use bevy_ecs::system::ScheduleSystem;
 
-use super::channel_models::ChannelLossModel;
 use super::controllers::{ControllerRegistry, ScenarioController};
 use super::schedule::DuplicateModule;
 use super::sensor_plugins::{NearbyIndex, PluginSensorStats, PluginSensorSystems, ScenarioSensor, index_nearby};
+use super::v2v::channel::ChannelLossModel;
 use super::{
     Control, ControlEpoch, Dynamics, DynamicsPlugin, Network, Phase, Rates, Scheduler, Sensors, SensorsPlugin,
     SimClock, SimSystems, V2vPlugin, Wifi, WifiRate,

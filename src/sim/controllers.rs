@@ -27,9 +27,9 @@ use std::collections::BTreeMap;
 use bevy_ecs::prelude::EntityWorldMut;
 use serde::de::DeserializeOwned;
 
-use super::channel_models::ChannelModelRegistry;
 use super::params::parse_plugin_params;
 use super::sensor_plugins::SensorRegistry;
+use super::v2v::channel::plugins::ChannelModelRegistry;
 
 /// Names of the controllers the scenario format has built in; a plugin cannot register them.
 pub const BUILT_IN_CONTROLLERS: [&str; 6] = ["path_following", "cruise_control", "acc", "platoon", "idm", "gcdc"];

@@ -12,8 +12,10 @@
 //! student's) imports them downward.
 
 mod builder;
-pub mod channel;
-pub mod channel_models;
+/// The channel models, where students found them before they moved into [`v2v`].
+pub use v2v::channel;
+/// The plugin API of channel models, where students found it before it moved into [`v2v`].
+pub use v2v::channel::plugins as channel_models;
 pub mod controllers;
 pub mod dynamics;
 pub mod grid;
@@ -30,7 +32,6 @@ pub mod trig;
 pub mod v2v;
 
 pub use builder::{Plugin, Sim, SimBuilder, SimSeed, default_plugins};
-pub use channel_models::{ChannelLossModel, ChannelModelRegistry, LinkContext};
 pub use controllers::{AttachController, BUILT_IN_CONTROLLERS, ControllerRegistry, ScenarioController};
 pub use dynamics::{DynamicsPlugin, step_acceleration_unicycle, step_kinematic_unicycle};
 pub use grid::{Candidates, GridEntry, GridPoint, SpatialGrid};
@@ -41,7 +42,9 @@ pub use schedule::{
     Wifi, WifiRate,
 };
 pub use sensors::plugins::{
-    Nearby, Neighbour, Occlusion, PluginDraws, PluginSensorStats, PluginSensorSystems, ScenarioSensor, Sensor,
+    Nearby, Neighbour, Occlusion, PluginDraws, PluginScratch, PluginSense, PluginSensorStats, PluginSensorSystems,
+    ScenarioSensor, Sensing, Sensor,
 };
 pub use sensors::{SensorStats, SensorsPlugin, in_radar_cone};
+pub use v2v::channel::plugins::{ChannelLossModel, ChannelModelRegistry, LinkContext};
 pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vLinks, V2vPlugin, V2vStats};

@@ -37,7 +37,7 @@ use bevy_ecs::prelude::{Component, Local, Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
-use crate::sim::channel::{Draw, LinkState};
+use crate::sim::v2v::channel::{Draw, LinkState};
 use crate::sim::{Control, ControlEpoch, Plugin, SimBuilder, SimClock, SimSeed, SimSystems, V2vConfig, V2vStats, Wifi};
 use crate::world::{BatchRef, Channel, Mailbox, Message, Payload, Route, VehicleId, VehicleSize, VehicleState};
 

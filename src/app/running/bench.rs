@@ -13,8 +13,8 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 
 use crate::map::generate::{GenerateError, RingParams, ring_highway, ring_lane_tag};
 use crate::map::{LaneletMap, MapError, Path, RouteOptions};
-use crate::sim::channel::{ChannelModel, Loss};
 use crate::sim::sensor_plugins::attach_sensor;
+use crate::sim::v2v::channel::{ChannelModel, Loss};
 use crate::sim::{
     ChannelStats, Control, Dynamics, Parallelism, Rates, SensorStats, SimClock, SimSeed, SimSystems, V2vChannelStats,
     V2vConfig,

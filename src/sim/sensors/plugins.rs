@@ -8,7 +8,9 @@
 //! sensors' neighbour lists serve only vehicles of one table, so a camera on a tenth of the
 //! vehicles would slow every vehicle's radar. Its system runs in [`PluginSensorSystems::Sense`]
 //! (after the built-in sensors wrote their readings) and writes its detections, named, into
-//! the vehicle's [`SensorReadings`] ([`SensorReadings::set_sensor`]).
+//! the vehicle's [`SensorReadings`] ([`SensorReadings::set_sensor`]). [`PluginSense::each`]
+//! runs it over the simulator's threads ([`Parallelism`]), as the built-in sensors run, with
+//! the same readings for any thread count.
 //!
 //! ```
 //! use smlworld::prelude::*;
@@ -33,7 +35,7 @@
 
 use std::collections::BTreeMap;
 
-use bevy_ecs::prelude::{Component, Entity, EntityWorldMut, Query, Res, ResMut, Resource, With};
+use bevy_ecs::prelude::{Component, Entity, EntityWorldMut, Local, Query, Res, ResMut, Resource, With};
 use bevy_ecs::schedule::SystemSet;
 use bevy_ecs::system::SystemParam;
 use glam::DVec2;
@@ -44,6 +46,7 @@ use super::readings::SensorStats;
 use crate::sim::grid::{GridEntry, SpatialGrid};
 use crate::sim::params::{ControllerParamError, parse_plugin_params};
 use crate::sim::random::{key, mix};
+use crate::sim::{Parallelism, SimClock, SimSeed};
 use crate::world::{Detection, SensorError, SensorReadings, SimTime, VehicleId, VehicleSize, VehicleState};
 
 /// A sensor a scenario can name: the keys of its table in a vehicle's `sensors` are
@@ -260,11 +263,87 @@ impl Nearby<'_> {
     }
 }
 
+/// What a plugin sensor system reads each sensor tick ([`Nearby`], the time, the seed) and
+/// the threads it runs on: [`PluginSense::each`] calls the sensor's code for every vehicle
+/// that carries it, the vehicles cut into chunks shared out over [`Parallelism`] as the
+/// built-in sensors' are. Each vehicle's readings depend only on the grid, its own components
+/// and counter-based draws ([`PluginDraws`]), and the counts are summed chunk by chunk, so one
+/// thread or four give the same readings and the same [`PluginSensorStats`].
+#[derive(SystemParam)]
+pub struct PluginSense<'w, 's> {
+    nearby: Nearby<'w>,
+    clock: Res<'w, SimClock>,
+    seed: Option<Res<'w, SimSeed>>,
+    parallelism: Option<Res<'w, Parallelism>>,
+    stats: ResMut<'w, PluginSensorStats>,
+    scratch: Local<'s, Vec<PluginScratch>>,
+}
+
+/// One chunk's buffers of [`PluginSense::each`], kept between ticks (so the steady state
+/// allocates nothing per vehicle), on cache lines of its own ([`crate::sim::Padded`]).
+#[derive(Debug, Default)]
+#[repr(align(128))]
+pub struct PluginScratch {
+    found: Vec<Neighbour>,
+    occlusion: Occlusion,
+    stats: PluginSensorStats,
+}
+
+/// What [`PluginSense::each`] hands a plugin sensor's code with each vehicle: the neighbour
+/// query, the tick, the seed, and buffers and counts of its own (one per chunk of vehicles).
+pub struct Sensing<'a, 'w> {
+    /// The neighbour query ([`Nearby::within`]).
+    pub nearby: &'a Nearby<'w>,
+    /// The sensor tick's time.
+    pub now: SimTime,
+    /// The run's seed (what [`PluginDraws::new`] takes).
+    pub seed: u64,
+    /// A buffer for [`Nearby::within`].
+    pub found: &'a mut Vec<Neighbour>,
+    /// Occlusion of this vehicle's targets ([`Occlusion::clear`] it per vehicle).
+    pub occlusion: &'a mut Occlusion,
+    /// Counts to add to ([`PluginSensorStats::of`]), summed into the run's after the tick.
+    pub stats: &'a mut PluginSensorStats,
+}
+
+impl Sensing<'_, '_> {
+    /// The noise and dropout draws of sensor `name` at this tick ([`PluginDraws::new`]).
+    pub fn draws(&self, name: &str) -> PluginDraws {
+        PluginDraws::new(self.seed, name, self.now)
+    }
+}
+
+impl PluginSense<'_, '_> {
+    /// Call `sense(item, sensing)` for every item of `items` (a sensor's query, `iter_mut()`),
+    /// split over the threads: `sense` may write only through its item (the vehicle's own
+    /// components) and `sensing`. One vector of the items is gathered per call (per tick, not
+    /// per vehicle); each item is taken from it once, by whichever chunk holds it.
+    pub fn each<T: Send>(&mut self, items: impl IntoIterator<Item = T>, sense: impl Fn(T, &mut Sensing) + Sync) {
+        let mut slots: Vec<Option<T>> = items.into_iter().map(Some).collect();
+        let parallelism = self.parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
+        let (nearby, now, seed) = (&self.nearby, self.clock.now, self.seed.as_deref().map_or(0, |s| s.0));
+        parallelism.for_each_chunk(&mut slots, &mut self.scratch, |chunk, scratch| {
+            let PluginScratch { found, occlusion, stats } = scratch;
+            let mut sensing = Sensing { nearby, now, seed, found, occlusion, stats };
+            for item in chunk.iter_mut().filter_map(Option::take) {
+                sense(item, &mut sensing);
+            }
+        });
+        // In chunk order, reset in place (the names stay: nothing allocated next tick).
+        for scratch in self.scratch.iter_mut() {
+            for (name, counts) in scratch.stats.0.iter_mut() {
+                self.stats.of(name).add(counts);
+                *counts = SensorStats::default();
+            }
+        }
+    }
+}
+
 /// Rebuild [`NearbyIndex`] from every vehicle, once per sensor tick, while some vehicle carries
 /// a plugin sensor: O(N).
 pub fn index_nearby(
     mut index: ResMut<NearbyIndex>,
-    clock: Res<crate::sim::SimClock>,
+    clock: Res<SimClock>,
     carriers: Query<(), With<CarriesPluginSensor>>,
     everyone: Query<(Entity, &VehicleId, &VehicleState, Option<&VehicleSize>)>,
 ) {

@@ -2,7 +2,7 @@
 
 use bevy_ecs::prelude::Resource;
 
-use crate::sim::channel::ChannelModel;
+use crate::sim::v2v::channel::ChannelModel;
 
 /// Settings of the V2V channels.
 #[derive(Resource, Debug, Clone, PartialEq)]

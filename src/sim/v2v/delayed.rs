@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use super::batch::common_sent_at;
 use super::stats::{V2vChannelStats, V2vStats};
-use crate::sim::channel::ChannelModel;
 use crate::sim::parallel::recycle;
+use crate::sim::v2v::channel::ChannelModel;
 use crate::sim::{ControlEpoch, Parallelism, SimClock};
 use crate::world::{BatchRef, Channel, Mailbox, Message};
 

@@ -8,12 +8,12 @@
 //! nobody moved half their skin since their build), from those lists: no grid to build, a
 //! short list per receiver (`sim::grid::lists`). Either way the same receptions.
 //!
-//! Each channel has a [`ChannelModel`](crate::sim::channel::ChannelModel) (loss, bursts, delay; perfect by default). A lossy channel
-//! decides every reception with a seeded draw ([`super::channel`]); a delaying one queues the
+//! Each channel has a [`ChannelModel`](channel::ChannelModel) (loss, bursts, delay; perfect by default). A lossy channel
+//! decides every reception with a seeded draw ([`channel`]); a delaying one queues the
 //! reception and [`deliver_delayed`] puts it into the in-box at the first control tick at or
 //! after its due time, links never reordered. Wifi stays O(N · neighbours).
 //!
-//! The network round with a constant, memoryless loss (a [`Loss::Constant`](crate::sim::channel::Loss::Constant) probability, no
+//! The network round with a constant, memoryless loss (a [`Loss::Constant`](channel::Loss::Constant) probability, no
 //! bursts, no delay: nothing kept per link, nothing depending on distance) costs O(N) per
 //! round, not O(N²): for each receiver it draws how many of the batch's other M messages are
 //! lost (one [`binomial`](crate::sim::random::binomial) draw) and stores that count with a key; which ones are lost is a
@@ -27,8 +27,9 @@
 //! delay) decides each reception on its own as before, keyed per reception: O(N²) per round.
 //!
 //! The files: `wifi` and `network` (the rounds), `delayed` (receptions queued until due),
-//! `batch` (the shared batch of a round) and `stats`; the channel models are
-//! [`super::channel`] and [`super::channel_models`] (the plugin API).
+//! `batch` (the shared batch of a round) and `stats`; the channel models are in [`channel`]:
+//! the runtime form every channel runs, the built-in models one file each, and the plugin API
+//! ([`channel::plugins`]).
 
 use bevy_ecs::prelude::Resource;
 use bevy_ecs::schedule::IntoScheduleConfigs;
@@ -37,6 +38,7 @@ use crate::sim::grid::lists::{ListFloor, NearWanted};
 use crate::sim::{Control, Network, Plugin, SimBuilder, SimSystems, Wifi};
 
 mod batch;
+pub mod channel;
 mod config;
 mod delayed;
 mod network;

@@ -7,9 +7,9 @@ use super::batch::{common_sent_at, into_batch, own_messages};
 use super::config::V2vConfig;
 use super::delayed::{DelayedMessages, LinkOrder};
 use super::stats::{ChannelStats, V2vChannelStats, V2vLinks, V2vStats};
-use crate::sim::channel::{LinkState, Loss, link_key, round_key};
 use crate::sim::parallel::{Padded, recycle};
 use crate::sim::random::{OrderedSample, binomial, key, mix, uniform_at};
+use crate::sim::v2v::channel::{LinkState, Loss, link_key, round_key};
 use crate::sim::{ControlEpoch, Parallelism, SimClock, SimSeed};
 use crate::world::{BatchRef, Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, Vehicles};
 

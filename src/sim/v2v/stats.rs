@@ -4,7 +4,7 @@
 use bevy_ecs::prelude::Resource;
 use std::collections::HashMap;
 
-use crate::sim::channel::LinkState;
+use crate::sim::v2v::channel::LinkState;
 use crate::world::{VehicleId, Vehicles};
 
 /// Delay histogram resolution [µs] and length: 0.5 ms bins up to 5 s (the last bin holds more).

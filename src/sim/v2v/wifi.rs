@@ -9,9 +9,9 @@ use super::batch::{NOT_SENDING, Outgoing, Sender, join_batch, release};
 use super::config::V2vConfig;
 use super::delayed::{DelayedMessages, LinkOrder, Reception};
 use super::stats::{ChannelStats, V2vChannelStats, V2vLinks, V2vStats};
-use crate::sim::channel::{ChannelModel, LinkState, Loss, link_key, round_key};
 use crate::sim::grid::lists::{DriftScratch, ListFloor, Lists, NEAR_MASK_BITS, NearWanted, SensorGrid};
 use crate::sim::grid::within_reach;
+use crate::sim::v2v::channel::{ChannelModel, LinkState, Loss, link_key, round_key};
 use crate::sim::{Candidates, ControlEpoch, GridEntry, Parallelism, SimClock, SimSeed, SpatialGrid};
 use crate::world::{BatchRef, Channel, Mailbox, Message, SimTime, VehicleId, VehicleState, Vehicles};
 

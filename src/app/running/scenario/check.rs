@@ -10,8 +10,8 @@ use super::file::{
     VehicleConfig,
 };
 use crate::sim::ControllerRegistry;
-use crate::sim::channel_models::ChannelModelRegistry;
 use crate::sim::params::{MAX_DISTANCE, MAX_GAIN, MAX_SPEED, MAX_TIME, MAX_VEHICLE_SIZE, Range};
+use crate::sim::v2v::channel::plugins::ChannelModelRegistry;
 
 /// Builds the errors of one file: each names the key and what is allowed.
 struct Checker<'a> {

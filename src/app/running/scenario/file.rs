@@ -6,8 +6,8 @@ use serde::Deserialize;
 
 use super::lab::LabConfig;
 use crate::map::routing::Place;
-use crate::sim::channel::{Burst, ChannelModel, Loss};
-use crate::sim::channel_models::ChannelModelRegistry;
+use crate::sim::v2v::channel::plugins::ChannelModelRegistry;
+use crate::sim::v2v::channel::{Burst, ChannelModel, Loss};
 use crate::sim::{BUILT_IN_CONTROLLERS, Rates, V2vConfig};
 use crate::vehicles::{
     AccSetup, CruiseSetup, EmergencySettings, GcdcSetup, Idm, LaneChangeParams, PathFollowing, PlatoonSetup, RsuKind,
@@ -440,7 +440,7 @@ impl V2vSection {
     }
 }
 
-/// `[v2v.wifi]` / `[v2v.network]`: a channel's model ([`crate::sim::channel`]).
+/// `[v2v.wifi]` / `[v2v.network]`: a channel's model ([`crate::sim::v2v::channel`]).
 #[derive(Debug, Clone, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct ChannelSection {
@@ -493,7 +493,7 @@ impl ChannelSection {
 
 /// `burst = { p_enter, p_leave, loss_in_burst }` (probabilities per message): the same table as
 /// `loss = { model = "gilbert_elliott", ... }` takes.
-pub type BurstConfig = crate::sim::channel_models::GilbertElliott;
+pub type BurstConfig = crate::sim::v2v::channel::GilbertElliott;
 
 /// A channel's loss: a number, or a table naming a model.
 #[derive(Debug, Clone, PartialEq)]

@@ -14,18 +14,29 @@
 //! - Delay: `delay_ms` plus uniform `[0, jitter_ms)`; a link never reorders (a message is never
 //!   due before the one sent before it on the same link).
 //!
-//! - A model of a plugin's ([`ChannelLossModel`], registered by name in [`super::channel_models`]): whatever its
+//! - A model of a plugin's ([`ChannelLossModel`], registered by name in [`plugins`]): whatever its
 //!   [`ChannelLossModel::deliver`] decides, per reception.
 //!
-//! Every draw is [`super::random::uniform`] keyed by (seed, channel stream, link, round, message
+//! Every draw is [`crate::sim::random::uniform`] keyed by (seed, channel stream, link, round, message
 //! index, draw), so results do not depend on threads or system order and a draw allocates nothing.
+//!
+//! The files: this one the runtime form every channel runs ([`ChannelModel`]: loss, bursts,
+//! delay, the draws' keys); `plugins` the trait a model implements ([`ChannelLossModel`]) and
+//! the registry of names; the built-in models one file each: `constant` ([`ConstantLoss`]),
+//! `distance` ([`DistanceLoss`]), `gilbert_elliott` ([`GilbertElliott`]).
 
-use std::sync::Arc;
-
-use serde::de::DeserializeOwned;
-
-use super::random::{Words, key, mix, uniform_at};
+use crate::sim::random::{key, mix, uniform_at};
 use crate::world::VehicleId;
+
+mod constant;
+mod distance;
+mod gilbert_elliott;
+pub mod plugins;
+
+pub use constant::ConstantLoss;
+pub use distance::DistanceLoss;
+pub use gilbert_elliott::GilbertElliott;
+pub use plugins::{ChannelLossModel, LinkContext, LossModel, PluginLoss};
 
 /// Probability that a reception is lost, before bursts.
 #[derive(Debug, Clone, PartialEq)]
@@ -284,158 +295,6 @@ impl ChannelModel {
         let jitter = if jittered { f64::from(bits as u32) * HALF * self.jitter_ms } else { 0.0 };
         Some(round_us((self.delay_ms + jitter) * 1000.0))
     }
-}
-
-/// One reception, as a channel model sees it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LinkContext {
-    /// Who sent the message.
-    pub sender: VehicleId,
-    /// Who would receive it.
-    pub receiver: VehicleId,
-    /// Sender-receiver distance at the round \[m\] (0 when the model says it does not use it,
-    /// [`ChannelLossModel::uses_distance`]).
-    pub distance: f64,
-    /// The channel's range \[m\] (the network channel is told the wifi range).
-    pub range: f64,
-    /// The round's sim time \[µs\].
-    pub now_us: u64,
-    /// A random word of this reception: a pure function of (seed, channel, round, sender,
-    /// receiver, message index), independent of the draws the channel's delay and bursts use,
-    /// so any thread count gives the same fates.
-    pub random: u64,
-}
-
-impl LinkContext {
-    /// Random words and numbers from [`LinkContext::random`] (uniforms, normals), each a pure
-    /// function of the reception: `link.words().uniform()`, `link.words().normal()`.
-    pub fn words(&self) -> Words {
-        Words::new(self.random)
-    }
-}
-
-/// A channel model a scenario can name: `loss = { model = "NAME", ... }`, its other keys
-/// deserialised into the type (so `#[serde(default)]` and `deny_unknown_fields` work as usual).
-///
-/// The model is a pure function of the reception ([`LinkContext`]: sender, receiver, distance,
-/// time and a counter-based random word) and, for a model with memory, of one word of state per
-/// link that the runtime keeps for it ([`ChannelLossModel::keeps_link_state`]). The channel's
-/// `delay_ms` and `jitter_ms` (and `burst`) apply on top of it.
-pub trait ChannelLossModel: DeserializeOwned + Send + Sync + 'static {
-    /// Check the values after parsing: `Err((key, problem))` names the key (relative to the
-    /// `loss` table) and what is allowed. The default accepts everything.
-    fn check(&self) -> Result<(), (String, String)> {
-        Ok(())
-    }
-
-    /// The fate of one reception: `None` when lost, else its extra delay \[ms\] (counted only when
-    /// [`ChannelLossModel::delays`] says so). `state` is this link's word (0 on a fresh link),
-    /// kept between messages when [`ChannelLossModel::keeps_link_state`] says so.
-    fn deliver(&self, link: &LinkContext, state: &mut u64) -> Option<f64>;
-
-    /// Whether [`ChannelLossModel::deliver`] reads or writes its link's `state` (the runtime then
-    /// keeps a word per link and runs the round on one thread, in a fixed order).
-    fn keeps_link_state(&self) -> bool {
-        false
-    }
-
-    /// Whether [`ChannelLossModel::deliver`] gives delays (otherwise they are taken as 0).
-    fn delays(&self) -> bool {
-        false
-    }
-
-    /// Whether [`ChannelLossModel::deliver`] reads the distance (otherwise it is given 0 and the
-    /// runtime does not look positions up).
-    fn uses_distance(&self) -> bool {
-        true
-    }
-
-    /// How the runtime runs the model: by default through [`ChannelLossModel::deliver`]. The
-    /// built-in models return their specialised form instead (the same law, with the V2V
-    /// rounds' fast paths).
-    fn into_loss(self) -> LossModel
-    where
-        Self: Sized,
-    {
-        LossModel { loss: Loss::Plugin(PluginLoss(Arc::new(self))), burst: None }
-    }
-}
-
-/// The object-safe part of [`ChannelLossModel`] the runtime calls.
-trait DynLoss: Send + Sync {
-    fn dyn_deliver(&self, link: &LinkContext, state: &mut u64) -> Option<f64>;
-    fn dyn_keeps_link_state(&self) -> bool;
-    fn dyn_delays(&self) -> bool;
-    fn dyn_uses_distance(&self) -> bool;
-}
-
-impl<M: ChannelLossModel> DynLoss for M {
-    fn dyn_deliver(&self, link: &LinkContext, state: &mut u64) -> Option<f64> {
-        self.deliver(link, state)
-    }
-    fn dyn_keeps_link_state(&self) -> bool {
-        self.keeps_link_state()
-    }
-    fn dyn_delays(&self) -> bool {
-        self.delays()
-    }
-    fn dyn_uses_distance(&self) -> bool {
-        self.uses_distance()
-    }
-}
-
-/// A plugin's channel model, shared by the rounds ([`Loss::Plugin`]). Two are equal when they
-/// are the same instance.
-#[derive(Clone)]
-pub struct PluginLoss(Arc<dyn DynLoss>);
-
-impl PluginLoss {
-    /// A model of a plugin's, to put into a [`super::channel::ChannelModel`] by hand.
-    pub fn new<M: ChannelLossModel>(model: M) -> PluginLoss {
-        PluginLoss(Arc::new(model))
-    }
-
-    /// See [`ChannelLossModel::deliver`].
-    #[inline]
-    pub fn deliver(&self, link: &LinkContext, state: &mut u64) -> Option<f64> {
-        self.0.dyn_deliver(link, state)
-    }
-
-    /// See [`ChannelLossModel::keeps_link_state`].
-    pub fn keeps_link_state(&self) -> bool {
-        self.0.dyn_keeps_link_state()
-    }
-
-    /// See [`ChannelLossModel::delays`].
-    pub fn delays(&self) -> bool {
-        self.0.dyn_delays()
-    }
-
-    /// See [`ChannelLossModel::uses_distance`].
-    pub fn uses_distance(&self) -> bool {
-        self.0.dyn_uses_distance()
-    }
-}
-
-impl PartialEq for PluginLoss {
-    fn eq(&self, other: &PluginLoss) -> bool {
-        Arc::ptr_eq(&self.0, &other.0)
-    }
-}
-
-impl std::fmt::Debug for PluginLoss {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("PluginLoss(..)")
-    }
-}
-
-/// A parsed, checked loss model: what a channel's `loss` table gives.
-#[derive(Debug, Clone, PartialEq)]
-pub struct LossModel {
-    /// The loss before bursts.
-    pub loss: Loss,
-    /// Bursts, for the Gilbert-Elliott model.
-    pub burst: Option<Burst>,
 }
 
 #[cfg(test)]
