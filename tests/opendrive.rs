@@ -512,6 +512,37 @@ fn a_micrometre_section_whose_lanes_move_is_dropped_and_its_links_pass_through()
     }
 }
 
+/// Town04's highway loop crosses itself on a bridge: roads 39 and 47, both outside any
+/// junction, cross in the plane. OpenDRIVE joins roads that meet at grade in a junction, so
+/// the crossing is on two levels: no junction (and no yielding) there, and the pair is listed
+/// as levels apart (vehicles on them neither touch nor lead each other: before, platoon cars
+/// stopped for the cars below and five collisions were counted on the bridge).
+#[test]
+fn roads_crossing_outside_junctions_lie_on_different_levels() {
+    let map = load("Town04.xodr");
+    let junctions = map.junctions();
+    let on = |road: &str| -> Vec<usize> {
+        (0..map.lanelets.len())
+            .filter(|&i| tag(&map.lanelets[i], "opendrive:road") == road && map.lanelets[i].routable)
+            .collect()
+    };
+    let (upper, lower) = (on("39"), on("47"));
+    let apart =
+        upper.iter().flat_map(|&a| lower.iter().map(move |&b| (a, b))).filter(|&(a, b)| junctions.levels_apart(a, b));
+    assert!(apart.count() >= 4, "the driving lanes of roads 39 and 47 cross on two levels");
+    for i in upper.iter().chain(&lower) {
+        assert!(
+            junctions.of_lanelet(map.lanelets[*i].id).is_none(),
+            "lanelet {} is in no junction",
+            map.lanelets[*i].id
+        );
+    }
+    // Lanelets of one junction still conflict: fabriksgatan has its junction and nothing apart.
+    let town = load("fabriksgatan.xodr");
+    let j = town.junctions();
+    assert!(!j.list.is_empty() && !j.any_levels_apart());
+}
+
 #[test]
 fn carla_geo_reference_sets_the_origin() {
     let map = load("Town04.xodr");
@@ -705,7 +736,10 @@ controller = {{ type = "cruise_control", speed = 10.0 }}
 }
 
 /// scenarios/town04_platoon.toml: a CACC platoon of 8 on Town04's highway loop with background
-/// traffic, 10 simulated minutes without a collision, every follower kept a gap.
+/// traffic on random trips over the highway, 10 simulated minutes without a collision, every
+/// follower kept a gap. The background cars (ids from -1000 down) really drive random trips:
+/// many trips of many lengths end, the cars are seen on lanes of both directions, and never
+/// off the highway (a lanelet of 65 mph, or a junction's link between two).
 #[test]
 fn town04_platoon_runs_ten_minutes_without_collision() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
@@ -719,6 +753,8 @@ fn town04_platoon_runs_ten_minutes_without_collision() {
     assert!(ok, "{err}");
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let trajectories = std::fs::read_to_string(out.join("trajectories.csv")).unwrap();
+    let trips = std::fs::read_to_string(out.join("trips.csv")).unwrap();
     std::fs::remove_dir_all(&out).ok();
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "collisions: {}", m["collisions"]);
@@ -730,6 +766,36 @@ fn town04_platoon_runs_ten_minutes_without_collision() {
     for f in platoon {
         assert!(f["min_gap"].as_f64().unwrap() > 1.0, "follower {} came within {} m", f["id"], f["min_gap"]);
     }
+    // Trips of the background cars that ended (at their destination, where the next began):
+    // many, and of many lengths (one loop route would give one length).
+    let mut lengths = std::collections::BTreeSet::new();
+    for line in trips.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        if f[0].parse::<i64>().unwrap() <= -1000 && !f[2].is_empty() {
+            lengths.insert(f[3].to_string());
+        }
+    }
+    assert!(lengths.len() >= 20, "background trips that ended, by length: {lengths:?}");
+    // Where they drove: lanes of both signs (both carriageways), on the highway only.
+    let map = load("Town04.xodr");
+    let highway = |l: &Lanelet| l.speed_limit().is_some_and(|v| v >= 25.0) || tag(l, "opendrive:junction") != "-1";
+    let (mut lanes, mut roads, mut off) = (std::collections::BTreeSet::new(), std::collections::BTreeSet::new(), 0);
+    for line in trajectories.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let (Ok(id), Ok(lanelet)) = (f[1].parse::<i64>(), f[7].parse::<i64>()) else { continue };
+        if id > -1000 {
+            continue;
+        }
+        let l = map.lanelet(smlworld::map::LaneletId(lanelet)).expect("a lanelet of the map");
+        if !highway(l) {
+            off += 1;
+        }
+        lanes.insert(tag(l, "opendrive:lane").parse::<i32>().unwrap());
+        roads.insert(tag(l, "opendrive:road").to_string());
+    }
+    assert_eq!(off, 0, "background rows off the highway");
+    assert!(lanes.iter().any(|&k| k > 0) && lanes.iter().any(|&k| k < 0), "lanes driven: {lanes:?}");
+    assert!(lanes.len() >= 4 && roads.len() >= 20, "lanes {lanes:?}, roads {roads:?}");
 }
 
 /// highway_example_with_merge_and_split: lane 3 of road 1 ends (the on-ramp merges), so from

@@ -21,7 +21,9 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
 use crate::sim::{Dynamics, GridEntry, Padded, Parallelism, Plugin, SimBuilder, SimClock, SimSystems, SpatialGrid};
-use crate::vehicles::{LaneChangeEvent, LaneChangeLog, Longitudinal, PathFollower, PlatoonMember};
+use crate::vehicles::{
+    LaneChangeEvent, LaneChangeLog, LaneMap, LanePosition, Longitudinal, PathFollower, PlatoonMember,
+};
 use crate::world::{Route, Stationary, VehicleId, VehicleSize, VehicleState, Vehicles};
 
 /// One collision: two footprints started to overlap.
@@ -268,6 +270,8 @@ pub struct Metrics {
     /// Each chunk's touching pairs of the parallel search, merged into `touching`.
     touching_chunks: Vec<Padded<Vec<(VehicleId, VehicleId)>>>,
     boxes: Vec<Footprint>,
+    /// Map index of the lanelet under each of `boxes` (`u32::MAX` off the road or unknown).
+    box_lanelets: Vec<u32>,
     grid: SpatialGrid,
 }
 
@@ -441,7 +445,7 @@ pub fn record_metrics(
     clock: Res<SimClock>,
     registry: Res<Vehicles>,
     mut metrics: ResMut<Metrics>,
-    everyone: Query<(&VehicleId, &VehicleState, &VehicleSize, Has<Stationary>)>,
+    everyone: Query<(&VehicleId, &VehicleState, &VehicleSize, Has<Stationary>, Option<&LanePosition>)>,
     followers: Query<(
         &VehicleId,
         &VehicleState,
@@ -453,12 +457,24 @@ pub fn record_metrics(
     )>,
     members: Query<(&VehicleId, &VehicleState, &PlatoonMember)>,
     parallelism: Option<Res<Parallelism>>,
+    lanes: Option<Res<LaneMap>>,
 ) {
     // The step just integrated ends at now + dt.
     let t = clock.now.as_secs() + clock.dt;
     let m = &mut *metrics;
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
-    m.record_collisions(t, parallelism, everyone.iter().map(|(&id, state, size, fixed)| (id, state, size, fixed)));
+    // Footprints that overlap on lanelets at different levels (a bridge over a road) do not
+    // touch; checked only for overlapping pairs.
+    let junctions = lanes.as_deref().map(|l| l.map.junctions());
+    let separated = |a: u32, b: u32| junctions.as_ref().is_some_and(|j| j.levels_apart(a as usize, b as usize));
+    m.record_collisions(
+        t,
+        parallelism,
+        everyone
+            .iter()
+            .map(|(&id, state, size, fixed, lane)| (id, state, size, fixed, lane.map_or(u32::MAX, |l| l.index))),
+        &separated,
+    );
     if t < m.warmup {
         return;
     }
@@ -472,7 +488,7 @@ pub fn record_metrics(
         for (k, out) in chunk.iter_mut().enumerate() {
             let (_, state, size, route, follower, lon, _) = list[start + k];
             *out = lon.leader.and_then(|l| {
-                let (_, leader_state, leader_size, _) = everyone.get(registry.get(l.id)?).ok()?;
+                let (_, leader_state, leader_size, _, _) = everyone.get(registry.get(l.id)?).ok()?;
                 let (gap, v, error) =
                     follower_gap(state, size, &route.0, follower.s, l.distance, leader_state, leader_size)?;
                 Some((l.id, gap, v, error))
@@ -556,11 +572,14 @@ impl Metrics {
         &mut self,
         t: f64,
         parallelism: Parallelism,
-        everyone: impl Iterator<Item = (VehicleId, &'a VehicleState, &'a VehicleSize, bool)>,
+        everyone: impl Iterator<Item = (VehicleId, &'a VehicleState, &'a VehicleSize, bool, u32)>,
+        separated: &(dyn Fn(u32, u32) -> bool + Sync),
     ) {
         self.boxes.clear();
+        self.box_lanelets.clear();
         let mut widest: f64 = 0.0;
-        for (id, state, size, fixed) in everyone {
+        for (id, state, size, fixed, lanelet) in everyone {
+            self.box_lanelets.push(lanelet);
             let b = Footprint {
                 id,
                 fixed,
@@ -585,13 +604,18 @@ impl Metrics {
         // own pairs, then sorted: the same list on any thread count). At the dynamics rate this
         // was a sixth of a 10,000-vehicle town's time on one thread.
         let grid = &self.grid;
+        let lanelets = &self.box_lanelets;
         let mut none = vec![(); boxes.len()];
         parallelism.for_each_chunk_at(&mut none, &mut self.touching_chunks, |start, chunk, found| {
             found.0.clear();
-            for a in &boxes[start..start + chunk.len()] {
+            for (ia, a) in boxes[start..start + chunk.len()].iter().enumerate() {
                 grid.for_each_within(a.centre, a.radius() + widest, |_, e, _| {
                     let b = &boxes[e.index as usize];
-                    if a.id < b.id && !(a.fixed && b.fixed) && overlap(a, b) {
+                    if a.id < b.id
+                        && !(a.fixed && b.fixed)
+                        && overlap(a, b)
+                        && !separated(lanelets[start + ia], lanelets[e.index as usize])
+                    {
                         found.0.push((a.id, b.id));
                     }
                 });
