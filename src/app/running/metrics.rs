@@ -440,7 +440,7 @@ fn follower_gap(
 }
 
 /// Record collisions, follower gaps and platoon speeds after a dynamics step.
-#[allow(clippy::type_complexity)]
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub fn record_metrics(
     clock: Res<SimClock>,
     registry: Res<Vehicles>,
