@@ -26,7 +26,6 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data" / "opendrive"
 FILES = sorted(DATA.glob("*.xodr"))
 EXTRA_OURS = {"Town04": 4}
-SKIPPED_BY_OURS = {"Town04": 22}
 
 
 def info(path):
@@ -53,10 +52,10 @@ def test_converted_opendrive_loads_in_lanelet2(xodr, tmp_path):
     assert errors == [], errors[:5]
     ours_xodr, ours = info(xodr), info(osm)
     loaded = {l["id"] for l in ours["lanelet_list"]}
-    # Town04 keeps 22 lanelets of lane sections a few µm long (their lanes move sideways, so they
-    # are not merged): Lanelet2 reads them, our OSM loader skips their bounds of no length.
+    # The same lanelets in all three (Town04's 22 lanelets of lane sections a few µm long, read by
+    # Lanelet2 and skipped by our OSM loader, are no longer built: the reader drops those sections).
     assert len(ll_map.laneletLayer) == ours_xodr["lanelets"]
-    assert ours["lanelets"] == ours_xodr["lanelets"] - SKIPPED_BY_OURS.get(xodr.stem, 0)
+    assert ours["lanelets"] == ours_xodr["lanelets"]
     # Places: each lanelet's first left-bound point, by its OpenDRIVE (road, section, lane).
     key = lambda tags: (tags["opendrive:road"], tags["opendrive:section"], tags["opendrive:lane"])  # noqa: E731
     drivable = {}

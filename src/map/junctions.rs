@@ -3,7 +3,9 @@
 //!
 //! - A **conflict** is a pair of routable lanelets whose centre lines cross (`crossing`) or that
 //!   enter the same lanelet (`merging`), with the arc length on each where they meet. Lanelets
-//!   that leave the same lanelet (diverging) or follow one another do not conflict.
+//!   that leave the same lanelet (diverging) or follow one another do not conflict, nor do
+//!   lanelets that cross on different levels ([`grade_separated`]: an OpenDRIVE bridge;
+//!   [`Junctions::levels_apart`] lists them for the collision check and leader search).
 //! - A **junction** is a connected group of conflicting lanelets (its **links**, listed in id
 //!   order: a traffic-light state has one character per link in that order).
 //! - Its **control** comes from the map where it says so: a Lanelet2 `traffic_light` regulatory
@@ -220,12 +222,27 @@ pub struct Junctions {
     /// The junctions by id order (`list[k].id == k + 1`).
     pub list: Vec<Junction>,
     by_lanelet: BTreeMap<LaneletId, (u32, u32)>,
+    /// Pairs of lanelets (map indices, lower first) whose centre lines cross on different
+    /// levels ([`grade_separated`]).
+    levels_apart: std::collections::BTreeSet<(u32, u32)>,
 }
 
 impl Junctions {
     /// The junction with this id.
     pub fn get(&self, id: u32) -> Option<&Junction> {
         id.checked_sub(1).and_then(|k| self.list.get(k as usize))
+    }
+
+    /// Whether lanelets `a` and `b` (map indices) cross on different levels (a bridge over a
+    /// road, [`grade_separated`]): vehicles on them pass over each other, neither touch nor
+    /// lead each other.
+    pub fn levels_apart(&self, a: usize, b: usize) -> bool {
+        !self.levels_apart.is_empty() && self.levels_apart.contains(&(a.min(b) as u32, a.max(b) as u32))
+    }
+
+    /// Whether any two lanelets cross on different levels.
+    pub fn any_levels_apart(&self) -> bool {
+        !self.levels_apart.is_empty()
     }
 
     /// (junction index in `list`, link index) of a lanelet that is a junction link.
@@ -349,7 +366,14 @@ struct RawConflict {
 
 /// Every crossing and merging pair of routable lanelets (indices into `map.lanelets`, a < b).
 /// O(segments) with a grid of [`CELL`] m, plus the pairs sharing a cell.
-fn raw_conflicts(map: &LaneletMap, predecessors: &[Vec<usize>], successors: &[Vec<usize>]) -> Vec<RawConflict> {
+/// The conflicts of `map`, and the pairs of lanelets (map indices, lower first) whose centre
+/// lines cross on different levels ([`grade_separated`]).
+fn raw_conflicts(
+    map: &LaneletMap,
+    predecessors: &[Vec<usize>],
+    successors: &[Vec<usize>],
+) -> (Vec<RawConflict>, std::collections::BTreeSet<(u32, u32)>) {
+    let mut apart = std::collections::BTreeSet::new();
     let lanelets = &map.lanelets;
     let arcs: Vec<Vec<f64>> = lanelets.iter().map(|l| arc_lengths(&l.centre)).collect();
     let cell = |p: DVec2| ((p.x / CELL).floor() as i64, (p.y / CELL).floor() as i64);
@@ -391,6 +415,13 @@ fn raw_conflicts(map: &LaneletMap, predecessors: &[Vec<usize>], successors: &[Ve
                 let (li, lj) = (&lanelets[iu], &lanelets[ju]);
                 let (p0, p1) = (li.centre[ki as usize], li.centre[ki as usize + 1]);
                 let (q0, q1) = (lj.centre[kj as usize], lj.centre[kj as usize + 1]);
+                if grade_separated(li, lj) {
+                    // Near misses too: lanes side by side under a bridge's edge.
+                    if segment_crossing(p0, p1, q0, q1).is_some() || segment_distance(p0, p1, q0, q1).0 < NEAR_MISS {
+                        apart.insert((i, j));
+                    }
+                    continue;
+                }
                 let (t, u, crossed, dist) = match segment_crossing(p0, p1, q0, q1) {
                     Some((t, u)) => (t, u, true, 0.0),
                     None => {
@@ -454,7 +485,23 @@ fn raw_conflicts(map: &LaneletMap, predecessors: &[Vec<usize>], successors: &[Ve
     }
     out.extend(merges.into_values());
     out.sort_by_key(|c| (c.a, c.b, c.kind));
-    out
+    (out, apart)
+}
+
+/// Whether lanelets `a` and `b`, where they cross, lie at different levels (a bridge over a
+/// road), so that they never conflict ([`Junctions::levels_apart`] lists such crossing pairs).
+/// Known only for
+/// OpenDRIVE maps: roads that meet at grade are joined in a junction (ASAM OpenDRIVE 1.8,
+/// §12 "Junctions": "Junctions ... connect roads ... where they cross"), so two lanelets
+/// outside any junction (tag `opendrive:junction` = `-1`), or in two different junctions,
+/// cross on different levels, as CARLA Town04's highway does over itself (roads 39 and 47).
+/// A junction's connecting road and a road outside it are left at one level (they meet at the
+/// junction's border).
+pub fn grade_separated(a: &super::lanelet::Lanelet, b: &super::lanelet::Lanelet) -> bool {
+    match (a.tags.get("opendrive:junction"), b.tags.get("opendrive:junction")) {
+        (Some(ja), Some(jb)) => (ja == "-1" && jb == "-1") || (ja != "-1" && jb != "-1" && ja != jb),
+        _ => false,
+    }
 }
 
 /// Union-find root with path halving.
@@ -567,11 +614,11 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
             }
         }
     }
-    let mut raw = raw_conflicts(map, &predecessors, &successors);
+    let (mut raw, levels_apart) = raw_conflicts(map, &predecessors, &successors);
     // Links the file says are no foes (SUMO `<request foes>`) pass each other.
     raw.retain(|c| !stated_no_foes(&map.lanelets[c.a].tags, &map.lanelets[c.b].tags));
     if raw.is_empty() {
-        return Junctions::default();
+        return Junctions { levels_apart, ..Junctions::default() };
     }
     let mut parent: Vec<usize> = (0..n).collect();
     for c in &raw {
@@ -789,7 +836,7 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
         links.sort_by_key(|l| l.lanelet);
         list.push(Junction { id: j as u32 + 1, links, conflicts, control, centre });
     }
-    Junctions { list, by_lanelet }
+    Junctions { list, by_lanelet, levels_apart }
 }
 
 /// The control a link's tag `junction_control` states (SUMO nets, [`super::sumo`]).

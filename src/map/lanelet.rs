@@ -116,6 +116,14 @@ impl Lanelet {
         }
     }
 
+    /// Its speed limit [m/s], from the `speed_limit` tag in km/h as Lanelet2 writes it
+    /// (`"100"` or `"100 km/h"`; the OpenDRIVE and SUMO readers write it so); `None` without
+    /// one or when it does not read as a positive number.
+    pub fn speed_limit(&self) -> Option<f64> {
+        let v: f64 = self.tags.get("speed_limit")?.trim().trim_end_matches("km/h").trim().parse().ok()?;
+        (v > 0.0 && v.is_finite()).then_some(v / 3.6)
+    }
+
     /// Polygon of the lanelet: left bound followed by the reversed right bound.
     pub fn polygon(&self) -> Vec<DVec2> {
         self.left.iter().chain(self.right.iter().rev()).copied().collect()

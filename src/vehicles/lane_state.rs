@@ -724,6 +724,15 @@ impl LaneIndex {
         }
     }
 
+    /// The lanelet (map index) vehicle `id` was indexed on, `None` when it is not in the index.
+    /// O(1) where its slot is kept, else a scan of the entries.
+    pub fn lanelet_of(&self, id: VehicleId) -> Option<u32> {
+        if let Some(e) = self.slots.get(id).and_then(|k| self.entries.get(k)).filter(|e| e.id == id) {
+            return Some(e.lanelet);
+        }
+        self.entries.iter().find(|e| e.id == id).map(|e| e.lanelet)
+    }
+
     pub(crate) fn on(&self, i: u32) -> &[IndexEntry] {
         let i = i as usize;
         if i + 1 >= self.starts.len() {

@@ -117,12 +117,15 @@ pub fn leader_on_path(
     detections: &[Detection],
     lane_half_width: f64,
 ) -> Option<LeaderGap> {
-    leader_on_path_with(path, s, position, own_length, detections, lane_half_width, |_| false)
+    leader_on_path_with(path, s, position, own_length, detections, lane_half_width, |_| false, |_| false)
 }
 
 /// [`leader_on_path`], where a detection for which `crossing(id)` holds (a vehicle changing
 /// into or out of this lane) counts up to three half widths from the centre line: while it
-/// crosses, a vehicle is in both lanes.
+/// crosses, a vehicle is in both lanes; one for which `elsewhere(id)` holds (on a bridge above
+/// or a road below, [`crate::map::junctions::Junctions::levels_apart`]) is passed over, asked only of
+/// a detection that would otherwise lead.
+#[allow(clippy::too_many_arguments)]
 pub fn leader_on_path_with(
     path: &Path,
     s: f64,
@@ -131,6 +134,7 @@ pub fn leader_on_path_with(
     detections: &[Detection],
     lane_half_width: f64,
     crossing: impl Fn(VehicleId) -> bool,
+    elsewhere: impl Fn(VehicleId) -> bool,
 ) -> Option<LeaderGap> {
     if path.points.len() < 2 {
         return None;
@@ -159,7 +163,7 @@ pub fn leader_on_path_with(
                 continue;
             }
         }
-        if ahead <= 0.0 {
+        if ahead <= 0.0 || elsewhere(d.id) {
             continue;
         }
         let speed = d.velocity.dot(direction);
@@ -189,6 +193,9 @@ struct LeaderShared<'a> {
     dt: f64,
     crossings: Option<&'a BTreeMap<VehicleId, (LaneletId, LaneletId)>>,
     lanes: Option<(&'a LaneIndex, &'a LaneMap)>,
+    /// The map's junctions, for the lanelets that cross on other levels (`None` without a lane
+    /// index or where no lanelets do).
+    junctions: Option<&'a crate::map::junctions::Junctions>,
 }
 
 /// Reset the demand and find each vehicle's leader on its route (split over threads; each
@@ -215,7 +222,9 @@ pub fn find_leaders(
     mut scratch: Local<Vec<()>>,
 ) {
     let crossings = crossings.as_deref().map(|c| &c.0).filter(|c| !c.is_empty());
-    let shared = LeaderShared { dt: clock.dt, crossings, lanes: index.as_deref().zip(lane_map.as_deref()) };
+    let lanes = index.as_deref().zip(lane_map.as_deref());
+    let junctions = lanes.map(|(_, m)| m.map.junctions()).filter(|j| j.any_levels_apart());
+    let shared = LeaderShared { dt: clock.dt, crossings, lanes, junctions: junctions.as_deref() };
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
     // Table by table, straight in the ECS tables' slices: no list of the query's items is
     // gathered first (a serial pass over every vehicle).
@@ -259,7 +268,7 @@ pub fn find_leaders(
 /// [`find_leaders`] for row `n` of `table`.
 #[inline(always)]
 fn leader_of(shared: LeaderShared<'_>, table: LeaderTable<'_>, n: usize, lon: &mut Longitudinal) {
-    let LeaderShared { dt, crossings, lanes } = shared;
+    let LeaderShared { dt, crossings, lanes, junctions } = shared;
     let (id, size, command) = (&table.ids[n], &table.sizes[n], &table.commands[n]);
     let pos = table.positions.map(|p| &p[n]);
     let readings = table.readings.map(|r| &r[n]);
@@ -294,7 +303,16 @@ fn leader_of(shared: LeaderShared<'_>, table: LeaderTable<'_>, n: usize, lon: &m
         }
         None => {
             let (state, route, follower) = (&table.states[n], &table.routes[n], &table.followers[n]);
-            find_leader(dt, crossings, state, size, route, follower, command, readings, lon, changer)
+            // A detection on another level than the vehicle's own lanelet (an OpenDRIVE bridge)
+            // does not lead it, though it crosses its path on the plane.
+            let own = pos.and_then(|p| p.on());
+            let elsewhere = |other: VehicleId| match (lanes, junctions, own) {
+                (Some((index, _)), Some(junctions), Some(i)) => {
+                    index.lanelet_of(other).is_some_and(|j| junctions.levels_apart(i as usize, j as usize))
+                }
+                _ => false,
+            };
+            find_leader(dt, crossings, state, size, route, follower, command, readings, lon, changer, elsewhere)
         }
     }
 }
@@ -312,10 +330,20 @@ fn find_leader(
     readings: Option<&SensorReadings>,
     lon: &mut Longitudinal,
     changer: Option<&LaneChanger>,
+    elsewhere: impl Fn(VehicleId) -> bool + Copy,
 ) {
     let detections = readings.map_or(&[][..], |r| &r.0[..]);
     let mut leader = match crossings {
-        None => leader_on_path(&route.0, follower.s, state.position, size.length, detections, lon.lane_half_width),
+        None => leader_on_path_with(
+            &route.0,
+            follower.s,
+            state.position,
+            size.length,
+            detections,
+            lon.lane_half_width,
+            |_| false,
+            elsewhere,
+        ),
         Some(c) => {
             let lanes = &route.0.lanelets;
             let crossing = |id: VehicleId| c.get(&id).is_some_and(|(a, b)| lanes.contains(a) || lanes.contains(b));
@@ -327,6 +355,7 @@ fn find_leader(
                 detections,
                 lon.lane_half_width,
                 crossing,
+                elsewhere,
             )
         }
     };

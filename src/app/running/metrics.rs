@@ -21,7 +21,9 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
 use crate::sim::{Dynamics, GridEntry, Padded, Parallelism, Plugin, SimBuilder, SimClock, SimSystems, SpatialGrid};
-use crate::vehicles::{LaneChangeEvent, LaneChangeLog, Longitudinal, PathFollower, PlatoonMember};
+use crate::vehicles::{
+    LaneChangeEvent, LaneChangeLog, LaneMap, LanePosition, Longitudinal, PathFollower, PlatoonMember,
+};
 use crate::world::{IdMap, Route, Stationary, VehicleId, VehicleSize, VehicleState};
 
 /// One collision: two footprints started to overlap.
@@ -269,6 +271,8 @@ pub struct Metrics {
     /// Each chunk's touching pairs of the parallel search, merged into `touching`.
     touching_chunks: Vec<Padded<Vec<(VehicleId, VehicleId)>>>,
     boxes: Vec<Footprint>,
+    /// Map index of the lanelet under each of `boxes` (`u32::MAX` off the road or unknown).
+    box_lanelets: Vec<u32>,
     grid: SpatialGrid,
     /// Pairs of `boxes` (indices, lower id first) that may touch: see [`Metrics::record_collisions`].
     near: Vec<(u32, u32)>,
@@ -451,11 +455,11 @@ fn follower_gap(
 }
 
 /// Record collisions, follower gaps and platoon speeds after a dynamics step.
-#[allow(clippy::type_complexity)]
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub fn record_metrics(
     clock: Res<SimClock>,
     mut metrics: ResMut<Metrics>,
-    everyone: Query<(&VehicleId, &VehicleState, &VehicleSize, Has<Stationary>)>,
+    everyone: Query<(&VehicleId, &VehicleState, &VehicleSize, Has<Stationary>, Option<&LanePosition>)>,
     followers: Query<(
         &VehicleId,
         &VehicleState,
@@ -467,12 +471,24 @@ pub fn record_metrics(
     )>,
     members: Query<(&VehicleId, &VehicleState, &PlatoonMember)>,
     parallelism: Option<Res<Parallelism>>,
+    lanes: Option<Res<LaneMap>>,
 ) {
     // The step just integrated ends at now + dt.
     let t = clock.now.as_secs() + clock.dt;
     let m = &mut *metrics;
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
-    m.record_collisions(t, parallelism, everyone.iter().map(|(&id, state, size, fixed)| (id, state, size, fixed)));
+    // Footprints that overlap on lanelets at different levels (a bridge over a road) do not
+    // touch; checked only for overlapping pairs.
+    let junctions = lanes.as_deref().map(|l| l.map.junctions());
+    let separated = |a: u32, b: u32| junctions.as_ref().is_some_and(|j| j.levels_apart(a as usize, b as usize));
+    m.record_collisions(
+        t,
+        parallelism,
+        everyone
+            .iter()
+            .map(|(&id, state, size, fixed, lane)| (id, state, size, fixed, lane.map_or(u32::MAX, |l| l.index))),
+        &separated,
+    );
     if t < m.warmup {
         return;
     }
@@ -581,11 +597,14 @@ impl Metrics {
         &mut self,
         t: f64,
         parallelism: Parallelism,
-        everyone: impl Iterator<Item = (VehicleId, &'a VehicleState, &'a VehicleSize, bool)>,
+        everyone: impl Iterator<Item = (VehicleId, &'a VehicleState, &'a VehicleSize, bool, u32)>,
+        separated: &(dyn Fn(u32, u32) -> bool + Sync),
     ) {
         self.boxes.clear();
+        self.box_lanelets.clear();
         let mut widest: f64 = 0.0;
-        for (id, state, size, fixed) in everyone {
+        for (id, state, size, fixed, lanelet) in everyone {
+            self.box_lanelets.push(lanelet);
             let b = Footprint { velocity: state.velocity, ..Footprint::of(id, fixed, state.position, state.yaw, size) };
             widest = widest.max(b.radius());
             self.boxes.push(b);
@@ -596,11 +615,12 @@ impl Metrics {
         // Every pair of the list tested, split over threads (read-only; each chunk keeps its own
         // pairs, then sorted: the same list on any thread count).
         let boxes = &self.boxes;
+        let lanelets = &self.box_lanelets;
         parallelism.for_each_chunk_at(&mut self.near, &mut self.touching_chunks, |_, chunk, found| {
             found.0.clear();
             for &(i, j) in chunk.iter() {
                 let (a, b) = (&boxes[i as usize], &boxes[j as usize]);
-                if !(a.fixed && b.fixed) && overlap(a, b) {
+                if !(a.fixed && b.fixed) && overlap(a, b) && !separated(lanelets[i as usize], lanelets[j as usize]) {
                     found.0.push((a.id, b.id));
                 }
             }
@@ -1004,7 +1024,8 @@ mod tests {
             metrics.record_collisions(
                 step as f64,
                 Parallelism::single(),
-                cars.iter().map(|(id, st, fixed)| (*id, st, &size, *fixed)),
+                cars.iter().map(|(id, st, fixed)| (*id, st, &size, *fixed, u32::MAX)),
+                &|_, _| false,
             );
             remade += usize::from(metrics.near_at != before);
             let mut expected = Vec::new();

@@ -9,7 +9,7 @@
 
 use std::sync::Arc;
 
-use crate::map::{LaneletId, LaneletMap, Path, RouteOptions};
+use crate::map::{Lanelet, LaneletId, LaneletMap, Path, RouteOptions};
 use crate::sim::random::uniform;
 
 /// Shortest route a random trip may have \[m\]: shorter ones (a lanelet to its own successor)
@@ -52,6 +52,8 @@ pub struct RandomTrips {
     successors: Vec<Vec<u32>>,
     /// By map index: whether a successor is a junction's link (the lanelet ends at a stop line).
     before_junction: Vec<bool>,
+    /// By map index: whether a trip may pass through (see [`RandomTrips::on_fast_roads`]).
+    passable: Vec<bool>,
 }
 
 /// A trip does not start closer than this to a junction \[m\] (a car at 12 m/s stops in 24 m at
@@ -62,10 +64,36 @@ pub const CLEAR_OF_JUNCTIONS_M: f64 = 25.0;
 impl RandomTrips {
     /// The table of `map`; routes are resampled at `points_per_meter` [points per metre].
     pub fn new(map: &LaneletMap, points_per_meter: f64) -> RandomTrips {
+        RandomTrips::filtered(map, points_per_meter, |_| true, |_| true)
+    }
+
+    /// The table of `map` for trips on fast roads: they start and end on lanelets whose speed
+    /// limit ([`Lanelet::speed_limit`]) is at least `min_speed_limit` [m/s] and drive through
+    /// none with a lower one (a lanelet without a limit passes: OpenDRIVE's connecting roads in
+    /// junctions carry none, so a motorway's junctions with its ramps stay open). A drawn pair
+    /// whose shortest route leaves them is redrawn.
+    pub fn on_fast_roads(map: &LaneletMap, points_per_meter: f64, min_speed_limit: f64) -> RandomTrips {
+        RandomTrips::filtered(
+            map,
+            points_per_meter,
+            |l| l.speed_limit().is_some_and(|v| v >= min_speed_limit),
+            |l| l.speed_limit().is_none_or(|v| v >= min_speed_limit),
+        )
+    }
+
+    /// The table of `map` for trips that start and end on lanelets `ends` accepts and drive
+    /// only through lanelets `through` accepts (`ends` implies `through`).
+    fn filtered(
+        map: &LaneletMap,
+        points_per_meter: f64,
+        ends: impl Fn(&Lanelet) -> bool,
+        through: impl Fn(&Lanelet) -> bool,
+    ) -> RandomTrips {
         let n = map.lanelets.len();
         // Not a junction's own lanelets: a vehicle would appear in the middle of crossing traffic.
         let junctions = map.junctions();
         let link: Vec<bool> = map.lanelets.iter().map(|l| junctions.of_lanelet(l.id).is_some()).collect();
+        let passable: Vec<bool> = map.lanelets.iter().map(&through).collect();
         let successors: Vec<Vec<u32>> = map
             .lanelets
             .iter()
@@ -73,7 +101,7 @@ impl RandomTrips {
                 l.successors
                     .iter()
                     .filter_map(|id| map.lanelet_index(*id))
-                    .filter(|&j| map.lanelets[j].routable)
+                    .filter(|&j| map.lanelets[j].routable && passable[j])
                     .map(|j| j as u32)
                     .collect()
             })
@@ -102,8 +130,12 @@ impl RandomTrips {
         };
         let mut total = 0.0;
         let (mut lanelets, mut cumulative) = (Vec::new(), Vec::new());
-        let destination: Vec<bool> =
-            map.lanelets.iter().zip(&link).map(|(l, &is_link)| l.routable && l.length > 0.0 && !is_link).collect();
+        let destination: Vec<bool> = (0..n)
+            .map(|i| {
+                let l = &map.lanelets[i];
+                l.routable && l.length > 0.0 && !link[i] && passable[i] && ends(l)
+            })
+            .collect();
         for i in (0..n).filter(|&i| destination[i] && (junctions.is_empty() || !near_junction(i))) {
             total += map.lanelets[i].length;
             lanelets.push(map.lanelets[i].id);
@@ -117,6 +149,7 @@ impl RandomTrips {
             destination,
             successors,
             before_junction,
+            passable,
         }
     }
 
@@ -208,7 +241,10 @@ impl RandomTrips {
             let (reach, cumulative) = self.reachable(map, o);
             map.lanelets[reach[weighted_index(&cumulative, u)?]].id
         };
-        let path = map.route_lanelets(origin, destination, &self.opts).ok().filter(|p| p.length >= MIN_TRIP_M)?;
+        let path = map.route_lanelets(origin, destination, &self.opts).ok().filter(|p| {
+            p.length >= MIN_TRIP_M
+                && p.lanelets.iter().all(|id| map.lanelet_index(*id).is_some_and(|i| self.passable[i]))
+        })?;
         Some(RandomTrip { origin, destination, path: Arc::new(path), redraws: t })
     }
 }

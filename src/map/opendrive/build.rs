@@ -43,9 +43,12 @@ fn subtype(kind: &str) -> Option<&'static str> {
 }
 
 /// Merges every lane section shorter than [`MIN_SECTION`] into the one before it (the first
-/// section into the one after it) when that one has the same lane ids, carrying the short
-/// section's lane links over: a lane linked into the short section links on to where that
-/// section's lane links. A road of one section keeps it, however short.
+/// section into the one after it), carrying the short section's lane links over: a lane linked
+/// into the short section links on to where that section's lane links. A neighbour with the same
+/// lane ids runs on over the short section's stretch; one with other lanes does not (the
+/// stretch, under [`MIN_SECTION`], is left out). Either way no lanelet of the short section is
+/// built, so the map and its `map convert` round trip have the same lanelets (an OSM lanelet of
+/// bounds under 1 cm is skipped by the loader). A road of one section keeps it, however short.
 pub(crate) fn merge_short_sections(doc: &mut Document) {
     // Composes an earlier id map (file id -> id) with a step (id -> new id).
     fn compose(old: Option<BTreeMap<i32, i32>>, step: BTreeMap<i32, i32>) -> Option<BTreeMap<i32, i32>> {
@@ -58,21 +61,28 @@ pub(crate) fn merge_short_sections(doc: &mut Document) {
         let mut k = 0;
         while k < road.sections.len() {
             let short = road.sections[k].end - road.sections[k].s < MIN_SECTION;
-            // Only into a neighbour with the same lanes: where the lanes differ the short section
-            // may move a lane sideways (Town04 road 688: 14 m over 1.7 µm), kept as the file has it.
-            let ids = |x: &LaneSection| x.left.iter().chain(&x.right).map(|l| l.id).collect::<Vec<_>>();
-            let neighbour = if k > 0 { k - 1 } else { k + 1 };
-            let same = road.sections.get(neighbour).is_some_and(|n| ids(n) == ids(&road.sections[k]));
-            if !short || !same {
+            if !short || road.sections.len() < 2 {
                 k += 1;
                 continue;
             }
+            // A neighbour with the same lanes takes over the short section's stretch of road.
+            // Where the lanes differ the short section may move a lane sideways (Town04 road 688:
+            // its 1.7 µm first section holds lane -6 where the next section's lane offset puts
+            // lane -2; running that section back over it moved lane -2 by 14 m), so the section
+            // is dropped and its stretch left out: a gap of its length (under MIN_SECTION; the
+            // four in Town04 are 2 to 23 µm) between the lanes it joined.
+            let ids = |x: &LaneSection| x.left.iter().chain(&x.right).map(|l| l.id).collect::<Vec<_>>();
+            let neighbour = if k > 0 { k - 1 } else { k + 1 };
+            let same = road.sections.get(neighbour).is_some_and(|n| ids(n) == ids(&road.sections[k]));
             let gone = road.sections.remove(k);
             let last = k == road.sections.len();
             if k > 0 {
-                // The section before runs on to the short one's end; its lanes link past it.
+                // The section before runs on to the short one's end (same lanes); its lanes link
+                // past it.
                 let prev = &mut road.sections[k - 1];
-                prev.end = gone.end;
+                if same {
+                    prev.end = gone.end;
+                }
                 let mut step = BTreeMap::new();
                 for lane in prev.left.iter_mut().chain(&mut prev.right) {
                     let via = lane
@@ -95,9 +105,11 @@ pub(crate) fn merge_short_sections(doc: &mut Document) {
                     }
                 }
             } else {
-                // The first section: the next one starts at the road's start instead.
+                // The first section: the next one starts at the road's start instead (same lanes).
                 let next = &mut road.sections[0];
-                next.s = gone.s;
+                if same {
+                    next.s = gone.s;
+                }
                 let mut step = BTreeMap::new();
                 for lane in next.left.iter_mut().chain(&mut next.right) {
                     let via = lane

@@ -366,9 +366,18 @@ impl Scenario {
             let mut random = None;
             match &t.route {
                 TrafficRoute::Random => {
-                    let trips = RandomTrips::new(&lanes.map, self.file.points_per_meter);
+                    let trips = match t.min_speed_limit {
+                        None => RandomTrips::new(&lanes.map, self.file.points_per_meter),
+                        Some(min) => RandomTrips::on_fast_roads(&lanes.map, self.file.points_per_meter, min),
+                    };
                     if trips.is_empty() {
-                        return Err(self.invalid(key("route"), "is \"random\" but the map has no drivable lanelet"));
+                        let why = match t.min_speed_limit {
+                            None => "is \"random\" but the map has no drivable lanelet".to_string(),
+                            Some(min) => format!(
+                                "is \"random\" with `min_speed_limit = {min}` [m/s] but no drivable lanelet has a `speed_limit` tag that high"
+                            ),
+                        };
+                        return Err(self.invalid(key("route"), why));
                     }
                     random = Some(Arc::new(trips));
                 }

@@ -123,6 +123,14 @@ fn check_traffic(c: &Checker<'_>, k: usize, t: &super::file::TrafficConfig) -> R
     if let Some(u) = t.until {
         c.within(key("until"), u, Range::non_negative(1e9))?;
     }
+    if let Some(v) = t.min_speed_limit {
+        if t.route != TrafficRoute::Random {
+            return Err(
+                c.invalid(key("min_speed_limit"), "keeps random trips on fast roads: it needs `route = \"random\"`")
+            );
+        }
+        c.within(key("min_speed_limit"), v, Range::non_negative(MAX_SPEED))?;
+    }
     let [lo, hi] = t.speed;
     c.within(key("speed[0]"), lo, Range::positive(MAX_SPEED))?;
     c.within(key("speed[1]"), hi, Range::positive(MAX_SPEED))?;

@@ -336,6 +336,13 @@ pub struct TrafficConfig {
     /// never thins; `smlworld bench --city` drives this way).
     #[serde(default)]
     pub on_arrival: OnArrival,
+    /// Random trips only: they start and end on lanelets whose `speed_limit` tag is at least
+    /// this [m/s] and drive through none with a lower limit (lanelets without one pass), e.g. 25
+    /// keeps them on a motorway (CARLA's Town04 marks its highway 65 mph, 29 m/s, its town 30 to
+    /// 55 mph, its junctions' connecting roads not at all); see
+    /// [`crate::app::running::random_trips::RandomTrips::on_fast_roads`].
+    #[serde(default)]
+    pub min_speed_limit: Option<f64>,
 }
 
 /// `[[traffic]] on_arrival`.
