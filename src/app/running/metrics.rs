@@ -647,11 +647,9 @@ impl Metrics {
     fn near_is_stale(&self) -> bool {
         let half2 = 0.25 * NEAR_MARGIN * NEAR_MARGIN;
         self.near_at.len() != self.boxes.len()
-            || self
-                .boxes
-                .iter()
-                .zip(&self.near_at)
-                .any(|(b, &(id, at))| b.id != id || !(b.centre.distance_squared(at) <= half2))
+            || self.boxes.iter().zip(&self.near_at).any(|(b, &(id, at))| {
+                b.id != id || b.centre.distance_squared(at).partial_cmp(&half2) != Some(std::cmp::Ordering::Less)
+            })
     }
 
     /// Make the near list: each pair (box indices, lower id first) whose centres are within
