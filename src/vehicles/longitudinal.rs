@@ -333,32 +333,21 @@ fn find_leader(
     elsewhere: impl Fn(VehicleId) -> bool + Copy,
 ) {
     let detections = readings.map_or(&[][..], |r| &r.0[..]);
-    let mut leader = match crossings {
-        None => leader_on_path_with(
-            &route.0,
-            follower.s,
-            state.position,
-            size.length,
-            detections,
-            lon.lane_half_width,
-            |_| false,
-            elsewhere,
-        ),
-        Some(c) => {
-            let lanes = &route.0.lanelets;
-            let crossing = |id: VehicleId| c.get(&id).is_some_and(|(a, b)| lanes.contains(a) || lanes.contains(b));
-            leader_on_path_with(
-                &route.0,
-                follower.s,
-                state.position,
-                size.length,
-                detections,
-                lon.lane_half_width,
-                crossing,
-                elsewhere,
-            )
-        }
+    // A vehicle changing into or out of a lane of this route counts in both lanes.
+    let lanes = &route.0.lanelets;
+    let crossing = |id: VehicleId| {
+        crossings.is_some_and(|c| c.get(&id).is_some_and(|(a, b)| lanes.contains(a) || lanes.contains(b)))
     };
+    let mut leader = leader_on_path_with(
+        &route.0,
+        follower.s,
+        state.position,
+        size.length,
+        detections,
+        lon.lane_half_width,
+        crossing,
+        elsewhere,
+    );
     // While changing lanes the vehicle is in both: the nearer leader of the old lane counts too.
     if let Some(m) = changer.and_then(|c| c.active.as_ref()) {
         let old = leader_on_path(&m.old_route, m.old_s, state.position, size.length, detections, lon.lane_half_width);
