@@ -991,13 +991,7 @@ mod tests {
     /// must remake it), one is removed and the others are reordered.
     #[test]
     fn collisions_from_the_near_list_are_those_of_every_pair() {
-        let mut rng = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            (rng >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = crate::world::random::draws(0x2545_f491_4f6c_dd1d);
         let size = VehicleSize { length: 4.5, width: 1.8 };
         let mut cars: Vec<(VehicleId, VehicleState, bool)> = (0..200)
             .map(|i| {

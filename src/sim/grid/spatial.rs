@@ -525,13 +525,7 @@ mod tests {
 
     /// Points of a fixed pseudo-random sequence in a square of side `side` [m].
     fn points(n: usize, side: f64) -> Vec<GridEntry> {
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = crate::world::random::draws(0x9e37_79b9_7f4a_7c15);
         (0..n)
             .map(|i| GridEntry {
                 position: DVec2::new(next() * side - 0.5 * side, next() * side - 0.5 * side),
