@@ -9,7 +9,7 @@
 //! (default `scenarios/student_sensor.toml`, `out/student_sensor`).
 
 use smlworld::prelude::*;
-use smlworld::sim::{PluginSense, PluginSensorSystems, ScenarioSensor, Sensor, in_radar_cone};
+use smlworld::sim::{Cone, PluginSense, PluginSensorSystems, ScenarioSensor, Sensor};
 use smlworld::world::SensorError;
 
 /// The camera's parameters, read from its table in the vehicle's `sensors`.
@@ -62,16 +62,14 @@ pub fn sense_cameras(
     mut cameras: Query<(&VehicleId, &VehicleState, &Sensor<Camera>, &mut SensorReadings)>,
 ) {
     sense.each(cameras.iter_mut(), |(&me, state, camera, mut readings), cx| {
-        let (from, heading) = (state.position, DVec2::from_angle(state.yaw));
+        let from = state.position;
+        let view = Cone::new(DVec2::from_angle(state.yaw), camera.fov_deg.to_radians());
         let draws = cx.draws(camera.name);
         let error = SensorError { range_sd: camera.range_sd, dropout: camera.dropout, ..Default::default() };
         let counts = cx.stats.of(camera.name);
-        cx.nearby.within(from, camera.range, cx.found);
+        cx.nearby.around(me, from, camera.range, cx.found);
         cx.occlusion.clear();
-        let seen = cx
-            .found
-            .iter()
-            .filter(|n| n.id != me && in_radar_cone(n.position - from, heading, camera.fov_deg.to_radians()));
+        let seen = cx.found.iter().filter(|n| n.id != me && view.contains(n.position - from, n.distance_squared));
         let kept = seen.filter_map(|n| {
             if cx.occlusion.hidden(from, n) && camera.occlusion {
                 counts.missed_by_occlusion += 1;

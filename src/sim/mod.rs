@@ -45,6 +45,6 @@ pub use sensors::plugins::{
     Nearby, Neighbour, Occlusion, PluginDraws, PluginScratch, PluginSense, PluginSensorStats, PluginSensorSystems,
     ScenarioSensor, Sensing, Sensor,
 };
-pub use sensors::{SensorStats, SensorsPlugin, in_radar_cone};
+pub use sensors::{Cone, SensorStats, SensorsPlugin, in_radar_cone};
 pub use v2v::channel::plugins::{ChannelLossModel, ChannelModelRegistry, LinkContext};
 pub use v2v::{ChannelStats, DelayedMessages, V2vChannelStats, V2vConfig, V2vLinks, V2vPlugin, V2vStats};

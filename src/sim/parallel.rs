@@ -333,6 +333,16 @@ impl Parallelism {
         if items < self.min_vehicles.max(2) { 1 } else { self.threads.clamp(1, items) }
     }
 
+    /// The split for per-vehicle work on a share of a world of `vehicles` vehicles (a plugin
+    /// sensor on a tenth of them, each item as costly as a vehicle's sensing): the threads the
+    /// whole world gets, used at any item count; one thread where the world is too small.
+    pub fn for_share_of(&self, vehicles: usize) -> Parallelism {
+        match self.threads_for(vehicles) {
+            1 => Parallelism::single(),
+            threads => Parallelism { threads, min_vehicles: 0 },
+        }
+    }
+
     /// Chunks [`Parallelism::for_each_chunk`] cuts `items` items into: [`CHUNKS_PER_THREAD`] a
     /// thread (1 on one thread). Fewer are non-empty when `items` is not much larger.
     pub fn chunks_for(&self, items: usize) -> usize {
@@ -534,6 +544,17 @@ mod tests {
             assert_eq!(items, (1..1002).collect::<Vec<u32>>(), "{threads} threads");
             assert_eq!(scratch.iter().sum::<u64>(), 1001);
         }
+    }
+
+    #[test]
+    fn a_share_of_a_large_world_splits_at_any_count_and_of_a_small_one_never() {
+        let p = Parallelism { threads: 2, min_vehicles: 2000 };
+        assert_eq!(p.threads_for(1000), 1, "1,000 items alone stay on one thread");
+        let share = p.for_share_of(10_000);
+        assert_eq!((share.threads_for(1000), share.threads_for(3)), (2, 2));
+        assert_eq!(share.threads_for(1), 1);
+        assert_eq!(p.for_share_of(1999).threads_for(1000), 1, "a world under the threshold");
+        assert_eq!(Parallelism::single().for_share_of(10_000).threads_for(1000), 1);
     }
 
     #[test]

@@ -600,6 +600,39 @@ mod tests {
         assert!(stats.0.get("camera").is_some_and(|c| c.detections > 0), "{stats:?}");
     }
 
+    #[test]
+    fn the_cameras_read_from_their_own_lists_what_the_grid_gives_them() {
+        // A tenth of 1,000 vehicles with the camera, IDM and lane changes (the built-in lists
+        // are built again now and then, and the cameras' with them), 2 threads: once with the
+        // carriers' lists, once with the grid alone; the same readings and counts, bit for bit.
+        use crate::sim::sensor_plugins::NearbyIndex;
+        let runs: Vec<_> = [false, true]
+            .into_iter()
+            .map(|grid_only| {
+                let world =
+                    BenchWorld { vehicles: 1000, plugin_sensor_share: 0.1, lane_change: true, ..Default::default() };
+                let mut sim = sim_of(world, Parallelism::split(2));
+                sim.world_mut().resource_mut::<NearbyIndex>().grid_only = grid_only;
+                sim.run_for(6.0);
+                let served = sim.world().resource::<NearbyIndex>().ticks_served_by_lists();
+                let stats = sim.world().resource::<crate::sim::PluginSensorStats>().clone();
+                let builds = sim.world().resource::<crate::sim::grid::lists::SensorGrid>().neighbours.lists.builds;
+                (fingerprint_of(&mut sim), stats, served, builds)
+            })
+            .collect();
+        let (lists, grid) = (&runs[0], &runs[1]);
+        assert!(lists.2 >= 100, "the lists served {} of 120 sensor ticks", lists.2);
+        assert!(lists.3 >= 2, "the built-in lists were built {} times: the cameras' never made again", lists.3);
+        assert_eq!(grid.2, 0, "grid_only was not obeyed");
+        assert!(
+            lists.1.0.get("camera").is_some_and(|c| c.detections > 1000 && c.missed_by_occlusion > 0),
+            "{:?}",
+            lists.1
+        );
+        assert_eq!(lists.1, grid.1, "other counts from the lists than from the grid");
+        assert!(lists.0 == grid.0, "other readings from the lists than from the grid");
+    }
+
     /// Everything the heavy systems write, per vehicle, in id order, as exact bits.
     fn fingerprint(parallelism: Parallelism) -> Vec<(i32, Vec<u64>)> {
         let mut sim = sim_of(BenchWorld { vehicles: 600, ..Default::default() }, parallelism);

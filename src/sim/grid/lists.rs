@@ -78,6 +78,11 @@ pub(crate) struct NeighbourLists {
     /// Farthest any vehicle may move from its anchor before the lists are built again [m]:
     /// vehicles in drift cells that do not touch cannot come within sensor range until then.
     pub(crate) max_drift: f64,
+    /// The widest sensor range of the build [m]: while the lists hold, no two vehicles within
+    /// this of each other now have closed in by the skin since the build (vehicles in drift cells
+    /// that do not touch stay farther apart), what the plugin sensors' lists rely on
+    /// ([`crate::sim::sensor_plugins::Nearby::around`]).
+    pub(crate) guarded: f64,
     /// Builds so far.
     pub(crate) builds: u64,
     /// Sensor ticks that kept the lists in one pass ([`sense_with_kept_lists`]), and those whose
@@ -529,6 +534,7 @@ impl NeighbourLists {
         // Non-touching cells are more than a side apart; each of two vehicles may close in by
         // `max_drift`, and must stay farther apart than the widest range (a margin for rounding).
         self.max_drift = 0.49 * (side - (widest - self.skin));
+        self.guarded = widest - self.skin;
         let key = |p: DVec2| ((p.x / side).floor() as i64, (p.y / side).floor() as i64);
         keys.clear();
         keys.extend(self.anchors.iter().map(|&p| key(p)));

@@ -52,7 +52,7 @@ mod tests;
 mod tick;
 
 pub use keys::{OMNISCIENT, RADAR, VELODYNE};
-pub use radar::in_radar_cone;
+pub use radar::{Cone, in_radar_cone};
 pub use readings::SensorStats;
 pub use tick::sense_vehicles;
 

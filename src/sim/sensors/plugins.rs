@@ -34,8 +34,9 @@
 //! ```
 
 use std::collections::BTreeMap;
+use std::sync::OnceLock;
 
-use bevy_ecs::prelude::{Component, Entity, EntityWorldMut, Local, Query, Res, ResMut, Resource, With};
+use bevy_ecs::prelude::{Component, EntityWorldMut, Local, Query, Res, ResMut, Resource, With};
 use bevy_ecs::schedule::SystemSet;
 use bevy_ecs::system::SystemParam;
 use glam::DVec2;
@@ -43,11 +44,13 @@ use serde::de::DeserializeOwned;
 
 use super::errors::{Footprint, SensorKeys, add_noise};
 use super::readings::SensorStats;
+use super::tick::{EveryoneQuery, one_table};
+use crate::sim::grid::lists::{Everyone, NeighbourLists, SensorGrid};
 use crate::sim::grid::{GridEntry, SpatialGrid};
 use crate::sim::params::{ControllerParamError, parse_plugin_params};
 use crate::sim::random::{key, mix};
 use crate::sim::{Parallelism, SimClock, SimSeed};
-use crate::world::{Detection, SensorError, SensorReadings, SimTime, VehicleId, VehicleSize, VehicleState};
+use crate::world::{Detection, IdMap, SensorError, SensorReadings, SimTime, VehicleId, VehicleSize, VehicleState};
 
 /// A sensor a scenario can name: the keys of its table in a vehicle's `sensors` are
 /// deserialised into the type (`deny_unknown_fields` refuses a misspelt key, naming it).
@@ -195,8 +198,9 @@ pub enum PluginSensorSystems {
     Sense,
 }
 
-/// The grid of every vehicle [`Nearby`] answers from, rebuilt once per sensor tick while any
-/// vehicle carries a plugin sensor.
+/// What [`Nearby`] answers from, made once per sensor tick while any vehicle carries a plugin
+/// sensor ([`index_nearby`]): each carrier's own neighbour list where the built-in sensors'
+/// lists hold ([`Nearby::around`]), else a grid of every vehicle.
 #[derive(Resource, Debug, Default)]
 pub struct NearbyIndex {
     grid: SpatialGrid,
@@ -206,6 +210,109 @@ pub struct NearbyIndex {
     reach: f64,
     /// When it was built.
     built_at: Option<SimTime>,
+    /// Vehicles in the world at that tick.
+    vehicles: usize,
+    /// Whether this tick's carriers are served by their lists ([`CarrierLists`]); the grid
+    /// is then not rebuilt, and [`Nearby::within`] builds one of its own on first use (`lazy`).
+    serving: bool,
+    lazy: OnceLock<Box<(SpatialGrid, Vec<Footprint>)>>,
+    carriers: CarrierLists,
+    /// Never serve from the lists (tests compare both ways).
+    pub(crate) grid_only: bool,
+}
+
+impl NearbyIndex {
+    /// Sensor ticks whose carriers were served by their lists.
+    pub fn ticks_served_by_lists(&self) -> u64 {
+        self.carriers.ticks_served
+    }
+}
+
+/// Each plugin sensor carrier's Verlet neighbour list, made over the positions at the built-in
+/// sensors' last list build ([`crate::sim::grid::lists::NeighbourLists`]) with their skin.
+///
+/// While those lists hold, no two vehicles within the widest built-in sensor range of each
+/// other have closed in by the skin since the build (`NeighbourLists::moved_together`). So
+/// for a plugin reach within that range, every vehicle within the reach of a carrier now lay
+/// within the reach plus the skin of it then: on its list. A sensor tick that finds the
+/// built-in lists held at its instant (they were just tested or built by the built-in sensors)
+/// reads the lists, with no O(N) work of its own; they are made again after each build of the
+/// built-in lists, or when the carriers or the reach change.
+#[derive(Debug, Default)]
+struct CarrierLists {
+    /// The built-in lists' build they were made from (`NeighbourLists::builds`).
+    build: Option<u64>,
+    /// The plugin reach they were made for [m].
+    reach: f64,
+    /// The carriers, in query order, when they were made.
+    ids: Vec<VehicleId>,
+    /// Each carrier's list: `rows[starts[k]..starts[k + 1]]`, places in the vehicles' table.
+    of: IdMap<u32>,
+    starts: Vec<u32>,
+    rows: Vec<u32>,
+    /// The anchors' grid of the last making (kept for its allocation).
+    grid: SpatialGrid,
+    /// Sensor ticks served by the lists.
+    ticks_served: u64,
+}
+
+impl CarrierLists {
+    /// Whether the lists serve this tick (made again first where stale): the built-in lists
+    /// held at `now` for every vehicle, in one table, with a skin, guarding `reach`.
+    fn serve(
+        &mut self,
+        sensors: &SensorGrid,
+        carriers: &Query<&VehicleId, With<CarriesPluginSensor>>,
+        everyone: &EveryoneQuery,
+        (reach, now): (f64, SimTime),
+    ) -> bool {
+        let lists = &sensors.neighbours.lists;
+        let Some((ids, states)) = one_table(everyone) else { return false };
+        let holds = lists.skin > 0.0
+            && lists.held_at == Some(now)
+            && reach <= lists.guarded
+            && lists.of_vehicles(Everyone { ids, states });
+        if !holds {
+            return false;
+        }
+        if self.build != Some(lists.builds) || self.reach != reach || !carriers.iter().eq(self.ids.iter()) {
+            self.make(lists, carriers, reach);
+        }
+        true
+    }
+
+    /// Each carrier's list: every vehicle within `reach` plus the skin of it at the build.
+    fn make(&mut self, lists: &NeighbourLists, carriers: &Query<&VehicleId, With<CarriesPluginSensor>>, reach: f64) {
+        (self.build, self.reach) = (Some(lists.builds), reach);
+        self.ids.clear();
+        self.ids.extend(carriers.iter().copied());
+        let row_of: IdMap<u32> = lists.ids.iter().enumerate().map(|(i, &id)| (id, i as u32)).collect();
+        let radius = reach + lists.skin;
+        let entry = |i: usize| GridEntry {
+            position: lists.anchors[i],
+            velocity: DVec2::ZERO,
+            id: lists.ids[i],
+            index: i as u32,
+        };
+        self.grid.rebuild(radius, (0..lists.ids.len()).map(entry));
+        self.of.clear();
+        self.rows.clear();
+        self.starts.clear();
+        self.starts.push(0);
+        for id in &self.ids {
+            // (Every carrier is one of the vehicles; one that is not gets no list.)
+            let Some(&row) = row_of.get(id) else { continue };
+            self.grid.for_each_within(lists.anchors[row as usize], radius, |_, point, _| self.rows.push(point.index));
+            self.of.insert(*id, self.starts.len() as u32 - 1);
+            self.starts.push(self.rows.len() as u32);
+        }
+    }
+
+    /// The list of carrier `id`, if it has one.
+    fn of(&self, id: VehicleId) -> Option<&[u32]> {
+        let k = *self.of.get(&id)? as usize;
+        Some(&self.rows[self.starts[k] as usize..self.starts[k + 1] as usize])
+    }
 }
 
 /// One vehicle near a query's position.
@@ -229,23 +336,37 @@ impl Neighbour {
     }
 }
 
-/// The neighbour query of plugin sensors: every vehicle within a range of a position, from the
-/// grid built this sensor tick, O(k) for the k found (plus their sort).
+/// The neighbour query of plugin sensors: every vehicle within a range of a position, O(k) for
+/// the k found (plus their sort), from each carrier's own list ([`Nearby::around`]) or a grid
+/// of every vehicle built this sensor tick ([`Nearby::within`]).
 #[derive(SystemParam)]
-pub struct Nearby<'w> {
+pub struct Nearby<'w, 's> {
     index: Res<'w, NearbyIndex>,
+    everyone: EveryoneQuery<'w, 's>,
 }
 
-impl Nearby<'_> {
+impl Nearby<'_, '_> {
     /// Every vehicle within `range` \[m\] of `position` (inclusive), nearest first (ties by id),
     /// into `out` (cleared first; keep one buffer per system to allocate nothing per tick). The
-    /// vehicle at `position` itself is among them: skip your own id.
+    /// vehicle at `position` itself is among them: skip your own id. Any position; a sensor on
+    /// a vehicle asks [`Nearby::around`], which costs no grid.
     pub fn within(&self, position: DVec2, range: f64, out: &mut Vec<Neighbour>) {
-        out.clear();
         let index = &*self.index;
-        index.grid.for_each_within(position, range, |slot, point, d2| {
-            let e = index.grid.get(slot);
-            let footprint = index.footprints[point.index as usize];
+        let (grid, footprints) = if index.serving {
+            let live = index.lazy.get_or_init(|| {
+                let mut live = Box::<(SpatialGrid, Vec<Footprint>)>::default();
+                let (grid, footprints) = &mut *live;
+                fill_grid(grid, footprints, &self.everyone, Parallelism::single(), index.reach);
+                live
+            });
+            (&live.0, &live.1)
+        } else {
+            (&index.grid, &index.footprints)
+        };
+        out.clear();
+        grid.for_each_within(position, range, |slot, point, d2| {
+            let e = grid.get(slot);
+            let footprint = footprints[point.index as usize];
             out.push(Neighbour {
                 id: point.id,
                 position: point.position,
@@ -254,12 +375,81 @@ impl Nearby<'_> {
                 footprint,
             });
         });
-        out.sort_unstable_by(|a, b| a.distance_squared.total_cmp(&b.distance_squared).then(a.id.cmp(&b.id)));
+        sort_nearest_first(out);
     }
 
-    /// When the grid was built (`None`: no vehicle carries a plugin sensor yet).
+    /// What [`Nearby::within`] gives for `position`, the place of vehicle `me` (which carries
+    /// a plugin sensor), and `range` up to the longest plugin range: the same vehicles in the
+    /// same order, read from `me`'s own neighbour list where the built-in sensors' lists hold
+    /// ([`NearbyIndex`]), else from the grid.
+    pub fn around(&self, me: VehicleId, position: DVec2, range: f64, out: &mut Vec<Neighbour>) {
+        let index = &*self.index;
+        let listed = if index.serving && range <= index.carriers.reach { index.carriers.of(me) } else { None };
+        let (Some(rows), Some((ids, states, sizes))) = (listed, self.table()) else {
+            return self.within(position, range, out);
+        };
+        out.clear();
+        let r2 = range * range;
+        for &j in rows {
+            let (j, state) = (j as usize, &states[j as usize]);
+            let d2 = state.position.distance_squared(position);
+            if d2 <= r2 {
+                let size = sizes.map_or_else(VehicleSize::default, |sizes| sizes[j]);
+                out.push(Neighbour {
+                    id: ids[j],
+                    position: state.position,
+                    velocity: state.velocity,
+                    distance_squared: d2,
+                    footprint: Footprint::new(size, state.yaw),
+                });
+            }
+        }
+        sort_nearest_first(out);
+    }
+
+    /// The ids, states and sizes of the one non-empty ECS table of every vehicle, if they are
+    /// all in one.
+    #[allow(clippy::type_complexity)]
+    fn table(&self) -> Option<(&[VehicleId], &[VehicleState], Option<&[VehicleSize]>)> {
+        let mut full = self.everyone.contiguous_iter().ok()?.filter(|(ids, _, _)| !ids.is_empty());
+        let table = full.next()?;
+        full.next().is_none().then_some(table)
+    }
+
+    /// When it was built (`None`: no vehicle carries a plugin sensor yet).
     pub fn built_at(&self) -> Option<SimTime> {
         self.index.built_at
+    }
+}
+
+/// Nearest first, ties by id: the order of [`Nearby::within`].
+fn sort_nearest_first(out: &mut [Neighbour]) {
+    out.sort_unstable_by(|a, b| a.distance_squared.total_cmp(&b.distance_squared).then(a.id.cmp(&b.id)));
+}
+
+/// Fill `grid` and `footprints` with every vehicle, cells of side `reach` (50 m when 0): split
+/// over `parallelism`'s threads when every vehicle lies in one ECS table, the common case.
+fn fill_grid(
+    grid: &mut SpatialGrid,
+    footprints: &mut Vec<Footprint>,
+    everyone: &EveryoneQuery,
+    parallelism: Parallelism,
+    reach: f64,
+) {
+    let cell = if reach > 0.0 { reach } else { 50.0 };
+    footprints.clear();
+    footprints.extend(everyone.iter().map(|(_, s, size)| Footprint::new(size.copied().unwrap_or_default(), s.yaw)));
+    let entry = |i: usize, id: VehicleId, s: &VehicleState| GridEntry {
+        position: s.position,
+        velocity: s.velocity,
+        id,
+        index: i as u32,
+    };
+    match one_table(everyone) {
+        Some((ids, states)) => {
+            grid.rebuild_on(parallelism, cell, ids.len().min(states.len()), |i| entry(i, ids[i], &states[i]))
+        }
+        None => grid.rebuild(cell, everyone.iter().enumerate().map(|(i, (&id, s, _))| entry(i, id, s))),
     }
 }
 
@@ -271,7 +461,7 @@ impl Nearby<'_> {
 /// thread or four give the same readings and the same [`PluginSensorStats`].
 #[derive(SystemParam)]
 pub struct PluginSense<'w, 's> {
-    nearby: Nearby<'w>,
+    nearby: Nearby<'w, 's>,
     clock: Res<'w, SimClock>,
     seed: Option<Res<'w, SimSeed>>,
     parallelism: Option<Res<'w, Parallelism>>,
@@ -291,9 +481,9 @@ pub struct PluginScratch {
 
 /// What [`PluginSense::each`] hands a plugin sensor's code with each vehicle: the neighbour
 /// query, the tick, the seed, and buffers and counts of its own (one per chunk of vehicles).
-pub struct Sensing<'a, 'w> {
-    /// The neighbour query ([`Nearby::within`]).
-    pub nearby: &'a Nearby<'w>,
+pub struct Sensing<'a, 'w, 's> {
+    /// The neighbour query ([`Nearby::around`], [`Nearby::within`]).
+    pub nearby: &'a Nearby<'w, 's>,
     /// The sensor tick's time.
     pub now: SimTime,
     /// The run's seed (what [`PluginDraws::new`] takes).
@@ -306,7 +496,7 @@ pub struct Sensing<'a, 'w> {
     pub stats: &'a mut PluginSensorStats,
 }
 
-impl Sensing<'_, '_> {
+impl Sensing<'_, '_, '_> {
     /// The noise and dropout draws of sensor `name` at this tick ([`PluginDraws::new`]).
     pub fn draws(&self, name: &str) -> PluginDraws {
         PluginDraws::new(self.seed, name, self.now)
@@ -320,7 +510,11 @@ impl PluginSense<'_, '_> {
     /// per vehicle); each item is taken from it once, by whichever chunk holds it.
     pub fn each<T: Send>(&mut self, items: impl IntoIterator<Item = T>, sense: impl Fn(T, &mut Sensing) + Sync) {
         let mut slots: Vec<Option<T>> = items.into_iter().map(Some).collect();
-        let parallelism = self.parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
+        // Split as the whole world's sensing is split (the grid holds every vehicle), not by the
+        // carriers' count: a camera on a tenth of 10,000 vehicles is 1,000 items, under the
+        // threshold of a split, and ran on one thread while the other waited.
+        let world = self.nearby.index.vehicles;
+        let parallelism = self.parallelism.as_deref().copied().unwrap_or_else(Parallelism::single).for_share_of(world);
         let (nearby, now, seed) = (&self.nearby, self.clock.now, self.seed.as_deref().map_or(0, |s| s.0));
         parallelism.for_each_chunk(&mut slots, &mut self.scratch, |chunk, scratch| {
             let PluginScratch { found, occlusion, stats } = scratch;
@@ -339,32 +533,35 @@ impl PluginSense<'_, '_> {
     }
 }
 
-/// Rebuild [`NearbyIndex`] from every vehicle, once per sensor tick, while some vehicle carries
-/// a plugin sensor: O(N).
+/// Make [`NearbyIndex`] once per sensor tick while some vehicle carries a plugin sensor: the
+/// carriers' lists where the built-in sensors' lists hold ([`CarrierLists`]; no O(N) work but
+/// after their builds), else a grid of every vehicle (O(N), split over the threads).
 pub fn index_nearby(
     mut index: ResMut<NearbyIndex>,
     clock: Res<SimClock>,
-    carriers: Query<(), With<CarriesPluginSensor>>,
-    everyone: Query<(Entity, &VehicleId, &VehicleState, Option<&VehicleSize>)>,
+    parallelism: Option<Res<Parallelism>>,
+    sensors: Option<Res<SensorGrid>>,
+    carriers: Query<&VehicleId, With<CarriesPluginSensor>>,
+    everyone: EveryoneQuery,
 ) {
     if carriers.is_empty() {
         return;
     }
     let index = &mut *index;
-    let cell = if index.reach > 0.0 { index.reach } else { 50.0 };
-    index.footprints.clear();
-    index.footprints.extend(everyone.iter().map(|(_, _, s, size)| {
-        let size = size.copied().unwrap_or_default();
-        Footprint::new(size, s.yaw)
-    }));
-    let entries = everyone.iter().enumerate().map(|(i, (_, &id, s, _))| GridEntry {
-        position: s.position,
-        velocity: s.velocity,
-        id,
-        index: i as u32,
-    });
-    index.grid.rebuild(cell, entries);
+    index.lazy = OnceLock::new();
     index.built_at = Some(clock.now);
+    let reach = index.reach;
+    let served = !index.grid_only
+        && sensors.is_some_and(|sensors| index.carriers.serve(&sensors, &carriers, &everyone, (reach, clock.now)));
+    index.serving = served;
+    if served {
+        index.carriers.ticks_served += 1;
+        index.vehicles = index.carriers.grid.len();
+        return;
+    }
+    let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
+    fill_grid(&mut index.grid, &mut index.footprints, &everyone, parallelism, reach);
+    index.vehicles = index.grid.len();
 }
 
 /// Counter-based noise and dropout of a plugin sensor at one tick, the built-in sensors' own

@@ -11,9 +11,11 @@ pub fn in_radar_cone(relative: DVec2, heading: DVec2, angle: f64) -> bool {
     Cone::new(heading, angle).contains(relative, relative.length_squared())
 }
 
-/// A radar cone prepared for many tests: no trigonometry or square root per target.
+/// A radar cone prepared for many tests: no trigonometry or square root per target. A plugin
+/// sensor with a field of view makes one per vehicle and tick ([`Cone::new`]) and tests each
+/// neighbour with [`Cone::contains`] (what [`in_radar_cone`] does for one target).
 #[derive(Debug, Clone, Copy)]
-pub(super) struct Cone {
+pub struct Cone {
     pub(super) heading: DVec2,
     /// cos of the half opening angle, and its square.
     pub(super) cos_half: f64,
@@ -41,7 +43,9 @@ impl HalfCos {
 }
 
 impl Cone {
-    pub(super) fn new(heading: DVec2, angle: f64) -> Cone {
+    /// The cone around unit vector `heading` with full opening `angle` \[rad\] (2π or more:
+    /// every direction).
+    pub fn new(heading: DVec2, angle: f64) -> Cone {
         Cone::with_cos(heading, angle, (0.5 * angle).cos())
     }
 
@@ -54,7 +58,7 @@ impl Cone {
     /// That is dot >= |rel| cos(half), compared squared with the signs handled. Written without
     /// branches on the target (the sensor loop tests ~25 targets per vehicle and tick, and which
     /// ones are seen is unpredictable).
-    pub(super) fn contains(&self, relative: DVec2, d2: f64) -> bool {
+    pub fn contains(&self, relative: DVec2, d2: f64) -> bool {
         let dot = relative.dot(self.heading);
         let ahead = dot >= 0.0;
         let (dot2, limit) = (dot * dot, d2 * self.cos_half2);
