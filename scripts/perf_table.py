@@ -6,7 +6,8 @@ not typed).
     python3 scripts/perf_table.py --readme [--check]
 
 Builds the release binary, then runs each `smlworld bench` configuration RUNS times, the
-simulation configurations taking turns (plain, --lane-change, --degraded, on the default threads
+simulation configurations taking turns (plain, --lane-change, --degraded, the student camera on a
+tenth of the vehicles, on the default threads
 and on one) so every ratio compares figures of the same minutes. Each ratio is given three ways:
 of the medians, paired (the median of each turn's ratio) and of the best runs. Prints the table (min / median /
 max of the runs, the command of each row, N, the commit, the machine's load) and, unless
@@ -150,6 +151,8 @@ def main():
         "plain": ["--vehicles", n, "--duration", "10"],
         "lane-change": ["--vehicles", n, "--duration", "10", "--lane-change"],
         "degraded": ["--vehicles", n, "--duration", "10", "--degraded"],
+        # The student camera of examples/student_sensor.rs on a tenth of the vehicles (issue 58).
+        "plugin-camera": ["--vehicles", n, "--duration", "10", "--plugin-sensor-share", "0.1"],
     }
     results = {(name, threads): [] for name in sims for threads in ("default", "1")}
     used = {}
@@ -194,7 +197,7 @@ def main():
         flag = "" if threads == "default" else " --threads 1"
         label = f"{used[threads]} threads" if threads == "default" else "1 thread"
         for name in sims:
-            cmd = f"smlworld bench --vehicles {n} --duration 10" + ("" if name == "plain" else f" --{name}") + flag
+            cmd = "smlworld bench " + " ".join(sims[name]) + flag
             xs = results[(name, threads)]
             rtf = f"{statistics.median(xs) * 1e6 / a.vehicles * 0.02:,.1f}x"
             of_plain = "" if name == "plain" else "{:.0%} of plain (paired {:.0%}, best runs {:.0%})".format(*ratio(name, threads))
