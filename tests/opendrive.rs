@@ -1102,3 +1102,40 @@ fn opendrive_lights_scenario_keeps_red_and_collides_nowhere() {
     let metrics = sim.world().resource::<smlworld::app::running::metrics::Metrics>();
     assert!(metrics.collisions.is_empty(), "collisions: {:?}", metrics.collisions);
 }
+
+/// circle_300m is one road that is its own predecessor and successor (an arc of curvature
+/// 0.0209439510 1/m, radius R = 47.746 m, over its 300 m): each driving lane is one lanelet
+/// that follows itself, so `map loop` drives round it, on the `.xodr` and on its OSM conversion
+/// alike. Lane -1 (3.07 m wide, outside the reference line on this left-turning circle) has its
+/// centre at R + 1.535 m: the loop is 2π (R + 1.535) = 309.64 m long. Before, the reader dropped
+/// the link of a lanelet to itself and `map loop` found no route.
+#[test]
+fn circle_300m_is_a_ring_that_map_loop_drives_round() {
+    let map = load("circle_300m.xodr");
+    let ring = lane(&map, "1", 0, -1);
+    assert_eq!(ring.successors, vec![ring.id], "lane -1 follows itself");
+    let radius = 1.0 / 20.9439510e-3 + 3.07 / 2.0;
+    let expected = std::f64::consts::TAU * radius;
+    let dir = std::env::temp_dir().join(format!("smlworld-opendrive-ring-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let osm = dir.join("circle.osm");
+    let xodr = opendrive_dir().join("circle_300m.xodr");
+    let (ok, out, err) = smlworld(&["map", "convert", xodr.to_str().unwrap(), "--out", osm.to_str().unwrap()]);
+    assert!(ok, "{out}{err}");
+    for file in [&xodr, &osm] {
+        let (ok, out, err) = smlworld(&["map", "loop", file.to_str().unwrap(), "--tag", "start:1:0:-1", "--json"]);
+        assert!(ok, "{}: {err}", file.display());
+        let path: serde_json::Value = serde_json::from_str(&out).unwrap();
+        let length = path["length_m"].as_f64().unwrap();
+        assert!(
+            (length - expected).abs() / expected < 1e-3,
+            "{}: loop of {length} m, not {expected} m",
+            file.display()
+        );
+        assert_eq!(path["lanelets"].as_array().map(Vec::len), Some(1), "{}: {}", file.display(), path["lanelets"]);
+    }
+    let back = LaneletMap::load(&osm).unwrap();
+    let ring = back.lanelets.iter().find(|l| tag(l, "opendrive:lane") == "-1").unwrap();
+    assert_eq!(ring.successors, vec![ring.id], "the OSM lanelet follows itself too");
+    std::fs::remove_dir_all(&dir).ok();
+}
