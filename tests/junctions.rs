@@ -13,9 +13,8 @@ use serde_json::Value;
 use smlworld::app::Scenario;
 use smlworld::map::generate::{self, GridParams, IntersectionParams, JunctionMarks};
 use smlworld::map::junctions::{ConflictKind, JunctionControl, Yield, find_junctions};
-use smlworld::map::{LaneletId, LaneletMap};
+use smlworld::map::LaneletMap;
 use smlworld::prelude::*;
-use smlworld::vehicles::right_of_way::{JunctionNetwork, TrafficLights};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
