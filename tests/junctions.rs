@@ -11,9 +11,9 @@ use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 use smlworld::app::Scenario;
+use smlworld::map::LaneletMap;
 use smlworld::map::generate::{self, GridParams, IntersectionParams, JunctionMarks};
 use smlworld::map::junctions::{ConflictKind, JunctionControl, Yield, find_junctions};
-use smlworld::map::LaneletMap;
 use smlworld::prelude::*;
 
 fn root() -> PathBuf {
