@@ -11,11 +11,10 @@ use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 use smlworld::app::Scenario;
+use smlworld::map::LaneletMap;
 use smlworld::map::generate::{self, GridParams, IntersectionParams, JunctionMarks};
 use smlworld::map::junctions::{ConflictKind, JunctionControl, Yield, find_junctions};
-use smlworld::map::{LaneletId, LaneletMap};
 use smlworld::prelude::*;
-use smlworld::vehicles::right_of_way::{JunctionNetwork, TrafficLights};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -278,36 +277,10 @@ fn no_vehicle_passes_a_red_stop_line() {
     let text = saturated_text(&map_path, 100.0, 400.0);
     let scenario = Scenario::parse_str(&text, &dir.join("red.toml")).expect("scenario parses");
     let mut sim = scenario.builder().expect("builds").build();
-    let end = SimTime::from_secs(400.0);
-    let mut last: BTreeMap<i32, Option<LaneletId>> = BTreeMap::new();
-    let (mut entries, mut red, mut reds_seen) = (0, 0, 0);
-    while sim.scheduler().peek().is_some_and(|(_, due, _, _)| due < end) {
-        sim.step();
-        let world = sim.world_mut();
-        let network = world.resource::<JunctionNetwork>().clone();
-        let lights = world.resource::<TrafficLights>().clone();
-        reds_seen += lights.state.iter().filter(|c| **c == b'r').count().min(1);
-        let mut q = world.query::<(&VehicleId, &smlworld::vehicles::LanePosition)>();
-        for (id, pos) in q.iter(world) {
-            let before = last.insert(id.0, pos.lanelet).flatten();
-            let link = |l: Option<LaneletId>| {
-                l.and_then(|l| network.map.lanelet_index(l))
-                    .map(|i| network.link_of_lanelet[i])
-                    .filter(|g| *g != u32::MAX)
-            };
-            if let (Some(g), None) = (link(pos.lanelet), link(before))
-                && before.is_some()
-            {
-                entries += 1;
-                if lights.state[g as usize] == b'r' {
-                    red += 1;
-                }
-            }
-        }
-    }
-    assert!(reds_seen > 0, "the lights showed red");
-    assert!(entries >= 80, "only {entries} vehicles entered the junction");
-    assert_eq!(red, 0, "{red} of {entries} vehicles entered on red");
+    let seen = common::red_entries(&mut sim, 400.0);
+    assert!(seen.red_steps > 0, "the lights showed red");
+    assert!(seen.entries >= 80, "only {} vehicles entered the junction", seen.entries);
+    assert_eq!(seen.on_red, 0, "{} of {} vehicles entered on red: {:?}", seen.on_red, seen.entries, seen.first_reds);
 }
 
 /// A scenario on the generated 4-way junction with one `[[traffic_lights]]` table.

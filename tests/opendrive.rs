@@ -1,9 +1,10 @@
 //! OpenDRIVE maps (issue 56): the shared esmini and CARLA files load, route and render;
 //! lane geometry against closed forms; links, neighbours, left-hand traffic; bad files refused.
 
+mod common;
 mod render_support;
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -1001,4 +1002,183 @@ fn opendrive_merge_scenario_merges_the_ramp_without_collision() {
         assert!(last[id].distance(goal) < 10.0, "ramp vehicle {id} ended at {} (goal {goal})", last[id]);
     }
     std::fs::remove_dir_all(&out).ok();
+}
+
+/// multi_intersections' lights, counted by hand from the file (23 `<controller>`s, each also
+/// named by one of the five `<junction>`s, and 127 `<signal>`s): its 34 signals of type 1000001
+/// (the three-light signal) stand at s = 0 of the 16 roads that enter the five junctions, facing
+/// (orientation `-`) the left lanes, which drive into the junction there. Their controllers:
+/// junction 146: 1 (roads 202 and 209) and 2 (196, 197); 148: 6 (217), 7 (222), 10 (227); 150:
+/// 12 (235, 242), 13 (229, 230); 152: 17 (256), 18 (261), 21 (266); 154: 23 (270), 24 (275),
+/// 27 (280). The other 11 controllers hold its 34 pedestrian lights (type 1000002, valid for
+/// lane 0 only). So five signalised junctions with 2, 3, 2, 3 and 3 signal groups, and the lanes
+/// of one controller's roads get green together.
+#[test]
+fn multi_intersections_lights_are_its_signals_grouped_by_controller() {
+    use smlworld::map::junctions::{JunctionControl, map_program};
+    let map = load("multi_intersections.xodr");
+    let junctions = map.junctions();
+    let mut found: BTreeMap<String, BTreeSet<BTreeSet<String>>> = BTreeMap::new();
+    for j in junctions.list.iter().filter(|j| j.control == JunctionControl::TrafficLight) {
+        let (program, _) = map_program(&map, j).unwrap_or_else(|| panic!("junction {} runs the file's program", j.id));
+        let of = |l: smlworld::map::LaneletId, key: &str| tag(map.lanelet(l).unwrap(), key).to_string();
+        let odr: BTreeSet<String> = j.links.iter().map(|l| of(l.lanelet, "opendrive:junction")).collect();
+        assert_eq!(odr.len(), 1, "junction {}: links of one OpenDRIVE junction: {odr:?}", j.id);
+        // A signal group: the links green (G, or the yielding g) in one phase, by the roads they
+        // come from. Every link is lit in some phase, and none in every phase.
+        let green = |state: &str, k: usize| matches!(state.as_bytes()[k], b'G' | b'g');
+        for k in 0..j.links.len() {
+            let lit = program.iter().filter(|p| green(&p.state, k)).count();
+            assert!(lit > 0 && lit < program.len(), "junction {} link {k}: green in {lit} phases", j.id);
+        }
+        let groups: BTreeSet<BTreeSet<String>> = program
+            .iter()
+            .map(|p| {
+                (0..j.links.len())
+                    .filter(|&k| green(&p.state, k))
+                    .map(|k| of(j.links[k].from.expect("a link is entered from a road"), "opendrive:road"))
+                    .collect::<BTreeSet<String>>()
+            })
+            .filter(|g| !g.is_empty())
+            .collect();
+        found.insert(odr.into_iter().next().unwrap(), groups);
+    }
+    let expect = |groups: &[&[&str]]| -> BTreeSet<BTreeSet<String>> {
+        groups.iter().map(|g| g.iter().map(|r| r.to_string()).collect()).collect()
+    };
+    let expected: BTreeMap<String, BTreeSet<BTreeSet<String>>> = [
+        ("146", expect(&[&["202", "209"], &["196", "197"]])),
+        ("148", expect(&[&["217"], &["222"], &["227"]])),
+        ("150", expect(&[&["235", "242"], &["229", "230"]])),
+        ("152", expect(&[&["256"], &["261"], &["266"]])),
+        ("154", expect(&[&["270"], &["275"], &["280"]])),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    assert_eq!(found, expected);
+    let counts: Vec<usize> = found.values().map(BTreeSet::len).collect();
+    assert_eq!(counts, [2, 3, 2, 3, 3]);
+    // `map info --json` says so.
+    let file = opendrive_dir().join("multi_intersections.xodr");
+    let (ok, stdout, stderr) = smlworld(&["map", "info", file.to_str().unwrap(), "--json"]);
+    assert!(ok, "{stderr}");
+    let info: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let lit = info["junctions"].as_array().unwrap().iter().filter(|j| j["control"] == "traffic_light").count();
+    assert_eq!(lit, 5, "{}", info["junctions"]);
+    // Signal types that mean nothing here warn once per type, with the first line: pedestrian
+    // lights (1000002, first on line 151) and crosswalks (1000003, line 148), stop lines (294,
+    // line 161), speed limit signs (274) and road arrows (-1); lights and the priority (306) and
+    // yield (205) signs do not.
+    let warned = |kind: &str| {
+        map.warnings.iter().filter(|w| w.message.contains(&format!("signal type \"{kind}\""))).collect::<Vec<_>>()
+    };
+    for (kind, line) in
+        [("1000002", Some(151)), ("1000003", Some(148)), ("294", Some(161)), ("274", None), ("-1", None)]
+    {
+        let w = warned(kind);
+        assert_eq!(w.len(), 1, "type {kind}: {w:?}");
+        if let Some(line) = line {
+            assert!(w[0].at.ends_with(&format!("multi_intersections.xodr:{line}")), "{}", w[0]);
+        }
+    }
+    for kind in ["1000001", "306", "205"] {
+        assert!(warned(kind).is_empty(), "type {kind} is read: {:?}", warned(kind));
+    }
+}
+
+/// Random traffic through multi_intersections' five signalised junctions for 10 minutes
+/// (`scenarios/opendrive_lights.toml`): no collision, and no vehicle enters a junction on red
+/// (seen from the vehicles' lanelets and the lights, as for the generated junction).
+#[test]
+fn opendrive_lights_scenario_keeps_red_and_collides_nowhere() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let scenario = smlworld::app::Scenario::load(&root.join("scenarios/opendrive_lights.toml")).expect("loads");
+    let mut sim = scenario.builder().expect("builds").build();
+    let seen = common::red_entries(&mut sim, 600.0);
+    assert!(seen.red_steps > 0, "the lights showed red");
+    assert!(seen.entries >= 150, "only {} junction entries in 10 minutes", seen.entries);
+    assert_eq!(seen.on_red, 0, "{} of {} entries on red: {:?}", seen.on_red, seen.entries, seen.first_reds);
+    let metrics = sim.world().resource::<smlworld::app::running::metrics::Metrics>();
+    assert!(metrics.collisions.is_empty(), "collisions: {:?}", metrics.collisions);
+}
+
+/// circle_300m is one road that is its own predecessor and successor (an arc of curvature
+/// 0.0209439510 1/m, radius R = 47.746 m, over its 300 m): each driving lane is one lanelet
+/// that follows itself, so `map loop` drives round it, on the `.xodr` and on its OSM conversion
+/// alike. Lane -1 (3.07 m wide, outside the reference line on this left-turning circle) has its
+/// centre at R + 1.535 m: the loop is 2π (R + 1.535) = 309.64 m long. Before, the reader dropped
+/// the link of a lanelet to itself and `map loop` found no route.
+#[test]
+fn circle_300m_is_a_ring_that_map_loop_drives_round() {
+    let map = load("circle_300m.xodr");
+    let ring = lane(&map, "1", 0, -1);
+    assert_eq!(ring.successors, vec![ring.id], "lane -1 follows itself");
+    let radius = 1.0 / 20.9439510e-3 + 3.07 / 2.0;
+    let expected = std::f64::consts::TAU * radius;
+    let dir = std::env::temp_dir().join(format!("smlworld-opendrive-ring-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let osm = dir.join("circle.osm");
+    let xodr = opendrive_dir().join("circle_300m.xodr");
+    let (ok, out, err) = smlworld(&["map", "convert", xodr.to_str().unwrap(), "--out", osm.to_str().unwrap()]);
+    assert!(ok, "{out}{err}");
+    for file in [&xodr, &osm] {
+        let (ok, out, err) = smlworld(&["map", "loop", file.to_str().unwrap(), "--tag", "start:1:0:-1", "--json"]);
+        assert!(ok, "{}: {err}", file.display());
+        let path: serde_json::Value = serde_json::from_str(&out).unwrap();
+        let length = path["length_m"].as_f64().unwrap();
+        assert!(
+            (length - expected).abs() / expected < 1e-3,
+            "{}: loop of {length} m, not {expected} m",
+            file.display()
+        );
+        assert_eq!(path["lanelets"].as_array().map(Vec::len), Some(1), "{}: {}", file.display(), path["lanelets"]);
+    }
+    let back = LaneletMap::load(&osm).unwrap();
+    let ring = back.lanelets.iter().find(|l| tag(l, "opendrive:lane") == "-1").unwrap();
+    assert_eq!(ring.successors, vec![ring.id], "the OSM lanelet follows itself too");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Town04's road 841 (in junction 804) starts with lane sections of 0.1, 0.5 and 0.2 m: its
+/// lanelets there lie within 0.8 m of road 40's end, and lane -2 of road 40 "crossed" its own
+/// continuation 0.6 m before its end, a junction of one lane (a platoon leader braked there for
+/// the car ahead of it, and its follower ran into it: town04_platoon with seed 2, t = 435 s).
+/// A lanelet and those that follow it through less than 2 m of lanelets meet at a joint: no
+/// conflict, in any shared file.
+#[test]
+fn a_lane_never_conflicts_with_its_own_continuation() {
+    for path in shared_files() {
+        let name = path.file_name().unwrap().to_str().unwrap();
+        let map = load(name);
+        let index = |id| map.lanelet_index(id).unwrap();
+        // Lanelets reached from `from` through successors whose lengths before them sum under 2 m.
+        let follows = |from: usize, to: usize| {
+            let mut todo = vec![(from, 0.0)];
+            let mut seen = BTreeSet::new();
+            while let Some((k, before)) = todo.pop() {
+                for next in &map.lanelets[k].successors {
+                    let j = index(*next);
+                    if j == to {
+                        return true;
+                    }
+                    let through = before + map.lanelets[j].length;
+                    if seen.insert(j) && through < 2.0 {
+                        todo.push((j, through));
+                    }
+                }
+            }
+            false
+        };
+        for j in &map.junctions().list {
+            for c in &j.conflicts {
+                let (a, b) = (index(c.a), index(c.b));
+                assert!(!follows(a, b) && !follows(b, a), "{name}: junction {} pairs {} and {}", j.id, c.a, c.b);
+            }
+        }
+        if name == "Town04.xodr" {
+            let lane_40 = lane(&map, "40", 0, -2);
+            assert!(map.junctions().of_lanelet(lane_40.id).is_none(), "road 40 lane -2 is in no junction");
+        }
+    }
 }

@@ -150,7 +150,7 @@ impl RoutingGraph {
                 let end = ends(&lanelets[state / 2], state % 2 == 1).1;
                 let from = by_start.partition_point(|(start, _)| *start < end);
                 let next = by_start[from..].iter().take_while(|(start, _)| *start == end);
-                successors[state] = next.map(|&(_, s)| s).filter(|&s| s as usize != state).collect();
+                successors[state] = next.map(|&(_, s)| s).collect();
             }
         }
         RoutingGraph { successors, node_states, node_left_states, lengths, ends: state_ends }

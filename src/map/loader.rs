@@ -467,7 +467,8 @@ fn vehicle_may_drive(tags: &Tags) -> bool {
 }
 
 /// j follows i when j's bounds start where i's bounds end (right and left), as the 2015 code and
-/// Lanelet2 both decide it. The starts are one sorted list (lanelets come in id order, so each
+/// Lanelet2 both decide it; a ring lanelet whose bounds end where they start follows itself
+/// (an OpenDRIVE ring road converted to OSM). The starts are one sorted list (lanelets come in id order, so each
 /// start's lanelets stay in id order), not a map of lists.
 fn link_successors(lanelets: &mut [Lanelet]) {
     let mut by_start: Vec<((i64, i64), LaneletId)> =
@@ -477,6 +478,6 @@ fn link_successors(lanelets: &mut [Lanelet]) {
         let end = (l.right_nodes[l.right_nodes.len() - 1], l.left_nodes[l.left_nodes.len() - 1]);
         let from = by_start.partition_point(|(start, _)| *start < end);
         let next = by_start[from..].iter().take_while(|(start, _)| *start == end);
-        l.successors = next.map(|&(_, id)| id).filter(|&id| id != l.id).collect();
+        l.successors = next.map(|&(_, id)| id).collect();
     }
 }

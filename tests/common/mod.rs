@@ -46,3 +46,67 @@ impl Rng {
         self.next() % n
     }
 }
+
+/// What [`red_entries`] saw.
+#[derive(Debug, Clone, Default)]
+pub struct RedCheck {
+    /// Vehicles that moved onto a junction link from a lanelet that is none.
+    pub entries: usize,
+    /// Of them, those whose link showed red then.
+    pub on_red: usize,
+    /// Steps in which some link showed red.
+    pub red_steps: usize,
+    /// The first few entries on red (time, vehicle, lanelets), for the failure message.
+    pub first_reds: Vec<String>,
+}
+
+/// The simulated time now.
+fn world_now(sim: &smlworld::sim::Sim) -> smlworld::prelude::SimTime {
+    sim.world().resource::<smlworld::sim::SimClock>().now
+}
+
+/// Runs `sim` until `end` \[s\]; each step, every vehicle that moved from a lanelet that is no
+/// junction link onto a junction link must see that link's signal not red. Counted from the
+/// vehicles' lanelets and the lights' states, not from the junction plugin's own figures.
+pub fn red_entries(sim: &mut smlworld::sim::Sim, end: f64) -> RedCheck {
+    use smlworld::prelude::*;
+    use smlworld::vehicles::right_of_way::{JunctionNetwork, TrafficLights};
+    let end = SimTime::from_secs(end);
+    let mut last: std::collections::BTreeMap<i32, Option<smlworld::map::LaneletId>> = Default::default();
+    let mut out = RedCheck::default();
+    while sim.scheduler().peek().is_some_and(|(_, due, _, _)| due < end) {
+        sim.step();
+        let now = world_now(sim);
+        let world = sim.world_mut();
+        let network = world.resource::<JunctionNetwork>().clone();
+        let lights = world.resource::<TrafficLights>().clone();
+        out.red_steps += lights.state.iter().filter(|c| **c == b'r').count().min(1);
+        let mut q = world.query::<(&VehicleId, &smlworld::vehicles::LanePosition)>();
+        for (id, pos) in q.iter(world) {
+            let before = last.insert(id.0, pos.lanelet).flatten();
+            let link = |l: Option<smlworld::map::LaneletId>| {
+                l.and_then(|l| network.map.lanelet_index(l))
+                    .map(|i| network.link_of_lanelet[i])
+                    .filter(|g| *g != u32::MAX)
+            };
+            if let (Some(g), None) = (link(pos.lanelet), link(before))
+                && before.is_some()
+            {
+                out.entries += 1;
+                if lights.state[g as usize] == b'r' {
+                    out.on_red += 1;
+                    if out.first_reds.len() < 5 {
+                        out.first_reds.push(format!(
+                            "t = {:.2} s: vehicle {} from lanelet {:?} onto {:?}",
+                            now.as_secs(),
+                            id.0,
+                            before.map(|l| l.0),
+                            pos.lanelet.map(|l| l.0)
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    out
+}

@@ -225,7 +225,6 @@ pub(crate) fn build(
     let mut next_node: i64 = 1;
     let mut next_way: i64 = 1;
     let mut tag_index: BTreeMap<String, Vec<i64>> = BTreeMap::new();
-    let controlled: BTreeMap<&str, bool> = doc.junctions.iter().map(|j| (j.id.as_str(), j.controlled)).collect();
 
     for (ri, road) in doc.roads.iter().enumerate() {
         for (si, section) in road.sections.iter().enumerate() {
@@ -322,9 +321,6 @@ pub(crate) fn build(
                 }
                 if let Some(v) = lane.speed.or_else(|| road_speed(road, section.s)) {
                     tags.insert("speed_limit".into(), format!("{}", (v * 3.6 * 1000.0).round() / 1000.0));
-                }
-                if road.junction != "-1" && controlled.get(road.junction.as_str()).copied().unwrap_or(false) {
-                    tags.insert("traffic_light".into(), "yes".into());
                 }
                 if lane.direction == "both" || lane.kind == "bidirectional" {
                     tags.insert("opendrive:bidirectional".into(), "yes".into());
@@ -473,7 +469,9 @@ pub(crate) fn build(
     let exits = |i: usize, e: End| (e == End::End) == built[i].along;
     let mut successors: Vec<Vec<usize>> = vec![Vec::new(); lanelets.len()];
     for ((a, ea), (b, eb)) in contacts {
-        if a == b {
+        // A lanelet joined to itself end to start (a ring road such as circle_300m: road 1 is
+        // its own predecessor and successor) follows itself; the same end twice is no link.
+        if a == b && ea == eb {
             continue;
         }
         if exits(a, ea) && !exits(b, eb) && !successors[a].contains(&b) {
@@ -488,13 +486,20 @@ pub(crate) fn build(
         l.successors = next.iter().map(|&k| LaneletId(k as i64 + 1)).collect();
     }
 
+    // Signals, controllers and junction priorities: lights and right of way on the links.
+    let along: Vec<bool> = built.iter().map(|b| b.along).collect();
+    let lane_of = |road: usize, section: usize, lane: i32| by_key.get(&LaneKey { road, section, lane }).copied();
+    let programs = super::signals::apply(doc, &lane_of, &along, &mut lanelets, source, &mut warnings);
+
     if doc.roads.is_empty() {
         warnings.push(MapWarning {
             at: at(root.line).to_string(),
             message: "the file has no <road>: nothing to drive on".into(),
         });
     }
-    Ok(LaneletMap::from_parts(projector, nodes, ways, lanelets, tag_index, warnings))
+    let mut map = LaneletMap::from_parts(projector, nodes, ways, lanelets, tag_index, warnings);
+    map.signal_programs = programs;
+    Ok(map)
 }
 
 impl Lane {

@@ -20,10 +20,15 @@
 //! - neighbours: adjacent lanes share one border way (same node ids), so the map's
 //!   [`LaneletMap::neighbours`] finds them; the way carries the `roadMark` as a Lanelet2 line
 //!   (`broken` -> `dashed`, `solid`, `solid broken` -> one way, `laneChange` deciding where given);
-//! - `speed` records (lane, else road `type`) as the `speed_limit` tag [km/h]; a junction with a
-//!   `<controller>` marks its connecting lanelets `traffic_light=yes` (what
-//!   [`crate::map::junctions`] reads for signalised junctions); left-hand roads carry
-//!   `driving_side=left`;
+//! - `speed` records (lane, else road `type`) as the `speed_limit` tag [km/h]; left-hand roads
+//!   carry `driving_side=left`;
+//! - road `<signal>`s and `<signalReference>`s, top-level `<controller>`s and the junctions'
+//!   `<controller>` and `<priority>` elements, as what [`crate::map::junctions`] reads
+//!   ([`signals`]): traffic lights on the connecting lanelets their lanes enter, one signal group
+//!   per controller, with a fixed-time program per junction
+//!   ([`LaneletMap::signal_programs`]); stop, yield and priority signs and `<priority high low>`
+//!   as `priority=minor|major`. A junction that names controllers none of whose lights face a
+//!   lane entering it gets `traffic_light=yes` on its lanelets (the default program);
 //! - `header/geoReference` `+lat_0`/`+lon_0` as the projection origin; local metres (origin 0, 0)
 //!   when there is none.
 //!
@@ -33,8 +38,9 @@
 //!
 //! [`osm_out::write_osm`] writes the built map as Lanelet2 OSM (`smlworld map convert`).
 //!
-//! Everything else (elevation, lateral profile, objects, signals, user data, road mark line
-//! details, ...) gives one warning per element name with its first line. Missing `planView`,
+//! Everything else (elevation, lateral profile, objects, user data, road mark line details, ...)
+//! gives one warning per element name with its first line, and each signal type that means
+//! nothing here (pedestrian lights, crosswalks, speed limit signs, ...) one warning per type. Missing `planView`,
 //! an unknown geometry, a negative length or a link to a missing road or junction are
 //! [`MapError::OpenDrive`] errors naming the line and id.
 //!
@@ -47,6 +53,7 @@ mod build;
 pub mod geometry;
 pub mod osm_out;
 pub mod road;
+pub mod signals;
 pub(crate) mod xml;
 
 use std::path::Path as FsPath;

@@ -1,9 +1,10 @@
 //! The parsed OpenDRIVE model: roads (reference line, lane offsets, lane sections, lanes,
-//! links, speed records) and junctions (connections, lane links, controllers), read from the
-//! element tree with every problem tied to its line and id.
+//! links, speed records, signals) and junctions (connections, lane links, controllers,
+//! priorities) and the file's controllers, read from the element tree with every problem tied
+//! to its line and id.
 //!
-//! Elements this reader does not use (elevation, lateral profile, objects, signals, user data,
-//! ...) are gathered by name; each name gives one warning with its first line and count.
+//! Elements this reader does not use (elevation, lateral profile, objects, user data, ...) are
+//! gathered by name; each name gives one warning with its first line and count.
 
 use std::collections::BTreeMap;
 use std::path::Path as FsPath;
@@ -144,6 +145,55 @@ pub enum RoadLink {
     },
 }
 
+/// Which traffic a signal faces (its `orientation`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Facing {
+    /// `+`: traffic driving along `s`.
+    Along,
+    /// `-`: traffic driving against `s`.
+    Against,
+    /// `none`: both ways.
+    Both,
+}
+
+/// A road's `<signal>` or `<signalReference>` (a signal of another road that applies here too).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Signal {
+    /// `id` (of the referenced signal, for a `<signalReference>`).
+    pub id: String,
+    /// Position along the road \[m\].
+    pub s: f64,
+    /// Lateral position \[m\].
+    pub t: f64,
+    /// `orientation`.
+    pub facing: Facing,
+    /// `dynamic="yes"` (a light or a variable sign).
+    pub dynamic: bool,
+    /// `country` (`OpenDRIVE`, `DE`, ...; empty where not given).
+    pub country: String,
+    /// `type` (empty for a `<signalReference>` until the referenced signal is found).
+    pub kind: String,
+    /// `subtype`.
+    pub subtype: String,
+    /// `<validity fromLane toLane>` ranges (inclusive); empty: every lane it faces.
+    pub validity: Vec<(i32, i32)>,
+    /// Whether this is a `<signalReference>`.
+    pub reference: bool,
+    /// Line of the element.
+    pub line: usize,
+}
+
+/// A top-level `<controller>`: signals that always show the same state (one signal group).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Controller {
+    /// `id`.
+    pub id: String,
+    /// `<control signalId>`s, in file order.
+    pub signals: Vec<String>,
+    /// Line of the element.
+    pub line: usize,
+}
+
 /// One `<road>`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Road {
@@ -167,6 +217,8 @@ pub struct Road {
     pub sections: Vec<LaneSection>,
     /// Road `<type>` speed records: (start \[m\], limit [m/s]).
     pub speeds: Vec<(f64, f64)>,
+    /// `<signals>`: its signals and signal references, in file order.
+    pub signals: Vec<Signal>,
     /// Where a lane section at the road's start (`start_lanes`) or end (`end_lanes`) was merged
     /// away (shorter than 2 cm): the file's lane ids there -> the lane ids of the section that
     /// took its place, for links from other roads and junctions. `None`: no merge, ids as is.
@@ -226,6 +278,11 @@ pub struct Junction {
     pub connections: Vec<Connection>,
     /// Whether it names a `<controller>` (signals control it).
     pub controlled: bool,
+    /// Its `<controller id sequence>`s: (controller id, `sequence` if given), in file order.
+    pub controllers: Vec<(String, Option<i64>)>,
+    /// Its `<priority high low>`s: (connecting road with priority, connecting road that yields,
+    /// line).
+    pub priorities: Vec<(String, String, usize)>,
     /// Line of the element.
     pub line: usize,
 }
@@ -239,6 +296,8 @@ pub struct Document {
     pub roads: Vec<Road>,
     /// Junctions in file order.
     pub junctions: Vec<Junction>,
+    /// Top-level `<controller>`s in file order.
+    pub controllers: Vec<Controller>,
 }
 
 /// Reads elements into the model, collecting unsupported elements by name.
@@ -246,11 +305,13 @@ pub(crate) struct Reader<'a> {
     source: &'a FsPath,
     /// Element path -> (count, first line).
     unsupported: BTreeMap<String, (usize, usize)>,
+    /// Other warnings, in file order.
+    notes: Vec<MapWarning>,
 }
 
 impl<'a> Reader<'a> {
     pub(crate) fn new(source: &'a FsPath) -> Reader<'a> {
-        Reader { source, unsupported: BTreeMap::new() }
+        Reader { source, unsupported: BTreeMap::new(), notes: Vec::new() }
     }
 
     fn at(&self, line: usize) -> Location {
@@ -272,7 +333,7 @@ impl<'a> Reader<'a> {
         }
     }
 
-    /// One warning per unsupported element name.
+    /// One warning per unsupported element name, then the other warnings.
     pub(crate) fn warnings(&self) -> Vec<MapWarning> {
         self.unsupported
             .iter()
@@ -282,6 +343,7 @@ impl<'a> Reader<'a> {
                     "OpenDRIVE element <{name}> is not supported ({count} in the file, the first here); ignored"
                 ),
             })
+            .chain(self.notes.iter().cloned())
             .collect()
     }
 
@@ -335,12 +397,26 @@ impl<'a> Reader<'a> {
             }
             None => None,
         };
+        let mut controllers = Vec::new();
         for c in root.children("controller") {
             self.others(c, &["control"]);
+            let id = c
+                .attr("id")
+                .ok_or_else(|| self.err(c, "<controller> has no `id` attribute".into()))?
+                .trim()
+                .to_string();
+            let mut signals = Vec::new();
+            for k in c.children("control") {
+                let sid = k
+                    .attr("signalId")
+                    .ok_or_else(|| self.err(k, format!("controller {id}: <control> has no `signalId` attribute")))?;
+                signals.push(sid.trim().to_string());
+            }
+            controllers.push(Controller { id, signals, line: c.line });
         }
         let roads = root.children("road").map(|r| self.road(r)).collect::<Result<Vec<_>, _>>()?;
         let junctions = root.children("junction").map(|j| self.junction(j)).collect::<Result<Vec<_>, _>>()?;
-        Ok(Document { origin, roads, junctions })
+        Ok(Document { origin, roads, junctions, controllers })
     }
 
     fn road(&mut self, el: &Element) -> Result<Road, MapError> {
@@ -353,7 +429,7 @@ impl<'a> Reader<'a> {
         if length > MAX_LENGTH {
             return Err(self.err(el, format!("{what}: length {length} m is beyond {MAX_LENGTH} m; split the road")));
         }
-        self.others(el, &["link", "planView", "lanes", "type"]);
+        self.others(el, &["link", "planView", "lanes", "type", "signals"]);
         let junction = el.attr("junction").unwrap_or("-1").trim().to_string();
         let left_hand = el.attr("rule").map(str::trim) == Some("LHT");
         let (mut predecessor, mut successor) = (None, None);
@@ -415,6 +491,15 @@ impl<'a> Reader<'a> {
                 });
             }
         }
+        let mut signals = Vec::new();
+        for list in el.children("signals") {
+            self.others(list, &["signal", "signalReference"]);
+            for sig in &list.children {
+                if sig.name == "signal" || sig.name == "signalReference" {
+                    signals.push(self.signal(sig, &what)?);
+                }
+            }
+        }
         Ok(Road {
             id,
             length,
@@ -426,8 +511,54 @@ impl<'a> Reader<'a> {
             lane_offsets,
             sections,
             speeds,
+            signals,
             start_lanes: None,
             end_lanes: None,
+            line: el.line,
+        })
+    }
+
+    /// A `<signal>` or `<signalReference>` (OpenDRIVE 1.8 §14: `s`, `t`, `orientation`,
+    /// `dynamic`, `country`, `type`, `subtype`, `<validity>`).
+    fn signal(&mut self, el: &Element, what: &str) -> Result<Signal, MapError> {
+        let reference = el.name == "signalReference";
+        let id = el
+            .attr("id")
+            .ok_or_else(|| self.err(el, format!("{what}: <{}> has no `id` attribute", el.name)))?
+            .trim()
+            .to_string();
+        let what = format!("{what} signal {id}");
+        self.others(el, &["validity"]);
+        let facing = match el.attr("orientation").map(str::trim) {
+            Some("+") => Facing::Along,
+            Some("-") => Facing::Against,
+            Some("none") | None => Facing::Both,
+            Some(other) => {
+                self.notes.push(MapWarning {
+                    at: self.at(el.line).to_string(),
+                    message: format!(
+                        "{what}: orientation {other:?} is none of `+`, `-`, `none`; taken as `none` (both ways)"
+                    ),
+                });
+                Facing::Both
+            }
+        };
+        let mut validity = Vec::new();
+        for v in el.children("validity") {
+            validity.push((self.integer(v, "fromLane", &what)?, self.integer(v, "toLane", &what)?));
+        }
+        let text = |name: &str| el.attr(name).unwrap_or("").trim().to_string();
+        Ok(Signal {
+            s: self.number_or(el, "s", 0.0, &what)?,
+            t: self.number_or(el, "t", 0.0, &what)?,
+            id,
+            facing,
+            dynamic: el.attr("dynamic").map(str::trim) == Some("yes"),
+            country: text("country"),
+            kind: if reference { String::new() } else { text("type") },
+            subtype: text("subtype"),
+            validity,
+            reference,
             line: el.line,
         })
     }
@@ -607,7 +738,7 @@ impl<'a> Reader<'a> {
         let id =
             el.attr("id").ok_or_else(|| self.err(el, "<junction> has no `id` attribute".into()))?.trim().to_string();
         let what = format!("junction {id}");
-        self.others(el, &["connection", "controller"]);
+        self.others(el, &["connection", "controller", "priority"]);
         let mut connections = Vec::new();
         for c in el.children("connection") {
             self.others(c, &["laneLink"]);
@@ -631,7 +762,29 @@ impl<'a> Reader<'a> {
                 line: c.line,
             });
         }
-        Ok(Junction { id, connections, controlled: el.child("controller").is_some(), line: el.line })
+        let mut controllers = Vec::new();
+        for c in el.children("controller") {
+            let cid = c
+                .attr("id")
+                .ok_or_else(|| self.err(c, format!("{what}: <controller> has no `id` attribute")))?
+                .trim()
+                .to_string();
+            let sequence = match c.attr("sequence") {
+                Some(_) => Some(self.integer(c, "sequence", &what)? as i64),
+                None => None,
+            };
+            controllers.push((cid, sequence));
+        }
+        let mut priorities = Vec::new();
+        for p in el.children("priority") {
+            let road = |name: &str| {
+                p.attr(name)
+                    .map(|v| v.trim().to_string())
+                    .ok_or_else(|| self.err(p, format!("{what}: <priority> has no `{name}` attribute")))
+            };
+            priorities.push((road("high")?, road("low")?, p.line));
+        }
+        Ok(Junction { id, connections, controlled: !controllers.is_empty(), controllers, priorities, line: el.line })
     }
 }
 
