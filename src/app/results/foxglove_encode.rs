@@ -85,9 +85,18 @@ fn message(buf: &mut Vec<u8>, field: u64, body: impl FnOnce(&mut Vec<u8>)) {
     if len < 0x80 {
         buf[at] = len as u8;
     } else {
-        let mut head = Vec::with_capacity(4);
-        varint(&mut head, len as u64);
-        buf.splice(at..at + 1, head);
+        // A longer length: move the body up by the extra bytes (no allocation).
+        let (mut head, mut n, mut v) = ([0u8; 10], 0, len as u64);
+        while v >= 0x80 {
+            head[n] = (v as u8) | 0x80;
+            v >>= 7;
+            n += 1;
+        }
+        head[n] = v as u8;
+        n += 1;
+        buf.resize(buf.len() + n - 1, 0);
+        buf.copy_within(at + 1..at + 1 + len, at + n);
+        buf[at..at + n].copy_from_slice(&head[..n]);
     }
 }
 
@@ -151,12 +160,36 @@ pub fn push_int(buf: &mut Vec<u8>, v: i64) {
     buf.extend_from_slice(&digits[i..]);
 }
 
-/// `vehicle/<id>` (the entity id and frame of a vehicle) into a small buffer.
-fn vehicle_name(id: i32, name: &mut Vec<u8>) -> &[u8] {
-    name.clear();
-    name.extend_from_slice(b"vehicle/");
-    push_int(name, id as i64);
-    name
+/// A vehicle's entity id and frame, `vehicle/<id>`, written on the stack.
+#[derive(Default)]
+struct Name {
+    bytes: [u8; 24],
+}
+
+impl Name {
+    /// `vehicle/<id>`.
+    fn vehicle(&mut self, id: i32) -> &[u8] {
+        const PREFIX: &[u8] = b"vehicle/";
+        self.bytes[..PREFIX.len()].copy_from_slice(PREFIX);
+        let mut n = PREFIX.len();
+        if id < 0 {
+            self.bytes[n] = b'-';
+            n += 1;
+        }
+        let mut digits = [0u8; 10];
+        let (mut i, mut v) = (digits.len(), id.unsigned_abs());
+        loop {
+            i -= 1;
+            digits[i] = b'0' + (v % 10) as u8;
+            v /= 10;
+            if v == 0 {
+                break;
+            }
+        }
+        let len = digits.len() - i;
+        self.bytes[n..n + len].copy_from_slice(&digits[i..]);
+        &self.bytes[..n + len]
+    }
 }
 
 /// A number as JSON rounded to `decimals` (at most 9), written as an integer and its decimals
@@ -195,7 +228,7 @@ pub fn push_json_num(buf: &mut Vec<u8>, x: f64, decimals: usize) {
 pub fn vehicles_scene(buf: &mut Vec<u8>, snapshot: &Snapshot, previous: &[(i32, TurnSignal, &'static str)]) {
     buf.clear();
     let t_us = snapshot.t_us;
-    let mut name = Vec::with_capacity(24);
+    let mut name = Name::default();
     let mut i = 0;
     for &(id, _, _) in previous {
         while i < snapshot.vehicles.len() && snapshot.vehicles[i].id < id {
@@ -205,7 +238,7 @@ pub fn vehicles_scene(buf: &mut Vec<u8>, snapshot: &Snapshot, previous: &[(i32, 
             // SceneEntityDeletion: timestamp 1, type 2 (MATCHING_ID = 0, left out), id 3.
             message(buf, 1, |b| {
                 timestamp(b, 1, t_us);
-                bytes(b, 3, vehicle_name(id, &mut name));
+                bytes(b, 3, name.vehicle(id));
             });
         }
     }
@@ -215,9 +248,9 @@ pub fn vehicles_scene(buf: &mut Vec<u8>, snapshot: &Snapshot, previous: &[(i32, 
 }
 
 /// One vehicle's `foxglove.SceneEntity` (fields in the schema's order).
-fn vehicle_entity(b: &mut Vec<u8>, t_us: u64, v: &VehicleSnapshot, name: &mut Vec<u8>) {
+fn vehicle_entity(b: &mut Vec<u8>, t_us: u64, v: &VehicleSnapshot, name: &mut Name) {
     timestamp(b, 1, t_us);
-    let name = vehicle_name(v.id, name);
+    let name = name.vehicle(v.id);
     bytes(b, 2, name); // frame_id
     bytes(b, 3, name); // id
     boolean(b, 5, true); // frame_locked
@@ -289,9 +322,9 @@ pub fn frame_transforms(buf: &mut Vec<u8>, snapshot: &Snapshot, with_map: bool) 
     if with_map {
         transform(buf, b"map", DVec2::ZERO, 0.0);
     }
-    let mut name = Vec::with_capacity(24);
+    let mut name = Name::default();
     for v in &snapshot.vehicles {
-        transform(buf, vehicle_name(v.id, &mut name), v.position, v.yaw);
+        transform(buf, name.vehicle(v.id), v.position, v.yaw);
     }
 }
 
@@ -299,11 +332,11 @@ pub fn frame_transforms(buf: &mut Vec<u8>, snapshot: &Snapshot, with_map: bool) 
 /// longitude [deg] and heading (clockwise from north \[deg\], as NMEA gives it).
 pub fn location_fix(buf: &mut Vec<u8>, t_us: u64, id: i32, lat: f64, lon: f64, yaw: f64) {
     buf.clear();
-    let mut name = Vec::with_capacity(24);
+    let mut name = Name::default();
     // Fields in the schema's declaration order: timestamp 6, frame_id 7, latitude 1,
     // longitude 2, (altitude 3, covariance 4 and 5: zero), heading 10.
     timestamp(buf, 6, t_us);
-    bytes(buf, 7, vehicle_name(id, &mut name));
+    bytes(buf, 7, name.vehicle(id));
     double(buf, 1, lat);
     double(buf, 2, lon);
     double_always(buf, 10, (90.0 - yaw.to_degrees()).rem_euclid(360.0));
