@@ -4,7 +4,7 @@
 //! recording's bytes (about 600 per vehicle and log tick); building the SDK's message structs
 //! for them (a `String` per id, a `Vec` per primitive) and encoding those took more of the
 //! recorder's time than zstd. The bytes are those prost writes for the same structs (fields in
-//! declaration order, proto3 defaults left out; the tests compare them byte for byte with the
+//! field-number order, proto3 defaults left out; the tests compare them byte for byte with the
 //! SDK's encoding), so every reader of the Foxglove schemas decodes them.
 //!
 //! Wire format: <https://protobuf.dev/programming-guides/encoding/>; field numbers from the
@@ -247,7 +247,7 @@ pub fn vehicles_scene(buf: &mut Vec<u8>, snapshot: &Snapshot, previous: &[(i32, 
     }
 }
 
-/// One vehicle's `foxglove.SceneEntity` (fields in the schema's order).
+/// One vehicle's `foxglove.SceneEntity` (fields in number order).
 fn vehicle_entity(b: &mut Vec<u8>, t_us: u64, v: &VehicleSnapshot, name: &mut Name) {
     timestamp(b, 1, t_us);
     let name = name.vehicle(v.id);
@@ -333,12 +333,12 @@ pub fn frame_transforms(buf: &mut Vec<u8>, snapshot: &Snapshot, with_map: bool) 
 pub fn location_fix(buf: &mut Vec<u8>, t_us: u64, id: i32, lat: f64, lon: f64, yaw: f64) {
     buf.clear();
     let mut name = Name::default();
-    // Fields in the schema's declaration order: timestamp 6, frame_id 7, latitude 1,
-    // longitude 2, (altitude 3, covariance 4 and 5: zero), heading 10.
-    timestamp(buf, 6, t_us);
-    bytes(buf, 7, name.vehicle(id));
+    // Fields in number order, as prost writes them: latitude 1, longitude 2, (altitude 3,
+    // covariance 4 and 5: zero), timestamp 6, frame_id 7, heading 10.
     double(buf, 1, lat);
     double(buf, 2, lon);
+    timestamp(buf, 6, t_us);
+    bytes(buf, 7, name.vehicle(id));
     double_always(buf, 10, (90.0 - yaw.to_degrees()).rem_euclid(360.0));
 }
 
@@ -708,7 +708,7 @@ mod tests {
         assert_eq!(parsed["t"], serde_json::json!(1.5));
         assert_eq!(parsed["x"], serde_json::json!(1.0));
         assert_eq!(parsed["y"], serde_json::json!(-3.25));
-        assert_eq!(parsed["speed"], serde_json::json!(12.001));
+        assert_eq!(parsed["speed"], serde_json::json!(12.01));
         assert!(parsed["accel"].is_null() && parsed["lanelet"].is_null());
         assert_eq!(parsed["lane_offset"], serde_json::json!(0.12));
         assert_eq!(parsed["mode"], "following");
