@@ -19,7 +19,7 @@ use crate::map::LaneletMap;
 use crate::world::TurnSignal;
 use foxglove::messages::{LinePrimitive, Point3, Pose, SceneEntity, SceneUpdate};
 
-/// Height of the vehicle cubes [m] (the map is flat; a box reads better in 3D than a plate).
+/// Height of the vehicle cubes \[m\] (the map is flat; a box reads better in 3D than a plate).
 pub const CUBE_HEIGHT: f64 = 1.5;
 
 /// Protobuf wire types.
@@ -329,7 +329,7 @@ pub fn frame_transforms(buf: &mut Vec<u8>, snapshot: &Snapshot, with_map: bool) 
 }
 
 /// A vehicle's `/gps/<id>` `foxglove.LocationFix` at `t_us` into `buf` (cleared): latitude,
-/// longitude [deg] and heading (clockwise from north \[deg\], as NMEA gives it).
+/// longitude \[deg\] and heading (clockwise from north \[deg\], as NMEA gives it).
 pub fn location_fix(buf: &mut Vec<u8>, t_us: u64, id: i32, lat: f64, lon: f64, yaw: f64) {
     buf.clear();
     let mut name = Name::default();

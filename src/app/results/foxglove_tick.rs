@@ -1,5 +1,5 @@
 //! The recorder on the simulation's side (issue 57): the log-tick system that fills a
-//! [`Snapshot`] from the world and gathers the events since the last tick, the plugin that
+//! [`Snapshot`](super::snapshot::Snapshot) from the world and gathers the events since the last tick, the plugin that
 //! schedules it after the trajectory log's rows, and the bird's-eye images of
 //! `/camera/birdseye`. The [`FoxgloveRecorder`] resource hands each tick to its own thread.
 
