@@ -11,31 +11,32 @@
 //! Log time = sim time \[ns\]. With `--mcap-profile ros2` the file holds ROS 2 messages in CDR
 //! instead ([`super::ros2`]).
 //!
-//! Nothing is built for a channel no sink listens to (`has_sinks`), so a live server without a
-//! client costs a check per channel and tick; without `--mcap` and `--foxglove` there is no
-//! recorder at all.
+//! Each message is encoded once ([`super::foxglove_encode`] for the per-tick ones) and handed
+//! to the file ([`McapFile`], the `mcap` crate directly) and to the live server's channel (the
+//! Foxglove SDK). Nothing is encoded for a channel no sink listens to: without a file, a live
+//! server without a client costs a check per channel and tick; without `--mcap` and
+//! `--foxglove` there is no recorder at all.
 
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 use std::net::SocketAddr;
 use std::path::{Path as FsPath, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use bevy_ecs::prelude::{Query, Res, ResMut, Resource, World};
-use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
-use foxglove::messages::{
-    ArrowPrimitive, Color, CompressedImage, CubePrimitive, FrameTransform, FrameTransforms, LinePrimitive, LocationFix,
-    Log, Point3, Pose, Quaternion, SceneEntity, SceneEntityDeletion, SceneUpdate, TextPrimitive, Timestamp, Vector3,
-};
-use foxglove::{Channel, Context, RawChannel, Schema};
+use bevy_ecs::prelude::Resource;
+use foxglove::messages::{CompressedImage, LocationFix, Log, SceneUpdate, Timestamp};
+use foxglove::{Context, Encode, PartialMetadata, RawChannel, Schema};
 use glam::DVec2;
 
-use super::output::{ANGLE_DECIMALS, Fixed, LENGTH_DECIMALS, TIME_DECIMALS};
+use super::foxglove_encode as encode;
+pub use super::foxglove_encode::map_scene;
+pub use super::foxglove_tick::{
+    BirdseyeImages, FoxgloveRecordPlugin, Record, mcap_path, record_final_state, record_tick,
+};
+use super::mcap_file::McapFile;
+pub use super::mcap_file::partial_path;
 use crate::map::{LaneletMap, Projector};
-use crate::sim::{Phase, Plugin, Sim, SimBuilder, SimClock};
-use crate::vehicles::{LaneChanger, LanePosition, Longitudinal, TrafficLights};
-use crate::world::{LabDriven, TurnSignal, VehicleClass, VehicleSize, VehicleState, Vehicles};
+use crate::world::TurnSignal;
 
 /// Default address of `--foxglove` (loopback: nothing outside this machine can connect).
 pub const DEFAULT_FOXGLOVE_ADDR: &str = "127.0.0.1:8765";
@@ -108,20 +109,6 @@ fn stamp(t_us: u64) -> Timestamp {
     Timestamp::new((t_us / 1_000_000) as u32, ((t_us % 1_000_000) * 1000) as u32)
 }
 
-fn vec3(x: f64, y: f64, z: f64) -> Vector3 {
-    Vector3 { x, y, z }
-}
-
-/// Rotation about z by `yaw` [rad].
-fn yaw_quaternion(yaw: f64) -> Quaternion {
-    let (s, c) = (yaw * 0.5).sin_cos();
-    Quaternion { x: 0.0, y: 0.0, z: s, w: c }
-}
-
-fn color(rgba: [u8; 4], alpha: f64) -> Color {
-    Color { r: rgba[0] as f64 / 255.0, g: rgba[1] as f64 / 255.0, b: rgba[2] as f64 / 255.0, a: alpha }
-}
-
 /// Name of the JSON schema of `/vehicle/<id>/state`.
 const STATE_SCHEMA_NAME: &str = "smlworld.VehicleState";
 const STATE_SCHEMA: &str = r#"{"type":"object","properties":{"t":{"type":"number","description":"sim time [s]"},"x":{"type":"number","description":"[m]"},"y":{"type":"number","description":"[m]"},"yaw":{"type":"number","description":"[rad]"},"speed":{"type":"number","description":"[m/s]"},"accel":{"type":["number","null"],"description":"asked for [m/s^2]"},"lanelet":{"type":["integer","null"]},"lane_offset":{"type":["number","null"],"description":"[m], left positive"},"mode":{"type":"string"}}}"#;
@@ -139,16 +126,19 @@ pub struct FoxgloveRecorder {
     worker: Option<std::thread::JoinHandle<RecorderCore>>,
     /// Snapshots the thread is done with (a `Mutex` only to make the resource `Sync`).
     recycled: std::sync::Mutex<std::sync::mpsc::Receiver<Snapshot>>,
-    camera: Option<Arc<RawChannel>>,
+    /// `/camera/birdseye` goes into the file.
+    images_to_file: bool,
+    /// The live server's `/camera/birdseye`.
+    camera_live: Option<Arc<RawChannel>>,
     live_port: Option<u16>,
     /// Ids of the last tick's vehicles and whether each was changing lanes / braking hard.
-    previous: Vec<(i32, TurnSignal, &'static str)>,
+    pub(super) previous: Vec<(i32, TurnSignal, &'static str)>,
     /// Sim time of the last tick recorded [µs].
     pub(crate) last_t: Option<u64>,
-    ticks: u64,
-    collisions_seen: usize,
-    lights_seen: Option<u64>,
-    light_states: Vec<String>,
+    pub(super) ticks: u64,
+    pub(super) collisions_seen: usize,
+    pub(super) lights_seen: Option<u64>,
+    pub(super) light_states: Vec<String>,
     v2v_seen: (u64, u64),
 }
 
@@ -172,7 +162,8 @@ impl FoxgloveRecorder {
         map: Option<Arc<LaneletMap>>,
     ) -> Result<FoxgloveRecorder, FoxgloveError> {
         let mut core = RecorderCore::open(output, mcap, map)?;
-        let camera = core.channels.as_ref().map(|c| c.camera_raw.clone());
+        let images_to_file = core.channels.as_ref().is_some_and(|c| c.camera.file.is_some());
+        let camera_live = core.channels.as_ref().and_then(|c| c.camera.live.clone());
         let live_port = core.server.as_ref().map(|s| s.port());
         let (jobs, queue) = std::sync::mpsc::sync_channel::<Job>(RECORDER_QUEUE);
         let (recycle, recycled) = std::sync::mpsc::channel::<Snapshot>();
@@ -196,7 +187,8 @@ impl FoxgloveRecorder {
             jobs: Some(jobs),
             worker: Some(worker),
             recycled: std::sync::Mutex::new(recycled),
-            camera,
+            images_to_file,
+            camera_live,
             live_port,
             previous: Vec::new(),
             last_t: None,
@@ -259,7 +251,7 @@ impl FoxgloveRecorder {
 
     /// Whether `/camera/birdseye` has a sink (a file, or a subscribed client).
     pub fn wants_images(&self) -> bool {
-        self.camera.as_ref().is_some_and(|c| c.has_sinks())
+        self.images_to_file || self.camera_live.as_ref().is_some_and(|c| c.has_sinks())
     }
 
     /// End the recording: log `summary` on `/metrics` at `t_us`, close the MCAP file and rename
@@ -295,8 +287,9 @@ struct RecorderCore {
     channels: Option<FoxgloveChannels>,
     ros2: Option<super::ros2::Ros2Channels>,
     map: Option<Arc<LaneletMap>>,
-    /// The `/map` scene, logged at the first tick (and again when a live client subscribes).
-    map_scene: Option<SceneUpdate>,
+    /// The `/map` scene (encoded), logged at the first tick (and again to the live server when
+    /// a client subscribes).
+    map_scene: Option<Vec<u8>>,
     /// Set by the live server when a client subscribes to `/map`.
     map_wanted: Arc<AtomicBool>,
     projector: Option<Projector>,
@@ -304,7 +297,8 @@ struct RecorderCore {
     previous: Vec<(i32, TurnSignal, &'static str)>,
     pub(crate) last_t: Option<u64>,
     v2v_last: [(u64, u64); 2],
-    json: String,
+    /// The message being encoded (reused).
+    buf: Vec<u8>,
     ticks: u64,
     /// Per vehicle, where `/gps/<id>` last projected exactly (see [`GpsAnchor`]).
     gps_anchors: BTreeMap<i32, GpsAnchor>,
@@ -347,42 +341,101 @@ impl GpsAnchor {
     }
 }
 
-/// The Foxglove-profile channels.
-struct FoxgloveChannels {
-    map: Channel<SceneUpdate>,
-    vehicles: Channel<SceneUpdate>,
-    tf: Channel<FrameTransforms>,
-    events: Channel<Log>,
-    v2v: Arc<RawChannel>,
-    metrics: Arc<RawChannel>,
-    camera: Channel<CompressedImage>,
-    /// The same channel, for [`FoxgloveRecorder::wants_images`] on the simulation's side.
-    camera_raw: Arc<RawChannel>,
-    states: BTreeMap<i32, Arc<RawChannel>>,
-    gps: BTreeMap<i32, Channel<LocationFix>>,
+/// One channel of the Foxglove profile: its id in the file (when recording) and the live
+/// server's channel (when serving). A message is encoded once for both.
+struct Topic {
+    file: Option<u16>,
+    live: Option<Arc<RawChannel>>,
 }
 
-/// The MCAP file being written: under a temporary name beside the final one until
-/// [`FoxgloveRecorder::finish`] renames it into place (removed if the run fails).
-struct McapFile {
-    handle: Option<foxglove::McapWriterHandle<std::io::BufWriter<std::fs::File>>>,
-    tmp: PathBuf,
-    path: PathBuf,
-}
+impl Topic {
+    /// The channel `topic` in `file` and on the live server's `context`, with `schema`.
+    fn new(
+        file: Option<&mut McapFile>,
+        live: Option<&Arc<Context>>,
+        topic: &str,
+        encoding: &str,
+        schema: &Schema,
+    ) -> Topic {
+        let file = file.map(|f| f.channel(topic, encoding, Some((&schema.name, &schema.encoding, &schema.data))));
+        let live = live.and_then(|context| {
+            context
+                .channel_builder(topic)
+                .message_encoding(encoding)
+                .schema(schema.clone())
+                .build_raw()
+                .map_err(|e| tracing::warn!("--foxglove: channel {topic}: {e}"))
+                .ok()
+        });
+        Topic { file, live }
+    }
 
-impl Drop for McapFile {
-    fn drop(&mut self) {
-        if let Some(handle) = self.handle.take() {
-            let _ = handle.close();
-            let _ = std::fs::remove_file(&self.tmp);
+    /// A protobuf channel of the Foxglove schema `M`.
+    fn protobuf<M: Encode>(file: Option<&mut McapFile>, live: Option<&Arc<Context>>, topic: &str) -> Topic {
+        match M::get_schema() {
+            Some(schema) => Topic::new(file, live, topic, &M::get_message_encoding(), &schema),
+            None => Topic { file: None, live: None },
+        }
+    }
+
+    /// A JSON channel with a JSON schema.
+    fn json(
+        file: Option<&mut McapFile>,
+        live: Option<&Arc<Context>>,
+        topic: &str,
+        name: &str,
+        schema: &'static str,
+    ) -> Topic {
+        Topic::new(file, live, topic, "json", &Schema::new(name, "jsonschema", schema.as_bytes()))
+    }
+
+    /// Whether a message would go anywhere: the file, or a subscribed live client.
+    fn wanted(&self) -> bool {
+        self.file.is_some() || self.live.as_ref().is_some_and(|c| c.has_sinks())
+    }
+
+    /// `data` at `t_ns` into the file and to the live clients.
+    fn log(&self, file: &mut Option<McapFile>, t_ns: u64, data: &[u8]) {
+        if let (Some(id), Some(file)) = (self.file, file.as_mut()) {
+            file.write(id, t_ns, data);
+        }
+        if let Some(live) = &self.live
+            && live.has_sinks()
+        {
+            live.log_with_meta(data, PartialMetadata::with_log_time(t_ns));
         }
     }
 }
 
-/// The hidden temporary name of an output beside `path` (`dir/.name.partial`).
-pub fn partial_path(path: &FsPath) -> PathBuf {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "run.mcap".into());
-    path.with_file_name(format!(".{name}.partial"))
+/// The Foxglove-profile channels.
+struct FoxgloveChannels {
+    map: Topic,
+    vehicles: Topic,
+    tf: Topic,
+    events: Topic,
+    v2v: Topic,
+    metrics: Topic,
+    camera: Topic,
+    /// `/vehicle/<id>/state`, made at a vehicle's first tick.
+    states: BTreeMap<i32, Topic>,
+    /// `/gps/<id>`, made at a vehicle's first tick on a map with a geographic origin.
+    gps: BTreeMap<i32, Topic>,
+}
+
+impl FoxgloveChannels {
+    fn new(mut file: Option<&mut McapFile>, live: Option<&Arc<Context>>) -> FoxgloveChannels {
+        FoxgloveChannels {
+            map: Topic::protobuf::<SceneUpdate>(file.as_deref_mut(), live, "/map"),
+            vehicles: Topic::protobuf::<SceneUpdate>(file.as_deref_mut(), live, "/vehicles"),
+            tf: Topic::protobuf::<foxglove::messages::FrameTransforms>(file.as_deref_mut(), live, "/tf"),
+            events: Topic::protobuf::<Log>(file.as_deref_mut(), live, "/events"),
+            v2v: Topic::json(file.as_deref_mut(), live, "/v2v", "smlworld.V2vRound", V2V_SCHEMA),
+            metrics: Topic::json(file.as_deref_mut(), live, "/metrics", "smlworld.Summary", METRICS_SCHEMA),
+            camera: Topic::protobuf::<CompressedImage>(file, live, "/camera/birdseye"),
+            states: BTreeMap::new(),
+            gps: BTreeMap::new(),
+        }
+    }
 }
 
 /// Whether `addr` is reachable only from this machine.
@@ -398,6 +451,15 @@ impl foxglove::websocket::ServerListener for MapSubscriber {
         if channel.topic() == "/map" {
             self.0.store(true, Ordering::Relaxed);
         }
+    }
+}
+
+/// `message` encoded with the SDK into `buf` (cleared).
+fn sdk_encode(buf: &mut Vec<u8>, message: &impl Encode) {
+    buf.clear();
+    if let Err(e) = message.encode(buf) {
+        tracing::warn!("--mcap: a message could not be encoded ({e})");
+        buf.clear();
     }
 }
 
@@ -422,25 +484,11 @@ impl RecorderCore {
                 "--mcap-images records foxglove.CompressedImage; use it with --mcap-profile foxglove".into(),
             ));
         }
-        let mcap = match mcap {
-            Some(path) => {
-                let tmp = partial_path(path);
-                // zstd level 1: a third of the default level's time for a slightly larger file.
-                let options = foxglove::McapWriteOptions::new()
-                    .compression(Some(foxglove::McapCompression::Zstd))
-                    .compression_level(1)
-                    .profile(if ros2 { "ros2" } else { "" });
-                let handle = context
-                    .mcap_writer_with_options(options.clone())
-                    .create_new_buffered_file(&tmp)
-                    .or_else(|_| {
-                        // A stale partial file from a run that was killed: start over.
-                        let _ = std::fs::remove_file(&tmp);
-                        context.mcap_writer_with_options(options).create_new_buffered_file(&tmp)
-                    })
-                    .map_err(|e| FoxgloveError::Mcap { path: path.to_path_buf(), message: e.to_string() })?;
-                Some(McapFile { handle: Some(handle), tmp, path: path.to_path_buf() })
-            }
+        let mut mcap = match mcap {
+            Some(path) => Some(
+                McapFile::create(path, if ros2 { "ros2" } else { "" })
+                    .map_err(|message| FoxgloveError::Mcap { path: path.to_path_buf(), message })?,
+            ),
             None => None,
         };
         let server = match output.foxglove {
@@ -469,14 +517,17 @@ impl RecorderCore {
             None => None,
         };
         let projector = map.as_ref().map(|m| m.projector).filter(|p| p.origin_lat != 0.0 || p.origin_lon != 0.0);
-        let (channels, ros2) = if ros2 {
-            let channels = super::ros2::Ros2Channels::new(&context)
-                .ok_or_else(|| FoxgloveError::Option("--mcap-profile ros2: the channels could not be made".into()))?;
-            (None, Some(channels))
-        } else {
-            (Some(FoxgloveChannels::new(&context)?), None)
+        let live = server.as_ref().map(|_| &context);
+        let (channels, ros2) = match (ros2, mcap.as_mut()) {
+            (true, Some(file)) => (None, Some(super::ros2::Ros2Channels::new(file))),
+            (true, None) => (None, None),
+            (false, file) => (Some(FoxgloveChannels::new(file, live)), None),
         };
-        let map_scene = map.as_deref().map(map_scene);
+        let mut buf = Vec::new();
+        let map_scene = map.as_deref().map(|m| {
+            sdk_encode(&mut buf, &map_scene(m));
+            std::mem::take(&mut buf)
+        });
         Ok(RecorderCore {
             context,
             mcap,
@@ -490,7 +541,7 @@ impl RecorderCore {
             previous: Vec::new(),
             last_t: None,
             v2v_last: [(0, 0); 2],
-            json: String::new(),
+            buf,
             ticks: 0,
             gps_anchors: BTreeMap::new(),
         })
@@ -508,84 +559,49 @@ impl RecorderCore {
             server.broadcast_time(t_ns);
         }
         let first = self.ticks == 1;
-        if let Some(ros2) = self.ros2.as_mut() {
+        if let (Some(ros2), Some(file)) = (self.ros2.as_mut(), self.mcap.as_mut()) {
             if first && let Some(map) = self.map.as_deref() {
-                ros2.record_map(map);
+                ros2.record_map(file, map);
             }
-            ros2.record(snapshot);
+            ros2.record(file, snapshot);
             return;
         }
         let Some(ch) = self.channels.as_mut() else { return };
+        let file = &mut self.mcap;
+        let buf = &mut self.buf;
         let resend = self.map_wanted.swap(false, Ordering::Relaxed);
-        if (first || resend)
-            && let Some(scene) = &self.map_scene
-            && ch.map.has_sinks()
-        {
-            // The map is there from t = 0 (a replay's first row may come later).
-            ch.map.log_with_time(scene, if first { 0 } else { t_ns });
-        }
-        let ts = stamp(snapshot.t_us);
-        if ch.vehicles.has_sinks() {
-            ch.vehicles.log_with_time(&vehicles_scene(snapshot, &self.previous, ts), t_ns);
-        }
-        if ch.tf.has_sinks() {
-            let mut transforms: Vec<FrameTransform> = Vec::with_capacity(snapshot.vehicles.len() + 1);
+        if let Some(scene) = &self.map_scene {
             if first {
-                transforms.push(FrameTransform {
-                    timestamp: Some(ts),
-                    parent_frame_id: "world".into(),
-                    child_frame_id: "map".into(),
-                    translation: Some(vec3(0.0, 0.0, 0.0)),
-                    rotation: Some(yaw_quaternion(0.0)),
-                });
+                // The map is there from t = 0 (a replay's first row may come later).
+                ch.map.log(file, 0, scene);
+            } else if resend && let Some(live) = &ch.map.live {
+                live.log_with_meta(scene, PartialMetadata::with_log_time(t_ns));
             }
-            transforms.extend(snapshot.vehicles.iter().map(|v| FrameTransform {
-                timestamp: Some(ts),
-                parent_frame_id: "world".into(),
-                child_frame_id: format!("vehicle/{}", v.id),
-                translation: Some(vec3(v.position.x, v.position.y, 0.0)),
-                rotation: Some(yaw_quaternion(v.yaw)),
-            }));
-            ch.tf.log_with_time(&FrameTransforms { transforms }, t_ns);
         }
-        let t = snapshot.t_us as f64 * 1e-6;
+        if ch.vehicles.wanted() {
+            encode::vehicles_scene(buf, snapshot, &self.previous);
+            ch.vehicles.log(file, t_ns, buf);
+        }
+        if ch.tf.wanted() {
+            encode::frame_transforms(buf, snapshot, first);
+            ch.tf.log(file, t_ns, buf);
+        }
+        let live = self.server.as_ref().map(|_| &self.context);
         for v in &snapshot.vehicles {
-            let channel = match ch.states.get(&v.id) {
-                Some(c) => c,
-                None => {
-                    let c = ch.json_channel(
-                        &self.context,
-                        &format!("/vehicle/{}/state", v.id),
-                        STATE_SCHEMA_NAME,
-                        STATE_SCHEMA,
-                    );
-                    ch.states.entry(v.id).or_insert(c)
-                }
-            };
-            if channel.has_sinks() {
-                self.json.clear();
-                // Numbers with the precision of trajectories.csv (1 mm, 1e-5 rad, 1 µs).
-                let _ = write!(
-                    self.json,
-                    r#"{{"t":{},"x":{},"y":{},"yaw":{},"speed":{},"accel":{},"lanelet":{},"lane_offset":{},"mode":"{}"}}"#,
-                    JsonNum(t, TIME_DECIMALS),
-                    JsonNum(v.position.x, LENGTH_DECIMALS),
-                    JsonNum(v.position.y, LENGTH_DECIMALS),
-                    JsonNum(v.yaw, ANGLE_DECIMALS),
-                    JsonNum(v.velocity.length(), LENGTH_DECIMALS),
-                    JsonNum(v.accel, LENGTH_DECIMALS),
-                    v.lanelet.map_or("null".to_string(), |l| l.to_string()),
-                    JsonNum(v.lane_offset.unwrap_or(f64::NAN), LENGTH_DECIMALS),
-                    v.mode
-                );
-                channel.log_with_meta(self.json.as_bytes(), foxglove::PartialMetadata::with_log_time(t_ns));
+            let state = ch.states.entry(v.id).or_insert_with(|| {
+                let topic = format!("/vehicle/{}/state", v.id);
+                Topic::json(file.as_mut(), live, &topic, STATE_SCHEMA_NAME, STATE_SCHEMA)
+            });
+            if state.wanted() {
+                encode::state_json(buf, snapshot.t_us, v);
+                state.log(file, t_ns, buf);
             }
             if let Some(projector) = &self.projector {
                 let gps = ch
                     .gps
                     .entry(v.id)
-                    .or_insert_with(|| self.context.channel_builder(format!("/gps/{}", v.id)).build::<LocationFix>());
-                if gps.has_sinks() {
+                    .or_insert_with(|| Topic::protobuf::<LocationFix>(file.as_mut(), live, &format!("/gps/{}", v.id)));
+                if gps.wanted() {
                     let anchor = match self.gps_anchors.get(&v.id) {
                         Some(a) if a.at.distance(v.position) <= GPS_ANCHOR_RANGE => *a,
                         _ => {
@@ -595,34 +611,23 @@ impl RecorderCore {
                         }
                     };
                     let (lat, lon) = anchor.lat_lon(v.position);
-                    gps.log_with_time(
-                        &LocationFix {
-                            timestamp: Some(ts),
-                            frame_id: format!("vehicle/{}", v.id),
-                            latitude: lat,
-                            longitude: lon,
-                            // Heading: clockwise from north [deg], as NMEA gives it.
-                            heading: Some((90.0 - v.yaw.to_degrees()).rem_euclid(360.0)),
-                            ..Default::default()
-                        },
-                        t_ns,
-                    );
+                    encode::location_fix(buf, snapshot.t_us, v.id, lat, lon, v.yaw);
+                    gps.log(file, t_ns, buf);
                 }
             }
         }
-        if ch.events.has_sinks() {
+        if ch.events.wanted() {
             for e in events {
-                ch.events.log_with_time(
-                    &Log {
-                        timestamp: Some(stamp(e.t_us)),
-                        level: e.level,
-                        message: e.message.clone(),
-                        name: e.name.into(),
-                        file: String::new(),
-                        line: 0,
-                    },
-                    e.t_us * 1000,
-                );
+                let log = Log {
+                    timestamp: Some(stamp(e.t_us)),
+                    level: e.level,
+                    message: e.message.clone(),
+                    name: e.name.into(),
+                    file: String::new(),
+                    line: 0,
+                };
+                sdk_encode(buf, &log);
+                ch.events.log(file, e.t_us * 1000, buf);
             }
         }
         self.previous.clear();
@@ -635,7 +640,7 @@ impl RecorderCore {
         let Some(ch) = self.channels.as_ref() else { return };
         let last = self.v2v_last;
         self.v2v_last = [wifi, network];
-        if !ch.v2v.has_sinks() {
+        if !ch.v2v.wanted() {
             return;
         }
         let part = |name: &str, rounds: u64, now: (u64, u64), before: (u64, u64)| {
@@ -655,23 +660,22 @@ impl RecorderCore {
             part("wifi", rounds.0, wifi, last[0]),
             part("network", rounds.1, network, last[1])
         );
-        ch.v2v.log_with_meta(json.as_bytes(), foxglove::PartialMetadata::with_log_time(t_us * 1000));
+        ch.v2v.log(&mut self.mcap, t_us * 1000, json.as_bytes());
     }
 
     /// Log a `/camera/birdseye` image (PNG bytes) at `t_us`.
     fn record_image(&mut self, png: Vec<u8>, t_us: u64) {
         if let Some(ch) = self.channels.as_ref()
-            && ch.camera.has_sinks()
+            && ch.camera.wanted()
         {
-            ch.camera.log_with_time(
-                &CompressedImage {
-                    timestamp: Some(stamp(t_us)),
-                    frame_id: "world".into(),
-                    data: png.into(),
-                    format: "png".into(),
-                },
-                t_us * 1000,
-            );
+            let image = CompressedImage {
+                timestamp: Some(stamp(t_us)),
+                frame_id: "world".into(),
+                data: png.into(),
+                format: "png".into(),
+            };
+            sdk_encode(&mut self.buf, &image);
+            ch.camera.log(&mut self.mcap, t_us * 1000, &self.buf);
         }
     }
 
@@ -679,581 +683,16 @@ impl RecorderCore {
     /// the live server.
     fn finish(mut self, summary: Option<&serde_json::Value>, t_us: u64) -> Result<Option<PathBuf>, FoxgloveError> {
         if let (Some(summary), Some(ch)) = (summary, self.channels.as_ref())
-            && ch.metrics.has_sinks()
+            && ch.metrics.wanted()
         {
             let text = summary.to_string();
-            ch.metrics.log_with_meta(text.as_bytes(), foxglove::PartialMetadata::with_log_time(t_us * 1000));
+            ch.metrics.log(&mut self.mcap, t_us * 1000, text.as_bytes());
         }
         if let Some(server) = self.server.take() {
             server.stop().wait_blocking();
         }
-        let Some(mut file) = self.mcap.take() else { return Ok(None) };
-        let error = |e: String| FoxgloveError::Mcap { path: file.path.clone(), message: e };
-        if let Some(handle) = file.handle.take() {
-            let mut writer = handle.close().map_err(|e| error(e.to_string()))?;
-            std::io::Write::flush(&mut writer).map_err(|e| error(e.to_string()))?;
-        }
-        std::fs::rename(&file.tmp, &file.path).map_err(|e| error(format!("cannot move it into place: {e}")))?;
-        Ok(Some(file.path.clone()))
-    }
-}
-
-/// A number as JSON rounded to `.1` decimals (at most 9), written as an integer and its
-/// decimals (`12.500`, `-0.250`; formatting a float exactly was a tenth of the recorder's
-/// time): `null` when not finite, [`Fixed`] beyond 1e12.
-struct JsonNum(f64, usize);
-
-impl std::fmt::Display for JsonNum {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let (x, decimals) = (self.0, self.1.min(9));
-        if !x.is_finite() {
-            return f.write_str("null");
-        }
-        if x.abs() >= 1e12 {
-            return Fixed(x, decimals).fmt(f);
-        }
-        let scale = 10u64.pow(decimals as u32);
-        let units = (x.abs() * scale as f64).round() as u64;
-        let sign = if x < 0.0 && units != 0 { "-" } else { "" };
-        if decimals == 0 {
-            write!(f, "{sign}{units}")
-        } else {
-            write!(f, "{sign}{}.{:0width$}", units / scale, units % scale, width = decimals)
-        }
-    }
-}
-
-impl FoxgloveChannels {
-    fn new(context: &Arc<Context>) -> Result<FoxgloveChannels, FoxgloveError> {
-        let json = |topic: &str, name: &str, schema: &'static str| {
-            context
-                .channel_builder(topic)
-                .message_encoding("json")
-                .schema(Schema::new(name, "jsonschema", schema.as_bytes()))
-                .build_raw()
-                .map_err(|e| FoxgloveError::Option(format!("channel {topic}: {e}")))
-        };
-        let camera = context.channel_builder("/camera/birdseye").build::<CompressedImage>().into_inner();
-        Ok(FoxgloveChannels {
-            map: context.channel_builder("/map").build(),
-            vehicles: context.channel_builder("/vehicles").build(),
-            tf: context.channel_builder("/tf").build(),
-            events: context.channel_builder("/events").build(),
-            v2v: json("/v2v", "smlworld.V2vRound", V2V_SCHEMA)?,
-            metrics: json("/metrics", "smlworld.Summary", METRICS_SCHEMA)?,
-            camera: Channel::from_raw_channel(camera.clone()),
-            camera_raw: camera,
-            states: BTreeMap::new(),
-            gps: BTreeMap::new(),
-        })
-    }
-
-    /// A JSON channel; a topic that cannot be built (never: the names are ours) falls back to
-    /// one without a schema.
-    fn json_channel(&self, context: &Arc<Context>, topic: &str, name: &str, schema: &'static str) -> Arc<RawChannel> {
-        context
-            .channel_builder(topic)
-            .message_encoding("json")
-            .schema(Schema::new(name, "jsonschema", schema.as_bytes()))
-            .build_raw()
-            .unwrap_or_else(|_| self.metrics.clone())
-    }
-}
-
-/// Dash period of dashed lane lines on `/map` [m] (half paint, half gap, as the frames draw).
-const DASH_PERIOD: f64 = 6.0;
-
-/// Whether a lanelet bound way is painted dashed: SML `line_type=interior`, Lanelet2
-/// `subtype=dashed`, OpenDRIVE/SUMO broken marks.
-fn dashed_way(map: &LaneletMap, way: i64) -> bool {
-    map.ways.get(&way).is_some_and(|w| {
-        let tag = |k: &str| w.tags.get(k).map(String::as_str);
-        tag("line_type") == Some("interior")
-            || tag("subtype").is_some_and(|s| s.starts_with("dashed"))
-            || tag("subtype") == Some("broken")
-    })
-}
-
-/// Segments of `points` dashed with `period` (half paint), appended to `out` as pairs.
-fn dash(points: &[DVec2], period: f64, out: &mut Vec<Point3>) {
-    let paint = period * 0.5;
-    let mut phase = 0.0; // distance into the current period
-    for w in points.windows(2) {
-        let (a, b) = (w[0], w[1]);
-        let len = a.distance(b);
-        if len <= 0.0 {
-            continue;
-        }
-        let dir = (b - a) / len;
-        let mut s = 0.0;
-        while s < len {
-            let in_paint = phase < paint;
-            let left = if in_paint { paint - phase } else { period - phase };
-            let step = left.min(len - s);
-            if in_paint {
-                let p = a + dir * s;
-                let q = a + dir * (s + step);
-                out.push(Point3 { x: p.x, y: p.y, z: 0.0 });
-                out.push(Point3 { x: q.x, y: q.y, z: 0.0 });
-            }
-            s += step;
-            phase = (phase + step) % period;
-        }
-    }
-}
-
-/// The `/map` scene: every lanelet bound once (solid or dashed as the map says), stop lines.
-pub fn map_scene(map: &LaneletMap) -> SceneUpdate {
-    let mut solid = Vec::new();
-    let mut dashed = Vec::new();
-    let mut seen = std::collections::BTreeSet::new();
-    for l in &map.lanelets {
-        for (way, points) in [(l.left_way, &l.left), (l.right_way, &l.right)] {
-            if !seen.insert(way) || points.len() < 2 {
-                continue;
-            }
-            if dashed_way(map, way) {
-                dash(points, DASH_PERIOD, &mut dashed);
-            } else {
-                for w in points.windows(2) {
-                    solid.push(Point3 { x: w[0].x, y: w[0].y, z: 0.0 });
-                    solid.push(Point3 { x: w[1].x, y: w[1].y, z: 0.0 });
-                }
-            }
-        }
-    }
-    let mut stops = Vec::new();
-    for junction in crate::render::stop_lines(map, &map.junctions()) {
-        for (a, b) in junction {
-            if a != b {
-                stops.push(Point3 { x: a.x, y: a.y, z: 0.0 });
-                stops.push(Point3 { x: b.x, y: b.y, z: 0.0 });
-            }
-        }
-    }
-    let line = |points: Vec<Point3>, thickness: f64, rgba: [u8; 4]| LinePrimitive {
-        r#type: foxglove::messages::line_primitive::Type::LineList as i32,
-        pose: Some(Pose { position: Some(vec3(0.0, 0.0, 0.0)), orientation: Some(yaw_quaternion(0.0)) }),
-        thickness,
-        scale_invariant: false,
-        points,
-        color: Some(color(rgba, 1.0)),
-        colors: Vec::new(),
-        indices: Vec::new(),
-    };
-    let mut lines = vec![line(solid, 0.2, [236, 190, 40, 255]), line(dashed, 0.15, [242, 242, 236, 255])];
-    if !stops.is_empty() {
-        lines.push(line(stops, 0.4, [242, 242, 236, 255]));
-    }
-    lines.retain(|l| !l.points.is_empty());
-    SceneUpdate {
-        deletions: Vec::new(),
-        entities: vec![SceneEntity {
-            timestamp: Some(stamp(0)),
-            frame_id: "map".into(),
-            id: "map".into(),
-            frame_locked: true,
-            lines,
-            ..Default::default()
-        }],
-    }
-}
-
-/// Height of the vehicle cubes [m] (the map is flat; a box reads better in 3D than a plate).
-const CUBE_HEIGHT: f64 = 1.5;
-
-/// The `/vehicles` scene of one tick: a cube, id text and velocity arrow per vehicle, the
-/// indicator while changing lanes, and deletions of the vehicles of `previous` (sorted ids)
-/// that left.
-pub fn vehicles_scene(snapshot: &Snapshot, previous: &[(i32, TurnSignal, &'static str)], ts: Timestamp) -> SceneUpdate {
-    let mut deletions = Vec::new();
-    let mut i = 0;
-    for &(id, _, _) in previous {
-        while i < snapshot.vehicles.len() && snapshot.vehicles[i].id < id {
-            i += 1;
-        }
-        if snapshot.vehicles.get(i).is_none_or(|v| v.id != id) {
-            deletions.push(SceneEntityDeletion {
-                timestamp: Some(ts),
-                r#type: foxglove::messages::scene_entity_deletion::Type::MatchingId as i32,
-                id: format!("vehicle/{id}"),
-            });
-        }
-    }
-    let entities = snapshot
-        .vehicles
-        .iter()
-        .map(|v| {
-            let rgba = crate::render::class_color(v.class.name());
-            let speed = v.velocity.length();
-            let mut arrows = Vec::new();
-            if speed > 0.01 {
-                // In the vehicle's frame: along its velocity relative to its heading.
-                let heading = v.velocity.y.atan2(v.velocity.x) - v.yaw;
-                arrows.push(ArrowPrimitive {
-                    pose: Some(Pose {
-                        position: Some(vec3(0.0, 0.0, CUBE_HEIGHT + 0.2)),
-                        orientation: Some(yaw_quaternion(heading)),
-                    }),
-                    shaft_length: speed * 0.5,
-                    shaft_diameter: 0.15,
-                    head_length: 0.6,
-                    head_diameter: 0.5,
-                    color: Some(color([30, 30, 30, 255], 1.0)),
-                });
-            }
-            let mut cubes = vec![CubePrimitive {
-                pose: Some(Pose {
-                    position: Some(vec3(0.0, 0.0, CUBE_HEIGHT * 0.5)),
-                    orientation: Some(yaw_quaternion(0.0)),
-                }),
-                size: Some(vec3(v.length, v.width, CUBE_HEIGHT)),
-                color: Some(color(rgba, if v.real { 1.0 } else { 0.6 })),
-            }];
-            let side = match v.signal {
-                TurnSignal::Left => Some(1.0),
-                TurnSignal::Right => Some(-1.0),
-                TurnSignal::Off => None,
-            };
-            if let Some(side) = side {
-                // Amber lamps at the front and rear corners of the indicating side.
-                for x in [v.length * 0.5, -v.length * 0.5] {
-                    cubes.push(CubePrimitive {
-                        pose: Some(Pose {
-                            position: Some(vec3(x, side * v.width * 0.5, CUBE_HEIGHT * 0.5)),
-                            orientation: Some(yaw_quaternion(0.0)),
-                        }),
-                        size: Some(vec3(0.4, 0.3, 0.4)),
-                        color: Some(color([255, 160, 0, 255], 1.0)),
-                    });
-                }
-            }
-            SceneEntity {
-                timestamp: Some(ts),
-                frame_id: format!("vehicle/{}", v.id),
-                id: format!("vehicle/{}", v.id),
-                frame_locked: true,
-                cubes,
-                arrows,
-                texts: vec![TextPrimitive {
-                    pose: Some(Pose {
-                        position: Some(vec3(0.0, 0.0, CUBE_HEIGHT + 1.0)),
-                        orientation: Some(yaw_quaternion(0.0)),
-                    }),
-                    billboard: true,
-                    font_size: 14.0,
-                    scale_invariant: true,
-                    color: Some(color([255, 255, 255, 255], 1.0)),
-                    text: v.id.to_string(),
-                }],
-                lines: Vec::new(),
-                ..Default::default()
-            }
-        })
-        .collect();
-    SceneUpdate { deletions, entities }
-}
-
-/// Schedule of the recorder when it runs apart from the trajectory log (a replay, a test).
-#[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct Record;
-
-/// Schedule of `/camera/birdseye` (`--mcap-images HZ`).
-#[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct BirdseyeImages;
-
-/// The recorder on the trajectory log's ticks ([`super::output::Log`], after the CSV rows):
-/// insert a [`FoxgloveRecorder`] resource first. With `images` \[Hz\], a module of its own draws
-/// the bird's-eye view into `/camera/birdseye`.
-pub struct FoxgloveRecordPlugin {
-    /// `--mcap-images` \[Hz\].
-    pub images: Option<f64>,
-    /// The map the images draw.
-    pub map: Option<Arc<LaneletMap>>,
-}
-
-impl Plugin for FoxgloveRecordPlugin {
-    fn build(&self, sim: &mut SimBuilder) {
-        sim.add_systems(super::output::Log, record_tick.after(super::output::log_trajectories));
-        if let (Some(hz), Some(map)) = (self.images, self.map.as_ref()) {
-            let options = crate::render::FrameOutput::default();
-            match crate::render::FrameRecorder::new(map, &options) {
-                Ok(rec) => {
-                    sim.insert_resource(BirdseyeCamera(rec));
-                    sim.add_module("mcap_images", BirdseyeImages, Phase::Sense, hz);
-                    sim.add_systems(BirdseyeImages, record_birdseye);
-                }
-                Err(e) => tracing::warn!("--mcap-images: no bird's-eye view ({e}); recording without /camera/birdseye"),
-            }
-        }
-    }
-}
-
-/// The off-screen renderer of `/camera/birdseye`.
-#[derive(Resource)]
-struct BirdseyeCamera(crate::render::FrameRecorder);
-
-/// Draw the bird's-eye view into `/camera/birdseye` (PNG).
-fn record_birdseye(world: &mut World) {
-    let wants = world.get_resource::<FoxgloveRecorder>().is_some_and(|r| r.wants_images());
-    if !wants {
-        return;
-    }
-    let t_us = world.get_resource::<SimClock>().map_or(0, |c| c.now.0);
-    let image =
-        world.resource_scope(|world, mut camera: bevy_ecs::prelude::Mut<BirdseyeCamera>| camera.0.render(world));
-    match image.map_err(|e| e.to_string()).and_then(|img| png_bytes(&img)) {
-        Ok(png) => {
-            if let Some(mut rec) = world.get_resource_mut::<FoxgloveRecorder>() {
-                rec.record_image(png, t_us);
-            }
-        }
-        Err(e) => tracing::warn!("--mcap-images at t = {} s: {e}", t_us as f64 * 1e-6),
-    }
-}
-
-/// `image` as PNG bytes (fast compression: a frame per tick).
-fn png_bytes(image: &image::RgbaImage) -> Result<Vec<u8>, String> {
-    use image::ImageEncoder;
-    let mut out = Vec::new();
-    image::codecs::png::PngEncoder::new_with_quality(
-        &mut out,
-        image::codecs::png::CompressionType::Fast,
-        image::codecs::png::FilterType::Adaptive,
-    )
-    .write_image(image.as_raw(), image.width(), image.height(), image::ExtendedColorType::Rgba8)
-    .map_err(|e| e.to_string())?;
-    Ok(out)
-}
-
-/// What drives a vehicle now, for `/vehicle/<id>/state`.
-fn mode(lab: bool, lon: Option<&Longitudinal>, yielding: bool, changing: bool) -> &'static str {
-    match lon {
-        _ if lab => "lab",
-        Some(l) if l.emergency => "emergency_braking",
-        _ if yielding => "yielding",
-        _ if changing => "lane_change",
-        Some(l) if l.leader.is_some() => "following",
-        Some(_) => "cruise",
-        None => "none",
-    }
-}
-
-/// Log-tick system: fill the snapshot from the world, gather the events since the last tick
-/// (collisions, lane changes and merges, emergency braking, making way for an emergency
-/// vehicle, light changes, vehicles that appear or leave) and record them. O(N) in the vehicles.
-#[allow(clippy::type_complexity)]
-pub fn record_tick(
-    clock: Res<SimClock>,
-    vehicles: Res<Vehicles>,
-    q: Query<(
-        &VehicleState,
-        Option<&VehicleSize>,
-        Option<&VehicleClass>,
-        Option<&LabDriven>,
-        Option<&LanePosition>,
-        Option<&Longitudinal>,
-        Option<&LaneChanger>,
-        Option<&crate::vehicles::YieldToEmergency>,
-    )>,
-    metrics: Option<Res<crate::app::running::metrics::Metrics>>,
-    lights: Option<Res<TrafficLights>>,
-    (v2v, v2v_channels): (Option<Res<crate::sim::v2v::V2vStats>>, Option<Res<crate::sim::v2v::V2vChannelStats>>),
-    recorder: Option<ResMut<FoxgloveRecorder>>,
-) {
-    let Some(mut rec) = recorder else { return };
-    let t_us = clock.now.0;
-    if rec.last_t == Some(t_us) {
-        return;
-    }
-    let rec = &mut *rec;
-    let mut snapshot = rec.take_snapshot();
-    let mut events = Vec::new();
-    snapshot.t_us = t_us;
-    snapshot.vehicles.clear();
-    events.clear();
-    let mut merges: Vec<(i32, String, &'static str)> = Vec::new();
-    for (id, e) in vehicles.iter() {
-        let Ok((s, size, class, lab, lane, lon, changer, yields)) = q.get(e) else { continue };
-        let yielding = yields.is_some_and(|y| y.requested || y.slow_to.is_some());
-        let size = size.copied().unwrap_or_default();
-        let manoeuvre = changer.and_then(|c| c.active.as_ref());
-        let signal = changer.map_or(TurnSignal::Off, |c| c.signal());
-        if let Some(m) = manoeuvre
-            && signal != TurnSignal::Off
-        {
-            let kind = match m.kind {
-                crate::vehicles::lane_state::ChangeKind::Mandatory => "merge",
-                _ => "lane_change",
-            };
-            merges.push((
-                id.0,
-                format!(
-                    "lanelet {} -> {} ({:?}{})",
-                    m.from.0,
-                    m.to.0,
-                    m.kind,
-                    if m.aborted { ", aborted" } else { "" }
-                ),
-                kind,
-            ));
-        }
-        snapshot.vehicles.push(VehicleSnapshot {
-            id: id.0,
-            position: s.position,
-            yaw: s.yaw,
-            velocity: s.velocity,
-            accel: lon.map_or(f64::NAN, |l| l.accel),
-            lanelet: lane.and_then(|l| l.lanelet).map(|l| l.0),
-            lane_offset: lane.filter(|l| l.lanelet.is_some()).map(|l| l.offset),
-            length: size.length,
-            width: size.width,
-            class: class.copied().unwrap_or_default(),
-            real: lab.is_some(),
-            signal,
-            mode: mode(lab.is_some(), lon, yielding, manoeuvre.is_some()),
-        });
-    }
-    // Changes against the last tick (both lists in id order).
-    let mut j = 0;
-    for v in &snapshot.vehicles {
-        while j < rec.previous.len() && rec.previous[j].0 < v.id {
-            let id = rec.previous[j].0;
-            events.push(Event::info(t_us, "vehicle", format!("vehicle {id} left")));
-            j += 1;
-        }
-        let before = rec.previous.get(j).filter(|p| p.0 == v.id).copied();
-        if before.is_some() {
-            j += 1;
-        } else if rec.ticks > 0 {
-            events.push(Event::info(t_us, "vehicle", format!("vehicle {} appeared", v.id)));
-        }
-        let (was_signal, was_mode) = before.map_or((TurnSignal::Off, ""), |b| (b.1, b.2));
-        if was_signal == TurnSignal::Off
-            && v.signal != TurnSignal::Off
-            && let Some((_, text, kind)) = merges.iter().find(|m| m.0 == v.id)
-        {
-            let side = if v.signal == TurnSignal::Left { "left" } else { "right" };
-            events.push(Event::info(t_us, kind, format!("vehicle {} changes lanes {side}: {text}", v.id)));
-        }
-        if v.mode == "yielding" && was_mode != "yielding" {
-            events.push(Event::info(t_us, "emergency", format!("vehicle {} makes way for an emergency vehicle", v.id)));
-        }
-        if v.mode == "emergency_braking" && was_mode != "emergency_braking" {
-            events.push(Event::warning(t_us, "emergency", format!("vehicle {} brakes hard (emergency braking)", v.id)));
-        }
-    }
-    for p in &rec.previous[j..] {
-        events.push(Event::info(t_us, "vehicle", format!("vehicle {} left", p.0)));
-    }
-    if let Some(m) = &metrics {
-        for c in m.collisions.iter().skip(rec.collisions_seen) {
-            events.push(Event::warning(
-                crate::world::SimTime::from_secs(c.t).0.min(t_us),
-                "collision",
-                format!("collision: vehicles {} and {}", c.a.0, c.b.0),
-            ));
-        }
-        rec.collisions_seen = m.collisions.len();
-    }
-    if let Some(lights) = &lights
-        && rec.lights_seen != Some(lights.changes)
-    {
-        rec.lights_seen = Some(lights.changes);
-        rec.light_states.resize(lights.controllers.len(), String::new());
-        for (i, c) in lights.controllers.iter().enumerate() {
-            let now = lights.state_of(c.junction).unwrap_or_default();
-            if rec.light_states[i] != now {
-                events.push(Event::info(t_us, "light", format!("junction {}: {now}", c.junction + 1)));
-                rec.light_states[i] = now;
-            }
-        }
-    }
-    if let (Some(stats), Some(ch)) = (&v2v, &v2v_channels) {
-        rec.record_v2v(
-            t_us,
-            (stats.wifi_rounds, stats.network_rounds),
-            (ch.wifi.sent, ch.wifi.delivered),
-            (ch.network.sent, ch.network.delivered),
-        );
-    }
-    rec.record(snapshot, events);
-}
-
-/// Record the state at the end of a run (unless the log's own tick already did), as
-/// [`super::output::log_final_state`] does for the CSV.
-pub fn record_final_state(sim: &mut Sim) {
-    use bevy_ecs::system::RunSystemOnce;
-    if sim.world().get_resource::<FoxgloveRecorder>().is_some() {
-        let _ = sim.world_mut().run_system_once(record_tick);
-    }
-}
-
-/// Where `[output] mcap` or `--mcap` puts the file: the CLI's path as given, the scenario's
-/// relative to the output folder.
-pub fn mcap_path(cli: Option<&FsPath>, scenario: Option<&FsPath>, out: &FsPath) -> Option<PathBuf> {
-    match (cli, scenario) {
-        (Some(p), _) => Some(p.to_path_buf()),
-        (None, Some(p)) if p.is_absolute() => Some(p.to_path_buf()),
-        (None, Some(p)) => Some(out.join(p)),
-        (None, None) => None,
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn json_numbers_are_rounded_to_their_unit() {
-        let text = |x: f64, d: usize| JsonNum(x, d).to_string();
-        assert_eq!(text(12.5, 3), "12.500");
-        assert_eq!(text(-0.25, 3), "-0.250");
-        assert_eq!(text(-0.0001, 3), "0.000");
-        assert_eq!(text(1.0 / 3.0, 5), "0.33333");
-        assert_eq!(text(f64::NAN, 3), "null");
-        assert_eq!(text(7.0, 0), "7");
-    }
-
-    #[test]
-    fn dashes_are_half_paint_half_gap_across_points() {
-        let mut out = Vec::new();
-        dash(&[DVec2::ZERO, DVec2::new(4.0, 0.0), DVec2::new(12.0, 0.0)], 6.0, &mut out);
-        let xs: Vec<f64> = out.iter().map(|p| p.x).collect();
-        // Paint 0-3, gap 3-6, paint 6-9, gap 9-12 (the first paint split at no point).
-        assert_eq!(xs, vec![0.0, 3.0, 6.0, 9.0]);
-    }
-
-    #[test]
-    fn departed_vehicles_are_deleted() {
-        let v = |id| VehicleSnapshot {
-            id,
-            position: DVec2::ZERO,
-            yaw: 0.0,
-            velocity: DVec2::ZERO,
-            accel: f64::NAN,
-            lanelet: None,
-            lane_offset: None,
-            length: 4.0,
-            width: 2.0,
-            class: VehicleClass::Car,
-            real: false,
-            signal: TurnSignal::Off,
-            mode: "none",
-        };
-        let snapshot = Snapshot { t_us: 100, vehicles: vec![v(1), v(3)] };
-        let previous = [(0, TurnSignal::Off, "none"), (1, TurnSignal::Off, "none"), (2, TurnSignal::Off, "none")];
-        let scene = vehicles_scene(&snapshot, &previous, stamp(100));
-        let gone: Vec<&str> = scene.deletions.iter().map(|d| d.id.as_str()).collect();
-        assert_eq!(gone, vec!["vehicle/0", "vehicle/2"]);
-        assert_eq!(scene.entities.len(), 2);
-    }
-
-    #[test]
-    fn the_cli_path_wins_and_the_scenario_path_is_under_the_output_folder() {
-        let out = FsPath::new("out/x");
-        assert_eq!(mcap_path(None, Some(FsPath::new("a.mcap")), out), Some(PathBuf::from("out/x/a.mcap")));
-        assert_eq!(mcap_path(Some(FsPath::new("b.mcap")), Some(FsPath::new("a.mcap")), out), Some("b.mcap".into()));
-        assert_eq!(partial_path(FsPath::new("d/r.mcap")), PathBuf::from("d/.r.mcap.partial"));
+        let Some(file) = self.mcap.take() else { return Ok(None) };
+        let path = file.path().to_path_buf();
+        file.finish().map(Some).map_err(|message| FoxgloveError::Mcap { path, message })
     }
 }

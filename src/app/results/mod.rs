@@ -2,7 +2,10 @@
 //! runs, `smlworld replay` (frames and GIFs from `trajectories.csv`) and `smlworld plot`.
 
 pub mod foxglove;
+pub mod foxglove_encode;
+pub mod foxglove_tick;
 pub mod lights;
+pub mod mcap_file;
 pub mod output;
 pub mod plot;
 pub mod replay;

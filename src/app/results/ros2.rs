@@ -5,10 +5,10 @@
 //! those of ROS 2 Humble, embedded in each channel's schema (`ros2msg`).
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 
-use foxglove::{Context, PartialMetadata, RawChannel, Schema};
 use glam::DVec2;
+
+use super::mcap_file::McapFile;
 
 use super::snapshot::{Snapshot, VehicleSnapshot};
 use crate::map::LaneletMap;
@@ -218,51 +218,43 @@ fn marker(
     c.u8(0); // mesh_use_embedded_materials
 }
 
-/// The ROS 2-profile channels of a recording.
+/// The ROS 2-profile channels of a recording (ids in its [`McapFile`]).
 pub struct Ros2Channels {
-    context: Arc<Context>,
-    tf: Arc<RawChannel>,
-    clock: Arc<RawChannel>,
-    vehicles: Arc<RawChannel>,
-    map: Arc<RawChannel>,
+    tf: u16,
+    clock: u16,
+    vehicles: u16,
+    map: u16,
     odom_schema: String,
-    odom: BTreeMap<i32, Arc<RawChannel>>,
+    odom: BTreeMap<i32, u16>,
     previous: Vec<i32>,
 }
 
-fn cdr_channel(context: &Arc<Context>, topic: &str, name: &str, schema: &str) -> Option<Arc<RawChannel>> {
-    context
-        .channel_builder(topic)
-        .message_encoding("cdr")
-        .schema(Schema::new(name, "ros2msg", schema.as_bytes().to_vec()))
-        .build_raw()
-        .map_err(|e| tracing::warn!("--mcap-profile ros2: channel {topic}: {e}"))
-        .ok()
+fn cdr_channel(file: &mut McapFile, topic: &str, name: &str, schema: &str) -> u16 {
+    file.channel(topic, "cdr", Some((name, "ros2msg", schema.as_bytes())))
 }
 
 impl Ros2Channels {
-    /// The channels on `context` (`None` if one cannot be made: never, the names are ours).
-    pub fn new(context: &Arc<Context>) -> Option<Ros2Channels> {
+    /// The channels in `file`.
+    pub fn new(file: &mut McapFile) -> Ros2Channels {
         let markers = marker_array_schema();
-        Some(Ros2Channels {
-            context: context.clone(),
-            tf: cdr_channel(context, "/tf", "tf2_msgs/msg/TFMessage", &tf_schema())?,
+        Ros2Channels {
+            tf: cdr_channel(file, "/tf", "tf2_msgs/msg/TFMessage", &tf_schema()),
             clock: cdr_channel(
-                context,
+                file,
                 "/clock",
                 "rosgraph_msgs/msg/Clock",
                 &definition("builtin_interfaces/Time clock\n", &[("builtin_interfaces/Time", TIME)]),
-            )?,
-            vehicles: cdr_channel(context, "/vehicles", "visualization_msgs/msg/MarkerArray", &markers)?,
-            map: cdr_channel(context, "/map", "visualization_msgs/msg/MarkerArray", &markers)?,
+            ),
+            vehicles: cdr_channel(file, "/vehicles", "visualization_msgs/msg/MarkerArray", &markers),
+            map: cdr_channel(file, "/map", "visualization_msgs/msg/MarkerArray", &markers),
             odom_schema: odometry_schema(),
             odom: BTreeMap::new(),
             previous: Vec::new(),
-        })
+        }
     }
 
     /// `/map` at t = 0: every lanelet bound as one LINE_LIST marker.
-    pub fn record_map(&self, map: &LaneletMap) {
+    pub fn record_map(&self, file: &mut McapFile, map: &LaneletMap) {
         let mut points = Vec::new();
         let mut seen = std::collections::BTreeSet::new();
         for l in &map.lanelets {
@@ -289,16 +281,16 @@ impl Ros2Channels {
             &points,
             "",
         );
-        self.map.log_with_meta(&c.0, PartialMetadata::with_log_time(0));
+        file.write(self.map, 0, &c.0);
     }
 
     /// One log tick: `/clock`, `/tf`, `/vehicles` and each vehicle's `/vehicle/<id>/odom`.
-    pub fn record(&mut self, snapshot: &Snapshot) {
+    pub fn record(&mut self, file: &mut McapFile, snapshot: &Snapshot) {
         let t_us = snapshot.t_us;
-        let meta = || PartialMetadata::with_log_time(t_us * 1000);
+        let t_ns = t_us * 1000;
         let mut c = Cdr::new();
         c.time(t_us);
-        self.clock.log_with_meta(&c.0, meta());
+        file.write(self.clock, t_ns, &c.0);
 
         let mut c = Cdr::new();
         c.u32(snapshot.vehicles.len() as u32);
@@ -308,7 +300,7 @@ impl Ros2Channels {
             c.point(v.position.x, v.position.y, 0.0);
             c.yaw(v.yaw);
         }
-        self.tf.log_with_meta(&c.0, meta());
+        file.write(self.tf, t_ns, &c.0);
 
         let gone: Vec<i32> = self
             .previous
@@ -326,25 +318,15 @@ impl Ros2Channels {
                 marker(&mut c, t_us, ns, id, CUBE, DELETE, (DVec2::ZERO, 0.0, 0.0), [1.0; 3], [0.0; 4], &[], "");
             }
         }
-        self.vehicles.log_with_meta(&c.0, meta());
+        file.write(self.vehicles, t_ns, &c.0);
         self.previous.clear();
         self.previous.extend(snapshot.vehicles.iter().map(|v| v.id));
 
         for v in &snapshot.vehicles {
-            let channel = match self.odom.get(&v.id) {
-                Some(ch) => ch,
-                None => {
-                    let Some(ch) = cdr_channel(
-                        &self.context,
-                        &format!("/vehicle/{}/odom", v.id),
-                        "nav_msgs/msg/Odometry",
-                        &self.odom_schema,
-                    ) else {
-                        continue;
-                    };
-                    self.odom.entry(v.id).or_insert(ch)
-                }
-            };
+            let schema = &self.odom_schema;
+            let channel = *self.odom.entry(v.id).or_insert_with(|| {
+                cdr_channel(file, &format!("/vehicle/{}/odom", v.id), "nav_msgs/msg/Odometry", schema)
+            });
             let mut c = Cdr::new();
             c.header(t_us, "world");
             c.string(&format!("vehicle/{}", v.id));
@@ -360,7 +342,7 @@ impl Ros2Channels {
             for _ in 0..36 {
                 c.f64(0.0);
             }
-            channel.log_with_meta(&c.0, meta());
+            file.write(channel, t_ns, &c.0);
         }
     }
 }
