@@ -33,6 +33,7 @@
 //! assert!(sim.controllers().sensors().contains("ring"));
 //! ```
 
+use std::cell::Cell;
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
@@ -302,7 +303,12 @@ impl CarrierLists {
         for id in &self.ids {
             // (Every carrier is one of the vehicles; one that is not gets no list.)
             let Some(&row) = row_of.get(id) else { continue };
-            self.grid.for_each_within(lists.anchors[row as usize], radius, |_, point, _| self.rows.push(point.index));
+            let (at, from) = (lists.anchors[row as usize], self.rows.len());
+            self.grid.for_each_within(at, radius, |_, point, _| self.rows.push(point.index));
+            // Nearest first at the build, so that a tick's neighbours come nearly sorted (the
+            // sort of [`Nearby::around`] then moves few of them), as the built-in lists are kept.
+            let d2 = |j: &u32| lists.anchors[*j as usize].distance_squared(at);
+            self.rows[from..].sort_unstable_by(|a, b| d2(a).total_cmp(&d2(b)).then(a.cmp(b)));
             self.of.insert(*id, self.starts.len() as u32 - 1);
             self.starts.push(self.rows.len() as u32);
         }
@@ -494,12 +500,23 @@ pub struct Sensing<'a, 'w, 's> {
     pub occlusion: &'a mut Occlusion,
     /// Counts to add to ([`PluginSensorStats::of`]), summed into the run's after the tick.
     pub stats: &'a mut PluginSensorStats,
+    /// The last sensor name's draws ([`Sensing::draws`]), by the name's address and length.
+    last_draws: Cell<Option<((usize, usize), PluginDraws)>>,
 }
 
 impl Sensing<'_, '_, '_> {
-    /// The noise and dropout draws of sensor `name` at this tick ([`PluginDraws::new`]).
+    /// The noise and dropout draws of sensor `name` at this tick ([`PluginDraws::new`]); the
+    /// last name's are kept, so a sensor asking for every vehicle hashes its name once a chunk.
     pub fn draws(&self, name: &str) -> PluginDraws {
-        PluginDraws::new(self.seed, name, self.now)
+        let key = (name.as_ptr() as usize, name.len());
+        match self.last_draws.get() {
+            Some((k, draws)) if k == key => draws,
+            _ => {
+                let draws = PluginDraws::new(self.seed, name, self.now);
+                self.last_draws.set(Some((key, draws)));
+                draws
+            }
+        }
     }
 }
 
@@ -518,7 +535,8 @@ impl PluginSense<'_, '_> {
         let (nearby, now, seed) = (&self.nearby, self.clock.now, self.seed.as_deref().map_or(0, |s| s.0));
         parallelism.for_each_chunk(&mut slots, &mut self.scratch, |chunk, scratch| {
             let PluginScratch { found, occlusion, stats } = scratch;
-            let mut sensing = Sensing { nearby, now, seed, found, occlusion, stats };
+            let last_draws = Cell::new(None);
+            let mut sensing = Sensing { nearby, now, seed, found, occlusion, stats, last_draws };
             for item in chunk.iter_mut().filter_map(Option::take) {
                 sense(item, &mut sensing);
             }
@@ -534,7 +552,7 @@ impl PluginSense<'_, '_> {
 }
 
 /// Make [`NearbyIndex`] once per sensor tick while some vehicle carries a plugin sensor: the
-/// carriers' lists where the built-in sensors' lists hold ([`CarrierLists`]; no O(N) work but
+/// carriers' own lists where the built-in sensors' lists hold ([`Nearby::around`]; no O(N) work but
 /// after their builds), else a grid of every vehicle (O(N), split over the threads).
 pub fn index_nearby(
     mut index: ResMut<NearbyIndex>,
