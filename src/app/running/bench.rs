@@ -617,6 +617,25 @@ mod tests {
                 let served = sim.world().resource::<NearbyIndex>().ticks_served_by_lists();
                 let stats = sim.world().resource::<crate::sim::PluginSensorStats>().clone();
                 let builds = sim.world().resource::<crate::sim::grid::lists::SensorGrid>().neighbours.lists.builds;
+                if !grid_only {
+                    // After the last tick (served by the lists): any point's query builds a grid
+                    // of its own, and it agrees with every carrier's list.
+                    use crate::sim::sensor_plugins::{CarriesPluginSensor, Nearby};
+                    assert!(sim.world().resource::<NearbyIndex>().served_by_lists(), "the last tick");
+                    let world = sim.world_mut();
+                    let mut carriers = world.query_filtered::<(&VehicleId, &VehicleState), With<CarriesPluginSensor>>();
+                    let at: Vec<(VehicleId, glam::DVec2)> =
+                        carriers.iter(world).map(|(&id, s)| (id, s.position)).collect();
+                    let mut state = bevy_ecs::system::SystemState::<Nearby>::new(world);
+                    let nearby = state.get(world).expect("the index exists");
+                    let (mut listed, mut gridded) = (Vec::new(), Vec::new());
+                    for &(id, p) in &at {
+                        nearby.around(id, p, 80.0, &mut listed);
+                        nearby.within(p, 80.0, &mut gridded);
+                        assert!(listed.len() > 1 && listed == gridded, "carrier {id:?}: {listed:?} {gridded:?}");
+                    }
+                    assert_eq!(at.len(), 100);
+                }
                 (fingerprint_of(&mut sim), stats, served, builds)
             })
             .collect();

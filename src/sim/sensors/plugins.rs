@@ -227,6 +227,11 @@ impl NearbyIndex {
     pub fn ticks_served_by_lists(&self) -> u64 {
         self.carriers.ticks_served
     }
+
+    /// Whether the last sensor tick was served by the lists.
+    pub fn served_by_lists(&self) -> bool {
+        self.serving
+    }
 }
 
 /// Each plugin sensor carrier's Verlet neighbour list, made over the positions at the built-in
