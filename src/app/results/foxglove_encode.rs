@@ -146,8 +146,11 @@ pub fn push_int(buf: &mut Vec<u8>, v: i64) {
     if v < 0 {
         buf.push(b'-');
     }
-    let mut n = v.unsigned_abs();
-    let mut digits = [0u8; 20];
+    buf.extend_from_slice(decimal(v.unsigned_abs(), &mut [0u8; 20]));
+}
+
+/// The decimal digits of `n`, written at the end of `digits`.
+fn decimal(mut n: u64, digits: &mut [u8; 20]) -> &[u8] {
     let mut i = digits.len();
     loop {
         i -= 1;
@@ -157,7 +160,7 @@ pub fn push_int(buf: &mut Vec<u8>, v: i64) {
             break;
         }
     }
-    buf.extend_from_slice(&digits[i..]);
+    &digits[i..]
 }
 
 /// A vehicle's entity id and frame, `vehicle/<id>`, written on the stack.
@@ -176,18 +179,10 @@ impl Name {
             self.bytes[n] = b'-';
             n += 1;
         }
-        let mut digits = [0u8; 10];
-        let (mut i, mut v) = (digits.len(), id.unsigned_abs());
-        loop {
-            i -= 1;
-            digits[i] = b'0' + (v % 10) as u8;
-            v /= 10;
-            if v == 0 {
-                break;
-            }
-        }
-        let len = digits.len() - i;
-        self.bytes[n..n + len].copy_from_slice(&digits[i..]);
+        let mut space = [0u8; 20];
+        let digits = decimal(u64::from(id.unsigned_abs()), &mut space);
+        let len = digits.len();
+        self.bytes[n..n + len].copy_from_slice(digits);
         &self.bytes[..n + len]
     }
 }
