@@ -1103,6 +1103,34 @@ fn opendrive_lights_scenario_keeps_red_and_collides_nowhere() {
     assert!(metrics.collisions.is_empty(), "collisions: {:?}", metrics.collisions);
 }
 
+/// The same town with `on_arrival = "new_trip"`: a trip that ends at a stop line goes on along
+/// its next trip, and that trip is drawn while the vehicle can still stop for the light (on its
+/// destination lanelet), not when it stands at the line at speed. Before, 8 of 277 entries were
+/// on red: a vehicle drove its route's last metres unaware of the light and the next trip began
+/// inside the junction's reach.
+#[test]
+fn new_trips_at_a_stop_line_are_drawn_in_time_to_stop_for_red() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let path = root.join("scenarios/opendrive_lights.toml");
+    let text = std::fs::read_to_string(&path)
+        .expect("reads")
+        .replace("lane_change = false", "lane_change = false\non_arrival = \"new_trip\"\nuntil = 200.0");
+    let scenario = smlworld::app::Scenario::parse_str(&text, &path).expect("parses");
+    let mut sim = scenario.builder().expect("builds").build();
+    let seen = common::red_entries(&mut sim, 600.0);
+    let finished = &sim.world().resource::<smlworld::app::running::trips::TripLog>().finished;
+    assert!(finished.len() >= 100, "only {} trips ended", finished.len());
+    // Each trip ended where it was to (its route's length driven), after it began.
+    for r in finished {
+        let travel = r.travel_time().expect("arrived");
+        assert!(travel > 0.0 && r.trip.route_length > 0.0, "{r:?}");
+    }
+    assert!(seen.entries >= 150, "only {} junction entries in 10 minutes", seen.entries);
+    assert_eq!(seen.on_red, 0, "{} of {} entries on red: {:?}", seen.on_red, seen.entries, seen.first_reds);
+    let metrics = sim.world().resource::<smlworld::app::running::metrics::Metrics>();
+    assert!(metrics.collisions.is_empty(), "collisions: {:?}", metrics.collisions);
+}
+
 /// circle_300m is one road that is its own predecessor and successor (an arc of curvature
 /// 0.0209439510 1/m, radius R = 47.746 m, over its 300 m): each driving lane is one lanelet
 /// that follows itself, so `map loop` drives round it, on the `.xodr` and on its OSM conversion

@@ -313,31 +313,59 @@ pub struct TrafficSystems;
 pub fn run_traffic(world: &mut World) {
     let t = world.resource::<SimClock>().now.as_secs();
     let mut leaving: Vec<(VehicleId, Entity)> = Vec::new();
-    let mut q = world.query::<(Entity, &VehicleId, &Route, &PathFollower, &TrafficVehicle, Option<&LaneChanger>)>();
+    let mut q = world
+        .query::<(Entity, &VehicleId, &Route, &PathFollower, &TrafficVehicle, Option<&LaneChanger>, Option<&Trip>)>();
     let random: Vec<bool> = world.resource::<Traffic>().sources.iter().map(|s| s.random.is_some()).collect();
     let renew: Vec<bool> = world.resource::<Traffic>().sources.iter().map(|s| s.renew).collect();
+    let map = world.get_resource::<LaneMap>().map(|l| Arc::clone(&l.map));
     let mut renewing: Vec<(VehicleId, Entity, usize)> = Vec::new();
-    for (entity, id, route, follower, table, changer) in q.iter(world) {
+    let mut next_begins: Vec<(VehicleId, Entity)> = Vec::new();
+    for (entity, id, route, follower, table, changer, trip) in q.iter(world) {
         // A lane that ends holds a vehicle back for its change, except on a random trip, whose
         // route ends at its destination (it has arrived, with or without a lane beside it). So
         // does an aborted change (its route is the old lane's again); a change under way is
         // already on the new lane's route, which leads to the destination: at its end the
         // vehicle has arrived (held there, it stood past the end of the road for good:
         // opendrive_merge.toml, a change started in the last metres of road 0).
-        let trip = random.get(table.0).copied().unwrap_or(false);
-        let mandatory =
-            changer.is_some_and(|c| (c.lane_end.is_some() && !trip) || c.active.as_ref().is_some_and(|m| m.aborted));
-        if !route.0.closed && route.0.length - follower.s < LEAVE_AT && !mandatory {
-            if renew.get(table.0).copied().unwrap_or(false) {
-                renewing.push((*id, entity, table.0));
-            } else {
+        let trip_table = random.get(table.0).copied().unwrap_or(false);
+        let mandatory = changer
+            .is_some_and(|c| (c.lane_end.is_some() && !trip_table) || c.active.as_ref().is_some_and(|m| m.aborted));
+        if route.0.closed || mandatory {
+            continue;
+        }
+        let remaining = route.0.length - follower.s;
+        if !renew.get(table.0).copied().unwrap_or(false) {
+            if remaining < LEAVE_AT {
                 leaving.push((*id, entity));
             }
+            continue;
+        }
+        // A town's vehicle draws its next trip as it enters its destination lanelet, so that
+        // its route runs on past the trip's end while it can still stop for what lies there (a
+        // trip ending at a stop line at speed ran the red when its next trip began at the
+        // line); its trip ends, and the next begins, at the old route's end. (Not a lane
+        // changer: a change would swap its route for a lane's before the trip's end.)
+        let ends_at = trip.and_then(|t| t.ends_at).filter(|&end| end < route.0.length);
+        match ends_at {
+            Some(end) if end - follower.s < LEAVE_AT => next_begins.push((*id, entity)),
+            Some(_) => {}
+            None if remaining < LEAVE_AT => renewing.push((*id, entity, table.0)),
+            None if changer.is_none()
+                && trip.is_some_and(|t| t.ends_at.is_none())
+                && on_destination(map.as_deref(), route, remaining) =>
+            {
+                renewing.push((*id, entity, table.0))
+            }
+            None => {}
         }
     }
     renewing.sort();
     for (id, entity, table) in renewing {
         renew_trip(world, id, entity, table, t);
+    }
+    next_begins.sort();
+    for (id, entity) in next_begins {
+        begin_next_trip(world, id, entity, t);
     }
     leaving.sort();
     world.resource_scope(|world, mut traffic: Mut<Traffic>| {
@@ -404,11 +432,29 @@ pub fn run_traffic(world: &mut World) {
     });
 }
 
-/// A vehicle of random table `table` at its destination: its trip ends (trips.csv) and it
-/// drives on along a new random trip drawn from its destination lanelet (the table's next
-/// vehicle index, so the draws stay counter-based); removed like any arrival when none is found.
+/// Whether a vehicle `remaining` \[m\] before the end of `route` is on the route's last
+/// lanelet (its destination).
+fn on_destination(map: Option<&LaneletMap>, route: &Route, remaining: f64) -> bool {
+    let (Some(map), Some(&last)) = (map, route.0.lanelets.last()) else { return false };
+    map.lanelet_index(last).is_some_and(|i| remaining <= map.lanelets[i].length)
+}
+
+/// A vehicle of random table `table` on its destination lanelet: it drives on along a new random
+/// trip drawn from there (the table's next vehicle index, so the draws stay counter-based). Drawn
+/// on entering the lanelet, the trip goes on as it was and ends at the old route's end (its
+/// [`Trip::ends_at`] on the new route; [`begin_next_trip`] starts the next there); drawn at the
+/// end, the trip ends now (trips.csv). At the end, a vehicle for which none is found is removed
+/// like any arrival; before it, it drives on to the end and tries once more there.
 fn renew_trip(world: &mut World, id: VehicleId, entity: Entity, table: usize, t: f64) {
-    end_trip(world, id, entity, t);
+    let (Some(route), Some(follower)) = (world.get::<Route>(entity), world.get::<PathFollower>(entity).copied()) else {
+        return;
+    };
+    let old = Arc::clone(&route.0);
+    let remaining = old.length - follower.s;
+    let at_end = remaining < LEAVE_AT;
+    if at_end {
+        end_trip(world, id, entity, t);
+    }
     let (seed, stream, k, trips) = {
         let mut traffic = world.resource_mut::<Traffic>();
         let seed = traffic.seed;
@@ -418,12 +464,14 @@ fn renew_trip(world: &mut World, id: VehicleId, entity: Entity, table: usize, t:
         (seed, src.stream, k, src.random.clone())
     };
     let (Some(trips), Some(map)) = (trips, world.get_resource::<LaneMap>().map(|l| Arc::clone(&l.map))) else { return };
-    let (Some(route), Some(follower)) = (world.get::<Route>(entity), world.get::<PathFollower>(entity).copied()) else {
-        return;
-    };
-    let old = Arc::clone(&route.0);
     let Some(&last) = old.lanelets.last() else { return };
     let Some(trip) = trips.trip_from(&map, last, seed, stream, k) else {
+        if !at_end {
+            if let Some(mut trip) = world.get_mut::<Trip>(entity) {
+                trip.ends_at = Some(old.length);
+            }
+            return;
+        }
         world.resource_scope(|world, mut traffic: Mut<Traffic>| remember_departure(world, &mut traffic, id, entity));
         if despawn_vehicle(world, id).is_ok() {
             world.resource_mut::<Traffic>().removed += 1;
@@ -433,11 +481,29 @@ fn renew_trip(world: &mut World, id: VehicleId, entity: Entity, table: usize, t:
     // Where the vehicle is on the new route: as far before its first lanelet's end as it was
     // before the old route's end.
     let first_len = map.lanelet_index(last).map_or(0.0, |i| map.lanelets[i].length);
-    let s = (first_len - (old.length - follower.s)).clamp(0.0, trip.path.length);
+    let s = (first_len - remaining).clamp(0.0, trip.path.length);
     let speed = world.get::<VehicleState>(entity).map_or(0.0, VehicleState::speed);
     let length = trip.path.length - s;
     let mut e = world.entity_mut(entity);
-    e.insert((Route(trip.path), PathFollower::starting_at(follower.params, s), Trip::new(t, length, speed)));
+    e.insert((Route(trip.path), PathFollower::starting_at(follower.params, s)));
+    if at_end {
+        e.insert(Trip::new(t, length, speed));
+        world.resource_mut::<Traffic>().removed += 1;
+    } else if let Some(mut trip) = e.get_mut::<Trip>() {
+        trip.ends_at = Some(s + remaining);
+    }
+}
+
+/// A vehicle at the end of a trip whose next was drawn before it ([`renew_trip`]): the trip
+/// ends (trips.csv) and the next, already on its route, departs now.
+fn begin_next_trip(world: &mut World, id: VehicleId, entity: Entity, t: f64) {
+    end_trip(world, id, entity, t);
+    let (Some(route), Some(follower)) = (world.get::<Route>(entity), world.get::<PathFollower>(entity)) else {
+        return;
+    };
+    let length = route.0.length - follower.s;
+    let speed = world.get::<VehicleState>(entity).map_or(0.0, VehicleState::speed);
+    world.entity_mut(entity).insert(Trip::new(t, length, speed));
     world.resource_mut::<Traffic>().removed += 1;
 }
 

@@ -64,12 +64,16 @@ pub struct Trip {
     pub arrival: Option<f64>,
     /// Its waiting time and stops.
     pub waiting: Waiting,
+    /// Where along the vehicle's route the trip ends \[m\], where the route runs on past its
+    /// end (a town's vehicle whose next trip was drawn before it arrived); `None`: at the
+    /// route's end.
+    pub ends_at: Option<f64>,
 }
 
 impl Trip {
     /// A trip departing at `depart` \[s\] at `speed` [m/s] with `route_length` \[m\] to drive.
     pub fn new(depart: f64, route_length: f64, speed: f64) -> Trip {
-        Trip { depart, route_length, arrival: None, waiting: Waiting::starting_at(speed) }
+        Trip { depart, route_length, arrival: None, waiting: Waiting::starting_at(speed), ends_at: None }
     }
 }
 
@@ -120,7 +124,7 @@ pub fn track_trips(
         }
         if let (Some(route), Some(follower)) = (route, follower)
             && !route.0.closed
-            && route.0.length - follower.s < ARRIVED_WITHIN
+            && trip.ends_at.unwrap_or(route.0.length) - follower.s < ARRIVED_WITHIN
         {
             trip.arrival = Some(t);
             continue;
@@ -261,7 +265,7 @@ mod tests {
 
     fn record(id: i32, depart: f64, arrival: Option<f64>, waiting: f64, stops: u32) -> TripRecord {
         let waiting = Waiting { time_s: waiting, stops, standing: false };
-        TripRecord { id: VehicleId(id), trip: Trip { depart, route_length: 123.456, arrival, waiting } }
+        TripRecord { id: VehicleId(id), trip: Trip { depart, route_length: 123.456, arrival, waiting, ends_at: None } }
     }
 
     #[test]
