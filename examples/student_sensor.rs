@@ -55,8 +55,8 @@ impl ScenarioSensor for Camera {
 }
 
 /// Every sensor tick, for each camera (on the simulator's threads): the neighbours within range
-/// (O(k) from the shared grid), nearest first, kept when inside the field of view and not
-/// hidden, then dropout and noise.
+/// inside the field of view (O(k) from the shared grid), nearest first, kept when not hidden,
+/// then dropout and noise.
 pub fn sense_cameras(
     mut sense: PluginSense,
     mut cameras: Query<(&VehicleId, &VehicleState, &Sensor<Camera>, &mut SensorReadings)>,
@@ -67,11 +67,11 @@ pub fn sense_cameras(
         let draws = cx.draws(camera.name);
         let error = SensorError { range_sd: camera.range_sd, dropout: camera.dropout, ..Default::default() };
         let counts = cx.stats.of(camera.name);
-        cx.nearby.around(me, from, camera.range, cx.found);
+        // Those in the field of view, nearest first.
+        cx.nearby.around_where(me, from, camera.range, |rel, d2| view.contains(rel, d2), cx.found);
         cx.occlusion.clear();
-        let seen = cx.found.iter().filter(|n| n.id != me && view.contains(n.position - from, n.distance_squared));
-        let kept = seen.filter_map(|n| {
-            if cx.occlusion.hidden(from, n) && camera.occlusion {
+        let kept = cx.found.iter().filter(|n| n.id != me).filter_map(|n| {
+            if camera.occlusion && cx.occlusion.hidden(from, n) {
                 counts.missed_by_occlusion += 1;
                 return None;
             }

@@ -394,17 +394,34 @@ impl Nearby<'_, '_> {
     /// same order, read from `me`'s own neighbour list where the built-in sensors' lists hold
     /// ([`NearbyIndex`]), else from the grid.
     pub fn around(&self, me: VehicleId, position: DVec2, range: f64, out: &mut Vec<Neighbour>) {
+        self.around_where(me, position, range, |_, _| true, out);
+    }
+
+    /// [`Nearby::around`] keeping only the vehicles for which `keep(relative, d2)` holds (their
+    /// position relative to `position` \[m\] and its squared length \[m²\]: a field of view,
+    /// [`crate::sim::Cone::contains`]): the same as filtering `around`'s answer, but the others are never
+    /// gathered or sorted.
+    pub fn around_where(
+        &self,
+        me: VehicleId,
+        position: DVec2,
+        range: f64,
+        keep: impl Fn(DVec2, f64) -> bool,
+        out: &mut Vec<Neighbour>,
+    ) {
         let index = &*self.index;
         let listed = if index.serving && range <= index.carriers.reach { index.carriers.of(me) } else { None };
         let (Some(rows), Some((ids, states, sizes))) = (listed, self.table()) else {
-            return self.within(position, range, out);
+            self.within(position, range, out);
+            return out.retain(|n| keep(n.position - position, n.distance_squared));
         };
         out.clear();
         let r2 = range * range;
         for &j in rows {
             let (j, state) = (j as usize, &states[j as usize]);
-            let d2 = state.position.distance_squared(position);
-            if d2 <= r2 {
+            let relative = state.position - position;
+            let d2 = relative.length_squared();
+            if d2 <= r2 && keep(relative, d2) {
                 let size = sizes.map_or_else(VehicleSize::default, |sizes| sizes[j]);
                 out.push(Neighbour {
                     id: ids[j],
