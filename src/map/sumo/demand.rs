@@ -16,8 +16,10 @@
 //!   or `max`/`desired`/`best`/`speedLimit`: the vehicle's desired speed; SUMO's default 0).
 //!
 //! The route of a group runs, edge by edge, on the lanes from which the next edge is reached
-//! (SUMO's connections, through the junction's internal lanes): a route over edges that no
-//! connection joins is a [`MapError::Sumo`] naming the file, line, element id and the two
+//! (SUMO's connections, through the junction's internal lanes); where no lane of an edge leads
+//! on to the route's end, lane changes on the edges join it ([`EdgeIndex::route_with_changes`],
+//! driven by the lane-change plugin). A route over edges that no connection joins even so is a
+//! [`MapError::Sumo`] naming the file, line, element id and the two
 //! edges; so is a flow without a rate, a route, type or edge the files do not define.
 
 use std::collections::{BTreeMap, BTreeSet, BinaryHeap};

@@ -735,14 +735,20 @@ fn sumo_demand(
             stream,
             lanes,
             // A route that needs lane changes is driven by the lane-change plugin (mandatory
-            // changes into the lanes that continue it, MOBIL's discretionary ones besides).
+            // changes into the lanes that continue it).
             goal: g.lane_route.clone().map_or(RouteGoal::Loop, |r| RouteGoal::Lanes(Arc::new(r))),
             rate_per_s: 0.0,
             until: f64::INFINITY,
             speed: [v0, v0],
             classes: vec![(class_of_sumo(&vt.class), 1.0)],
             controller: Some(SmartController::Idm(idm)),
-            lane_change: g.lane_route.as_ref().map(|_| crate::vehicles::LaneChangeParams::default()),
+            // Mandatory changes only: a threshold no gain reaches turns MOBIL's discretionary
+            // changes off (SUMO's strategic changes are what the route needs; its speed-gain
+            // changes, LC2013's, are not modelled here).
+            lane_change: g.lane_route.as_ref().map(|_| crate::vehicles::LaneChangeParams {
+                threshold: crate::sim::params::MAX_ACCEL,
+                ..crate::vehicles::LaneChangeParams::default()
+            }),
             model: VehicleModel::default(),
             // As a `[[traffic]]` table's default: a radar to find the leader.
             sensors: sensors_of(&super::file::default_traffic_sensors()),
