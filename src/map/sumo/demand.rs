@@ -329,8 +329,8 @@ impl EdgeIndex {
         };
         let mut reach = BTreeSet::new();
         let mut lanes = BTreeMap::new();
-        for k in 0..n {
-            for &i in &all[k] {
+        for (k, lanes_k) in all.iter().enumerate() {
+            for &i in lanes_k {
                 let ids = walk(k, i, &mut reach);
                 lanes.insert(map.lanelets[i].id, ids);
             }
