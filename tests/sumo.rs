@@ -383,8 +383,9 @@ fn map_route_and_render_take_a_sumo_net() {
     std::fs::remove_file(png.with_extension("meta")).ok();
 }
 
-#[test]
-fn a_netgenerate_grid_loads_with_its_counts() {
+/// A netgenerate grid of `n` x `n` nodes `length` m apart, 2 lanes per edge, lights guessed, at
+/// `out` (eclipse-sumo's netgenerate from `.venv`).
+fn netgenerate_grid(n: usize, length: f64, out: &Path) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let home = Command::new(root.join(".venv/bin/python"))
         .args(["-c", "import sumo;print(sumo.SUMO_HOME)"])
@@ -396,26 +397,126 @@ fn a_netgenerate_grid_loads_with_its_counts() {
         String::from_utf8_lossy(&home.stderr)
     );
     let home = PathBuf::from(String::from_utf8_lossy(&home.stdout).trim());
-    let out = std::env::temp_dir().join(format!("smlworld-sumo-grid-{}.net.xml", std::process::id()));
     let generated = Command::new(home.join("bin/netgenerate"))
         .env("SUMO_HOME", &home)
-        .args([
-            "--grid",
-            "--grid.number",
-            "4",
-            "--grid.length",
-            "150",
-            "--default.lanenumber",
-            "2",
-            "--tls.guess",
-            "-o",
-        ])
-        .arg(&out)
+        .args(["--grid", "--grid.number", &n.to_string(), "--grid.length", &length.to_string()])
+        .args(["--default.lanenumber", "2", "--tls.guess", "-o"])
+        .arg(out)
         .output()
         .expect("runs netgenerate");
     assert!(generated.status.success(), "{}", String::from_utf8_lossy(&generated.stderr));
+}
+
+#[test]
+fn a_netgenerate_grid_loads_with_its_counts() {
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-grid-{}.net.xml", std::process::id()));
+    netgenerate_grid(4, 150.0, &out);
     let map = check_counts_at(&out, "netgenerate 4 x 4 grid");
     // 4 x 4 nodes: the 12 with three or four arms get lights, the 4 corners none.
     assert_eq!(map.signal_programs.len(), 12);
     std::fs::remove_file(&out).ok();
+}
+
+/// SUMO's IDM follower behind an imposed leader (cruise at 15 m/s, brake at 2 m/s² to 5 m/s,
+/// accelerate back), recorded by `scripts/record_sumo_following.py` into
+/// `tests/data/sumo_following.csv` (SUMO 1.28, step 0.1 s, its default Euler update: speed
+/// v + a·dt, then position x + v(t+dt)·dt). Ours: the same IDM law ([`Idm::acceleration`]) with
+/// the same parameters, integrated as our kinematic model is driven (speed command v + a·dt at
+/// the control step, position advanced by the commanded speed: the same Euler scheme), fed the
+/// recorded leader speeds. Returns the RMS of the follower's gap difference over the 120 s [m].
+fn following_gap_rms(idm: smlworld::vehicles::Idm) -> f64 {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text =
+        std::fs::read_to_string(root.join("tests/data/sumo_following.csv")).expect("tests/data/sumo_following.csv");
+    let rows: Vec<[f64; 4]> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let c: Vec<f64> = l.split(',').map(|x| x.parse().expect("a number")).collect();
+            [c[0], c[1], c[2], c[3]]
+        })
+        .collect();
+    assert!(rows.len() > 1000, "{} rows", rows.len());
+    let dt = rows[1][0] - rows[0][0];
+    let (mut gap, mut v) = (rows[0][3], rows[0][2]);
+    let mut sum = 0.0;
+    for w in rows.windows(2) {
+        let (now, next) = (w[0], w[1]);
+        sum += (gap - now[3]).powi(2);
+        let a = idm.acceleration(v, Some((gap, now[1])));
+        v = (v + a * dt).max(0.0);
+        // The leader moves by its next speed (SUMO's Euler update for it too).
+        gap += (next[1] - v) * dt;
+    }
+    sum += (gap - rows[rows.len() - 1][3]).powi(2);
+    (sum / rows.len() as f64).sqrt()
+}
+
+#[test]
+fn idm_following_matches_sumos_recorded_follower() {
+    use smlworld::vehicles::Idm;
+    // The recording's vType: accel 1.5, decel 3, tau 1.2, minGap 2, delta 4, maxSpeed 20.
+    let idm = Idm { speed: 20.0, time_gap: 1.2, min_gap: 2.0, accel: 1.5, decel: 3.0, delta: 4.0 };
+    let rms = following_gap_rms(idm);
+    assert!(rms <= 0.5, "gap differs from SUMO's by {rms:.3} m RMS");
+    // The comparison can fail: a time gap of 1.5 s instead of SUMO's 1.2 s follows farther.
+    let wrong = following_gap_rms(Idm { time_gap: 1.5, ..idm });
+    assert!(wrong > 0.5, "a wrong time gap still matches ({wrong:.3} m RMS)");
+}
+
+/// On netgenerate's 2-lane grids a right turn leaves from lane 0 only and a left turn from lane 1
+/// only, so a right turn followed by a left one (and the reverse) needs a lane change on the
+/// edge between: the route is driven with the lane-change plugin's mandatory changes.
+#[test]
+fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
+    let dir = std::env::temp_dir().join(format!("smlworld-sumo-grid-lc-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let net = dir.join("grid.net.xml");
+    netgenerate_grid(4, 150.0, &net);
+    // East on A1B1, right at B1 (arrives on lane 0 of B1B0), left at B0 (leaves from lane 1);
+    // east on A1B1, left at B1 (arrives on lane 1 of B1B2), right at B2 (leaves from lane 0).
+    let demand = r#"<routes>
+  <vType id="car" carFollowModel="IDM" accel="2.6" decel="4.5" tau="1" minGap="2.5" length="5" maxSpeed="15"/>
+  <flow id="right_left" type="car" begin="0" end="300" vehsPerHour="360" departLane="best"><route edges="A1B1 B1B0 B0C0"/></flow>
+  <flow id="left_right" type="car" begin="0" end="300" vehsPerHour="360" departLane="best"><route edges="A1B1 B1B2 B2C2"/></flow>
+</routes>
+"#;
+    let routes = dir.join("turns.rou.xml");
+    std::fs::write(&routes, demand).unwrap();
+    let map = LaneletMap::load(&net).unwrap();
+    let d = Demand::load(std::slice::from_ref(&routes), &map, 0.0, 1000.0).unwrap();
+    for g in &d.groups {
+        let lr = g.lane_route.as_ref().unwrap_or_else(|| panic!("flow {} needs no lane change?", g.id));
+        // The start route ends on the middle edge, in the lane the next turn is not made from.
+        let last = *g.routes[0].last().unwrap();
+        assert!(!lr.reach.contains(&last), "flow {}: its start route reaches the end without a change", g.id);
+        assert_eq!(map.lanelet(last).unwrap().tags["sumo:edge"], if g.id == "right_left" { "B1B0" } else { "B1B2" });
+    }
+    let scenario = dir.join("turns.toml");
+    std::fs::write(&scenario, format!("map = {net:?}\ndemand = [{routes:?}]\nduration = 400\n")).unwrap();
+    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .arg("run")
+        .arg(&scenario)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .output()
+        .expect("runs smlworld");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("out/summary.json")).unwrap()).unwrap();
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
+    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    // 2 x 360 veh/h for 300 s: 60 due; each route is 450 m, so all arrive well within 400 s.
+    assert!(inserted >= 55, "inserted {inserted}");
+    assert_eq!(removed, inserted, "inserted {inserted}, arrived {removed}");
+    // Each vehicle changed lanes on the middle edge (a mandatory change), none missed its turn.
+    let lc = &m["lane_change_summary"];
+    assert!(lc["mandatory"].as_u64().unwrap() >= inserted, "{lc}");
+    assert_eq!(lc["missed_exits"], 0, "{lc}");
+    let trips = std::fs::read_to_string(dir.join("out/trips.csv")).unwrap();
+    let arrived = trips.lines().skip(1).filter(|r| !r.split(',').nth(2).unwrap_or("").is_empty()).count();
+    assert_eq!(arrived as u64, inserted);
+    std::fs::remove_dir_all(&dir).ok();
 }

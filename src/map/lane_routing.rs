@@ -277,3 +277,50 @@ fn check(opts: &LaneChangeOptions) -> Result<(), MapError> {
     }
     Ok(())
 }
+
+/// A route given lane by lane, for vehicles that make its lane changes themselves (a SUMO
+/// route: a sequence of edges, each turn reachable from some of an edge's lanes only): which
+/// lanelets drive on along the route without a change, and what each lanelet of the route's
+/// roads drives. The lane-change plugin changes (mandatorily) out of a lanelet that is not in
+/// `reach` into a neighbour that is, as before a lane drop.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LaneRoute {
+    /// Names the route among the goals of one simulation.
+    pub key: String,
+    /// Lanelets from which the rest of the route is driven without a lane change (junction
+    /// lanelets between them included).
+    pub reach: Vec<LaneletId>,
+    /// The lanelets driven from the start of each lanelet of the route's roads: on along the
+    /// route for those in `reach`, up to the first lanelet that is not; a lanelet not in `reach`
+    /// alone (its end is where the change must be made).
+    pub lanes: BTreeMap<LaneletId, Vec<LaneletId>>,
+}
+
+impl LaneRoute {
+    /// Which lanelets (by index in `map`) reach on along the route.
+    pub fn reach_mask(&self, map: &LaneletMap) -> Vec<bool> {
+        let mut out = vec![false; map.lanelets.len()];
+        for i in self.reach.iter().filter_map(|id| map.lanelet_index(*id)) {
+            out[i] = true;
+        }
+        out
+    }
+
+    /// The path driven from the start of lanelet `id` (`None`: not a lanelet of the route's roads).
+    pub fn path_from(&self, map: &LaneletMap, id: LaneletId, points_per_meter: f64) -> Option<Path> {
+        self.lanes.get(&id).map(|ids| map.path_of_lanelets(ids, points_per_meter))
+    }
+}
+
+impl LaneletMap {
+    /// The path along the centre lines of `ids` (consecutive lanelets, each a successor of the one
+    /// before), resampled at `points_per_meter`; unknown ids are skipped.
+    pub fn path_of_lanelets(&self, ids: &[LaneletId], points_per_meter: f64) -> Path {
+        let mut points: Vec<DVec2> = Vec::new();
+        for l in ids.iter().filter_map(|id| self.lanelet(*id)) {
+            let skip = usize::from(points.last().zip(l.centre.first()).is_some_and(|(p, q)| p.distance(*q) < 1e-6));
+            points.extend_from_slice(&l.centre[skip.min(l.centre.len())..]);
+        }
+        Path::from_points(ids.to_vec(), resample(&points, points_per_meter), false)
+    }
+}

@@ -28,7 +28,7 @@ pub mod sumo;
 
 pub use error::{MapError, MapWarning};
 pub use junctions::{Junction, JunctionControl, Junctions};
-pub use lane_routing::{LaneChange, LaneChangeOptions, LaneChangeRoute};
+pub use lane_routing::{LaneChange, LaneChangeOptions, LaneChangeRoute, LaneRoute};
 pub use lanelet::{Lanelet, LaneletId, LaneletMap, MapNode, MapWay, RegulatoryElement};
 pub use neighbours::Neighbours;
 pub use path::{Path, PathProjection};

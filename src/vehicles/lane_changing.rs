@@ -154,13 +154,17 @@ impl LanePaths {
 
     /// Which lanelets reach `goal` by driving on (every lanelet for a loop).
     pub fn reach(&mut self, lanes: &LaneMap, goal: &RouteGoal) -> Arc<Vec<bool>> {
+        if let RouteGoal::Lanes(route) = goal {
+            // Not kept: each route is driven by few vehicles, and the mask is as long as the map.
+            return Arc::new(route.reach_mask(&lanes.map));
+        }
         let key = goal.key();
         if let Some(r) = self.reach.get(&key) {
             return Arc::clone(r);
         }
         let n = lanes.map.lanelets.len();
         let r = match goal {
-            RouteGoal::Loop => vec![true; n],
+            RouteGoal::Loop | RouteGoal::Lanes(_) => vec![true; n],
             RouteGoal::To(place) => {
                 let nodes = lanes.map.place_nodes(place).unwrap_or_default();
                 let mut reach = vec![false; n];
@@ -222,6 +226,10 @@ impl LanePaths {
     /// The path from the start of lanelet `i` along its lane to `goal` (round the loop; to the
     /// place; or to the lane's end when the lane does not reach the place).
     pub fn path(&mut self, lanes: &LaneMap, i: u32, goal: &RouteGoal) -> Option<Arc<Path>> {
+        if let RouteGoal::Lanes(route) = goal {
+            // The route's own lane paths (not kept, as `reach`).
+            return route.path_from(&lanes.map, lanes.id(i), self.points_per_meter).map(Arc::new);
+        }
         let key = (i, goal.key());
         if let Some(p) = self.paths.get(&key) {
             return p.clone();

@@ -122,6 +122,9 @@ pub enum RouteGoal {
     Loop,
     /// An open route to this place: only lanes that reach it will do.
     To(Place),
+    /// An open route given lane by lane (a SUMO route): only the lanes it names as reaching on
+    /// will do, and each lane drives the path it gives.
+    Lanes(Arc<crate::map::LaneRoute>),
 }
 
 impl RouteGoal {
@@ -129,6 +132,7 @@ impl RouteGoal {
         match self {
             RouteGoal::Loop => String::new(),
             RouteGoal::To(p) => format!("{p:?}"),
+            RouteGoal::Lanes(r) => format!("lanes:{}", r.key),
         }
     }
 }

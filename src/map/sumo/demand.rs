@@ -16,15 +16,19 @@
 //!   or `max`/`desired`/`best`/`speedLimit`: the vehicle's desired speed; SUMO's default 0).
 //!
 //! The route of a group runs, edge by edge, on the lanes from which the next edge is reached
-//! (SUMO's connections, through the junction's internal lanes): a route over edges that no
-//! connection joins is a [`MapError::Sumo`] naming the file, line, element id and the two
+//! (SUMO's connections, through the junction's internal lanes); where no lane of an edge leads
+//! on to the route's end, lane changes on the edges join it ([`EdgeIndex::route_with_changes`],
+//! driven by the lane-change plugin). A route over edges that no connection joins even so is a
+//! [`MapError::Sumo`] naming the file, line, element id and the two
 //! edges; so is a flow without a rate, a route, type or edge the files do not define.
 
 use std::collections::{BTreeMap, BTreeSet, BinaryHeap};
 use std::path::{Path as FsPath, PathBuf};
 
 use super::super::error::{Location, MapError, MapWarning};
+use super::super::lane_routing::LaneRoute;
 use super::super::lanelet::{LaneletId, LaneletMap};
+use super::super::neighbours::Neighbours;
 use super::super::opendrive::xml::{Element, parse_root};
 
 /// A `<vType>` with SUMO's defaults for what it does not say.
@@ -121,6 +125,10 @@ pub struct DemandGroup {
     pub depart_speed: DepartSpeed,
     /// Speed limit of the first lane [m/s] (the desired speed is at most this).
     pub first_speed_limit: f64,
+    /// Where the route needs lane changes (a turn reached from other lanes than the one that
+    /// comes in): the route lane by lane, and `routes` end where the first change must be made.
+    /// `None`: every start lane drives the whole route without a change.
+    pub lane_route: Option<LaneRoute>,
 }
 
 /// Everything the demand files define.
@@ -140,7 +148,13 @@ pub struct EdgeIndex {
     lanes: BTreeMap<String, Vec<Option<usize>>>,
     /// Edge id of every lanelet of a normal lane.
     edge_of: Vec<Option<String>>,
+    /// Lane-change neighbours of every lanelet.
+    neighbours: Vec<Neighbours>,
 }
+
+/// A route over edges, lane by lane: the start routes and, where it needs lane changes, the
+/// route for the lane-change plugin.
+pub type LaneRoutes = (Vec<Vec<LaneletId>>, Option<LaneRoute>);
 
 impl EdgeIndex {
     /// The index of a map read from a SUMO net (lanelet tags `sumo:edge`, `sumo:index`).
@@ -165,7 +179,7 @@ impl EdgeIndex {
                 edge_of[i] = Some(edge.clone());
             }
         }
-        EdgeIndex { lanes, edge_of }
+        EdgeIndex { lanes, edge_of, neighbours: map.neighbours() }
     }
 
     /// Whether the net has an edge of this id.
@@ -192,9 +206,156 @@ impl EdgeIndex {
         out
     }
 
-    /// The lanelets driven along `edges` from each usable start lane (only `lane` where given).
-    /// `Err` names the first pair of consecutive edges no connection joins (or the edge missing).
-    pub fn route(&self, map: &LaneletMap, edges: &[&str], lane: Option<usize>) -> Result<Vec<Vec<LaneletId>>, String> {
+    /// The lanelets driven along `edges` from each usable start lane (only `lane` where given),
+    /// without lane changes where every edge's next is reached from a lane that drives on; else
+    /// with the lane changes SUMO's vehicles make ([`EdgeIndex::route_with_changes`]). `Err`
+    /// names the first pair of consecutive edges no connection joins even with lane changes
+    /// (or the edge missing). `key` names the route among the simulation's goals.
+    pub fn route(
+        &self,
+        map: &LaneletMap,
+        edges: &[&str],
+        lane: Option<usize>,
+        key: &str,
+    ) -> Result<LaneRoutes, String> {
+        match self.route_strict(map, edges, lane) {
+            Ok(routes) => Ok((routes, None)),
+            Err(strict) => match self.route_with_changes(map, edges, lane, key) {
+                Ok((routes, lane_route)) => Ok((routes, Some(lane_route))),
+                // A missing edge or a departLane that cannot drive the route says so as before.
+                Err(_) => Err(strict),
+            },
+        }
+    }
+
+    /// Lanes of edge `e` open to passenger cars.
+    fn lanes_of(&self, e: &str) -> Result<Vec<usize>, String> {
+        let l = self.lanes.get(e).ok_or_else(|| format!("edge {e} is not in the network"))?;
+        Ok(l.iter().flatten().copied().collect())
+    }
+
+    /// The lanes of `here` from which lane changes (each into an allowed neighbour) lead into
+    /// `good` (`good` included).
+    fn changeable(&self, map: &LaneletMap, here: &[usize], good: &[usize]) -> Vec<usize> {
+        let mut out: BTreeSet<usize> = good.iter().copied().collect();
+        loop {
+            let before = out.len();
+            for &i in here {
+                let n = self.neighbours[i];
+                let into = |id: Option<LaneletId>, ok: bool| {
+                    ok && id.and_then(|id| map.lanelet_index(id)).is_some_and(|j| out.contains(&j))
+                };
+                if into(n.left, n.change_left) || into(n.right, n.change_right) {
+                    out.insert(i);
+                }
+            }
+            if out.len() == before {
+                return here.iter().copied().filter(|i| out.contains(i)).collect();
+            }
+        }
+    }
+
+    /// The route along `edges` where lanes may be changed on an edge (SUMO's strategic lane
+    /// changes): `good[k]`, the lanes of edge `k` from which a connection leads into a lane of
+    /// edge `k + 1` from which lane changes lead into `good[k + 1]` (every lane of the last edge
+    /// is good). A good lane drives on along the route until it enters a lane that is not good
+    /// (there the vehicle must change); the start routes are those of the good lanes of the first
+    /// edge (`lane` where given, good or not, if changes lead from it to a good one).
+    pub fn route_with_changes(
+        &self,
+        map: &LaneletMap,
+        edges: &[&str],
+        lane: Option<usize>,
+        key: &str,
+    ) -> Result<(Vec<Vec<LaneletId>>, LaneRoute), String> {
+        if edges.is_empty() {
+            return Err("the route has no edges".into());
+        }
+        let n = edges.len();
+        let mut all: Vec<Vec<usize>> = Vec::with_capacity(n);
+        for e in edges {
+            all.push(self.lanes_of(e)?);
+        }
+        if all[n - 1].is_empty() {
+            return Err(format!("edge {} has no lane open to passenger cars", edges[n - 1]));
+        }
+        let mut good: Vec<Vec<usize>> = vec![Vec::new(); n];
+        let mut reachable: Vec<Vec<usize>> = vec![Vec::new(); n];
+        good[n - 1] = all[n - 1].clone();
+        reachable[n - 1] = all[n - 1].clone();
+        for k in (0..n - 1).rev() {
+            let next: BTreeSet<usize> = reachable[k + 1].iter().copied().collect();
+            good[k] =
+                all[k].iter().copied().filter(|&i| self.next(map, i).iter().any(|(_, j)| next.contains(j))).collect();
+            if good[k].is_empty() {
+                return Err(format!(
+                    "no connection leads from edge {} to edge {} (for a passenger car, on to the route's end, even with lane changes)",
+                    edges[k],
+                    edges[k + 1]
+                ));
+            }
+            reachable[k] = self.changeable(map, &all[k], &good[k]);
+        }
+        let index = |x: usize| map.lanelets[x].tags.get("sumo:index").cloned().unwrap_or_default();
+        // The lanelets driven from lane `i` of edge `k`.
+        let walk = |k: usize, i: usize, reach: &mut BTreeSet<LaneletId>| -> Vec<LaneletId> {
+            let mut out = vec![map.lanelets[i].id];
+            if !good[k].contains(&i) {
+                return out;
+            }
+            reach.insert(map.lanelets[i].id);
+            let mut at = i;
+            for k2 in k + 1..n {
+                // A good lane first, then the lane of the same index, then the first connection.
+                let options = self.next(map, at);
+                let pick = options
+                    .iter()
+                    .filter(|(_, j)| reachable[k2].contains(j))
+                    .min_by_key(|(_, j)| (!good[k2].contains(j), index(*j) != index(at), *j))
+                    .copied();
+                let Some((via, j)) = pick else { break };
+                if let Some(v) = via {
+                    out.push(map.lanelets[v].id);
+                    reach.insert(map.lanelets[v].id);
+                }
+                out.push(map.lanelets[j].id);
+                if !good[k2].contains(&j) {
+                    break;
+                }
+                reach.insert(map.lanelets[j].id);
+                at = j;
+            }
+            out
+        };
+        let mut reach = BTreeSet::new();
+        let mut lanes = BTreeMap::new();
+        for (k, lanes_k) in all.iter().enumerate() {
+            for &i in lanes_k {
+                let ids = walk(k, i, &mut reach);
+                lanes.insert(map.lanelets[i].id, ids);
+            }
+        }
+        let starts: Vec<usize> = match lane {
+            Some(l) => {
+                let i = self.lanes.get(edges[0]).and_then(|x| x.get(l).copied().flatten());
+                match i.filter(|i| reachable[0].contains(i)) {
+                    Some(i) => vec![i],
+                    None => return Err(format!("departLane {l} of edge {} cannot drive this route", edges[0])),
+                }
+            }
+            None => good[0].clone(),
+        };
+        let routes = starts.iter().map(|&i| lanes[&map.lanelets[i].id].clone()).collect();
+        Ok((routes, LaneRoute { key: key.to_string(), reach: reach.into_iter().collect(), lanes }))
+    }
+
+    /// [`EdgeIndex::route`] without lane changes.
+    fn route_strict(
+        &self,
+        map: &LaneletMap,
+        edges: &[&str],
+        lane: Option<usize>,
+    ) -> Result<Vec<Vec<LaneletId>>, String> {
         let lanes_of = |e: &str| -> Result<Vec<usize>, String> {
             let l = self.lanes.get(e).ok_or_else(|| format!("edge {e} is not in the network"))?;
             Ok(l.iter().flatten().copied().collect())
@@ -498,7 +659,9 @@ impl Reader<'_> {
             })?),
         };
         let edge_refs: Vec<&str> = edges.iter().map(String::as_str).collect();
-        let routes = self.index.route(self.map, &edge_refs, lane).map_err(|m| err(format!("{what}: {m}")))?;
+        let key = format!("{} {what}", at(el));
+        let (routes, lane_route) =
+            self.index.route(self.map, &edge_refs, lane, &key).map_err(|m| err(format!("{what}: {m}")))?;
         let depart_speed = match el.attr("departSpeed") {
             None => DepartSpeed::Given(0.0),
             Some("max" | "desired" | "best" | "speedLimit" | "last" | "avg") => DepartSpeed::Desired,
@@ -527,7 +690,7 @@ impl Reader<'_> {
                                 err(format!("{what}: period `{p}` is not exp(RATE) with a rate above 0"))
                             })?;
                         let d = Departures::Poisson { begin, end: end.min(until), rate };
-                        self.push(el, at, id, vtype, routes, d, depart_speed);
+                        self.push(el, at, id, vtype, (routes, lane_route), d, depart_speed);
                         return Ok(());
                     }
                     Some(_) => num(el, "period")?,
@@ -538,7 +701,7 @@ impl Reader<'_> {
                         return Err(err(format!("{what}: probability must lie in 0..=1")));
                     }
                     let d = Departures::Probability { begin, end: end.min(until), p };
-                    self.push(el, at, id, vtype, routes, d, depart_speed);
+                    self.push(el, at, id, vtype, (routes, lane_route), d, depart_speed);
                     return Ok(());
                 }
                 let (period, count) = match (period, number) {
@@ -571,7 +734,7 @@ impl Reader<'_> {
                 Departures::Times(if t <= until { vec![t] } else { Vec::new() })
             }
         };
-        self.push(el, at, id, vtype, routes, departures, depart_speed);
+        self.push(el, at, id, vtype, (routes, lane_route), departures, depart_speed);
         Ok(())
     }
 
@@ -582,7 +745,7 @@ impl Reader<'_> {
         at: &dyn Fn(&Element) -> Location,
         id: String,
         vtype: usize,
-        routes: Vec<Vec<LaneletId>>,
+        (routes, lane_route): LaneRoutes,
         departures: Departures,
         depart_speed: DepartSpeed,
     ) {
@@ -602,6 +765,7 @@ impl Reader<'_> {
             departures,
             depart_speed,
             first_speed_limit,
+            lane_route,
         });
     }
 }

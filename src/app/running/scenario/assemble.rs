@@ -643,7 +643,7 @@ fn join_legs(legs: &[Path], points_per_meter: f64) -> Path {
 
 /// What makes SUMO vehicles alike enough to share a traffic table: vType index, routes by start
 /// lane, departure speed (its bits; `None`: the desired speed).
-type DemandKey = (usize, Vec<Vec<LaneletId>>, Option<u64>);
+type DemandKey = (usize, Vec<Vec<LaneletId>>, Option<u64>, Option<BTreeMap<LaneletId, Vec<LaneletId>>>);
 
 /// SUMO's vehicle class as ours (`passenger` and anything we do not model: a car).
 fn class_of_sumo(class: &str) -> VehicleClass {
@@ -671,18 +671,11 @@ fn sumo_demand(
     use crate::map::sumo::demand::{DepartSpeed, Departures};
     let mut paths: BTreeMap<Vec<LaneletId>, Arc<Path>> = BTreeMap::new();
     let mut path_of = |lanelets: &[LaneletId]| -> Arc<Path> {
-        Arc::clone(paths.entry(lanelets.to_vec()).or_insert_with(|| {
-            let mut points: Vec<DVec2> = Vec::new();
-            for l in lanelets.iter().filter_map(|l| map.lanelet(*l)) {
-                let skip = usize::from(points.last().zip(l.centre.first()).is_some_and(|(p, q)| p.distance(*q) < 1e-6));
-                points.extend_from_slice(&l.centre[skip.min(l.centre.len())..]);
-            }
-            Arc::new(Path::from_points(
-                lanelets.to_vec(),
-                crate::map::polyline::resample(&points, points_per_meter),
-                false,
-            ))
-        }))
+        Arc::clone(
+            paths
+                .entry(lanelets.to_vec())
+                .or_insert_with(|| Arc::new(map.path_of_lanelets(lanelets, points_per_meter))),
+        )
     };
     let seed = traffic.seed;
     let mut next_id = start;
@@ -695,7 +688,8 @@ fn sumo_demand(
             DepartSpeed::Given(v) => Some(v),
             DepartSpeed::Desired => None,
         };
-        let key = (g.vtype, g.routes.clone(), depart_speed.map(f64::to_bits));
+        let key =
+            (g.vtype, g.routes.clone(), depart_speed.map(f64::to_bits), g.lane_route.as_ref().map(|r| r.lanes.clone()));
         if let (Departures::Times(times), Some(&k)) = (&g.departures, shared.get(&key)) {
             let src = &mut traffic.sources[k];
             src.schedule.extend_from_slice(times);
@@ -740,13 +734,21 @@ fn sumo_demand(
         traffic.sources.push(TrafficSource {
             stream,
             lanes,
-            goal: RouteGoal::Loop,
+            // A route that needs lane changes is driven by the lane-change plugin (mandatory
+            // changes into the lanes that continue it).
+            goal: g.lane_route.clone().map_or(RouteGoal::Loop, |r| RouteGoal::Lanes(Arc::new(r))),
             rate_per_s: 0.0,
             until: f64::INFINITY,
             speed: [v0, v0],
             classes: vec![(class_of_sumo(&vt.class), 1.0)],
             controller: Some(SmartController::Idm(idm)),
-            lane_change: None,
+            // Mandatory changes only: a threshold no gain reaches turns MOBIL's discretionary
+            // changes off (SUMO's strategic changes are what the route needs; its speed-gain
+            // changes, LC2013's, are not modelled here).
+            lane_change: g.lane_route.as_ref().map(|_| crate::vehicles::LaneChangeParams {
+                threshold: crate::sim::params::MAX_ACCEL,
+                ..crate::vehicles::LaneChangeParams::default()
+            }),
             model: VehicleModel::default(),
             // As a `[[traffic]]` table's default: a radar to find the leader.
             sensors: sensors_of(&super::file::default_traffic_sensors()),
