@@ -235,12 +235,19 @@ pub fn find_leaders(
                 for (k, lon) in lons.iter_mut().enumerate() {
                     // The detections a vehicle a few places on will scan: far apart on a big
                     // world. The leader is mostly among the nearest few: the first four cache lines.
-                    if let Some(r) = readings.and_then(|r| r.get(start + k + PREFETCH_AHEAD)) {
+                    // Two steps ahead: the route prefetch below reads the nearest one.
+                    if let Some(r) = readings.and_then(|r| r.get(start + k + 2 * PREFETCH_AHEAD)) {
                         prefetch_bytes(r.0.as_ptr().cast(), std::mem::size_of_val(&r.0[..]).min(256));
                     }
                     // Its own entry in the lane index, where its leader search starts.
                     if let (Some((index, _)), Some(id)) = (shared.lanes, ids.get(start + k + PREFETCH_AHEAD)) {
                         index.prefetch_own(*id);
+                    }
+                    // A vehicle that searches its route (not a lane changer): its route's fields,
+                    // then its points where the nearest detection projects (each vehicle owns
+                    // its route in a town: two dependent misses, overlapped this way).
+                    if changers.is_none() {
+                        prefetch_route(table, start + k + PREFETCH_AHEAD, start + k + 2 * PREFETCH_AHEAD);
                     }
                     leader_of(shared, table, start + k, lon);
                 }
@@ -262,6 +269,26 @@ pub fn find_leaders(
             changers: changer.map(std::slice::from_ref),
         };
         leader_of(shared, table, 0, &mut lon);
+    }
+}
+
+/// Hint to the processor what [`leader_of`] will read of the route of row `near` of `table`
+/// (its points about the nearest detection's distance ahead, where the search looks first) and
+/// of the route of row `far` (the route's own fields, which the first needs): no effect on any
+/// result.
+#[inline(always)]
+fn prefetch_route(table: LeaderTable<'_>, near: usize, far: usize) {
+    if let Some(route) = table.routes.get(far) {
+        route.0.prefetch_header();
+    }
+    let (Some(route), Some(state), Some(follower)) =
+        (table.routes.get(near), table.states.get(near), table.followers.get(near))
+    else {
+        return;
+    };
+    let first = table.readings.and_then(|r| r.get(near)).and_then(|r| r.0.first());
+    if let Some(d) = first {
+        route.0.prefetch_around(follower.s + d.position.distance(state.position));
     }
 }
 

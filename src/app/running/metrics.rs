@@ -21,6 +21,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use glam::DVec2;
 
 use crate::sim::{Dynamics, GridEntry, Padded, Parallelism, Plugin, SimBuilder, SimClock, SimSystems, SpatialGrid};
+use crate::vehicles::lanes::PREFETCH_AHEAD;
 use crate::vehicles::{
     LaneChangeEvent, LaneChangeLog, LaneMap, LanePosition, Longitudinal, PathFollower, PlatoonMember,
 };
@@ -503,6 +504,17 @@ pub fn record_metrics(
     let (boxes, box_of) = (&m.boxes, &m.box_of);
     parallelism.for_each_chunk_at(&mut samples, &mut scratch, |start, chunk, _| {
         for (k, out) in chunk.iter_mut().enumerate() {
+            // What a follower a few places on will read, each its own route (in a town, far
+            // apart and out of cache): the route's fields two steps before its points near the
+            // leader, which need them.
+            if let Some(f) = list.get(start + k + 2 * PREFETCH_AHEAD) {
+                f.3.0.prefetch_header();
+            }
+            if let Some(&(_, _, _, route, follower, lon, _)) = list.get(start + k + PREFETCH_AHEAD)
+                && let Some(l) = lon.leader
+            {
+                route.0.prefetch_around(follower.s + l.distance);
+            }
             let (_, state, size, route, follower, lon, _) = list[start + k];
             *out = lon.leader.and_then(|l| {
                 let leader = boxes.get(*box_of.get(&l.id)? as usize)?;
