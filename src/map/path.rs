@@ -129,23 +129,15 @@ impl Path {
         ((s * self.per_meter) as usize).min(self.points.len().saturating_sub(1))
     }
 
-    /// Hint to the processor that the points a walk from arc length `s` \[m\] reads (two
-    /// segments either side of the one at `s`: six points, two or three cache lines) will be
-    /// read soon. On a town of 10,000 vehicles each on its own 2-3 km route, the first read
-    /// of a route near a vehicle's leader missed the cache every time; the per-vehicle loops
-    /// ask for it a few vehicles ahead, so those misses overlap other vehicles' work.
-    pub(crate) fn prefetch_around(&self, s: f64) {
+    /// The points a walk from arc length `s` \[m\] reads: two segments either side of the one
+    /// at `s` (six points, two or three cache lines), for prefetch hints
+    /// (the world's `prefetch_all`). On a town of 10,000 vehicles each on its own 2-3 km
+    /// route, the first read of a route near a vehicle's leader missed the cache every time;
+    /// the per-vehicle loops ask for it a few vehicles ahead, so those misses overlap other
+    /// vehicles' work.
+    pub(crate) fn points_near(&self, s: f64) -> &[DVec2] {
         let k = self.segment_near(s).saturating_sub(2);
-        if let Some(p) = self.points.get(k..(k + 6).min(self.points.len())) {
-            crate::world::prefetch_bytes(p.as_ptr().cast(), std::mem::size_of_val(p));
-        }
-    }
-
-    /// Hint to the processor that this path's own fields (where its points are, its spacing)
-    /// will be read soon: the first of the two dependent misses of a read of a route that is
-    /// not shared ([`Path::prefetch_around`] needs them).
-    pub(crate) fn prefetch_header(&self) {
-        crate::world::prefetch_bytes((self as *const Path).cast(), std::mem::size_of::<Path>());
+        self.points.get(k..(k + 6).min(self.points.len())).unwrap_or(&[])
     }
 
     /// Mean segment length \[m\] (all segments are equal up to rounding after resampling).

@@ -279,7 +279,7 @@ pub fn find_leaders(
 #[inline(always)]
 fn prefetch_route(table: LeaderTable<'_>, near: usize, far: usize) {
     if let Some(route) = table.routes.get(far) {
-        route.0.prefetch_header();
+        crate::world::prefetch_value(&*route.0);
     }
     let (Some(route), Some(state), Some(follower)) =
         (table.routes.get(near), table.states.get(near), table.followers.get(near))
@@ -288,7 +288,7 @@ fn prefetch_route(table: LeaderTable<'_>, near: usize, far: usize) {
     };
     let first = table.readings.and_then(|r| r.get(near)).and_then(|r| r.0.first());
     if let Some(d) = first {
-        route.0.prefetch_around(follower.s + d.position.distance(state.position));
+        crate::world::prefetch_all(route.0.points_near(follower.s + d.position.distance(state.position)));
     }
 }
 

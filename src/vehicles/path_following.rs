@@ -177,7 +177,7 @@ impl Pass for FollowPass<'_, '_> {
 fn prefetch_routes(table: FollowingTable<'_>, start: usize, followers: &[PathFollower], at: usize, count: usize) {
     for k in at + 2 * PREFETCH_AHEAD..at + 2 * PREFETCH_AHEAD + count {
         if let Some(route) = table.routes.get(start + k) {
-            route.0.prefetch_header();
+            crate::world::prefetch_value(&*route.0);
         }
     }
     for k in at + PREFETCH_AHEAD..at + PREFETCH_AHEAD + count {
@@ -188,8 +188,8 @@ fn prefetch_routes(table: FollowingTable<'_>, start: usize, followers: &[PathFol
         };
         let params = follower.params;
         let ahead = params.lookahead_min.max(params.lookahead_time * state.velocity.length());
-        route.0.prefetch_around(follower.s);
-        route.0.prefetch_around(follower.s + ahead);
+        crate::world::prefetch_all(route.0.points_near(follower.s));
+        crate::world::prefetch_all(route.0.points_near(follower.s + ahead));
     }
 }
 

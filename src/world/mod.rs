@@ -40,6 +40,19 @@ pub fn prefetch<T>(p: *const T) {
     let _ = p;
 }
 
+/// [`prefetch_bytes`] of a value's own bytes (a path's fields behind its `Arc`: the first of
+/// two dependent misses of a read of a route that is not shared).
+#[inline]
+pub fn prefetch_value<T>(value: &T) {
+    prefetch_bytes((value as *const T).cast(), std::mem::size_of::<T>());
+}
+
+/// [`prefetch_bytes`] of every item of `items` (a route's points near a place).
+#[inline]
+pub fn prefetch_all<T>(items: &[T]) {
+    prefetch_bytes(items.as_ptr().cast(), std::mem::size_of_val(items));
+}
+
 /// [`prefetch`] every cache line of the `len` bytes at `p` (a value's leading fields, a
 /// buffer's first entries): a line each 64 bytes, and the last byte's, which lies on a line of
 /// its own when `p` is not on a line's start.

@@ -508,12 +508,12 @@ pub fn record_metrics(
             // apart and out of cache): the route's fields two steps before its points near the
             // leader, which need them.
             if let Some(f) = list.get(start + k + 2 * PREFETCH_AHEAD) {
-                f.3.0.prefetch_header();
+                crate::world::prefetch_value(&*f.3.0);
             }
             if let Some(&(_, _, _, route, follower, lon, _)) = list.get(start + k + PREFETCH_AHEAD)
                 && let Some(l) = lon.leader
             {
-                route.0.prefetch_around(follower.s + l.distance);
+                crate::world::prefetch_all(route.0.points_near(follower.s + l.distance));
             }
             let (_, state, size, route, follower, lon, _) = list[start + k];
             *out = lon.leader.and_then(|l| {
