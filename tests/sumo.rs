@@ -289,16 +289,7 @@ fn two_way_single_intersection_runs_its_vhvh_demand_without_collisions() {
         ),
     )
     .unwrap();
-    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
-        .arg("run")
-        .arg(&scenario)
-        .arg("--out")
-        .arg(out.join("out"))
-        .output()
-        .expect("runs smlworld");
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("out/summary.json")).unwrap()).unwrap();
+    let summary = run_summary(&scenario, &out.join("out"));
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
     assert_eq!(m["red_light_crossings"], 0);
@@ -494,16 +485,7 @@ fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
     }
     let scenario = dir.join("turns.toml");
     std::fs::write(&scenario, format!("map = {net:?}\ndemand = [{routes:?}]\nduration = 400\n")).unwrap();
-    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
-        .arg("run")
-        .arg(&scenario)
-        .arg("--out")
-        .arg(dir.join("out"))
-        .output()
-        .expect("runs smlworld");
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("out/summary.json")).unwrap()).unwrap();
+    let summary = run_summary(&scenario, &dir.join("out"));
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
     let inserted = m["traffic"]["inserted"].as_u64().unwrap();
@@ -519,4 +501,17 @@ fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
     let arrived = trips.lines().skip(1).filter(|r| !r.split(',').nth(2).unwrap_or("").is_empty()).count();
     assert_eq!(arrived as u64, inserted);
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// `smlworld run SCENARIO --out OUT`, which must succeed, and its summary.json.
+fn run_summary(scenario: &Path, out: &Path) -> serde_json::Value {
+    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
+        .arg("run")
+        .arg(scenario)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("runs smlworld");
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
 }

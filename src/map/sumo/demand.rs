@@ -335,18 +335,26 @@ impl EdgeIndex {
                 lanes.insert(map.lanelets[i].id, ids);
             }
         }
-        let starts: Vec<usize> = match lane {
-            Some(l) => {
-                let i = self.lanes.get(edges[0]).and_then(|x| x.get(l).copied().flatten());
-                match i.filter(|i| reachable[0].contains(i)) {
-                    Some(i) => vec![i],
-                    None => return Err(format!("departLane {l} of edge {} cannot drive this route", edges[0])),
-                }
-            }
-            None => good[0].clone(),
-        };
+        let starts = self.depart_lanes(edges[0], lane, &reachable[0], &good[0])?;
         let routes = starts.iter().map(|&i| lanes[&map.lanelets[i].id].clone()).collect();
         Ok((routes, LaneRoute { key: key.to_string(), reach: reach.into_iter().collect(), lanes }))
+    }
+
+    /// The lanes of `edge` a vehicle of the route departs on: lane `lane` (departLane) when it is
+    /// one of `allowed` (those that can drive the route), else each of `default`.
+    fn depart_lanes(
+        &self,
+        edge: &str,
+        lane: Option<usize>,
+        allowed: &[usize],
+        default: &[usize],
+    ) -> Result<Vec<usize>, String> {
+        let Some(n) = lane else { return Ok(default.to_vec()) };
+        let i = self.lanes.get(edge).and_then(|l| l.get(n).copied().flatten());
+        match i.filter(|i| allowed.contains(i)) {
+            Some(i) => Ok(vec![i]),
+            None => Err(format!("departLane {n} of edge {edge} cannot drive this route")),
+        }
     }
 
     /// [`EdgeIndex::route`] without lane changes.
@@ -381,16 +389,7 @@ impl EdgeIndex {
                 ));
             }
         }
-        let starts: Vec<usize> = match lane {
-            Some(n) => {
-                let l = self.lanes.get(edges[0]).and_then(|l| l.get(n).copied().flatten());
-                match l.filter(|i| ok[0].contains(i)) {
-                    Some(i) => vec![i],
-                    None => return Err(format!("departLane {n} of edge {} cannot drive this route", edges[0])),
-                }
-            }
-            None => ok[0].clone(),
-        };
+        let starts = self.depart_lanes(edges[0], lane, &ok[0], &ok[0])?;
         let mut routes = Vec::with_capacity(starts.len());
         for s in starts {
             let mut out = vec![map.lanelets[s].id];
