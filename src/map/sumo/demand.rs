@@ -296,7 +296,6 @@ impl EdgeIndex {
             }
             reachable[k] = self.changeable(map, &all[k], &good[k]);
         }
-        let index = |x: usize| map.lanelets[x].tags.get("sumo:index").cloned().unwrap_or_default();
         // The lanelets driven from lane `i` of edge `k`.
         let walk = |k: usize, i: usize, reach: &mut BTreeSet<LaneletId>| -> Vec<LaneletId> {
             let mut out = vec![map.lanelets[i].id];
@@ -311,7 +310,7 @@ impl EdgeIndex {
                 let pick = options
                     .iter()
                     .filter(|(_, j)| reachable[k2].contains(j))
-                    .min_by_key(|(_, j)| (!good[k2].contains(j), index(*j) != index(at), *j))
+                    .min_by_key(|(_, j)| (!good[k2].contains(j), lane_index(map, *j) != lane_index(map, at), *j))
                     .copied();
                 let Some((via, j)) = pick else { break };
                 if let Some(v) = via {
@@ -364,21 +363,17 @@ impl EdgeIndex {
         edges: &[&str],
         lane: Option<usize>,
     ) -> Result<Vec<Vec<LaneletId>>, String> {
-        let lanes_of = |e: &str| -> Result<Vec<usize>, String> {
-            let l = self.lanes.get(e).ok_or_else(|| format!("edge {e} is not in the network"))?;
-            Ok(l.iter().flatten().copied().collect())
-        };
         if edges.is_empty() {
             return Err("the route has no edges".into());
         }
         // ok[k]: lanes of edge k from which the rest of the route can be driven.
         let mut ok: Vec<Vec<usize>> = vec![Vec::new(); edges.len()];
-        ok[edges.len() - 1] = lanes_of(edges[edges.len() - 1])?;
+        ok[edges.len() - 1] = self.lanes_of(edges[edges.len() - 1])?;
         if ok[edges.len() - 1].is_empty() {
             return Err(format!("edge {} has no lane open to passenger cars", edges[edges.len() - 1]));
         }
         for k in (0..edges.len() - 1).rev() {
-            let here = lanes_of(edges[k])?;
+            let here = self.lanes_of(edges[k])?;
             let next: BTreeSet<usize> = ok[k + 1].iter().copied().collect();
             ok[k] = here.into_iter().filter(|&i| self.next(map, i).iter().any(|(_, j)| next.contains(j))).collect();
             if ok[k].is_empty() {
@@ -400,10 +395,7 @@ impl EdgeIndex {
                 let pick = options
                     .iter()
                     .filter(|(_, j)| next_ok.contains(j))
-                    .min_by_key(|(_, j)| {
-                        let idx = |x: usize| map.lanelets[x].tags.get("sumo:index").cloned().unwrap_or_default();
-                        (idx(*j) != idx(at), *j)
-                    })
+                    .min_by_key(|(_, j)| (lane_index(map, *j) != lane_index(map, at), *j))
                     .copied();
                 let Some((via, j)) = pick else { break };
                 if let Some(v) = via {
@@ -457,6 +449,12 @@ impl EdgeIndex {
         }
         None
     }
+}
+
+/// The SUMO lane index of lanelet `i` (its `sumo:index` tag; empty for none): routes prefer to
+/// go on in the lane of the same index.
+fn lane_index(map: &LaneletMap, i: usize) -> &str {
+    map.lanelets[i].tags.get("sumo:index").map_or("", String::as_str)
 }
 
 /// Reads an optional number attribute of an element, or says which and why not.
