@@ -164,7 +164,8 @@ impl LanePaths {
         }
         let n = lanes.map.lanelets.len();
         let r = match goal {
-            RouteGoal::Loop | RouteGoal::Lanes(_) => vec![true; n],
+            RouteGoal::Loop => vec![true; n],
+            RouteGoal::Lanes(route) => route.reach_mask(&lanes.map),
             RouteGoal::To(place) => {
                 let nodes = lanes.map.place_nodes(place).unwrap_or_default();
                 let mut reach = vec![false; n];
