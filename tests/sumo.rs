@@ -503,6 +503,44 @@ fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// netgenerate draws a turnaround between a road's inner lanes as a 1.6 m half circle, which
+/// a steered car cannot follow (they swung up to 7 m off it into the oncoming lanes). Drawn
+/// round the junction instead ([`smlworld::map::sumo`]'s turnaround), U-turners stay on it and
+/// cross the oncoming flow that shares their exit without a collision.
+#[test]
+fn u_turns_on_a_netgenerate_grid_are_driven_on_their_lane_without_collisions() {
+    let dir = std::env::temp_dir().join(format!("smlworld-sumo-grid-uturn-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let net = dir.join("grid.net.xml");
+    netgenerate_grid(4, 150.0, &net);
+    // East on A1B1 and back at B1; the oncoming flow west on C1B1 into the same edge B1A1.
+    let demand = r#"<routes>
+  <vType id="car" carFollowModel="IDM" accel="2.6" decel="4.5" tau="1" minGap="2.5" length="5" maxSpeed="15"/>
+  <flow id="uturn" type="car" begin="0" end="300" vehsPerHour="240" departLane="best"><route edges="A1B1 B1A1"/></flow>
+  <flow id="oncoming" type="car" begin="0" end="300" vehsPerHour="360" departLane="best"><route edges="C1B1 B1A1"/></flow>
+</routes>
+"#;
+    let routes = dir.join("uturn.rou.xml");
+    std::fs::write(&routes, demand).unwrap();
+    let scenario = dir.join("uturn.toml");
+    std::fs::write(&scenario, format!("map = {net:?}\ndemand = [{routes:?}]\nduration = 420\n")).unwrap();
+    let summary = run_summary(&scenario, &dir.join("out"));
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
+    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    assert!(inserted >= 45, "inserted {inserted}");
+    assert_eq!(removed, inserted, "inserted {inserted}, arrived {removed}");
+    let off = summary["max_distance_to_centre_line"]
+        .as_object()
+        .expect("per-vehicle distances")
+        .values()
+        .filter_map(|v| v.as_f64())
+        .fold(0.0, f64::max);
+    assert!(off < 2.0, "a vehicle was {off:.2} m off its centre line");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// `smlworld run SCENARIO --out OUT`, which must succeed, and its summary.json.
 fn run_summary(scenario: &Path, out: &Path) -> serde_json::Value {
     let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))

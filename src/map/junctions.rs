@@ -400,6 +400,7 @@ fn raw_conflicts(
     let followers: Vec<Vec<usize>> = (0..lanelets.len()).map(|i| followers_at_joint(lanelets, successors, i)).collect();
     // First crossing (by arc length on the lower index) of every pair.
     let mut crossings: BTreeMap<(usize, usize), (RawConflict, bool, f64)> = BTreeMap::new();
+    let mut every_crossing: Vec<RawConflict> = Vec::new();
     for segments in grid.values() {
         for (m, &(i, ki)) in segments.iter().enumerate() {
             for &(j, kj) in &segments[m + 1..] {
@@ -410,14 +411,18 @@ fn raw_conflicts(
                 let (iu, ju) = (i as usize, j as usize);
                 // Followers meet at their joint; diverging lanes share their start (one queue),
                 // merging ones are merges.
-                if followers[iu].contains(&ju)
-                    || followers[ju].contains(&iu)
-                    || shares(&predecessors[iu], &predecessors[ju])
-                    || shares(&successors[iu], &successors[ju])
-                {
+                let (li, lj) = (&lanelets[iu], &lanelets[ju]);
+                // A turnaround drawn round the junction leaves its lane with the others from
+                // it and crosses some of them further on: those crossings count.
+                // So does one that ends in the lane another link ends in, crossing that link on
+                // the way (the merge at the end is found below as for any two).
+                let diverging = shares(&predecessors[iu], &predecessors[ju]);
+                let merging = shares(&successors[iu], &successors[ju]);
+                let any_turn = redrawn_turnaround(&li.tags) || redrawn_turnaround(&lj.tags);
+                let wide_turn = (diverging || merging) && any_turn;
+                if followers[iu].contains(&ju) || followers[ju].contains(&iu) || (diverging || merging) && !wide_turn {
                     continue;
                 }
-                let (li, lj) = (&lanelets[iu], &lanelets[ju]);
                 let (p0, p1) = (li.centre[ki as usize], li.centre[ki as usize + 1]);
                 let (q0, q1) = (lj.centre[kj as usize], lj.centre[kj as usize + 1]);
                 if grade_separated(li, lj) {
@@ -429,6 +434,9 @@ fn raw_conflicts(
                 }
                 let (t, u, crossed, dist) = match segment_crossing(p0, p1, q0, q1) {
                     Some((t, u)) => (t, u, true, 0.0),
+                    // Side by side from their common start is one queue, not a conflict; near
+                    // misses of a turnaround are not kept (it meets lanes where it crosses them).
+                    None if any_turn => continue,
                     None => {
                         let (d, t, u) = segment_distance(p0, p1, q0, q1);
                         if d >= NEAR_MISS {
@@ -440,11 +448,26 @@ fn raw_conflicts(
                 let s_a = arcs[iu][ki as usize] + t * p0.distance(p1);
                 let s_b = arcs[ju][kj as usize] + u * q0.distance(q1);
                 let at_end = |s: f64, len: f64| s < JOINT || s > len - JOINT;
-                if at_end(s_a, li.length) && at_end(s_b, lj.length) {
+                let near_shared_end = |s: f64, len: f64| if diverging { s < JOINT } else { s > len - JOINT };
+                if at_end(s_a, li.length) && at_end(s_b, lj.length)
+                    || wide_turn && (near_shared_end(s_a, li.length) || near_shared_end(s_b, lj.length))
+                {
                     continue;
                 }
                 let point = p0 + (p1 - p0) * t;
                 let c = RawConflict { a: iu, b: ju, kind: ConflictKind::Crossing, s_a, s_b, point };
+                // A turnaround drawn round the junction crosses some lanes twice (out and back):
+                // each crossing is a conflict of its own.
+                if any_turn {
+                    if crossed
+                        && !every_crossing
+                            .iter()
+                            .any(|o: &RawConflict| o.a == iu && o.b == ju && (o.s_a - s_a).abs() < 2.0)
+                    {
+                        every_crossing.push(c);
+                    }
+                    continue;
+                }
                 // A crossing (its first point) wins over a near miss; of near misses, the closest.
                 let key = (iu, ju);
                 match crossings.get(&key) {
@@ -467,6 +490,7 @@ fn raw_conflicts(
         }
     }
     let mut out: Vec<RawConflict> = crossings.into_values().map(|(c, _, _)| c).collect();
+    out.append(&mut every_crossing);
     // Merges: every pair of routable lanelets leading into the same one, met where their centre
     // lines come within MERGE_DISTANCE (else at their ends).
     let mut merges: BTreeMap<(usize, usize), RawConflict> = BTreeMap::new();
@@ -478,10 +502,24 @@ fn raw_conflicts(
                     continue;
                 }
                 let (la, lb) = (&lanelets[a], &lanelets[b]);
-                let met = la.centre.iter().enumerate().find_map(|(k, p)| {
-                    let (along, dist) = project_polyline(&lb.centre, *p);
-                    (dist < MERGE_DISTANCE).then_some((arcs[a][k], along, *p))
-                });
+                let met = if redrawn_turnaround(&la.tags) || redrawn_turnaround(&lb.tags) {
+                    // A turnaround drawn round the junction may cross the other link before it
+                    // merges: they meet where it comes near for good.
+                    let (t, o, swap) = if redrawn_turnaround(&la.tags) { (a, b, false) } else { (b, a, true) };
+                    let (lt, lo) = (&lanelets[t], &lanelets[o]);
+                    let last_apart =
+                        lt.centre.iter().rposition(|p| project_polyline(&lo.centre, *p).1 >= MERGE_DISTANCE);
+                    let k = last_apart.map_or(0, |k| (k + 1).min(lt.centre.len() - 1));
+                    lt.centre.get(k).map(|p| {
+                        let (s_t, s_o) = (arcs[t][k], project_polyline(&lo.centre, *p).0);
+                        if swap { (s_o, s_t, *p) } else { (s_t, s_o, *p) }
+                    })
+                } else {
+                    la.centre.iter().enumerate().find_map(|(k, p)| {
+                        let (along, dist) = project_polyline(&lb.centre, *p);
+                        (dist < MERGE_DISTANCE).then_some((arcs[a][k], along, *p))
+                    })
+                };
                 let (s_a, s_b, point) =
                     met.unwrap_or((la.length, lb.length, la.centre.last().copied().unwrap_or_default()));
                 merges.insert((a, b), RawConflict { a, b, kind: ConflictKind::Merging, s_a, s_b, point });
@@ -841,6 +879,10 @@ pub fn find_junctions(map: &LaneletMap, rules: &JunctionRules) -> Junctions {
             let (ta, tb) = (&map.lanelets[c.a].tags, &map.lanelets[c.b].tags);
             let yields = if let Some(y) = stated_yield(ta, tb) {
                 y
+            } else if redrawn_turnaround(ta) != redrawn_turnaround(tb) {
+                // A turnaround we drew wider than the file's meets links the file never
+                // ranked it against: it yields, as a U-turn yields to every other movement.
+                if redrawn_turnaround(ta) { Yield::A } else { Yield::B }
             } else if matches!(control, JunctionControl::FirstCome | JunctionControl::AllWayStop) {
                 Yield::FirstCome
             } else if la.major != lb.major {
@@ -905,9 +947,19 @@ fn stated_yield(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> Option<Yi
     }
 }
 
+/// Whether a link is a SUMO turnaround drawn wider than the file's shape
+/// ([`super::sumo`], tag `sumo:shape=turnaround`).
+fn redrawn_turnaround(tags: &super::lanelet::Tags) -> bool {
+    tags.get("sumo:shape").is_some_and(|v| v == "turnaround")
+}
+
 /// Whether two links of one SUMO junction are no foes by its `<request>` rows (tag
 /// `sumo:foes` of each: bit j set where link j is a foe, read from the right).
 fn stated_no_foes(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> bool {
+    // The file's foes describe its own shape of a turnaround, not the wider one we drew.
+    if redrawn_turnaround(a) || redrawn_turnaround(b) {
+        return false;
+    }
     let Some(junction) = a.get("sumo:junction") else { return false };
     if b.get("sumo:junction") != Some(junction) {
         return false;

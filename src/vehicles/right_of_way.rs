@@ -44,6 +44,9 @@ use super::PathFollower;
 use super::crossing::{CrossingNegotiator, stop_before};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
+/// The speed \[m/s\] at which [`JunctionNetwork::crossing_time`] counts a straight link crossed.
+const CROSSING_SPEED: f64 = 10.0;
+
 /// Half the extent of a conflict area along each link \[m\]: a vehicle "reaches" a conflict
 /// point this far before it and has "cleared" it with its rear this far after.
 pub const CLEAR: f64 = 2.5;
@@ -221,6 +224,11 @@ pub struct JunctionNetwork {
     pub is_exit: Vec<bool>,
     /// Lanelet lengths \[m\], by lanelet index.
     pub lengths: Vec<f64>,
+    /// Per junction, the longest time \[s\] a vehicle starting from its stop line may take to
+    /// clear one of its links (at the link's curve speed, at most [`CROSSING_SPEED`]): a
+    /// vehicle is seen as a foe from as far as it drives in that time, so a slow link (a U-turn
+    /// round a junction) is decided on seeing every foe that can come while it is on it.
+    pub crossing_time: Vec<f64>,
     /// The map.
     pub map: Arc<LaneletMap>,
 }
@@ -293,8 +301,18 @@ impl JunctionNetwork {
                 }
             }
         }
-        let lengths = map.lanelets.iter().map(|l| l.length).collect();
-        JunctionNetwork { junctions, links, first_link, link_of_lanelet, is_exit, lengths, map }
+        let lengths: Vec<f64> = map.lanelets.iter().map(|l| l.length).collect();
+        let mut crossing_time = vec![0.0f64; junctions.list.len()];
+        for (j, junction) in junctions.list.iter().enumerate() {
+            for (k, l) in junction.links.iter().enumerate() {
+                let length = map.lanelet_index(l.lanelet).map_or(0.0, |i| lengths[i]);
+                let speed = links[first_link[j] as usize + k].curve_speed.clamp(1.0, CROSSING_SPEED);
+                // A car's length and a conflict margin each side, from a standing start.
+                let t = time_to_cover(length + 2.0 * CLEAR + 5.0, 0.0, ACCEL_FAST, speed);
+                crossing_time[j] = crossing_time[j].max(t);
+            }
+        }
+        JunctionNetwork { junctions, links, first_link, link_of_lanelet, is_exit, lengths, crossing_time, map }
     }
 }
 
@@ -781,7 +799,8 @@ pub fn give_way_at_junctions(
             sc.register(p, seen);
         }
         let Some(p) = driver.passages.get(driver.next) else { continue };
-        if p.entry - front > params.look_ahead {
+        let time = net.crossing_time.get(p.junction as usize).copied().unwrap_or(0.0) + params.time_gap;
+        if p.entry - front > params.look_ahead.max(speed * time) {
             continue;
         }
         if speed < WAITING_SPEED {
@@ -976,7 +995,15 @@ fn conflicts_allow(
                     if fc.kind == ConflictKind::Merging && d_foe < 0.0 && d_me > 0.0 {
                         continue;
                     }
-                    let t_foe_clear = time_to_cover(d_foe + f.length + CLEAR, f_v, ACCEL_SLOW, f.v_max.max(f_v));
+                    // A foe standing in the conflict area inside the junction waits for its own
+                    // way to clear, which no time estimate knows: enter only once it moves.
+                    if f.inside && f_v < STANDING && d_foe < CLEAR && fc.kind != ConflictKind::Merging {
+                        tracing::trace!(target: "junctions", "{} waits for {} standing in its way", a.id, f.id);
+                        return false;
+                    }
+                    // It clears no faster than its link's curve lets it (a turnaround: ~3 m/s).
+                    let f_v_max = f.v_max.min(net.links[fc.foe as usize].curve_speed).max(f_v);
+                    let t_foe_clear = time_to_cover(d_foe + f.length + CLEAR, f_v, ACCEL_SLOW, f_v_max);
                     let after = t_me_arrive > t_foe_clear + params.time_gap;
                     let gap = if foe_priority { impatient_gap(params, a.waiting_now) } else { params.time_gap };
                     let before = !f.inside && accepts_gap(t_me_clear, t_foe_arrive, gap);

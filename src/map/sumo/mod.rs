@@ -27,6 +27,12 @@
 //!   default program. `actuated` and `delay_based` programs run with their phase `duration`s
 //!   (a warning says so).
 //!
+//! - a turnaround (`dir="t"`) between lanes closer than two [`TURNAROUND_RADIUS`] (SUMO draws
+//!   it as a half circle of half their distance, which a steered car cannot follow) is drawn
+//!   as a driver takes it, into the junction and round ([`turnaround_centre`], tag
+//!   `sumo:shape=turnaround`); its crossings with the other links come from that shape, not
+//!   from the file's `foes`, and it yields at those the file does not rank.
+//!
 //! Lanelets carry `sumo:lane` (the lane id; for a junction link, its first internal lane) and
 //! `sumo:edge`; junction links also `sumo:from`, `sumo:to` (lane ids), `sumo:via` (all internal
 //! lanes), `sumo:dir`, `sumo:state`. The first node of each lane's right bound carries the tag
@@ -553,7 +559,15 @@ pub fn parse_str(text: &str, source: &FsPath) -> Result<LaneletMap, MapError> {
                 }
             }
         }
-        let centre = two_points(centre);
+        let mut centre = two_points(centre);
+        let mut redrawn = false;
+        if c.el.attr("dir") == Some("t")
+            && let [.., q, p] = from_l.shape[..]
+            && let Some(drawn) = turnaround_centre(centre[0], (p - q).normalize_or_zero(), centre[centre.len() - 1])
+        {
+            centre = drawn;
+            redrawn = true;
+        }
         let width = chain[0].width;
         let lp = offset_polyline(&centre, 0.5 * width);
         let rp = offset_polyline(&centre, -0.5 * width);
@@ -573,6 +587,9 @@ pub fn parse_str(text: &str, source: &FsPath) -> Result<LaneletMap, MapError> {
             chain[0].id.rsplit_once('_').map_or(chain[0].id.clone(), |(e, _)| e.to_string()),
         );
         tags.insert("sumo:function".into(), "internal".into());
+        if redrawn {
+            tags.insert("sumo:shape".into(), "turnaround".into());
+        }
         tags.insert("sumo:from".into(), from_l.id.clone());
         tags.insert("sumo:to".into(), to_l.id.clone());
         if chain.len() > 1 {
@@ -640,6 +657,56 @@ pub fn parse_str(text: &str, source: &FsPath) -> Result<LaneletMap, MapError> {
     Ok(map)
 }
 
+/// Radius \[m\] of the turnaround drawn in place of a SUMO U-turn too tight to drive: above the
+/// 5.1 m a default vehicle turns at full lock (wheelbase 2.8 m, steering 0.5 rad,
+/// [`crate::world::KinematicUnicycle`]), so pure pursuit follows it.
+pub const TURNAROUND_RADIUS: f64 = 5.5;
+
+/// A drivable centre line for a U-turn from `p0` (heading `u`, a unit vector) to `p1` (heading
+/// back), or `None` where SUMO's own shape is wide enough (the lanes at least two
+/// [`TURNAROUND_RADIUS`] apart). SUMO draws a turnaround between the two inner lanes of a road
+/// as a half circle of half the lanes' distance (1.6 m on a road without a median): a car
+/// cannot drive it, and SUMO, which moves vehicles along lanes without steering, does not need
+/// to. Ours steer, so the link becomes what a driver does on such a road: on into the junction,
+/// a half circle of [`TURNAROUND_RADIUS`] that carries on by θ, and a reverse curve of θ back
+/// into the target lane (cos θ = d / 2R for lanes d apart). Its crossings with the junction's
+/// other links are found from this shape ([`crate::map::junctions`]).
+fn turnaround_centre(p0: DVec2, u: DVec2, p1: DVec2) -> Option<Vec<DVec2>> {
+    let r = TURNAROUND_RADIUS;
+    let n = u.perp();
+    let rel = p1 - p0;
+    let (along, across) = (rel.dot(u), rel.dot(n));
+    if !(along.is_finite() && across.is_finite()) || across.abs() >= 2.0 * r || across.abs() < 1e-6 {
+        return None;
+    }
+    // Local frame: x along u, y towards the side the turn goes to.
+    let side = across.signum();
+    let theta = (across.abs() / (2.0 * r)).acos();
+    let a = (along + 2.0 * r * theta.sin()).max(0.0);
+    let to_world = |x: f64, y: f64| p0 + u * x + n * (side * y);
+    let mut out = vec![p0];
+    if a > 0.5 {
+        out.push(to_world(a, 0.0));
+    }
+    // Points about every 0.5 m along each arc.
+    let arc = |out: &mut Vec<DVec2>, centre: (f64, f64), from: f64, sweep: f64, radius_sign: f64| {
+        let steps = ((sweep.abs() * r) / 0.5).ceil().max(1.0) as usize;
+        for k in 1..=steps {
+            let phi = from + sweep * k as f64 / steps as f64;
+            out.push(to_world(centre.0 + r * phi.sin() * radius_sign, centre.1 - r * phi.cos() * radius_sign));
+        }
+    };
+    // Left (towards +y) arc about (a, r) through π + θ, from φ = 0.
+    arc(&mut out, (a, r), 0.0, std::f64::consts::PI + theta, 1.0);
+    // Right arc about (a − 2r sin θ, r + 2r cos θ) back through θ.
+    let c2 = (a - 2.0 * r * theta.sin(), r + 2.0 * r * theta.cos());
+    arc(&mut out, c2, std::f64::consts::PI + theta, -theta, -1.0);
+    if let Some(last) = out.last_mut() {
+        *last = p1;
+    }
+    Some(out)
+}
+
 /// `from F_0 -> T_1` of a connection element, for messages.
 fn describe(el: &Element) -> String {
     format!(
@@ -662,6 +729,31 @@ mod tests {
         assert!(passenger_allowed(Some("bus passenger"), Some("passenger")));
         assert!(!passenger_allowed(None, Some("all")));
         assert!(passenger_allowed(None, Some("pedestrian bicycle")));
+    }
+
+    #[test]
+    fn a_tight_turnaround_is_redrawn_as_a_drivable_loop_from_lane_to_lane() {
+        // netgenerate's turnaround between the inner lanes of a 2+2 road: 3.2 m apart.
+        let (p0, u, p1) = (DVec2::new(198.4, 210.4), DVec2::new(0.0, -1.0), DVec2::new(201.6, 210.4));
+        let c = turnaround_centre(p0, u, p1).expect("3.2 m apart is too tight to drive");
+        assert_eq!((c[0], c[c.len() - 1]), (p0, p1));
+        // Leaves along the lane and arrives heading back.
+        assert!((c[1] - c[0]).normalize().dot(u) > 0.999);
+        assert!((c[c.len() - 1] - c[c.len() - 2]).normalize().dot(-u) > 0.99);
+        // No bend tighter than the radius: three points a few metres apart on a circle of at
+        // least TURNAROUND_RADIUS.
+        for w in c.windows(3) {
+            let (a, b, d) = (w[0], w[1], w[2]);
+            let area2 = (b - a).perp_dot(d - a).abs();
+            let denom = a.distance(b) * b.distance(d) * a.distance(d);
+            if denom > 1e-9 {
+                assert!(denom / (2.0 * area2) > TURNAROUND_RADIUS - 0.05, "bend of radius {}", denom / (2.0 * area2));
+            }
+        }
+        // It turns towards the target lane (left here) and stays within two radii of the line.
+        assert!(c.iter().all(|p| p.x >= 198.4 - 1e-9 && p.x <= 198.4 + 2.0 * TURNAROUND_RADIUS + 1e-9));
+        // Lanes two radii apart or more keep SUMO's shape.
+        assert!(turnaround_centre(p0, u, p0 + DVec2::new(2.0 * TURNAROUND_RADIUS, 0.0)).is_none());
     }
 
     #[test]
