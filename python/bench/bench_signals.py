@@ -2,7 +2,7 @@
 ``smlworld/TrafficSignal-v0`` on the same SUMO net and routes with random actions (issue 55 §2).
 
     python python/bench/bench_signals.py [--steps 200] [--repeat 3] [--only ours|sumo] [--net 2way|grid4x4] [--hz 10]
-                                         [--vec 8]
+                                         [--vec 8] [--old]
 
 Needs ``sumo-rl``, ``eclipse-sumo`` and ``libsumo`` (the same version as eclipse-sumo; without
 it sumo-rl falls back to TraCI over a socket and the worker stops with a message).
@@ -12,7 +12,10 @@ ours taking turns, ``--repeat`` times; a line gives min / median / max. The cloc
 default ``delta_time``). ``2way``: sumo-rl's
 ``2way-single-intersection`` with ``single-intersection-vhvh.rou.xml``, one agent; ``grid4x4``:
 RESCO's grid with ``grid4x4_1.rou.xml``, all 16 lights acting at every step, counted as 16
-env-steps per step (one per agent-step, as sumo-rl's own figures count them).
+env-steps per step (one per agent-step, as sumo-rl's own figures count them). Ours runs at the
+env's default ``sim_step`` (SUMO's 1 s, as sumo-rl runs SUMO); ``--old`` also measures it at
+``sim_step=0.02`` (the scenario defaults: dynamics 50 Hz, control and sensors 20 Hz), taking
+turns with the others.
 """
 
 import argparse
@@ -44,8 +47,9 @@ def nets_dir() -> Path:
 
 
 def worker(kind: str, net: str, steps: int, seed: int, hz: float, vec: int = 0) -> dict:
-    """One measurement in this process: env-steps per second of `kind` ("ours" or "sumo"); with
-    ``vec`` (ours, 2way) of ``make_vec`` with that many copies (steps x copies per second)."""
+    """One measurement in this process: env-steps per second of `kind` ("ours", "old": ours at
+    the 50/20 Hz rates, or "sumo"); with ``vec`` (ours, 2way) of ``make_vec`` with that many
+    copies (steps x copies per second)."""
     import numpy as np
 
     net_file, route_file = (str(nets_dir() / p) for p in NETS[net])
@@ -76,6 +80,8 @@ def worker(kind: str, net: str, steps: int, seed: int, hz: float, vec: int = 0) 
         from smlworld.envs import TrafficSignalEnv
 
         overrides = {f"rates.{m}": hz for m in ("dynamics", "control", "sensors")} if hz else {}
+        if kind == "old":
+            kwargs["sim_step"] = 0.02
         env = TrafficSignalEnv(single_agent=(net == "2way"), overrides=overrides, **kwargs)
     out = env.reset(seed=seed)
     agents = list(env.ts_ids)
@@ -138,7 +144,10 @@ def main():
         help="our dynamics, control and sensors rate [Hz] (scenario overrides; 0: the defaults, 50/20/20 Hz)",
     )
     p.add_argument("--vec", type=int, default=0, help="also measure make_vec with this many copies (2way)")
-    p.add_argument("--worker", choices=["ours", "sumo"], help=argparse.SUPPRESS)
+    p.add_argument(
+        "--old", action="store_true", help="also measure ours at sim_step=0.02 (dynamics 50 Hz, control 20 Hz)"
+    )
+    p.add_argument("--worker", choices=["ours", "old", "sumo"], help=argparse.SUPPRESS)
     a = p.parse_args()
     if a.steps < 1 or a.repeat < 1:
         sys.exit("bench_signals: --steps and --repeat must be at least 1")
@@ -146,6 +155,8 @@ def main():
         print(json.dumps(worker(a.worker, a.net[0], a.steps, a.seed, a.hz, a.vec)))
         return
     kinds = [a.only] if a.only else ["sumo", "ours"]
+    if a.old and "ours" in kinds:
+        kinds.append("old")
     for net in a.net or ["2way", "grid4x4"]:
         results = {k: [] for k in kinds}
         agents = None
@@ -161,13 +172,15 @@ def main():
         for k in results:
             v = results[k]
             name = "sumo-rl (libsumo)" if k == "sumo" else ("smlworld" + (f" at {a.hz:g} Hz" if a.hz else ""))
+            if k == "old":
+                name = "smlworld sim_step=0.02 (50/20 Hz)"
             if k == "vec":
                 name += f" make_vec(num_envs={a.vec})"
             print(
                 f"{net} {name}: {min(v):,.0f} / {statistics.median(v):,.0f} / {max(v):,.0f} (min / median / max) "
                 f"env-steps/s ({a.steps} steps, {agents} agent{'s' if agents != 1 else ''}, {a.repeat} runs)"
             )
-        if len(kinds) == 2:
+        if "sumo" in results and "ours" in results:
             ratio = statistics.median(results["ours"]) / statistics.median(results["sumo"])
             print(f"{net} speed-up (median): {ratio:.1f}x")
 

@@ -122,8 +122,9 @@ def _length(points):
 
 
 def test_observation_and_reward_match_a_hand_computed_step(two_way, tmp_path):
-    """One env and a twin simulation of the same scenario and seed, stepped here one dynamics
-    tick (0.02 s) at a time with the states sumo-rl's rules show for the same actions; from the
+    """One env and a twin simulation of the same scenario, rates and seed, stepped here one
+    dynamics tick (the env's ``sim_step``, SUMO's 1 s by default) at a time with the states
+    sumo-rl's rules show for the same actions; from the
     twin's positions and speeds this test counts each incoming lane's vehicles and halting
     vehicles and integrates every vehicle's waiting (speed < 0.1 m/s), then compares with the
     env's observation and diff-waiting-time reward at every step."""
@@ -138,12 +139,13 @@ def test_observation_and_reward_match_a_hand_computed_step(two_way, tmp_path):
 
     scenario = tmp_path / "twin.toml"
     scenario.write_text(_scenario_text(net, rou, 0, 400))
-    twin = smlworld.Sim.from_scenario(scenario, seed=11)
+    twin = smlworld.Sim.from_scenario(scenario, seed=11, **env._overrides)
     lanes = ts.lanes
     geometry = twin.map()
     lane_length = {lane: _length(geometry.centre(lane)) for lane in lanes}
     vehicle_length = 5.0  # SUMO's default vType length: the route file names no vType
-    dt = 0.02
+    dt = env.sim_step_length
+    assert dt == 1.0, "SUMO files run at SUMO's default step"
     waited = {}
 
     def tick_twin(seconds):
@@ -403,3 +405,40 @@ def test_ts_id_picks_the_single_agent_s_light_and_reward_dicts_pick_lights(nets)
         _, rewards, _, _ = two.step({"A0": 1, "D3": 0})
     assert rewards["A0"] == -two.traffic_signals["A0"].get_total_queued()
     assert rewards["D3"] == two.traffic_signals["D3"].get_pressure()
+
+
+def test_sim_step_values_that_do_not_divide_a_second_are_refused(two_way):
+    net, rou = two_way
+    for bad in (0.3, 0.0, -1.0, 2.0, float("nan"), "1", True):
+        with pytest.raises(ValueError, match=r"sim_step must"):
+            smlworld.envs.TrafficSignalEnv(net_file=net, route_file=rou, sim_step=bad)
+    env = smlworld.envs.TrafficSignalEnv(net_file=net, route_file=rou, sim_step=0.25)
+    assert env.sim_step_length == 0.25
+    assert env._overrides["rates.dynamics"] == 4.0 and env._overrides["rates.control"] == 4.0
+    # Explicit overrides win over sim_step's rates.
+    env = smlworld.envs.TrafficSignalEnv(
+        net_file=net, route_file=rou, sim_step=1.0, overrides={"rates.dynamics": 10.0}
+    )
+    assert env._overrides["rates.dynamics"] == 10.0 and env._overrides["rates.control"] == 1.0
+
+
+def test_one_second_steps_on_two_way_run_without_collisions_or_red_entries(two_way, monkeypatch):
+    """At SUMO's 1 s step (sumo-rl's default) vehicles stop at the line on red, enter behind a
+    queue that reaches the lane's start and track their turns: 600 s of the file's program on
+    2way + vhvh, as the 50 Hz run (before the step-aware stop, entry and look-ahead: 76
+    collisions, 52 vehicles over the line on red and a gridlock at 0.25-0.5 s)."""
+    monkeypatch.setattr(smlworld.Sim, "stop_metrics", lambda self: None)
+    net, rou = two_way
+    env = smlworld.envs.TrafficSignalEnv(net_file=net, route_file=rou, num_seconds=600, sim_step=1.0, fixed_ts=True)
+    env.reset(seed=0)
+    done = False
+    while not done:
+        _, _, dones, _ = env.step(None)
+        done = dones["__all__"]
+    m = env._sim.summary()["metrics"]
+    assert m["collision_count"] == 0, m["collisions"][:5]
+    assert m["red_light_crossings"] == 0
+    # SUMO inserts about 400 of the 422 due in 600 s; the 50 Hz run 320 and arrives 237.
+    assert m["trips"]["inserted"] > 300 and m["trips"]["arrived"] > 220, m["trips"]
+    st = env._sim.states()
+    assert len(st["id"]) < 100

@@ -109,6 +109,48 @@ pub fn stop_before(v: f64, room: f64, deceleration: f64) -> f64 {
     if needed >= 0.5 * deceleration { -needed } else { ((2.0 * deceleration * room).sqrt() - v).min(1.0) }
 }
 
+/// The highest speed [m/s] a vehicle may drive at over the coming step of `dt` \[s\] and still
+/// stop within `room` \[m\], braking by at most `deceleration` [m/s²] in each step after it. Steps
+/// hold their speed (the kinematic model's update, and SUMO's default Euler update: its
+/// `MSCFModel::maximumSafeStopSpeedEuler` answers the same question): speeds `v, v − b, v − 2b, …`
+/// with `b = deceleration · dt` cover `dt` times their sum. `dt <= 0`: the continuous
+/// `√(2 · deceleration · room)`. No room: 0.
+///
+/// A continuous law such as [`stop_before`] asks for an acceleration whose step, at a coarse
+/// step (0.25 s and more: a signal env at SUMO's 1 s), carries the vehicle past the point it
+/// meant to stop at; bounding the next speed by this one keeps it short of it at any step.
+pub fn safe_stop_speed(room: f64, deceleration: f64, dt: f64) -> f64 {
+    if room <= 0.0 || deceleration <= 0.0 {
+        return 0.0;
+    }
+    if dt <= 0.0 {
+        return (2.0 * deceleration * room).sqrt();
+    }
+    // Next speed m·b + f (0 <= f < b) covers dt·((m + 1)·f + b·m(m + 1)/2): the largest whole m
+    // whose braking alone fits, then the rest as f.
+    let b = deceleration * dt;
+    let d = room / dt;
+    let m = ((-1.0 + (1.0 + 8.0 * d / b).sqrt()) / 2.0).floor().max(0.0);
+    let f = (d - b * m * (m + 1.0) / 2.0) / (m + 1.0);
+    m * b + f.clamp(0.0, b)
+}
+
+/// Whether a vehicle at speed `v` [m/s] can still stop within `room` \[m\] braking by at most
+/// `deceleration` [m/s²], its speed held over steps of `dt` \[s\] ([`safe_stop_speed`]): this
+/// step brings it down by `deceleration · dt` at most. `dt <= 0`: `v² / (2 room) <= deceleration`.
+/// A standing vehicle can always stop.
+pub fn can_stop_within(v: f64, room: f64, deceleration: f64, dt: f64) -> bool {
+    v <= 0.0 || v - deceleration * dt.max(0.0) <= safe_stop_speed(room, deceleration, dt) + 1e-9
+}
+
+/// The acceleration [m/s²] bound that keeps a vehicle at speed `v` [m/s] able to stop within
+/// `room` \[m\] at `deceleration` [m/s²] with steps of `dt` \[s\] ([`safe_stop_speed`]): a
+/// limiter's demand is lowered to it, so the step taken never carries the vehicle past where it
+/// stops. Unbounded (infinity) for `dt <= 0`.
+pub fn stop_within_step(v: f64, room: f64, deceleration: f64, dt: f64) -> f64 {
+    if dt <= 0.0 { f64::INFINITY } else { (safe_stop_speed(room, deceleration, dt) - v) / dt }
+}
+
 /// Where `path` enters and leaves the disc (`center`, `radius`) first, as arc lengths \[m\].
 pub fn zone_span(path: &Path, center: DVec2, radius: f64) -> Option<(f64, f64)> {
     let spacing = path.spacing();
@@ -220,5 +262,61 @@ impl Plugin for CrossingPlugin {
     fn build(&self, sim: &mut SimBuilder) {
         install_longitudinal(sim);
         sim.add_systems(Control, yield_at_crossings.in_set(LongitudinalSystems::Limit));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Room covered by a vehicle holding speed `v` for a step of `dt`, then braking by
+    /// `deceleration · dt` a step until it stands (the kinematic model's update).
+    fn covered(mut v: f64, deceleration: f64, dt: f64) -> f64 {
+        let mut d = 0.0;
+        while v > 0.0 {
+            d += v * dt;
+            v -= deceleration * dt;
+        }
+        d
+    }
+
+    #[test]
+    fn the_safe_stop_speed_covers_exactly_the_room_at_any_step() {
+        for &dt in &[0.02, 0.1, 0.25, 0.5, 1.0] {
+            for &room in &[0.05, 0.3, 1.0, 2.8, 10.0, 37.5, 120.0] {
+                let v = safe_stop_speed(room, 4.5, dt);
+                let d = covered(v, 4.5, dt);
+                assert!(d <= room + 1e-9 && d > room - 1e-6, "dt {dt} room {room}: v {v} covers {d}");
+            }
+        }
+        // Continuous limit: √(2 b room); at 50 Hz within b·dt of it.
+        assert!((safe_stop_speed(50.0, 4.5, 0.0) - 450f64.sqrt()).abs() < 1e-12);
+        assert!((safe_stop_speed(50.0, 4.5, 0.02) - 450f64.sqrt()).abs() < 4.5 * 0.02);
+        assert_eq!(safe_stop_speed(0.0, 4.5, 1.0), 0.0);
+        assert_eq!(safe_stop_speed(-1.0, 4.5, 1.0), 0.0);
+    }
+
+    #[test]
+    fn at_a_one_second_step_the_gentle_stop_law_alone_passes_the_line_and_the_bound_keeps_it_short() {
+        // The creeping branch of stop_before asks for up to +1 m/s²: 0.3 m before the line at
+        // 0.5 m/s, a 1 s step at 1.5 m/s covers 1.5 m.
+        let (v, room, dt) = (0.5, 0.3, 1.0);
+        let gentle = stop_before(v, room, 3.0);
+        assert!((v + gentle * dt) * dt > room, "the continuous law alone overshoots");
+        let bounded = gentle.min(stop_within_step(v, room, 7.5, dt));
+        assert!((v + bounded * dt).max(0.0) * dt <= room + 1e-9);
+        // At 50 Hz the bound does not act on that approach.
+        assert!(stop_within_step(v, room, 7.5, 0.02) > gentle);
+    }
+
+    #[test]
+    fn stopping_is_possible_when_this_step_can_reach_the_safe_speed() {
+        // 14 m/s, 20 m before the line: at 7.5 m/s² (needs 4.9 continuously) yes, at 3 no.
+        assert!(can_stop_within(14.0, 20.0, 7.5, 1.0) && can_stop_within(14.0, 20.0, 7.5, 0.0));
+        assert!(!can_stop_within(14.0, 20.0, 3.0, 0.05) && !can_stop_within(14.0, 20.0, 3.0, 0.0));
+        // At the line, standing or crawling: it stops (the step takes its speed away).
+        assert!(can_stop_within(0.0, -0.2, 7.5, 1.0));
+        assert!(can_stop_within(0.6, 0.0, 7.5, 1.0));
+        assert!(!can_stop_within(0.6, 0.0, 7.5, 0.0));
     }
 }

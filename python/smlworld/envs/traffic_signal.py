@@ -10,8 +10,8 @@ phases, its yellow transitions, its observation and its rewards follow sumo-rl's
 (speed < 0.1 m/s), summed vehicle length, summed speed / allowed speed and the vehicles'
 accumulated waiting time, counted per lane as sumo-rl counts it).
 
-What differs from sumo-rl: the vehicles are ours (IDM drivers on lanelets, 50 Hz dynamics), so
-numbers are close to SUMO's, not equal; a lane's allowed speed is its speed limit (SUMO takes the
+What differs from sumo-rl: the vehicles are ours (IDM drivers on lanelets, at SUMO's 1 s step by
+default: ``sim_step``), so numbers are close to SUMO's, not equal; a lane's allowed speed is its speed limit (SUMO takes the
 lower of it and the vehicle's maximum speed); lanes are lanelet ids (ints), not SUMO lane ids.
 Arguments sumo-rl has and this env does not support (``use_gui``, ``additional_sumo_cmd``,
 ``out_csv_name``, ...) raise a ValueError naming them when given a value other than sumo-rl's
@@ -20,6 +20,7 @@ default.
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import tempfile
@@ -299,6 +300,37 @@ class DefaultObservationFunction(ObservationFunction):
         return spaces.Box(low=np.zeros(n, dtype=np.float32), high=np.ones(n, dtype=np.float32))
 
 
+#: The rates of the scenario defaults that ``sim_step`` caps (src/sim/schedule.rs ``Rates``):
+#: control and sensors run at most this fast [Hz], as ``smlworld run x.sumocfg`` maps SUMO's
+#: ``step-length`` (src/app/running/scenario/sumocfg.rs).
+_CAPPED_RATES = {"control": 20.0, "sensors": 20.0, "wifi": 10.0, "network": 1.0}
+
+
+def _step_rates(sim_step, sumo_files: bool) -> dict:
+    """Scenario overrides for the simulation step ``sim_step`` [s] (SUMO's ``--step-length``):
+    dynamics at ``1 / sim_step``, the other modules at most that fast. ``None`` gives SUMO's
+    default step, 1 s, for SUMO files (what sumo-rl runs: it passes no ``--step-length``) and
+    no override with ``scenario=`` (its own ``[rates]``). The step must divide a second into
+    whole steps: sumo-rl advances the simulation in whole seconds."""
+    if sim_step is None:
+        if not sumo_files:
+            return {}
+        sim_step = 1.0
+    if isinstance(sim_step, bool) or not isinstance(sim_step, (int, float, np.integer, np.floating)):
+        raise ValueError(f"sim_step must be a number of seconds such as 1.0 or 0.1, got {sim_step!r}")
+    sim_step = float(sim_step)
+    steps = 1.0 / sim_step if math.isfinite(sim_step) and 0.0 < sim_step <= 1.0 else float("nan")
+    if not (math.isfinite(steps) and abs(steps - round(steps)) < 1e-9 * max(1.0, steps)):
+        raise ValueError(
+            f"sim_step must divide one second into whole steps (1.0, 0.5, 0.25, 0.2, 0.1, ..., as sumo-rl "
+            f"steps the simulation in whole seconds), got {sim_step!r}"
+        )
+    hz = float(round(steps))
+    out = {"rates.dynamics": hz}
+    out.update({f"rates.{k}": min(v, hz) for k, v in _CAPPED_RATES.items()})
+    return out
+
+
 def _scenario_text(net_file, route_file, begin_time, num_seconds) -> str:
     net = Path(net_file).resolve()
     routes = [Path(r).resolve() for r in str(route_file).split(",")]
@@ -321,8 +353,11 @@ class TrafficSignalEnv(gym.Env):
     too, replaces its map). ``single_agent=True`` (what ``gymnasium.make("smlworld/TrafficSignal-v0")``
     gives): a plain gymnasium env controlling light ``ts_id`` (default: the first); else sumo-rl's
     multi-agent dict API (``step`` returns observations, rewards, dones, info dicts). Extra:
-    ``enforce_max_green`` (a green is never held longer than ``max_green``), ``overrides``
-    (scenario overrides such as ``{"rates.dynamics": 10.0}``).
+    ``enforce_max_green`` (a green is never held longer than ``max_green``), ``sim_step`` (the
+    simulation step [s], SUMO's ``--step-length``: default 1 s for SUMO files as sumo-rl runs
+    SUMO, the scenario's rates with ``scenario=``; it must divide a second, e.g. 0.5 or 0.02 for
+    the 50/20 Hz scenario defaults; docs/signals.md "Simulation step"), ``overrides`` (scenario
+    overrides such as ``{"rates.dynamics": 10.0}``, winning over ``sim_step``).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 1}
@@ -350,6 +385,7 @@ class TrafficSignalEnv(gym.Env):
         render_mode: Optional[str] = None,
         enforce_max_green: bool = False,
         ts_id: Optional[str] = None,
+        sim_step: Optional[float] = None,
         overrides: Optional[dict] = None,
         **sumo_rl_only,
     ):
@@ -375,6 +411,7 @@ class TrafficSignalEnv(gym.Env):
                 raise ValueError(
                     f"{name} must be a whole number of seconds >= 0 (sumo-rl steps SUMO in 1 s), got {v!r}"
                 )
+        step_rates = _step_rates(sim_step, scenario is None)
         if not delta_time > yellow_time:
             raise ValueError(
                 f"delta_time ({delta_time}) must be greater than yellow_time ({yellow_time}), as sumo-rl asserts"
@@ -406,7 +443,9 @@ class TrafficSignalEnv(gym.Env):
         self.sumo_seed = sumo_seed
         self.fixed_ts = bool(fixed_ts)
         self.enforce_max_green = bool(enforce_max_green)
-        self._overrides = dict(overrides or {})
+        self.sim_step_length = 1.0 / step_rates["rates.dynamics"] if step_rates else None
+        # Explicit ``overrides`` win over ``sim_step``'s rates.
+        self._overrides = {**step_rates, **dict(overrides or {})}
 
         if scenario is not None:
             if route_file is not None:

@@ -19,6 +19,8 @@ use super::trips::{Trip, end_trip};
 use crate::map::{LaneletId, LaneletMap, Path, Place};
 use crate::sim::random::uniform;
 use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
+use crate::vehicles::crossing::safe_stop_speed;
+use crate::vehicles::follow_laws::IDM_MAX_BRAKING;
 use crate::vehicles::lane_changing::{LaneChangeSystems, LaneIndex};
 use crate::vehicles::lane_state::Found;
 use crate::vehicles::{
@@ -312,15 +314,24 @@ pub struct TrafficSystems;
 /// whose entry is free.
 pub fn run_traffic(world: &mut World) {
     let t = world.resource::<SimClock>().now.as_secs();
+    let dt = world.resource::<SimClock>().dt;
     let mut leaving: Vec<(VehicleId, Entity)> = Vec::new();
-    let mut q = world
-        .query::<(Entity, &VehicleId, &Route, &PathFollower, &TrafficVehicle, Option<&LaneChanger>, Option<&Trip>)>();
+    let mut q = world.query::<(
+        Entity,
+        &VehicleId,
+        &Route,
+        &PathFollower,
+        &TrafficVehicle,
+        Option<&LaneChanger>,
+        Option<&Trip>,
+        &VehicleState,
+    )>();
     let random: Vec<bool> = world.resource::<Traffic>().sources.iter().map(|s| s.random.is_some()).collect();
     let renew: Vec<bool> = world.resource::<Traffic>().sources.iter().map(|s| s.renew).collect();
     let map = world.get_resource::<LaneMap>().map(|l| Arc::clone(&l.map));
     let mut renewing: Vec<(VehicleId, Entity, usize)> = Vec::new();
     let mut next_begins: Vec<(VehicleId, Entity)> = Vec::new();
-    for (entity, id, route, follower, table, changer, trip) in q.iter(world) {
+    for (entity, id, route, follower, table, changer, trip, state) in q.iter(world) {
         // A lane that ends holds a vehicle back for its change, except on a random trip, whose
         // route ends at its destination (it has arrived, with or without a lane beside it). So
         // does an aborted change (its route is the old lane's again); a change under way is
@@ -335,7 +346,10 @@ pub fn run_traffic(world: &mut World) {
         }
         let remaining = route.0.length - follower.s;
         if !renew.get(table.0).copied().unwrap_or(false) {
-            if remaining < LEAVE_AT {
+            // Leaves now when this step would carry it past the leaving point: at a coarse step
+            // (SUMO's 1 s, 14 m a step) it stood a step past the end of its road otherwise,
+            // off every lane, halting in the env's counts (SUMO removes it within the step).
+            if remaining < LEAVE_AT + state.speed() * dt {
                 leaving.push((*id, entity));
             }
             continue;
@@ -384,7 +398,7 @@ pub fn run_traffic(world: &mut World) {
         let mut used: Vec<u32> = Vec::new();
         for (index, src) in sources.iter_mut().enumerate() {
             if src.random.is_some() {
-                *inserted += insert_random(world, seed, index, src, t, &mut used);
+                *inserted += insert_random(world, seed, index, src, t, dt, &mut used);
                 *waiting_max = (*waiting_max).max(src.queue);
                 continue;
             }
@@ -410,7 +424,7 @@ pub fn run_traffic(world: &mut World) {
                         continue;
                     }
                     let lane = src.lanes[l].clone();
-                    let Some(v) = entry_speed(world, &lane, v0, length) else { continue };
+                    let Some(v) = entry_speed(world, &lane, v0, length, dt) else { continue };
                     let v = src.depart_speed.map_or(v, |d| v.min(d));
                     let id = VehicleId(src.next_id);
                     if spawn_traffic_vehicle(world, src, index, id, &lane, &src.goal, 0.0, v, v0, class).is_ok() {
@@ -524,13 +538,14 @@ fn trip_lane(map: &LaneletMap, trip: &RandomTrip) -> Option<TrafficLane> {
 /// The arrivals of random table `index` (`src`) up to `t` [s]: each draws its trip and waits at
 /// the start of its origin lanelet; every waiting vehicle whose entry is free enters (one per
 /// origin lanelet and tick: the lane index does not show this tick's insertions yet), the others
-/// keep waiting without holding anyone up. Returns how many entered.
+/// keep waiting without holding anyone up (`dt`: the control step [s]). Returns how many entered.
 fn insert_random(
     world: &mut World,
     seed: u64,
     index: usize,
     src: &mut TrafficSource,
     t: f64,
+    dt: f64,
     used: &mut Vec<u32>,
 ) -> u64 {
     let (Some(trips), Some(map)) = (src.random.clone(), world.get_resource::<LaneMap>().map(|l| Arc::clone(&l.map)))
@@ -560,7 +575,7 @@ fn insert_random(
             return true;
         }
         let (v0, class, _) = draw(seed, src, *k);
-        let Some(v) = entry_speed(world, &lane, v0, class_size(class).length) else { return true };
+        let Some(v) = entry_speed(world, &lane, v0, class_size(class).length, dt) else { return true };
         let goal = trip_goal(&map, trip.destination);
         let id = VehicleId(src.next_id);
         if spawn_traffic_vehicle(world, src, index, id, &lane, &goal, 0.0, v, v0, class).is_err() {
@@ -654,9 +669,43 @@ pub fn place_random(world: &mut World, traffic: &mut Traffic, index: usize, coun
     Ok(())
 }
 
+/// Braking an inserted vehicle is assumed to manage [m/s²] (SUMO's default `decel` of a
+/// passenger car, what its insertion assumes).
+const ENTRY_DECEL: f64 = 4.5;
+/// Acceleration [m/s²] an inserted vehicle may reach in its first step, before its sensors see
+/// anyone: above SUMO's default `accel` (2.6) and our controllers' defaults.
+const STEP_ACCEL: f64 = 3.0;
+
+/// Distance \[m\] a vehicle at `v` [m/s] when the lane index was built covers at least until
+/// it stands, braking as hard as the IDM does ([`IDM_MAX_BRAKING`]) from then on in steps of
+/// `dt` \[s\] (each step's speed held over it; the continuous `v² / 2b` for `dt <= 0`).
+fn least_stopping_distance(v: f64, dt: f64) -> f64 {
+    if v <= 0.0 {
+        return 0.0;
+    }
+    if dt <= 0.0 {
+        return v * v / (2.0 * IDM_MAX_BRAKING);
+    }
+    let b = IDM_MAX_BRAKING * dt;
+    // Speeds v − b, v − 2b, … while positive, each held for dt.
+    let n = (v / b).ceil() - 1.0;
+    (n * v - b * n * (n + 1.0) / 2.0).max(0.0) * dt
+}
+
 /// The speed [m/s] a vehicle of `length` [m] wanting `v0` [m/s] may enter `lane` at, or `None`
-/// when the entry is blocked (by the vehicles of the last lane index).
-fn entry_speed(world: &World, lane: &TrafficLane, v0: f64, length: f64) -> Option<f64> {
+/// when the entry is blocked (by the vehicles of the last lane index), with control steps of
+/// `dt` \[s\].
+///
+/// The index is a step old and the new vehicle sees nobody until its sensors run next step, so
+/// it drives its first step blind (accelerating on a free road): at a coarse step (SUMO's 1 s)
+/// the leader's speed in the index (it may have braked since, by up to [`IDM_MAX_BRAKING`]) and
+/// a whole step's travel count. The entry speed is bounded so that the speed of that blind step
+/// (the entry speed plus up to [`STEP_ACCEL`] · dt) is one the vehicle can still stop from
+/// behind where that leader stops at the latest ([`safe_stop_speed`] at [`ENTRY_DECEL`]), and a
+/// vehicle coming from behind must have room for the step it drives before it sees the new one. (A vehicle entered
+/// at 13.9 m/s 8.9 m behind a leader the index showed at 13.9 m/s that had braked to 4.9 m/s:
+/// it drove onto it.) At 20 Hz both bounds are far from binding.
+fn entry_speed(world: &World, lane: &TrafficLane, v0: f64, length: f64, dt: f64) -> Option<f64> {
     let (Some(lanes), Some(index)) = (world.get_resource::<LaneMap>(), world.get_resource::<LaneIndex>()) else {
         return Some(v0);
     };
@@ -668,10 +717,19 @@ fn entry_speed(world: &World, lane: &TrafficLane, v0: f64, length: f64) -> Optio
             return None;
         }
         v = v.min(((gap - MIN_GAP) / TIME_GAP).max(a.speed));
+        // Its blind first step may also accelerate (up to STEP_ACCEL): that step's speed must
+        // be one it can stop from.
+        let room = gap - MIN_GAP + least_stopping_distance(a.speed, dt);
+        let blind = safe_stop_speed(room, ENTRY_DECEL, dt) - STEP_ACCEL * dt;
+        if blind < 0.0 {
+            return None;
+        }
+        v = v.min(blind);
     }
+    let reaction = 0.5f64.max(dt);
     let blocks = |b: Found, v: f64| {
         let gap = b.distance - 0.5 * (b.length + length);
-        gap < MIN_GAP + TIME_GAP * (b.speed - v).max(0.0) + 0.5 * b.speed
+        gap < MIN_GAP + TIME_GAP * (b.speed - v).max(0.0) + reaction * b.speed + STEP_ACCEL * dt * dt
     };
     let own = index.behind(lanes, lane.lanelet, lane.entry_s, nobody);
     if own.is_some_and(|b| blocks(b, v)) {
@@ -704,5 +762,28 @@ impl Plugin for TrafficPlugin {
             TrafficSystems.in_set(SimSystems::Control).before(LaneChangeSystems).before(super::trips::TripsSystems),
         );
         sim.add_systems(Control, run_traffic.in_set(TrafficSystems));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_least_stopping_distance_is_what_braking_at_the_idm_s_limit_covers() {
+        // 13.9 m/s at 1 s steps: 4.9 m/s for a step, then standing.
+        assert!((least_stopping_distance(13.9, 1.0) - 4.9).abs() < 1e-9);
+        assert_eq!(least_stopping_distance(9.0, 1.0), 0.0);
+        assert_eq!(least_stopping_distance(0.0, 1.0), 0.0);
+        // Step by step at 50 Hz, and the continuous limit.
+        let (v, dt) = (13.9, 0.02);
+        let mut d = 0.0;
+        let mut u = v - IDM_MAX_BRAKING * dt;
+        while u > 0.0 {
+            d += u * dt;
+            u -= IDM_MAX_BRAKING * dt;
+        }
+        assert!((least_stopping_distance(v, dt) - d).abs() < 1e-9);
+        assert!((least_stopping_distance(v, 0.0) - v * v / 18.0).abs() < 1e-12);
     }
 }
