@@ -455,25 +455,35 @@ fn idm_following_matches_sumos_recorded_follower() {
     assert!(wrong > 0.5, "a wrong time gap still matches ({wrong:.3} m RMS)");
 }
 
+/// A 4 x 4 netgenerate grid of 150 m blocks in a fresh temporary folder named after `tag`,
+/// with `flows` (`<flow>` lines of the car type below) as its demand: the folder, the net, the
+/// route file, and a scenario running them for `duration` s.
+fn grid_with_flows(tag: &str, flows: &str, duration: f64) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
+    let dir = std::env::temp_dir().join(format!("smlworld-sumo-grid-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let net = dir.join("grid.net.xml");
+    netgenerate_grid(4, 150.0, &net);
+    let demand = format!(
+        "<routes>\n  <vType id=\"car\" carFollowModel=\"IDM\" accel=\"2.6\" decel=\"4.5\" tau=\"1\" minGap=\"2.5\" length=\"5\" maxSpeed=\"15\"/>\n{flows}</routes>\n"
+    );
+    let routes = dir.join(format!("{tag}.rou.xml"));
+    std::fs::write(&routes, demand).unwrap();
+    let scenario = dir.join(format!("{tag}.toml"));
+    std::fs::write(&scenario, format!("map = {net:?}\ndemand = [{routes:?}]\nduration = {duration}\n")).unwrap();
+    (dir, net, routes, scenario)
+}
+
 /// On netgenerate's 2-lane grids a right turn leaves from lane 0 only and a left turn from lane 1
 /// only, so a right turn followed by a left one (and the reverse) needs a lane change on the
 /// edge between: the route is driven with the lane-change plugin's mandatory changes.
 #[test]
 fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
-    let dir = std::env::temp_dir().join(format!("smlworld-sumo-grid-lc-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let net = dir.join("grid.net.xml");
-    netgenerate_grid(4, 150.0, &net);
     // East on A1B1, right at B1 (arrives on lane 0 of B1B0), left at B0 (leaves from lane 1);
     // east on A1B1, left at B1 (arrives on lane 1 of B1B2), right at B2 (leaves from lane 0).
-    let demand = r#"<routes>
-  <vType id="car" carFollowModel="IDM" accel="2.6" decel="4.5" tau="1" minGap="2.5" length="5" maxSpeed="15"/>
-  <flow id="right_left" type="car" begin="0" end="300" vehsPerHour="360" departLane="best"><route edges="A1B1 B1B0 B0C0"/></flow>
+    let flows = r#"  <flow id="right_left" type="car" begin="0" end="300" vehsPerHour="360" departLane="best"><route edges="A1B1 B1B0 B0C0"/></flow>
   <flow id="left_right" type="car" begin="0" end="300" vehsPerHour="360" departLane="best"><route edges="A1B1 B1B2 B2C2"/></flow>
-</routes>
 "#;
-    let routes = dir.join("turns.rou.xml");
-    std::fs::write(&routes, demand).unwrap();
+    let (dir, net, routes, scenario) = grid_with_flows("lc", flows, 400.0);
     let map = LaneletMap::load(&net).unwrap();
     let d = Demand::load(std::slice::from_ref(&routes), &map, 0.0, 1000.0).unwrap();
     for g in &d.groups {
@@ -483,8 +493,6 @@ fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
         assert!(!lr.reach.contains(&last), "flow {}: its start route reaches the end without a change", g.id);
         assert_eq!(map.lanelet(last).unwrap().tags["sumo:edge"], if g.id == "right_left" { "B1B0" } else { "B1B2" });
     }
-    let scenario = dir.join("turns.toml");
-    std::fs::write(&scenario, format!("map = {net:?}\ndemand = [{routes:?}]\nduration = 400\n")).unwrap();
     let summary = run_summary(&scenario, &dir.join("out"));
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
@@ -509,21 +517,11 @@ fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
 /// cross the oncoming flow that shares their exit without a collision.
 #[test]
 fn u_turns_on_a_netgenerate_grid_are_driven_on_their_lane_without_collisions() {
-    let dir = std::env::temp_dir().join(format!("smlworld-sumo-grid-uturn-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let net = dir.join("grid.net.xml");
-    netgenerate_grid(4, 150.0, &net);
     // East on A1B1 and back at B1; the oncoming flow west on C1B1 into the same edge B1A1.
-    let demand = r#"<routes>
-  <vType id="car" carFollowModel="IDM" accel="2.6" decel="4.5" tau="1" minGap="2.5" length="5" maxSpeed="15"/>
-  <flow id="uturn" type="car" begin="0" end="300" vehsPerHour="240" departLane="best"><route edges="A1B1 B1A1"/></flow>
+    let flows = r#"  <flow id="uturn" type="car" begin="0" end="300" vehsPerHour="240" departLane="best"><route edges="A1B1 B1A1"/></flow>
   <flow id="oncoming" type="car" begin="0" end="300" vehsPerHour="360" departLane="best"><route edges="C1B1 B1A1"/></flow>
-</routes>
 "#;
-    let routes = dir.join("uturn.rou.xml");
-    std::fs::write(&routes, demand).unwrap();
-    let scenario = dir.join("uturn.toml");
-    std::fs::write(&scenario, format!("map = {net:?}\ndemand = [{routes:?}]\nduration = 420\n")).unwrap();
+    let (dir, _, _, scenario) = grid_with_flows("uturn", flows, 420.0);
     let summary = run_summary(&scenario, &dir.join("out"));
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);

@@ -219,7 +219,9 @@ fn lane_drop_merges_everyone_without_missing_the_exit() {
     assert!(rows.iter().filter(|r| r[0] == end).count() == 0 || summary["vehicles"] == 0, "nobody left at the end");
     let lc = &m["lane_change_summary"];
     assert_eq!(lc["missed_exits"], 0, "{lc}");
-    assert!(lc["max_wait_s"].as_f64().unwrap() <= 30.0, "{lc}");
+    // Nobody waits long for the gap (30.95 s at most since insertion keeps a stopping margin
+    // behind the leader it sees, issue 55's 1 s steps; 30 s bound before).
+    assert!(lc["max_wait_s"].as_f64().unwrap() <= 35.0, "{lc}");
     assert!(lc["mandatory"].as_u64().unwrap() >= 10, "{lc}");
     // Every mandatory change is to the right (the left lane ends) and starts before the drop.
     for c in m["lane_changes"].as_array().unwrap().iter().filter(|c| c["kind"] == "mandatory" && c["aborted"] == false)

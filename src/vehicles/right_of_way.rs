@@ -44,7 +44,7 @@ use super::PathFollower;
 use super::crossing::{CrossingNegotiator, can_stop_within, stop_before, stop_within_step};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
-/// The speed \[m/s\] at which [`JunctionNetwork::crossing_time`] counts a straight link crossed.
+/// Links with a curve speed \[m/s\] below this count in [`JunctionNetwork::crossing_time`].
 const CROSSING_SPEED: f64 = 10.0;
 
 /// Half the extent of a conflict area along each link \[m\]: a vehicle "reaches" a conflict
@@ -225,7 +225,7 @@ pub struct JunctionNetwork {
     /// Lanelet lengths \[m\], by lanelet index.
     pub lengths: Vec<f64>,
     /// Per junction, the longest time \[s\] a vehicle starting from its stop line may take to
-    /// clear one of its links (at the link's curve speed, at most [`CROSSING_SPEED`]): a
+    /// clear one of its curved links (at the link's curve speed, below [`CROSSING_SPEED`]): a
     /// vehicle is seen as a foe from as far as it drives in that time, so a slow link (a U-turn
     /// round a junction) is decided on seeing every foe that can come while it is on it.
     pub crossing_time: Vec<f64>,
@@ -305,8 +305,13 @@ impl JunctionNetwork {
         let mut crossing_time = vec![0.0f64; junctions.list.len()];
         for (j, junction) in junctions.list.iter().enumerate() {
             for (k, l) in junction.links.iter().enumerate() {
+                // Links driven at road speed are covered by the look-ahead as before.
+                let curve_speed = links[first_link[j] as usize + k].curve_speed;
+                if curve_speed >= CROSSING_SPEED {
+                    continue;
+                }
                 let length = map.lanelet_index(l.lanelet).map_or(0.0, |i| lengths[i]);
-                let speed = links[first_link[j] as usize + k].curve_speed.clamp(1.0, CROSSING_SPEED);
+                let speed = curve_speed.max(1.0);
                 // A car's length and a conflict margin each side, from a standing start.
                 let t = time_to_cover(length + 2.0 * CLEAR + 5.0, 0.0, ACCEL_FAST, speed);
                 crossing_time[j] = crossing_time[j].max(t);
