@@ -400,7 +400,7 @@ fn raw_conflicts(
     let followers: Vec<Vec<usize>> = (0..lanelets.len()).map(|i| followers_at_joint(lanelets, successors, i)).collect();
     // First crossing (by arc length on the lower index) of every pair.
     let mut crossings: BTreeMap<(usize, usize), (RawConflict, bool, f64)> = BTreeMap::new();
-    let mut every_crossing: Vec<RawConflict> = Vec::new();
+    let mut every_crossing: BTreeMap<(usize, usize), Vec<RawConflict>> = BTreeMap::new();
     for segments in grid.values() {
         for (m, &(i, ki)) in segments.iter().enumerate() {
             for &(j, kj) in &segments[m + 1..] {
@@ -459,12 +459,10 @@ fn raw_conflicts(
                 // A turnaround drawn round the junction crosses some lanes twice (out and back):
                 // each crossing is a conflict of its own.
                 if any_turn {
-                    if crossed
-                        && !every_crossing
-                            .iter()
-                            .any(|o: &RawConflict| o.a == iu && o.b == ju && (o.s_a - s_a).abs() < 2.0)
-                    {
-                        every_crossing.push(c);
+                    let pair = every_crossing.entry((iu, ju)).or_default();
+                    // One per crossing (a segment in several grid cells is met in each).
+                    if crossed && !pair.iter().any(|o| (o.s_a - s_a).abs() < 2.0) {
+                        pair.push(c);
                     }
                     continue;
                 }
@@ -490,7 +488,7 @@ fn raw_conflicts(
         }
     }
     let mut out: Vec<RawConflict> = crossings.into_values().map(|(c, _, _)| c).collect();
-    out.append(&mut every_crossing);
+    out.extend(every_crossing.into_values().flatten());
     // Merges: every pair of routable lanelets leading into the same one, met where their centre
     // lines come within MERGE_DISTANCE (else at their ends).
     let mut merges: BTreeMap<(usize, usize), RawConflict> = BTreeMap::new();

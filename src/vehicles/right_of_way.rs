@@ -225,7 +225,7 @@ pub struct JunctionNetwork {
     /// Lanelet lengths \[m\], by lanelet index.
     pub lengths: Vec<f64>,
     /// Per junction, the longest time \[s\] a vehicle starting from its stop line may take to
-    /// clear one of its curved links (at the link's curve speed, below [`CROSSING_SPEED`]): a
+    /// clear one of its curved links (at the link's curve speed, below `CROSSING_SPEED`, 10 m/s): a
     /// vehicle is seen as a foe from as far as it drives in that time, so a slow link (a U-turn
     /// round a junction) is decided on seeing every foe that can come while it is on it.
     pub crossing_time: Vec<f64>,

@@ -29,7 +29,7 @@
 //!
 //! - a turnaround (`dir="t"`) between lanes closer than two [`TURNAROUND_RADIUS`] (SUMO draws
 //!   it as a half circle of half their distance, which a steered car cannot follow) is drawn
-//!   as a driver takes it, into the junction and round ([`turnaround_centre`], tag
+//!   as a driver takes it, into the junction and round (`turnaround_centre`, tag
 //!   `sumo:shape=turnaround`); its crossings with the other links come from that shape, not
 //!   from the file's `foes`, and it yields at those the file does not rank.
 //!
