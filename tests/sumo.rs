@@ -511,6 +511,33 @@ fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Two turning flows that enter one edge side by side, each in the lane the other must reach
+/// (left turners arrive on lane 1 and turn right at the next junction, right turners the
+/// reverse), released together by the same green: pairs reached their lane ends abreast and
+/// waited there for ever (1 of 64 arrived in 900 s; the 5x5 SUMO grid gridlocked from such
+/// pairs). The one behind now holds back a standstill gap behind its swap partner, which
+/// changes first.
+#[test]
+fn turners_that_must_swap_lanes_on_one_edge_do_not_wait_for_ever() {
+    let flows = r#"  <flow id="left_right" type="car" begin="0" end="600" vehsPerHour="240" departLane="best"><route edges="A1B1 B1B2 B2C2"/></flow>
+  <flow id="right_left" type="car" begin="0" end="600" vehsPerHour="240" departLane="best"><route edges="C1B1 B1B2 B2A2"/></flow>
+"#;
+    let (dir, _, _, scenario) = grid_with_flows("swap", flows, 900.0);
+    let summary = run_summary(&scenario, &dir.join("out"));
+    let m = &summary["metrics"];
+    assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
+    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
+    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    // 2 x 240 veh/h for 600 s: 80 due; each route is 450 m, 300 s left after the last.
+    assert!(inserted >= 75, "inserted {inserted}");
+    assert_eq!(removed, inserted, "inserted {inserted}, arrived {removed}");
+    let lc = &m["lane_change_summary"];
+    assert!(lc["mandatory"].as_u64().unwrap() >= inserted, "{lc}");
+    // The issue's bound on a single wait (issue 53 §7: no vehicle waits longer than 120 s).
+    assert!(lc["max_wait_s"].as_f64().unwrap() < 120.0, "{lc}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// netgenerate draws a turnaround between a road's inner lanes as a 1.6 m half circle, which
 /// a steered car cannot follow (they swung up to 7 m off it into the oncoming lanes). Drawn
 /// round the junction instead ([`smlworld::map::sumo`]'s turnaround), U-turners stay on it and

@@ -789,6 +789,9 @@ fn evaluate(
     if ch.yield_to.is_some() {
         ch.yield_to = None;
     }
+    if ch.hold_behind {
+        ch.hold_behind = false;
+    }
     if ch.lane_end.is_some() {
         ch.lane_end = None;
     }
@@ -801,6 +804,11 @@ fn evaluate(
     // ticks weigh none, and its cache lines stay unread.
     let p = ch.params;
 
+    // Road left [m] to the end of a lane that does not reach the goal (infinite on one that does).
+    let must_leave =
+        !p.manual && ch.active.is_none() && !route.0.closed && ch.reach.as_deref().is_some_and(|r| !r[i as usize]);
+    let lane_left = if must_leave { (route.0.length - follower.s).max(0.0) } else { f64::INFINITY };
+
     // Cooperation: a neighbour signalling a mandatory change into our gap.
     if p.cooperative
         && let Some(list) = last_signals.get(&i)
@@ -810,12 +818,28 @@ fn evaluate(
             .iter()
             .filter(|(s, _, _, sid)| *sid != me && *s > pos.s && *s - pos.s < leader.min(150.0))
             .min_by(|a, b| a.0.total_cmp(&b.0));
-        if let Some(&(s, speed, length, _)) = nearest {
-            // Only when we can fall behind it braking at most b_safe / 2; a neighbour already
-            // alongside is passed instead (it merges behind us), or both would wait for ever.
+        if let Some(&(s, speed, length, sid)) = nearest {
             let gap = s - pos.s - 0.5 * (length + size.length);
             let closing = (v - speed).max(0.0);
-            if gap > 2.0 && closing * closing / (2.0 * (gap - 2.0)) <= 0.5 * p.safe_deceleration {
+            // It wants our lane as we want its: it waits at its lane's end until it gets in.
+            let swap = lane_left.is_finite()
+                && index.lanelet_of(sid).is_some_and(|j| {
+                    ch.reach.as_deref().is_some_and(|r| r[j as usize])
+                        && [Side::Left, Side::Right].into_iter().any(|side| allowed(lanes, i, side) == Some(j))
+                });
+            if swap || lane_left < s - pos.s + 0.5 * (length + size.length) + STANDSTILL_GAP {
+                // We cannot pass it: our own lane ends first, or it waits to swap lanes with us. Two
+                // such vehicles at their lane ends, each wanting the other's lane, waited for
+                // ever side by side (a 5x5 SUMO grid gridlocked from such pairs, issue 54). Held
+                // a standstill gap behind it, we leave it the room beside it to change into, then
+                // take its place. As the stop at the lane's end, this braking is not capped.
+                if gap > 0.0 {
+                    ch.yield_to = Some((gap, speed));
+                    ch.hold_behind = true;
+                }
+            } else if gap > 2.0 && closing * closing / (2.0 * (gap - 2.0)) <= 0.5 * p.safe_deceleration {
+                // Only when we can fall behind it braking at most b_safe / 2; a neighbour already
+                // alongside is passed instead (it merges behind us), or both would wait for ever.
                 ch.yield_to = Some((gap, speed));
             }
         }
@@ -930,6 +954,7 @@ fn evaluate(
         if v < 0.5 {
             let since = *ch.wait_since.get_or_insert(t);
             out.waited = Some(t - since);
+            tracing::trace!(target: "lane_changes", "{me} waits {:.1} s to leave lanelet {i}, {remaining:.1} m left", t - since);
         } else {
             ch.wait_since = None;
         }
@@ -1000,7 +1025,20 @@ fn evaluate(
             MobilDecision::Occupied | MobilDecision::Unsafe(_) if kind == ChangeKind::Mandatory && u > 0.5 => {
                 // Fall behind the vehicle beside us in the target lane, then signal.
                 if let Some(l) = tl.filter(|f| f.distance < size.length + f.length) {
-                    ch.virtual_leader = Some((l.distance - 0.5 * (l.length + size.length), l.speed));
+                    let gap = (l.distance - 0.5 * (l.length + size.length), l.speed);
+                    // A vehicle beside us that must change into our lane as we into its: the two
+                    // swap lanes only once one is a length behind the other. Both falling back
+                    // (the rule for others) kept pairs abreast to their lane ends, where they
+                    // waited for ever (pairs of turners on a SUMO grid, issue 54). So the one
+                    // behind (the greater id when level) drops back at any braking, as before
+                    // its lane's end, and the one ahead drives on and changes first.
+                    let swapping = last_signals.get(&i).is_some_and(|list| list.iter().any(|x| x.3 == l.id));
+                    if !swapping {
+                        ch.virtual_leader = Some(gap);
+                    } else if l.distance > 1e-6 || l.id < me {
+                        ch.yield_to = Some(gap);
+                        ch.hold_behind = true;
+                    }
                 }
             }
             _ => {}
@@ -1102,7 +1140,8 @@ pub fn limit_for_lane_changes(
             lon.limit(ch.law.accel(v, Some(leader)).max(floor));
         }
         if let Some(leader) = ch.yield_to {
-            lon.limit(ch.law.accel(v, Some(leader)).max(floor));
+            let a = ch.law.accel(v, Some(leader));
+            lon.limit(if ch.hold_behind { a } else { a.max(floor) });
         }
         if let Some(m) = &ch.active {
             lon.limit(2.0 * (m.speed_cap - v));

@@ -253,6 +253,9 @@ pub struct LaneChanger {
     /// cooperative plugin, taken once by the plugin).
     pub abort: bool,
     pub(super) missed: bool,
+    /// `yield_to` is a neighbour we cannot pass (our own lane ends first): fall behind it at
+    /// any braking, as before the lane's end.
+    pub(super) hold_behind: bool,
     /// The change in progress.
     pub active: Option<Manoeuvre>,
     /// Where the route goes.
@@ -316,6 +319,7 @@ impl LaneChanger {
             abort: false,
             wait_since: None,
             missed: false,
+            hold_behind: false,
             reach: None,
         }
     }
@@ -868,6 +872,7 @@ mod tests {
             (offset_of!(LaneChanger, hold), 1),
             (offset_of!(LaneChanger, abort), 1),
             (offset_of!(LaneChanger, missed), 1),
+            (offset_of!(LaneChanger, hold_behind), 1),
             // Whether a change is under way: `Option<Manoeuvre>`'s "none" is in its first byte.
             (offset_of!(LaneChanger, active), 1),
         ];
