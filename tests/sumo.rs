@@ -298,6 +298,14 @@ fn two_way_single_intersection_runs_its_vhvh_demand_without_collisions() {
     // SUMO 1.28 on the same files inserts 396 of the 422 vehicles due in 600 s; the left
     // turns (300 veh/h for 6 s of green in 86 s) queue in both.
     assert!(inserted > 450 && removed > 400, "inserted {inserted}, arrived {removed}");
+    // SUMO 1.28 on these files for 1000 s (`sumo -n .. -r .. --end 1000 --step-length 0.1
+    // --seed 42`): 638 inserted, 579 arrived, mean duration 76.5 s. With its tight turns driven at
+    // 2 m/s² lateral (our own maps' default) we inserted 492 (77 %) and took 135 s; at netconvert's
+    // 5.5 m/s² (`sumo_lateral_accel`) 562 and 122 s. Not yet the issue's +-15 %: these bounds hold
+    // what is reached.
+    assert!(inserted as f64 >= 0.85 * 638.0, "inserted {inserted} of SUMO's 638");
+    let travel = m["trips"]["mean_travel_time_s"].as_f64().unwrap();
+    assert!(travel <= 1.7 * 76.5, "mean travel time {travel:.1} s against SUMO's 76.5 s");
     // Every vehicle that had time to finish arrived: those inserted in the first 200 s (the
     // longest left-turn queue takes under 800 s to clear).
     let trips = std::fs::read_to_string(out.join("out/trips.csv")).unwrap();

@@ -19,7 +19,6 @@ turns with the others.
 """
 
 import argparse
-import importlib.util
 import json
 import os
 import statistics
@@ -38,12 +37,12 @@ NETS = {
 
 
 def nets_dir() -> Path:
-    if "SUMO_RL_NETS" in os.environ:
-        return Path(os.environ["SUMO_RL_NETS"])
-    spec = importlib.util.find_spec("sumo_rl")
-    if spec is None:
-        sys.exit("bench_signals: sumo-rl is not installed (pip install sumo-rl eclipse-sumo) and SUMO_RL_NETS is unset")
-    return Path(spec.submodule_search_locations[0]) / "nets"
+    from smlworld.envs.traffic_signal import sumo_rl_nets
+
+    try:
+        return sumo_rl_nets()
+    except FileNotFoundError as e:
+        sys.exit(f"bench_signals: {e}")
 
 
 def worker(kind: str, net: str, steps: int, seed: int, hz: float, vec: int = 0) -> dict:

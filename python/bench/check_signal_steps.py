@@ -35,7 +35,6 @@ Checked, per run (one JSON line each):
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import os
@@ -58,12 +57,12 @@ LENGTH, WIDTH = 5.0, 1.8  # SUMO's default passenger car (the nets' routes name 
 
 
 def nets_dir() -> Path:
-    if "SUMO_RL_NETS" in os.environ:
-        return Path(os.environ["SUMO_RL_NETS"])
-    spec = importlib.util.find_spec("sumo_rl")
-    if spec is None:
-        sys.exit("check_signal_steps: sumo-rl is not installed and SUMO_RL_NETS is unset")
-    return Path(spec.submodule_search_locations[0]) / "nets"
+    from smlworld.envs.traffic_signal import sumo_rl_nets
+
+    try:
+        return sumo_rl_nets()
+    except FileNotFoundError as e:
+        sys.exit(f"check_signal_steps: {e}")
 
 
 def _arc(x0, y0, yaw0, x1, y1, yaw1, f):

@@ -15,7 +15,6 @@ Not part of the tests.
 """
 
 import argparse
-import importlib.util
 import os
 import sys
 import time
@@ -25,12 +24,12 @@ import numpy as np
 
 
 def nets_dir() -> Path:
-    if "SUMO_RL_NETS" in os.environ:
-        return Path(os.environ["SUMO_RL_NETS"])
-    spec = importlib.util.find_spec("sumo_rl")
-    if spec is None:
-        sys.exit("signal_q_learning: needs sumo-rl's nets: pip install sumo-rl, or set SUMO_RL_NETS")
-    return Path(spec.submodule_search_locations[0]) / "nets"
+    from smlworld.envs.traffic_signal import sumo_rl_nets
+
+    try:
+        return sumo_rl_nets()
+    except FileNotFoundError as e:
+        sys.exit(f"signal_q_learning: {e}")
 
 
 class QLAgent:

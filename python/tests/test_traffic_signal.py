@@ -15,18 +15,14 @@ from gymnasium.utils.env_checker import check_env
 from pettingzoo.test import parallel_api_test
 
 import smlworld
-from smlworld.envs.traffic_signal import _scenario_text, traffic_signal_parallel_env
+from smlworld.envs.traffic_signal import _scenario_text, sumo_rl_nets, traffic_signal_parallel_env
 
 
 @pytest.fixture(scope="module")
 def nets() -> Path:
-    """sumo-rl's ``nets`` folder: ``$SUMO_RL_NETS``, else the installed sumo_rl package's (found
-    without importing it: sumo_rl needs SUMO_HOME), as tests/sumo.rs finds it."""
-    if "SUMO_RL_NETS" in os.environ:
-        return Path(os.environ["SUMO_RL_NETS"])
-    spec = importlib.util.find_spec("sumo_rl")
-    assert spec is not None, "sumo-rl is not installed (python/requirements-test.txt) and SUMO_RL_NETS is unset"
-    return Path(spec.submodule_search_locations[0]) / "nets"
+    """sumo-rl's ``nets`` folder (``$SUMO_RL_NETS``, else the installed sumo_rl package's), as
+    tests/sumo.rs finds it; sumo-rl is in python/requirements-test.txt."""
+    return sumo_rl_nets()
 
 
 @pytest.fixture(scope="module")
@@ -442,3 +438,12 @@ def test_one_second_steps_on_two_way_run_without_collisions_or_red_entries(two_w
     assert m["trips"]["inserted"] > 300 and m["trips"]["arrived"] > 220, m["trips"]
     st = env._sim.states()
     assert len(st["id"]) < 100
+
+
+def test_sumo_rl_nets_honours_the_variable_and_names_both_ways_when_missing(monkeypatch, tmp_path):
+    monkeypatch.setenv("SUMO_RL_NETS", str(tmp_path))
+    assert sumo_rl_nets() == tmp_path
+    monkeypatch.delenv("SUMO_RL_NETS")
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name: None)
+    with pytest.raises(FileNotFoundError, match="pip install sumo-rl.*SUMO_RL_NETS"):
+        sumo_rl_nets()

@@ -306,6 +306,23 @@ class DefaultObservationFunction(ObservationFunction):
 _CAPPED_RATES = {"control": 20.0, "sensors": 20.0, "wifi": 10.0, "network": 1.0}
 
 
+def sumo_rl_nets() -> Path:
+    """sumo-rl's ``nets`` folder (its ``2way-single-intersection``, ``4x4-Lucas``, ``RESCO`` ...):
+    ``$SUMO_RL_NETS`` if set, else the installed ``sumo_rl`` package's, found without importing it
+    (importing sumo_rl needs SUMO_HOME). Raises ``FileNotFoundError`` naming both ways when neither
+    gives one."""
+    if "SUMO_RL_NETS" in os.environ:
+        return Path(os.environ["SUMO_RL_NETS"])
+    import importlib.util
+
+    spec = importlib.util.find_spec("sumo_rl")
+    if spec is None or not spec.submodule_search_locations:
+        raise FileNotFoundError(
+            "sumo-rl's nets not found: `pip install sumo-rl`, or set SUMO_RL_NETS to a folder with its nets"
+        )
+    return Path(spec.submodule_search_locations[0]) / "nets"
+
+
 def _step_rates(sim_step, sumo_files: bool) -> dict:
     """Scenario overrides for the simulation step ``sim_step`` [s] (SUMO's ``--step-length``):
     dynamics at ``1 / sim_step``, the other modules at most that fast. ``None`` gives SUMO's
