@@ -634,6 +634,9 @@ struct Approach {
     waiting_now: f64,
     /// The first vehicle before the stop line of its lanelet (itself when not queued).
     head: u32,
+    /// Its leader stands before the stop line (a vehicle waiting there to change lanes, which
+    /// approaches no junction link): it cannot come however it decides.
+    blocked: bool,
 }
 
 /// Per-tick buffers of [`give_way_at_junctions`], kept between ticks.
@@ -758,7 +761,7 @@ pub fn give_way_at_junctions(
     let signal = |g: u32| lights.as_deref().map_or(NO_SIGNAL, |l| l.state[g as usize]);
     // Who is near a junction.
     let mut queue_at: Vec<(u32, u32)> = Vec::new();
-    for (entity, &id, state, size, route, follower, _, mut driver, negotiator) in &mut vehicles {
+    for (entity, &id, state, size, route, follower, lon, mut driver, negotiator) in &mut vehicles {
         let key = Arc::as_ptr(&route.0) as usize;
         let driver: &mut JunctionDriver = &mut driver;
         if driver.route != key {
@@ -815,6 +818,7 @@ pub fn give_way_at_junctions(
             trailing: true,
             waiting_now: 0.0,
             head: 0,
+            blocked: false,
         };
         for p in driver.passages[inside_from..driver.next].iter().filter(|p| rear < p.exit) {
             sc.register(p, seen);
@@ -839,7 +843,10 @@ pub fn give_way_at_junctions(
         }
         let arrived_at = if driver.arrived_at > 0.0 { driver.arrived_at } else { f64::INFINITY };
         let (going, stopped, waiting_now) = (driver.going, driver.stopped, driver.waiting_now);
-        sc.register(p, Approach { inside: false, going, arrived_at, stopped, trailing: false, waiting_now, ..seen });
+        let blocked = lon.leader.is_some_and(|l| l.speed < STANDING && l.gap < p.entry - front);
+        let approach =
+            Approach { inside: false, going, arrived_at, stopped, trailing: false, waiting_now, blocked, ..seen };
+        sc.register(p, approach);
     }
     // Only the first vehicle before the stop line of each lanelet decides.
     sc.order.clear();
@@ -1032,7 +1039,10 @@ fn conflicts_allow(
                 };
                 let f_v = f.speed.max(0.0);
                 let t_foe_arrive = time_to_cover(d_foe - CLEAR, f_v, ACCEL_FAST, f.v_max.max(f_v));
-                if f.going || f.inside {
+                // A foe held behind a vehicle standing before its stop line cannot come: a left
+                // turner waited for ever on one that had decided to go but stood behind a vehicle
+                // waiting to change lanes, itself waiting for the left turner's queue (issue 54).
+                if (f.going && !f.blocked) || f.inside {
                     // A merge behind a foe that is already past the merge point is car following.
                     if fc.kind == ConflictKind::Merging && d_foe < 0.0 && d_me > 0.0 {
                         continue;
@@ -1057,7 +1067,7 @@ fn conflicts_allow(
                     let red = matches!(f_signal, b'r' | b's' | b'y');
                     // Behind a first vehicle that does not go, a queued foe cannot come.
                     let held = f.queued && !sc.approaches[f.head as usize].going;
-                    if red || held || f.speed < STANDING || !f.decides && !f.going {
+                    if red || held || f.blocked || f.speed < STANDING || !f.decides && !f.going {
                         continue;
                     }
                     if foe_priority && !accepts_gap(t_me_clear, t_foe_arrive, impatient_gap(params, a.waiting_now)) {
