@@ -384,7 +384,8 @@ fn map_route_and_render_take_a_sumo_net() {
 
 /// A netgenerate grid of `n` x `n` nodes `length` m apart, 2 lanes per edge, lights guessed, at
 /// `out` (eclipse-sumo's netgenerate from `.venv`).
-fn netgenerate_grid(n: usize, length: f64, out: &Path) {
+/// SUMO_HOME of the eclipse-sumo in `.venv` (its binaries and tools).
+fn sumo_home() -> PathBuf {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let home = Command::new(root.join(".venv/bin/python"))
         .args(["-c", "import sumo;print(sumo.SUMO_HOME)"])
@@ -395,7 +396,11 @@ fn netgenerate_grid(n: usize, length: f64, out: &Path) {
         "eclipse-sumo is not installed in .venv: `.venv/bin/pip install eclipse-sumo` (python/requirements-test.txt): {}",
         String::from_utf8_lossy(&home.stderr)
     );
-    let home = PathBuf::from(String::from_utf8_lossy(&home.stdout).trim());
+    PathBuf::from(String::from_utf8_lossy(&home.stdout).trim())
+}
+
+fn netgenerate_grid(n: usize, length: f64, out: &Path) {
+    let home = sumo_home();
     let generated = Command::new(home.join("bin/netgenerate"))
         .env("SUMO_HOME", &home)
         .args(["--grid", "--grid.number", &n.to_string(), "--grid.length", &length.to_string()])
@@ -559,10 +564,8 @@ fn a_random_trips_grid_without_u_turns_flows_to_the_end() {
     std::fs::create_dir_all(&dir).unwrap();
     let net = dir.join("grid5.net.xml");
     netgenerate_grid(5, 200.0, &net);
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let python = root.join(".venv/bin/python");
-    let home = Command::new(&python).args(["-c", "import sumo;print(sumo.SUMO_HOME)"]).output().expect("runs python");
-    let home = PathBuf::from(String::from_utf8_lossy(&home.stdout).trim());
+    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
+    let home = sumo_home();
     let routes = dir.join("grid5.rou.xml");
     let made = Command::new(&python)
         .env("SUMO_HOME", &home)
