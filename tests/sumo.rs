@@ -299,13 +299,14 @@ fn two_way_single_intersection_runs_its_vhvh_demand_without_collisions() {
     // turns (300 veh/h for 6 s of green in 86 s) queue in both.
     assert!(inserted > 450 && removed > 400, "inserted {inserted}, arrived {removed}");
     // SUMO 1.28 on these files for 1000 s (`sumo -n .. -r .. --end 1000 --step-length 0.1
-    // --seed 42`): 638 inserted, 579 arrived, mean duration 76.5 s. With its tight turns driven at
-    // 2 m/s² lateral (our own maps' default) we inserted 492 (77 %) and took 135 s; at netconvert's
-    // 5.5 m/s² (`sumo_lateral_accel`) 562 and 122 s. Not yet the issue's +-15 %: these bounds hold
-    // what is reached.
-    assert!(inserted as f64 >= 0.85 * 638.0, "inserted {inserted} of SUMO's 638");
+    // --seed 42`): 638 inserted, 579 arrived, mean duration 76.5 s. The issue asks for our mean
+    // travel time within +-15 % of SUMO's. Its turns are 3 m arcs whose internal lanes say
+    // 13.9 m/s, and SUMO drives them so: with a lateral limit of our own we inserted 492 and took
+    // 135 s (2 m/s²), 562 and 122 s (5.5 m/s²); driven at the file's speeds (`sumo_lateral_accel`
+    // 0, the default), 636 and 77.3 s.
+    assert!(inserted as f64 >= 0.95 * 638.0, "inserted {inserted} of SUMO's 638");
     let travel = m["trips"]["mean_travel_time_s"].as_f64().unwrap();
-    assert!(travel <= 1.7 * 76.5, "mean travel time {travel:.1} s against SUMO's 76.5 s");
+    assert!((travel / 76.5 - 1.0).abs() <= 0.15, "mean travel time {travel:.1} s against SUMO's 76.5 s");
     // Every vehicle that had time to finish arrived: those inserted in the first 200 s (the
     // longest left-turn queue takes under 800 s to clear).
     let trips = std::fs::read_to_string(out.join("out/trips.csv")).unwrap();
@@ -419,6 +420,56 @@ fn a_netgenerate_grid_loads_with_its_counts() {
     // 4 x 4 nodes: the 12 with three or four arms get lights, the 4 corners none.
     assert_eq!(map.signal_programs.len(), 12);
     std::fs::remove_file(&out).ok();
+}
+
+/// Every vehicle that drives off the end of a lanelet onto a successor is placed on that
+/// successor ([`LaneMap::locate`] from the lanelet it was on), on a 5x5 netgenerate grid, and one
+/// in a lane that diverges from its siblings is placed on its own lane once it is a little off
+/// the sibling's centre. A left turner leaving the junction was placed on the U-turn beside it
+/// (its loop passes the exit), so the vehicle inserted at the exit's start was not blocked by
+/// it, and a right turner was kept on the straight lane it left beside (issue 54: the grid's
+/// collisions).
+#[test]
+fn a_vehicle_is_placed_on_the_lane_it_drives_onto_at_a_junction() {
+    use smlworld::vehicles::LaneMap;
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-locate-{}.net.xml", std::process::id()));
+    netgenerate_grid(5, 200.0, &out);
+    let map = LaneletMap::load(&out).unwrap();
+    std::fs::remove_file(&out).ok();
+    let lanes = LaneMap::new(std::sync::Arc::new(map));
+    let (mut onto, mut diverged) = (0, 0);
+    for i in 0..lanes.successors.len() as u32 {
+        let end = lanes.length(i);
+        for &j in &lanes.successors[i as usize] {
+            let p = lanes.centres[j as usize].sample_point(0.3);
+            let found = lanes.locate(p, Some((i, end - 0.2)), 0.5).map(|f| f.0);
+            // Where lanes diverge they start as one: the sibling placed first is as good there.
+            let as_good = found.is_some_and(|f| f == j || lanes.siblings(j).iter().any(|&(k, _)| k == f));
+            let name = |k: Option<u32>| k.map(|k| lanes.id(k));
+            assert!(as_good, "0.3 m onto {:?} from the end of {:?}: {:?}", name(Some(j)), name(Some(i)), name(found));
+            onto += 1;
+        }
+        // On its centre line where its siblings are over 1.2 m away (within the 0.8 m it took
+        // before to leave the first one), driving along it from its start, where it was placed
+        // on the first of them.
+        for &(k, _) in lanes.siblings(i) {
+            let centre = &lanes.centres[i as usize];
+            let Some(s) = (1..(centre.length as usize)).map(|s| s as f64).find(|&s| {
+                let p = centre.sample_point(s);
+                lanes
+                    .siblings(i)
+                    .iter()
+                    .all(|&(o, _)| lanes.centres[o as usize].points.iter().all(|q| q.distance(p) > 1.2))
+            }) else {
+                continue;
+            };
+            let p = centre.sample_point(s);
+            let found = lanes.locate(p, Some((k, s - 0.5)), 0.5).map(|f| f.0);
+            assert_eq!(found, Some(i), "on {:?} at {s} m, placed on {:?} before", lanes.id(i), lanes.id(k));
+            diverged += 1;
+        }
+    }
+    assert!(onto > 500 && diverged > 100, "{onto} successors, {diverged} diverging siblings checked");
 }
 
 /// SUMO's IDM follower behind an imposed leader (cruise at 15 m/s, brake at 2 m/s² to 5 m/s,

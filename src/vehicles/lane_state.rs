@@ -760,9 +760,23 @@ impl LaneIndex {
     pub fn ahead_where(
         &self,
         lanes: &LaneMap,
+        i: u32,
+        s: f64,
+        me: VehicleId,
+        seen: impl Fn(VehicleId) -> bool,
+    ) -> Option<Found> {
+        self.ahead_along(lanes, i, s, me, &[], seen)
+    }
+
+    /// [`LaneIndex::ahead_where`] past the end of lanelet `i` along `route` (lanelet ids in
+    /// driving order, [`LaneMap::next_on`]); an empty route takes the first successors.
+    pub fn ahead_along(
+        &self,
+        lanes: &LaneMap,
         mut i: u32,
         s: f64,
         me: VehicleId,
+        route: &[LaneletId],
         seen: impl Fn(VehicleId) -> bool,
     ) -> Option<Found> {
         // Distance from the asking point to the start of lanelet `i` (after the first one).
@@ -771,8 +785,19 @@ impl LaneIndex {
         for _ in 0..8 {
             let list = self.on(i);
             let from = if first { self.start_of(lanes, list, i, s, me) } else { 0 };
-            if let Some(e) = list[from..].iter().find(|e| e.id != me && seen(e.id)) {
-                let distance = if first { e.s - s } else { base + e.s };
+            let on_i = list[from..].iter().find(|e| e.id != me && seen(e.id));
+            let mut nearest = on_i.map(|e| (if first { e.s - s } else { base + e.s }, e));
+            // Where lanes diverge, a car on a sibling near its start is still in the way.
+            for &(k, overlap) in lanes.siblings(i) {
+                let list = self.on(k);
+                let at = if first { first_at_or_after(list, s, lanes.per_length(k)) } else { 0 };
+                let far = nearest.map_or(f64::INFINITY, |(d, _)| d);
+                let e = list[at..].iter().take_while(|e| e.s < overlap).find(|e| e.id != me && seen(e.id));
+                if let Some(e) = e.filter(|e| (if first { e.s - s } else { base + e.s }) < far) {
+                    nearest = Some((if first { e.s - s } else { base + e.s }, e));
+                }
+            }
+            if let Some((distance, e)) = nearest {
                 return Some(Found { distance, speed: e.speed, length: e.length, id: e.id });
             }
             base = if first { lanes.length(i) - s } else { base + lanes.length(i) };
@@ -780,7 +805,7 @@ impl LaneIndex {
             if base > SEARCH_HORIZON {
                 return None;
             }
-            i = *lanes.successors[i as usize].first()?;
+            i = lanes.next_on(i, route)?;
         }
         None
     }

@@ -56,6 +56,38 @@ pub struct LaneMap {
     per_length: Vec<f64>,
     /// Cell -> (lanelet, arc length [m] where its centre line enters the cell).
     grid: BTreeMap<(i64, i64), Vec<(u32, f64)>>,
+    /// Siblings of every lanelet: `(k, overlap)` for each lanelet `k` that leaves a common
+    /// predecessor with it, `overlap` \[m\] the arc length along `k` over which a car on `k` is
+    /// still in this lanelet's way ([`SIBLING_CLEARANCE`]). Only those with an overlap.
+    siblings: Vec<Vec<(u32, f64)>>,
+    /// Offset \[m\] within which [`LaneMap::locate`] keeps a vehicle on its lanelet without
+    /// looking at the others: half the half width, less where siblings overlap
+    /// ([`SIBLING_STAY`]).
+    stay: Vec<f64>,
+}
+
+/// Distance \[m\] between two centre lines from which cars on them pass each other (a car's
+/// width, 1.8 m, and a margin): where lanes that leave one lanelet are closer, a car on one is in
+/// the way of a car on the other.
+pub const SIBLING_CLEARANCE: f64 = 2.2;
+/// Offset \[m\] from a lanelet with overlapping siblings past which [`LaneMap::locate`] asks
+/// whether a sibling fits better: where lanes diverge, the vehicle was placed on the first, and
+/// kept there until half a half width off (0.8 m), while it turned onto the other (issue 54: a
+/// right turner placed on the straight lane was not seen behind a vehicle entering its exit).
+const SIBLING_STAY: f64 = 0.25;
+
+/// Arc length \[m\] along `k` over which its centre line stays within [`SIBLING_CLEARANCE`] of
+/// `j`'s (both leaving one point), sampled every half metre.
+fn overlap_along(k: &Path, j: &Path) -> f64 {
+    let mut s = 0.0;
+    while s <= k.length {
+        let p = k.sample_point(s);
+        if j.near_within(p, s, 2.0 * SIBLING_CLEARANCE + 1.0, SIBLING_CLEARANCE).is_none() {
+            return s;
+        }
+        s += 0.5;
+    }
+    k.length
 }
 
 fn cell_of(p: DVec2) -> (i64, i64) {
@@ -110,7 +142,39 @@ impl LaneMap {
         let index_of = |id: Option<LaneletId>| id.and_then(|id| map.lanelet_index(id)).map(|j| j as u32);
         let beside = neighbours.iter().map(|n| [index_of(n.left), index_of(n.right)]).collect();
         let per_length = centres.iter().map(|c| if c.length > 0.0 { 1.0 / c.length } else { 0.0 }).collect();
-        LaneMap { map, neighbours, centres, half_widths, successors, predecessors, ids, beside, per_length, grid }
+        let mut siblings: Vec<Vec<(u32, f64)>> = vec![Vec::new(); n];
+        for next in &successors {
+            for &j in next {
+                for &k in next {
+                    if j != k && !siblings[j as usize].iter().any(|&(o, _)| o == k) {
+                        let overlap = overlap_along(&centres[k as usize], &centres[j as usize]);
+                        if overlap > 0.0 {
+                            siblings[j as usize].push((k, overlap));
+                        }
+                    }
+                }
+            }
+        }
+        let stay = (0..n)
+            .map(|i| {
+                let half = 0.5 * half_widths[i];
+                if siblings[i].is_empty() { half } else { half.min(SIBLING_STAY) }
+            })
+            .collect();
+        LaneMap {
+            map,
+            neighbours,
+            centres,
+            half_widths,
+            successors,
+            predecessors,
+            ids,
+            beside,
+            per_length,
+            grid,
+            siblings,
+            stay,
+        }
     }
 
     /// Hint to the processor that lanelet `i`'s centre line around arc length `s` \[m\] will be
@@ -134,6 +198,31 @@ impl LaneMap {
     /// 1 / the length of lanelet `i`'s centre line [1/m] (0 when it has no length).
     pub fn per_length(&self, i: u32) -> f64 {
         self.per_length[i as usize]
+    }
+
+    /// The successor of lanelet `i` that `route` (lanelet ids in driving order) drives next:
+    /// the one after `i` in it, else any successor it holds (a vehicle beside its route's lane),
+    /// else the first. A search for the vehicle ahead that took the first successor looked
+    /// straight on past a left turner standing in the junction (issue 54: the 5x5 grid's
+    /// rear-end collisions on SUMO's internal left-turn lanes).
+    pub fn next_on(&self, i: u32, route: &[LaneletId]) -> Option<u32> {
+        let successors = self.successors.get(i as usize)?;
+        if successors.len() <= 1 || route.is_empty() {
+            return successors.first().copied();
+        }
+        let id = self.id(i);
+        let after = route.iter().position(|&r| r == id).and_then(|k| route.get(k + 1));
+        let on_route = |want: LaneletId| successors.iter().copied().find(|&j| self.id(j) == want);
+        after
+            .and_then(|&want| on_route(want))
+            .or_else(|| successors.iter().copied().find(|&j| route.contains(&self.id(j))))
+            .or_else(|| successors.first().copied())
+    }
+
+    /// Lanelets that leave a common predecessor with lanelet `i` and overlap it: `(k, overlap)`,
+    /// a car on `k` within `overlap` \[m\] of its start is in the way of one on `i`.
+    pub fn siblings(&self, i: u32) -> &[(u32, f64)] {
+        &self.siblings[i as usize]
     }
 
     /// Id of lanelet `i`.
@@ -176,8 +265,12 @@ impl LaneMap {
                 .on(i, p, hint, NARROW_WINDOW)
                 .filter(|&(s, _)| (s - hint).abs() < NARROW_WINDOW - 1.0 || s <= 0.0 || s >= self.length(i));
             let mut best = narrow.or_else(|| self.on(i, p, hint, 6.0)).map(|(s, o)| (i, s, o));
-            if best.is_some_and(|b| b.2.abs() < 0.5 * self.half_widths[i as usize]) {
+            if best.is_some_and(|b| b.2.abs() < self.stay[i as usize]) {
                 return best;
+            }
+            // Lanes leaving where this one leaves: the vehicle may have turned onto one.
+            for &(k, _) in &self.siblings[i as usize] {
+                best = better(best, self.on(k, p, hint, 6.0).map(|(s, o)| (k, s, o)));
             }
             let len = self.length(i);
             for &j in &self.successors[i as usize] {
@@ -398,7 +491,7 @@ fn set_found(lanes: &LaneMap, pos: &mut LanePosition, found: Option<(u32, f64, f
 /// [`update_one`] for four vehicles at once, when all four take [`LaneMap::locate`]'s common
 /// path: on a lanelet at the last update, the walk along its centre line from there short
 /// ([`walk_four`]: the same bits as [`Path::walk`]), and the vehicle found on the same lanelet
-/// within the narrow window, inside the lane's middle half. Then it writes what four
+/// within the narrow window, within its stay offset. Then it writes what four
 /// [`update_one`]s write (the same operations in the same order, lane by lane) and returns true;
 /// else it writes nothing and returns false. The walks' divisions are shared four wide, as in
 /// the path following.
@@ -421,16 +514,16 @@ fn update_four(lanes: &LaneMap, states: &[VehicleState], positions: &mut [LanePo
     // `update_one`'s hint for `LaneMap::locate`.
     let hint: [f64; LANES] = per_lane(|l| positions[l].s + states[l].velocity.length() * dt);
     let Some(walked) = walk_four(paths, p, hint, [NARROW_WINDOW; LANES]) else { return false };
-    let half: [f64; LANES] = per_lane(|l| lanes.half_widths[on[l] as usize]);
+    let stay: [f64; LANES] = per_lane(|l| lanes.stay[on[l] as usize]);
     let mut found = [true; LANES];
     for l in 0..LANES {
-        // `LaneMap::locate`'s middle of the lane (which also puts it within `Path::near_within`'s
+        // `LaneMap::locate`'s stay (the middle of the lane or less, which also puts it within `Path::near_within`'s
         // distance, the half width). The walk's segments lie inside the centre line (neither
         // its first nor its last), so the arc length is inside it too: `LaneMap::on`'s tests at
         // the ends do not apply. Nor does the narrow window: where a vehicle is found outside
         // it, `locate` walks again with a wider window from the same hint, and that walk ends
         // where this one did.
-        found[l] = walked.lateral[l].abs() < 0.5 * half[l];
+        found[l] = walked.lateral[l].abs() < stay[l];
     }
     if found != [true; LANES] {
         return false;

@@ -318,7 +318,7 @@ fn leader_of(shared: LeaderShared<'_>, table: LeaderTable<'_>, n: usize, lon: &m
                 }
                 None => false,
             };
-            let found = index.ahead_where(map, i, s, *id, seen);
+            let found = index.ahead_along(map, i, s, *id, &table.routes[n].0.lanelets, seen);
             let leader = found.map(|f| {
                 let d = matched.get().filter(|d| d.id == f.id);
                 // The speed as sensed: the detection's velocity along its own motion.

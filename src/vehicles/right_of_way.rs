@@ -64,6 +64,9 @@ const STANDING: f64 = 0.5;
 const STOP_DECEL: f64 = 3.0;
 /// A route that leaves a junction and enters it again within this distance [m] passes it once.
 const REJOIN: f64 = 20.0;
+/// netconvert's `--junctions.limit-turn-speed` [m/s²]: the lateral acceleration of the
+/// turnarounds we draw on a SUMO net where the file's shape is too tight to steer.
+const NETCONVERT_TURN_ACCEL: f64 = 5.5;
 /// No signal on a link.
 pub const NO_SIGNAL: u8 = b'-';
 
@@ -79,10 +82,14 @@ pub struct JunctionParams {
     pub time_gap: f64,
     /// Largest lateral acceleration on a junction's links [m/s²] (2 m/s², comfortable driving).
     pub lateral_accel: f64,
-    /// The same on the links of a SUMO network (lanelets tagged `sumo:lane`) [m/s²]: netconvert's
-    /// `--junctions.limit-turn-speed` (5.5 m/s²), so SUMO's nets are turned through as SUMO
-    /// drives them. At 2 m/s² the tight turns of sumo-rl's `2way-single-intersection` (a 5 m
-    /// right turn) cost a fifth of its capacity, and travel times were 1.7x SUMO's (issue 54).
+    /// The same on the links of a SUMO network (lanelets tagged `sumo:lane`) [m/s²]; 0 (the
+    /// default): none, a link is driven at its lane's `speed` from the file, as SUMO drives it
+    /// (SUMO's car following knows no curvature: netconvert bakes the turn speed into the
+    /// internal lane's `speed` when it builds the net, `--junctions.limit-turn-speed` 5.5 m/s²).
+    /// sumo-rl's older nets give their internal lanes the road's 13.9 m/s on 3 m turns, and SUMO
+    /// drives them so; any limit of ours cost their junctions capacity: on
+    /// `2way-single-intersection` travel times were 1.7x SUMO's at 2 m/s², 1.53x at 5.5 and
+    /// 0.97x with none (issue 54).
     pub sumo_lateral_accel: f64,
     /// A vehicle stops for yellow if it can at this deceleration [m/s²] (the issue's 3 m/s²;
     /// SUMO uses the vehicle's `decel`).
@@ -101,7 +108,7 @@ impl Default for JunctionParams {
             default: Fallback::RightBeforeLeft,
             time_gap: 1.0,
             lateral_accel: 2.0,
-            sumo_lateral_accel: 5.5,
+            sumo_lateral_accel: 0.0,
             yellow_decel: 3.0,
             red_decel: 7.5,
             look_ahead: 80.0,
@@ -116,7 +123,7 @@ impl JunctionParams {
         check_all([
             ("time_gap", self.time_gap, Range::non_negative(60.0)),
             ("lateral_accel", self.lateral_accel, Range::positive(20.0)),
-            ("sumo_lateral_accel", self.sumo_lateral_accel, Range::positive(20.0)),
+            ("sumo_lateral_accel", self.sumo_lateral_accel, Range::non_negative(20.0)),
             ("yellow_decel", self.yellow_decel, Range::positive(20.0)),
             ("red_decel", self.red_decel, Range::positive(20.0)),
             ("look_ahead", self.look_ahead, Range::positive(1000.0)),
@@ -259,7 +266,7 @@ fn max_curvature(points: &[glam::DVec2]) -> f64 {
 
 impl JunctionNetwork {
     /// Index the junctions of `map` (O(links + conflicts + lanelets)); curve speeds at
-    /// `lateral_accel` [m/s²], at `sumo_lateral_accel` on the links of a SUMO network.
+    /// `lateral_accel` [m/s²], at `sumo_lateral_accel` on the links of a SUMO network (0: none).
     pub fn new(
         map: Arc<LaneletMap>,
         junctions: Arc<Junctions>,
@@ -277,8 +284,24 @@ impl JunctionNetwork {
                 let lanelet = map.lanelets.get(i);
                 let kappa = lanelet.map_or(0.0, |x| max_curvature(&x.centre));
                 let sumo = lanelet.is_some_and(|x| x.tags.contains_key("sumo:lane"));
-                let a_lat = if sumo { sumo_lateral_accel } else { lateral_accel };
-                let curve_speed = if kappa > 1e-6 { (a_lat / kappa).sqrt() } else { f64::INFINITY };
+                // A turnaround we drew (a 46 m loop for the file's 2 m half circle) is our shape:
+                // the file's speed is not for it, netconvert's turn limit is.
+                let ours = lanelet.is_some_and(|x| x.tags.get("sumo:shape").is_some_and(|v| v == "turnaround"));
+                let a_lat = match (sumo, ours) {
+                    (false, _) => lateral_accel,
+                    (true, true) if sumo_lateral_accel <= 0.0 => NETCONVERT_TURN_ACCEL,
+                    (true, _) => sumo_lateral_accel,
+                };
+                let mut curve_speed = if kappa > 1e-6 && a_lat > 0.0 { (a_lat / kappa).sqrt() } else { f64::INFINITY };
+                // A SUMO link is driven at most at its internal lane's `speed` (netconvert's turn
+                // speed), reached before the link as SUMO brakes for a slower lane ahead: left to
+                // the path follower, a left turner entered a 9.26 m/s lane at 13.9 m/s.
+                if sumo
+                    && !ours
+                    && let Some(v) = lanelet.and_then(|x| x.speed_limit())
+                {
+                    curve_speed = curve_speed.min(v);
+                }
                 if i < n {
                     link_of_lanelet[i] = links.len() as u32;
                 }

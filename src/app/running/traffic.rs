@@ -437,8 +437,12 @@ pub fn run_traffic(world: &mut World, mut longest: Local<Option<(Arc<LaneletMap>
                         continue;
                     }
                     let lane = src.lanes[l].clone();
-                    let Some(v) = entry_speed(world, &lane, v0, length, dt) else { continue };
-                    let v = src.depart_speed.map_or(v, |d| v.min(d));
+                    // Checked at the speed it enters with (SUMO's `departSpeed`, 0 by default):
+                    // a vehicle coming through the junction behind leaves room for one entering
+                    // at 13.9 m/s, not for one entering standing (issue 54: turners drove into
+                    // vehicles inserted standing at the start of their exit lane).
+                    let entering = src.depart_speed.map_or(v0, |d| v0.min(d));
+                    let Some(v) = entry_speed(world, &lane, entering, length, dt) else { continue };
                     let id = VehicleId(src.next_id);
                     if spawn_traffic_vehicle(world, src, index, id, &lane, &src.goal, 0.0, v, v0, class).is_ok() {
                         src.next_id += src.id_step;
