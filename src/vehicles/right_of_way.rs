@@ -37,7 +37,7 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use crate::map::junctions::{ConflictKind, Fallback, JunctionRules, Junctions, SignalPhase, Turn, find_junctions};
 use crate::map::{JunctionControl, LaneletMap, Path};
 use crate::sim::params::{ParamError, Range, check_all};
-use crate::sim::{Control, Plugin, SimBuilder, SimClock};
+use crate::sim::{Control, Dynamics, Plugin, SimBuilder, SimClock};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
 use super::PathFollower;
@@ -67,6 +67,24 @@ const REJOIN: f64 = 20.0;
 /// netconvert's `--junctions.limit-turn-speed` [m/s²]: the lateral acceleration of the
 /// turnarounds we draw on a SUMO net where the file's shape is too tight to steer.
 const NETCONVERT_TURN_ACCEL: f64 = 5.5;
+/// Below this rate \[Hz\] of control or dynamics (SUMO's default step is 0.1 s) a vehicle
+/// covers a tight turn in a step or two and cannot steer through it at the file's speed: at
+/// sumo-rl's 1 s, a right turner took a 3 m turn at 12 m/s and landed 6 m wide, in the oncoming
+/// lane.
+const COARSE_HZ: f64 = 10.0;
+
+/// The lateral acceleration [m/s²] of a SUMO net's links: the one set, else none (the file's lane
+/// speeds) at SUMO's steps and netconvert's 5.5 m/s² at coarser ones (`coarse`).
+fn sumo_turn_accel(set: f64, coarse: bool) -> f64 {
+    if set > 0.0 {
+        set
+    } else if coarse {
+        NETCONVERT_TURN_ACCEL
+    } else {
+        0.0
+    }
+}
+
 /// No signal on a link.
 pub const NO_SIGNAL: u8 = b'-';
 
@@ -83,7 +101,9 @@ pub struct JunctionParams {
     /// Largest lateral acceleration on a junction's links [m/s²] (2 m/s², comfortable driving).
     pub lateral_accel: f64,
     /// The same on the links of a SUMO network (lanelets tagged `sumo:lane`) [m/s²]; 0 (the
-    /// default): none, a link is driven at its lane's `speed` from the file, as SUMO drives it
+    /// default): none at control and dynamics rates of 10 Hz or more (5.5 m/s² below, where a
+    /// step is too long to steer through a tight turn at speed), a link is driven at its lane's
+    /// `speed` from the file, as SUMO drives it
     /// (SUMO's car following knows no curvature: netconvert bakes the turn speed into the
     /// internal lane's `speed` when it builds the net, `--junctions.limit-turn-speed` 5.5 m/s²).
     /// sumo-rl's older nets give their internal lanes the road's 13.9 m/s on 3 m turns, and SUMO
@@ -1167,11 +1187,12 @@ impl Plugin for JunctionsPlugin {
             return;
         }
         install_longitudinal(sim);
+        let coarse = [sim.rate(Control), sim.rate(Dynamics)].into_iter().flatten().any(|hz| hz < COARSE_HZ);
         let network = JunctionNetwork::new(
             Arc::clone(&self.map),
             Arc::clone(&junctions),
             self.params.lateral_accel,
-            self.params.sumo_lateral_accel,
+            sumo_turn_accel(self.params.sumo_lateral_accel, coarse),
         );
         let left_hand = self.map.left_hand_traffic();
         let mut programs: Vec<(u32, Vec<SignalPhase>, f64)> =
@@ -1203,6 +1224,15 @@ impl Plugin for JunctionsPlugin {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sumo_links_take_the_file_s_speeds_at_sumo_s_steps_and_netconvert_s_limit_at_coarse_ones() {
+        assert_eq!(sumo_turn_accel(0.0, false), 0.0);
+        assert_eq!(sumo_turn_accel(0.0, true), NETCONVERT_TURN_ACCEL);
+        // A value the scenario sets holds at any step.
+        assert_eq!(sumo_turn_accel(3.0, false), 3.0);
+        assert_eq!(sumo_turn_accel(3.0, true), 3.0);
+    }
 
     #[test]
     fn time_to_cover_accelerates_then_cruises() {
