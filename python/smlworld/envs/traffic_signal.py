@@ -62,6 +62,9 @@ UNSUPPORTED = {
 #: green, ``Y`` yellow.
 _AS_SHOWN = str.maketrans({"O": "G", "s": "g", "o": "g", "Y": "y", "u": "r"})
 
+#: States in the file's characters -> as shown (``_AS_SHOWN``), translated once each.
+_SHOWN: Dict[str, str] = {}
+
 
 class TrafficSignal:
     """One traffic light as sumo-rl's ``TrafficSignal`` presents it to observation and reward
@@ -153,7 +156,11 @@ class TrafficSignal:
         ``setRedYellowGreenState``; a state already held is not sent again), shown as the
         simulator shows the file's program (``map_program`` in src/map/junctions.rs)."""
         if state != self._shown:
-            self.env._sim.set_phase(self.junction, state.translate(_AS_SHOWN))
+            shown = _SHOWN.get(state)
+            if shown is None:
+                shown = _SHOWN[state] = state.translate(_AS_SHOWN)
+            # The junction id was checked when the env was made: straight to the core.
+            self.env._sim._core.set_phase(self.junction, shown)
             self._shown = state
 
     @property
