@@ -64,6 +64,8 @@ pub struct LaneMap {
     /// looking at the others: half the half width, less where siblings overlap
     /// ([`SIBLING_STAY`]).
     stay: Vec<f64>,
+    /// Per lanelet, the stretches of other lanelets that lie on its lane ([`LaneMap::overlaps`]).
+    overlaps: Vec<Vec<Overlap>>,
 }
 
 /// Distance \[m\] between two centre lines from which cars on them pass each other (a car's
@@ -88,6 +90,49 @@ fn overlap_along(k: &Path, j: &Path) -> f64 {
         s += 0.5;
     }
     k.length
+}
+
+/// A stretch of another lanelet that lies on a lanelet's lane, within its half width: where
+/// lanes part (lanelets with a common predecessor, a junction's turns from one lane) their
+/// first metres, where they join (a common successor) their last. A vehicle indexed there at
+/// arc length `s` in `from..=to` stands on the lane at arc length `s + shift`: the leader search
+/// along a route ([`crate::vehicles::longitudinal::leader_along_route`]) sees it as the radar
+/// saw it, on the route's path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Overlap {
+    /// The other lanelet (index).
+    pub lanelet: u32,
+    /// Its arc lengths that lie on the lane \[m\], from ...
+    pub from: f64,
+    /// ... to.
+    pub to: f64,
+    /// Added to its arc length gives the lane's \[m\] (0 where they part).
+    pub shift: f64,
+}
+
+/// The stretch of lanelet `o` (its centre line `other`) on lanelet `i`'s lane (`lane`, `half`
+/// its half width): walked from `o`'s start when they part (`parting`), from its end when they
+/// join, while its centre line stays within `half` of the lane's centre line.
+fn overlap_of(lane: &Path, half: f64, o: u32, other: &Path, parting: bool) -> Option<Overlap> {
+    let n = other.points.len();
+    if n < 2 || lane.points.len() < 2 {
+        return None;
+    }
+    let step = other.spacing();
+    let shift = if parting { 0.0 } else { lane.length - other.length };
+    let mut reach = None;
+    for k in 0..n {
+        let at = if parting { k } else { n - 1 - k };
+        let s = at as f64 * step;
+        let p = lane.project_near(other.points[at], s + shift, 4.0);
+        if p.lateral.abs() > half || p.s <= 0.0 && !parting || p.s >= lane.length && parting {
+            break;
+        }
+        reach = Some(s);
+    }
+    let reach = reach?;
+    let (from, to) = if parting { (0.0, reach) } else { (reach, other.length) };
+    Some(Overlap { lanelet: o, from, to, shift })
 }
 
 fn cell_of(p: DVec2) -> (i64, i64) {
@@ -161,6 +206,25 @@ impl LaneMap {
                 if siblings[i].is_empty() { half } else { half.min(SIBLING_STAY) }
             })
             .collect();
+        let mut overlaps = vec![Vec::new(); n];
+        for (i, list) in overlaps.iter_mut().enumerate() {
+            let (lane, half) = (&centres[i], half_widths[i]);
+            let mut add = |o: u32, parting: bool| {
+                if o as usize != i && !list.iter().any(|x: &Overlap| x.lanelet == o && (x.shift == 0.0) == parting) {
+                    list.extend(overlap_of(lane, half, o, &centres[o as usize], parting));
+                }
+            };
+            for &p in &predecessors[i] {
+                for &o in &successors[p as usize] {
+                    add(o, true);
+                }
+            }
+            for &q in &successors[i] {
+                for &o in &predecessors[q as usize] {
+                    add(o, false);
+                }
+            }
+        }
         LaneMap {
             map,
             neighbours,
@@ -174,7 +238,23 @@ impl LaneMap {
             grid,
             siblings,
             stay,
+            overlaps,
         }
+    }
+
+    /// The stretches of other lanelets that lie on lanelet `i`'s lane, where lanes part or
+    /// join ([`Overlap`]).
+    pub fn overlaps(&self, i: u32) -> &[Overlap] {
+        self.overlaps.get(i as usize).map_or(&[], Vec::as_slice)
+    }
+
+    /// Index of the lanelet after `i` on the way to lanelet `next` (an id): a successor of `i`,
+    /// else looked up in the map.
+    pub fn next_on_route(&self, i: u32, next: LaneletId) -> Option<u32> {
+        self.successors
+            .get(i as usize)
+            .and_then(|s| s.iter().copied().find(|&j| self.ids[j as usize] == next))
+            .or_else(|| self.map.lanelet_index(next).map(|j| j as u32))
     }
 
     /// Hint to the processor that lanelet `i`'s centre line around arc length `s` \[m\] will be

@@ -36,7 +36,7 @@ use crate::world::{
 };
 
 use super::PathFollower;
-use super::lane_state::{LaneChanger, LaneCrossings, LaneIndex};
+use super::lane_state::{Found, IndexEntry, LaneChanger, LaneCrossings, LaneIndex, first_at_or_after};
 use super::lanes::{LaneMap, LanePosition, LanePositionsAt, PREFETCH_AHEAD, forward_speed};
 
 /// The steps of the longitudinal pipeline as system sets of the [`Control`] schedule, chained in
@@ -172,6 +172,93 @@ pub fn leader_on_path_with(
     None
 }
 
+/// A vehicle that finds its leader in the lane index ([`LaneIndex`]) along its route
+/// ([`leader_along_route`]) instead of among its sensor readings: traffic from SUMO demand,
+/// which carries no radar (sensing every vehicle around, every tick, only to pick the one
+/// ahead on its own lane was most of a SUMO step). The leader is the vehicle the radar would
+/// pick where the radar saw one on the route's lanes; out to the default radar's range
+/// ([`LEADER_RANGE`]) along the lane.
+#[derive(Component, Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LeaderFromLanes;
+
+/// How far along its route \[m\] a [`LeaderFromLanes`] vehicle looks for its leader: the
+/// default radar's range ([`crate::world::Radar::default`]), which it replaces.
+pub const LEADER_RANGE: f64 = 100.0;
+
+/// Nearest vehicle other than `me` ahead of arc length `s` \[m\] on lanelet `i` along `route`
+/// (lanelet by lanelet as the route goes), within `range` \[m\] along the lanes: a vehicle
+/// indexed on one of the route's lanelets, or on a stretch of another that lies on the lane
+/// ([`LaneMap::overlaps`]: a junction's turns from one lane, lanes that join), where a radar
+/// would see it on the route's path. Where `i` is not on the route (a vehicle in a junction
+/// located on a turn that shares its first metres with its own), the route lanelet it
+/// overlaps; else the lanes' first successors ([`LaneIndex::ahead`]). O(lanelets looked at ·
+/// log k) for k vehicles on one, allocation free.
+pub fn leader_along_route(
+    index: &LaneIndex,
+    lanes: &LaneMap,
+    route: &Path,
+    i: u32,
+    s: f64,
+    me: VehicleId,
+    range: f64,
+) -> Option<Found> {
+    let ids = &route.lanelets;
+    let own = lanes.id(i);
+    let start = match ids.iter().position(|&id| id == own) {
+        Some(k) => Some((k, i, s)),
+        // On a lanelet beside the route's where the two share the lane.
+        None => ids.iter().enumerate().find_map(|(k, id)| {
+            let j = lanes.map.lanelet_index(*id)? as u32;
+            let o = lanes.overlaps(j).iter().find(|o| o.lanelet == i && o.from <= s && s <= o.to)?;
+            Some((k, j, s + o.shift))
+        }),
+    };
+    let Some((mut k, mut j, s)) = start else {
+        return index.ahead(lanes, i, s, me).filter(|f| f.distance <= range);
+    };
+    let found = |e: &IndexEntry, distance: f64| Found { distance, speed: e.speed, length: e.length, id: e.id };
+    // Distance from the asking point to the start of lanelet `j` (after the first one).
+    let mut base = 0.0;
+    let mut first = true;
+    for _ in 0..ids.len().max(1) {
+        // Ahead on the lane: at arc length `at` or later of lanelet `j`.
+        let at = if first { s } else { f64::NEG_INFINITY };
+        let distance = |lane_s: f64| if first { lane_s - s } else { base + lane_s };
+        let list = index.on(j);
+        let from = if first { first_at_or_after(list, s, lanes.per_length(j)) } else { 0 };
+        let mut best = list[from..].iter().find(|e| e.id != me).map(|e| found(e, distance(e.s)));
+        for o in lanes.overlaps(j) {
+            let list = index.on(o.lanelet);
+            let lo = o.from.max(at - o.shift);
+            let from = first_at_or_after(list, lo, lanes.per_length(o.lanelet));
+            let hit = list[from..].iter().take_while(|e| e.s <= o.to).find(|e| e.id != me);
+            if let Some(e) = hit {
+                let d = distance(e.s + o.shift);
+                if best.is_none_or(|b| d < b.distance || (d == b.distance && e.id < b.id)) {
+                    best = Some(found(e, d));
+                }
+            }
+        }
+        if let Some(b) = best {
+            return (b.distance <= range).then_some(b);
+        }
+        base = if first { lanes.length(j) - s } else { base + lanes.length(j) };
+        first = false;
+        if base > range {
+            return None;
+        }
+        k += 1;
+        if k == ids.len() {
+            if !route.closed {
+                return None;
+            }
+            k = 0;
+        }
+        j = lanes.next_on_route(j, ids[k])?;
+    }
+    None
+}
+
 /// One ECS table's vehicles as [`find_leaders`] reads them: slices of the same rows (bevy's
 /// contiguous access; an optional component is in all of a table's rows or in none).
 #[derive(Clone, Copy)]
@@ -185,6 +272,7 @@ struct LeaderTable<'a> {
     commands: &'a [ControlCommand],
     readings: Option<&'a [SensorReadings]>,
     changers: Option<&'a [LaneChanger]>,
+    by_lane: Option<&'a [LeaderFromLanes]>,
 }
 
 /// What every vehicle's leader search reads besides its own components.
@@ -218,6 +306,7 @@ pub fn find_leaders(
         Option<&SensorReadings>,
         &mut Longitudinal,
         Option<&LaneChanger>,
+        Option<&LeaderFromLanes>,
     )>,
     mut scratch: Local<Vec<()>>,
 ) {
@@ -229,8 +318,11 @@ pub fn find_leaders(
     // Table by table, straight in the ECS tables' slices: no list of the query's items is
     // gathered first (a serial pass over every vehicle).
     if let Ok(tables) = vehicles.contiguous_iter_mut() {
-        for (ids, positions, states, sizes, routes, followers, commands, readings, mut lons, changers) in tables {
-            let table = LeaderTable { ids, positions, states, sizes, routes, followers, commands, readings, changers };
+        for (ids, positions, states, sizes, routes, followers, commands, readings, mut lons, changers, by_lane) in
+            tables
+        {
+            let table =
+                LeaderTable { ids, positions, states, sizes, routes, followers, commands, readings, changers, by_lane };
             parallelism.for_each_chunk_at(&mut lons, &mut scratch, |start, lons, _| {
                 for (k, lon) in lons.iter_mut().enumerate() {
                     // The detections a vehicle a few places on will scan: far apart on a big
@@ -256,7 +348,7 @@ pub fn find_leaders(
         return;
     }
     // Only if a component were stored sparsely (none is): one at a time.
-    for (id, pos, state, size, route, follower, command, readings, mut lon, changer) in &mut vehicles {
+    for (id, pos, state, size, route, follower, command, readings, mut lon, changer, by_lane) in &mut vehicles {
         let table = LeaderTable {
             ids: std::slice::from_ref(id),
             positions: pos.map(std::slice::from_ref),
@@ -267,6 +359,7 @@ pub fn find_leaders(
             commands: std::slice::from_ref(command),
             readings: readings.map(std::slice::from_ref),
             changers: changer.map(std::slice::from_ref),
+            by_lane: by_lane.map(std::slice::from_ref),
         };
         leader_of(shared, table, 0, &mut lon);
     }
@@ -300,6 +393,27 @@ fn leader_of(shared: LeaderShared<'_>, table: LeaderTable<'_>, n: usize, lon: &m
     let pos = table.positions.map(|p| &p[n]);
     let readings = table.readings.map(|r| &r[n]);
     let changer = table.changers.map(|c| &c[n]);
+    // No sensors: the leader along the route from the lane index (a lane change under way:
+    // the lane changers' search below, every vehicle counted as seen).
+    let by_lane = table.by_lane.is_some();
+    if by_lane && changer.is_none_or(|c| c.active.is_none()) {
+        let found = match (lanes, pos.and_then(|p| p.on().map(|i| (i, p.s)))) {
+            (Some((index, map)), Some((i, s))) => {
+                leader_along_route(index, map, &table.routes[n].0, i, s, *id, LEADER_RANGE)
+            }
+            _ => None,
+        };
+        let leader = found.map(|f| LeaderGap {
+            id: f.id,
+            distance: f.distance,
+            gap: f.distance - size.length,
+            speed: f.speed,
+            acceleration: 0.0,
+        });
+        set_leader(dt, lon, command, leader);
+        lon.leader_length = found.map(|f| f.length);
+        return;
+    }
     // A lane changer's leader comes from the lane index (the vehicle ahead in its lane,
     // crossing vehicles in both lanes) among those its sensors detect.
     let in_lane = match (lanes, changer, pos.and_then(|p| p.on().map(|i| (i, p.s)))) {
@@ -312,6 +426,7 @@ fn leader_of(shared: LeaderShared<'_>, table: LeaderTable<'_>, n: usize, lon: &m
             // The detection of the vehicle found, kept from the search (one scan).
             let matched = std::cell::Cell::new(None);
             let seen = |other: VehicleId| match detections.iter().find(|d| d.id == other) {
+                _ if by_lane => true,
                 Some(d) => {
                     matched.set(Some(d));
                     true

@@ -67,7 +67,8 @@ pub use lane_changing::{
 };
 pub use lanes::{LaneMap, LanePosition, LanePositionsAt, LanesPlugin, refresh_lane_positions};
 pub use longitudinal::{
-    LeaderGap, Longitudinal, LongitudinalSystems, SteeringSystems, actuate_longitudinal, find_leaders, leader_on_path,
+    LEADER_RANGE, LeaderFromLanes, LeaderGap, Longitudinal, LongitudinalSystems, SteeringSystems, actuate_longitudinal,
+    find_leaders, leader_along_route, leader_on_path,
 };
 pub use path_following::{LateralShift, PathFollower, PathFollowing, PathFollowingPlugin, follow_paths};
 pub use platoon::{

@@ -62,6 +62,9 @@ UNSUPPORTED = {
 #: green, ``Y`` yellow.
 _AS_SHOWN = str.maketrans({"O": "G", "s": "g", "o": "g", "Y": "y", "u": "r"})
 
+#: States in the file's characters -> as shown (``_AS_SHOWN``), translated once each.
+_SHOWN: Dict[str, str] = {}
+
 
 class TrafficSignal:
     """One traffic light as sumo-rl's ``TrafficSignal`` presents it to observation and reward
@@ -101,8 +104,10 @@ class TrafficSignal:
                 f"reward_fn must be a name of {sorted(TrafficSignal.reward_fns)} or a callable, got {reward_fn!r}"
             )
         self.reward_fn = reward_fn
-        self._in = in_slots
-        self._out = out_slots
+        # The light's lanes in the measurement's arrays: consecutive slots, read as views
+        # (a slice, not an index array: no copy per read).
+        self._in = slice(int(in_slots[0]), int(in_slots[-1]) + 1) if len(in_slots) else slice(0, 0)
+        self._out = slice(int(out_slots[0]), int(out_slots[-1]) + 1) if len(out_slots) else slice(0, 0)
         self.lanes = list(light["lanes"])
         self.out_lanes = list(light["out_lanes"])
         lengths = env._layout["slot_length"]
@@ -151,13 +156,17 @@ class TrafficSignal:
         ``setRedYellowGreenState``; a state already held is not sent again), shown as the
         simulator shows the file's program (``map_program`` in src/map/junctions.rs)."""
         if state != self._shown:
-            self.env._sim.set_phase(self.junction, state.translate(_AS_SHOWN))
+            shown = _SHOWN.get(state)
+            if shown is None:
+                shown = _SHOWN[state] = state.translate(_AS_SHOWN)
+            # The junction id was checked when the env was made: straight to the core.
+            self.env._sim._core.set_phase(self.junction, shown)
             self._shown = state
 
     @property
     def time_to_act(self) -> bool:
         """Whether the light acts at this step (sumo-rl ``TrafficSignal.time_to_act``)."""
-        return self.next_action_time == self.env.sim_step
+        return self.next_action_time == self.env._t
 
     def update(self, seconds: int = 1):
         """``seconds`` of sumo-rl's per-second ``update``: the yellow ends after ``yellow_time``."""
@@ -225,7 +234,7 @@ class TrafficSignal:
     def get_accumulated_waiting_time_per_lane(self):
         """Accumulated waiting time [s] of the vehicles on each incoming lane, a vehicle's
         waiting split over the lanes it waited on as sumo-rl splits it."""
-        return [float(w) for w in self.env._measures["waiting"][self._in]]
+        return self.env._measures["waiting"][self._in].tolist()
 
     def get_average_speed(self) -> float:
         """Mean of speed / allowed speed over the vehicles on the incoming lanes; 1.0 with none."""
@@ -289,11 +298,20 @@ class DefaultObservationFunction(ObservationFunction):
     every incoming lane's density and every incoming lane's queue, all in [0, 1] (float32)."""
 
     def __call__(self) -> np.ndarray:
-        phase_id = [1 if self.ts.green_phase == i else 0 for i in range(self.ts.num_green_phases)]
-        min_green = [0 if self.ts.time_since_last_phase_change < self.ts.min_green + self.ts.yellow_time else 1]
-        density = self.ts.get_lanes_density()
-        queue = self.ts.get_lanes_queue()
-        return np.array(phase_id + min_green + density + queue, dtype=np.float32)
+        ts = self.ts
+        n = ts.num_green_phases
+        m = ts.env._measures
+        density = m["density"][ts._in]
+        k = n + 1 + len(density)
+        # Filled in place: the same float32 numbers as sumo-rl's list of one-hot phase, flag,
+        # densities and queues.
+        out = np.zeros(k + len(density), dtype=np.float32)
+        if 0 <= ts.green_phase < n:
+            out[ts.green_phase] = 1.0
+        out[n] = 0.0 if ts.time_since_last_phase_change < ts.min_green + ts.yellow_time else 1.0
+        out[n + 1 : k] = density
+        out[k:] = m["queue"][ts._in]
+        return out
 
     def observation_space(self) -> spaces.Box:
         n = self.ts.num_green_phases + 1 + 2 * len(self.ts.lanes)
@@ -610,8 +628,9 @@ class TrafficSignalEnv(gym.Env):
 
     def _finish_step(self):
         self._measure()
-        observations = self._compute_observations()
-        rewards = self._compute_rewards()
+        acting = self._acting()
+        observations = self._compute_observations(acting)
+        rewards = self._compute_rewards(acting)
         dones = self._compute_dones()
         truncated = dones["__all__"]
         info = self._compute_info()
@@ -668,29 +687,24 @@ class TrafficSignalEnv(gym.Env):
         dones["__all__"] = self.sim_step >= self.sim_max_time
         return dones
 
-    def _compute_observations(self):
-        self.observations.update(
-            {
-                ts: self.traffic_signals[ts].compute_observation()
-                for ts in self.ts_ids
-                if self.traffic_signals[ts].time_to_act or self.fixed_ts
-            }
-        )
-        return {
-            ts: self.observations[ts].copy()
-            for ts in self.observations
-            if self.traffic_signals[ts].time_to_act or self.fixed_ts
-        }
+    def _acting(self):
+        """The lights that act now (all with ``fixed_ts``), in ``ts_ids`` order."""
+        if self.fixed_ts:
+            return self.ts_ids
+        t = self._t
+        return [ts for ts in self.ts_ids if self.traffic_signals[ts].next_action_time == t]
 
-    def _compute_rewards(self):
-        self.rewards.update(
-            {
-                ts: self.traffic_signals[ts].compute_reward()
-                for ts in self.ts_ids
-                if self.traffic_signals[ts].time_to_act or self.fixed_ts
-            }
-        )
-        return {ts: self.rewards[ts] for ts in self.rewards if self.traffic_signals[ts].time_to_act or self.fixed_ts}
+    def _compute_observations(self, acting=None):
+        acting = self._acting() if acting is None else acting
+        for ts in acting:
+            self.observations[ts] = self.traffic_signals[ts].compute_observation()
+        return {ts: self.observations[ts].copy() for ts in acting}
+
+    def _compute_rewards(self, acting=None):
+        acting = self._acting() if acting is None else acting
+        for ts in acting:
+            self.rewards[ts] = self.traffic_signals[ts].compute_reward()
+        return {ts: self.rewards[ts] for ts in acting}
 
     def _get_system_info(self):
         """sumo-rl ``_get_system_info``: halting vehicles, their summed and mean waiting time [s]
@@ -705,16 +719,20 @@ class TrafficSignalEnv(gym.Env):
         }
 
     def _get_per_agent_info(self):
-        stopped = [self.traffic_signals[ts].get_total_queued() for ts in self.ts_ids]
-        waiting = [sum(self.traffic_signals[ts].get_accumulated_waiting_time_per_lane()) for ts in self.ts_ids]
-        speed = [self.traffic_signals[ts].get_average_speed() for ts in self.ts_ids]
         info = {}
-        for i, ts in enumerate(self.ts_ids):
-            info[f"{ts}_stopped"] = stopped[i]
-            info[f"{ts}_accumulated_waiting_time"] = waiting[i]
-            info[f"{ts}_average_speed"] = speed[i]
-        info["agents_total_stopped"] = sum(stopped)
-        info["agents_total_accumulated_waiting_time"] = sum(waiting)
+        total_stopped = 0
+        total_waiting = 0
+        for ts in self.ts_ids:
+            signal = self.traffic_signals[ts]
+            stopped = signal.get_total_queued()
+            waiting = sum(signal.get_accumulated_waiting_time_per_lane())
+            info[f"{ts}_stopped"] = stopped
+            info[f"{ts}_accumulated_waiting_time"] = waiting
+            info[f"{ts}_average_speed"] = signal.get_average_speed()
+            total_stopped += stopped
+            total_waiting += waiting
+        info["agents_total_stopped"] = total_stopped
+        info["agents_total_accumulated_waiting_time"] = total_waiting
         return info
 
     def _compute_info(self):

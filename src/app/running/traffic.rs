@@ -25,7 +25,7 @@ use crate::vehicles::lane_changing::{LaneChangeSystems, LaneIndex};
 use crate::vehicles::lane_state::Found;
 use crate::vehicles::{
     AccSetup, CruiseSetup, EmergencySettings, FollowLaw, Idm, LaneChangeParams, LaneChanger, LaneMap, LanePosition,
-    PathFollower, PathFollowing, RouteGoal, SmartController, YieldToEmergency,
+    LeaderFromLanes, PathFollower, PathFollowing, RouteGoal, SmartController, YieldToEmergency,
 };
 use crate::world::{
     Route, SensorSet, VehicleClass, VehicleId, VehicleModel, VehicleSize, VehicleSpec, VehicleState, WorldError,
@@ -87,6 +87,9 @@ pub struct TrafficSource {
     pub model: VehicleModel,
     /// Sensors.
     pub sensors: SensorSet,
+    /// Whether its vehicles find their leader in the lane index along their routes
+    /// ([`crate::vehicles::LeaderFromLanes`]) instead of among their sensors' readings.
+    pub leader_from_lanes: bool,
     /// Noise, dropout and occlusion of its sensors.
     pub sensor_errors: crate::world::SensorErrors,
     /// Make way for emergency vehicles (when the scenario has one).
@@ -239,6 +242,9 @@ pub fn spawn_traffic_vehicle(
             _ => FollowLaw::Idm(Idm { speed: v0.max(0.1), ..Idm::default() }),
         };
         e.insert(LaneChanger::new(params, law, goal.clone()));
+    }
+    if src.leader_from_lanes {
+        e.insert(LeaderFromLanes);
     }
     if src.yield_to_emergency && e.world().contains_resource::<EmergencySettings>() {
         e.insert(YieldToEmergency::default());

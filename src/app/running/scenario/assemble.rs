@@ -435,6 +435,7 @@ impl Scenario {
                 lane_change: t.lane_change.0,
                 model: model_of(t.model),
                 sensors: sensors_of(&t.sensors),
+                leader_from_lanes: false,
                 sensor_errors: sensor_errors_of(&t.sensors),
                 yield_to_emergency: t.yield_to_emergency,
                 next_id: start as i32,
@@ -750,8 +751,10 @@ fn sumo_demand(
                 ..crate::vehicles::LaneChangeParams::default()
             }),
             model: VehicleModel::default(),
-            // As a `[[traffic]]` table's default: a radar to find the leader.
-            sensors: sensors_of(&super::file::default_traffic_sensors()),
+            // No radar: the leader comes from the lane index along the route (the radar that
+            // served only to find it was most of a step's cost).
+            sensors: sensors_of(&SensorsConfig::default()),
+            leader_from_lanes: true,
             sensor_errors: SensorErrors::default(),
             yield_to_emergency: false,
             next_id: next_id as i32,
