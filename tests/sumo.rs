@@ -293,8 +293,7 @@ fn two_way_single_intersection_runs_its_vhvh_demand_without_collisions() {
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
     assert_eq!(m["red_light_crossings"], 0);
-    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
-    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    let (inserted, removed) = inserted_and_arrived(m);
     // SUMO 1.28 on the same files inserts 396 of the 422 vehicles due in 600 s; the left
     // turns (300 veh/h for 6 s of green in 86 s) queue in both.
     assert!(inserted > 450 && removed > 400, "inserted {inserted}, arrived {removed}");
@@ -560,8 +559,7 @@ fn a_grid_route_that_needs_lane_changes_is_driven_to_its_end() {
     let summary = run_summary(&scenario, &dir.join("out"));
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
-    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
-    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    let (inserted, removed) = inserted_and_arrived(m);
     // 2 x 360 veh/h for 300 s: 60 due; each route is 450 m, so all arrive well within 400 s.
     assert!(inserted >= 55, "inserted {inserted}");
     assert_eq!(removed, inserted, "inserted {inserted}, arrived {removed}");
@@ -590,8 +588,7 @@ fn turners_that_must_swap_lanes_on_one_edge_do_not_wait_for_ever() {
     let summary = run_summary(&scenario, &dir.join("out"));
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
-    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
-    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    let (inserted, removed) = inserted_and_arrived(m);
     // 2 x 240 veh/h for 600 s: 80 due; each route is 450 m, 300 s left after the last.
     assert!(inserted >= 75, "inserted {inserted}");
     assert_eq!(removed, inserted, "inserted {inserted}, arrived {removed}");
@@ -674,8 +671,7 @@ fn longest_waits(m: &serde_json::Value) -> (f64, f64) {
 fn a_random_trips_grid_without_u_turns_flows_to_the_end() {
     let (n, dropped, m) = random_trips_grid("no-u", false);
     assert!(n > 1000 && dropped > 100, "{n} vehicles kept, {dropped} with a U-turn");
-    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
-    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    let (inserted, removed) = inserted_and_arrived(&m);
     assert_eq!(inserted, n as u64, "inserted {inserted} of {n}");
     assert_eq!(removed, inserted, "inserted {inserted}, arrived {removed}");
     let (junction, lane_change) = longest_waits(&m);
@@ -692,8 +688,7 @@ fn a_random_trips_grid_without_u_turns_flows_to_the_end() {
 fn a_random_trips_grid_with_its_u_turns_flows_to_the_end() {
     let (n, dropped, m) = random_trips_grid("u", true);
     assert!(n == 1800 && dropped == 0, "{n} vehicles, {dropped} left out");
-    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
-    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    let (inserted, removed) = inserted_and_arrived(&m);
     assert_eq!(inserted, n as u64, "inserted {inserted} of {n}");
     assert_eq!(removed, inserted, "inserted {inserted}, arrived {removed}");
     let (junction, lane_change) = longest_waits(&m);
@@ -717,8 +712,7 @@ fn u_turns_on_a_netgenerate_grid_are_driven_on_their_lane_without_collisions() {
     let summary = run_summary(&scenario, &dir.join("out"));
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
-    let inserted = m["traffic"]["inserted"].as_u64().unwrap();
-    let removed = m["traffic"]["removed"].as_u64().unwrap();
+    let (inserted, removed) = inserted_and_arrived(m);
     assert!(inserted >= 45, "inserted {inserted}");
     assert_eq!(removed, inserted, "inserted {inserted}, arrived {removed}");
     let off = summary["max_distance_to_centre_line"]
@@ -732,6 +726,11 @@ fn u_turns_on_a_netgenerate_grid_are_driven_on_their_lane_without_collisions() {
 }
 
 /// `smlworld run SCENARIO --out OUT`, which must succeed, and its summary.json.
+/// Vehicles inserted and arrived (removed at their route's end) of a run's metrics.
+fn inserted_and_arrived(m: &serde_json::Value) -> (u64, u64) {
+    (m["traffic"]["inserted"].as_u64().unwrap(), m["traffic"]["removed"].as_u64().unwrap())
+}
+
 fn run_summary(scenario: &Path, out: &Path) -> serde_json::Value {
     let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
         .arg("run")

@@ -947,7 +947,7 @@ fn stated_yield(a: &super::lanelet::Tags, b: &super::lanelet::Tags) -> Option<Yi
 
 /// Whether a link is a SUMO turnaround drawn wider than the file's shape
 /// ([`super::sumo`], tag `sumo:shape=turnaround`).
-fn redrawn_turnaround(tags: &super::lanelet::Tags) -> bool {
+pub(crate) fn redrawn_turnaround(tags: &super::lanelet::Tags) -> bool {
     tags.get("sumo:shape").is_some_and(|v| v == "turnaround")
 }
 

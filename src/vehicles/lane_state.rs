@@ -785,16 +785,18 @@ impl LaneIndex {
         for _ in 0..8 {
             let list = self.on(i);
             let from = if first { self.start_of(lanes, list, i, s, me) } else { 0 };
+            // Distance to an entry at arc length `at` of this lanelet (or of a sibling).
+            let distance = |at: f64| if first { at - s } else { base + at };
             let on_i = list[from..].iter().find(|e| e.id != me && seen(e.id));
-            let mut nearest = on_i.map(|e| (if first { e.s - s } else { base + e.s }, e));
+            let mut nearest = on_i.map(|e| (distance(e.s), e));
             // Where lanes diverge, a car on a sibling near its start is still in the way.
             for &(k, overlap) in lanes.siblings(i) {
                 let list = self.on(k);
                 let at = if first { first_at_or_after(list, s, lanes.per_length(k)) } else { 0 };
                 let far = nearest.map_or(f64::INFINITY, |(d, _)| d);
                 let e = list[at..].iter().take_while(|e| e.s < overlap).find(|e| e.id != me && seen(e.id));
-                if let Some(e) = e.filter(|e| (if first { e.s - s } else { base + e.s }) < far) {
-                    nearest = Some((if first { e.s - s } else { base + e.s }, e));
+                if let Some(e) = e.filter(|e| distance(e.s) < far) {
+                    nearest = Some((distance(e.s), e));
                 }
             }
             if let Some((distance, e)) = nearest {

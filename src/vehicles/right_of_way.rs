@@ -306,7 +306,7 @@ impl JunctionNetwork {
                 let sumo = lanelet.is_some_and(|x| x.tags.contains_key("sumo:lane"));
                 // A turnaround we drew (a 46 m loop for the file's 2 m half circle) is our shape:
                 // the file's speed is not for it, netconvert's turn limit is.
-                let ours = lanelet.is_some_and(|x| x.tags.get("sumo:shape").is_some_and(|v| v == "turnaround"));
+                let ours = lanelet.is_some_and(|x| crate::map::junctions::redrawn_turnaround(&x.tags));
                 let a_lat = match (sumo, ours) {
                     (false, _) => lateral_accel,
                     (true, true) if sumo_lateral_accel <= 0.0 => NETCONVERT_TURN_ACCEL,
