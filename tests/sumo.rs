@@ -599,6 +599,25 @@ fn turners_that_must_swap_lanes_on_one_edge_do_not_wait_for_ever() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// SUMO's randomTrips.py on `net` with `args`, its routes (`-r`) written to `routes` (the
+/// trips beside them).
+fn random_trips(net: &Path, routes: &Path, args: &[&str]) {
+    let home = sumo_home();
+    let made = Command::new(Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python"))
+        .env("SUMO_HOME", &home)
+        .arg(home.join("tools/randomTrips.py"))
+        .arg("-n")
+        .arg(net)
+        .args(args)
+        .arg("-r")
+        .arg(routes)
+        .arg("-o")
+        .arg(routes.with_extension("trips.xml"))
+        .output()
+        .expect("runs randomTrips.py");
+    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+}
+
 /// A 5x5 netgenerate grid (200 m blocks, 2 lanes, `--tls.guess`) with randomTrips demand (`-p 0.5
 /// -e 900 --seed 42`, SUMO's own generator, 1,800 vehicles), run for 1500 s; the routes with a
 /// U-turn (edge XY followed by YX) left out unless `u_turns`. Returns the vehicles kept, those
@@ -608,21 +627,8 @@ fn random_trips_grid(tag: &str, u_turns: bool) -> (usize, usize, serde_json::Val
     std::fs::create_dir_all(&dir).unwrap();
     let net = dir.join("grid5.net.xml");
     netgenerate_grid(5, 200.0, &net);
-    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
-    let home = sumo_home();
     let routes = dir.join("grid5.rou.xml");
-    let made = Command::new(&python)
-        .env("SUMO_HOME", &home)
-        .arg(home.join("tools/randomTrips.py"))
-        .arg("-n")
-        .arg(&net)
-        .args(["-p", "0.5", "-e", "900", "--seed", "42", "-r"])
-        .arg(&routes)
-        .arg("-o")
-        .arg(dir.join("grid5.trips.xml"))
-        .output()
-        .expect("runs randomTrips.py");
-    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    random_trips(&net, &routes, &["-p", "0.5", "-e", "900", "--seed", "42"]);
     let text = std::fs::read_to_string(&routes).unwrap();
     let mut kept = String::new();
     let (mut n, mut dropped) = (0, 0);
@@ -714,20 +720,8 @@ fn a_20x20_random_trips_grid_brings_every_vehicle_home_within_15_percent_of_sumo
     std::fs::create_dir_all(&dir).unwrap();
     let net = dir.join("grid20.net.xml");
     netgenerate_grid(20, 200.0, &net);
-    let home = sumo_home();
     let routes = dir.join("grid20.rou.xml");
-    let made = Command::new(Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python"))
-        .env("SUMO_HOME", &home)
-        .arg(home.join("tools/randomTrips.py"))
-        .arg("-n")
-        .arg(&net)
-        .args(["-p", "0.07", "-e", "900", "--seed", "42", "-r"])
-        .arg(&routes)
-        .arg("-o")
-        .arg(dir.join("grid20.trips.xml"))
-        .output()
-        .expect("runs randomTrips.py");
-    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    random_trips(&net, &routes, &["-p", "0.07", "-e", "900", "--seed", "42"]);
     // As compare_sumo.py writes them: a configuration, every vType (here SUMO's default one) on the IDM.
     let text = std::fs::read_to_string(&routes).unwrap();
     let n = text.matches("<vehicle ").count();
