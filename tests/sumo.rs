@@ -599,23 +599,30 @@ fn turners_that_must_swap_lanes_on_one_edge_do_not_wait_for_ever() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// SUMO's randomTrips.py on `net` with `args`, its routes (`-r`) written to `routes` (the
-/// trips beside them).
-fn random_trips(net: &Path, routes: &Path, args: &[&str]) {
+/// An `n` x `n` netgenerate grid of 200 m blocks ([`netgenerate_grid`]) in a fresh temporary
+/// folder named after `tag`, and SUMO's randomTrips.py on it with `args`, its routes (`-r`)
+/// beside it: the folder, the net and the route file.
+fn grid_with_random_trips(tag: &str, n: usize, args: &[&str]) -> (PathBuf, PathBuf, PathBuf) {
+    let dir = std::env::temp_dir().join(format!("smlworld-sumo-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let net = dir.join("grid.net.xml");
+    netgenerate_grid(n, 200.0, &net);
+    let routes = dir.join("grid.rou.xml");
     let home = sumo_home();
     let made = Command::new(Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python"))
         .env("SUMO_HOME", &home)
         .arg(home.join("tools/randomTrips.py"))
         .arg("-n")
-        .arg(net)
+        .arg(&net)
         .args(args)
         .arg("-r")
-        .arg(routes)
+        .arg(&routes)
         .arg("-o")
-        .arg(routes.with_extension("trips.xml"))
+        .arg(dir.join("grid.trips.xml"))
         .output()
         .expect("runs randomTrips.py");
     assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    (dir, net, routes)
 }
 
 /// A 5x5 netgenerate grid (200 m blocks, 2 lanes, `--tls.guess`) with randomTrips demand (`-p 0.5
@@ -623,12 +630,8 @@ fn random_trips(net: &Path, routes: &Path, args: &[&str]) {
 /// U-turn (edge XY followed by YX) left out unless `u_turns`. Returns the vehicles kept, those
 /// left out, and the run's metrics.
 fn random_trips_grid(tag: &str, u_turns: bool) -> (usize, usize, serde_json::Value) {
-    let dir = std::env::temp_dir().join(format!("smlworld-sumo-random-grid-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let net = dir.join("grid5.net.xml");
-    netgenerate_grid(5, 200.0, &net);
-    let routes = dir.join("grid5.rou.xml");
-    random_trips(&net, &routes, &["-p", "0.5", "-e", "900", "--seed", "42"]);
+    let (dir, net, routes) =
+        grid_with_random_trips(&format!("random-grid-{tag}"), 5, &["-p", "0.5", "-e", "900", "--seed", "42"]);
     let text = std::fs::read_to_string(&routes).unwrap();
     let mut kept = String::new();
     let (mut n, mut dropped) = (0, 0);
@@ -716,12 +719,7 @@ fn a_random_trips_grid_with_its_u_turns_flows_to_the_end() {
 /// chunks of an earlier tick).
 #[test]
 fn a_20x20_random_trips_grid_brings_every_vehicle_home_within_15_percent_of_sumo() {
-    let dir = std::env::temp_dir().join(format!("smlworld-sumo-grid20-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let net = dir.join("grid20.net.xml");
-    netgenerate_grid(20, 200.0, &net);
-    let routes = dir.join("grid20.rou.xml");
-    random_trips(&net, &routes, &["-p", "0.07", "-e", "900", "--seed", "42"]);
+    let (dir, net, routes) = grid_with_random_trips("grid20", 20, &["-p", "0.07", "-e", "900", "--seed", "42"]);
     // As compare_sumo.py writes them: a configuration, every vType (here SUMO's default one) on the IDM.
     let text = std::fs::read_to_string(&routes).unwrap();
     let n = text.matches("<vehicle ").count();
