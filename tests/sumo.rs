@@ -326,16 +326,7 @@ fn two_way_single_intersection_runs_its_vhvh_demand_without_collisions() {
 fn resco_grid4x4_runs_from_its_sumocfg_like_sumo() {
     let cfg = net("RESCO/grid4x4/grid4x4.sumocfg");
     let out = std::env::temp_dir().join(format!("smlworld-sumo-grid4x4-{}", std::process::id()));
-    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
-        .arg("run")
-        .arg(&cfg)
-        .args(["--duration", "600", "--out"])
-        .arg(&out)
-        .output()
-        .expect("runs smlworld");
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary = run_summary_with(&cfg, &out, &["--duration", "600"]);
     let m = &summary["metrics"];
     assert_eq!(m["collision_count"], 0, "{}", m["collisions"]);
     assert_eq!(m["red_light_crossings"], 0);
@@ -738,16 +729,7 @@ fn a_20x20_random_trips_grid_brings_every_vehicle_home_within_15_percent_of_sumo
     // Two threads (the chunked passes of a world that grows past 2,000 vehicles and shrinks
     // again); one trajectory row a vehicle every 100 s.
     let out = dir.join("out");
-    let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
-        .arg("run")
-        .arg(&cfg)
-        .args(["--threads", "2", "--log-rate", "0.01", "--out"])
-        .arg(&out)
-        .output()
-        .expect("runs smlworld");
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary = run_summary_with(&cfg, &out, &["--threads", "2", "--log-rate", "0.01"]);
     let m = &summary["metrics"];
     let (inserted, removed) = inserted_and_arrived(m);
     assert_eq!(inserted, n as u64, "inserted {inserted} of {n}");
@@ -791,9 +773,15 @@ fn inserted_and_arrived(m: &serde_json::Value) -> (u64, u64) {
 
 /// `smlworld run SCENARIO --out OUT`, which must succeed, and its summary.json.
 fn run_summary(scenario: &Path, out: &Path) -> serde_json::Value {
+    run_summary_with(scenario, out, &[])
+}
+
+/// [`run_summary`] with more options (`--duration`, `--threads` ...) before `--out`.
+fn run_summary_with(scenario: &Path, out: &Path, options: &[&str]) -> serde_json::Value {
     let run = Command::new(env!("CARGO_BIN_EXE_smlworld"))
         .arg("run")
         .arg(scenario)
+        .args(options)
         .arg("--out")
         .arg(out)
         .output()
