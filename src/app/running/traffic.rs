@@ -768,6 +768,23 @@ fn entry_speed(world: &World, lane: &TrafficLane, v0: f64, length: f64, dt: f64)
             if found.is_some_and(|b| blocks(Found { distance: b.distance - 1.0 + lane.entry_s, ..b }, v)) {
                 return None;
             }
+            // One on a sibling's first metres, which lie on this lane (lanes that part start as
+            // one, and the index may show a vehicle on either: a straight link's vehicles on
+            // the U-turn drawn over its start), is on its way here too.
+            for &(k, overlap) in lanes.siblings(p) {
+                let coming = index.on(k).iter().take_while(|e| e.s < overlap).any(|e| {
+                    let b = Found {
+                        distance: lanes.length(p) - e.s + lane.entry_s,
+                        speed: e.speed,
+                        length: e.length,
+                        id: e.id,
+                    };
+                    blocks(b, v)
+                });
+                if coming {
+                    return None;
+                }
+            }
         }
     }
     Some(v.max(0.0))
@@ -791,6 +808,46 @@ impl Plugin for TrafficPlugin {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A vehicle on a junction link that the lane index shows on a sibling of it (lanes that
+    /// part start as one: the one placed first is as good there, and a SUMO turnaround we draw
+    /// runs on a straight link's first 10 m) is still behind the exit of that link: nobody
+    /// enters the exit's start in front of it. On issue 54's 20x20 grid 19 of the 30 collisions
+    /// came within 3 s of an insertion at an exit's start; with this check 14 of 23 (the rest:
+    /// U-turners whose loop sweeps over an exit's start on the far side).
+    #[test]
+    fn nobody_enters_a_junction_exit_in_front_of_one_coming_on_a_sibling_of_its_link() {
+        use crate::sim::parallel::Parallelism;
+        use crate::vehicles::lane_state::IndexEntry;
+        let xml = crate::map::generate::intersection(&crate::map::generate::IntersectionParams::default()).unwrap();
+        let map = Arc::new(LaneletMap::parse_str(&xml, std::path::Path::new("intersection")).unwrap());
+        let lanes = LaneMap::new(Arc::clone(&map));
+        let n = map.lanelets.len();
+        // A link with a sibling that lies on it for a few metres, and the exit after it.
+        let (link, sibling, overlap) = (0..n as u32)
+            .find_map(|i| lanes.siblings(i).iter().find(|&&(_, o)| o > 2.0).map(|&(k, o)| (i, k, o)))
+            .expect("the generated intersection has turns that part from one lane");
+        let exit = lanes.successors[link as usize][0];
+        let lane = TrafficLane {
+            lanelet: exit,
+            entry_s: 0.0,
+            path: Arc::new(Path::from_points(vec![lanes.id(exit)], lanes.centres[exit as usize].points.clone(), false)),
+        };
+        let entry = |on: Option<u32>| {
+            let mut world = World::new();
+            let mut index = LaneIndex::default();
+            let coming =
+                on.map(|i| IndexEntry { lanelet: i, s: 0.5 * overlap, speed: 13.9, length: 4.5, id: VehicleId(7) });
+            index.rebuild(Parallelism::single(), n, &coming.into_iter().collect::<Vec<_>>());
+            world.insert_resource(LaneMap::new(Arc::clone(&map)));
+            world.insert_resource(index);
+            entry_speed(&world, &lane, 0.0, 4.5, 0.05)
+        };
+        assert_eq!(entry(None), Some(0.0), "a free exit");
+        assert_eq!(entry(Some(exit)), None, "one standing at the start of the exit");
+        assert_eq!(entry(Some(link)), None, "one coming on the link itself");
+        assert_eq!(entry(Some(sibling)), None, "one coming on the link, located on its sibling");
+    }
 
     #[test]
     fn the_least_stopping_distance_is_what_braking_at_the_idm_s_limit_covers() {
