@@ -833,13 +833,14 @@ mod tests {
             entry_s: 0.0,
             path: Arc::new(Path::from_points(vec![lanes.id(exit)], lanes.centres[exit as usize].points.clone(), false)),
         };
-        let entry = |on: Option<u32>| {
-            let mut world = World::new();
+        let mut world = World::new();
+        world.insert_resource(lanes);
+        // The lane index holding one vehicle on lanelet `on` (none: empty), and the entry then.
+        let mut entry = |on: Option<u32>| {
             let mut index = LaneIndex::default();
             let coming =
                 on.map(|i| IndexEntry { lanelet: i, s: 0.5 * overlap, speed: 13.9, length: 4.5, id: VehicleId(7) });
             index.rebuild(Parallelism::single(), n, &coming.into_iter().collect::<Vec<_>>());
-            world.insert_resource(LaneMap::new(Arc::clone(&map)));
             world.insert_resource(index);
             entry_speed(&world, &lane, 0.0, 4.5, 0.05)
         };
