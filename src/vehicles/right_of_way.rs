@@ -37,10 +37,11 @@ use bevy_ecs::schedule::IntoScheduleConfigs;
 use crate::map::junctions::{ConflictKind, Fallback, JunctionRules, Junctions, SignalPhase, Turn, find_junctions};
 use crate::map::{JunctionControl, LaneletMap, Path};
 use crate::sim::params::{ParamError, Range, check_all};
-use crate::sim::{Control, Dynamics, Plugin, SimBuilder, SimClock};
+use crate::sim::{Control, Dynamics, Parallelism, Plugin, SimBuilder, SimClock};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
 use super::PathFollower;
+use super::lanes::PREFETCH_AHEAD;
 use super::crossing::{CrossingNegotiator, can_stop_within, stop_before, stop_within_step};
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
@@ -583,6 +584,37 @@ pub struct JunctionDriver {
     /// intersection's, `vehicles::gcdc_intersection`, writes it each control tick): the
     /// junction rules then treat it as a foe only.
     pub own_negotiation: bool,
+    /// What the far-from-junctions test reads, kept beside the passages (on the heap, one cache
+    /// miss a vehicle, for most vehicles of a town nothing else): the next passage's stop line
+    /// \[m\] (infinite without one; `NaN` until first set, so the test fails), its junction, and
+    /// the furthest exit of the passages it may still be inside \[m\].
+    far: FarTest,
+}
+
+/// See [`JunctionDriver::far`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct FarTest {
+    next_entry: f64,
+    next_junction: u32,
+    inside_exit: f64,
+}
+
+impl Default for FarTest {
+    fn default() -> FarTest {
+        FarTest { next_entry: f64::NAN, next_junction: 0, inside_exit: f64::INFINITY }
+    }
+}
+
+impl JunctionDriver {
+    /// Set [`JunctionDriver::far`] from the passages.
+    fn refresh_far(&mut self) {
+        let inside_from = self.next.saturating_sub(2);
+        let inside_exit = self.passages[inside_from..self.next].iter().fold(f64::NEG_INFINITY, |m, p| m.max(p.exit));
+        self.far = match self.passages.get(self.next) {
+            Some(p) => FarTest { next_entry: p.entry, next_junction: p.junction, inside_exit },
+            None => FarTest { next_entry: f64::INFINITY, next_junction: 0, inside_exit },
+        };
+    }
 }
 
 /// What happened at each junction (`metrics.junctions`).
@@ -687,12 +719,17 @@ struct Approach {
 pub struct Scratch {
     approaches: Vec<Approach>,
     links: Vec<(u32, f64)>,
-    by_link: Vec<Vec<u32>>,
-    touched: Vec<u32>,
+    /// Approaches on each link: `link_list[link_first[g]..link_first[g + 1]]` for link `g`, in
+    /// the order they were registered (one flat table, built after the gathering: a list per link
+    /// was a cache miss a registration).
+    link_first: Vec<u32>,
+    link_list: Vec<u32>,
     exit_rear: Vec<(f64, f64)>,
     exit_touched: Vec<u32>,
     reserved: Vec<f64>,
     order: Vec<u32>,
+    /// Each chunk's finds (see [`Gathered`]).
+    gathered: Vec<Gathered>,
 }
 
 impl Scratch {
@@ -701,17 +738,83 @@ impl Scratch {
         self.links[a.links.0 as usize..a.links.1 as usize].iter().find(|(x, _)| *x == g).map(|&(_, s)| s)
     }
 
-    /// Add `a` near passage `p`: its links go to the shared buffer, it to each link's list.
+    /// The approaches on link `g` (see [`Scratch::index_links`]).
+    fn on_link(&self, g: u32) -> &[u32] {
+        let g = g as usize;
+        &self.link_list[self.link_first[g] as usize..self.link_first[g + 1] as usize]
+    }
+
+    /// Build the table of approaches by link from their links (a counting sort: O(approaches +
+    /// links)); `n_links` links in all.
+    fn index_links(&mut self, n_links: usize) {
+        self.link_first.clear();
+        self.link_first.resize(n_links + 2, 0);
+        for &(g, _) in &self.links {
+            self.link_first[g as usize + 2] += 1;
+        }
+        for g in 2..self.link_first.len() {
+            self.link_first[g] += self.link_first[g - 1];
+        }
+        self.link_list.clear();
+        self.link_list.resize(self.links.len(), 0);
+        for (k, a) in self.approaches.iter().enumerate() {
+            for &(g, _) in &self.links[a.links.0 as usize..a.links.1 as usize] {
+                let slot = &mut self.link_first[g as usize + 1];
+                self.link_list[*slot as usize] = k as u32;
+                *slot += 1;
+            }
+        }
+        self.link_first.truncate(n_links + 1);
+    }
+
+    /// Append every chunk's finds ([`Scratch::gathered`]) in order: approaches and links,
+    /// waiting vehicles to `queue_at`, passages entered to `stats`.
+    fn take_gathered(&mut self, stats: &mut JunctionStats, queue_at: &mut Vec<(u32, u32)>) {
+        for g in &self.gathered {
+            let (k0, l0) = (self.approaches.len() as u32, self.links.len() as u32);
+            self.links.extend_from_slice(&g.links);
+            self.approaches.extend(g.approaches.iter().enumerate().map(|(i, a)| Approach {
+                links: (a.links.0 + l0, a.links.1 + l0),
+                head: k0 + i as u32,
+                ..*a
+            }));
+            queue_at.extend(g.queued_at.iter().map(|&j| (j, 1)));
+            for &(j, waited, red) in &g.entered {
+                stats.red_crossings += u64::from(red);
+                let c = &mut stats.per_junction[j as usize];
+                c.through += 1;
+                c.wait_sum += waited;
+                c.wait_max = c.wait_max.max(waited);
+            }
+        }
+    }
+}
+
+/// One chunk's finds of the gathering in [`give_way_at_junctions`], in the vehicles' order.
+#[derive(Default)]
+struct Gathered {
+    approaches: Vec<Approach>,
+    links: Vec<(u32, f64)>,
+    /// The junction each waiting vehicle waits at.
+    queued_at: Vec<u32>,
+    /// Passages entered: junction, the vehicle's wait there \[s\], whether on red.
+    entered: Vec<(u32, f64, bool)>,
+}
+
+impl Gathered {
+    fn clear(&mut self) {
+        self.approaches.clear();
+        self.links.clear();
+        self.queued_at.clear();
+        self.entered.clear();
+    }
+
+    /// Add `a` near passage `p`: its links go to the shared buffer ([`Scratch::index_links`]
+    /// lists it on each).
     fn register(&mut self, p: &Passage, a: Approach) {
         let start = self.links.len() as u32;
         self.links.extend_from_slice(&p.links);
         let k = self.approaches.len() as u32;
-        for &(g, _) in &p.links {
-            if self.by_link[g as usize].is_empty() {
-                self.touched.push(g);
-            }
-            self.by_link[g as usize].push(k);
-        }
         self.approaches.push(Approach {
             junction: p.junction,
             links: (start, self.links.len() as u32),
@@ -761,6 +864,7 @@ pub fn give_way_at_junctions(
         Option<&CrossingNegotiator>,
     )>,
     positions: Query<(&super::LanePosition, &VehicleSize, &VehicleState)>,
+    parallelism: Option<Res<Parallelism>>,
     mut scratch: Local<Scratch>,
 ) {
     let now = clock.now.as_secs();
@@ -768,18 +872,12 @@ pub fn give_way_at_junctions(
     let net = &*network;
     let sc = &mut *scratch;
     let n_links = net.links.len();
-    if sc.by_link.len() != n_links {
-        sc.by_link = vec![Vec::new(); n_links];
-    }
     if sc.exit_rear.len() != net.is_exit.len() {
         sc.exit_rear = vec![(f64::INFINITY, 0.0); net.is_exit.len()];
         sc.reserved = vec![0.0; net.is_exit.len()];
     }
     if stats.per_junction.len() != net.junctions.list.len() {
         stats.per_junction = vec![JunctionCounts::default(); net.junctions.list.len()];
-    }
-    for g in sc.touched.drain(..) {
-        sc.by_link[g as usize].clear();
     }
     for i in sc.exit_touched.drain(..) {
         sc.exit_rear[i as usize] = (f64::INFINITY, 0.0);
@@ -801,96 +899,62 @@ pub fn give_way_at_junctions(
             }
         }
     }
-    let signal = |g: u32| lights.as_deref().map_or(NO_SIGNAL, |l| l.state[g as usize]);
-    // Who is near a junction.
+    // Who is near a junction: each vehicle on its own, split over the threads (the table's
+    // order kept: chunk k's finds come k-th), then the finds in order.
+    let cx = GatherContext { net, params: &params, lights: lights.as_deref(), now, dt };
+    let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
     let mut queue_at: Vec<(u32, u32)> = Vec::new();
-    for (entity, &id, state, size, route, follower, lon, mut driver, negotiator) in &mut vehicles {
-        let key = Arc::as_ptr(&route.0) as usize;
-        let driver: &mut JunctionDriver = &mut driver;
-        if driver.route != key {
-            *driver =
-                JunctionDriver { route: key, passages: passages(&route.0, &net.map, net), ..JunctionDriver::default() };
-        }
-        let front = follower.s + 0.5 * size.length;
-        let rear = follower.s - 0.5 * size.length;
-        let speed = state.speed();
-        // Passages the front has entered: decided; the next one is decided on from before its
-        // stop line even while the vehicle is still inside the one before (junctions back to back).
-        while let Some(p) = driver.passages.get(driver.next) {
-            if front < p.entry {
-                break;
+    if let Ok(tables) = vehicles.contiguous_iter_mut() {
+        for (entities, ids, states, sizes, routes, followers, lons, mut drivers, negotiators) in tables {
+            for g in &mut sc.gathered {
+                g.clear();
             }
-            if !driver.going && signal(p.links[0].0) == b'r' {
-                // Told to stop and could not: passed the stop line on red.
-                tracing::debug!(target: "junctions", "{id} passed a red stop line at {now:.2} s (junction {}, {speed:.1} m/s)", p.junction + 1);
-                stats.red_crossings += 1;
-            }
-            let c = &mut stats.per_junction[p.junction as usize];
-            c.through += 1;
-            c.wait_sum += driver.waited;
-            c.wait_max = c.wait_max.max(driver.waited);
-            let next = driver.next + 1;
-            *driver = JunctionDriver {
-                route: key,
-                passages: std::mem::take(&mut driver.passages),
-                next,
-                ..JunctionDriver::default()
-            };
+            let lons: &[Longitudinal] = &lons;
+            parallelism.for_each_chunk_at(&mut drivers, &mut sc.gathered, |start, chunk, out| {
+                for k in 0..chunk.len() {
+                    // The next passage of a vehicle a few places on, on the heap (each
+                    // vehicle's own), then its links, one step nearer.
+                    if let Some(d) = chunk.get(k + 2 * PREFETCH_AHEAD)
+                        && let Some(p) = d.passages.get(d.next)
+                    {
+                        crate::world::prefetch_value(p);
+                    }
+                    if let Some(d) = chunk.get(k + PREFETCH_AHEAD)
+                        && let Some(p) = d.passages.get(d.next)
+                    {
+                        crate::world::prefetch_all(&p.links);
+                    }
+                    let i = start + k;
+                    let vehicle = Vehicle {
+                        entity: entities[i],
+                        id: ids[i],
+                        state: &states[i],
+                        size: &sizes[i],
+                        route: &routes[i],
+                        follower: &followers[i],
+                        lon: &lons[i],
+                        negotiated: negotiators.is_some_and(|n| n.get(i).is_some()),
+                    };
+                    gather_one(&cx, out, vehicle, &mut chunk[k]);
+                }
+            });
+            sc.take_gathered(&mut stats, &mut queue_at);
         }
-        // The passages it is in: there as a foe that others must let clear (at most the last two).
-        let inside_from = driver.next.saturating_sub(2);
-        let seen = Approach {
-            entity,
-            id,
-            front,
-            length: size.length,
-            speed,
-            v_max: follower.params.speed.max(speed),
-            inside: true,
-            going: true,
-            decides: negotiator.is_none() && !driver.own_negotiation,
-            arrived_at: f64::INFINITY,
-            stopped: false,
-            junction: 0,
-            links: (0, 0),
-            exit: u32::MAX,
-            entry: 0.0,
-            limit: f64::INFINITY,
-            entry_lanelet: u32::MAX,
-            queued: false,
-            trailing: true,
-            waiting_now: 0.0,
-            head: 0,
-            blocked: false,
-        };
-        for p in driver.passages[inside_from..driver.next].iter().filter(|p| rear < p.exit) {
-            sc.register(p, seen);
+    } else {
+        // Only if a component were stored sparsely (none is): one at a time.
+        for g in &mut sc.gathered {
+            g.clear();
         }
-        let Some(p) = driver.passages.get(driver.next) else { continue };
-        let time = net.crossing_time.get(p.junction as usize).copied().unwrap_or(0.0) + params.time_gap;
-        if p.entry - front > params.look_ahead.max(speed * time) {
-            continue;
+        if sc.gathered.is_empty() {
+            sc.gathered.push(Gathered::default());
         }
-        if speed < WAITING_SPEED {
-            driver.waited += dt;
-            driver.waiting_now += dt;
-            queue_at.push((p.junction, 1));
-            if p.entry - front < 3.0 {
-                driver.stopped = true;
-            }
-        } else {
-            driver.waiting_now = 0.0;
+        for (entity, &id, state, size, route, follower, lon, mut driver, negotiator) in &mut vehicles {
+            let vehicle = Vehicle { entity, id, state, size, route, follower, lon: &lon, negotiated: negotiator.is_some() };
+            gather_one(&cx, &mut sc.gathered[0], vehicle, &mut driver);
         }
-        if driver.arrived_at == 0.0 && p.entry - front < 20.0 {
-            driver.arrived_at = now.max(1e-9);
-        }
-        let arrived_at = if driver.arrived_at > 0.0 { driver.arrived_at } else { f64::INFINITY };
-        let (going, stopped, waiting_now) = (driver.going, driver.stopped, driver.waiting_now);
-        let blocked = lon.leader.is_some_and(|l| l.speed < STANDING && l.gap < p.entry - front);
-        let approach =
-            Approach { inside: false, going, arrived_at, stopped, trailing: false, waiting_now, blocked, ..seen };
-        sc.register(p, approach);
+        sc.take_gathered(&mut stats, &mut queue_at);
     }
+    sc.index_links(n_links);
     // Only the first vehicle before the stop line of each lanelet decides.
     sc.order.clear();
     sc.order.extend((0..sc.approaches.len() as u32).filter(|&k| {
@@ -935,7 +999,7 @@ pub fn give_way_at_junctions(
     });
     for o in 0..sc.order.len() {
         let me = sc.order[o] as usize;
-        decide(me, sc, net, &params, &signal, dt);
+        decide(me, sc, net, &params, &|g| cx.signal(g), dt);
     }
     // Write back.
     for a in &sc.approaches {
@@ -947,6 +1011,134 @@ pub fn give_way_at_junctions(
             lon.limit(a.limit);
         }
     }
+}
+
+/// What [`gather_one`] reads of one vehicle.
+struct Vehicle<'a> {
+    entity: Entity,
+    id: VehicleId,
+    state: &'a VehicleState,
+    size: &'a VehicleSize,
+    route: &'a Route,
+    follower: &'a PathFollower,
+    lon: &'a Longitudinal,
+    /// It carries a [`CrossingNegotiator`] (the V2V negotiation decides for it).
+    negotiated: bool,
+}
+
+/// What every vehicle's gathering shares.
+struct GatherContext<'a> {
+    net: &'a JunctionNetwork,
+    params: &'a JunctionParams,
+    lights: Option<&'a TrafficLights>,
+    now: f64,
+    dt: f64,
+}
+
+impl GatherContext<'_> {
+    /// What link `g`'s signal shows.
+    fn signal(&self, g: u32) -> u8 {
+        self.lights.map_or(NO_SIGNAL, |l| l.state[g as usize])
+    }
+}
+
+/// Bring `driver`'s passages up to date with where `v` is, and add to `out` what
+/// [`give_way_at_junctions`] must know of it: an approach for each passage it is inside or
+/// near, the junction it waits at, the passages it entered this tick.
+fn gather_one(cx: &GatherContext, out: &mut Gathered, v: Vehicle, driver: &mut JunctionDriver) {
+    let GatherContext { net, params, now, dt, .. } = *cx;
+    let Vehicle { entity, id, state, size, route, follower, lon, negotiated } = v;
+    let key = Arc::as_ptr(&route.0) as usize;
+    if driver.route != key {
+        *driver =
+            JunctionDriver { route: key, passages: passages(&route.0, &net.map, net), ..JunctionDriver::default() };
+    }
+    let front = follower.s + 0.5 * size.length;
+    let rear = follower.s - 0.5 * size.length;
+    let speed = state.speed();
+    // Far from its junctions (no stop line reached, inside none, the next one beyond its
+    // look-ahead): the same as the walk below finding nothing, without reading the passages.
+    let far = driver.far;
+    if front < far.next_entry && rear >= far.inside_exit {
+        let time = net.crossing_time.get(far.next_junction as usize).copied().unwrap_or(0.0) + params.time_gap;
+        if far.next_entry - front > params.look_ahead.max(speed * time) {
+            return;
+        }
+    }
+    // Passages the front has entered: decided; the next one is decided on from before its
+    // stop line even while the vehicle is still inside the one before (junctions back to back).
+    while let Some(p) = driver.passages.get(driver.next) {
+        if front < p.entry {
+            break;
+        }
+        let red = !driver.going && cx.signal(p.links[0].0) == b'r';
+        if red {
+            // Told to stop and could not: passed the stop line on red.
+            tracing::debug!(target: "junctions", "{id} passed a red stop line at {now:.2} s (junction {}, {speed:.1} m/s)", p.junction + 1);
+        }
+        out.entered.push((p.junction, driver.waited, red));
+        let next = driver.next + 1;
+        *driver = JunctionDriver {
+            route: key,
+            passages: std::mem::take(&mut driver.passages),
+            next,
+            ..JunctionDriver::default()
+        };
+    }
+    driver.refresh_far();
+    // The passages it is in: there as a foe that others must let clear (at most the last two).
+    let inside_from = driver.next.saturating_sub(2);
+    let seen = Approach {
+        entity,
+        id,
+        front,
+        length: size.length,
+        speed,
+        v_max: follower.params.speed.max(speed),
+        inside: true,
+        going: true,
+        decides: !negotiated && !driver.own_negotiation,
+        arrived_at: f64::INFINITY,
+        stopped: false,
+        junction: 0,
+        links: (0, 0),
+        exit: u32::MAX,
+        entry: 0.0,
+        limit: f64::INFINITY,
+        entry_lanelet: u32::MAX,
+        queued: false,
+        trailing: true,
+        waiting_now: 0.0,
+        head: 0,
+        blocked: false,
+    };
+    for p in driver.passages[inside_from..driver.next].iter().filter(|p| rear < p.exit) {
+        out.register(p, seen);
+    }
+    let Some(p) = driver.passages.get(driver.next) else { return };
+    let time = net.crossing_time.get(p.junction as usize).copied().unwrap_or(0.0) + params.time_gap;
+    if p.entry - front > params.look_ahead.max(speed * time) {
+        return;
+    }
+    if speed < WAITING_SPEED {
+        driver.waited += dt;
+        driver.waiting_now += dt;
+        out.queued_at.push(p.junction);
+        if p.entry - front < 3.0 {
+            driver.stopped = true;
+        }
+    } else {
+        driver.waiting_now = 0.0;
+    }
+    if driver.arrived_at == 0.0 && p.entry - front < 20.0 {
+        driver.arrived_at = now.max(1e-9);
+    }
+    let arrived_at = if driver.arrived_at > 0.0 { driver.arrived_at } else { f64::INFINITY };
+    let (going, stopped, waiting_now) = (driver.going, driver.stopped, driver.waiting_now);
+    let blocked = lon.leader.is_some_and(|l| l.speed < STANDING && l.gap < p.entry - front);
+    let approach =
+        Approach { inside: false, going, arrived_at, stopped, trailing: false, waiting_now, blocked, ..seen };
+    out.register(p, approach);
 }
 
 /// Decide for approach `me` (see [`give_way_at_junctions`]); sets its `going` and `limit`, and
@@ -1061,7 +1253,7 @@ fn conflicts_allow(
             }
             let t_me_arrive = time_to_cover(d_me - CLEAR, v, ACCEL_FAST, v_through);
             let t_me_clear = time_to_cover(d_me + a.length + CLEAR, v, ACCEL_FAST, v_through);
-            for &q in &sc.by_link[fc.foe as usize] {
+            for &q in sc.on_link(fc.foe) {
                 let q = q as usize;
                 let f = &sc.approaches[q];
                 if q == me {
@@ -1138,7 +1330,7 @@ fn occupied_ahead(me: usize, sc: &Scratch, net: &JunctionNetwork) -> Option<f64>
             if d_me <= 0.0 {
                 continue;
             }
-            for &q in &sc.by_link[fc.foe as usize] {
+            for &q in sc.on_link(fc.foe) {
                 let f = &sc.approaches[q as usize];
                 if q as usize == me || !f.inside {
                     continue;
