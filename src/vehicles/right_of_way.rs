@@ -30,6 +30,7 @@
 //! system before the decisions.
 
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use bevy_ecs::prelude::{Commands, Component, Entity, Local, Query, Res, ResMut, Resource, With, Without};
 use bevy_ecs::schedule::IntoScheduleConfigs;
@@ -41,8 +42,8 @@ use crate::sim::{Control, Dynamics, Parallelism, Plugin, SimBuilder, SimClock};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
 use super::PathFollower;
-use super::lanes::PREFETCH_AHEAD;
 use super::crossing::{CrossingNegotiator, can_stop_within, stop_before, stop_within_step};
+use super::lanes::PREFETCH_AHEAD;
 use super::longitudinal::{Longitudinal, LongitudinalSystems, install_longitudinal};
 
 /// Links with a curve speed \[m/s\] below this count in [`JunctionNetwork::crossing_time`].
@@ -726,13 +727,33 @@ pub struct Scratch {
     link_list: Vec<u32>,
     exit_rear: Vec<(f64, f64)>,
     exit_touched: Vec<u32>,
-    reserved: Vec<f64>,
-    order: Vec<u32>,
+    /// See [`Tables::reserved`].
+    reserved: Vec<AtomicU64>,
+    /// The approaches of junction `j` are `approaches[junction_first[j]..junction_first[j + 1]]`
+    /// ([`Scratch::group_by_junction`]).
+    junction_first: Vec<u32>,
+    /// Buffer of [`Scratch::group_by_junction`].
+    grouped: Vec<Approach>,
     /// Each chunk's finds (see [`Gathered`]).
     gathered: Vec<Gathered>,
+    /// Each chunk's order of decisions (see [`decide_junction`]).
+    orders: Vec<Vec<u32>>,
 }
 
-impl Scratch {
+/// What the decisions at every junction read: the approaches' links, the approaches on each
+/// link, the exits' last vehicles, and the room already promised on each exit.
+struct Tables<'a> {
+    links: &'a [(u32, f64)],
+    link_first: &'a [u32],
+    link_list: &'a [u32],
+    exit_rear: &'a [(f64, f64)],
+    /// Room [m] the vehicles that decided to go this tick hold on each exit lanelet (the bits
+    /// of an `f64`). An exit follows one junction only, and one thread decides a junction, so
+    /// every exit has one writer and the sums are the same at any thread count.
+    reserved: &'a [AtomicU64],
+}
+
+impl Tables<'_> {
     /// Route arc length [m] where approach `a`'s link `g` starts, if `g` is one of its links.
     fn link_start(&self, a: &Approach, g: u32) -> Option<f64> {
         self.links[a.links.0 as usize..a.links.1 as usize].iter().find(|(x, _)| *x == g).map(|&(_, s)| s)
@@ -742,6 +763,56 @@ impl Scratch {
     fn on_link(&self, g: u32) -> &[u32] {
         let g = g as usize;
         &self.link_list[self.link_first[g] as usize..self.link_first[g + 1] as usize]
+    }
+
+    /// Room already held on exit lanelet `exit` \[m\].
+    fn reserved(&self, exit: u32) -> f64 {
+        f64::from_bits(self.reserved[exit as usize].load(Ordering::Relaxed))
+    }
+
+    /// Hold `room` \[m\] more on exit lanelet `exit`.
+    fn reserve(&self, exit: u32, room: f64) {
+        let slot = &self.reserved[exit as usize];
+        slot.store((f64::from_bits(slot.load(Ordering::Relaxed)) + room).to_bits(), Ordering::Relaxed);
+    }
+}
+
+/// One junction's approaches while they are decided on: approach `q` (a global index, as the
+/// tables name it) is `approaches[q - base]`.
+struct Board<'a> {
+    base: u32,
+    approaches: &'a mut [Approach],
+    t: &'a Tables<'a>,
+}
+
+impl Board<'_> {
+    /// Approach `q`, if it is one of this junction's (every foe on a link of the junction is).
+    fn at(&self, q: u32) -> Option<&Approach> {
+        self.approaches.get(q.wrapping_sub(self.base) as usize)
+    }
+}
+
+impl Scratch {
+    /// Order the approaches by junction (keeping their order within each), so each junction's
+    /// are one slice ([`Scratch::junction_first`]); each is its own head again.
+    fn group_by_junction(&mut self, n_junctions: usize) {
+        self.junction_first.clear();
+        self.junction_first.resize(n_junctions + 2, 0);
+        for a in &self.approaches {
+            self.junction_first[a.junction as usize + 2] += 1;
+        }
+        for j in 2..self.junction_first.len() {
+            self.junction_first[j] += self.junction_first[j - 1];
+        }
+        self.grouped.clear();
+        self.grouped.extend_from_slice(&self.approaches);
+        for a in &self.approaches {
+            let slot = &mut self.junction_first[a.junction as usize + 1];
+            self.grouped[*slot as usize] = Approach { head: *slot, ..*a };
+            *slot += 1;
+        }
+        self.junction_first.truncate(n_junctions + 1);
+        std::mem::swap(&mut self.approaches, &mut self.grouped);
     }
 
     /// Build the table of approaches by link from their links (a counting sort: O(approaches +
@@ -874,14 +945,14 @@ pub fn give_way_at_junctions(
     let n_links = net.links.len();
     if sc.exit_rear.len() != net.is_exit.len() {
         sc.exit_rear = vec![(f64::INFINITY, 0.0); net.is_exit.len()];
-        sc.reserved = vec![0.0; net.is_exit.len()];
+        sc.reserved = (0..net.is_exit.len()).map(|_| AtomicU64::new(0.0f64.to_bits())).collect();
     }
     if stats.per_junction.len() != net.junctions.list.len() {
         stats.per_junction = vec![JunctionCounts::default(); net.junctions.list.len()];
     }
     for i in sc.exit_touched.drain(..) {
         sc.exit_rear[i as usize] = (f64::INFINITY, 0.0);
-        sc.reserved[i as usize] = 0.0;
+        sc.reserved[i as usize] = AtomicU64::new(0.0f64.to_bits());
     }
     sc.approaches.clear();
     sc.links.clear();
@@ -949,36 +1020,14 @@ pub fn give_way_at_junctions(
             sc.gathered.push(Gathered::default());
         }
         for (entity, &id, state, size, route, follower, lon, mut driver, negotiator) in &mut vehicles {
-            let vehicle = Vehicle { entity, id, state, size, route, follower, lon: &lon, negotiated: negotiator.is_some() };
+            let vehicle =
+                Vehicle { entity, id, state, size, route, follower, lon: &lon, negotiated: negotiator.is_some() };
             gather_one(&cx, &mut sc.gathered[0], vehicle, &mut driver);
         }
         sc.take_gathered(&mut stats, &mut queue_at);
     }
+    sc.group_by_junction(net.junctions.list.len());
     sc.index_links(n_links);
-    // Only the first vehicle before the stop line of each lanelet decides.
-    sc.order.clear();
-    sc.order.extend((0..sc.approaches.len() as u32).filter(|&k| {
-        let a = &sc.approaches[k as usize];
-        !a.inside && a.entry_lanelet != u32::MAX
-    }));
-    let approaches = &sc.approaches;
-    sc.order.sort_by(|&a, &b| {
-        let (x, y) = (&approaches[a as usize], &approaches[b as usize]);
-        x.entry_lanelet
-            .cmp(&y.entry_lanelet)
-            .then((x.entry - x.front).total_cmp(&(y.entry - y.front)))
-            .then(x.id.cmp(&y.id))
-    });
-    for w in 1..sc.order.len() {
-        let (prev, k) = (sc.order[w - 1] as usize, sc.order[w] as usize);
-        if sc.approaches[prev].entry_lanelet == sc.approaches[k].entry_lanelet {
-            let head = sc.approaches[prev].head;
-            let a = &mut sc.approaches[k];
-            a.queued = true;
-            a.going = false;
-            a.head = head;
-        }
-    }
     // Most vehicles waiting at once before each junction.
     queue_at.sort_unstable();
     let mut k = 0;
@@ -989,18 +1038,26 @@ pub fn give_way_at_junctions(
         c.max_queue = c.max_queue.max(n as u32);
         k += n;
     }
-    // Decide in a fixed order: inside first, then nearest to its stop line, then id.
-    sc.order.clear();
-    sc.order.extend(0..sc.approaches.len() as u32);
-    let approaches = &sc.approaches;
-    sc.order.sort_by(|&a, &b| {
-        let (x, y) = (&approaches[a as usize], &approaches[b as usize]);
-        (!x.inside).cmp(&!y.inside).then((x.entry - x.front).total_cmp(&(y.entry - y.front))).then(x.id.cmp(&y.id))
-    });
-    for o in 0..sc.order.len() {
-        let me = sc.order[o] as usize;
-        decide(me, sc, net, &params, &|g| cx.signal(g), dt);
+    // Each junction decides on its own (its approaches, its links, its exits), so the junctions
+    // are shared out over the threads; within one, decisions follow a fixed order.
+    let Scratch { approaches, links, link_first, link_list, exit_rear, reserved, junction_first, orders, .. } = sc;
+    let tables = Tables { links, link_first, link_list, exit_rear, reserved };
+    let mut boards: Vec<Board> = Vec::new();
+    let mut rest: &mut [Approach] = approaches;
+    for j in 0..junction_first.len().saturating_sub(1) {
+        let (from, to) = (junction_first[j], junction_first[j + 1]);
+        let (mine, others) = std::mem::take(&mut rest).split_at_mut((to - from) as usize);
+        rest = others;
+        if !mine.is_empty() {
+            boards.push(Board { base: from, approaches: mine, t: &tables });
+        }
     }
+    let signal = |g: u32| cx.signal(g);
+    parallelism.for_each_chunk(&mut boards, orders, |chunk, order| {
+        for board in chunk {
+            decide_junction(board, order, net, &params, &signal, dt);
+        }
+    });
     // Write back.
     for a in &sc.approaches {
         let Ok((.., mut lon, mut driver, _)) = vehicles.get_mut(a.entity) else { continue };
@@ -1141,6 +1198,52 @@ fn gather_one(cx: &GatherContext, out: &mut Gathered, v: Vehicle, driver: &mut J
     out.register(p, approach);
 }
 
+/// Decide for every approach of one junction: only the first vehicle before the stop line of
+/// each lanelet decides on the conflicts (the others are queued behind it); then, in a fixed
+/// order (inside first, then nearest to its stop line, then id), each approach ([`decide`]).
+fn decide_junction(
+    b: &mut Board,
+    order: &mut Vec<u32>,
+    net: &JunctionNetwork,
+    params: &JunctionParams,
+    signal: &(dyn Fn(u32) -> u8 + Sync),
+    dt: f64,
+) {
+    order.clear();
+    order.extend((0..b.approaches.len() as u32).filter(|&k| {
+        let a = &b.approaches[k as usize];
+        !a.inside && a.entry_lanelet != u32::MAX
+    }));
+    let approaches = &*b.approaches;
+    order.sort_by(|&a, &b| {
+        let (x, y) = (&approaches[a as usize], &approaches[b as usize]);
+        x.entry_lanelet
+            .cmp(&y.entry_lanelet)
+            .then((x.entry - x.front).total_cmp(&(y.entry - y.front)))
+            .then(x.id.cmp(&y.id))
+    });
+    for w in 1..order.len() {
+        let (prev, k) = (order[w - 1] as usize, order[w] as usize);
+        if b.approaches[prev].entry_lanelet == b.approaches[k].entry_lanelet {
+            let head = b.approaches[prev].head;
+            let a = &mut b.approaches[k];
+            a.queued = true;
+            a.going = false;
+            a.head = head;
+        }
+    }
+    order.clear();
+    order.extend(0..b.approaches.len() as u32);
+    let approaches = &*b.approaches;
+    order.sort_by(|&a, &b| {
+        let (x, y) = (&approaches[a as usize], &approaches[b as usize]);
+        (!x.inside).cmp(&!y.inside).then((x.entry - x.front).total_cmp(&(y.entry - y.front))).then(x.id.cmp(&y.id))
+    });
+    for &me in order.iter() {
+        decide(me as usize, b, net, params, signal, dt);
+    }
+}
+
 /// Decide for approach `me` (see [`give_way_at_junctions`]); sets its `going` and `limit`, and
 /// reserves room on its exit.
 ///
@@ -1150,14 +1253,14 @@ fn gather_one(cx: &GatherContext, out: &mut Gathered, v: Vehicle, driver: &mut J
 /// the stop line on red, and one standing within the stop margin of it counted as unable to stop.
 fn decide(
     me: usize,
-    sc: &mut Scratch,
+    b: &mut Board,
     net: &JunctionNetwork,
     params: &JunctionParams,
     signal: &dyn Fn(u32) -> u8,
     dt: f64,
 ) {
-    let a = sc.approaches[me];
-    let links = &sc.links[a.links.0 as usize..a.links.1 as usize];
+    let a = b.approaches[me];
+    let links = &b.t.links[a.links.0 as usize..a.links.1 as usize];
     let v = a.speed.max(0.0);
     let mut limit = f64::INFINITY;
     // Curves: reach each link at its curve speed, hold it on the link. A link this step's travel
@@ -1195,17 +1298,18 @@ fn decide(
         }
         // Keep clear: room on the lanelet after the junction.
         if go && a.exit != u32::MAX {
-            let (rear, speed) = sc.exit_rear[a.exit as usize];
+            let (rear, speed) = b.t.exit_rear[a.exit as usize];
+            let reserved = b.t.reserved(a.exit);
             let room = if rear.is_finite() && speed < 3.0 { rear } else { f64::INFINITY };
-            if room - sc.reserved[a.exit as usize] < a.length + 1.0 {
-                tracing::trace!(target: "junctions", "{} keeps clear: room {room:.1} m, reserved {:.1} m", a.id, sc.reserved[a.exit as usize]);
+            if room - reserved < a.length + 1.0 {
+                tracing::trace!(target: "junctions", "{} keeps clear: room {room:.1} m, reserved {reserved:.1} m", a.id);
                 go = false;
             }
         }
         // Behind the vehicle that decides for its lane, only signals and room count: car
         // following keeps it behind, and it decides on the conflicts once it is first.
         if go && !a.queued {
-            go = conflicts_allow(me, sc, net, params, signal, v_through);
+            go = conflicts_allow(me, b, net, params, signal, v_through);
         }
         // Too late to stop comfortably: drive on; so does one already at the stop line (within
         // 0.01 m of the margin), which right before left in a saturated junction lets go first.
@@ -1219,33 +1323,33 @@ fn decide(
         }
     } else if a.inside {
         // Inside: brake only for a foe standing in a conflict area ahead.
-        if let Some(room) = occupied_ahead(me, sc, net) {
+        if let Some(room) = occupied_ahead(me, b, net) {
             limit = limit.min(stop_before(v, room, STOP_DECEL)).min(stop_within_step(v, room, hard, dt));
         }
     }
     // A queued vehicle never holds the right to go: standing, it would block every foe.
     let go = go && !a.queued;
-    let ap = &mut sc.approaches[me];
+    let ap = &mut b.approaches[me];
     ap.going = go || a.inside;
     ap.limit = limit;
     if ap.going && a.exit != u32::MAX {
-        sc.reserved[a.exit as usize] += a.length + 2.0;
+        b.t.reserve(a.exit, a.length + 2.0);
     }
 }
 
 /// Whether every conflict of approach `me` lets it drive through now.
 fn conflicts_allow(
     me: usize,
-    sc: &Scratch,
+    b: &Board,
     net: &JunctionNetwork,
     params: &JunctionParams,
     signal: &dyn Fn(u32) -> u8,
     v_through: f64,
 ) -> bool {
-    let a = &sc.approaches[me];
+    let a = &b.approaches[me];
     let v = a.speed.max(0.0);
-    let my_signal = signal(sc.links[a.links.0 as usize].0);
-    for &(g, start) in &sc.links[a.links.0 as usize..a.links.1 as usize] {
+    let my_signal = signal(b.t.links[a.links.0 as usize].0);
+    for &(g, start) in &b.t.links[a.links.0 as usize..a.links.1 as usize] {
         for fc in &net.links[g as usize].conflicts {
             let d_me = start + fc.s_mine - a.front;
             if d_me + a.length + CLEAR < 0.0 {
@@ -1253,18 +1357,17 @@ fn conflicts_allow(
             }
             let t_me_arrive = time_to_cover(d_me - CLEAR, v, ACCEL_FAST, v_through);
             let t_me_clear = time_to_cover(d_me + a.length + CLEAR, v, ACCEL_FAST, v_through);
-            for &q in sc.on_link(fc.foe) {
-                let q = q as usize;
-                let f = &sc.approaches[q];
-                if q == me {
+            for &q in b.t.on_link(fc.foe) {
+                let Some(f) = b.at(q) else { continue };
+                if q == b.base + me as u32 {
                     continue;
                 }
-                let Some(f_start) = sc.link_start(f, fc.foe) else { continue };
+                let Some(f_start) = b.t.link_start(f, fc.foe) else { continue };
                 let d_foe = f_start + fc.s_foe - f.front;
                 if d_foe + f.length + CLEAR < 0.0 {
                     continue;
                 }
-                let f_signal = signal(sc.links[f.links.0 as usize].0);
+                let f_signal = signal(b.t.links[f.links.0 as usize].0);
                 let foe_priority = match (my_signal, f_signal) {
                     (b'g' | b'o', b'G' | b'O') => true,
                     (b'G' | b'O', b'g' | b'o') => false,
@@ -1301,7 +1404,7 @@ fn conflicts_allow(
                 } else {
                     let red = matches!(f_signal, b'r' | b's' | b'y');
                     // Behind a first vehicle that does not go, a queued foe cannot come.
-                    let held = f.queued && !sc.approaches[f.head as usize].going;
+                    let held = f.queued && b.at(f.head).is_some_and(|h| !h.going);
                     if red || held || f.blocked || f.speed < STANDING || !f.decides && !f.going {
                         continue;
                     }
@@ -1318,10 +1421,10 @@ fn conflicts_allow(
 
 /// Room [m] before the first conflict area ahead of approach `me` (inside the junction) that a
 /// foe further through it stands in, if any.
-fn occupied_ahead(me: usize, sc: &Scratch, net: &JunctionNetwork) -> Option<f64> {
-    let a = &sc.approaches[me];
+fn occupied_ahead(me: usize, b: &Board, net: &JunctionNetwork) -> Option<f64> {
+    let a = &b.approaches[me];
     let mut room: Option<f64> = None;
-    for &(g, start) in &sc.links[a.links.0 as usize..a.links.1 as usize] {
+    for &(g, start) in &b.t.links[a.links.0 as usize..a.links.1 as usize] {
         for fc in &net.links[g as usize].conflicts {
             if fc.kind == ConflictKind::Merging {
                 continue;
@@ -1330,12 +1433,12 @@ fn occupied_ahead(me: usize, sc: &Scratch, net: &JunctionNetwork) -> Option<f64>
             if d_me <= 0.0 {
                 continue;
             }
-            for &q in sc.on_link(fc.foe) {
-                let f = &sc.approaches[q as usize];
-                if q as usize == me || !f.inside {
+            for &q in b.t.on_link(fc.foe) {
+                let Some(f) = b.at(q) else { continue };
+                if q == b.base + me as u32 || !f.inside {
                     continue;
                 }
-                let Some(f_start) = sc.link_start(f, fc.foe) else { continue };
+                let Some(f_start) = b.t.link_start(f, fc.foe) else { continue };
                 let d_foe = f_start + fc.s_foe - f.front;
                 let in_area = d_foe < CLEAR && d_foe + f.length + CLEAR > 0.0;
                 // Of two in each other's way, the one further from the point waits.
