@@ -1053,7 +1053,9 @@ pub fn give_way_at_junctions(
         }
     }
     let signal = |g: u32| cx.signal(g);
-    parallelism.for_each_chunk(&mut boards, orders, |chunk, order| {
+    // Split as the vehicles would be (a junction's decisions cost about its approaches').
+    let split = parallelism.for_share_of(tables.link_list.len());
+    split.for_each_chunk(&mut boards, orders, |chunk, order| {
         for board in chunk {
             decide_junction(board, order, net, &params, &signal, dt);
         }
