@@ -22,6 +22,7 @@ use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::vehicles::crossing::safe_stop_speed;
 use crate::vehicles::follow_laws::IDM_MAX_BRAKING;
 use crate::vehicles::lane_changing::{LaneChangeSystems, LaneIndex};
+use crate::vehicles::lanes::PREFETCH_AHEAD;
 use crate::vehicles::lane_state::Found;
 use crate::vehicles::{
     AccSetup, CruiseSetup, EmergencySettings, FollowLaw, Idm, LaneChangeParams, LaneChanger, LaneMap, LanePosition,
@@ -349,7 +350,14 @@ pub fn run_traffic(world: &mut World, mut longest: Local<Option<(Arc<LaneletMap>
     });
     let mut renewing: Vec<(VehicleId, Entity, usize)> = Vec::new();
     let mut next_begins: Vec<(VehicleId, Entity)> = Vec::new();
-    for (entity, id, route, follower, table, changer, trip, state) in q.iter(world) {
+    // A vehicle a few places on: its route's fields (its own, behind an `Arc`: a cache miss
+    // each in a town, on one thread) fetched while this one is looked at.
+    q.update_archetypes(world);
+    let mut ahead = q.iter_manual(world).skip(PREFETCH_AHEAD);
+    for (entity, id, route, follower, table, changer, trip, state) in q.iter_manual(world) {
+        if let Some((_, _, route, ..)) = ahead.next() {
+            crate::world::prefetch_value(&*route.0);
+        }
         // A lane that ends holds a vehicle back for its change, except on a random trip, whose
         // route ends at its destination (it has arrived, with or without a lane beside it). So
         // does an aborted change (its route is the old lane's again); a change under way is

@@ -15,6 +15,7 @@ use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 
 use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::vehicles::PathFollower;
+use crate::vehicles::lanes::PREFETCH_AHEAD;
 use crate::world::{Route, VehicleId, VehicleState, Vehicles};
 
 /// Below this speed a vehicle is waiting [m/s] (SUMO's threshold).
@@ -118,18 +119,36 @@ pub fn track_trips(
     mut trips: Query<(&VehicleState, &mut Trip, Option<&Route>, Option<&PathFollower>)>,
 ) {
     let (t, dt) = (clock.now.as_secs(), clock.dt);
-    for (state, mut trip, route, follower) in &mut trips {
+    let track = |state: &VehicleState, trip: &mut Trip, route: Option<&Route>, follower: Option<&PathFollower>| {
         if trip.arrival.is_some() {
-            continue;
+            return;
         }
         if let (Some(route), Some(follower)) = (route, follower)
             && !route.0.closed
             && trip.ends_at.unwrap_or(route.0.length) - follower.s < ARRIVED_WITHIN
         {
             trip.arrival = Some(t);
-            continue;
+            return;
         }
         trip.waiting.sample(state.speed(), dt);
+    };
+    // Table by table, so that the route of a vehicle a few places on (its own, behind an `Arc`:
+    // a cache miss each in a town, on one thread) is fetched while this one is looked at.
+    if let Ok(tables) = trips.contiguous_iter_mut() {
+        for (states, mut trips, routes, followers) in tables {
+            let trips: &mut [Trip] = &mut trips;
+            for (k, trip) in trips.iter_mut().enumerate() {
+                if let Some(route) = routes.and_then(|r| r.get(k + PREFETCH_AHEAD)) {
+                    crate::world::prefetch_value(&*route.0);
+                }
+                track(&states[k], trip, routes.map(|r| &r[k]), followers.map(|f| &f[k]));
+            }
+        }
+        return;
+    }
+    // Only if a component were stored sparsely (none is): one at a time.
+    for (state, mut trip, route, follower) in &mut trips {
+        track(state, &mut trip, route, follower);
     }
 }
 
