@@ -295,6 +295,20 @@ pub struct Metrics {
     /// Where each vehicle's box is in `boxes` (made with `near`, which is made again whenever
     /// the vehicles or their order change).
     box_of: IdMap<u32>,
+    /// The near list's margin \[m\] ([`near_margin`] of the dynamics step; 0: [`NEAR_MARGIN`]),
+    /// and the one `near` was made with.
+    margin: f64,
+    near_margin: f64,
+    /// The widest footprint's radius when `near` was made in full \[m\] (its grid's reach).
+    near_widest: f64,
+    /// Vehicles added to `near` by [`Metrics::patch_near_list`] since it was made in full (not
+    /// on its grid).
+    unlisted: Vec<VehicleId>,
+    /// Scratch of [`Metrics::patch_near_list`]: each old box's new index, the new anchors, the
+    /// new boxes' indices.
+    old_to_new: Vec<u32>,
+    new_at: Vec<(VehicleId, DVec2)>,
+    added: Vec<u32>,
 }
 
 /// Where a routed vehicle without a path follower was on its route (see
@@ -489,6 +503,7 @@ pub fn record_metrics(
     let t = clock.now.as_secs() + clock.dt;
     let m = &mut *metrics;
     let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
+    m.margin = near_margin(clock.dt);
     // Footprints that overlap on lanelets at different levels (a bridge over a road) do not
     // touch; checked only for overlapping pairs.
     let junctions = lanes.as_deref().map(|l| l.map.junctions());
@@ -671,7 +686,7 @@ impl Metrics {
                 b.axis = DVec2::from_angle(b.axis.x);
             }
         });
-        if self.near_is_stale() {
+        if self.near_is_stale() && !self.patch_near_list(widest) {
             self.make_near_list(widest, parallelism);
         }
         // Every pair of the list tested, split over threads (read-only; each chunk keeps its own
@@ -706,12 +721,18 @@ impl Metrics {
         self.contacts.extend(self.touching.iter().copied());
     }
 
+    /// The near list's margin now \[m\].
+    fn margin(&self) -> f64 {
+        if self.margin > 0.0 { self.margin } else { NEAR_MARGIN }
+    }
+
     /// Whether the near list no longer covers every pair that can touch: the vehicles are not
     /// the ones it was made for, in the same order, or one moved more than half the margin
     /// (or to a position that is not a number).
     fn near_is_stale(&self) -> bool {
-        let half2 = 0.25 * NEAR_MARGIN * NEAR_MARGIN;
-        self.near_at.len() != self.boxes.len()
+        let half2 = 0.25 * self.near_margin * self.near_margin;
+        self.near_margin != self.margin()
+            || self.near_at.len() != self.boxes.len()
             || self.boxes.iter().zip(&self.near_at).any(|(b, &(id, at))| {
                 b.id != id || b.centre.distance_squared(at).partial_cmp(&half2) != Some(std::cmp::Ordering::Less)
             })
@@ -720,8 +741,10 @@ impl Metrics {
     /// Make the near list: each pair (box indices, lower id first) whose centres are within
     /// their radii plus [`NEAR_MARGIN`], found on a grid of the widest footprint plus the margin.
     fn make_near_list(&mut self, widest: f64, parallelism: Parallelism) {
+        let margin = self.margin();
+        self.near_margin = margin;
         let boxes = &self.boxes;
-        let reach = 2.0 * widest + NEAR_MARGIN;
+        let reach = 2.0 * widest + margin;
         self.grid.rebuild(
             reach.max(1.0),
             boxes.iter().enumerate().map(|(i, b)| GridEntry {
@@ -737,9 +760,9 @@ impl Metrics {
             found.0.clear();
             for (k, a) in boxes[start..start + chunk.len()].iter().enumerate() {
                 let i = (start + k) as u32;
-                grid.for_each_within(a.centre, a.radius() + widest + NEAR_MARGIN, |_, e, d2| {
+                grid.for_each_within(a.centre, a.radius() + widest + margin, |_, e, d2| {
                     let b = &boxes[e.index as usize];
-                    let r = a.radius() + b.radius() + NEAR_MARGIN;
+                    let r = a.radius() + b.radius() + margin;
                     if a.id < b.id && d2 <= r * r {
                         found.0.push((i, e.index));
                     }
@@ -758,6 +781,129 @@ impl Metrics {
         self.near_at.extend(boxes.iter().map(|b| (b.id, b.centre)));
         self.box_of.clear();
         self.box_of.extend(boxes.iter().enumerate().map(|(i, b)| (b.id, i as u32)));
+        self.near_widest = widest;
+        self.unlisted.clear();
+    }
+
+    /// Bring the near list up to date with vehicles added, removed or reordered since it was
+    /// made, without searching every vehicle's neighbours again: the pairs of the vehicles
+    /// still there are kept (renumbered), and each new vehicle's are found on the list's grid
+    /// and among the vehicles added since the grid was made. Every vehicle keeps the anchor
+    /// it was listed at (`near_at`), so the list still holds every pair whose anchors lie
+    /// within their radii plus the margin. Returns false, changing nothing, where the list must
+    /// be made in full: a vehicle moved half the margin from its anchor, one is wider than the
+    /// grid's reach, the margin changed, or many were added since the last full making. (With
+    /// SUMO demand a vehicle enters or leaves nearly every step: the list was made in full every
+    /// step, a tenth of a 20 x 20 town's time.)
+    fn patch_near_list(&mut self, widest: f64) -> bool {
+        /// More vehicles added since the last full making than this: make it in full.
+        const MAX_UNLISTED: usize = 64;
+        let margin = self.near_margin;
+        if margin != self.margin() || widest > self.near_widest || self.near_at.is_empty() {
+            return false;
+        }
+        let half2 = 0.25 * margin * margin;
+        let n_old = self.near_at.len();
+        self.old_to_new.clear();
+        self.old_to_new.resize(n_old, u32::MAX);
+        self.new_at.clear();
+        self.added.clear();
+        for (k, b) in self.boxes.iter().enumerate() {
+            let old = if self.near_at.get(k).is_some_and(|&(id, _)| id == b.id) {
+                Some(k)
+            } else {
+                self.box_of
+                    .get(&b.id)
+                    .map(|&o| o as usize)
+                    .filter(|&o| self.near_at.get(o).is_some_and(|&(id, _)| id == b.id))
+            };
+            match old {
+                Some(o) if self.old_to_new[o] == u32::MAX => {
+                    let at = self.near_at[o].1;
+                    if b.centre.distance_squared(at).partial_cmp(&half2) != Some(std::cmp::Ordering::Less) {
+                        return false;
+                    }
+                    self.old_to_new[o] = k as u32;
+                    self.new_at.push((b.id, at));
+                }
+                // A vehicle listed twice under one id: no renumbering can say which is which.
+                Some(_) => return false,
+                None => {
+                    if !b.centre.is_finite() {
+                        return false;
+                    }
+                    self.added.push(k as u32);
+                    self.new_at.push((b.id, b.centre));
+                }
+            }
+        }
+        if self.unlisted.len() + self.added.len() > MAX_UNLISTED {
+            return false;
+        }
+        // From here on the patch goes through.
+        let old_to_new = &self.old_to_new;
+        self.near.retain_mut(|(i, j)| match (old_to_new[*i as usize], old_to_new[*j as usize]) {
+            (u32::MAX, _) | (_, u32::MAX) => false,
+            (a, b) => {
+                (*i, *j) = (a, b);
+                true
+            }
+        });
+        for (o, &k) in self.old_to_new.iter().enumerate() {
+            if k == u32::MAX {
+                let id = self.near_at[o].0;
+                if self.box_of.get(&id) == Some(&(o as u32)) {
+                    self.box_of.remove(&id);
+                }
+            }
+        }
+        for (k, b) in self.boxes.iter().enumerate() {
+            if self.near_at.get(k).is_none_or(|&(id, _)| id != b.id) {
+                self.box_of.insert(b.id, k as u32);
+            }
+        }
+        std::mem::swap(&mut self.near_at, &mut self.new_at);
+        // Pairs of each added vehicle: with those on the grid (anchored where the grid has them),
+        // with those added before it since (not on it), and with each other.
+        let (boxes, near_at, box_of, added, unlisted) =
+            (&self.boxes, &self.near_at, &self.box_of, &self.added, &self.unlisted);
+        let pair = |i: u32, j: u32| {
+            let (a, b) = (&boxes[i as usize], &boxes[j as usize]);
+            let r = a.radius() + b.radius() + margin;
+            let d2 = near_at[i as usize].1.distance_squared(near_at[j as usize].1);
+            (i != j && d2 <= r * r).then(|| if a.id < b.id { (i, j) } else { (j, i) })
+        };
+        for (n, &k) in added.iter().enumerate() {
+            let a = &boxes[k as usize];
+            let near = &mut self.near;
+            self.grid.for_each_within(a.centre, a.radius() + self.near_widest + margin, |_, e, _| {
+                let Some(&j) = box_of.get(&e.id) else { return };
+                // Only one still anchored where the grid has it (not one that left and came
+                // back), and once: not one found below.
+                if near_at[j as usize].1 == e.position
+                    && !unlisted.contains(&e.id)
+                    && !added.contains(&j)
+                    && let Some(p) = pair(k, j)
+                {
+                    near.push(p);
+                }
+            });
+            for id in unlisted {
+                if let Some(&j) = box_of.get(id)
+                    && !added.contains(&j)
+                    && let Some(p) = pair(k, j)
+                {
+                    near.push(p);
+                }
+            }
+            for &j in &added[..n] {
+                if let Some(p) = pair(k, j) {
+                    near.push(p);
+                }
+            }
+        }
+        self.unlisted.extend(self.added.iter().map(|&k| boxes[k as usize].id));
+        true
     }
 }
 
@@ -765,6 +911,13 @@ impl Metrics {
 /// list \[m\]: the list is made again when a vehicle has moved half of it (every fifth step at
 /// 14 m/s and 50 Hz); a wider margin lists more pairs.
 const NEAR_MARGIN: f64 = 3.0;
+
+/// The near list's margin \[m\] at a dynamics step of `dt` \[s\]: [`NEAR_MARGIN`] at 50 Hz, and
+/// wider at coarser steps, so that the list lasts as many steps of a vehicle at 14 m/s (at
+/// SUMO's 0.1 s a 3 m list was made again every step or two, a tenth of a 20 x 20 town's time).
+fn near_margin(dt: f64) -> f64 {
+    (NEAR_MARGIN * dt / 0.02).clamp(NEAR_MARGIN, 5.0 * NEAR_MARGIN)
+}
 
 /// `metrics.intersection` of `summary.json`: the GCDC 2016 cooperative intersection (vehicles
 /// with `controller.intersection`, from the moment they heard the roadside unit).
@@ -1168,6 +1321,64 @@ mod tests {
         }
         assert!(found > 100, "the vehicles touched {found} times: the test needs contacts");
         assert!((10..250).contains(&remade), "the near list was made {remade} times in 300 steps");
+    }
+
+    /// With vehicles entering and leaving every step (SUMO demand), the near list still finds
+    /// exactly the overlapping pairs a test of every pair finds, but is patched (the vehicles
+    /// still there keep their anchors) instead of made in full at every step: before the patch
+    /// every step with a new or a gone vehicle made it in full.
+    #[test]
+    fn the_near_list_follows_vehicles_entering_and_leaving_without_being_made_in_full_each_step() {
+        let mut next = crate::world::random::draws(0x9e37_79b9_7f4a_7c15);
+        let size = VehicleSize { length: 4.5, width: 1.8 };
+        let car = |id: i32, next: &mut dyn FnMut() -> f64| {
+            let state = VehicleState::new(DVec2::new(80.0 * next(), 80.0 * next()), 6.3 * next(), 0.0);
+            (VehicleId(id), state, id % 13 == 0)
+        };
+        let mut cars: Vec<(VehicleId, VehicleState, bool)> = (0..300).map(|i| car(i, &mut next)).collect();
+        let mut metrics = Metrics::new(0.0);
+        let (mut full, mut found, mut new_id) = (0, 0, 300);
+        for step in 0..200 {
+            for (_, state, _) in cars.iter_mut() {
+                let position = state.position + 0.2 * DVec2::new(next() - 0.5, next() - 0.5);
+                *state = VehicleState::new(position, state.yaw + 0.1 * (next() - 0.5), 0.0);
+            }
+            // One leaves (anywhere in the list), one or two enter (at the end, or in the middle).
+            let gone = (next() * cars.len() as f64) as usize % cars.len();
+            cars.swap_remove(gone);
+            for _ in 0..1 + step % 2 {
+                let entering = car(new_id, &mut next);
+                new_id += 1;
+                let at = if step % 3 == 0 { cars.len() / 2 } else { cars.len() };
+                cars.insert(at, entering);
+            }
+            metrics.record_collisions(
+                step as f64,
+                Parallelism { threads: 2, min_vehicles: 100 },
+                cars.iter().map(|(id, st, fixed)| (*id, st, &size, *fixed, u32::MAX)),
+                &|_, _| false,
+            );
+            full += usize::from(metrics.near_at.iter().zip(&metrics.boxes).all(|(a, b)| a.1 == b.centre));
+            let mut expected = Vec::new();
+            for (k, a) in metrics.boxes.iter().enumerate() {
+                for b in &metrics.boxes[k + 1..] {
+                    let (a, b) = if a.id < b.id { (a, b) } else { (b, a) };
+                    if !(a.fixed && b.fixed) && overlap(a, b) {
+                        expected.push((a.id, b.id));
+                    }
+                }
+            }
+            expected.sort_unstable();
+            assert_eq!(metrics.touching, expected, "step {step}");
+            found += expected.len();
+            // The follower statistics find each vehicle's box by its id.
+            for (k, b) in metrics.boxes.iter().enumerate() {
+                assert_eq!(metrics.box_of.get(&b.id), Some(&(k as u32)), "step {step}: box of {}", b.id);
+            }
+            assert_eq!(metrics.box_of.len(), metrics.boxes.len(), "step {step}: boxes of vehicles that left");
+        }
+        assert!(found > 100, "the vehicles touched {found} times: the test needs contacts");
+        assert!((2..100).contains(&full), "the near list was made in full {full} times in 200 steps");
     }
 
     #[test]

@@ -22,8 +22,8 @@ use crate::sim::{Control, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::vehicles::crossing::safe_stop_speed;
 use crate::vehicles::follow_laws::IDM_MAX_BRAKING;
 use crate::vehicles::lane_changing::{LaneChangeSystems, LaneIndex};
-use crate::vehicles::lanes::PREFETCH_AHEAD;
 use crate::vehicles::lane_state::Found;
+use crate::vehicles::lanes::PREFETCH_AHEAD;
 use crate::vehicles::{
     AccSetup, CruiseSetup, EmergencySettings, FollowLaw, Idm, LaneChangeParams, LaneChanger, LaneMap, LanePosition,
     LeaderFromLanes, PathFollower, PathFollowing, RouteGoal, SmartController, YieldToEmergency,
