@@ -3,12 +3,12 @@
 
 use std::io::Write;
 
-use bevy_ecs::prelude::{Query, Res, ResMut, Resource};
+use bevy_ecs::prelude::{Entity, Local, Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, ScheduleLabel};
 
-use crate::sim::{Phase, Plugin, Sim, SimBuilder, SimClock};
+use crate::sim::{Parallelism, Phase, Plugin, Sim, SimBuilder, SimClock};
 use crate::vehicles::LanePosition;
-use crate::world::{VehicleState, Vehicles};
+use crate::world::{VehicleId, VehicleState, Vehicles};
 
 /// Schedule of the trajectory logger ([`Phase::Sense`]: it sees the state at its tick time).
 #[derive(ScheduleLabel, Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -60,10 +60,30 @@ pub struct Fixed(pub f64, pub usize);
 
 impl std::fmt::Display for Fixed {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let text = format!("{:.*}", self.1, self.0);
-        let text = if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.') } else { &text };
+        let mut text = Vec::with_capacity(32);
+        self.push_to(&mut text);
+        f.write_str(std::str::from_utf8(&text).map_err(|_| std::fmt::Error)?)
+    }
+}
+
+impl Fixed {
+    /// Append the text to `out`, with no allocation of its own (the trajectory log writes seven
+    /// numbers a vehicle and row).
+    pub fn push_to(&self, out: &mut Vec<u8>) {
+        let start = out.len();
+        // Writing to a vector cannot fail.
+        let _ = write!(out, "{:.*}", self.1, self.0);
+        let text = &out[start..];
+        if text.contains(&b'.') {
+            let kept = text.len() - text.iter().rev().take_while(|&&c| c == b'0').count();
+            let kept = if text[kept - 1] == b'.' { kept - 1 } else { kept };
+            out.truncate(start + kept);
+        }
         // A value that rounds to zero from below prints as `-0`: a sign that is not there.
-        f.write_str(if text == "-0" { "0" } else { text })
+        if &out[start..] == b"-0" {
+            out.truncate(start);
+            out.push(b'0');
+        }
     }
 }
 
@@ -86,6 +106,8 @@ pub fn log_trajectories(
     vehicles: Res<Vehicles>,
     states: Query<(&VehicleState, Option<&LanePosition>)>,
     log: Option<ResMut<TrajectoryLog>>,
+    parallelism: Option<Res<Parallelism>>,
+    mut chunks: Local<Vec<(Vec<u8>, u64)>>,
 ) {
     let Some(mut log) = log else { return };
     if log.error.is_some() {
@@ -96,28 +118,49 @@ pub fn log_trajectories(
         return;
     }
     log.last_t = Some(t);
-    for (id, e) in vehicles.iter() {
-        if let Ok((s, lane)) = states.get(e) {
-            let r = write!(
-                log.writer,
-                "{},{id},{},{},{},{},{}",
-                Fixed(t, TIME_DECIMALS),
-                Fixed(s.position.x, LENGTH_DECIMALS),
-                Fixed(s.position.y, LENGTH_DECIMALS),
-                Fixed(s.yaw, ANGLE_DECIMALS),
-                Fixed(s.velocity.x, LENGTH_DECIMALS),
-                Fixed(s.velocity.y, LENGTH_DECIMALS)
-            )
-            .and_then(|()| match lane.and_then(|l| Some((l.lanelet?, l.offset))) {
-                Some((id, offset)) => writeln!(log.writer, ",{},{}", id.0, Fixed(offset, LENGTH_DECIMALS)),
-                None => writeln!(log.writer, ",,"),
-            });
-            if let Err(e) = r {
-                log.error = Some(e);
-                return;
+    // The rows are formatted in chunks of vehicles on the threads (the numbers' text is most of
+    // a town's logging, on one thread), then written in order.
+    let mut list: Vec<(VehicleId, Entity)> = vehicles.iter().collect();
+    let mut time = Vec::with_capacity(16);
+    Fixed(t, TIME_DECIMALS).push_to(&mut time);
+    let parallelism = parallelism.as_deref().copied().unwrap_or_else(Parallelism::single);
+    for (text, rows) in chunks.iter_mut() {
+        text.clear();
+        *rows = 0;
+    }
+    parallelism.for_each_chunk(&mut list, &mut chunks, |part, (out, rows)| {
+        for &mut (id, e) in part {
+            let Ok((s, lane)) = states.get(e) else { continue };
+            out.extend_from_slice(&time);
+            // Writing to a vector cannot fail.
+            let _ = write!(out, ",{id},");
+            for (x, decimals) in [
+                (s.position.x, LENGTH_DECIMALS),
+                (s.position.y, LENGTH_DECIMALS),
+                (s.yaw, ANGLE_DECIMALS),
+                (s.velocity.x, LENGTH_DECIMALS),
+                (s.velocity.y, LENGTH_DECIMALS),
+            ] {
+                Fixed(x, decimals).push_to(out);
+                out.push(b',');
             }
-            log.rows += 1;
+            match lane.and_then(|l| Some((l.lanelet?, l.offset))) {
+                Some((lanelet, offset)) => {
+                    let _ = write!(out, "{},", lanelet.0);
+                    Fixed(offset, LENGTH_DECIMALS).push_to(out);
+                    out.push(b'\n');
+                }
+                None => out.extend_from_slice(b",\n"),
+            }
+            *rows += 1;
         }
+    });
+    for (text, rows) in chunks.iter() {
+        if let Err(e) = log.writer.write_all(text) {
+            log.error = Some(e);
+            return;
+        }
+        log.rows += rows;
     }
 }
 
@@ -144,5 +187,30 @@ impl Plugin for TrajectoryLogPlugin {
         sim.add_module("log", Log, Phase::Sense, self.rate);
         // Lane positions are found where they are read (see `update_lane_positions`).
         sim.add_systems(Log, (crate::vehicles::lanes::update_lane_positions, log_trajectories).chain());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Fixed;
+
+    /// The numbers of `trajectories.csv`: rounded to their decimals, trailing zeros and a bare
+    /// point dropped, no `-0`; appended after what the buffer already holds.
+    #[test]
+    fn fixed_numbers_drop_trailing_zeros_and_the_sign_of_zero() {
+        let text = |x: f64, d: usize| Fixed(x, d).to_string();
+        assert_eq!(text(0.1, 3), "0.1");
+        assert_eq!(text(12.0, 3), "12");
+        assert_eq!(text(100.0, 0), "100");
+        assert_eq!(text(-1.25, 3), "-1.25");
+        assert_eq!(text(-0.0004, 3), "0");
+        assert_eq!(text(0.00049, 3), "0");
+        assert_eq!(text(2.0004, 3), "2");
+        assert_eq!(text(1.23456789, 6), "1.234568");
+        assert_eq!(text(f64::NAN, 3), "NaN");
+        let mut out = b"x,".to_vec();
+        Fixed(3.10, 3).push_to(&mut out);
+        Fixed(-0.0, 3).push_to(&mut out);
+        assert_eq!(out, b"x,3.10");
     }
 }
