@@ -319,7 +319,7 @@ pub struct TrafficSystems;
 
 /// Remove vehicles at the end of their route (ending their trips), then insert the arrivals
 /// whose entry is free.
-pub fn run_traffic(world: &mut World, mut longest: Local<Option<(Arc<LaneletMap>, f64)>>) {
+pub fn run_traffic(world: &mut World, mut longest: Local<Option<(Arc<LaneletMap>, f64)>>, mut due: Local<Vec<f64>>) {
     let t = world.resource::<SimClock>().now.as_secs();
     let dt = world.resource::<SimClock>().dt;
     let mut leaving: Vec<(VehicleId, Entity)> = Vec::new();
@@ -423,7 +423,17 @@ pub fn run_traffic(world: &mut World, mut longest: Local<Option<(Arc<LaneletMap>
         // this tick's insertions yet (two tables starting on one lanelet would insert on top of
         // each other).
         let mut used: Vec<u32> = Vec::new();
+        // When each table next has a vehicle to insert \[s\] (-inf: now, or may have; only this
+        // system changes a table's queue and times during a run): a tick looks only at those
+        // due, in one pass over a compact list. A SUMO demand file is a table a route, 12,858 on
+        // the 20 x 20 grid: reading every table every tick was a cache miss each, on one thread.
+        if due.len() != sources.len() {
+            *due = vec![f64::NEG_INFINITY; sources.len()];
+        }
         for (index, src) in sources.iter_mut().enumerate() {
+            if due[index] > t {
+                continue;
+            }
             if src.random.is_some() {
                 *inserted += insert_random(world, seed, index, src, t, dt, &mut used);
                 *waiting_max = (*waiting_max).max(src.queue);
@@ -473,6 +483,14 @@ pub fn run_traffic(world: &mut World, mut longest: Local<Option<(Arc<LaneletMap>
                 }
             }
             *waiting_max = (*waiting_max).max(src.queue);
+            due[index] = if src.queue > 0 {
+                f64::NEG_INFINITY
+            } else {
+                let scheduled = src.schedule.get(src.scheduled).copied().unwrap_or(f64::INFINITY);
+                let drawn =
+                    if src.rate_per_s > 0.0 && src.next_time <= src.until { src.next_time } else { f64::INFINITY };
+                scheduled.min(drawn)
+            };
         }
     });
 }
