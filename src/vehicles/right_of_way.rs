@@ -796,14 +796,7 @@ impl Scratch {
     /// Order the approaches by junction (keeping their order within each), so each junction's
     /// are one slice ([`Scratch::junction_first`]); each is its own head again.
     fn group_by_junction(&mut self, n_junctions: usize) {
-        self.junction_first.clear();
-        self.junction_first.resize(n_junctions + 2, 0);
-        for a in &self.approaches {
-            self.junction_first[a.junction as usize + 2] += 1;
-        }
-        for j in 2..self.junction_first.len() {
-            self.junction_first[j] += self.junction_first[j - 1];
-        }
+        bucket_starts(&mut self.junction_first, n_junctions, self.approaches.iter().map(|a| a.junction));
         self.grouped.clear();
         self.grouped.extend_from_slice(&self.approaches);
         for a in &self.approaches {
@@ -818,14 +811,7 @@ impl Scratch {
     /// Build the table of approaches by link from their links (a counting sort: O(approaches +
     /// links)); `n_links` links in all.
     fn index_links(&mut self, n_links: usize) {
-        self.link_first.clear();
-        self.link_first.resize(n_links + 2, 0);
-        for &(g, _) in &self.links {
-            self.link_first[g as usize + 2] += 1;
-        }
-        for g in 2..self.link_first.len() {
-            self.link_first[g] += self.link_first[g - 1];
-        }
+        bucket_starts(&mut self.link_first, n_links, self.links.iter().map(|&(g, _)| g));
         self.link_list.clear();
         self.link_list.resize(self.links.len(), 0);
         for (k, a) in self.approaches.iter().enumerate() {
@@ -842,13 +828,10 @@ impl Scratch {
     /// waiting vehicles to `queue_at`, passages entered to `stats`.
     fn take_gathered(&mut self, stats: &mut JunctionStats, queue_at: &mut Vec<(u32, u32)>) {
         for g in &self.gathered {
-            let (k0, l0) = (self.approaches.len() as u32, self.links.len() as u32);
+            let l0 = self.links.len() as u32;
             self.links.extend_from_slice(&g.links);
-            self.approaches.extend(g.approaches.iter().enumerate().map(|(i, a)| Approach {
-                links: (a.links.0 + l0, a.links.1 + l0),
-                head: k0 + i as u32,
-                ..*a
-            }));
+            self.approaches
+                .extend(g.approaches.iter().map(|a| Approach { links: (a.links.0 + l0, a.links.1 + l0), ..*a }));
             queue_at.extend(g.queued_at.iter().map(|&j| (j, 1)));
             for &(j, waited, red) in &g.entered {
                 stats.red_crossings += u64::from(red);
@@ -858,6 +841,21 @@ impl Scratch {
                 c.wait_max = c.wait_max.max(waited);
             }
         }
+    }
+}
+
+/// The first step of a counting sort of `keys` (each below `n`) into `first`: `first[key + 1]`
+/// is where key's items start once sorted, so that filling each item at `first[key + 1]` (then
+/// one on) leaves `first[key]..first[key + 1]` as key's range; the caller truncates `first` to
+/// `n + 1` after filling.
+fn bucket_starts(first: &mut Vec<u32>, n: usize, keys: impl Iterator<Item = u32>) {
+    first.clear();
+    first.resize(n + 2, 0);
+    for key in keys {
+        first[key as usize + 2] += 1;
+    }
+    for k in 2..first.len() {
+        first[k] += first[k - 1];
     }
 }
 
@@ -885,14 +883,13 @@ impl Gathered {
     fn register(&mut self, p: &Passage, a: Approach) {
         let start = self.links.len() as u32;
         self.links.extend_from_slice(&p.links);
-        let k = self.approaches.len() as u32;
+        // Its head is set once the approaches are grouped ([`Scratch::group_by_junction`]).
         self.approaches.push(Approach {
             junction: p.junction,
             links: (start, self.links.len() as u32),
             exit: p.exit_lanelet,
             entry: p.entry,
             entry_lanelet: p.entry_lanelet,
-            head: k,
             ..a
         });
     }

@@ -1270,6 +1270,22 @@ mod tests {
         assert_eq!(one.speed_error_rms, 0.0);
     }
 
+    /// The touching pairs (lower id first, sorted) a test of every pair of `metrics`' boxes
+    /// finds: what the near list must give.
+    fn touching_by_every_pair(metrics: &Metrics) -> Vec<(VehicleId, VehicleId)> {
+        let mut expected = Vec::new();
+        for (k, a) in metrics.boxes.iter().enumerate() {
+            for b in &metrics.boxes[k + 1..] {
+                let (a, b) = if a.id < b.id { (a, b) } else { (b, a) };
+                if !(a.fixed && b.fixed) && overlap(a, b) {
+                    expected.push((a.id, b.id));
+                }
+            }
+        }
+        expected.sort_unstable();
+        expected
+    }
+
     /// The near list finds exactly the overlapping pairs a test of every pair finds, step after
     /// step, while vehicles drift (slowly: the list lives for several steps; and in jumps that
     /// must remake it), one is removed and the others are reordered. On two threads split from
@@ -1306,16 +1322,7 @@ mod tests {
                 &|_, _| false,
             );
             remade += usize::from(metrics.near_at != before);
-            let mut expected = Vec::new();
-            for (k, a) in metrics.boxes.iter().enumerate() {
-                for b in &metrics.boxes[k + 1..] {
-                    let (a, b) = if a.id < b.id { (a, b) } else { (b, a) };
-                    if !(a.fixed && b.fixed) && overlap(a, b) {
-                        expected.push((a.id, b.id));
-                    }
-                }
-            }
-            expected.sort_unstable();
+            let expected = touching_by_every_pair(&metrics);
             assert_eq!(metrics.touching, expected, "step {step}");
             found += expected.len();
         }
@@ -1359,16 +1366,7 @@ mod tests {
                 &|_, _| false,
             );
             full += usize::from(metrics.near_at.iter().zip(&metrics.boxes).all(|(a, b)| a.1 == b.centre));
-            let mut expected = Vec::new();
-            for (k, a) in metrics.boxes.iter().enumerate() {
-                for b in &metrics.boxes[k + 1..] {
-                    let (a, b) = if a.id < b.id { (a, b) } else { (b, a) };
-                    if !(a.fixed && b.fixed) && overlap(a, b) {
-                        expected.push((a.id, b.id));
-                    }
-                }
-            }
-            expected.sort_unstable();
+            let expected = touching_by_every_pair(&metrics);
             assert_eq!(metrics.touching, expected, "step {step}");
             found += expected.len();
             // The follower statistics find each vehicle's box by its id.
