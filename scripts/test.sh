@@ -36,6 +36,21 @@ fi
 # and every test with one feature resolution (dev-dependencies on), so the second finds it all
 # built and only runs the tests.
 export PYO3_PYTHON="$PY"
+# In CI (CI=true) the test binaries are built without line tables: each of the ~40 test
+# binaries links the whole crate, and line tables made each ~150 MB (a cold target of 12 GB,
+# which once filled CI's disk); without them a binary is ~25 MB. A panic still names its
+# message and place. Outside CI the release profile is left as Cargo.toml sets it (line tables
+# for `perf` and backtraces), so a developer's build is not redone.
+if [ "${CI:-}" = "true" ] && [ -z "${CARGO_PROFILE_RELEASE_DEBUG:-}" ]; then
+  export CARGO_PROFILE_RELEASE_DEBUG=false
+fi
+# A cold build and its test binaries take several GB: say so before the linker fails halfway
+# with "No space left on device".
+need_kb=$((6 * 1024 * 1024))
+free_kb=$(df -Pk . | awk 'NR == 2 { print $4 }')
+if [ -n "$free_kb" ] && [ "$free_kb" -lt "$need_kb" ]; then
+  echo "scripts/test.sh: warning: $((free_kb / 1024)) MB free on $(df -P . | awk 'NR == 2 { print $6 }'); a cold build of the tests needs about 6 GB (remove old target/ folders)" >&2
+fi
 cargo build --release --workspace --lib --bins --tests
 # The extension the build made, where the package imports it from.
 so=target/release/lib_smlworld.so
