@@ -494,3 +494,64 @@ fn dense_ring_lane_changes_end_within_8_s_and_nobody_stands_across_lanes() {
         }
     }
 }
+
+/// A mandatory change begun in the last metres of the lane that ends has no way back: asked to
+/// abort there (a cooperative plugin's `abort`, or the target gap closing), it goes on with the
+/// change. Before, the abort put the vehicle back on its old lane's route, which ends under it:
+/// it stood there for good with its abort never done (an abort ends by distance), and never
+/// changed again (issue 54's 20x20 grid: a vehicle stood in a junction until the end, 115
+/// behind it). On the lane drop with a queue at the drop: the first change under way within 3 m
+/// of the old lane's end is asked to abort; within 20 s that vehicle has finished its change.
+#[test]
+fn a_mandatory_change_at_the_very_end_of_its_lane_is_not_aborted_back_onto_it() {
+    use smlworld::app::Session;
+    use smlworld::vehicles::{ChangeKind, LaneChanger, PathFollower};
+    use smlworld::world::{Route, VehicleId};
+    // Twice the rate the one lane takes: a queue stands at the drop, and its left-lane vehicles
+    // change in the last metres.
+    let rate = [("traffic.0.rate".to_string(), toml::Value::Float(3600.0))];
+    let mut s = Session::from_scenario(&root().join("scenarios/lane_drop.toml"), None, &rate).unwrap();
+    // A mandatory change under way, not halfway yet (where an abort is taken), less than 3 m
+    // before the end of the lane it leaves: shorter than any way back (3 m at the least).
+    let late = |m: &smlworld::vehicles::lane_state::Manoeuvre, route: &Route, s: f64| {
+        m.kind == ChangeKind::Mandatory
+            && !m.aborted
+            && !m.old_route.closed
+            && m.old_route.length - m.old_s < 3.0
+            && m.driven(&route.0, s) < 0.4 * m.profile.length
+    };
+    let mut found: Option<VehicleId> = None;
+    let hit = s
+        .step_until(120.0, |world| {
+            // None until the first lane changer is in the world.
+            let Some(mut q) = world.try_query::<(&VehicleId, &LaneChanger, &Route, &PathFollower)>() else {
+                return false;
+            };
+            found = q
+                .iter(world)
+                .find(|(_, ch, route, f)| ch.active.as_ref().is_some_and(|m| late(m, route, f.s)))
+                .map(|(id, ..)| *id);
+            found.is_some()
+        })
+        .unwrap();
+    assert!(hit, "no mandatory change under way within 3 m of the end of the left lane in 120 s");
+    let id = found.expect("the vehicle found");
+    let world = s.sim_mut().world_mut();
+    let mut q = world.query::<(&VehicleId, &mut LaneChanger)>();
+    for (v, mut ch) in q.iter_mut(world) {
+        if *v == id {
+            ch.abort = true;
+        }
+    }
+    s.step(20.0).unwrap();
+    let world = s.sim_mut().world_mut();
+    let mut q = world.query::<(&VehicleId, &LaneChanger, &smlworld::world::VehicleState)>();
+    if let Some((_, ch, state)) = q.iter(world).find(|(v, ..)| **v == id) {
+        let m = ch.active.as_ref().map(|m| (m.kind, m.aborted, m.old_route.length - m.old_s));
+        assert!(m.is_none(), "{id:?} is still changing 20 s later (kind, aborted, m left on the old route): {m:?}");
+        assert!(state.speed() > 0.5, "{id:?} stands at {:?}", state.position);
+    }
+    let changes = s.summary().metrics.unwrap().lane_changes.unwrap();
+    let mine: Vec<_> = changes.iter().filter(|c| c.id == id).collect();
+    assert!(mine.iter().any(|c| !c.aborted), "its change ended, not aborted: {mine:?}");
+}

@@ -793,6 +793,29 @@ impl Board<'_> {
 }
 
 impl Scratch {
+    /// Forget the last tick's exits (`n_exits` lanelets): the last vehicle on each and the
+    /// room promised on each, then its approaches. Room is promised on exits nobody stands on
+    /// too; such an exit kept its sum tick after tick when only exits with a vehicle were reset,
+    /// and the first slow vehicle to come onto it met that stale promise (every approach to it
+    /// was held back for a tick).
+    fn begin_tick(&mut self, n_exits: usize) {
+        if self.exit_rear.len() != n_exits {
+            self.exit_rear = vec![(f64::INFINITY, 0.0); n_exits];
+            self.reserved = (0..n_exits).map(|_| AtomicU64::new(0.0f64.to_bits())).collect();
+            self.exit_touched.clear();
+        }
+        for i in self.exit_touched.drain(..) {
+            self.exit_rear[i as usize] = (f64::INFINITY, 0.0);
+            *self.reserved[i as usize].get_mut() = 0.0f64.to_bits();
+        }
+        for a in &self.approaches {
+            if let Some(slot) = self.reserved.get_mut(a.exit as usize) {
+                *slot.get_mut() = 0.0f64.to_bits();
+            }
+        }
+        self.approaches.clear();
+    }
+
     /// Order the approaches by junction (keeping their order within each), so each junction's
     /// are one slice ([`Scratch::junction_first`]); each is its own head again.
     fn group_by_junction(&mut self, n_junctions: usize) {
@@ -940,18 +963,10 @@ pub fn give_way_at_junctions(
     let net = &*network;
     let sc = &mut *scratch;
     let n_links = net.links.len();
-    if sc.exit_rear.len() != net.is_exit.len() {
-        sc.exit_rear = vec![(f64::INFINITY, 0.0); net.is_exit.len()];
-        sc.reserved = (0..net.is_exit.len()).map(|_| AtomicU64::new(0.0f64.to_bits())).collect();
-    }
+    sc.begin_tick(net.is_exit.len());
     if stats.per_junction.len() != net.junctions.list.len() {
         stats.per_junction = vec![JunctionCounts::default(); net.junctions.list.len()];
     }
-    for i in sc.exit_touched.drain(..) {
-        sc.exit_rear[i as usize] = (f64::INFINITY, 0.0);
-        sc.reserved[i as usize] = AtomicU64::new(0.0f64.to_bits());
-    }
-    sc.approaches.clear();
     sc.links.clear();
     // Where the rear of the last vehicle on every exit lanelet is, and how fast it goes.
     for (pos, size, state) in &positions {
@@ -1526,6 +1541,52 @@ mod tests {
         // A value the scenario sets holds at any step.
         assert_eq!(sumo_turn_accel(3.0, false), 3.0);
         assert_eq!(sumo_turn_accel(3.0, true), 3.0);
+    }
+
+    #[test]
+    fn room_promised_on_an_exit_nobody_stands_on_is_forgotten_the_next_tick() {
+        let approach_to = |exit: u32| Approach {
+            entity: Entity::PLACEHOLDER,
+            id: VehicleId(1),
+            front: 0.0,
+            length: 4.5,
+            speed: 10.0,
+            v_max: 10.0,
+            inside: false,
+            going: true,
+            decides: true,
+            arrived_at: 0.0,
+            stopped: false,
+            junction: 0,
+            links: (0, 0),
+            exit,
+            entry: 0.0,
+            limit: f64::INFINITY,
+            entry_lanelet: 0,
+            queued: false,
+            trailing: false,
+            waiting_now: 0.0,
+            head: 0,
+            blocked: false,
+        };
+        let mut sc = Scratch::default();
+        sc.begin_tick(4);
+        // A vehicle stands on exit 1; two approaches went, to exit 1 and to exit 2 (empty), one
+        // ends in the junction; each promised 6.5 m.
+        sc.exit_touched.push(1);
+        sc.exit_rear[1] = (5.0, 0.0);
+        for exit in [1, 2, u32::MAX] {
+            sc.approaches.push(approach_to(exit));
+            if let Some(slot) = sc.reserved.get_mut(exit as usize) {
+                *slot.get_mut() = 6.5f64.to_bits();
+            }
+        }
+        sc.begin_tick(4);
+        for (i, slot) in sc.reserved.iter().enumerate() {
+            assert_eq!(f64::from_bits(slot.load(Ordering::Relaxed)), 0.0, "room still promised on exit {i}");
+        }
+        assert_eq!(sc.exit_rear[1], (f64::INFINITY, 0.0), "the last vehicle on exit 1 is forgotten");
+        assert!(sc.approaches.is_empty() && sc.exit_touched.is_empty());
     }
 
     #[test]
