@@ -275,6 +275,11 @@ pub struct Metrics {
     /// a cache miss, were half of this system's serial time.
     query_ids: Vec<VehicleId>,
     query_slots: Vec<u32>,
+    /// This step's ids of the follower query (the buffer kept between steps).
+    ids_now: Vec<VehicleId>,
+    /// Each follower's sample this step (leader, gap, speed, speed error), in the query's
+    /// order (the buffer kept between steps).
+    samples: Vec<Option<(VehicleId, f64, f64, f64)>>,
     platoons: BTreeMap<VehicleId, BTreeMap<VehicleId, MemberStats>>,
     contacts: BTreeSet<(VehicleId, VehicleId)>,
     touching: Vec<(VehicleId, VehicleId)>,
@@ -525,12 +530,53 @@ pub fn record_metrics(
     // the collision search's boxes (one table lookup, where the registry and the ECS were four
     // or five dependent cache misses a follower). Each follower's place in the query goes with
     // it, for the place of its statistics (kept while the query's vehicles stay the same).
-    let mut ids = Vec::with_capacity(m.query_ids.len());
-    let mut list: Vec<_> = Vec::new();
-    for (k, f) in followers.iter().enumerate() {
-        ids.push(*f.0);
-        if f.5.leader.is_some() {
-            list.push((k, f));
+    // Straight in the ECS tables' slices, a sample a row into a buffer kept between steps: a
+    // list of each follower's components made anew every step (64 bytes a follower, fresh
+    // pages each time) was half of this system's serial time in a town.
+    let mut samples = std::mem::take(&mut m.samples);
+    samples.clear();
+    let mut ids = std::mem::take(&mut m.ids_now);
+    ids.clear();
+    let (boxes, box_of) = (&m.boxes, &m.box_of);
+    let sample =
+        |state: &VehicleState, size: &VehicleSize, route: &Route, follower: &PathFollower, lon: &Longitudinal| {
+            lon.leader.and_then(|l| {
+                let leader = boxes.get(*box_of.get(&l.id)? as usize)?;
+                let (gap, v, error) = follower_gap(state, size, &route.0, follower.s, l.distance, leader)?;
+                Some((l.id, gap, v, error))
+            })
+        };
+    let contiguous = followers.contiguous_iter().is_ok();
+    if let Ok(tables) = followers.contiguous_iter() {
+        let mut scratch: Vec<()> = Vec::new();
+        for (tids, states, sizes, routes, fols, lons, _) in tables {
+            let start = samples.len();
+            ids.extend_from_slice(tids);
+            samples.resize(start + tids.len(), None);
+            parallelism.for_each_chunk_at(&mut samples[start..], &mut scratch, |from, chunk, _| {
+                for (k, out) in chunk.iter_mut().enumerate() {
+                    let n = from + k;
+                    // What a follower a few places on will read, each its own route (in a
+                    // town, far apart and out of cache): the route's fields two steps before
+                    // its points near the leader, which need them.
+                    if let Some(route) = routes.get(n + 2 * PREFETCH_AHEAD) {
+                        crate::world::prefetch_value(&*route.0);
+                    }
+                    let a = n + PREFETCH_AHEAD;
+                    if let (Some(route), Some(follower), Some(l)) =
+                        (routes.get(a), fols.get(a), lons.get(a).and_then(|lon| lon.leader))
+                    {
+                        crate::world::prefetch_all(route.0.points_near(follower.s + l.distance));
+                    }
+                    *out = sample(&states[n], &sizes[n], &routes[n], &fols[n], &lons[n]);
+                }
+            });
+        }
+    } else {
+        // Only if a component were stored sparsely (none is): one at a time.
+        for (&id, state, size, route, follower, lon, _) in &followers {
+            ids.push(id);
+            samples.push(sample(state, size, route, follower, lon));
         }
     }
     if ids != m.query_ids {
@@ -538,33 +584,9 @@ pub fn record_metrics(
         let slot_of = &m.follower_slot;
         m.query_slots.extend(ids.iter().map(|id| slot_of.get(id).copied().unwrap_or(u32::MAX)));
     }
-    m.query_ids = ids;
-    let mut samples: Vec<Option<(VehicleId, f64, f64, f64)>> = vec![None; list.len()];
-    let mut scratch: Vec<()> = Vec::new();
-    let (boxes, box_of) = (&m.boxes, &m.box_of);
-    parallelism.for_each_chunk_at(&mut samples, &mut scratch, |start, chunk, _| {
-        for (k, out) in chunk.iter_mut().enumerate() {
-            // What a follower a few places on will read, each its own route (in a town, far
-            // apart and out of cache): the route's fields two steps before its points near the
-            // leader, which need them.
-            if let Some((_, f)) = list.get(start + k + 2 * PREFETCH_AHEAD) {
-                crate::world::prefetch_value(&*f.3.0);
-            }
-            if let Some(&(_, (_, _, _, route, follower, lon, _))) = list.get(start + k + PREFETCH_AHEAD)
-                && let Some(l) = lon.leader
-            {
-                crate::world::prefetch_all(route.0.points_near(follower.s + l.distance));
-            }
-            let (_, (_, state, size, route, follower, lon, _)) = list[start + k];
-            *out = lon.leader.and_then(|l| {
-                let leader = boxes.get(*box_of.get(&l.id)? as usize)?;
-                let (gap, v, error) = follower_gap(state, size, &route.0, follower.s, l.distance, leader)?;
-                Some((l.id, gap, v, error))
-            });
-        }
-    });
-    for (&(k, (&id, .., member)), sample) in list.iter().zip(&samples) {
-        let Some((leader, gap, v, error)) = *sample else { continue };
+    m.ids_now = std::mem::replace(&mut m.query_ids, ids);
+    let mut add = |k: usize, id: VehicleId, member: Option<&PlatoonMember>| {
+        let Some((leader, gap, v, error)) = samples[k] else { return };
         let slot = match m.query_slots[k] {
             u32::MAX => {
                 let slot = m.followers.len() as u32;
@@ -580,7 +602,24 @@ pub fn record_metrics(
         if let Some(member) = member {
             stats.sample_platoon(member, clock.dt);
         }
+    };
+    match followers.contiguous_iter() {
+        Ok(tables) if contiguous => {
+            let mut k = 0;
+            for (tids, .., members) in tables {
+                for (n, &id) in tids.iter().enumerate() {
+                    add(k + n, id, members.map(|ms| &ms[n]));
+                }
+                k += tids.len();
+            }
+        }
+        _ => {
+            for (k, (&id, .., member)) in followers.iter().enumerate() {
+                add(k, id, member);
+            }
+        }
     }
+    m.samples = samples;
     for (&id, state, member) in &members {
         let Some(platoon) = member.platoon else { continue };
         let v = state.speed();
