@@ -24,7 +24,7 @@ use bevy_ecs::prelude::{Entity, Local, Query, Res, ResMut, Resource};
 use bevy_ecs::schedule::{IntoScheduleConfigs, SystemSet};
 use glam::DVec2;
 
-use crate::map::{LaneletId, Path, PathProjection, Place, RouteOptions};
+use crate::map::{LaneletId, Path, Place, RouteOptions};
 use crate::sim::{Control, Parallelism, Plugin, SimBuilder, SimClock, SimSystems};
 use crate::world::{Route, VehicleId, VehicleSize, VehicleState};
 
@@ -918,37 +918,33 @@ fn evaluate(
                     let (ahead, behind) = (index.ahead(lanes, j, s_j, me), index.behind(lanes, j, s_j, me));
                     target_gap_closed(&ch.law, p.safe_deceleration, v, size.length, ahead, behind)
                 });
-            let way_back = closed.then(|| {
+            if closed {
                 let back = m.old_route.project_near(state.position, m.old_s, 10.0);
                 let offset = back.lateral;
                 let profile =
                     LaneChangeProfile::for_speed(-offset, m.speed_cap, p.max_lateral_accel, min_change_length(offset));
-                (back, offset, profile)
-            });
-            // No way back where the old lane's route ends before the way back would: a
-            // mandatory change at the end of its lane, aborted there, stood on a route ending
-            // under it, its abort never done (it ends by distance), and never changed again
-            // (issue 54's 20x20 grid: a vehicle stood in the junction for good). It goes on
-            // with its change; the vehicles of the lane it enters see it in both lanes.
-            let room_back = |(back, _, profile): &(PathProjection, f64, LaneChangeProfile)| {
-                m.old_route.closed || back.s + profile.length <= m.old_route.length
-            };
-            if let Some((back, offset, profile)) = way_back.filter(room_back) {
-                let old = std::mem::replace(&mut route.0, Arc::clone(&m.old_route));
-                let aborted = Manoeuvre {
-                    profile,
-                    start_offset: offset,
-                    s_start: back.s,
-                    old_route: old,
-                    old_s: follower.s,
-                    aborted: true,
-                    ..m
-                };
-                let (params, max_offset) = (follower.params, follower.max_offset);
-                *follower = PathFollower::starting_at(params, back.s);
-                follower.max_offset = max_offset;
-                ch.active = Some(aborted);
-                return;
+                // No way back where the old lane's route ends before the way back would: a
+                // mandatory change at the end of its lane, aborted there, stood on a route
+                // ending under it, its abort never done (it ends by distance), and never changed
+                // again (issue 54's 20x20 grid: a vehicle stood in the junction for good). It
+                // goes on with its change; the vehicles of the lane it enters see it in both.
+                if m.old_route.closed || back.s + profile.length <= m.old_route.length {
+                    let old = std::mem::replace(&mut route.0, Arc::clone(&m.old_route));
+                    let aborted = Manoeuvre {
+                        profile,
+                        start_offset: offset,
+                        s_start: back.s,
+                        old_route: old,
+                        old_s: follower.s,
+                        aborted: true,
+                        ..m
+                    };
+                    let (params, max_offset) = (follower.params, follower.max_offset);
+                    *follower = PathFollower::starting_at(params, back.s);
+                    follower.max_offset = max_offset;
+                    ch.active = Some(aborted);
+                    return;
+                }
             }
         }
         ch.active = Some(m);

@@ -794,10 +794,10 @@ impl Board<'_> {
 
 impl Scratch {
     /// Forget the last tick's exits (`n_exits` lanelets): the last vehicle on each and the
-    /// room promised on each, then its approaches. Room is promised on exits nobody stands on
-    /// too; such an exit kept its sum tick after tick when only exits with a vehicle were reset,
-    /// and the first slow vehicle to come onto it met that stale promise (every approach to it
-    /// was held back for a tick).
+    /// room promised on each, then its approaches. Room is promised only by approaches, on
+    /// their exits, so those are the exits to reset, a vehicle on them or not (when only exits
+    /// with a vehicle were reset, an empty exit kept its sum tick after tick, and the first slow
+    /// vehicle to come onto it met that stale promise: every approach to it held back a tick).
     fn begin_tick(&mut self, n_exits: usize) {
         if self.exit_rear.len() != n_exits {
             self.exit_rear = vec![(f64::INFINITY, 0.0); n_exits];
@@ -806,7 +806,6 @@ impl Scratch {
         }
         for i in self.exit_touched.drain(..) {
             self.exit_rear[i as usize] = (f64::INFINITY, 0.0);
-            *self.reserved[i as usize].get_mut() = 0.0f64.to_bits();
         }
         for a in &self.approaches {
             if let Some(slot) = self.reserved.get_mut(a.exit as usize) {

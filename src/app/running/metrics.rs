@@ -546,7 +546,6 @@ pub fn record_metrics(
                 Some((l.id, gap, v, error))
             })
         };
-    let contiguous = followers.contiguous_iter().is_ok();
     if let Ok(tables) = followers.contiguous_iter() {
         let mut scratch: Vec<()> = Vec::new();
         for (tids, states, sizes, routes, fols, lons, _) in tables {
@@ -604,7 +603,7 @@ pub fn record_metrics(
         }
     };
     match followers.contiguous_iter() {
-        Ok(tables) if contiguous => {
+        Ok(tables) => {
             let mut k = 0;
             for (tids, .., members) in tables {
                 for (n, &id) in tids.iter().enumerate() {
@@ -613,7 +612,7 @@ pub fn record_metrics(
                 k += tids.len();
             }
         }
-        _ => {
+        Err(_) => {
             for (k, (&id, .., member)) in followers.iter().enumerate() {
                 add(k, id, member);
             }
