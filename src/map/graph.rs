@@ -3,6 +3,8 @@
 
 use glam::DVec2;
 
+use super::reach::Reach;
+
 /// Directed lanelets as a graph: state `2 * index + reversed`; reversed states exist only for
 /// `one_way=no` lanelets, and no state exists for lanelets a vehicle may not drive.
 #[derive(Debug, Clone, Default)]
@@ -19,6 +21,9 @@ pub(crate) struct RoutingGraph {
     pub(crate) lengths: Vec<f64>,
     /// Where every state's centre line ends in its driving direction (A*'s heuristic).
     pub(crate) ends: Vec<DVec2>,
+    /// Which states a route can join ([`Reach::may_reach`]): searches between states no path
+    /// joins are refused without searching.
+    pub(crate) reach: Reach,
 }
 
 /// Node id -> states (rising), as rising node ids and one flat list of states: a list per node in
@@ -142,7 +147,14 @@ impl RoutingGraph {
                     successors[2 * i] = next.iter().filter(|&&j| valid[2 * j]).map(|&j| (2 * j) as u32).collect();
                 }
             }
-            return RoutingGraph { successors, node_states, node_left_states, lengths, ends: state_ends };
+            return RoutingGraph {
+                successors,
+                node_states,
+                node_left_states,
+                lengths,
+                ends: state_ends,
+                reach: Reach::default(),
+            };
         }
         by_start.sort_unstable();
         for (state, ok) in valid.iter().enumerate() {
@@ -153,6 +165,6 @@ impl RoutingGraph {
                 successors[state] = next.map(|&(_, s)| s).collect();
             }
         }
-        RoutingGraph { successors, node_states, node_left_states, lengths, ends: state_ends }
+        RoutingGraph { successors, node_states, node_left_states, lengths, ends: state_ends, reach: Reach::default() }
     }
 }

@@ -23,6 +23,7 @@ pub mod osm;
 pub mod path;
 pub mod polyline;
 pub mod projection;
+mod reach;
 pub mod routing;
 pub mod sumo;
 

@@ -252,6 +252,11 @@ impl LaneletMap {
         check_options(opts)?;
         let starts = self.useful_ends(from, true)?;
         let finals = self.useful_ends(to, false)?;
+        let reach =
+            |s: &End| finals.iter().any(|f| self.graph.reach.may_reach(&self.graph.successors, s.state, f.state));
+        if !starts.iter().any(reach) {
+            return Err(MapError::NoRoute { from: from_name, to: to_name });
+        }
         // Best start per state: the one furthest along (least left to drive on it).
         let mut best_start: BTreeMap<u32, End> = BTreeMap::new();
         for s in &starts {
@@ -499,6 +504,10 @@ impl LaneletMap {
         let (first, last) = (state(from)?, state(to)?);
         let mut states = vec![first];
         if first != last {
+            let no_route = || MapError::NoRoute { from: format!("lanelet {from}"), to: format!("lanelet {to}") };
+            if !self.graph.reach.may_reach(&self.graph.successors, first, last) {
+                return Err(no_route());
+            }
             let successors = |step: &Step| -> Vec<(Step, u64)> {
                 match *step {
                     Step::Start => vec![(Step::Exit(first), mm(self.state_length(first)))],
@@ -523,7 +532,6 @@ impl LaneletMap {
                 Step::Exit(state) => Self::distance_bound(self.state_end(state), &target, shrink),
                 Step::Start | Step::Final(_) => 0,
             };
-            let no_route = || MapError::NoRoute { from: format!("lanelet {from}"), to: format!("lanelet {to}") };
             let (steps, _) = self.astar(1, successors, heuristic).ok_or_else(no_route)?;
             states = steps.iter().filter_map(|s| if let Step::Exit(x) = s { Some(*x) } else { None }).collect();
             states.push(last);
