@@ -276,8 +276,7 @@ impl LaneletMap {
             let from = finals_by_state.partition_point(|&(s, _)| s < state);
             finals_by_state[from..].iter().take_while(move |&&(s, _)| s == state).map(|&(_, k)| k)
         };
-        let successors = |step: &Step| -> Vec<(Step, u64)> {
-            let mut out = Vec::new();
+        let successors = |step: &Step, out: &mut Vec<(Step, u64)>| {
             match *step {
                 Step::Start => {
                     for s in best_start.values() {
@@ -303,11 +302,17 @@ impl LaneletMap {
                 }
                 Step::Final(_) => {}
             }
-            out
         };
         let is_final = |s: &Step| matches!(s, Step::Final(_));
         let found = match search {
-            RouteSearch::Dijkstra => pathfinding::directed::dijkstra::dijkstra(&Step::Start, successors, is_final),
+            RouteSearch::Dijkstra => {
+                let listed = |s: &Step| {
+                    let mut out = Vec::new();
+                    successors(s, &mut out);
+                    out
+                };
+                pathfinding::directed::dijkstra::dijkstra(&Step::Start, listed, is_final)
+            }
             RouteSearch::AStar => {
                 let targets: Vec<DVec2> = finals
                     .iter()
@@ -368,7 +373,35 @@ impl LaneletMap {
     fn astar(
         &self,
         finals: usize,
-        mut successors: impl FnMut(&Step) -> Vec<(Step, u64)>,
+        mut successors: impl FnMut(&Step, &mut Vec<(Step, u64)>),
+        heuristic: impl Fn(&Step) -> u64,
+    ) -> Option<(Vec<Step>, u64)> {
+        // The arrays of the last search on this thread, reset where it wrote: a fresh pair per
+        // search (16 bytes a state) was zeroed by the kernel on every random trip of a town.
+        thread_local! {
+            static SCRATCH: std::cell::RefCell<AstarScratch> = std::cell::RefCell::default();
+        }
+        let mut scratch = SCRATCH.with(|s| s.take());
+        let found = self.astar_in(&mut scratch, finals, &mut successors, heuristic);
+        let AstarScratch { best, parent, touched, open, next } = &mut scratch;
+        for &i in touched.iter() {
+            best[i] = u64::MAX;
+            parent[i] = usize::MAX;
+        }
+        touched.clear();
+        open.clear();
+        next.clear();
+        SCRATCH.with(|s| s.replace(scratch));
+        found
+    }
+
+    /// [`LaneletMap::astar`] over `scratch`, whose `best` and `parent` hold no step on entry
+    /// (`u64::MAX`, `usize::MAX`); the steps written are listed in `touched`.
+    fn astar_in(
+        &self,
+        scratch: &mut AstarScratch,
+        finals: usize,
+        successors: &mut impl FnMut(&Step, &mut Vec<(Step, u64)>),
         heuristic: impl Fn(&Step) -> u64,
     ) -> Option<(Vec<Step>, u64)> {
         use std::cmp::Reverse;
@@ -383,10 +416,14 @@ impl LaneletMap {
             i if i <= states => Step::Exit((i - 1) as u32),
             i => Step::Final((i - 1 - states) as u32),
         };
-        let mut best = vec![u64::MAX; 1 + states + finals];
-        let mut parent = vec![usize::MAX; best.len()];
-        let mut open = std::collections::BinaryHeap::new();
+        let AstarScratch { best, parent, touched, open, next } = scratch;
+        let len = 1 + states + finals;
+        if best.len() < len {
+            best.resize(len, u64::MAX);
+            parent.resize(len, usize::MAX);
+        }
         best[0] = 0;
+        touched.push(0);
         open.push((Reverse(heuristic(&Step::Start)), 0u64, Reverse(0usize)));
         while let Some((_, cost, Reverse(i))) = open.pop() {
             if cost > best[i] {
@@ -403,13 +440,18 @@ impl LaneletMap {
                 steps.reverse();
                 return Some((steps, cost));
             }
-            for (next, step_cost) in successors(&step) {
-                let j = index(&next);
+            next.clear();
+            successors(&step, next);
+            for &(to, step_cost) in next.iter() {
+                let j = index(&to);
                 let reached = cost + step_cost;
                 if reached < best[j] {
+                    if best[j] == u64::MAX {
+                        touched.push(j);
+                    }
                     best[j] = reached;
                     parent[j] = i;
-                    open.push((Reverse(reached + heuristic(&next)), reached, Reverse(j)));
+                    open.push((Reverse(reached + heuristic(&to)), reached, Reverse(j)));
                 }
             }
         }
@@ -508,21 +550,12 @@ impl LaneletMap {
             if !self.graph.reach.may_reach(&self.graph.successors, first, last) {
                 return Err(no_route());
             }
-            let successors = |step: &Step| -> Vec<(Step, u64)> {
-                match *step {
-                    Step::Start => vec![(Step::Exit(first), mm(self.state_length(first)))],
-                    Step::Exit(s) => self.graph.successors[s as usize]
-                        .iter()
-                        .map(|&next| {
-                            if next == last {
-                                (Step::Final(0), 0)
-                            } else {
-                                (Step::Exit(next), mm(self.state_length(next)))
-                            }
-                        })
-                        .collect(),
-                    Step::Final(_) => Vec::new(),
-                }
+            let successors = |step: &Step, out: &mut Vec<(Step, u64)>| match *step {
+                Step::Start => out.push((Step::Exit(first), mm(self.state_length(first)))),
+                Step::Exit(s) => out.extend(self.graph.successors[s as usize].iter().map(|&next| {
+                    if next == last { (Step::Final(0), 0) } else { (Step::Exit(next), mm(self.state_length(next))) }
+                })),
+                Step::Final(_) => {}
             };
             // The search ends on entering `to`, so the straight line runs to where `to` starts.
             let target = [self.lanelets[last as usize / 2].centre[0]];
@@ -578,4 +611,19 @@ fn check_options(opts: &RouteOptions) -> Result<(), MapError> {
             opts.points_per_meter
         )))
     }
+}
+
+/// What [`LaneletMap::astar`] keeps between searches on a thread.
+#[derive(Default)]
+struct AstarScratch {
+    /// Best cost so far by step index (`u64::MAX`: not reached).
+    best: Vec<u64>,
+    /// The step each was reached from (`usize::MAX`: none).
+    parent: Vec<usize>,
+    /// Steps whose `best` was written (to reset after the search).
+    touched: Vec<usize>,
+    /// Open steps: (Reverse(cost + bound), cost, Reverse(step index)).
+    open: std::collections::BinaryHeap<(std::cmp::Reverse<u64>, u64, std::cmp::Reverse<usize>)>,
+    /// The successors of the step being expanded.
+    next: Vec<(Step, u64)>,
 }
