@@ -66,7 +66,15 @@ pub struct LaneMap {
     stay: Vec<f64>,
     /// Per lanelet, the stretches of other lanelets that lie on its lane ([`LaneMap::overlaps`]).
     overlaps: Vec<Vec<Overlap>>,
+    /// Per lanelet, the other lanes a car standing at its start stands on
+    /// ([`LaneMap::crossing_start`]), found the first time a vehicle enters there (a grid
+    /// search per lanelet of a town at set-up was seconds, and few lanelets are entries).
+    crossing_start: Vec<std::sync::OnceLock<Box<[(u32, f64)]>>>,
 }
+
+/// Half the length \[m\] of the body [`LaneMap::crossing_start`] places at a lane's start: a
+/// car's (SUMO's default vehicle is 5 m long).
+pub const START_BODY_HALF: f64 = 2.5;
 
 /// Distance \[m\] between two centre lines from which cars on them pass each other (a car's
 /// width, 1.8 m, and a margin): where lanes that leave one lanelet are closer, a car on one is in
@@ -239,6 +247,59 @@ impl LaneMap {
             siblings,
             stay,
             overlaps,
+            crossing_start: (0..n).map(|_| std::sync::OnceLock::new()).collect(),
+        }
+    }
+
+    /// The lanes that pass over lanelet `i`'s start, where a car entering there stands (its
+    /// centre at the start, its body from [`START_BODY_HALF`] behind to as far ahead): `(k, s)`
+    /// for each such lanelet `k` other than `i`, those leading into it and those whose stretch on
+    /// it the lane index already counts ([`LaneMap::overlaps`]: lanes parting with it), with the arc length
+    /// on `k` \[m\] nearest to the body's rear, centre or front. A U-turn drawn wide round a
+    /// junction sweeps over the start of an exit on its far side: traffic inserted there must
+    /// wait for the U-turner to pass (issue 54's 20x20 grid: 14 of its 23 collisions).
+    pub fn crossing_start(&self, i: u32) -> &[(u32, f64)] {
+        self.crossing_start.get(i as usize).map_or(&[], |c| c.get_or_init(|| self.find_crossing_start(i).into()))
+    }
+
+    fn find_crossing_start(&self, i: u32) -> Vec<(u32, f64)> {
+        let mut out: Vec<(u32, f64)> = Vec::new();
+        if !self.map.lanelets[i as usize].routable {
+            return out;
+        }
+        let centre = &self.centres[i as usize];
+        let (start, heading) = centre.sample(0.0);
+        let before = &self.predecessors[i as usize];
+        let mut near = Vec::new();
+        for ds in [-START_BODY_HALF, 0.0, START_BODY_HALF] {
+            // The rear stands out behind the start (into the junction before it).
+            let p = if ds < 0.0 {
+                start + DVec2::from_angle(heading) * ds
+            } else {
+                centre.sample_point(ds.min(centre.length))
+            };
+            self.passing(p, &mut near);
+            for &(k, s_k) in &near {
+                if k != i && !before.contains(&k) && !self.overlaps(i).iter().any(|o| o.lanelet == k) {
+                    out.push((k, s_k));
+                }
+            }
+        }
+        out
+    }
+
+    /// The lanelets whose lane `p` lies on (within their half width), each with the arc length
+    /// nearest to `p` \[m\], into `out` (cleared first), from the grid.
+    pub fn passing(&self, p: DVec2, out: &mut Vec<(u32, f64)>) {
+        out.clear();
+        for &(j, s) in self.grid.get(&cell_of(p)).map(Vec::as_slice).unwrap_or(&[]) {
+            if out.iter().any(|&(k, _)| k == j) {
+                continue;
+            }
+            // The cell spans at most √2 · CELL of centre line from where it entered.
+            if let Some((s, _)) = self.on(j, p, s + CELL, 1.5 * CELL) {
+                out.push((j, s));
+            }
         }
     }
 
