@@ -462,6 +462,55 @@ fn a_vehicle_is_placed_on_the_lane_it_drives_onto_at_a_junction() {
     assert!(onto > 500 && diverged > 100, "{onto} successors, {diverged} diverging siblings checked");
 }
 
+/// A turnaround (drawn wide round the junction) conflicts with every link of its junction that
+/// its centre line comes within 2.2 m of (two cars 2 m wide would touch), unless they share a
+/// start or an end (one queue, or a merge): on a 3x3 netgenerate grid, the distances measured
+/// here between the centre lines, against the junctions' conflicts. Before, a turnaround met
+/// only the links it crossed: its loop swept into the right turn of the arm beside it, and on
+/// issue 54's 20x20 grid 8 of 12 collisions were that.
+#[test]
+fn a_turnaround_conflicts_with_every_link_it_passes_close_to() {
+    use smlworld::map::polyline::project_polyline;
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-near-{}.net.xml", std::process::id()));
+    netgenerate_grid(3, 200.0, &out);
+    let map = LaneletMap::load(&out).unwrap();
+    std::fs::remove_file(&out).ok();
+    let junctions = map.junctions();
+    let lanelet = |id: smlworld::map::LaneletId| &map.lanelets[map.lanelet_index(id).unwrap()];
+    let leads_into = |a: smlworld::map::LaneletId, b: smlworld::map::LaneletId| {
+        map.lanelets.iter().any(|l| l.successors.contains(&a) && l.successors.contains(&b))
+    };
+    let mut near = 0;
+    for j in &junctions.list {
+        let links = j.lanelets();
+        for &t in &links {
+            if lanelet(t).tags.get("sumo:shape").map(String::as_str) != Some("turnaround") {
+                continue;
+            }
+            for &o in &links {
+                let (lt, lo) = (lanelet(t), lanelet(o));
+                let shares_end = lt.successors.iter().any(|s| lo.successors.contains(s));
+                if o == t || leads_into(t, o) || shares_end {
+                    continue;
+                }
+                // Closest approach of the two centre lines, point by point both ways.
+                let gap = lt
+                    .centre
+                    .iter()
+                    .map(|p| project_polyline(&lo.centre, *p).1)
+                    .chain(lo.centre.iter().map(|p| project_polyline(&lt.centre, *p).1))
+                    .fold(f64::INFINITY, f64::min);
+                if gap < 2.0 {
+                    near += 1;
+                    let met = j.conflicts.iter().any(|c| (c.a, c.b) == (t, o) || (c.a, c.b) == (o, t));
+                    assert!(met, "turnaround {t:?} passes {gap:.2} m from {o:?} in junction {} with no conflict", j.id);
+                }
+            }
+        }
+    }
+    assert!(near > 10, "{near} links a turnaround passes close to");
+}
+
 /// SUMO's IDM follower behind an imposed leader (cruise at 15 m/s, brake at 2 m/s² to 5 m/s,
 /// accelerate back), recorded by `scripts/record_sumo_following.py` into
 /// `tests/data/sumo_following.csv` (SUMO 1.28, step 0.1 s, its default Euler update: speed

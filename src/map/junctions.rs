@@ -401,6 +401,10 @@ fn raw_conflicts(
     // First crossing (by arc length on the lower index) of every pair.
     let mut crossings: BTreeMap<(usize, usize), (RawConflict, bool, f64)> = BTreeMap::new();
     let mut every_crossing: BTreeMap<(usize, usize), Vec<RawConflict>> = BTreeMap::new();
+    // Closest approach of a turnaround and a link it passes near, neither sharing a start nor
+    // an end with it: a conflict where it never crosses that link. On issue 54's 20x20 grid, 8
+    // of its 12 collisions were U-turners sweeping into the right turn of the arm beside them.
+    let mut turn_near: BTreeMap<(usize, usize), (RawConflict, f64)> = BTreeMap::new();
     for segments in grid.values() {
         for (m, &(i, ki)) in segments.iter().enumerate() {
             for &(j, kj) in &segments[m + 1..] {
@@ -434,9 +438,25 @@ fn raw_conflicts(
                 }
                 let (t, u, crossed, dist) = match segment_crossing(p0, p1, q0, q1) {
                     Some((t, u)) => (t, u, true, 0.0),
-                    // Side by side from their common start is one queue, not a conflict; near
-                    // misses of a turnaround are not kept (it meets lanes where it crosses them).
-                    None if any_turn => continue,
+                    // Side by side from their common start is one queue, not a conflict.
+                    None if wide_turn => continue,
+                    // A turnaround meets the lanes it crosses where it crosses them; one it only
+                    // passes close to (its loop sweeping by another arm's right turn), where it
+                    // comes closest, unless it crosses it too (kept below).
+                    None if any_turn => {
+                        let (d, t, u) = segment_distance(p0, p1, q0, q1);
+                        if d < NEAR_MISS {
+                            let s_a = arcs[iu][ki as usize] + t * p0.distance(p1);
+                            let s_b = arcs[ju][kj as usize] + u * q0.distance(q1);
+                            let point = p0 + (p1 - p0) * t;
+                            let c = RawConflict { a: iu, b: ju, kind: ConflictKind::Crossing, s_a, s_b, point };
+                            let closest = turn_near.entry((iu, ju)).or_insert((c, d));
+                            if d < closest.1 {
+                                *closest = (c, d);
+                            }
+                        }
+                        continue;
+                    }
                     None => {
                         let (d, t, u) = segment_distance(p0, p1, q0, q1);
                         if d >= NEAR_MISS {
@@ -488,6 +508,9 @@ fn raw_conflicts(
         }
     }
     let mut out: Vec<RawConflict> = crossings.into_values().map(|(c, _, _)| c).collect();
+    for (pair, (c, _)) in turn_near {
+        every_crossing.entry(pair).or_insert_with(|| vec![c]);
+    }
     out.extend(every_crossing.into_values().flatten());
     // Merges: every pair of routable lanelets leading into the same one, met where their centre
     // lines come within MERGE_DISTANCE (else at their ends).
