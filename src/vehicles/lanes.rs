@@ -69,8 +69,11 @@ pub struct LaneMap {
     /// Per lanelet, the other lanes a car standing at its start stands on
     /// ([`LaneMap::crossing_start`]), found the first time a vehicle enters there (a grid
     /// search per lanelet of a town at set-up was seconds, and few lanelets are entries).
-    crossing_start: Vec<std::sync::OnceLock<Box<[(u32, f64)]>>>,
+    crossing_start: Vec<std::sync::OnceLock<LanesAt>>,
 }
+
+/// Lanelets with an arc length on each \[m\] ([`LaneMap::crossing_start`]).
+type LanesAt = Box<[(u32, f64)]>;
 
 /// Half the length \[m\] of the body [`LaneMap::crossing_start`] places at a lane's start: a
 /// car's (SUMO's default vehicle is 5 m long).
