@@ -95,55 +95,46 @@ impl Components {
 /// an explicit stack instead of recursion (a long chain of lanelets would overflow the thread's
 /// stack): (component of every state, number of components).
 fn strongly_connected(successors: &[Vec<u32>]) -> (Vec<u32>, usize) {
-    const UNSEEN: u32 = u32::MAX;
     let n = successors.len();
-    let mut index = vec![UNSEEN; n];
-    let mut low = vec![0u32; n];
-    let mut on_stack = vec![false; n];
+    let mut t = Tarjan {
+        index: vec![UNSEEN; n],
+        low: vec![0; n],
+        on_stack: vec![false; n],
+        stack: Vec::new(),
+        calls: Vec::new(),
+        next_index: 0,
+    };
     let mut of = vec![UNSEEN; n];
-    let mut stack: Vec<u32> = Vec::new();
-    // (state, how many of its successors were looked at)
-    let mut calls: Vec<(u32, usize)> = Vec::new();
-    let (mut next_index, mut count) = (0u32, 0u32);
+    let mut count = 0u32;
     for root in 0..n {
-        if index[root] != UNSEEN {
+        if t.index[root] != UNSEEN {
             continue;
         }
-        index[root] = next_index;
-        low[root] = next_index;
-        next_index += 1;
-        stack.push(root as u32);
-        on_stack[root] = true;
-        calls.push((root as u32, 0));
-        while let Some(&(v, k)) = calls.last() {
+        t.enter(root);
+        while let Some(&(v, k)) = t.calls.last() {
             let v = v as usize;
             if let Some(&w) = successors[v].get(k) {
-                if let Some(top) = calls.last_mut() {
+                if let Some(top) = t.calls.last_mut() {
                     top.1 += 1;
                 }
                 let w = w as usize;
                 if w >= n {
                     continue;
                 }
-                if index[w] == UNSEEN {
-                    index[w] = next_index;
-                    low[w] = next_index;
-                    next_index += 1;
-                    stack.push(w as u32);
-                    on_stack[w] = true;
-                    calls.push((w as u32, 0));
-                } else if on_stack[w] {
-                    low[v] = low[v].min(index[w]);
+                if t.index[w] == UNSEEN {
+                    t.enter(w);
+                } else if t.on_stack[w] {
+                    t.low[v] = t.low[v].min(t.index[w]);
                 }
                 continue;
             }
-            calls.pop();
-            if let Some(&(u, _)) = calls.last() {
-                low[u as usize] = low[u as usize].min(low[v]);
+            t.calls.pop();
+            if let Some(&(u, _)) = t.calls.last() {
+                t.low[u as usize] = t.low[u as usize].min(t.low[v]);
             }
-            if low[v] == index[v] {
-                while let Some(w) = stack.pop() {
-                    on_stack[w as usize] = false;
+            if t.low[v] == t.index[v] {
+                while let Some(w) = t.stack.pop() {
+                    t.on_stack[w as usize] = false;
                     of[w as usize] = count;
                     if w as usize == v {
                         break;
@@ -154,6 +145,35 @@ fn strongly_connected(successors: &[Vec<u32>]) -> (Vec<u32>, usize) {
         }
     }
     (of, count as usize)
+}
+
+/// A state not reached yet (in [`Tarjan::index`]) or in no component yet.
+const UNSEEN: u32 = u32::MAX;
+
+/// The walk of [`strongly_connected`].
+struct Tarjan {
+    /// Order in which each state was entered ([`UNSEEN`]: not yet).
+    index: Vec<u32>,
+    /// Lowest `index` reachable from each state through the walk and one edge back.
+    low: Vec<u32>,
+    /// Whether each state is on `stack`.
+    on_stack: Vec<bool>,
+    /// States entered whose component is not known yet.
+    stack: Vec<u32>,
+    /// The walk's path: (state, how many of its successors were looked at).
+    calls: Vec<(u32, usize)>,
+    next_index: u32,
+}
+
+impl Tarjan {
+    fn enter(&mut self, v: usize) {
+        self.index[v] = self.next_index;
+        self.low[v] = self.next_index;
+        self.next_index += 1;
+        self.stack.push(v as u32);
+        self.on_stack[v] = true;
+        self.calls.push((v as u32, 0));
+    }
 }
 
 #[cfg(test)]
