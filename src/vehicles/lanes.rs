@@ -256,11 +256,12 @@ impl LaneMap {
 
     /// The lanes that pass over lanelet `i`'s start, where a car entering there stands (its
     /// centre at the start, its body from [`START_BODY_HALF`] behind to as far ahead): `(k, s)`
-    /// for each such lanelet `k` other than `i`, those leading into it and those whose stretch on
-    /// it the lane index already counts ([`LaneMap::overlaps`]: lanes parting with it), with the arc length
-    /// on `k` \[m\] nearest to the body's rear, centre or front. A U-turn drawn wide round a
-    /// junction sweeps over the start of an exit on its far side: traffic inserted there must
-    /// wait for the U-turner to pass (issue 54's 20x20 grid: 14 of its 23 collisions).
+    /// for each such lanelet `k` other than `i`, those leading into it and those whose stretch
+    /// on it the lane index already counts ([`LaneMap::overlaps`]: lanes parting with it), with
+    /// the arc length on `k` \[m\] nearest to the body's rear, centre or front. A U-turn drawn
+    /// wide round a junction sweeps over the start of an exit on its far side: traffic inserted
+    /// there must wait for the U-turner to pass (issue 54's 20x20 grid: 14 of its 23
+    /// collisions).
     pub fn crossing_start(&self, i: u32) -> &[(u32, f64)] {
         self.crossing_start.get(i as usize).map_or(&[], |c| c.get_or_init(|| self.find_crossing_start(i).into()))
     }
@@ -293,7 +294,7 @@ impl LaneMap {
 
     /// The lanelets whose lane `p` lies on (within their half width), each with the arc length
     /// nearest to `p` \[m\], into `out` (cleared first), from the grid.
-    pub fn passing(&self, p: DVec2, out: &mut Vec<(u32, f64)>) {
+    fn passing(&self, p: DVec2, out: &mut Vec<(u32, f64)>) {
         out.clear();
         for &(j, s) in self.grid.get(&cell_of(p)).map(Vec::as_slice).unwrap_or(&[]) {
             if out.iter().any(|&(k, _)| k == j) {

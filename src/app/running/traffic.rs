@@ -815,7 +815,8 @@ fn entry_speed(world: &World, lane: &TrafficLane, v0: f64, length: f64, dt: f64)
     }
     // Lanes that pass over the start where the vehicle enters (a U-turn drawn wide round a
     // junction sweeps over an exit's start on its far side): nobody enters where one of their
-    // vehicles is passing or about to pass.
+    // vehicles is passing or about to pass. Only at a lane's start, where SUMO departures and
+    // random trips enter (an entry along a lane is away from junctions).
     if lane.entry_s == 0.0 {
         for &(k, s_k) in lanes.crossing_start(lane.lanelet) {
             let coming = index.on(k).iter().take_while(|e| e.s < s_k + 0.5 * e.length + MIN_GAP).any(|e| {
