@@ -87,6 +87,12 @@ pub(crate) struct GraphLanelet<'a> {
 }
 
 impl RoutingGraph {
+    /// Whether a route may lead from state `from` to state `to` ([`Reach::may_reach`]: `false`
+    /// only where none does).
+    pub(crate) fn may_reach(&self, from: u32, to: u32) -> bool {
+        self.reach.may_reach(&self.successors, from, to)
+    }
+
     pub(crate) fn new(lanelets: &[GraphLanelet<'_>]) -> RoutingGraph {
         RoutingGraph::build(lanelets, None)
     }

@@ -440,23 +440,6 @@ fn raw_conflicts(
                     Some((t, u)) => (t, u, true, 0.0),
                     // Side by side from their common start is one queue, not a conflict.
                     None if wide_turn => continue,
-                    // A turnaround meets the lanes it crosses where it crosses them; one it only
-                    // passes close to (its loop sweeping by another arm's right turn), where it
-                    // comes closest, unless it crosses it too (kept below).
-                    None if any_turn => {
-                        let (d, t, u) = segment_distance(p0, p1, q0, q1);
-                        if d < NEAR_MISS {
-                            let s_a = arcs[iu][ki as usize] + t * p0.distance(p1);
-                            let s_b = arcs[ju][kj as usize] + u * q0.distance(q1);
-                            let point = p0 + (p1 - p0) * t;
-                            let c = RawConflict { a: iu, b: ju, kind: ConflictKind::Crossing, s_a, s_b, point };
-                            let closest = turn_near.entry((iu, ju)).or_insert((c, d));
-                            if d < closest.1 {
-                                *closest = (c, d);
-                            }
-                        }
-                        continue;
-                    }
                     None => {
                         let (d, t, u) = segment_distance(p0, p1, q0, q1);
                         if d >= NEAR_MISS {
@@ -477,7 +460,16 @@ fn raw_conflicts(
                 let point = p0 + (p1 - p0) * t;
                 let c = RawConflict { a: iu, b: ju, kind: ConflictKind::Crossing, s_a, s_b, point };
                 // A turnaround drawn round the junction crosses some lanes twice (out and back):
-                // each crossing is a conflict of its own.
+                // each crossing is a conflict of its own. One it only passes close to (its loop
+                // sweeping by another arm's right turn) it meets where it comes closest, unless
+                // it crosses it too (kept below).
+                if any_turn && !crossed {
+                    let closest = turn_near.entry((iu, ju)).or_insert((c, dist));
+                    if dist < closest.1 {
+                        *closest = (c, dist);
+                    }
+                    continue;
+                }
                 if any_turn {
                     let pair = every_crossing.entry((iu, ju)).or_default();
                     // One per crossing (a segment in several grid cells is met in each).
@@ -509,7 +501,10 @@ fn raw_conflicts(
     }
     let mut out: Vec<RawConflict> = crossings.into_values().map(|(c, _, _)| c).collect();
     for (pair, (c, _)) in turn_near {
-        every_crossing.entry(pair).or_insert_with(|| vec![c]);
+        let met = every_crossing.entry(pair).or_default();
+        if met.is_empty() {
+            met.push(c);
+        }
     }
     out.extend(every_crossing.into_values().flatten());
     // Merges: every pair of routable lanelets leading into the same one, met where their centre

@@ -252,8 +252,7 @@ impl LaneletMap {
         check_options(opts)?;
         let starts = self.useful_ends(from, true)?;
         let finals = self.useful_ends(to, false)?;
-        let reach =
-            |s: &End| finals.iter().any(|f| self.graph.reach.may_reach(&self.graph.successors, s.state, f.state));
+        let reach = |s: &End| finals.iter().any(|f| self.graph.may_reach(s.state, f.state));
         if !starts.iter().any(reach) {
             return Err(MapError::NoRoute { from: from_name, to: to_name });
         }
@@ -547,7 +546,7 @@ impl LaneletMap {
         let mut states = vec![first];
         if first != last {
             let no_route = || MapError::NoRoute { from: format!("lanelet {from}"), to: format!("lanelet {to}") };
-            if !self.graph.reach.may_reach(&self.graph.successors, first, last) {
+            if !self.graph.may_reach(first, last) {
                 return Err(no_route());
             }
             let successors = |step: &Step, out: &mut Vec<(Step, u64)>| match *step {
