@@ -47,6 +47,10 @@ pub const LANE_SPACING: f64 = 3.5;
 /// No discretionary change starts below this speed [m/s]: the shortest manoeuvre (10 m) would
 /// take 5 s, so a change ends well within the 8 s the dense-ring test asserts (issue 61 §1).
 pub const MIN_CHANGE_SPEED: f64 = 2.0;
+/// Road \[m\] a mandatory change given up must leave its vehicle on the old lane after the way
+/// back: where its lane ends it stands about this far before the end (behind the lane-end stop of
+/// [`limit_for_lane_changes`]) and begins again from there.
+pub const ROOM_AFTER_ABORT: f64 = 5.0;
 /// Braking [m/s²] assumed of a leader when [`room_to_finish`] weighs the room ahead.
 pub const LEADER_BRAKING: f64 = 3.0;
 /// Bumper gap \[m\] kept to a standing leader when [`room_to_finish`] weighs the room ahead.
@@ -928,7 +932,12 @@ fn evaluate(
                 // ending under it, its abort never done (it ends by distance), and never changed
                 // again (issue 54's 20x20 grid: a vehicle stood in the junction for good). It
                 // goes on with its change; the vehicles of the lane it enters see it in both.
-                if m.old_route.closed || back.s + profile.length <= m.old_route.length {
+                // Nor where the way back leaves no room to stand and begin again: put back on a
+                // route ending a few metres on, with no lane end known while its abort lasted,
+                // it arrived there and left the world in the middle of the road (a lane drop's
+                // queue, a change asked to abort 4-5 m before the end).
+                let again = if m.kind == ChangeKind::Mandatory { ROOM_AFTER_ABORT } else { 0.0 };
+                if m.old_route.closed || back.s + profile.length + again <= m.old_route.length {
                     let old = std::mem::replace(&mut route.0, Arc::clone(&m.old_route));
                     let aborted = Manoeuvre {
                         profile,
