@@ -390,6 +390,15 @@ fn sumo_home() -> PathBuf {
     PathBuf::from(String::from_utf8_lossy(&home.stdout).trim())
 }
 
+/// [`netgenerate_grid`]'s `n` x `n` grid (200 m blocks) loaded as a map (its file removed).
+fn netgenerate_grid_map(n: usize, tag: &str) -> LaneletMap {
+    let out = std::env::temp_dir().join(format!("smlworld-sumo-{tag}-{}.net.xml", std::process::id()));
+    netgenerate_grid(n, 200.0, &out);
+    let map = LaneletMap::load(&out).unwrap();
+    std::fs::remove_file(&out).ok();
+    map
+}
+
 fn netgenerate_grid(n: usize, length: f64, out: &Path) {
     let home = sumo_home();
     let generated = Command::new(home.join("bin/netgenerate"))
@@ -422,10 +431,7 @@ fn a_netgenerate_grid_loads_with_its_counts() {
 #[test]
 fn a_vehicle_is_placed_on_the_lane_it_drives_onto_at_a_junction() {
     use smlworld::vehicles::LaneMap;
-    let out = std::env::temp_dir().join(format!("smlworld-sumo-locate-{}.net.xml", std::process::id()));
-    netgenerate_grid(5, 200.0, &out);
-    let map = LaneletMap::load(&out).unwrap();
-    std::fs::remove_file(&out).ok();
+    let map = netgenerate_grid_map(5, "locate");
     let lanes = LaneMap::new(std::sync::Arc::new(map));
     let (mut onto, mut diverged) = (0, 0);
     for i in 0..lanes.successors.len() as u32 {
@@ -471,10 +477,7 @@ fn a_vehicle_is_placed_on_the_lane_it_drives_onto_at_a_junction() {
 #[test]
 fn a_turnaround_conflicts_with_every_link_it_passes_close_to() {
     use smlworld::map::polyline::project_polyline;
-    let out = std::env::temp_dir().join(format!("smlworld-sumo-near-{}.net.xml", std::process::id()));
-    netgenerate_grid(3, 200.0, &out);
-    let map = LaneletMap::load(&out).unwrap();
-    std::fs::remove_file(&out).ok();
+    let map = netgenerate_grid_map(3, "near");
     let junctions = map.junctions();
     let lanelet = |id: smlworld::map::LaneletId| &map.lanelets[map.lanelet_index(id).unwrap()];
     let leads_into = |a: smlworld::map::LaneletId, b: smlworld::map::LaneletId| {
