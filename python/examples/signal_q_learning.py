@@ -14,8 +14,8 @@ is printed and plotted beside the fixed-time program's (``fixed_ts=True``), and 
 whether the mean of the last 10 episodes is lower than the fixed-time program's. With ``--sumo``
 (needs sumo-rl and SUMO; with ``libsumo`` installed it is used, ``LIBSUMO_AS_TRACI=1``) the same
 agent also learns on sumo-rl's own ``SumoEnvironment`` and its curve goes in the same figure.
-At the defaults ours takes about 12 minutes on one core (about 4,200 env-steps/s), sumo-rl's
-with libsumo about 45 (about 1,100). Not part of the tests.
+At the defaults ours took 12 minutes on one core (3,918 env-steps/s while learning), sumo-rl's
+with libsumo 45 (1,312; docs/signals.md). Not part of the tests.
 """
 
 import argparse
@@ -115,9 +115,10 @@ def run(make_env, episodes, label):
     env.close()
     print(f"{label}: {steps / (time.perf_counter() - t):,.0f} env-steps/s while learning")
     last = curve[-LAST:]
-    verdict = "lower than" if np.mean(last) < fixed else "not lower than"
+    mean_last = float(np.mean(last))
+    verdict = "lower than" if mean_last < fixed else "not lower than"
     print(
-        f"{label}: mean waiting time of the last {len(last)} episodes {np.mean(last):.1f} s, "
+        f"{label}: mean waiting time of the last {len(last)} episodes {mean_last:.1f} s, "
         f"{verdict} the fixed-time program's {fixed:.1f} s",
         flush=True,
     )
